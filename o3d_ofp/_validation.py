@@ -40,7 +40,9 @@ def as_vertices(vertices: Any, *, name: str = "vertices") -> np.ndarray:
     try:
         arr = np.array(vertices, copy=True)
     except Exception as exc:  # ragged lists, objects numpy cannot take
-        raise TypeError(f"{name} must be an (n, 3) array of floats; got {_describe(vertices)}") from exc
+        raise TypeError(
+            f"{name} must be an (n, 3) array of floats; got {_describe(vertices)}"
+        ) from exc
     if arr.dtype == bool or not (
         np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
     ):
@@ -76,7 +78,9 @@ def as_faces(faces: Any, n_vertices: int, *, name: str = "faces") -> np.ndarray:
         raise ValueError(f"{name} is empty: the mesh has no triangles")
     if np.issubdtype(arr.dtype, np.floating):
         if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
-            raise TypeError(f"{name} must hold integer vertex indices; got non-integral {arr.dtype}")
+            raise TypeError(
+                f"{name} must hold integer vertex indices; got non-integral {arr.dtype}"
+            )
     elif arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
         raise TypeError(f"{name} must hold integer vertex indices; got dtype {arr.dtype}")
     arr = arr.astype(np.int64)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
+import tempfile
 from types import ModuleType
 from typing import Any
 
@@ -24,17 +26,19 @@ __all__ = [
     "geometry_to_arrays",
     "is_open3d_geometry",
     "point_cloud_from_arrays",
+    "read_geometry",
     "require_open3d",
     "triangle_mesh_from_arrays",
     "vertex_colors",
+    "write_geometry",
 ]
 
 logger = logging.getLogger(__name__)
 
 OPEN3D_INSTALL_HINT = (
-    "pip install 'o3d_ofp[cpu]'   (CPU-only Open3D on Linux x86_64; or pip install 'o3d_ofp[open3d]' "
-    "for the full CUDA build). On a fresh Debian/Ubuntu also run: apt-get install -y "
-    "--no-install-recommends libgl1 libegl1 libusb-1.0-0"
+    "pip install 'o3d_ofp[cpu]'   (CPU-only Open3D on Linux x86_64; or "
+    "pip install 'o3d_ofp[open3d]' for the full CUDA build). On a fresh Debian/Ubuntu also "
+    "run: apt-get install -y --no-install-recommends libgl1 libegl1 libusb-1.0-0"
 )
 
 
@@ -160,7 +164,11 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
     """
     kind = _kind(geometry)
     if kind == "legacy_mesh":
-        colors = np.array(geometry.vertex_colors, dtype=np.float64) if geometry.has_vertex_colors() else None
+        colors = (
+            np.array(geometry.vertex_colors, dtype=np.float64)
+            if geometry.has_vertex_colors()
+            else None
+        )
     elif kind == "legacy_cloud":
         colors = np.array(geometry.colors, dtype=np.float64) if geometry.has_colors() else None
     else:
@@ -223,11 +231,17 @@ def triangle_mesh_from_arrays(
     o3d = require_open3d()
     v = as_vertices(vertices)
     f = as_faces(faces, v.shape[0])
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32)))
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32))
+    )
     if colors is not None:
-        mesh.vertex_colors = o3d.utility.Vector3dVector(_checked_colors(colors, v.shape[0], "colors"))
+        mesh.vertex_colors = o3d.utility.Vector3dVector(
+            _checked_colors(colors, v.shape[0], "colors")
+        )
     if normals is not None:
-        mesh.vertex_normals = o3d.utility.Vector3dVector(_checked_normals(normals, v.shape[0], "normals"))
+        mesh.vertex_normals = o3d.utility.Vector3dVector(
+            _checked_normals(normals, v.shape[0], "normals")
+        )
     else:
         mesh.compute_vertex_normals()
     return mesh
@@ -258,3 +272,73 @@ def point_cloud_from_arrays(points: Any, *, colors: Any = None, normals: Any = N
     if normals is not None:
         cloud.normals = o3d.utility.Vector3dVector(_checked_normals(normals, p.shape[0], "normals"))
     return cloud
+
+
+def read_geometry(path: str | os.PathLike[str]) -> Any:
+    """Read a triangle mesh (or, when the file holds no triangles, a point cloud) with Open3D.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Any format Open3D reads (PLY, OBJ, OFF, STL, GLB, ...).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        The geometry as stored (no vertex merging or other post-processing).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If Open3D cannot read it or it holds no points.
+    """
+    o3d = require_open3d()
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{path}: no such file")
+    mesh = o3d.io.read_triangle_mesh(path)
+    if len(mesh.vertices) and len(mesh.triangles):
+        return mesh
+    cloud = o3d.io.read_point_cloud(path)
+    if len(cloud.points):
+        return cloud
+    raise ValueError(f"{path}: Open3D could not read any vertices from this file")
+
+
+def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
+    """Write an Open3D mesh or point cloud atomically (temporary file, then rename).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; the extension picks the format.
+    geometry : open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        What to write.
+
+    Raises
+    ------
+    OSError
+        If Open3D fails to write; no partial file is left at ``path``.
+    """
+    o3d = require_open3d()
+    path = os.fspath(path)
+    folder, name = os.path.split(os.path.abspath(path))
+    stem, ext = os.path.splitext(name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=ext, dir=folder)
+    os.close(fd)
+    try:
+        if isinstance(geometry, o3d.geometry.TriangleMesh):
+            ok = o3d.io.write_triangle_mesh(tmp, geometry)
+        else:
+            ok = o3d.io.write_point_cloud(tmp, geometry)
+        if not ok:
+            raise OSError(f"{path}: Open3D failed to write the file")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)

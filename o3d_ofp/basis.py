@@ -118,7 +118,9 @@ class OFPBasis:
     def __post_init__(self) -> None:
         n, q = self.Q.shape
         if n != self.eig.n_vertices:
-            raise ValueError(f"Q has {n} rows but the eigenbasis has {self.eig.n_vertices} vertices")
+            raise ValueError(
+                f"Q has {n} rows but the eigenbasis has {self.eig.n_vertices} vertices"
+            )
         if self.R.shape != (q, n_eigenproducts(self.k, self.order)) or self.indices.shape != (q,):
             raise ValueError("R and indices do not match Q, k and order")
         for name in ("Q", "R", "indices"):
@@ -200,11 +202,20 @@ class OFPBasis:
         L = eig.stiffness
         payload = {
             "format_version": np.int64(_FORMAT_VERSION),
-            "Q": self.Q, "R": self.R, "indices": self.indices,
-            "k": np.int64(self.k), "order": np.int64(self.order), "tol": np.float64(self.tol),
-            "evals": eig.evals, "evecs": eig.evecs, "mass": eig.mass, "vertices": eig.vertices,
+            "Q": self.Q,
+            "R": self.R,
+            "indices": self.indices,
+            "k": np.int64(self.k),
+            "order": np.int64(self.order),
+            "tol": np.float64(self.tol),
+            "evals": eig.evals,
+            "evecs": eig.evecs,
+            "mass": eig.mass,
+            "vertices": eig.vertices,
             "faces": eig.faces if eig.faces is not None else np.zeros((0, 3), np.int64),
-            "L_data": L.data, "L_indices": L.indices, "L_indptr": L.indptr,
+            "L_data": L.data,
+            "L_indices": L.indices,
+            "L_indptr": L.indptr,
         }
         path = os.fspath(path)
         if not path.endswith(".npz"):
@@ -232,17 +243,30 @@ class OFPBasis:
             raise ValueError(f"cannot read basis file {os.fspath(path)!r}: {exc}") from exc
         with data:
             if "format_version" not in data or int(data["format_version"]) != _FORMAT_VERSION:
-                raise ValueError(f"{os.fspath(path)!r} is not an o3d_ofp basis file (version {_FORMAT_VERSION})")
+                raise ValueError(
+                    f"{os.fspath(path)!r} is not an o3d_ofp basis file (version {_FORMAT_VERSION})"
+                )
             n = data["mass"].shape[0]
             faces = data["faces"]
-            stiffness = sp.csr_matrix((data["L_data"], data["L_indices"], data["L_indptr"]), shape=(n, n))
+            stiffness = sp.csr_matrix(
+                (data["L_data"], data["L_indices"], data["L_indptr"]), shape=(n, n)
+            )
             eig = EigenBasis(
-                evals=data["evals"], evecs=data["evecs"], mass=data["mass"], stiffness=stiffness,
-                vertices=data["vertices"], faces=faces if faces.shape[0] else None,
+                evals=data["evals"],
+                evecs=data["evecs"],
+                mass=data["mass"],
+                stiffness=stiffness,
+                vertices=data["vertices"],
+                faces=faces if faces.shape[0] else None,
             )
             return cls(
-                Q=data["Q"], R=data["R"], indices=data["indices"], eig=eig,
-                k=int(data["k"]), order=int(data["order"]), tol=float(data["tol"]),
+                Q=data["Q"],
+                R=data["R"],
+                indices=data["indices"],
+                eig=eig,
+                k=int(data["k"]),
+                order=int(data["order"]),
+                tol=float(data["tol"]),
             )
 
 
@@ -290,7 +314,9 @@ def ofp_basis(
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3. doi:10.1111/cgf.142645
     """
     if not isinstance(eig, EigenBasis):
-        raise TypeError(f"eig must be an EigenBasis (from o3d_ofp.eigenbasis); got {type(eig).__name__}")
+        raise TypeError(
+            f"eig must be an EigenBasis (from o3d_ofp.eigenbasis); got {type(eig).__name__}"
+        )
     order = check_int(order, name="order", minimum=1)
     tol = resolve_tol(tol, preset)
     k = eig.k if k is None else check_int(k, name="k", minimum=1, maximum=eig.k)
@@ -305,5 +331,12 @@ def ofp_basis(
         block_size=block_size,
     )
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")
-    logger.info("ofp_basis (%s): k=%d order=%d kept %d of %d candidates", name, k, order, gs.Q.shape[1], total)
+    logger.info(
+        "ofp_basis (%s): k=%d order=%d kept %d of %d candidates",
+        name,
+        k,
+        order,
+        gs.Q.shape[1],
+        total,
+    )
     return OFPBasis(Q=gs.Q, R=gs.R, indices=gs.kept, eig=eig, k=k, order=order, tol=tol)

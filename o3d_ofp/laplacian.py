@@ -53,7 +53,7 @@ def laplacian(
     Raises
     ------
     ValueError
-        On malformed arrays or when a vertex gets no area (a vertex no triangle references).
+        On malformed arrays, vertices no face references, or vertices that get no area.
 
     References
     ----------
@@ -73,6 +73,12 @@ def laplacian(
         )
     else:
         f = as_faces(faces, n)
+        unreferenced = n - np.unique(f).shape[0]
+        if unreferenced:
+            raise ValueError(
+                f"{unreferenced} of {n} vertices are not referenced by any face; remove "
+                "unreferenced vertices before building a basis"
+            )
         L, M = robust_laplacian.mesh_laplacian(v, f, mollify_factor=float(mollify_factor))
     stiffness = sp.csr_matrix(L, dtype=np.float64)
     stiffness.sum_duplicates()
@@ -85,8 +91,8 @@ def laplacian(
     bad = int(np.count_nonzero(mass <= 0))
     if bad:
         raise ValueError(
-            f"{bad} of {n} vertices get no area (no triangle references them, or all their "
-            "triangles are degenerate); remove unreferenced vertices before building a basis"
+            f"{bad} of {n} vertices get no area (all their triangles are degenerate); remove "
+            "degenerate faces before building a basis"
         )
     logger.debug("Laplacian: %d vertices, %d non-zeros, area %.6g", n, stiffness.nnz, mass.sum())
     return stiffness, mass

@@ -30,7 +30,20 @@ __all__ = [
 
 
 def n_eigenproducts(k: int, order: int) -> int:
-    """Number of eigenproducts of order ``<= order`` of ``k`` eigenfunctions: ``C(k+order, order)``."""
+    """Count the eigenproducts of order ``<= order`` of ``k`` eigenfunctions, ``C(k+order, order)``.
+
+    Parameters
+    ----------
+    k : int
+        Number of non-constant eigenfunctions.
+    order : int
+        Maximum product order.
+
+    Returns
+    -------
+    int
+        The number of candidates, the constant included.
+    """
     return math.comb(k + order, order)
 
 

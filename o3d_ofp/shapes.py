@@ -31,14 +31,45 @@ def icosphere(subdivisions: int = 5, *, radius: float = 1.0) -> tuple[np.ndarray
     s = check_int(subdivisions, name="subdivisions", minimum=0, maximum=9)
     t = (1.0 + 5.0**0.5) / 2.0
     v = np.array(
-        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
+        [
+            [-1, t, 0],
+            [1, t, 0],
+            [-1, -t, 0],
+            [1, -t, 0],
+            [0, -1, t],
+            [0, 1, t],
+            [0, -1, -t],
+            [0, 1, -t],
+            [t, 0, -1],
+            [t, 0, 1],
+            [-t, 0, -1],
+            [-t, 0, 1],
+        ],
         dtype=np.float64,
     )
     f = np.array(
-        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-         [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-         [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
+        [
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ],
         dtype=np.int64,
     )
     v /= np.linalg.norm(v, axis=1, keepdims=True)
@@ -80,18 +111,24 @@ def torus(
     w = 2 * np.pi * np.arange(nv) / nv
     uu, ww = np.meshgrid(u, w, indexing="ij")
     ring = major_radius + minor_radius * np.cos(ww)
-    v = np.stack([ring * np.cos(uu), ring * np.sin(uu), minor_radius * np.sin(ww)], axis=-1).reshape(-1, 3)
+    v = np.stack(
+        [ring * np.cos(uu), ring * np.sin(uu), minor_radius * np.sin(ww)], axis=-1
+    ).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
     a = i * nv + j
     b = ((i + 1) % nu) * nv + j
     c = ((i + 1) % nu) * nv + (j + 1) % nv
     d = i * nv + (j + 1) % nv
-    f = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    f = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    )
     return v, f
 
 
-def blob(subdivisions: int = 5, *, seed: int = 0, amplitude: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-    """An irregular closed surface: an icosphere radially displaced by smooth random bumps.
+def blob(
+    subdivisions: int = 5, *, seed: int = 0, amplitude: float = 0.25
+) -> tuple[np.ndarray, np.ndarray]:
+    """Make an irregular closed surface: an icosphere radially displaced by smooth random bumps.
 
     It has no symmetry, so its Laplacian spectrum is simple (unlike the sphere's).
 

@@ -31,7 +31,8 @@ __all__ = ["EigenBasis", "EigenSolverError", "eigenbasis"]
 
 logger = logging.getLogger(__name__)
 
-#: Up to this many vertices the eigenproblem is solved densely (LAPACK); above, shift-invert Lanczos.
+#: Up to this many vertices the eigenproblem is solved densely (LAPACK); above, by shift-invert
+#: Lanczos.
 DENSE_MAX_VERTICES = 1500
 #: Largest relative residual ‖Lφ − λMφ‖_{M⁻¹} / λ_k accepted. A converged shift-invert Lanczos
 #: run gives 1e-10 or better; 1e-6 flags a wrong answer long before it is a visible one.
@@ -82,7 +83,8 @@ class EigenBasis:
         n = self.mass.shape[0]
         if self.evecs.shape != (n, self.evals.shape[0]):
             raise ValueError(
-                f"evecs must have shape (n, k+1) = ({n}, {self.evals.shape[0]}); got {self.evecs.shape}"
+                f"evecs must have shape (n, k+1) = ({n}, {self.evals.shape[0]}); "
+                f"got {self.evecs.shape}"
             )
         if self.stiffness.shape != (n, n) or self.vertices.shape != (n, 3):
             raise ValueError("stiffness and vertices must match the number of vertices of mass")
@@ -126,7 +128,9 @@ class EigenBasis:
         return self.evecs @ c
 
 
-def _dense_eigs(stiffness: sp.csr_matrix, mass: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _dense_eigs(
+    stiffness: sp.csr_matrix, mass: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
     A = stiffness.toarray()
     evals, evecs = scipy.linalg.eigh(A, np.diag(mass), subset_by_index=[0, k])
     return evals, evecs
@@ -147,7 +151,10 @@ def _shift_invert_eigs(
         # Symmetric mode with a minimum-degree ordering of AᵀA+A: half the fill and factor time
         # of SuperLU's default COLAMD ordering on Laplacians.
         lu = sla.splu(
-            shifted, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+            shifted,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
         )
     except RuntimeError as exc:
         raise EigenSolverError(
@@ -158,7 +165,15 @@ def _shift_invert_eigs(
     v0 = np.random.default_rng(0).standard_normal(n)  # fixed start: reproducible runs
     try:
         evals, evecs = sla.eigsh(
-            stiffness, k=k + 1, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, maxiter=maxiter, tol=0.0
+            stiffness,
+            k=k + 1,
+            M=M,
+            sigma=sigma,
+            which="LM",
+            OPinv=op,
+            v0=v0,
+            maxiter=maxiter,
+            tol=0.0,
         )
     except sla.ArpackNoConvergence as exc:
         raise EigenSolverError(
@@ -174,7 +189,7 @@ def _shift_invert_eigs(
 def _rayleigh_ritz(
     stiffness: sp.csr_matrix, mass: np.ndarray, evecs: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Re-solve the small problem in span(evecs): exactly M-orthonormal vectors, best eigenvalues."""
+    """Re-solve the problem in span(evecs): exactly M-orthonormal vectors, best eigenvalues."""
     Lr = evecs.T @ (stiffness @ evecs)
     Mr = evecs.T @ (mass[:, None] * evecs)
     Lr = 0.5 * (Lr + Lr.T)
@@ -261,7 +276,9 @@ def eigenbasis(
         vertices, faces = geometry_to_arrays(mesh_or_vertices)
     else:
         vertices = mesh_or_vertices
-    stiffness, mass = laplacian(vertices, faces, mollify_factor=mollify_factor, n_neighbors=n_neighbors)
+    stiffness, mass = laplacian(
+        vertices, faces, mollify_factor=mollify_factor, n_neighbors=n_neighbors
+    )
     from ._validation import as_faces, as_vertices
 
     vertices = as_vertices(vertices)
@@ -316,7 +333,11 @@ def eigenbasis(
         )
     logger.info(
         "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
-        n, k, method, evals[-1], res.max(),
+        n,
+        k,
+        method,
+        evals[-1],
+        res.max(),
     )
     return EigenBasis(
         evals=np.ascontiguousarray(evals),

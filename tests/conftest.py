@@ -1,0 +1,56 @@
+"""Shared fixtures: procedural shapes, and real meshes from ../shared/data when present."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import o3d_ofp as ofp
+from o3d_ofp.shapes import blob, icosphere
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def shared_path(relative: str) -> Path:
+    """Path of a file in ../shared/data, or skip the test with the reason."""
+    path = DATA / relative
+    if not path.exists():
+        pytest.skip(f"research data not available: {path} (tests read ../shared/data, absent here)")
+    return path
+
+
+def load_shared_mesh(relative: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a mesh in ../shared/data, read with Open3D."""
+    path = shared_path(relative)
+    o3d = pytest.importorskip("open3d", reason="Open3D is needed to read the shared meshes")
+    from o3d_ofp.adapters import geometry_to_arrays
+
+    vertices, faces = geometry_to_arrays(o3d.io.read_triangle_mesh(str(path)))
+    return vertices, faces
+
+
+@pytest.fixture(scope="session")
+def sphere_mesh():
+    return icosphere(5)  # 10242 vertices
+
+
+@pytest.fixture(scope="session")
+def sphere_eig(sphere_mesh):
+    return ofp.eigenbasis(*sphere_mesh, k=24)
+
+
+@pytest.fixture(scope="session")
+def blob_mesh():
+    return blob(4)  # 2562 vertices, no symmetry
+
+
+@pytest.fixture(scope="session")
+def faust_mesh():
+    return load_shared_mesh("faust/tr_reg_093.ply")
+
+
+@pytest.fixture(scope="session")
+def faust_eig(faust_mesh):
+    return ofp.eigenbasis(*faust_mesh, k=29)

@@ -1,0 +1,104 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import o3d_ofp as ofp
+from o3d_ofp import adapters
+from o3d_ofp.shapes import icosphere
+
+o3d = pytest.importorskip("open3d", reason="adapter tests need Open3D (pip install 'o3d_ofp[cpu]')")
+
+
+@pytest.fixture
+def legacy_mesh():
+    V, F = icosphere(2)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.full((len(V), 3), 0.25))
+    return mesh
+
+
+def test_import_does_not_import_open3d():
+    code = "import sys, o3d_ofp; assert 'open3d' not in sys.modules, 'open3d imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_missing_open3d_gives_install_hint(monkeypatch):
+    monkeypatch.setitem(sys.modules, "open3d", None)  # makes `import open3d` raise ImportError
+    with pytest.raises(ImportError, match=r"pip install 'o3d_ofp\[cpu\]'"):
+        adapters.triangle_mesh_from_arrays(*icosphere(1))
+
+
+def test_legacy_mesh_to_arrays_is_a_copy(legacy_mesh):
+    before = np.asarray(legacy_mesh.vertices).copy()
+    V, F = adapters.geometry_to_arrays(legacy_mesh)
+    assert V.dtype == np.float64 and F.dtype == np.int64 and F.shape == (320, 3)
+    V[:] = 0.0
+    F[:] = 0
+    np.testing.assert_array_equal(np.asarray(legacy_mesh.vertices), before)
+    colors = adapters.vertex_colors(legacy_mesh)
+    colors[:] = 1.0
+    np.testing.assert_array_equal(np.asarray(legacy_mesh.vertex_colors), 0.25)
+
+
+def test_tensor_and_point_cloud_inputs(legacy_mesh):
+    V, F = adapters.geometry_to_arrays(legacy_mesh)
+    tmesh = o3d.t.geometry.TriangleMesh.from_legacy(legacy_mesh)
+    V2, F2 = adapters.geometry_to_arrays(tmesh)
+    assert V2.dtype == np.float64
+    np.testing.assert_allclose(V2, V, atol=1e-7)  # from_legacy stores float32 by default
+    np.testing.assert_array_equal(F2, F)
+    np.testing.assert_allclose(adapters.vertex_colors(tmesh), 0.25, atol=1e-6)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V))
+    P, none = adapters.geometry_to_arrays(cloud)
+    assert none is None and np.array_equal(P, V)
+    assert adapters.vertex_colors(cloud) is None
+    tcloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(V))
+    tcloud.point.colors = o3d.core.Tensor(np.full((len(V), 3), 255, np.uint8))
+    P2, none = adapters.geometry_to_arrays(tcloud)
+    assert none is None and np.array_equal(P2, V)
+    np.testing.assert_allclose(adapters.vertex_colors(tcloud), 1.0)
+
+
+def test_eigenbasis_accepts_open3d_geometries(legacy_mesh):
+    V, F = adapters.geometry_to_arrays(legacy_mesh)
+    ref = ofp.eigenbasis(V, F, k=5)
+    for geom in (legacy_mesh, o3d.t.geometry.TriangleMesh.from_legacy(legacy_mesh)):
+        eig = ofp.eigenbasis(geom, k=5)
+        # the tensor mesh holds float32 positions: eigenvalues agree to ~1e-8 relative
+        np.testing.assert_allclose(eig.evals, ref.evals, rtol=1e-6)
+    with pytest.raises(ValueError, match="faces must be None"):
+        ofp.eigenbasis(legacy_mesh, F, k=5)
+    np.testing.assert_array_equal(np.asarray(legacy_mesh.vertices), V)
+
+
+def test_arrays_to_geometries_validate_and_clip():
+    V, F = icosphere(1)
+    colors = np.linspace(-1, 2, len(V) * 3).reshape(-1, 3)
+    mesh = adapters.triangle_mesh_from_arrays(V, F, colors=colors)
+    got = np.asarray(mesh.vertex_colors)
+    assert got.min() == 0.0 and got.max() == 1.0
+    assert mesh.has_vertex_normals()
+    V[0] = 9.0  # the mesh owns its memory
+    assert np.asarray(mesh.vertices)[0, 0] != 9.0
+    with pytest.raises(ValueError, match="faces index out of range"):
+        adapters.triangle_mesh_from_arrays(V, np.array([[0, 1, len(V)]]))
+    with pytest.raises(ValueError, match="colors has 3 values but the shape has 42"):
+        adapters.triangle_mesh_from_arrays(V, F, colors=np.ones((3, 3)))
+    with pytest.raises(ValueError, match=r"colors must have shape \(n, 3\)"):
+        adapters.triangle_mesh_from_arrays(V, F, colors=np.ones(len(V)))
+    cloud = adapters.point_cloud_from_arrays(V, colors=np.ones((len(V), 3)), normals=V)
+    assert cloud.has_colors() and cloud.has_normals()
+    with pytest.raises(ValueError, match="points holds NaN"):
+        adapters.point_cloud_from_arrays(np.full((3, 3), np.nan))
+
+
+def test_bad_geometries():
+    with pytest.raises(TypeError, match="geometry must be an Open3D TriangleMesh or PointCloud"):
+        adapters.geometry_to_arrays(o3d.geometry.LineSet())
+    with pytest.raises(ValueError, match="geometry vertices is empty"):
+        adapters.geometry_to_arrays(o3d.geometry.TriangleMesh())
+    with pytest.raises(ValueError, match="geometry vertices is empty"):
+        ofp.eigenbasis(o3d.geometry.PointCloud(), k=3)
+    assert not adapters.is_open3d_geometry(np.zeros(3))
