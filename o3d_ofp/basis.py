@@ -277,7 +277,7 @@ def ofp_basis(
     tol: float | None = None,
     preset: str | None = None,
     k: int | None = None,
-    block_size: int = 64,
+    block_size: int = 128,
 ) -> OFPBasis:
     """Build the orthonormal eigenproduct basis of a shape.
 
@@ -294,7 +294,7 @@ def ofp_basis(
         functions, for reconstruction and filtering). Do not combine with a different ``tol``.
     k : int, optional
         Multiply only the first ``k`` non-constant eigenfunctions (default: all of ``eig``).
-    block_size : int, default 64
+    block_size : int, default 128
         Columns per BLAS-3 step of the orthogonalization (does not change the result).
 
     Returns
@@ -324,7 +324,7 @@ def ofp_basis(
         eig = eig.truncate(k)
     total = n_eigenproducts(k, order)
     gs = gram_schmidt_blocks(
-        eigenproduct_blocks(eig.evecs, order, block_size=max(block_size, 64)),
+        eigenproduct_blocks(eig.evecs, order, block_size=block_size),
         eig.mass,
         total,
         tol=tol,

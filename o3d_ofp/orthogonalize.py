@@ -22,6 +22,8 @@ from collections.abc import Iterable, Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
+import scipy.linalg
+from scipy.linalg.blas import dgemm, dnrm2, dtrsm
 
 from ._validation import as_signal, check_int, check_tol
 
@@ -36,6 +38,11 @@ PRESETS: dict[str, float] = {"ours": 1e-2, "ours*": 1e-9}
 #: norm before it gets one more sweep against the older basis (round-off left along it is
 #: ~ε·norm, so its relative size stays below ~1e3·ε).
 _DEEP_CANCELLATION = 1e-3
+
+#: Thresholds at least this large use the Gram-matrix selection inside a block (exact there:
+#: see `_select_by_gram`); smaller ones the recursive projections, which resolve residuals down
+#: to round-off.
+_GRAM_MIN_TOL = 1e-4
 
 
 def resolve_tol(tol: Any = None, preset: Any = None) -> float:
@@ -88,47 +95,87 @@ class GramSchmidt(NamedTuple):
 
 
 class _GrowingColumns:
-    """A Fortran-ordered (n, capacity) buffer whose leading columns are in use."""
+    """A growing set of columns stored Fortran-ordered, without copies when it grows or shrinks.
+
+    The storage is a C-ordered (capacity, n) array whose transpose is the (n, capacity)
+    Fortran-ordered matrix; ``ndarray.resize`` reallocates it in place (on Linux, large
+    blocks are remapped rather than copied). No view of the storage may be held across a
+    call to :meth:`extend` or :meth:`finish`.
+    """
 
     def __init__(self, n: int, capacity: int) -> None:
-        self.data = np.empty((n, max(capacity, 1)), order="F")
+        self._rows = np.empty((max(capacity, 1), n))
         self.size = 0
 
     @property
     def view(self) -> np.ndarray:
-        return self.data[:, : self.size]
+        return self._rows[: self.size].T
 
     def extend(self, cols: np.ndarray, limit: int) -> None:
         need = self.size + cols.shape[1]
-        if need > self.data.shape[1]:
-            grown = np.empty(
-                (self.data.shape[0], min(max(need, 2 * self.data.shape[1]), limit)), order="F"
+        capacity = self._rows.shape[0]
+        if need > capacity:
+            self._rows.resize(
+                (min(max(need, 2 * capacity), limit), self._rows.shape[1]), refcheck=False
             )
-            grown[:, : self.size] = self.view
-            self.data = grown
-        self.data[:, self.size : need] = cols
+        self._rows[self.size : need] = cols.T
         self.size = need
 
+    def finish(self) -> np.ndarray:
+        """Trim the storage to the columns in use and return them as an (n, size) matrix."""
+        self._rows.resize((self.size, self._rows.shape[1]), refcheck=False)
+        return self._rows.T
 
-def _project_out(Q: np.ndarray, W: np.ndarray, max_passes: int = 3) -> np.ndarray:
-    """Remove from W (in place) its components along orthonormal Q; return the column norms."""
-    norms = np.linalg.norm(W, axis=0)
+
+def _inner(Q: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Qᵀ W through BLAS (faster than ``Q.T @ W`` on Fortran-ordered operands)."""
+    return dgemm(1.0, Q, W, trans_a=True)
+
+
+def _subtract_product(W: np.ndarray, Q: np.ndarray, C: np.ndarray) -> None:
+    """W -= Q C in place, without the (n, b) temporary of ``W -= Q @ C``."""
+    out = dgemm(-1.0, Q, C, 1.0, W, overwrite_c=True)
+    if not np.shares_memory(out, W):  # W was not Fortran-contiguous: BLAS worked on a copy
+        W[...] = out
+
+
+def _column_norms(W: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the columns (BLAS nrm2: scaled, no overflow)."""
+    return np.array([dnrm2(W[:, j]) for j in range(W.shape[1])])
+
+
+def _project_out(Q: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Remove from W (in place) its components along orthonormal Q.
+
+    Two BLAS-3 passes of classical Gram-Schmidt; a third, on the columns where the second
+    still removed more than half of the norm (Kahan / Parlett: the previous pass was not yet
+    accurate there).
+
+    Returns
+    -------
+    norms : (b,) ndarray
+        Column norms of W afterwards.
+    coefficients : (q, b) ndarray
+        Accumulated coefficients: on entry, W = Q @ coefficients + W_after.
+    """
     if Q.shape[1] == 0:
-        return norms
-    active = np.arange(W.shape[1])
-    for passno in range(max_passes):
-        sub = W[:, active]
-        sub -= Q @ (Q.T @ sub)
-        W[:, active] = sub
-        new = np.linalg.norm(sub, axis=0)
-        # After the mandatory second pass, repeat only where that pass still removed more than
-        # half of the norm (Kahan / Parlett): there the previous pass was not yet accurate.
-        again = new < 0.5 * norms[active] if passno >= 1 else np.ones(active.shape, bool)
-        norms[active] = new
-        active = active[again]
-        if active.size == 0:
-            break
-    return norms
+        return _column_norms(W), np.zeros((0, W.shape[1]))
+    coefficients = _inner(Q, W)
+    _subtract_product(W, Q, coefficients)
+    before = _column_norms(W)
+    c2 = _inner(Q, W)
+    _subtract_product(W, Q, c2)
+    coefficients += c2
+    norms = _column_norms(W)
+    again = np.flatnonzero(norms < 0.5 * before)
+    if again.size:
+        sub = np.asfortranarray(W[:, again])
+        c3 = _inner(Q, sub)
+        _subtract_product(sub, Q, c3)
+        W[:, again] = sub
+        coefficients[:, again] += c3
+        norms[again] = _column_norms(sub)
+    return norms, coefficients
 
 
 def _project_vector(Q: np.ndarray, w: np.ndarray) -> float:
@@ -146,13 +193,118 @@ def _project_vector(Q: np.ndarray, w: np.ndarray) -> float:
     return norm
 
 
+def _select_in_block(
+    W: np.ndarray,
+    out: np.ndarray,
+    norm0: np.ndarray,
+    n1: np.ndarray,
+    older: np.ndarray,
+    tol: float,
+    start: int,
+    kept: list[int],
+) -> int:
+    """Column-by-column selection inside one block, with BLAS-3 projections.
+
+    W's columns are already orthogonal to ``older``. The block is halved recursively: the
+    left half is processed, the right half is projected (twice) on the functions the left
+    half kept, then processed. Every column thus meets all functions kept before it before
+    its drop test, as in the column loop, but the work is matrix-matrix products instead of
+    one matrix-vector product per pair of columns. Kept functions, normalized, go to ``out``;
+    their global indices are appended to ``kept``. Returns how many were kept.
+    """
+    count = 0
+
+    def visit(lo: int, hi: int) -> None:
+        nonlocal count
+        if hi - lo == 1:
+            w = W[:, lo]
+            res = float(dnrm2(w))
+            if norm0[lo] == 0.0 or res < tol * norm0[lo]:
+                return
+            if count and res < _DEEP_CANCELLATION * n1[lo]:
+                # In-block projections removed almost all of w: the round-off they left along
+                # the older basis (~ε·n1) is no longer negligible next to the residual. Rare.
+                w -= older @ (older.T @ w)
+                res = _project_vector(out[:, :count], w)
+                if res < tol * norm0[lo]:
+                    return
+            out[:, count] = w / res
+            kept.append(start + lo)
+            count += 1
+            return
+        mid = (lo + hi) // 2
+        before = count
+        visit(lo, mid)
+        if count > before:
+            _project_out(out[:, before:count], W[:, mid:hi])
+        visit(mid, hi)
+
+    visit(0, W.shape[1])
+    return count
+
+
+def _select_by_gram(
+    W: np.ndarray,
+    out: np.ndarray,
+    norm0: np.ndarray,
+    tol: float,
+    start: int,
+    kept: list[int],
+) -> int:
+    """Select as :func:`_select_in_block` does, but from the Gram matrix WᵀW.
+
+    The residual of column j against the columns kept before it in the block is the Schur
+    complement ``G_jj − ‖L⁻¹ G_Kj‖²`` of a Cholesky factorization that skips dropped columns.
+    Its absolute error is ~b·ε·‖w_j‖², so the relative error of a residual at the threshold is
+    ~b·ε / (2 tol²): 1e-11 at tol = 1e-2, which is why this path is used only for
+    ``tol >= _GRAM_MIN_TOL``. The kept vectors are then formed by Cholesky-QR applied twice
+    (orthonormal to round-off: the kept columns have condition number below ~1/tol).
+    Returns how many were kept.
+    """
+    G = _inner(W, W)
+    b = W.shape[1]
+    chol = np.zeros((b, b))  # lower-triangular factor of the kept columns' Gram matrix
+    sel: list[int] = []
+    for j in range(b):
+        if norm0[j] == 0.0:
+            continue
+        m = len(sel)
+        if m:
+            r = scipy.linalg.solve_triangular(
+                chol[:m, :m], G[sel, j], lower=True, check_finite=False
+            )
+            res2 = G[j, j] - r @ r
+        else:
+            r, res2 = None, G[j, j]
+        if res2 < (tol * norm0[j]) ** 2:
+            continue
+        if m:
+            chol[m, :m] = r
+        chol[m, m] = np.sqrt(res2)
+        sel.append(j)
+    t = len(sel)
+    if t == 0:
+        return 0
+    Qn = out[:, :t]
+    for i, j in enumerate(sel):  # column copies: no (n, t) temporary
+        Qn[:, i] = W[:, j]
+    for passno in range(2):  # Cholesky-QR2: the second pass removes the first one's round-off
+        T = chol[:t, :t] if passno == 0 else np.linalg.cholesky(_inner(Qn, Qn))
+        # Qn <- Qn T⁻ᵀ in place (BLAS trsm from the right)
+        done = dtrsm(1.0, np.asfortranarray(T), Qn, side=1, lower=1, trans_a=1, overwrite_b=1)
+        if not np.shares_memory(done, Qn):
+            Qn[...] = done
+    kept.extend(start + j for j in sel)
+    return t
+
+
 def gram_schmidt_blocks(
     blocks: Iterable[tuple[int, np.ndarray]],
     mass: np.ndarray,
     n_candidates: int,
     *,
     tol: float = 1e-2,
-    block_size: int = 64,
+    block_size: int = 128,
 ) -> GramSchmidt:
     """Gram-Schmidt over candidates delivered in column blocks (see :func:`gram_schmidt`).
 
@@ -167,7 +319,7 @@ def gram_schmidt_blocks(
         Total number of candidate columns ``P``.
     tol : float, default 1e-2
         Relative drop threshold in (0, 1).
-    block_size : int, default 64
+    block_size : int, default 128
         Columns processed per BLAS-3 step (incoming blocks are re-cut to this size).
 
     Returns
@@ -180,6 +332,9 @@ def gram_schmidt_blocks(
     n = mass.shape[0]
     sqrt_m = np.sqrt(mass)
     basis = _GrowingColumns(n, min(n_candidates, n, 4 * block_size))
+    W_buf = np.empty((n, block_size), order="F")
+    new_buf = np.empty((n, block_size), order="F")
+    projected_buf = np.empty((n, block_size), order="F")
     kept: list[int] = []
     r_blocks: list[tuple[int, np.ndarray]] = []
     expected = 0
@@ -192,31 +347,25 @@ def gram_schmidt_blocks(
         expected += b
         if not np.all(np.isfinite(raw)):
             raise ValueError(f"candidates {start}..{start + b - 1} hold NaN or inf values")
-        W = np.asfortranarray(raw * sqrt_m[:, None])
-        original = W.copy(order="F")
-        norm0 = np.linalg.norm(W, axis=0)
-        n1 = _project_out(basis.view, W)
-        new_cols = np.empty((n, b), order="F")
-        t = 0
-        for j in range(b):
-            w = W[:, j]
-            res = _project_vector(new_cols[:, :t], w) if t else float(n1[j])
-            if norm0[j] == 0.0 or res < tol * norm0[j]:
-                continue
-            if t and res < _DEEP_CANCELLATION * n1[j]:
-                # The in-block projection removed almost all of w: the round-off it left along
-                # the older basis (~ε·n1) is no longer negligible next to the residual. Rare.
-                w -= basis.view @ (basis.view.T @ w)
-                res = _project_vector(new_cols[:, :t], w)
-                if res < tol * norm0[j]:
-                    continue
-            new_cols[:, t] = w / res
-            kept.append(start + j)
-            t += 1
+        W = W_buf[:, :b]
+        np.multiply(raw, sqrt_m[:, None], out=W)
+        norm0 = _column_norms(W)
+        q_before = basis.size
+        n1, coeff_old = _project_out(basis.view, W)
+        projected = projected_buf[:, :b]  # W minus its old-basis part, for the in-block rows of R
+        projected[...] = W
+        new_cols = new_buf[:, :b]
+        if tol >= _GRAM_MIN_TOL:
+            t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
+        else:
+            t = _select_in_block(W, new_cols, norm0, n1, basis.view, tol, start, kept)
+        # Eq. (17): R[i, j] = <q_i, b_j>. Older rows are the projection coefficients; rows of
+        # the functions kept in this block are their products with the projected block (the
+        # old-basis part is orthogonal to them); functions kept later give 0.
+        r_new = new_cols[:, :t].T @ projected
+        r_blocks.append((start, np.concatenate([coeff_old, r_new]) if q_before else r_new))
         if t:
             basis.extend(new_cols[:, :t], limit=min(n_candidates, n))
-        # Eq. (17): R[i, j] = <q_i, b_j> for every function kept so far; later ones give 0.
-        r_blocks.append((start, basis.view.T @ original))
     if expected != n_candidates:
         raise ValueError(f"blocks delivered {expected} candidates; expected {n_candidates}")
     q = basis.size
@@ -225,7 +374,7 @@ def gram_schmidt_blocks(
     for start, block in r_blocks:
         R[: block.shape[0], start : start + block.shape[1]] = block
     R[kept_arr[:, None] > np.arange(n_candidates)[None, :]] = 0.0
-    Q = basis.view if basis.data.shape[1] == q else basis.view.copy(order="F")
+    Q = basis.finish()
     Q /= sqrt_m[:, None]
     return GramSchmidt(Q=Q, R=R, kept=kept_arr)
 
@@ -241,7 +390,7 @@ def gram_schmidt(
     mass: Any,
     *,
     tol: float = 1e-2,
-    block_size: int = 64,
+    block_size: int = 128,
 ) -> GramSchmidt:
     """Orthonormalize candidates under the mass inner product, dropping dependent ones.
 
@@ -254,7 +403,7 @@ def gram_schmidt(
     tol : float, default 1e-2
         Relative drop threshold in (0, 1): candidate j is dropped when its residual after
         projection on the functions kept so far is below ``tol * ‖b_j‖_M``.
-    block_size : int, default 64
+    block_size : int, default 128
         Columns per BLAS-3 step; any value gives the same selection.
 
     Returns
@@ -282,7 +431,13 @@ def gram_schmidt(
     m = as_signal(m, m.shape[0], name="mass")
     if np.any(m <= 0):
         raise ValueError("mass must be positive everywhere")
-    B = as_signal(candidates, m.shape[0], name="candidates")
+    B = np.asarray(candidates)  # not copied: only read, block by block (finiteness checked there)
+    if not (np.issubdtype(B.dtype, np.floating) or np.issubdtype(B.dtype, np.integer)):
+        raise TypeError(f"candidates must be a numeric array; got dtype {B.dtype}")
     if B.ndim == 1:
         B = B[:, None]
+    if B.ndim != 2 or B.shape[0] != m.shape[0]:
+        raise ValueError(
+            f"candidates must have shape (n, P) with n = {m.shape[0]} (the mass); got {B.shape}"
+        )
     return gram_schmidt_blocks([(0, B)], m, B.shape[1], tol=tol, block_size=block_size)

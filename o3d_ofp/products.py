@@ -70,13 +70,6 @@ def eigenproduct_indices(k: int, order: int) -> list[tuple[int, ...]]:
     return out
 
 
-def _padded(indices: list[tuple[int, ...]], order: int, pad: int) -> np.ndarray:
-    table = np.full((len(indices), max(order, 1)), pad, dtype=np.int64)
-    for row, tup in enumerate(indices):
-        table[row, : len(tup)] = tup
-    return table
-
-
 def _as_evecs(evecs: Any) -> np.ndarray:
     arr = np.asarray(evecs, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] < 2:
@@ -110,18 +103,20 @@ def eigenproduct_blocks(
     block_size = check_int(block_size, name="block_size", minimum=1)
     k = phi.shape[1] - 1
     indices = eigenproduct_indices(k, order)
-    # Factor table with a column of ones as padding, so every candidate is a product of
-    # exactly `order` columns; the constant candidate () is φ0 itself, set separately.
-    factors = np.concatenate([phi, np.ones((phi.shape[0], 1))], axis=1)
-    table = _padded(indices, order, pad=k + 1)
+    # Column-major factors: every candidate column is a product of contiguous columns.
+    factors = np.asfortranarray(phi)
     for start in range(0, len(indices), block_size):
         stop = min(start + block_size, len(indices))
-        rows = table[start:stop]
-        block = factors[:, rows[:, 0]].copy()
-        for col in range(1, rows.shape[1]):
-            block *= factors[:, rows[:, col]]
-        if start == 0:
-            block[:, 0] = phi[:, 0]
+        block = np.empty((phi.shape[0], stop - start), order="F")
+        for col, tup in enumerate(indices[start:stop]):
+            if len(tup) == 0:
+                block[:, col] = factors[:, 0]
+            elif len(tup) == 1:
+                block[:, col] = factors[:, tup[0]]
+            else:
+                np.multiply(factors[:, tup[0]], factors[:, tup[1]], out=block[:, col])
+                for i in tup[2:]:
+                    block[:, col] *= factors[:, i]
         yield start, block
 
 
@@ -152,7 +147,7 @@ def eigenproducts(evecs: Any, order: int) -> tuple[np.ndarray, list[tuple[int, .
     order = check_int(order, name="order", minimum=1)
     k = phi.shape[1] - 1
     total = n_eigenproducts(k, order)
-    out = np.empty((phi.shape[0], total))
+    out = np.empty((phi.shape[0], total), order="F")
     for start, block in eigenproduct_blocks(phi, order):
         out[:, start : start + block.shape[1]] = block
     return out, eigenproduct_indices(k, order)

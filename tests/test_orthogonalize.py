@@ -122,9 +122,9 @@ def test_presets_and_errors():
         gram_schmidt(B, mass, tol="small")
     with pytest.raises(ValueError, match="mass must be positive"):
         gram_schmidt(B, -mass)
-    with pytest.raises(ValueError, match="candidates has 4 values but the shape has 5"):
+    with pytest.raises(ValueError, match=r"candidates must have shape \(n, P\) with n = 5"):
         gram_schmidt(B, np.ones(5))
     bad_B = B.copy()
     bad_B[0, 0] = np.inf
-    with pytest.raises(ValueError, match="candidates holds NaN or inf"):
+    with pytest.raises(ValueError, match=r"candidates 0..1 hold NaN or inf"):
         gram_schmidt(bad_B, mass)
