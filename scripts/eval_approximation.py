@@ -1,4 +1,4 @@
-"""Reconstruction errors in the style of the paper's Table 1 (Sec. 4.3), on ../shared/data.
+"""Reconstruction errors in the style of the paper's Table 1 (Sec. 4.3), as Markdown tables.
 
 Rows are signals, columns the bases: K eigenfunctions (the paper's K includes the constant),
 NK eigenfunctions, ours (tol 1e-2), ours* (tol 1e-9), and C(K+N, N) eigenfunctions (the
@@ -8,7 +8,6 @@ centred on its area-weighted mean.
 Usage::
 
     python scripts/eval_approximation.py  # FAUST 093 (K=30, N=2), bunny RGB (K=30 and 100)
-    python scripts/eval_approximation.py --markdown  # same, as Markdown tables
 """
 
 from __future__ import annotations
@@ -85,7 +84,6 @@ def table(name: str, V: np.ndarray, F: np.ndarray, fs: dict, K: int, order: int)
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--markdown", action="store_true", help="(tables are always Markdown)")
     parser.add_argument(
         "--bunny-k", type=int, nargs="+", default=[30, 100], help="K values for the bunny"
     )
