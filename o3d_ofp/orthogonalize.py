@@ -7,11 +7,21 @@ its residual norm is below ``tol`` times its own norm, otherwise normalized and 
 threshold is relative, so the selection does not depend on the mesh's scale.
 
 Implementation: in the √M-weighted space the inner product is Euclidean. Candidates are
-processed in blocks: each block is projected against the kept basis with two (three when the
-second pass still removes more than half the norm, Kahan's "twice is enough" test) BLAS-3
-passes of classical Gram-Schmidt, then its columns are handled one by one against the
-functions kept earlier in the same block, again twice. The kept functions are M-orthonormal
-to round-off (‖QᵀMQ − I‖ ~ 1e-15) whatever ``tol``, where the paper's single-pass classical
+processed in blocks of ``block_size`` columns. Each block is projected on the kept basis with
+two in-place BLAS-3 passes of classical Gram-Schmidt (a third on the columns where the second
+still removed more than half of the norm: Kahan's "twice is enough" test). Inside the block the
+per-column drop test then runs
+
+* for ``tol >= 1e-4``, on the block's Gram matrix (a Cholesky factorization that skips dropped
+  columns: its residuals are exact to ~b·ε/tol² relative), the kept columns being orthonormalized
+  by Cholesky-QR applied twice;
+* for smaller ``tol``, by recursive halving: the left half is processed, the right half is
+  projected twice on what it kept, and so on down to single columns, which resolves residuals
+  down to round-off.
+
+Either way each candidate meets every function kept before it before its drop test, so the
+selection is that of the column loop (tests compare both). The kept functions are M-orthonormal
+to round-off (‖QᵀMQ − I‖ ~ 1e-14) whatever ``tol``, where the paper's single-pass classical
 Gram-Schmidt loses orthogonality.
 """
 
