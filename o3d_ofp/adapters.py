@@ -23,11 +23,14 @@ from ._validation import as_faces, as_signal, as_vertices
 
 __all__ = [
     "OPEN3D_INSTALL_HINT",
+    "filter_geometry",
     "geometry_to_arrays",
     "is_open3d_geometry",
     "point_cloud_from_arrays",
     "read_geometry",
     "require_open3d",
+    "transfer_colors",
+    "transfer_detail",
     "triangle_mesh_from_arrays",
     "vertex_colors",
     "write_geometry",
@@ -342,3 +345,212 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def _same_kind_from_arrays(geometry: Any, vertices: np.ndarray, *, colors: Any = None) -> Any:
+    """Build a new legacy geometry of the input's kind (mesh or cloud) with the given vertices."""
+    _, faces = geometry_to_arrays(geometry)
+    if faces is None:
+        return point_cloud_from_arrays(vertices, colors=colors)
+    return triangle_mesh_from_arrays(vertices, faces, colors=colors)
+
+
+def _k_for_map(geometry_n: int, k: int) -> int:
+    # ZoomOut refines to ~100 eigenfunctions (as pyFM's standard pipeline does); never more
+    # than the shape allows.
+    return max(1, min(max(k, 99), geometry_n - 1))
+
+
+def transfer_colors(
+    source: Any,
+    target: Any,
+    *,
+    signal: Any = None,
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    preset: str | None = "ours",
+    tol: float | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    method: str = "p2p",
+) -> Any:
+    """Transfer vertex colors (or any per-vertex signal) from one Open3D geometry to another.
+
+    Parameters
+    ----------
+    source, target : Open3D TriangleMesh or PointCloud (legacy or tensor)
+        The shapes; neither is modified.
+    signal : (n1, d) array_like, optional
+        Per-vertex values on the source (default: its vertex colors).
+    k1, k2 : int, default 29, 39
+        Eigenfunctions multiplied on the source and the target (the paper's K = 30 / 40 for
+        humans; order 3 with k ≈ 11-14 for other shapes).
+    order : int, default 2
+        Product order.
+    preset, tol
+        Orthogonalization threshold ("ours" = 1e-2 by default, "ours*" = 1e-9).
+    fmap_12, p2p_21, landmarks
+        A known functional map, a known point-to-point map (target vertex → source vertex),
+        or known (source, target) landmark pairs for the estimation. Without any of them the
+        map is estimated (WKS descriptors, orientation term, ZoomOut to 100).
+    method : {"p2p", "analytic"}
+        Transfer matrix computation (see :func:`o3d_ofp.transfer_matrix`).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud, or ndarray
+        A new geometry like ``target`` colored with the transferred colors (clipped to
+        [0, 1]) when the signal has 3 channels; otherwise the transferred (n2, d) array.
+
+    References
+    ----------
+    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+       and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
+    """
+    from .pipeline import transfer_function
+    from .spectrum import eigenbasis
+
+    V1, F1 = geometry_to_arrays(source)
+    V2, F2 = geometry_to_arrays(target)
+    if signal is None:
+        signal = vertex_colors(source)
+        if signal is None:
+            raise ValueError("source has no vertex colors; pass signal= with per-vertex values")
+    f = as_signal(signal, V1.shape[0], name="signal")
+    estimate = fmap_12 is None and p2p_21 is None
+    eig_1 = eigenbasis(V1, F1, k=_k_for_map(V1.shape[0], k1) if estimate else k1)
+    eig_2 = eigenbasis(V2, F2, k=_k_for_map(V2.shape[0], k2) if estimate else k2)
+    g = transfer_function(
+        f,
+        eig_1,
+        eig_2,
+        k1=k1,
+        k2=k2,
+        order=order,
+        preset=preset,
+        tol=tol,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        method=method,
+    )
+    if g.ndim == 2 and g.shape[1] == 3:
+        return _same_kind_from_arrays(target, V2, colors=np.clip(g, 0.0, 1.0))
+    return g
+
+
+def transfer_detail(
+    source: Any,
+    target: Any,
+    *,
+    mode: str = "add",
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    preset: str | None = "ours*",
+    tol: float | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    k_low: int | None = None,
+) -> Any:
+    """Give the target the source's geometric detail; return a new displaced geometry.
+
+    Parameters
+    ----------
+    source : Open3D TriangleMesh
+        Shape with the detail.
+    target : Open3D TriangleMesh or PointCloud
+        Shape to displace (a cloud without normals gets estimated, consistently oriented
+        ones). Neither input is modified.
+    mode : {"add", "replace"}, default "add"
+        "replace": the paper's Fig. 13, the target takes the transferred source coordinates.
+        "add": the target keeps its shape and pose and gets the source's high-frequency
+        heights along its normals (see :func:`o3d_ofp.pipeline.transfer_detail_arrays`).
+    k1, k2, order, preset, tol, fmap_12, p2p_21, landmarks
+        As in :func:`transfer_colors` (default preset "ours*").
+    k_low : int, optional
+        Eigenfunctions of the low-pass that separates detail from shape ("add" mode;
+        default ``k1``).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        A new geometry like ``target`` with moved vertices (and the target's colors, if any).
+    """
+    from .pipeline import transfer_detail_arrays
+    from .spectrum import eigenbasis
+
+    o3d = require_open3d()
+    V1, F1 = geometry_to_arrays(source)
+    V2, F2 = geometry_to_arrays(target)
+    if F1 is None:
+        raise ValueError("source must be a TriangleMesh (its normals and detail need faces)")
+    normals_2 = None
+    if F2 is None:
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V2))
+        kind = _kind(target)
+        if kind == "legacy_cloud" and target.has_normals():
+            normals_2 = np.asarray(target.normals, dtype=np.float64).copy()
+        else:
+            cloud.estimate_normals()
+            cloud.orient_normals_consistent_tangent_plane(15)
+            normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
+    estimate = fmap_12 is None and p2p_21 is None
+    eig_1 = eigenbasis(V1, F1, k=_k_for_map(V1.shape[0], k1) if estimate else max(k1, k_low or 0))
+    eig_2 = eigenbasis(V2, F2, k=_k_for_map(V2.shape[0], k2) if estimate else k2)
+    moved = transfer_detail_arrays(
+        eig_1,
+        eig_2,
+        mode=mode,
+        k1=k1,
+        k2=k2,
+        order=order,
+        preset=preset,
+        tol=tol,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        k_low=k_low,
+        normals_2=normals_2,
+    )
+    return _same_kind_from_arrays(target, moved, colors=vertex_colors(target))
+
+
+def filter_geometry(
+    geometry: Any,
+    *,
+    gains: Any,
+    k: int = 14,
+    order: int = 3,
+    preset: str | None = "ours*",
+    tol: float | None = None,
+) -> Any:
+    """Spectrally filter the vertex coordinates of a mesh (the paper's Figs. 14-15).
+
+    Parameters
+    ----------
+    geometry : Open3D TriangleMesh or PointCloud
+        Input; not modified.
+    gains : callable or (q,) array_like
+        See :func:`o3d_ofp.filtering.spectral_filter` (e.g. ``smooth_gains(5)``,
+        ``sharpen_gains(2)``).
+    k, order, preset, tol
+        The basis (the paper uses order 3 on the first 15 eigenfunctions: ``k=14``).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        A new geometry with filtered vertex positions (colors kept).
+    """
+    from .basis import ofp_basis
+    from .filtering import spectral_filter
+    from .spectrum import eigenbasis
+
+    V, F = geometry_to_arrays(geometry)
+    B = ofp_basis(eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
+    return _same_kind_from_arrays(
+        geometry, spectral_filter(B, V, gains), colors=vertex_colors(geometry)
+    )

@@ -1,0 +1,83 @@
+"""Per-face and per-vertex geometry of triangle meshes (pure NumPy/SciPy)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["face_areas_normals", "face_gradient_operator", "vertex_normals"]
+
+
+def face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Face areas and unit normals.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    areas : (m,) ndarray
+        Triangle areas (0 for degenerate triangles).
+    normals : (m, 3) ndarray
+        Unit normals following the face orientation (zero for degenerate triangles).
+    """
+    e1 = vertices[faces[:, 1]] - vertices[faces[:, 0]]
+    e2 = vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    cross = np.cross(e1, e2)
+    norm = np.linalg.norm(cross, axis=1)
+    normals = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
+    return 0.5 * norm, normals
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals, unit length (zero where undefined).
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    (n, 3) ndarray
+    """
+    areas, normals = face_areas_normals(vertices, faces)
+    acc = np.zeros_like(vertices)
+    weighted = normals * areas[:, None]
+    for c in range(3):
+        np.add.at(acc, faces[:, c], weighted)
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
+
+
+def face_gradient_operator(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, ...]:
+    """Sparse operators giving the (constant) gradient of a piecewise-linear function per face.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    gx, gy, gz : (m, n) scipy.sparse.csr_matrix
+        ``(gx @ f)[t]`` is the x component of ∇f on face t (zero on degenerate faces).
+    """
+    n, m = vertices.shape[0], faces.shape[0]
+    areas, normals = face_areas_normals(vertices, faces)
+    inv2a = np.divide(1.0, 2.0 * areas, out=np.zeros_like(areas), where=areas > 0)
+    rows = np.repeat(np.arange(m), 3)
+    mats = []
+    # ∇ of the hat function of corner c is N × e_c / (2A), e_c the edge opposite c (oriented).
+    grads = []
+    for c in range(3):
+        a, b = faces[:, (c + 1) % 3], faces[:, (c + 2) % 3]
+        edge = vertices[b] - vertices[a]
+        grads.append(np.cross(normals, edge) * inv2a[:, None])
+    grads = np.stack(grads, axis=1)  # (m, 3 corners, 3 coords)
+    cols = faces.reshape(-1)
+    for d in range(3):
+        mats.append(sp.csr_matrix((grads[:, :, d].reshape(-1), (rows, cols)), shape=(m, n)))
+    return tuple(mats)

@@ -1,0 +1,253 @@
+"""End-to-end transfer between two shapes, on arrays: map, bases, transfer matrix, signal.
+
+The Open3D-level functions (:func:`o3d_ofp.adapters.transfer_colors`,
+:func:`o3d_ofp.adapters.transfer_detail`) call these.
+
+Defaults follow the paper: order 2 with k₁ = 29, k₂ = 39 non-constant eigenfunctions (its
+K = 30 / 40, for humans); order 3 with k ≈ 11-14 suits other shapes (Tables 2, 5, 6).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ._validation import as_signal, check_int
+from .basis import OFPBasis, ofp_basis
+from .correspondence import check_fmap, check_p2p, p2p_from_fmap
+from .fmap import estimate_fmap, zoomout_refine
+from .geometry import vertex_normals
+from .spectrum import EigenBasis
+from .transfer import transfer_matrix, transfer_signal
+
+__all__ = ["detail_heights", "match", "transfer_detail_arrays", "transfer_function"]
+
+logger = logging.getLogger(__name__)
+
+
+def match(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    landmarks: Any = None,
+    k_fit: int = 29,
+    zoomout_to: int | None = None,
+    **fit_options: Any,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Estimate a map without correspondences: fit a small functional map, then ZoomOut.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases (ZoomOut uses all their eigenfunctions, up to
+        ``zoomout_to``; 99 or more non-constant ones is typical).
+    landmarks : (p, 2) array_like of int, optional
+        Known (source, target) vertex pairs.
+    k_fit : int, default 29
+        Size of the optimized map (the paper's K = 30).
+    zoomout_to : int, optional
+        Final ZoomOut size (default ``min(eig_1.k, eig_2.k)``).
+    **fit_options
+        Passed to :func:`o3d_ofp.fmap.estimate_fmap`.
+
+    Returns
+    -------
+    fmap_12 : (K+1, K+1) ndarray
+        The refined functional map (K = ``zoomout_to``).
+    p2p_21 : (n2,) ndarray of int
+        Its point-to-point map.
+    """
+    k_fit = min(k_fit, eig_1.k, eig_2.k)
+    C = estimate_fmap(
+        eig_1, eig_2, k1=k_fit, k2=k_fit, landmarks=landmarks, refine=None, **fit_options
+    )
+    final = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
+    if final > k_fit:
+        C = zoomout_refine(C, eig_1, eig_2, k_final=final)
+    return C, p2p_from_fmap(C, eig_1, eig_2)
+
+
+def _bases(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    k1: int,
+    k2: int,
+    order: int,
+    tol: float | None,
+    preset: str | None,
+) -> tuple[OFPBasis, OFPBasis]:
+    k1 = check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
+    k2 = check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
+    return (
+        ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1),
+        ofp_basis(eig_2, order=order, tol=tol, preset=preset, k=k2),
+    )
+
+
+def transfer_function(
+    f_1: Any,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    tol: float | None = None,
+    preset: str | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    method: str = "p2p",
+    bases: tuple[OFPBasis, OFPBasis] | None = None,
+) -> np.ndarray:
+    """Transfer a per-vertex signal from a source to a target shape with OFP bases.
+
+    Parameters
+    ----------
+    f_1 : (n1,) or (n1, d) array_like of float
+        Source signal.
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases (with at least ``k1`` / ``k2`` eigenfunctions; more are
+        used by ZoomOut when the map is estimated).
+    k1, k2 : int, default 29, 39
+        Eigenfunctions multiplied on each side.
+    order : int, default 2
+        Product order.
+    tol, preset
+        Orthogonalization threshold (default "ours", 1e-2); see :func:`o3d_ofp.ofp_basis`.
+    fmap_12 : array_like, optional
+        A functional map (at least (k2+1, k1+1)); its nearest-neighbour p2p map is used.
+    p2p_21 : (n2,) array_like of int, optional
+        A point-to-point map (target vertex → source vertex), used directly.
+    landmarks : (p, 2) array_like of int, optional
+        Known pairs, when the map is estimated.
+    method : {"p2p", "analytic"}, default "p2p"
+        How the transfer matrix is computed (see :func:`o3d_ofp.transfer_matrix`).
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed bases (then ``k1``, ``k2``, ``order``, ``tol`` and ``preset`` are unused).
+
+    Returns
+    -------
+    (n2,) or (n2, d) ndarray
+        The transferred signal.
+    """
+    f = as_signal(f_1, eig_1.n_vertices, name="f_1")
+    B_1, B_2 = bases if bases is not None else _bases(eig_1, eig_2, k1, k2, order, tol, preset)
+    if p2p_21 is not None:
+        p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
+    elif fmap_12 is not None:
+        C = np.asarray(fmap_12, dtype=np.float64)
+        check_fmap(C, B_2.k + 1, B_1.k + 1)
+        p2p = p2p_from_fmap(C, eig_1, eig_2)
+    else:
+        C, p2p = match(eig_1, eig_2, landmarks=landmarks)
+    if method == "analytic":
+        if fmap_12 is None:
+            raise ValueError("method='analytic' needs fmap_12")
+        transfer_12 = transfer_matrix(B_1, B_2, fmap_12, method="analytic")
+    else:
+        transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=p2p)
+    return transfer_signal(f, B_1, B_2, transfer_12)
+
+
+def detail_heights(eig: EigenBasis, normals: np.ndarray, *, k_low: int | None = None) -> np.ndarray:
+    """Fine detail as a height along the normals: ``<X − low-pass(X), n>``.
+
+    Parameters
+    ----------
+    eig : EigenBasis
+        The shape's eigenbasis (its vertices are the coordinates X).
+    normals : (n, 3) ndarray
+        Unit vertex normals.
+    k_low : int, optional
+        Eigenfunctions of the low-pass reconstruction (default: all of ``eig``).
+
+    Returns
+    -------
+    (n,) ndarray
+        Signed height of every vertex above the smooth shape.
+    """
+    low = eig if k_low is None else eig.truncate(k_low)
+    X = eig.vertices
+    smooth = low.reconstruct(low.project(X))
+    return np.einsum("ij,ij->i", X - smooth, normals)
+
+
+def transfer_detail_arrays(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    mode: str = "add",
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    tol: float | None = None,
+    preset: str | None = "ours*",
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    k_low: int | None = None,
+    normals_1: Any = None,
+    normals_2: Any = None,
+) -> np.ndarray:
+    """Move the target's vertices to carry the source's geometric detail.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source (with detail) and target eigenbases.
+    mode : {"add", "replace"}, default "add"
+        "replace" (the paper's Fig. 13): the source's vertex coordinates are transferred and
+        replace the target's. "add": the target keeps its own shape and pose and receives the
+        source's fine detail as heights along its normals: the source's coordinates minus
+        their low-pass reconstruction (``k_low`` eigenfunctions), measured along the source
+        normals, transferred, scaled by √(area₂/area₁) and added along the target normals.
+    k1, k2, order, tol, preset, fmap_12, p2p_21, landmarks
+        As in :func:`transfer_function` (default preset "ours*", which the paper prefers for
+        detail).
+    k_low : int, optional
+        Low-pass size for "add" (default: ``k1``).
+    normals_1, normals_2 : (n, 3) array_like, optional
+        Unit normals (default: area-weighted vertex normals; required for point clouds).
+
+    Returns
+    -------
+    (n2, 3) ndarray
+        New target vertex positions.
+    """
+    if mode not in ("add", "replace"):
+        raise ValueError(f"mode must be 'add' or 'replace'; got {mode!r}")
+    kw = dict(
+        k1=k1,
+        k2=k2,
+        order=order,
+        tol=tol,
+        preset=preset,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+    )
+    if mode == "replace":
+        return transfer_function(eig_1.vertices, eig_1, eig_2, **kw)
+    n1 = _normals(eig_1, normals_1, "normals_1")
+    n2 = _normals(eig_2, normals_2, "normals_2")
+    heights = detail_heights(eig_1, n1, k_low=k1 if k_low is None else k_low)
+    moved = transfer_function(heights, eig_1, eig_2, **kw)
+    moved *= np.sqrt(eig_2.area / eig_1.area)
+    return eig_2.vertices + moved[:, None] * n2
+
+
+def _normals(eig: EigenBasis, normals: Any, name: str) -> np.ndarray:
+    if normals is not None:
+        arr = as_signal(normals, eig.n_vertices, name=name)
+        if arr.ndim != 2 or arr.shape[1] != 3:
+            raise ValueError(f"{name} must have shape (n, 3); got {arr.shape}")
+        norm = np.linalg.norm(arr, axis=1, keepdims=True)
+        return np.divide(arr, norm, out=np.zeros_like(arr), where=norm > 0)
+    if eig.faces is None:
+        raise ValueError(
+            f"{name} are needed for a point cloud (it has no faces to compute them from)"
+        )
+    return vertex_normals(eig.vertices, eig.faces)

@@ -1,0 +1,67 @@
+import numpy as np
+import pytest
+
+import o3d_ofp as ofp
+from o3d_ofp import correspondence
+from o3d_ofp.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
+from o3d_ofp.descriptors import hks, wks
+
+
+@pytest.fixture(scope="module")
+def blob_eig(blob_mesh):
+    return ofp.eigenbasis(*blob_mesh, k=20)
+
+
+@pytest.mark.parametrize("fn", [hks, wks])
+def test_descriptors_shape_scale_and_landmarks(fn, blob_mesh, blob_eig):
+    D = fn(blob_eig, **({"n_times": 16} if fn is hks else {"n_energies": 16}))
+    assert D.shape == (blob_eig.n_vertices, 16) and np.all(np.isfinite(D)) and np.all(D >= 0)
+    V, F = blob_mesh
+    scaled = ofp.eigenbasis(V * 10.0, F, k=20)
+    D10 = fn(scaled, **({"n_times": 16} if fn is hks else {"n_energies": 16}))
+    # times/energies follow the eigenvalues, φ² scales as 1/s²: D · s² is scale-invariant
+    np.testing.assert_allclose(D10 * 100.0, D, rtol=1e-6, atol=1e-12 * D.max())
+    lm = np.array([3, 500])
+    K = fn(blob_eig, landmarks=lm, **({"n_times": 16} if fn is hks else {"n_energies": 16}))
+    assert K.shape == (blob_eig.n_vertices, 32)
+    # the kernel map of a landmark evaluated at the landmark is the signature there
+    np.testing.assert_allclose(K[3, :16], D[3], rtol=1e-10)
+    np.testing.assert_allclose(K[500, 16:], D[500], rtol=1e-10)
+    with pytest.raises(ValueError, match="landmarks must be vertex indices"):
+        fn(blob_eig, landmarks=np.array([blob_eig.n_vertices]))
+
+
+@pytest.mark.parametrize("dim", [3, 12, 40])
+def test_nearest_neighbors_methods_agree_with_naive(dim, monkeypatch):
+    rng = np.random.default_rng(dim)
+    data, queries = rng.standard_normal((700, dim)), rng.standard_normal((300, dim))
+    naive = np.argmin(((queries[:, None, :] - data[None]) ** 2).sum(-1), axis=1)
+    for method in ("brute", "kdtree", "auto"):
+        np.testing.assert_array_equal(nearest_neighbors(data, queries, method=method), naive)
+    monkeypatch.setattr(correspondence, "_BRUTE_MAX_PAIRS", 10)  # force the timed choice
+    np.testing.assert_array_equal(nearest_neighbors(data, queries), naive)
+    with pytest.raises(ValueError, match="method must be one of"):
+        nearest_neighbors(data, queries, method="faiss")
+    with pytest.raises(ValueError, match=r"data and queries must be \(n, d\) and \(m, d\)"):
+        nearest_neighbors(data, queries[:, :2])
+
+
+def test_identity_maps_round_trip(blob_eig):
+    n = blob_eig.n_vertices
+    C = fmap_from_p2p(np.arange(n), blob_eig, blob_eig)
+    np.testing.assert_allclose(C, np.eye(21), atol=1e-10)  # Φᵀ M Φ = I
+    np.testing.assert_array_equal(p2p_from_fmap(C, blob_eig, blob_eig), np.arange(n))
+    C_small = fmap_from_p2p(np.arange(n), blob_eig, blob_eig, k1=5, k2=8)
+    assert C_small.shape == (9, 6)
+
+
+def test_map_errors(blob_eig):
+    n = blob_eig.n_vertices
+    with pytest.raises(ValueError, match=r"p2p_21 values must be source vertex indices in \[0, "):
+        fmap_from_p2p(np.full(n, n), blob_eig, blob_eig)
+    with pytest.raises(ValueError, match="p2p_21 has 5 entries but the target has"):
+        fmap_from_p2p(np.arange(5), blob_eig, blob_eig)
+    with pytest.raises(TypeError, match="p2p_21 must be a 1-D integer array"):
+        fmap_from_p2p(np.zeros(n), blob_eig, blob_eig)
+    with pytest.raises(ValueError, match="the eigenbases allow at most"):
+        p2p_from_fmap(np.eye(30), blob_eig, blob_eig)
