@@ -32,9 +32,11 @@ def _reduced(eig: EigenBasis, k: int) -> tuple[np.ndarray, np.ndarray]:
     return phi, (phi * eig.mass[:, None]).T
 
 
-def _descriptors(eig: EigenBasis, kind: str, n: int, landmarks: np.ndarray | None) -> np.ndarray:
+def _descriptors(
+    eig: EigenBasis, kind: str, n: int, landmarks: np.ndarray | None, k: int
+) -> np.ndarray:
     fn = wks if kind == "wks" else hks
-    kw = {"n_energies": n} if kind == "wks" else {"n_times": n}
+    kw = {"n_energies": n, "k": k} if kind == "wks" else {"n_times": n, "k": k}
     D = fn(eig, **kw)
     if landmarks is not None:
         D = np.concatenate([D, fn(eig, landmarks=landmarks, **kw)], axis=1)
@@ -74,6 +76,7 @@ def estimate_fmap(
     k2: int | None = None,
     descriptors: str = "wks",
     n_descriptors: int = 100,
+    k_descriptors: int = 100,
     landmarks: Any = None,
     w_descr: float = 1.0,
     w_lap: float = 1e-2,
@@ -103,9 +106,12 @@ def estimate_fmap(
     k1, k2 : int, optional
         Size of the optimized map (default: all eigenfunctions, up to 30 on each side).
     descriptors : {"wks", "hks"}, default "wks"
-        Descriptor family (computed from all eigenpairs of each basis).
+        Descriptor family.
     n_descriptors : int, default 100
         Energies (times) of the descriptor.
+    k_descriptors : int, default 100
+        Eigenpairs the descriptors are computed from (fewer if a basis has fewer), so the
+        result does not depend on how many eigenpairs the caller computed.
     landmarks : (p, 2) array_like of int, optional
         Known pairs (source vertex, target vertex); their wave (heat) kernel maps are added
         to the descriptors.
@@ -159,8 +165,9 @@ def estimate_fmap(
                 f"got {lm.dtype}{lm.shape}"
             )
         lm1, lm2 = lm[:, 0], lm[:, 1]
-    D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1)
-    D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2)
+    k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
+    D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
+    D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
     phi1, proj1 = _reduced(eig_1, k1)
     phi2, proj2 = _reduced(eig_2, k2)
     A, B = proj1 @ D1, proj2 @ D2  # (k1+1, p), (k2+1, p)

@@ -31,6 +31,7 @@ import scipy.io
 import o3d_ofp as ofp
 from o3d_ofp.adapters import geometry_to_arrays, read_geometry
 from o3d_ofp.baselines import transfer_eigs, transfer_prods
+from o3d_ofp.io import read_vts
 from o3d_ofp.pipeline import match
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -76,14 +77,8 @@ def ground_truth(kind: str, src: str, tgt: str, V2: np.ndarray) -> tuple[np.ndar
             - 1
         )
         return gt, np.arange(n2)
-    a = (
-        np.loadtxt(DATA / "faust_remeshed" / "corres" / (Path(src).stem + ".vts"), dtype=np.int64)
-        - 1
-    )
-    b = (
-        np.loadtxt(DATA / "faust_remeshed" / "corres" / (Path(tgt).stem + ".vts"), dtype=np.int64)
-        - 1
-    )
+    a = read_vts(DATA / "faust_remeshed" / "corres" / (Path(src).stem + ".vts"))
+    b = read_vts(DATA / "faust_remeshed" / "corres" / (Path(tgt).stem + ".vts"))
     listed, first = np.unique(b, return_index=True)
     source_of = np.full(n2, -1)
     source_of[listed] = a[first]
@@ -96,7 +91,7 @@ def families(
 ) -> dict[str, np.ndarray]:
     """Source functions of the paper's families (Sec. 4.3), several columns each."""
     n = V1.shape[0]
-    t = 4 * math.log(10) / eig200.evals[-1] * 4  # a localized bump, resolved by 200 functions
+    t = 4 * math.log(10) / eig200.evals[-1]  # exp(−λt) = 1e-4 at the last eigenvalue: sharp
     centers = rng.integers(0, n, 5)
     weights = np.exp(-eig200.evals * t)
     hk200 = eig200.evecs @ (weights[:, None] * eig200.evecs[centers].T)

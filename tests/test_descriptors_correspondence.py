@@ -65,3 +65,18 @@ def test_map_errors(blob_eig):
         fmap_from_p2p(np.zeros(n), blob_eig, blob_eig)
     with pytest.raises(ValueError, match="the eigenbases allow at most"):
         p2p_from_fmap(np.eye(30), blob_eig, blob_eig)
+
+
+def test_read_vts(tmp_path):
+    from o3d_ofp.io import read_vts
+
+    (tmp_path / "a.vts").write_text("3\n1\n2\n")
+    np.testing.assert_array_equal(read_vts(tmp_path / "a.vts"), [2, 0, 1])
+    (tmp_path / "b.vts").write_text("0\n1\n")
+    with pytest.raises(ValueError, match="must be positive integers"):
+        read_vts(tmp_path / "b.vts")
+    (tmp_path / "c.vts").write_text("x\n")
+    with pytest.raises(ValueError, match=r"not a \.vts file"):
+        read_vts(tmp_path / "c.vts")
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        read_vts(tmp_path / "missing.vts")
