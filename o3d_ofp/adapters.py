@@ -355,10 +355,16 @@ def _same_kind_from_arrays(geometry: Any, vertices: np.ndarray, *, colors: Any =
     return triangle_mesh_from_arrays(vertices, faces, colors=colors)
 
 
-def _k_for_map(geometry_n: int, k: int) -> int:
-    # ZoomOut refines to ~100 eigenfunctions (as pyFM's standard pipeline does); never more
-    # than the shape allows.
-    return max(1, min(max(k, 99), geometry_n - 1))
+def _eig_sizes(n1: int, n2: int, k1: int, k2: int, fmap_12: Any, p2p_21: Any) -> tuple[int, int]:
+    """Eigenfunctions to compute on each side for the map that will be used."""
+    if p2p_21 is not None:
+        return k1, k2
+    if fmap_12 is not None:  # a given map may be larger than the bases: use all of it
+        rows, cols = np.shape(fmap_12)
+        return max(k1, cols - 1), max(k2, rows - 1)
+    # an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's standard
+    # pipeline), never more than a shape allows
+    return max(1, min(max(k1, 99), n1 - 1)), max(1, min(max(k2, 99), n2 - 1))
 
 
 def transfer_colors(
@@ -419,9 +425,8 @@ def transfer_colors(
         if signal is None:
             raise ValueError("source has no vertex colors; pass signal= with per-vertex values")
     f = as_signal(signal, V1.shape[0], name="signal")
-    estimate = fmap_12 is None and p2p_21 is None
-    eig_1 = eigenbasis(V1, F1, k=_k_for_map(V1.shape[0], k1) if estimate else k1)
-    eig_2 = eigenbasis(V2, F2, k=_k_for_map(V2.shape[0], k2) if estimate else k2)
+    k_1, k_2 = _eig_sizes(V1.shape[0], V2.shape[0], k1, k2, fmap_12, p2p_21)
+    eig_1, eig_2 = eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
     g = transfer_function(
         f,
         eig_1,
@@ -498,9 +503,8 @@ def transfer_detail(
             cloud.estimate_normals()
             cloud.orient_normals_consistent_tangent_plane(15)
             normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
-    estimate = fmap_12 is None and p2p_21 is None
-    eig_1 = eigenbasis(V1, F1, k=_k_for_map(V1.shape[0], k1) if estimate else max(k1, k_low or 0))
-    eig_2 = eigenbasis(V2, F2, k=_k_for_map(V2.shape[0], k2) if estimate else k2)
+    k_1, k_2 = _eig_sizes(V1.shape[0], V2.shape[0], max(k1, k_low or 0), k2, fmap_12, p2p_21)
+    eig_1, eig_2 = eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
     moved = transfer_detail_arrays(
         eig_1,
         eig_2,

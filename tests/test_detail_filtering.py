@@ -82,6 +82,11 @@ def test_transfer_colors_open3d_level():
     got = np.asarray(out.vertex_colors)
     m = ofp.laplacian(V2, F2)[1]
     assert ofp.approximation_error(colors, got, m) < 0.05
+    # a given functional map larger than the bases (60 × 60 > (k2+1, k1+1)) is used whole
+    e1, e2 = ofp.eigenbasis(V1, F1, k=59), ofp.eigenbasis(V2, F2, k=59)
+    C = ofp.fmap_from_p2p(np.arange(len(V2)), e1, e2)
+    via_fmap = np.asarray(ofp.transfer_colors(source, target, fmap_12=C).vertex_colors)
+    assert ofp.approximation_error(colors, via_fmap, m) < 0.1
     values = ofp.transfer_colors(source, target, p2p_21=np.arange(len(V2)), signal=V1[:, :1])
     assert values.shape == (len(V2), 1)
     with pytest.raises(ValueError, match="source has no vertex colors"):
