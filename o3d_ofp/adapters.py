@@ -355,16 +355,29 @@ def _same_kind_from_arrays(geometry: Any, vertices: np.ndarray, *, colors: Any =
     return triangle_mesh_from_arrays(vertices, faces, colors=colors)
 
 
-def _eig_sizes(n1: int, n2: int, k1: int, k2: int, fmap_12: Any, p2p_21: Any) -> tuple[int, int]:
-    """Eigenfunctions to compute on each side for the map that will be used."""
+def _pair_eigenbases(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    k1: int,
+    k2: int,
+    fmap_12: Any,
+    p2p_21: Any,
+) -> tuple[Any, Any]:
+    """Eigenbases of source and target, as large as the map that will be used needs."""
+    from .spectrum import eigenbasis
+
     if p2p_21 is not None:
-        return k1, k2
-    if fmap_12 is not None:  # a given map may be larger than the bases: use all of it
+        k_1, k_2 = k1, k2
+    elif fmap_12 is not None:  # a given map may be larger than the bases: use all of it
         rows, cols = np.shape(fmap_12)
-        return max(k1, cols - 1), max(k2, rows - 1)
-    # an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's standard
-    # pipeline), never more than a shape allows
-    return max(1, min(max(k1, 99), n1 - 1)), max(1, min(max(k2, 99), n2 - 1))
+        k_1, k_2 = max(k1, cols - 1), max(k2, rows - 1)
+    else:  # an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
+        # standard pipeline), never more than a shape allows
+        k_1 = max(1, min(max(k1, 99), V1.shape[0] - 1))
+        k_2 = max(1, min(max(k2, 99), V2.shape[0] - 1))
+    return eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
 
 
 def transfer_colors(
@@ -416,7 +429,6 @@ def transfer_colors(
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
     """
     from .pipeline import transfer_function
-    from .spectrum import eigenbasis
 
     V1, F1 = geometry_to_arrays(source)
     V2, F2 = geometry_to_arrays(target)
@@ -425,8 +437,7 @@ def transfer_colors(
         if signal is None:
             raise ValueError("source has no vertex colors; pass signal= with per-vertex values")
     f = as_signal(signal, V1.shape[0], name="signal")
-    k_1, k_2 = _eig_sizes(V1.shape[0], V2.shape[0], k1, k2, fmap_12, p2p_21)
-    eig_1, eig_2 = eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
+    eig_1, eig_2 = _pair_eigenbases(V1, F1, V2, F2, k1, k2, fmap_12, p2p_21)
     g = transfer_function(
         f,
         eig_1,
@@ -486,7 +497,6 @@ def transfer_detail(
         A new geometry like ``target`` with moved vertices (and the target's colors, if any).
     """
     from .pipeline import transfer_detail_arrays
-    from .spectrum import eigenbasis
 
     o3d = require_open3d()
     V1, F1 = geometry_to_arrays(source)
@@ -503,8 +513,7 @@ def transfer_detail(
             cloud.estimate_normals()
             cloud.orient_normals_consistent_tangent_plane(15)
             normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
-    k_1, k_2 = _eig_sizes(V1.shape[0], V2.shape[0], max(k1, k_low or 0), k2, fmap_12, p2p_21)
-    eig_1, eig_2 = eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
+    eig_1, eig_2 = _pair_eigenbases(V1, F1, V2, F2, max(k1, k_low or 0), k2, fmap_12, p2p_21)
     moved = transfer_detail_arrays(
         eig_1,
         eig_2,

@@ -68,6 +68,30 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> list[np.ndarray]
     return ops
 
 
+def _energy(
+    C: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    sqdiff: np.ndarray,
+    ops: list[tuple[np.ndarray, np.ndarray]],
+    orient: list[tuple[np.ndarray, np.ndarray]],
+    weights: tuple[float, float, float, float],
+) -> tuple[float, np.ndarray]:
+    """Evaluate the map energy of :func:`estimate_fmap` and its gradient with respect to C."""
+    wd, wl, wc, wo = weights
+    diff = C @ A - B
+    energy = 0.5 * wd * np.sum(diff**2) + 0.5 * wl * np.sum(C**2 * sqdiff)
+    grad = wd * diff @ A.T + wl * C * sqdiff
+    for w, pairs in ((wc, ops), (wo, orient)):
+        if w == 0:
+            continue
+        for o1, o2 in pairs:
+            d = C @ o1 - o2 @ C
+            energy += 0.5 * w * np.sum(d * d)
+            grad += w * (d @ o1.T - o2.T @ d)
+    return float(energy), grad
+
+
 def estimate_fmap(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
@@ -191,18 +215,7 @@ def estimate_fmap(
     def terms(
         C: np.ndarray, weights: tuple[float, float, float, float]
     ) -> tuple[float, np.ndarray]:
-        wd, wl, wc, wo = weights
-        diff = C @ A - B
-        energy = 0.5 * wd * np.sum(diff**2) + 0.5 * wl * np.sum(C**2 * sqdiff)
-        grad = wd * diff @ A.T + wl * C * sqdiff
-        for w, pairs in ((wc, ops), (wo, orient)):
-            if w == 0:
-                continue
-            for o1, o2 in pairs:
-                d = C @ o1 - o2 @ C
-                energy += 0.5 * w * np.sum(d * d)
-                grad += w * (d @ o1.T - o2.T @ d)
-        return energy, grad
+        return _energy(C, A, B, sqdiff, ops, orient, weights)
 
     weights = (w_descr, w_lap, w_dcomm, 0.0)
     if orient:
