@@ -5,6 +5,9 @@
 * "prods" (Nogneng, Melzi, Rodolà, Castellani, Bronstein, Ovsjanikov 2018): a signal's
   coefficients on the raw eigenproducts come from a truncated-SVD least-squares fit (singular
   values kept while σᵢ/σ₁ > (k − 1)·2e-3), and are transferred with the lifted map C̃.
+  Products of order d scale as area^−(d−1)/2, so that fixed threshold assumes unit-area
+  shapes; the products are therefore formed from the eigenfunctions of the shape rescaled to
+  unit area (φ̂ = √A φ), which makes the baseline independent of the shapes' scale.
 """
 
 from __future__ import annotations
@@ -51,6 +54,11 @@ def _rcond(k: int) -> float:
     return (k - 1) * 2e-3
 
 
+def _unit_area(eig: EigenBasis) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenfunctions and mass of the shape rescaled to unit area."""
+    return eig.evecs * np.sqrt(eig.area), eig.mass / eig.area
+
+
 def fit_prods(f: Any, eig: EigenBasis, order: int) -> np.ndarray:
     """Coefficients of ``f`` on the raw eigenproducts by truncated-SVD least squares.
 
@@ -66,13 +74,15 @@ def fit_prods(f: Any, eig: EigenBasis, order: int) -> np.ndarray:
     Returns
     -------
     (C(k+N, N),) or (C(k+N, N), d) ndarray
-        Coefficients minimizing ‖Φ̃ a − f‖_M over the singular directions kept
-        (σᵢ/σ₁ > (k − 1)·2e-3, Nogneng et al. 2018).
+        Coefficients on the products of the unit-area eigenfunctions, minimizing
+        ‖Φ̃ a − f‖_M over the singular directions kept (σᵢ/σ₁ > (k − 1)·2e-3, Nogneng et al.
+        2018).
     """
     order = check_int(order, name="order", minimum=1)
     x = as_signal(f, eig.n_vertices)
-    P, _ = eigenproducts(eig.evecs, order)
-    w = np.sqrt(eig.mass)
+    phi, mass = _unit_area(eig)
+    P, _ = eigenproducts(phi, order)
+    w = np.sqrt(mass)
     U, s, Vt = np.linalg.svd(P * w[:, None], full_matrices=False)
     keep = s / s[0] > _rcond(eig.k)
     rhs = U[:, keep].T @ (x * (w[:, None] if x.ndim == 2 else w))
@@ -82,7 +92,7 @@ def fit_prods(f: Any, eig: EigenBasis, order: int) -> np.ndarray:
 
 def approximate_prods(f: Any, eig: EigenBasis, order: int) -> np.ndarray:
     """Reconstruction of ``f`` from its "prods" coefficients (see :func:`fit_prods`)."""
-    P, _ = eigenproducts(eig.evecs, order)
+    P, _ = eigenproducts(_unit_area(eig)[0], order)
     return P @ fit_prods(f, eig, order)
 
 
@@ -97,6 +107,7 @@ def transfer_prods(
     """
     C = check_fmap(fmap_12, eig_2.k + 1, eig_1.k + 1)
     a = fit_prods(f_1, eig_1, order)
-    lifted = lift_fmap(C, order, target_area=eig_2.area)
-    P2, _ = eigenproducts(eig_2.evecs, order)
+    # the same map between the unit-area eigenfunctions: Ĉ = √(A₁/A₂) C
+    lifted = lift_fmap(C * np.sqrt(eig_1.area / eig_2.area), order, target_area=1.0)
+    P2, _ = eigenproducts(_unit_area(eig_2)[0], order)
     return P2 @ (lifted @ a)

@@ -146,3 +146,16 @@ def test_fmap_energy_gradient_matches_finite_differences():
         numeric[idx] = (plus - minus) / (2 * h)
     # central differences of a quadratic are exact up to round-off (~1e-9 here)
     np.testing.assert_allclose(grad, numeric, rtol=1e-6, atol=1e-7)
+
+
+def test_prods_baseline_is_scale_invariant(blob_mesh):
+    V, F = blob_mesh
+    f = np.sin(3 * V[:, 0]) + V[:, 1] ** 2
+    results = []
+    for s in (1.0, 100.0):
+        e1 = ofp.eigenbasis(V * s, F, k=8)
+        e2 = ofp.eigenbasis(V * s * 1.5, F, k=8)
+        C = ofp.fmap_from_p2p(np.arange(len(V)), e1, e2)
+        results.append((approximate_prods(f, e1, 3), transfer_prods(f, e1, e2, C, 3)))
+    for a, b in zip(results[0], results[1], strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-8)
