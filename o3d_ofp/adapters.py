@@ -39,9 +39,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 OPEN3D_INSTALL_HINT = (
-    "pip install 'o3d_ofp[cpu]'   (CPU-only Open3D on Linux x86_64; or "
-    "pip install 'o3d_ofp[open3d]' for the full CUDA build). On a fresh Debian/Ubuntu also "
-    "run: apt-get install -y --no-install-recommends libgl1 libegl1 libusb-1.0-0"
+    "pip install open3d-cpu   (CPU-only build, Linux x86_64; or: pip install open3d; from a "
+    "clone of o3d_ofp: pip install '.[cpu]'). On a fresh Debian/Ubuntu also run: "
+    "apt-get install -y --no-install-recommends libgl1 libegl1 libusb-1.0-0"
 )
 
 

@@ -26,7 +26,7 @@ def test_import_does_not_import_open3d():
 
 def test_missing_open3d_gives_install_hint(monkeypatch):
     monkeypatch.setitem(sys.modules, "open3d", None)  # makes `import open3d` raise ImportError
-    with pytest.raises(ImportError, match=r"pip install 'o3d_ofp\[cpu\]'"):
+    with pytest.raises(ImportError, match=r"pip install open3d-cpu"):
         adapters.triangle_mesh_from_arrays(*icosphere(1))
 
 
