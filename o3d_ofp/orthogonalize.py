@@ -269,7 +269,12 @@ def _select_by_gram(
     ~b·ε / (2 tol²): 1e-11 at tol = 1e-2, which is why this path is used only for
     ``tol >= _GRAM_MIN_TOL``. The kept vectors are then formed by Cholesky-QR applied twice
     (orthonormal to round-off: the kept columns have condition number below ~1/tol).
-    Returns how many were kept.
+    Returns how many were kept; ``kept`` and ``W`` are untouched if it raises.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If the Cholesky factorization of the second pass fails (the caller falls back).
     """
     G = _inner(W, W)
     b = W.shape[1]
@@ -365,9 +370,13 @@ def gram_schmidt_blocks(
         projected = projected_buf[:, :b]  # W minus its old-basis part, for the in-block rows of R
         projected[...] = W
         new_cols = new_buf[:, :b]
+        t = -1
         if tol >= _GRAM_MIN_TOL:
-            t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
-        else:
+            try:
+                t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
+            except np.linalg.LinAlgError:  # Cholesky-QR broke down: an ill-conditioned block
+                logger.debug("block at %d: Gram path failed, using recursive projections", start)
+        if t < 0:
             t = _select_in_block(W, new_cols, norm0, n1, basis.view, tol, start, kept)
         # Eq. (17): R[i, j] = <q_i, b_j>. Older rows are the projection coefficients; rows of
         # the functions kept in this block are their products with the projected block (the

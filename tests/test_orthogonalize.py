@@ -128,3 +128,19 @@ def test_presets_and_errors():
     bad_B[0, 0] = np.inf
     with pytest.raises(ValueError, match=r"candidates 0..1 hold NaN or inf"):
         gram_schmidt(bad_B, mass)
+
+
+def test_gram_path_falls_back_when_cholesky_fails(monkeypatch):
+    rng = np.random.default_rng(4)
+    B = rng.standard_normal((200, 40))
+    B[:, 20:] = B[:, :20] @ rng.standard_normal((20, 20)) + 1e-3 * rng.standard_normal((200, 20))
+    mass = rng.uniform(0.5, 1.5, 200)
+    expected = gram_schmidt(B, mass, tol=1e-2)
+
+    def broken(*args, **kwargs):
+        raise np.linalg.LinAlgError("forced")
+
+    monkeypatch.setattr(np.linalg, "cholesky", broken)
+    got = gram_schmidt(B, mass, tol=1e-2)
+    np.testing.assert_array_equal(got.kept, expected.kept)
+    assert _orth_error(got.Q, mass) < 1e-12
