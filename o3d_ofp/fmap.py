@@ -15,13 +15,13 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from ._validation import check_int
-from .correspondence import check_fmap, fmap_from_p2p, p2p_from_fmap
+from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
 from .geometry import face_areas_normals, face_gradient_operator
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis
 
-__all__ = ["estimate_fmap", "icp_refine", "lift_fmap", "zoomout_refine"]
+__all__ = ["estimate_fmap", "farthest_points", "icp_refine", "lift_fmap", "zoomout_refine"]
 
 logger = logging.getLogger(__name__)
 
@@ -283,8 +283,41 @@ def icp_refine(
     return C
 
 
+def farthest_points(vertices: np.ndarray, count: int, *, start: int = 0) -> np.ndarray:
+    """Farthest-point sampling (Euclidean): ``count`` well-spread vertex indices.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray
+    count : int
+        Samples wanted (all vertices if ``count >= n``).
+    start : int, default 0
+        First sample.
+
+    Returns
+    -------
+    (count,) ndarray of int64
+    """
+    n = vertices.shape[0]
+    if count >= n:
+        return np.arange(n)
+    chosen = np.empty(count, dtype=np.int64)
+    chosen[0] = start
+    dist = np.sum((vertices - vertices[start]) ** 2, axis=1)
+    for i in range(1, count):
+        chosen[i] = int(np.argmax(dist))
+        np.minimum(dist, np.sum((vertices - vertices[chosen[i]]) ** 2, axis=1), out=dist)
+    return chosen
+
+
 def zoomout_refine(
-    fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis, *, k_final: int, step: int = 1
+    fmap_12: Any,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    k_final: int,
+    step: int = 1,
+    subsample: int | None = None,
 ) -> np.ndarray:
     """ZoomOut (Melzi et al. 2019): grow the map one eigenfunction at a time through p2p maps.
 
@@ -298,6 +331,11 @@ def zoomout_refine(
         Final number of non-constant eigenfunctions on both sides.
     step : int, default 1
         Growth per iteration.
+    subsample : int, optional
+        Run the iterations on this many farthest-point samples of each shape (as in the
+        ZoomOut paper): each step then costs a small nearest-neighbour search and a small
+        least-squares fit instead of full-resolution ones. ``None``: all vertices, with the
+        mass-weighted projection.
 
     Returns
     -------
@@ -308,10 +346,22 @@ def zoomout_refine(
     step = check_int(step, name="step", minimum=1)
     k = min(C.shape) - 1
     C = C[: k + 1, : k + 1]
+    if subsample is not None and subsample >= min(eig_1.n_vertices, eig_2.n_vertices):
+        subsample = None  # small shapes: the full-resolution iteration is exact and cheap
+    if subsample is not None:
+        subsample = check_int(subsample, name="subsample", minimum=k_final + 1)
+        s1 = farthest_points(eig_1.vertices, subsample)
+        s2 = farthest_points(eig_2.vertices, subsample)
+        phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
     while k < k_final:
         k = min(k + step, k_final)
-        p2p = p2p_from_fmap(C, eig_1, eig_2)
-        C = fmap_from_p2p(p2p, eig_1, eig_2, k1=k, k2=k)
+        if subsample is None:
+            p2p = p2p_from_fmap(C, eig_1, eig_2)
+            C = fmap_from_p2p(p2p, eig_1, eig_2, k1=k, k2=k)
+        else:
+            kc = C.shape[0]
+            p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
+            C = np.linalg.lstsq(psi2[:, : k + 1], phi1[p2p_sub, : k + 1], rcond=None)[0]
     return C
 
 

@@ -159,3 +159,19 @@ def test_prods_baseline_is_scale_invariant(blob_mesh):
         results.append((approximate_prods(f, e1, 3), transfer_prods(f, e1, e2, C, 3)))
     for a, b in zip(results[0], results[1], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-8)
+
+
+def test_farthest_points_and_subsampled_zoomout(blob_mesh):
+    from o3d_ofp.fmap import farthest_points, zoomout_refine
+
+    V, F = blob_mesh
+    idx = farthest_points(V, 50)
+    assert len(np.unique(idx)) == 50
+    np.testing.assert_array_equal(farthest_points(V, len(V) + 5), np.arange(len(V)))
+    eig = ofp.eigenbasis(V, F, k=20)
+    # the identity map is a fixed point of ZoomOut, subsampled or not
+    for sub in (None, 300):
+        C = zoomout_refine(np.eye(6), eig, eig, k_final=20, subsample=sub)
+        np.testing.assert_allclose(C, np.eye(21), atol=1e-8)
+    with pytest.raises(ValueError, match="subsample must be >= 21"):
+        zoomout_refine(np.eye(6), eig, eig, k_final=20, subsample=10)
