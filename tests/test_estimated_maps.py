@@ -31,7 +31,7 @@ def test_estimated_map_is_accurate_and_not_flipped(src, tgt):
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
     C, p2p = match(e1, e2)
     err = _p2p_error(p2p, V1, e1.area)
-    # measured: FAUST 0.0245, centaur 0.0153 (pyFM's standard pipeline: 0.101 and 0.084 here;
+    # measured: FAUST 0.0251, centaur 0.0152 (pyFM's standard pipeline: 0.101 and 0.084 here;
     # a left-right flip costs ~0.2). Without the orientation term centaur flips (0.077).
     assert err < 0.04
     assert C.shape == (100, 100)
