@@ -109,11 +109,12 @@ def hks(
        Multi-Scale Signature Based on Heat Diffusion", Computer Graphics Forum 28(5), 2009.
     """
     evals, phi = _nonconstant(eig, k)
-    t = (
-        hks_times(evals, check_int(n_times, name="n_times", minimum=1))
-        if times is None
-        else np.asarray(times, float)
-    )
+    if times is None:
+        t = hks_times(evals, check_int(n_times, name="n_times", minimum=1))
+    else:
+        t = np.asarray(times, dtype=np.float64).ravel()
+        if t.size == 0 or not np.all(np.isfinite(t)) or np.any(t <= 0):
+            raise ValueError("times must be a non-empty list of positive, finite diffusion times")
     coefs = np.exp(-np.outer(t, evals))  # (T, k)
     return _kernel_signature(phi, coefs, landmarks, scaled)
 

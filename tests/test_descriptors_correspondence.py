@@ -80,3 +80,10 @@ def test_read_vts(tmp_path):
         read_vts(tmp_path / "c.vts")
     with pytest.raises(FileNotFoundError, match="no such file"):
         read_vts(tmp_path / "missing.vts")
+
+
+def test_hks_explicit_times(blob_eig):
+    D = hks(blob_eig, times=[0.1, 1.0])
+    assert D.shape == (blob_eig.n_vertices, 2)
+    with pytest.raises(ValueError, match="times must be a non-empty list of positive"):
+        hks(blob_eig, times=[-1.0])
