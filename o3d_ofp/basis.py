@@ -20,17 +20,13 @@ import scipy.sparse as sp
 from ._validation import as_signal, check_int
 from .orthogonalize import PRESETS, gram_schmidt_blocks, resolve_tol
 from .products import eigenproduct_blocks, eigenproduct_indices, n_eigenproducts
-from .spectrum import EigenBasis
+from .spectrum import EigenBasis, mass_weighted
 
 __all__ = ["OFPBasis", "approximation_error", "ofp_basis"]
 
 logger = logging.getLogger(__name__)
 
 _FORMAT_VERSION = 1
-
-
-def _mass_weighted(f: np.ndarray, mass: np.ndarray) -> np.ndarray:
-    return mass[:, None] * f if f.ndim == 2 else mass * f
 
 
 def approximation_error(f: Any, f_approx: Any, mass: Any, *, per_channel: bool = False) -> Any:
@@ -161,7 +157,7 @@ class OFPBasis:
             Its coefficients in the basis.
         """
         f = as_signal(f, self.n_vertices)
-        return self.Q.T @ _mass_weighted(f, self.mass)
+        return self.Q.T @ mass_weighted(f, self.mass)
 
     def reconstruct(self, coefficients: Any) -> np.ndarray:
         """Signal ``Q c`` from coefficients of shape (q,) or (q, d)."""

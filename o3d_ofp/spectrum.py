@@ -24,7 +24,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from ._validation import as_signal, check_int
+from ._validation import as_faces, as_signal, as_vertices, check_int
 from .laplacian import count_components, laplacian
 
 __all__ = ["EigenBasis", "EigenSolverError", "eigenbasis"]
@@ -43,6 +43,11 @@ _SKEW_ZERO = 1e-6
 
 class EigenSolverError(RuntimeError):
     """The sparse eigensolver failed to factorize or to converge."""
+
+
+def mass_weighted(f: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """``M f`` for a signal of shape (n,) or (n, d), M the diagonal lumped mass."""
+    return mass[:, None] * f if f.ndim == 2 else mass * f
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -120,7 +125,7 @@ class EigenBasis:
     def project(self, f: Any) -> np.ndarray:
         """Spectral coefficients ``Φᵀ M f`` of a signal ``f`` of shape (n,) or (n, d)."""
         f = as_signal(f, self.n_vertices)
-        return self.evecs.T @ (self.mass[:, None] * f if f.ndim == 2 else self.mass * f)
+        return self.evecs.T @ mass_weighted(f, self.mass)
 
     def reconstruct(self, coefficients: Any) -> np.ndarray:
         """Signal ``Φ c`` from coefficients of shape (k+1,) or (k+1, d)."""
@@ -276,13 +281,11 @@ def eigenbasis(
         vertices, faces = geometry_to_arrays(mesh_or_vertices)
     else:
         vertices = mesh_or_vertices
+    vertices = as_vertices(vertices)
+    faces = None if faces is None else as_faces(faces, vertices.shape[0])
     stiffness, mass = laplacian(
         vertices, faces, mollify_factor=mollify_factor, n_neighbors=n_neighbors
     )
-    from ._validation import as_faces, as_vertices
-
-    vertices = as_vertices(vertices)
-    faces = None if faces is None else as_faces(faces, vertices.shape[0])
     n = mass.shape[0]
     if n < 3:
         raise ValueError(f"a basis needs at least 3 vertices; got {n}")
