@@ -288,7 +288,9 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     Returns
     -------
     open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
-        The geometry as stored (no vertex merging or other post-processing).
+        The geometry as stored (no vertex merging or other post-processing; cleaning happens
+        when a basis is built). A file whose faces Open3D cannot read (PLY triangle strips)
+        comes back as a point cloud, which gets the point-cloud Laplacian.
 
     Raises
     ------
@@ -301,11 +303,19 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such file")
-    mesh = o3d.io.read_triangle_mesh(path)
+    # Open3D prints a warning for a file with points but no triangles: that case is handled.
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh = o3d.io.read_triangle_mesh(path)
     if len(mesh.vertices) and len(mesh.triangles):
         return mesh
     cloud = o3d.io.read_point_cloud(path)
     if len(cloud.points):
+        logger.info(
+            "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
+            "read as a point cloud of %d points",
+            path,
+            len(cloud.points),
+        )
         return cloud
     raise ValueError(f"{path}: Open3D could not read any vertices from this file")
 
@@ -375,8 +385,11 @@ def _pair_eigenbases(
         k_1, k_2 = max(k1, cols - 1), max(k2, rows - 1)
     else:  # an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
         # standard pipeline), never more than a shape allows
-        k_1 = max(1, min(max(k1, 99), V1.shape[0] - 1))
-        k_2 = max(1, min(max(k2, 99), V2.shape[0] - 1))
+        k_1, k_2 = max(k1, 99), max(k2, 99)
+        return (
+            eigenbasis(V1, F1, k=k_1, clamp_k=True),
+            eigenbasis(V2, F2, k=k_2, clamp_k=True),
+        )
     return eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
 
 

@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ._memory import check_memory
 from ._validation import as_signal, check_int
+from .cleaning import Cleaning, CleaningReport
 from .orthogonalize import PRESETS, gram_schmidt_blocks, resolve_tol
 from .products import eigenproduct_blocks, eigenproduct_indices, n_eigenproducts
 from .spectrum import EigenBasis, mass_weighted
@@ -213,6 +215,12 @@ class OFPBasis:
             "L_indices": L.indices,
             "L_indptr": L.indptr,
         }
+        if eig.cleaning is not None:
+            c = eig.cleaning
+            payload["clean_index"] = c.index
+            payload["clean_kept"] = c.kept
+            payload["clean_representative"] = c.representative
+            payload["clean_report"] = c.report.as_array()
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
@@ -247,6 +255,15 @@ class OFPBasis:
             stiffness = sp.csr_matrix(
                 (data["L_data"], data["L_indices"], data["L_indptr"]), shape=(n, n)
             )
+            cleaning = None
+            if "clean_index" in data:
+                report = CleaningReport.from_array(data["clean_report"])
+                cleaning = Cleaning(
+                    index=data["clean_index"],
+                    kept=data["clean_kept"],
+                    representative=data["clean_representative"],
+                    report=report,
+                )
             eig = EigenBasis(
                 evals=data["evals"],
                 evecs=data["evecs"],
@@ -254,6 +271,7 @@ class OFPBasis:
                 stiffness=stiffness,
                 vertices=data["vertices"],
                 faces=faces if faces.shape[0] else None,
+                cleaning=cleaning,
             )
             return cls(
                 Q=data["Q"],
@@ -318,14 +336,33 @@ def ofp_basis(
     k = eig.k if k is None else check_int(k, name="k", minimum=1, maximum=eig.k)
     if k < eig.k:
         eig = eig.truncate(k)
+    block_size = check_int(block_size, name="block_size", minimum=1)
     total = n_eigenproducts(k, order)
+    n = eig.n_vertices
+    q_max = min(total, n)  # at most this many functions can be kept
+    # Kept basis (resizable storage: up to 2x while growing), R (q, P) and its blocks, and the
+    # candidate block with its work buffers; the full (n, P) candidate matrix is never formed.
+    check_memory(
+        8.0 * (2 * n * q_max + 2 * q_max * total + 4 * n * block_size),
+        f"the product basis (n={n}, k={k}, order={order}: {total} candidates)",
+    )
+    evecs, mass = eig.evecs, eig.mass
+    c = eig.cleaning
+    if c is not None:
+        # Orthogonalize on the cleaned surface (one row per cleaned vertex, carrying its whole
+        # mass), then copy rows back to the input's vertices: duplicates and removed vertices
+        # hold copies of a cleaned vertex's values, so the M-inner products are the same.
+        evecs = evecs[c.representative]
+        mass = np.bincount(c.index, weights=eig.mass, minlength=c.n_vertices)
     gs = gram_schmidt_blocks(
-        eigenproduct_blocks(eig.evecs, order, block_size=block_size),
-        eig.mass,
+        eigenproduct_blocks(evecs, order, block_size=block_size),
+        mass,
         total,
         tol=tol,
         block_size=block_size,
     )
+    if c is not None:
+        gs = gs._replace(Q=np.ascontiguousarray(gs.Q[c.index]))
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")
     logger.info(
         "ofp_basis (%s): k=%d order=%d kept %d of %d candidates",

@@ -63,7 +63,13 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> list[np.ndarray]
         gd = np.stack([g @ D[:, j] for g in (gx, gy, gz)], axis=-1)  # (m, 3)
         rot = np.cross(normals, gd)
         per_face = np.einsum("fc,fkc->fk", rot, grad_phi)  # (m, k+1)
-        per_vertex = (to_vertex @ per_face) / eig.mass[:, None]
+        # Vertices removed by cleaning have zero mass and no faces: give them 0, not 0/0.
+        per_vertex = np.divide(
+            to_vertex @ per_face,
+            eig.mass[:, None],
+            out=np.zeros((V.shape[0], per_face.shape[1])),
+            where=eig.mass[:, None] > 0,
+        )
         ops.append(proj @ per_vertex)
     return ops
 

@@ -345,6 +345,11 @@ def gram_schmidt_blocks(
     tol = check_tol(tol)
     block_size = check_int(block_size, name="block_size", minimum=1)
     n = mass.shape[0]
+    if not np.all(mass > 0):
+        raise ValueError(
+            "mass must be positive at every row (orthogonalize the rows that carry mass and "
+            "copy the result to the others)"
+        )
     sqrt_m = np.sqrt(mass)
     basis = _GrowingColumns(n, min(n_candidates, n, 4 * block_size))
     W_buf = np.empty((n, block_size), order="F")

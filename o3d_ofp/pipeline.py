@@ -256,4 +256,10 @@ def _normals(eig: EigenBasis, normals: Any, name: str) -> np.ndarray:
         raise ValueError(
             f"{name} are needed for a point cloud (it has no faces to compute them from)"
         )
-    return vertex_normals(eig.vertices, eig.faces)
+    normals = vertex_normals(eig.vertices, eig.faces)
+    if eig.cleaning is not None:
+        # Faces reference only the representative of each welded group: give every input
+        # vertex (duplicate or removed) the normal of the cleaned vertex standing for it.
+        c = eig.cleaning
+        normals = normals[c.representative[c.index]]
+    return normals

@@ -24,8 +24,9 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from ._memory import check_memory
 from ._validation import as_faces, as_signal, as_vertices, check_int
-from .laplacian import count_components, laplacian
+from .cleaning import Cleaning, CleanShape, clean_shape
 
 __all__ = ["EigenBasis", "EigenSolverError", "eigenbasis"]
 
@@ -72,7 +73,12 @@ class EigenBasis:
     vertices : (n, 3) ndarray of float64
         The vertex positions the basis was computed on.
     faces : (m, 3) ndarray of int64 or None
-        The triangles, or ``None`` for a point cloud.
+        The triangles the Laplacian was built on (the input's, cleaned, indexing the input's
+        vertices), or ``None`` for a point cloud.
+    cleaning : Cleaning or None
+        How the input was cleaned (``None``: it was used as given). Welded vertices share
+        their representative's values and mass; removed vertices have zero mass and the values
+        of the nearest kept vertex.
 
     All arrays are read-only.
     """
@@ -83,6 +89,7 @@ class EigenBasis:
     stiffness: sp.csr_matrix
     vertices: np.ndarray
     faces: np.ndarray | None = None
+    cleaning: Cleaning | None = None
 
     def __post_init__(self) -> None:
         n = self.mass.shape[0]
@@ -142,14 +149,21 @@ def _dense_eigs(
 
 
 def _shift_invert_eigs(
-    stiffness: sp.csr_matrix, mass: np.ndarray, k: int, *, maxiter: int
+    stiffness: sp.csr_matrix,
+    mass: np.ndarray,
+    k: int,
+    *,
+    maxiter: int,
+    shift: float = 0.01,
+    ncv: int | None = None,
+    seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     n = mass.shape[0]
     area = float(mass.sum())
-    # Shift just left of 0 at 1 % of Weyl's estimate of the first eigenvalue (4π/area): L − σM is
-    # then positive definite with a condition number ~ 100·n, and σ scales with the mesh, so
-    # the whole computation is invariant to uniform scaling.
-    sigma = -0.01 * 4.0 * math.pi / area
+    # Shift just left of 0 at a fraction (1 % by default) of Weyl's estimate of the first
+    # eigenvalue (4π/area): L − σM is then positive definite with a condition number ~ 100·n,
+    # and σ scales with the mesh, so the whole computation is invariant to uniform scaling.
+    sigma = -shift * 4.0 * math.pi / area
     M = sp.diags(mass, format="csc")
     shifted = (stiffness - sigma * M).tocsc()
     try:
@@ -167,7 +181,7 @@ def _shift_invert_eigs(
             "numerically singular: look for degenerate or duplicated triangles"
         ) from exc
     op = sla.LinearOperator((n, n), matvec=lu.solve, dtype=np.float64)
-    v0 = np.random.default_rng(0).standard_normal(n)  # fixed start: reproducible runs
+    v0 = np.random.default_rng(seed).standard_normal(n)  # fixed start: reproducible runs
     try:
         evals, evecs = sla.eigsh(
             stiffness,
@@ -177,6 +191,7 @@ def _shift_invert_eigs(
             which="LM",
             OPinv=op,
             v0=v0,
+            ncv=ncv,
             maxiter=maxiter,
             tol=0.0,
         )
@@ -188,6 +203,8 @@ def _shift_invert_eigs(
         ) from exc
     except sla.ArpackError as exc:
         raise EigenSolverError(f"ARPACK failed for k={k} on {n} vertices: {exc}") from exc
+    if not (np.all(np.isfinite(evals)) and np.all(np.isfinite(evecs))):
+        raise EigenSolverError(f"ARPACK returned non-finite eigenpairs for k={k} on {n} vertices")
     return evals, evecs
 
 
@@ -220,16 +237,135 @@ def _relative_residuals(
     return dual / max(float(evals[-1]), np.finfo(float).tiny)
 
 
+#: Attempts of the sparse solver, in order: (shift as a fraction of 4π/area, ncv factor, seed).
+#: A failed factorization, an unconverged Lanczos run or a failed residual check moves on to
+#: the next, each logged as a warning; the last failure is raised.
+_ATTEMPTS = ((0.01, 0, 0), (0.1, 4, 1), (1.0, 6, 2))
+#: After the sparse attempts, problems up to this size are solved densely as a last resort.
+_DENSE_FALLBACK_MAX = 4000
+
+
+def _solve(
+    stiffness: sp.csr_matrix, mass: np.ndarray, k: int, *, maxiter: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Eigenpairs with the constant first, checked; retried as documented in ``_ATTEMPTS``."""
+    n = mass.shape[0]
+    plans: list[tuple[str, dict[str, Any]]] = []
+    if n <= DENSE_MAX_VERTICES:
+        plans.append(("dense", {}))
+    else:
+        for shift, ncv_factor, seed in _ATTEMPTS:
+            ncv = None if ncv_factor == 0 else min(n - 1, max(ncv_factor * (k + 1), 20))
+            plans.append(("shift-invert Lanczos", {"shift": shift, "ncv": ncv, "seed": seed}))
+        if n <= _DENSE_FALLBACK_MAX:
+            plans.append(("dense", {}))
+    last: Exception | None = None
+    for attempt, (method, options) in enumerate(plans):
+        if attempt:
+            logger.warning(
+                "eigensolver attempt %d failed (%s); retrying with %s %s",
+                attempt,
+                last,
+                method,
+                options,
+            )
+        try:
+            if method == "dense":
+                evals, evecs = _dense_eigs(stiffness, mass, k)
+            else:
+                evals, evecs = _shift_invert_eigs(stiffness, mass, k, maxiter=maxiter, **options)
+            evals, evecs = _finish(stiffness, mass, evals, evecs, method, k)
+        except (EigenSolverError, np.linalg.LinAlgError) as exc:
+            last = exc
+            continue
+        res = _relative_residuals(stiffness, mass, evals, evecs)
+        worst = int(np.argmax(res))
+        if res[worst] <= RESIDUAL_TOL:
+            return evals, evecs, res, method
+        last = EigenSolverError(
+            f"eigenpair {worst} (λ={evals[worst]:.6g}) has relative residual {res[worst]:.3g} > "
+            f"{RESIDUAL_TOL:g} after {method} on {n} vertices, k={k}: the solver did not converge"
+        )
+    assert last is not None
+    if len(plans) > 1:
+        raise EigenSolverError(
+            f"all {len(plans)} eigensolver attempts failed; last: {last}"
+        ) from last
+    raise last
+
+
+def _finish(
+    stiffness: sp.csr_matrix,
+    mass: np.ndarray,
+    evals: np.ndarray,
+    evecs: np.ndarray,
+    method: str,
+    k: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rayleigh-Ritz, ascending order, exact constant first, deterministic signs."""
+    n = mass.shape[0]
+    evals, evecs = _rayleigh_ritz(stiffness, mass, evecs)
+    order = np.argsort(evals, kind="stable")
+    evals, evecs = evals[order], evecs[:, order]
+    area = float(mass.sum())
+    const = np.full(n, 1.0 / math.sqrt(area))
+    overlap = abs(float(const @ (mass * evecs[:, 0])))
+    if overlap < 1.0 - 1e-6:
+        raise EigenSolverError(
+            f"the first eigenfunction from {method} is not constant (M-overlap with the constant "
+            f"{overlap:.6f}); the Laplacian is not that of one connected surface"
+        )
+    evecs[:, 0] = const
+    evals[0] = 0.0
+    # Keep the rest exactly M-orthogonal to the now exact constant.
+    evecs[:, 1:] -= np.outer(const, const @ (mass[:, None] * evecs[:, 1:]))
+    evecs[:, 1:] /= np.sqrt(mass @ evecs[:, 1:] ** 2)
+    evecs[:, 1:] = _fix_signs(evecs[:, 1:], mass)
+    return evals, evecs
+
+
+def _expand(
+    shape: CleanShape, evecs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix, np.ndarray | None]:
+    """Carry a cleaned shape's eigenvectors, mass, stiffness and faces to the input vertices.
+
+    A welded vertex gets its representative's values and an equal share of its mass; a removed
+    vertex gets the nearest kept vertex's values and zero mass. With ``A`` the (n_c, n_in)
+    averaging matrix (row sums 1, ``A Φ_in = Φ_c``), the stiffness ``AᵀLA`` and the mass keep
+    every inner product and Dirichlet energy of the cleaned shape.
+    """
+    c = shape.cleaning
+    faces = None if shape.faces is None else c.representative[shape.faces]
+    if not c.report.changed:
+        return evecs, shape.mass, shape.stiffness, faces
+    idx, kept = c.index, c.kept
+    mult = c.multiplicity.astype(np.float64)
+    share = np.where(kept, 1.0 / mult[idx], 0.0)
+    mass = shape.mass[idx] * share
+    A = sp.csr_matrix((share, (idx, np.arange(c.n_input))), shape=(c.n_vertices, c.n_input))
+    stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
+    stiffness.sum_duplicates()
+    return evecs[idx], mass, stiffness, faces
+
+
 def eigenbasis(
     mesh_or_vertices: Any,
     faces: Any = None,
     *,
     k: int = 29,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
     mollify_factor: float = 1e-5,
     n_neighbors: int = 30,
     maxiter: int | None = None,
+    clamp_k: bool = False,
 ) -> EigenBasis:
     """Compute the ``k + 1`` smallest Laplace-Beltrami eigenpairs of a mesh or point cloud.
+
+    The input is first cleaned by :func:`o3d_ofp.cleaning.clean_shape` (duplicated vertices
+    welded, degenerate/duplicated faces and unreferenced vertices removed, stray components
+    handled by ``components``); the eigenpairs of the cleaned surface are then given on the
+    caller's **original** vertices (see :attr:`EigenBasis.cleaning`).
 
     Parameters
     ----------
@@ -238,34 +374,48 @@ def eigenbasis(
     faces : (m, 3) array_like of int, optional
         Triangles when ``mesh_or_vertices`` is an array; must be ``None`` with an Open3D input.
     k : int, default 29
-        Number of non-constant eigenfunctions (the paper's K = 30 is ``k=29``); ``1 <= k < n``.
+        Number of non-constant eigenfunctions (the paper's K = 30 is ``k=29``); ``1 <= k < n``
+        with n the number of vertices after cleaning.
+    weld_tolerance : float or None, default 1e-9
+        Relative distance (to the bounding-box diagonal) under which vertices are welded.
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (:mod:`o3d_ofp.cleaning`): "auto" keeps the
+        largest when it holds ≥ 90 % of the area, else raises.
     mollify_factor : float, default 1e-5
         Passed to :func:`o3d_ofp.laplacian.laplacian`.
     n_neighbors : int, default 30
         Neighbours per point for point clouds.
     maxiter : int, optional
-        Bound on the Lanczos restarts (default ``max(1000, 10 (k + 1))``); exceeding it raises.
+        Bound on the Lanczos restarts per attempt (default ``max(1000, 10 (k + 1))``).
+    clamp_k : bool, default False
+        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning) instead of
+        raising.
 
     Returns
     -------
     EigenBasis
         Eigenvalues ``(k+1,)`` ascending, M-orthonormal eigenvectors ``(n, k+1)`` with the
-        constant first and deterministic signs, the lumped mass and the stiffness matrix.
+        constant first and deterministic signs, the lumped mass and the stiffness matrix, all
+        on the input's n vertices.
 
     Raises
     ------
-    ValueError
-        On malformed input, ``k`` out of range, or a shape with several connected components.
+    TypeError, ValueError
+        On malformed input, ``k`` out of range, a shape that is no surface once cleaned, or
+        several comparable components.
     EigenSolverError
-        If the factorization or the Lanczos iteration fails, or a residual
-        ``‖Lφ − λMφ‖_{M⁻¹} / λ_k`` exceeds ``RESIDUAL_TOL``.
+        If every solver attempt fails (see Notes).
 
     Notes
     -----
     Small problems (``n <= DENSE_MAX_VERTICES``) are solved densely. Otherwise ARPACK's
     shift-invert Lanczos runs on ``L − σM`` (σ = −0.01·4π/area, scale-invariant) factorized
     once by SuperLU. A Rayleigh-Ritz step on the converged subspace makes the vectors
-    M-orthonormal to round-off; every residual is then checked.
+    M-orthonormal to round-off; every residual ``‖Lφ − λMφ‖_{M⁻¹} / λ_k`` is then checked
+    against ``RESIDUAL_TOL``. When the factorization fails, Lanczos does not converge within
+    ``maxiter`` or a check fails, the solve is retried (logged as a warning) with a shift 10×
+    and 100× further from the spectrum and a larger Krylov space, and finally, for at most
+    4000 vertices, densely; only then is :class:`EigenSolverError` raised.
 
     References
     ----------
@@ -283,57 +433,33 @@ def eigenbasis(
         vertices = mesh_or_vertices
     vertices = as_vertices(vertices)
     faces = None if faces is None else as_faces(faces, vertices.shape[0])
-    stiffness, mass = laplacian(
-        vertices, faces, mollify_factor=mollify_factor, n_neighbors=n_neighbors
-    )
-    n = mass.shape[0]
-    if n < 3:
-        raise ValueError(f"a basis needs at least 3 vertices; got {n}")
-    k = check_int(k, name="k", minimum=1, maximum=n - 1)
-    n_comp, labels = count_components(stiffness)
-    if n_comp > 1:
-        sizes = np.sort(np.bincount(labels))[::-1]
-        raise ValueError(
-            f"the shape has {n_comp} connected components (vertex counts {sizes[:5].tolist()}"
-            f"{'...' if n_comp > 5 else ''}); its zero eigenvalue has multiplicity {n_comp}, so "
-            "'constant first' is ill-defined. Weld duplicated vertices or keep one component"
-        )
+    k = check_int(k, name="k", minimum=1)
     if maxiter is None:
         maxiter = max(1000, 10 * (k + 1))
     maxiter = check_int(maxiter, name="maxiter", minimum=1)
-
-    if n <= DENSE_MAX_VERTICES:
-        evals, evecs = _dense_eigs(stiffness, mass, k)
-        method = "dense"
-    else:
-        evals, evecs = _shift_invert_eigs(stiffness, mass, k, maxiter=maxiter)
-        method = "shift-invert Lanczos"
-    evals, evecs = _rayleigh_ritz(stiffness, mass, evecs)
-    order = np.argsort(evals, kind="stable")
-    evals, evecs = evals[order], evecs[:, order]
-
-    area = float(mass.sum())
-    const = np.full(n, 1.0 / math.sqrt(area))
-    overlap = abs(float(const @ (mass * evecs[:, 0])))
-    if overlap < 1.0 - 1e-6:
-        raise EigenSolverError(
-            f"the first eigenfunction is not constant (M-overlap with the constant {overlap:.6f}); "
-            "the Laplacian of this shape is not that of one connected surface"
+    shape = clean_shape(
+        vertices,
+        faces,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        mollify_factor=mollify_factor,
+        n_neighbors=n_neighbors,
+    )
+    n = shape.mass.shape[0]
+    if k >= n and clamp_k and n >= 2:
+        logger.warning("k=%d reduced to %d: the shape has %d vertices", k, n - 1, n)
+        k = n - 1
+    if k >= n:
+        raise ValueError(
+            f"k must be smaller than the number of vertices: k={k} but the shape has {n} "
+            f"vertices{' after cleaning' if shape.cleaning.report.changed else ''}, so k <= {n - 1}"
         )
-    evecs[:, 0] = const
-    evals[0] = 0.0
-    # Keep the rest exactly M-orthogonal to the now exact constant.
-    evecs[:, 1:] -= np.outer(const, const @ (mass[:, None] * evecs[:, 1:]))
-    evecs[:, 1:] /= np.sqrt(mass @ evecs[:, 1:] ** 2)
-    evecs[:, 1:] = _fix_signs(evecs[:, 1:], mass)
-
-    res = _relative_residuals(stiffness, mass, evals, evecs)
-    worst = int(np.argmax(res))
-    if res[worst] > RESIDUAL_TOL:
-        raise EigenSolverError(
-            f"eigenpair {worst} (λ={evals[worst]:.6g}) has relative residual {res[worst]:.3g} > "
-            f"{RESIDUAL_TOL:g} after {method} on {n} vertices, k={k}: the solver did not converge"
-        )
+    ncv = min(n, max(2 * (k + 1) + 1, 20))
+    check_memory(
+        8.0 * n * (ncv + 3 * (k + 1)) + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0),
+        f"the eigensolver (n={n}, k={k})",
+    )
+    evals, evecs, res, method = _solve(shape.stiffness, shape.mass, k, maxiter=maxiter)
     logger.info(
         "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
         n,
@@ -342,11 +468,13 @@ def eigenbasis(
         evals[-1],
         res.max(),
     )
+    evecs, mass, stiffness, used_faces = _expand(shape, evecs)
     return EigenBasis(
         evals=np.ascontiguousarray(evals),
         evecs=np.ascontiguousarray(evecs),
         mass=mass,
         stiffness=stiffness,
         vertices=vertices,
-        faces=faces,
+        faces=used_faces,
+        cleaning=None if not shape.cleaning.report.changed else shape.cleaning,
     )

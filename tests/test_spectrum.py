@@ -1,3 +1,4 @@
+import logging
 import math
 
 import numpy as np
@@ -96,10 +97,29 @@ def test_small_mesh_dense_path_k_max():
     assert np.abs(_mass_gram(eig) - np.eye(12)).max() < 1e-10
 
 
-def test_nonconvergence_raises(monkeypatch):
-    V, F = blob(4)
-    with pytest.raises(ofp.EigenSolverError, match="did not converge"):
-        ofp.eigenbasis(V, F, k=60, maxiter=1)
+def test_nonconvergence_is_retried_then_raised(monkeypatch, caplog):
+    V, F = blob(4)  # 2562 vertices: sparse path
+    # One Lanczos restart is not enough with the default Krylov space; the documented retry
+    # (larger space, further shift) recovers, says so, and the result passes the residual check.
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.spectrum"):
+        eig = ofp.eigenbasis(V, F, k=60, maxiter=1)
+    assert "retrying" in caplog.text
+    ref = ofp.eigenbasis(V, F, k=60)
+    # Same eigenvalues as the normal run: both pass the 1e-6 residual check, which bounds the
+    # eigenvalue error far below this.
+    np.testing.assert_allclose(eig.evals, ref.evals, rtol=1e-8, atol=1e-12)
+
+    def never_converges(*args, **kwargs):
+        raise spectrum.EigenSolverError("did not converge (forced)")
+
+    monkeypatch.setattr(spectrum, "_shift_invert_eigs", never_converges)
+    monkeypatch.setattr(spectrum, "_DENSE_FALLBACK_MAX", 0)
+    with pytest.raises(ofp.EigenSolverError, match="all 3 eigensolver attempts failed"):
+        ofp.eigenbasis(V, F, k=10)
+    # Within the dense fallback's size the last resort succeeds.
+    monkeypatch.setattr(spectrum, "_DENSE_FALLBACK_MAX", 4000)
+    eig = ofp.eigenbasis(V, F, k=10)
+    np.testing.assert_allclose(eig.evals, ref.evals[:11], rtol=1e-8, atol=1e-12)
 
 
 def test_bad_inputs_raise_and_leave_input_unchanged():
@@ -133,10 +153,8 @@ def test_bad_inputs_raise_and_leave_input_unchanged():
     np.testing.assert_array_equal(F, F0)
 
 
-def test_several_components_and_unreferenced_vertices_are_refused():
+def test_two_comparable_components_are_refused_with_their_sizes():
     V, F = icosphere(2)
     two = (np.concatenate([V, V + 3]), np.concatenate([F, F + len(V)]))
     with pytest.raises(ValueError, match="2 connected components"):
         ofp.eigenbasis(*two, k=5)
-    with pytest.raises(ValueError, match="1 of 163 vertices are not referenced"):
-        ofp.eigenbasis(np.concatenate([V, [[5.0, 5.0, 5.0]]]), F, k=5)
