@@ -29,6 +29,7 @@ __all__ = [
     "point_cloud_from_arrays",
     "read_geometry",
     "require_open3d",
+    "texture_colors",
     "transfer_colors",
     "transfer_detail",
     "triangle_mesh_from_arrays",
@@ -184,6 +185,85 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
     if colors is None or colors.size == 0:
         return None
     return colors.reshape(-1, 3)
+
+
+def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
+    if isinstance(image, (str, os.PathLike)):
+        path = os.fspath(image)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"{path}: no such texture file")
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            image = o3d.io.read_image(path)
+        if np.asarray(image).size == 0:
+            raise ValueError(f"{path}: Open3D could not read this image (PNG and JPEG are read)")
+    arr = np.array(np.asarray(image), copy=True)
+    if arr.ndim not in (2, 3) or arr.size == 0:
+        raise ValueError(f"{name} must be an (H, W[, C]) image; got shape {arr.shape}")
+    return arr
+
+
+def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
+    """Per-vertex RGB colors sampled from a mesh's UV texture (bilinear).
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh (or ``open3d.t.geometry.TriangleMesh``)
+        A mesh with per-triangle-corner UVs (``triangle_uvs``), e.g. read from an OBJ.
+    texture : str, os.PathLike, ndarray or open3d.geometry.Image, optional
+        The texture image; default the mesh's own textures (loaded by Open3D from the OBJ's
+        material file), one per material id.
+
+    Returns
+    -------
+    (n, 3) ndarray of float64
+        Colors in [0, 1]: at each vertex, the mean of its triangle corners' samples. Open3D
+        splits OBJ vertices along UV seams; the two copies of a seam vertex are welded again
+        when a basis is built (see :mod:`o3d_ofp.cleaning`), so the shape stays one surface
+        and the welded vertex gets the mean of both sides' colors.
+
+    Raises
+    ------
+    ValueError
+        If the mesh has no UVs, or no texture image is given or loaded.
+    """
+    from .texture import corner_colors_to_vertices, sample_texture
+
+    o3d = require_open3d()
+    if _kind(mesh) == "tensor_mesh":
+        mesh = mesh.to_legacy()
+    if _kind(mesh) != "legacy_mesh":
+        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
+    V, F = geometry_to_arrays(mesh)
+    uv = np.array(mesh.triangle_uvs, dtype=np.float64)
+    if uv.shape[0] != 3 * F.shape[0]:
+        raise ValueError(
+            f"the mesh has no per-corner texture coordinates ({uv.shape[0]} UVs for "
+            f"{F.shape[0]} triangles): there is no texture to sample"
+        )
+    if texture is not None:
+        images = [_image_array(texture, o3d, "texture")]
+        material = np.zeros(F.shape[0], dtype=np.int64)
+    else:
+        images = [np.array(np.asarray(t), copy=True) for t in mesh.textures]
+        if not images or all(im.size == 0 for im in images):
+            raise ValueError(
+                "the mesh has UVs but no texture image was loaded (no material file next to "
+                "it?): pass the image explicitly (texture=... / --texture FILE)"
+            )
+        material = np.array(mesh.triangle_material_ids, dtype=np.int64)
+        if material.shape[0] != F.shape[0]:
+            material = np.zeros(F.shape[0], dtype=np.int64)
+    corners = np.zeros((3 * F.shape[0], 3))
+    corner_material = np.repeat(material, 3)
+    for mid, img in enumerate(images):
+        sel = corner_material == mid
+        if not np.any(sel) or img.size == 0:
+            continue
+        sampled = sample_texture(img, uv[sel])
+        if sampled.shape[1] == 1:
+            sampled = np.repeat(sampled, 3, axis=1)
+        corners[sel] = sampled[:, :3]
+    return np.clip(corner_colors_to_vertices(F, corners, V.shape[0]), 0.0, 1.0)
 
 
 def _checked_colors(colors: Any, n: int, name: str) -> np.ndarray:
@@ -342,10 +422,12 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=ext, dir=folder)
     os.close(fd)
     try:
-        if isinstance(geometry, o3d.geometry.TriangleMesh):
-            ok = o3d.io.write_triangle_mesh(tmp, geometry)
-        else:
-            ok = o3d.io.write_point_cloud(tmp, geometry)
+        # Open3D prints warnings (e.g. "OFF cannot include triangle normals") on stdout.
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            if isinstance(geometry, o3d.geometry.TriangleMesh):
+                ok = o3d.io.write_triangle_mesh(tmp, geometry)
+            else:
+                ok = o3d.io.write_point_cloud(tmp, geometry)
         if not ok:
             raise OSError(f"{path}: Open3D failed to write the file")
         umask = os.umask(0)
@@ -393,6 +475,32 @@ def _pair_eigenbases(
     return eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
 
 
+def _eigenbases_for(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    k1: int,
+    k2: int,
+    fmap_12: Any,
+    p2p_21: Any,
+    eigenbases: tuple[Any, Any] | None,
+    bases: tuple[Any, Any] | None,
+) -> tuple[Any, Any]:
+    """Given eigenbases (checked against the shapes), else those of the bases, else computed."""
+    if eigenbases is None and bases is not None and (fmap_12 is not None or p2p_21 is not None):
+        eigenbases = (bases[0].eig, bases[1].eig)  # no estimation: the bases' own suffice
+    if eigenbases is None:
+        return _pair_eigenbases(V1, F1, V2, F2, k1, k2, fmap_12, p2p_21)
+    for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
+        if eig.n_vertices != V.shape[0]:
+            raise ValueError(
+                f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
+                f"{V.shape[0]}: it belongs to another shape"
+            )
+    return eigenbases
+
+
 def transfer_colors(
     source: Any,
     target: Any,
@@ -407,6 +515,8 @@ def transfer_colors(
     p2p_21: Any = None,
     landmarks: Any = None,
     method: str = "p2p",
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
 ) -> Any:
     """Transfer vertex colors (or any per-vertex signal) from one Open3D geometry to another.
 
@@ -429,6 +539,11 @@ def transfer_colors(
         map is estimated (WKS descriptors, orientation term, ZoomOut to 100).
     method : {"p2p", "analytic"}
         Transfer matrix computation (see :func:`o3d_ofp.transfer_matrix`).
+    eigenbases : (EigenBasis, EigenBasis), optional
+        Precomputed eigenbases of source and target (e.g. from cached bases); with an
+        estimated map they should hold ~100 eigenfunctions for ZoomOut.
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed OFP bases (then ``k1``, ``k2``, ``order``, ``preset``, ``tol`` are unused).
 
     Returns
     -------
@@ -450,7 +565,7 @@ def transfer_colors(
         if signal is None:
             raise ValueError("source has no vertex colors; pass signal= with per-vertex values")
     f = as_signal(signal, V1.shape[0], name="signal")
-    eig_1, eig_2 = _pair_eigenbases(V1, F1, V2, F2, k1, k2, fmap_12, p2p_21)
+    eig_1, eig_2 = _eigenbases_for(V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases)
     g = transfer_function(
         f,
         eig_1,
@@ -464,6 +579,7 @@ def transfer_colors(
         p2p_21=p2p_21,
         landmarks=landmarks,
         method=method,
+        bases=bases,
     )
     if g.ndim == 2 and g.shape[1] == 3:
         return _same_kind_from_arrays(target, V2, colors=np.clip(g, 0.0, 1.0))
@@ -484,6 +600,8 @@ def transfer_detail(
     p2p_21: Any = None,
     landmarks: Any = None,
     k_low: int | None = None,
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
 ) -> Any:
     """Give the target the source's geometric detail; return a new displaced geometry.
 
@@ -503,6 +621,8 @@ def transfer_detail(
     k_low : int, optional
         Eigenfunctions of the low-pass that separates detail from shape ("add" mode;
         default ``k1``).
+    eigenbases, bases
+        Precomputed eigenbases / OFP bases, as in :func:`transfer_colors`.
 
     Returns
     -------
@@ -526,7 +646,9 @@ def transfer_detail(
             cloud.estimate_normals()
             cloud.orient_normals_consistent_tangent_plane(15)
             normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
-    eig_1, eig_2 = _pair_eigenbases(V1, F1, V2, F2, max(k1, k_low or 0), k2, fmap_12, p2p_21)
+    eig_1, eig_2 = _eigenbases_for(
+        V1, F1, V2, F2, max(k1, k_low or 0), k2, fmap_12, p2p_21, eigenbases, bases
+    )
     moved = transfer_detail_arrays(
         eig_1,
         eig_2,
@@ -541,6 +663,7 @@ def transfer_detail(
         landmarks=landmarks,
         k_low=k_low,
         normals_2=normals_2,
+        bases=bases,
     )
     return _same_kind_from_arrays(target, moved, colors=vertex_colors(target))
 
@@ -553,6 +676,7 @@ def filter_geometry(
     order: int = 3,
     preset: str | None = "ours*",
     tol: float | None = None,
+    basis: Any = None,
 ) -> Any:
     """Spectrally filter the vertex coordinates of a mesh (the paper's Figs. 14-15).
 
@@ -565,6 +689,9 @@ def filter_geometry(
         ``sharpen_gains(2)``).
     k, order, preset, tol
         The basis (the paper uses order 3 on the first 15 eigenfunctions: ``k=14``).
+    basis : OFPBasis, optional
+        A precomputed basis of this geometry (then ``k``, ``order``, ``preset``, ``tol`` are
+        unused).
 
     Returns
     -------
@@ -576,7 +703,15 @@ def filter_geometry(
     from .spectrum import eigenbasis
 
     V, F = geometry_to_arrays(geometry)
-    B = ofp_basis(eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
+    if basis is None:
+        B = ofp_basis(eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
+    elif basis.n_vertices != V.shape[0]:
+        raise ValueError(
+            f"basis has {basis.n_vertices} vertices but the geometry has {V.shape[0]}: it "
+            "belongs to another shape"
+        )
+    else:
+        B = basis
     return _same_kind_from_arrays(
         geometry, spectral_filter(B, V, gains), colors=vertex_colors(geometry)
     )

@@ -214,6 +214,7 @@ class OFPBasis:
             "L_data": L.data,
             "L_indices": L.indices,
             "L_indptr": L.indptr,
+            "digest": np.array(eig.digest),
         }
         if eig.cleaning is not None:
             c = eig.cleaning
@@ -272,6 +273,7 @@ class OFPBasis:
                 vertices=data["vertices"],
                 faces=faces if faces.shape[0] else None,
                 cleaning=cleaning,
+                digest=str(data["digest"]) if "digest" in data else "",
             )
             return cls(
                 Q=data["Q"],

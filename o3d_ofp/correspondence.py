@@ -14,9 +14,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._validation import as_vertices
 from .spectrum import EigenBasis
 
-__all__ = ["check_fmap", "check_p2p", "fmap_from_p2p", "nearest_neighbors", "p2p_from_fmap"]
+__all__ = [
+    "check_fmap",
+    "check_p2p",
+    "fmap_from_p2p",
+    "nearest_neighbors",
+    "p2p_from_fmap",
+    "p2p_from_template",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -199,3 +207,45 @@ def p2p_from_fmap(
         )
     C = check_fmap(C, rows, cols)
     return nearest_neighbors(eig_1.evecs[:, :cols] @ C.T, eig_2.evecs[:, :rows], method=method)
+
+
+def p2p_from_template(corr_1: Any, corr_2: Any, vertices_2: Any) -> np.ndarray:
+    """Dense target→source map from correspondences of both shapes to a common template.
+
+    Benchmarks (FAUST remeshed, TOSCA, SHREC) give, for each shape, the vertex matching each
+    template point (``.vts`` files). Target vertices listed there get the source vertex of the
+    same template point; every other target vertex takes the answer of the nearest listed
+    target vertex (in space).
+
+    Parameters
+    ----------
+    corr_1, corr_2 : (t,) array_like of int
+        0-based source / target vertex of each template point.
+    vertices_2 : (n2, 3) array_like of float
+        Target vertices.
+
+    Returns
+    -------
+    p2p_21 : (n2,) ndarray of int64
+        Source vertex of every target vertex.
+    """
+    a = np.asarray(corr_1)
+    b = np.asarray(corr_2)
+    V2 = as_vertices(vertices_2, name="vertices_2")
+    if a.ndim != 1 or a.shape != b.shape or a.size == 0:
+        raise ValueError(
+            f"corr_1 and corr_2 must be 1-D of equal, non-zero length; got {a.shape} and {b.shape}"
+        )
+    if not (np.issubdtype(a.dtype, np.integer) and np.issubdtype(b.dtype, np.integer)):
+        raise TypeError("corr_1 and corr_2 must hold integer vertex indices")
+    if b.min() < 0 or b.max() >= V2.shape[0]:
+        raise ValueError(
+            f"corr_2 indices span [{b.min()}, {b.max()}] but the target has {V2.shape[0]} vertices"
+        )
+    if a.min() < 0:
+        raise ValueError("corr_1 holds negative vertex indices")
+    listed, first = np.unique(b, return_index=True)
+    source_of = np.full(V2.shape[0], -1, dtype=np.int64)
+    source_of[listed] = a[first]
+    nearest = listed[nearest_neighbors(V2[listed], V2)]
+    return source_of[nearest]

@@ -197,6 +197,7 @@ def transfer_detail_arrays(
     k_low: int | None = None,
     normals_1: Any = None,
     normals_2: Any = None,
+    bases: tuple[OFPBasis, OFPBasis] | None = None,
 ) -> np.ndarray:
     """Move the target's vertices to carry the source's geometric detail.
 
@@ -217,6 +218,8 @@ def transfer_detail_arrays(
         Low-pass size for "add" (default: ``k1``).
     normals_1, normals_2 : (n, 3) array_like, optional
         Unit normals (default: area-weighted vertex normals; required for point clouds).
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed bases, as in :func:`transfer_function`.
 
     Returns
     -------
@@ -234,6 +237,7 @@ def transfer_detail_arrays(
         fmap_12=fmap_12,
         p2p_21=p2p_21,
         landmarks=landmarks,
+        bases=bases,
     )
     if mode == "replace":
         return transfer_function(eig_1.vertices, eig_1, eig_2, **kw)

@@ -28,7 +28,7 @@ from ._memory import check_memory
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleanShape, clean_shape
 
-__all__ = ["EigenBasis", "EigenSolverError", "eigenbasis"]
+__all__ = ["DIGEST_OPTIONS", "EigenBasis", "EigenSolverError", "eigenbasis", "shape_digest"]
 
 logger = logging.getLogger(__name__)
 
@@ -79,6 +79,9 @@ class EigenBasis:
         How the input was cleaned (``None``: it was used as given). Welded vertices share
         their representative's values and mass; removed vertices have zero mass and the values
         of the nearest kept vertex.
+    digest : str
+        Identity of the input and of the options that shaped the basis
+        (:func:`shape_digest`); used to check that a saved basis belongs to a mesh.
 
     All arrays are read-only.
     """
@@ -90,6 +93,7 @@ class EigenBasis:
     vertices: np.ndarray
     faces: np.ndarray | None = None
     cleaning: Cleaning | None = None
+    digest: str = ""
 
     def __post_init__(self) -> None:
         n = self.mass.shape[0]
@@ -348,6 +352,69 @@ def _expand(
     return evecs[idx], mass, stiffness, faces
 
 
+#: Options of :func:`eigenbasis` that change the basis of a given input (besides ``k``).
+DIGEST_OPTIONS = ("weld_tolerance", "components", "mollify_factor", "n_neighbors")
+
+
+def _input_arrays(mesh_or_vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    from .adapters import geometry_to_arrays, is_open3d_geometry
+
+    if is_open3d_geometry(mesh_or_vertices):
+        if faces is not None:
+            raise ValueError("faces must be None when mesh_or_vertices is an Open3D geometry")
+        vertices, faces = geometry_to_arrays(mesh_or_vertices)
+    else:
+        vertices = mesh_or_vertices
+    vertices = as_vertices(vertices)
+    faces = None if faces is None else as_faces(faces, vertices.shape[0])
+    return vertices, faces
+
+
+def shape_digest(
+    mesh_or_vertices: Any,
+    faces: Any = None,
+    *,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+    mollify_factor: float = 1e-5,
+    n_neighbors: int = 30,
+) -> str:
+    """Identify a shape and the options its eigenbasis depends on (``EigenBasis.digest``).
+
+    Parameters
+    ----------
+    mesh_or_vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors
+        As in :func:`eigenbasis`.
+
+    Returns
+    -------
+    str
+        A 32-character hex digest: equal inputs and options give equal digests.
+    """
+    vertices, faces = _input_arrays(mesh_or_vertices, faces)
+    return _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
+
+
+def _digest(
+    vertices: np.ndarray,
+    faces: np.ndarray | None,
+    weld_tolerance: float | None,
+    components: str,
+    mollify_factor: float,
+    n_neighbors: int,
+) -> str:
+    from .cache import input_digest
+
+    return input_digest(
+        vertices,
+        faces,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        mollify_factor=float(mollify_factor),
+        n_neighbors=n_neighbors if faces is None else None,  # only clouds depend on it
+    )
+
+
 def eigenbasis(
     mesh_or_vertices: Any,
     faces: Any = None,
@@ -423,16 +490,7 @@ def eigenbasis(
        Fourier Polynomials for Signal Approximation and Transfer", Computer Graphics Forum
        40(2), 2021 (Eurographics). doi:10.1111/cgf.142645
     """
-    from .adapters import geometry_to_arrays, is_open3d_geometry
-
-    if is_open3d_geometry(mesh_or_vertices):
-        if faces is not None:
-            raise ValueError("faces must be None when mesh_or_vertices is an Open3D geometry")
-        vertices, faces = geometry_to_arrays(mesh_or_vertices)
-    else:
-        vertices = mesh_or_vertices
-    vertices = as_vertices(vertices)
-    faces = None if faces is None else as_faces(faces, vertices.shape[0])
+    vertices, faces = _input_arrays(mesh_or_vertices, faces)
     k = check_int(k, name="k", minimum=1)
     if maxiter is None:
         maxiter = max(1000, 10 * (k + 1))
@@ -477,4 +535,5 @@ def eigenbasis(
         vertices=vertices,
         faces=used_faces,
         cleaning=None if not shape.cleaning.report.changed else shape.cleaning,
+        digest=_digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors),
     )

@@ -31,6 +31,7 @@ import scipy.io
 import o3d_ofp as ofp
 from o3d_ofp.adapters import geometry_to_arrays, read_geometry
 from o3d_ofp.baselines import transfer_eigs, transfer_prods
+from o3d_ofp.correspondence import p2p_from_template
 from o3d_ofp.io import read_vts
 from o3d_ofp.pipeline import match
 
@@ -79,11 +80,7 @@ def ground_truth(kind: str, src: str, tgt: str, V2: np.ndarray) -> tuple[np.ndar
         return gt, np.arange(n2)
     a = read_vts(DATA / "faust_remeshed" / "corres" / (Path(src).stem + ".vts"))
     b = read_vts(DATA / "faust_remeshed" / "corres" / (Path(tgt).stem + ".vts"))
-    listed, first = np.unique(b, return_index=True)
-    source_of = np.full(n2, -1)
-    source_of[listed] = a[first]
-    nearest_listed = listed[ofp.nearest_neighbors(V2[listed], V2)]
-    return source_of[nearest_listed], listed
+    return p2p_from_template(a, b, V2), np.unique(b)
 
 
 def families(

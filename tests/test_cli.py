@@ -1,28 +1,236 @@
+"""Every subcommand through ``main([...])``: outputs, exit codes, one-line errors."""
+
+from __future__ import annotations
+
 import os
 
+import numpy as np
 import pytest
 
 from o3d_ofp.cli import main
+from o3d_ofp.shapes import blob
 
-pytest.importorskip("open3d", reason="the demo writes meshes with Open3D")
+o3d = pytest.importorskip("open3d", reason="the command line reads and writes with Open3D")
 
 
-def test_demo_writes_meshes_and_prints_errors(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """Write a colored blob, a bent copy (same vertex order), an empty and a corrupt file."""
+    from o3d_ofp.adapters import triangle_mesh_from_arrays, write_geometry
+
+    d = tmp_path_factory.mktemp("cli")
+    V, F = blob(3)  # 642 vertices: fast
+    colors = 0.5 + 0.5 * np.sin(3 * V)
+    bent = V.copy()
+    bent[:, 1] += 0.15 * bent[:, 0] ** 2
+    paths = {
+        "src": d / "src.ply",
+        "tgt": d / "tgt.ply",
+        "empty": d / "empty.ply",
+        "corrupt": d / "corrupt.ply",
+        "off": d / "src.off",
+    }
+    write_geometry(paths["src"], triangle_mesh_from_arrays(V, F, colors=colors))
+    write_geometry(paths["tgt"], triangle_mesh_from_arrays(bent, F))
+    write_geometry(paths["off"], triangle_mesh_from_arrays(V, F))
+    paths["empty"].write_text(
+        "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n"
+    )
+    paths["corrupt"].write_bytes(b"this is not a mesh\x00\x01")
+    np.save(d / "scalar.npy", V[:, 0])
+    np.save(d / "bad_len.npy", np.zeros(5))
+    return {k: str(v) for k, v in paths.items()} | {
+        "dir": d,
+        "V": V,
+        "F": F,
+        "colors": colors,
+        "bent": bent,
+    }
+
+
+def _err(capsys):
+    return capsys.readouterr().err
+
+
+def _no_temp_files(folder):
+    return not [p for p in os.listdir(folder) if p.startswith(".")]
+
+
+def test_basis_then_approximate_with_the_cached_basis(files, capsys, tmp_path):
+    out = tmp_path / "b.npz"
+    assert main(["basis", files["src"], "-k", "12", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "kept" in text and "of 91 products" in text
+    approx = tmp_path / "approx.ply"
+    assert main(["approximate", files["src"], "--basis", str(out), "-o", str(approx)]) == 0
+    text = capsys.readouterr().out
+    assert "relative error" in text
+    # The printed error is the library's, recomputed here.
+    import o3d_ofp as ofp
+
+    B = ofp.OFPBasis.load(out)
+    stored = np.asarray(o3d.io.read_triangle_mesh(files["src"]).vertex_colors)  # 8-bit in PLY
+    err = B.approximation_error(stored)
+    assert f"{err:.4%}" in text
+    mesh = o3d.io.read_triangle_mesh(str(approx))
+    # Colors are written with 8 bits per channel: half a step of rounding.
+    np.testing.assert_allclose(
+        np.asarray(mesh.vertex_colors), np.clip(B.approximate(stored), 0, 1), atol=0.5 / 255 + 1e-9
+    )
+    # xyz and a .npy signal; a .npy output.
+    assert main(["approximate", files["src"], "--signal", "xyz", "-k", "8", "-o", str(approx)]) == 0
+    npy = tmp_path / "a.npy"
+    sig = str(files["dir"] / "scalar.npy")
+    assert main(["approximate", files["src"], "--signal", sig, "-k", "8", "-o", str(npy)]) == 0
+    assert np.load(npy).shape == (len(files["V"]),)
+    assert _no_temp_files(tmp_path)
+
+
+def test_mismatched_basis_cache_is_refused(files, capsys, tmp_path):
+    out = tmp_path / "b.npz"
+    assert main(["basis", files["src"], "-k", "6", "-o", str(out)]) == 0
+    capsys.readouterr()
+    code = main(["approximate", files["tgt"], "--signal", "xyz", "--basis", str(out), "-o",
+                 str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    err = _err(capsys)
+    assert "computed for another mesh than" in err and files["tgt"] in err
+    assert err.count("\n") == 1  # one line, no traceback
+    # Same mesh, other cleaning options: also another basis.
+    code = main(["approximate", files["src"], "--basis", str(out), "--components", "largest",
+                 "-o", str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
+    out = tmp_path / "t.ply"
+    args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]
+    assert main([*args, "--map", "identity", "-o", str(out)]) == 0
+    g = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
+    # Same vertex order, identity map: the transfer is the approximation in the OFP basis
+    # (measured 5 % relative error on this signal); 15 % leaves room across platforms.
+    err = np.linalg.norm(g - files["colors"]) / np.linalg.norm(files["colors"])
+    assert err < 0.15
+    vts = tmp_path / "map.vts"
+    np.savetxt(vts, np.arange(1, len(files["V"]) + 1), fmt="%d")
+    assert main([*args, "--map", str(vts), "-o", str(out)]) == 0
+    np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors), g)
+    # Estimated map, .npy signal: .npy and a colormapped mesh.
+    sig = str(files["dir"] / "scalar.npy")
+    assert main([*args, "--signal", sig, "-o", str(tmp_path / "s.ply")]) == 0
+    moved = np.load(tmp_path / "s.npy")
+    truth = files["V"][:, 0]
+    assert np.corrcoef(moved, truth)[0, 1] > 0.95  # a correct map keeps the x coordinate
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_detail_and_filter(files, tmp_path):
+    out = tmp_path / "d.ply"
+    assert main(["detail", files["src"], files["tgt"], "--map", "identity", "--k1", "10",
+                 "--k2", "10", "--mode", "replace", "-o", str(out)]) == 0  # fmt: skip
+    V = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    assert V.shape == files["V"].shape
+    # "replace" puts the (approximated) source coordinates on the target.
+    assert np.abs(V - files["V"]).max() < 0.05 * np.ptp(files["V"])
+    out = tmp_path / "f.ply"
+    assert main(["filter", files["src"], "--smooth", "5", "-k", "10", "-o", str(out)]) == 0
+    smooth = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    assert smooth.shape == files["V"].shape and not np.allclose(smooth, files["V"])
+
+
+def test_render_writes_a_png_with_the_mesh_colors(files, tmp_path):
+    from o3d_ofp.render import read_png
+
+    out = tmp_path / "r.png"
+    code = main(["render", files["src"], files["tgt"], "--titles", "source,target",
+                 "--width", "160", "--height", "120", "-o", str(out)])  # fmt: skip
+    if code == 1:
+        pytest.skip("no EGL/OpenGL context for rendering on this machine")
+    assert code == 0
+    img = read_png(out)
+    assert img.shape[1] == 320 and img.shape[0] > 120
+    # The grey target (no colors) and the colored source are both drawn on white.
+    assert (img < 250).any(axis=2).mean() > 0.05
+
+
+BAD = [
+    (["approximate", "missing.ply", "-o", "x.ply"], "missing.ply: no such file"),
+    (["approximate", "{corrupt}", "-o", "{tmp}/x.ply"], "corrupt.ply: cannot read"),
+    (["approximate", "{empty}", "-o", "{tmp}/x.ply"], "empty.ply: cannot read"),
+    (["approximate", "{src}", "-k", "0", "-o", "{tmp}/x.ply"], "expected a positive integer"),
+    (["approximate", "{src}", "--tol", "2", "-o", "{tmp}/x.ply"], "expected a number in (0, 1)"),
+    (["approximate", "{src}", "--preset", "best", "-o", "{tmp}/x.ply"], "invalid choice"),
+    (["approximate", "{src}", "--signal", "rgb", "-o", "{tmp}/x.ply"], "--signal must be"),
+    (["approximate", "{tgt}", "-o", "{tmp}/x.ply"], "has no vertex colors"),
+    (["approximate", "{src}", "--signal", "{bad_len}", "-o", "{tmp}/x.ply"], "has shape (5,)"),
+    (["approximate", "{src}", "-o", "{tmp}/x.txt"], "the output must end with"),
+    (["approximate", "{src}", "-o", "{tmp}/no/such/dir/x.ply"], "does not exist"),
+    (["approximate", "{src}", "-k", "5000", "-o", "{tmp}/x.ply"], "k must be smaller"),
+    (["transfer", "{src}", "{tgt}", "--map", "nope.vts", "-o", "{tmp}/x.ply"], "no such map"),
+    (["transfer", "{src}", "{tgt}", "--landmarks", "1:2:3", "-o", "{tmp}/x.ply"], "landmarks"),
+    (["transfer", "{src}", "{tgt}", "--landmarks", "0:99999", "-o", "{tmp}/x.ply"], "[0, 642)"),
+    (["filter", "{src}", "-o", "{tmp}/x.ply"], "exactly one of --smooth"),
+    (["filter", "{src}", "--smooth", "-1", "-o", "{tmp}/x.ply"], "expected a number >= 0"),
+    (["render", "{src}", "--titles", "a,b", "-o", "{tmp}/x.png"], "--titles has 2 entries"),
+    (["render", "{src}", "--front", "0,0,0", "-o", "{tmp}/x.png"], "--front must be"),
+    (["nope"], "invalid choice"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), BAD)
+def test_bad_input_exits_2_with_one_line(files, capsys, tmp_path, argv, message):
+    names = {k: v for k, v in files.items() if isinstance(v, str)}
+    names["bad_len"] = str(files["dir"] / "bad_len.npy")
+    argv = [a.format(tmp=tmp_path, **names) for a in argv]
+    assert main(argv) == 2
+    err = _err(capsys)
+    assert message in err
+    if argv[0] != "nope":
+        assert err.strip().count("\n") == 0, err  # one line, no traceback
+    assert not any(p.name.startswith(("x.", ".")) for p in tmp_path.iterdir())
+
+
+def test_demo_writes_meshes_a_png_and_prints_errors(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--subdivisions", "3", "-k", "12"]) == 0
     text = capsys.readouterr().out
     assert "K eigs" in text and "ours*" in text and "RGB error" in text
+    assert "transfer to a bent copy" in text
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["blob_eigs.ply", "blob_original.ply", "blob_ours.ply", "blob_ours_star.ply"]
-    import open3d as o3d
-
+    meshes = [n for n in names if n.endswith(".ply")]
+    assert meshes == [
+        "blob_eigs.ply",
+        "blob_original.ply",
+        "blob_ours.ply",
+        "blob_ours_star.ply",
+        "blob_transfer_target.ply",
+    ]
     mesh = o3d.io.read_triangle_mesh(str(out / "blob_ours.ply"))
     assert len(mesh.vertices) == 642 and mesh.has_vertex_colors()
     assert oct(os.stat(out / "blob_ours.ply").st_mode & 0o777) != "0o600"
+    assert "demo.png" in names or "no picture" in text
 
 
-def test_bad_usage_exit_codes(tmp_path, capsys):
-    assert main(["nope"]) == 2
-    assert main(["demo", "-k", "many"]) == 2
-    assert main(["demo", "-o", str(tmp_path), "-k", "0", "--subdivisions", "2"]) == 2
-    assert "k must be >= 1" in capsys.readouterr().err
+def test_internal_errors_exit_1(monkeypatch, files, capsys, tmp_path):
+    from o3d_ofp import cli
+
+    def boom(args):
+        raise RuntimeError("unexpected")
+
+    monkeypatch.setattr(cli, "_cmd_basis", boom)
+    parser = cli._build_parser
+    monkeypatch.setattr(
+        cli,
+        "_build_parser",
+        lambda: _with_func(parser(), "basis", boom),
+    )
+    assert main(["basis", files["src"], "-o", str(tmp_path / "b.npz")]) == 1
+    assert "internal error: RuntimeError: unexpected" in _err(capsys)
+
+
+def _with_func(parser, command, func):
+    sub = next(a for a in parser._actions if a.dest == "command")
+    sub.choices[command].set_defaults(func=func)
+    return parser
