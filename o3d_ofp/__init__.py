@@ -14,60 +14,82 @@ from __future__ import annotations
 import logging
 
 from .basis import OFPBasis, approximation_error, ofp_basis
-from .correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
+from .cache import cached_basis
+from .cleaning import CleaningReport, clean_shape
+from .correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap, p2p_from_template
 from .descriptors import hks, wks
 from .fmap import estimate_fmap, icp_refine, lift_fmap, zoomout_refine
 from .laplacian import laplacian
 from .orthogonalize import PRESETS, GramSchmidt, gram_schmidt
+from .pipeline import match, transfer_function
 from .products import eigenproduct_indices, eigenproducts, n_eigenproducts
-from .spectrum import EigenBasis, EigenSolverError, eigenbasis
+from .render import render_panel, show
+from .spectrum import EigenBasis, EigenSolverError, eigenbasis, shape_digest
 from .transfer import transfer_matrix, transfer_signal
 
 __version__ = "0.1.0"
 
 
-def transfer_colors(source, target, **options):  # noqa: D103 - documented in adapters
-    from .adapters import transfer_colors as impl
+def _open3d_level(name: str):
+    """Make a package-level alias of an :mod:`o3d_ofp.adapters` function (lazy import)."""
 
-    return impl(source, target, **options)
+    def call(*args, **kwargs):
+        from . import adapters
+
+        return getattr(adapters, name)(*args, **kwargs)
+
+    call.__name__ = call.__qualname__ = name
+    call.__doc__ = f"Open3D level; see :func:`o3d_ofp.adapters.{name}`."
+    return call
 
 
-def transfer_detail(source, target, **options):  # noqa: D103 - documented in adapters
-    from .adapters import transfer_detail as impl
-
-    return impl(source, target, **options)
-
-
-transfer_colors.__doc__ = "Open3D level; see :func:`o3d_ofp.adapters.transfer_colors`."
-transfer_detail.__doc__ = "Open3D level; see :func:`o3d_ofp.adapters.transfer_detail`."
+transfer_colors = _open3d_level("transfer_colors")
+transfer_detail = _open3d_level("transfer_detail")
+filter_geometry = _open3d_level("filter_geometry")
+texture_colors = _open3d_level("texture_colors")
+read_geometry = _open3d_level("read_geometry")
+write_geometry = _open3d_level("write_geometry")
 
 __all__ = [
     "PRESETS",
+    "CleaningReport",
     "EigenBasis",
     "EigenSolverError",
     "GramSchmidt",
     "OFPBasis",
     "__version__",
     "approximation_error",
+    "cached_basis",
+    "clean_shape",
     "eigenbasis",
     "eigenproduct_indices",
     "eigenproducts",
     "estimate_fmap",
+    "filter_geometry",
     "fmap_from_p2p",
     "gram_schmidt",
     "hks",
     "icp_refine",
     "laplacian",
     "lift_fmap",
+    "match",
     "n_eigenproducts",
     "nearest_neighbors",
     "ofp_basis",
     "p2p_from_fmap",
+    "p2p_from_template",
+    "read_geometry",
+    "render_panel",
+    "shape_digest",
+    "show",
+    "texture_colors",
     "transfer_colors",
     "transfer_detail",
+    "transfer_function",
     "transfer_matrix",
     "transfer_signal",
     "wks",
+    "write_geometry",
     "zoomout_refine",
 ]
 

@@ -7,6 +7,7 @@ import pytest
 
 import o3d_ofp as ofp
 from o3d_ofp.render import write_png
+from o3d_ofp.shapes import icosphere
 from o3d_ofp.texture import corner_colors_to_vertices, sample_texture
 
 from .conftest import shared_path
@@ -44,7 +45,7 @@ def test_textured_obj_with_material_and_seams(tmp_path):
     img[:, 4:] = [0, 0, 255]
     write_png(tmp_path / "tex.png", img)
     (tmp_path / "m.mtl").write_text("newmtl mat\nmap_Kd tex.png\n")
-    V, F = ofp.shapes.icosphere(2)
+    V, F = icosphere(2)
     u = 0.5 + np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi)  # longitude: seam at u = 0 / 1
     v = 0.5 + np.arcsin(np.clip(V[:, 2], -1, 1)) / np.pi
     lines = ["mtllib m.mtl", "usemtl mat"]
