@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._memory import check_memory
+from ._threads import single_threaded_below
 from ._validation import as_signal, check_int
 from .cleaning import Cleaning, CleaningReport
 from .orthogonalize import PRESETS, gram_schmidt_blocks, resolve_tol
@@ -356,13 +357,14 @@ def ofp_basis(
         # hold copies of a cleaned vertex's values, so the M-inner products are the same.
         evecs = evecs[c.representative]
         mass = np.bincount(c.index, weights=eig.mass, minlength=c.n_vertices)
-    gs = gram_schmidt_blocks(
-        eigenproduct_blocks(evecs, order, block_size=block_size),
-        mass,
-        total,
-        tol=tol,
-        block_size=block_size,
-    )
+    with single_threaded_below(evecs.shape[0]):
+        gs = gram_schmidt_blocks(
+            eigenproduct_blocks(evecs, order, block_size=block_size),
+            mass,
+            total,
+            tol=tol,
+            block_size=block_size,
+        )
     if c is not None:
         gs = gs._replace(Q=np.ascontiguousarray(gs.Q[c.index]))
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")

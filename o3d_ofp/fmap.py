@@ -11,9 +11,10 @@ import math
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
-import scipy.sparse as sp
 
+from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
@@ -45,33 +46,71 @@ def _descriptors(
     return D[:, keep] / norms[keep]
 
 
-def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> list[np.ndarray]:
-    """Reduced operators g ↦ <N × ∇d, ∇g> for each descriptor d (Ren et al. 2018)."""
+#: Rows (vertices or faces) per chunk when building the operator stacks: bounds the
+#: temporary (rows, (k+1)²) product matrix to ~100 MB at k = 30.
+_CHUNK = 16384
+
+
+def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
+    """Stack (p, k+1, k+1) of the multiplication operators Φᵀ M diag(dᵢ) Φ (chunked GEMMs)."""
+    phi = eig.evecs[:, : k + 1]
+    a = k + 1
+    MD = eig.mass[:, None] * D
+    T = np.zeros((a * a, D.shape[1]))
+    for s in range(0, phi.shape[0], _CHUNK):
+        P = (phi[s : s + _CHUNK, :, None] * phi[s : s + _CHUNK, None, :]).reshape(-1, a * a)
+        T += P.T @ MD[s : s + _CHUNK]
+    return np.ascontiguousarray(T.reshape(a, a, -1).transpose(2, 0, 1))
+
+
+def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
+    """Stack (p, k+1, k+1) of the reduced operators g ↦ <n × ∇dᵢ, ∇g> (Ren et al. 2018).
+
+    ``O_i[b, a] = Σ_f W[f, b] H[f, a, i]`` with ``H[f, a, i] = ∇φ_a · (n_f × ∇d_i)`` and
+    ``W = to_vertexᵀ Φ`` the area-weighted face sums of Φ (the per-face field spread to the
+    vertices by area, then projected with Φᵀ M): one GEMM per chunk of faces.
+    """
     V, F = eig.vertices, eig.faces
     areas, normals = face_areas_normals(V, F)
     gx, gy, gz = face_gradient_operator(V, F)
-    phi, proj = _reduced(eig, k)
-    grad_phi = np.stack([g @ phi for g in (gx, gy, gz)], axis=-1)  # (m, k+1, 3)
-    # Average of a per-face value to vertices, weighted by area (row-normalised by the mass).
-    m = F.shape[0]
-    to_vertex = sp.csr_matrix(
-        (np.repeat(areas / 3.0, 3), (F.reshape(-1), np.repeat(np.arange(m), 3))),
-        shape=(V.shape[0], m),
-    )
-    ops = []
-    for j in range(D.shape[1]):
-        gd = np.stack([g @ D[:, j] for g in (gx, gy, gz)], axis=-1)  # (m, 3)
-        rot = np.cross(normals, gd)
-        per_face = np.einsum("fc,fkc->fk", rot, grad_phi)  # (m, k+1)
-        # Vertices removed by cleaning have zero mass and no faces: give them 0, not 0/0.
-        per_vertex = np.divide(
-            to_vertex @ per_face,
-            eig.mass[:, None],
-            out=np.zeros((V.shape[0], per_face.shape[1])),
-            where=eig.mass[:, None] > 0,
-        )
-        ops.append(proj @ per_vertex)
-    return ops
+    phi = eig.evecs[:, : k + 1]
+    a = k + 1
+    grad_phi = np.stack([g @ phi for g in (gx, gy, gz)], axis=2)  # (m, k+1, 3)
+    gd = [g @ D for g in (gx, gy, gz)]  # 3 × (m, p)
+    nx, ny, nz = (normals[:, [c]] for c in range(3))
+    rot = np.stack(
+        [ny * gd[2] - nz * gd[1], nz * gd[0] - nx * gd[2], nx * gd[1] - ny * gd[0]], axis=1
+    )  # (m, 3, p): n × ∇d_i on each face
+    W = (areas / 3.0)[:, None] * (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]])  # (m, k+1)
+    p = D.shape[1]
+    T = np.zeros((a, a * p))
+    step = 1024  # faces per chunk: H below is (step, k+1, p), ~25 MB at k = 29, p = 100
+    for s in range(0, F.shape[0], step):
+        sl = slice(s, s + step)
+        H = np.matmul(grad_phi[sl], rot[sl])  # H[f, a, i] = ∇φ_a · (n × ∇d_i) on face f
+        T += W[sl].T @ H.reshape(H.shape[0], a * p)
+    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+
+
+class _Commutator:
+    """The term ½ Σᵢ ‖C O1ᵢ − O2ᵢ C‖² for stacks O1 (p, a, a), O2 (p, b, b), as four GEMMs."""
+
+    def __init__(self, O1: np.ndarray, O2: np.ndarray) -> None:
+        p, a, _ = O1.shape
+        b = O2.shape[1]
+        self.p, self.a, self.b = p, a, b
+        self.O1_h = np.ascontiguousarray(O1.transpose(1, 0, 2).reshape(a, p * a))  # [O1_1 ..]
+        self.O1T_v = np.ascontiguousarray(O1.transpose(0, 2, 1).reshape(p * a, a))  # [O1_iᵀ;]
+        self.O2_v = np.ascontiguousarray(O2.reshape(p * b, b))  # [O2_1; O2_2; ...]
+        self.O2T_h = np.ascontiguousarray(O2.transpose(2, 0, 1).reshape(b, p * b))  # [O2_iᵀ ..]
+
+    def __call__(self, C: np.ndarray) -> tuple[float, np.ndarray]:
+        p, a, b = self.p, self.a, self.b
+        O2C = (self.O2_v @ C).reshape(p, b, a).transpose(1, 0, 2).reshape(b, p * a)
+        d = C @ self.O1_h - O2C  # block i (columns i·a .. i·a+a): C O1_i − O2_i C
+        d_v = d.reshape(b, p, a).transpose(1, 0, 2).reshape(p * b, a)  # [d_1; d_2; ...]
+        grad = d @ self.O1T_v - self.O2T_h @ d_v  # Σ d_i O1_iᵀ − Σ O2_iᵀ d_i
+        return 0.5 * float(np.sum(d * d)), grad
 
 
 def _energy(
@@ -79,8 +118,8 @@ def _energy(
     A: np.ndarray,
     B: np.ndarray,
     sqdiff: np.ndarray,
-    ops: list[tuple[np.ndarray, np.ndarray]],
-    orient: list[tuple[np.ndarray, np.ndarray]],
+    ops: _Commutator | None,
+    orient: _Commutator | None,
     weights: tuple[float, float, float, float],
 ) -> tuple[float, np.ndarray]:
     """Evaluate the map energy of :func:`estimate_fmap` and its gradient with respect to C."""
@@ -88,16 +127,16 @@ def _energy(
     diff = C @ A - B
     energy = 0.5 * wd * np.sum(diff**2) + 0.5 * wl * np.sum(C**2 * sqdiff)
     grad = wd * diff @ A.T + wl * C * sqdiff
-    for w, pairs in ((wc, ops), (wo, orient)):
-        if w == 0:
+    for w, term in ((wc, ops), (wo, orient)):
+        if w == 0 or term is None:
             continue
-        for o1, o2 in pairs:
-            d = C @ o1 - o2 @ C
-            energy += 0.5 * w * np.sum(d * d)
-            grad += w * (d @ o1.T - o2.T @ d)
+        e, g = term(C)
+        energy += w * e
+        grad += w * g
     return float(energy), grad
 
 
+@one_blas_thread
 def estimate_fmap(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
@@ -198,23 +237,21 @@ def estimate_fmap(
     k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
     D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
     D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
-    phi1, proj1 = _reduced(eig_1, k1)
-    phi2, proj2 = _reduced(eig_2, k2)
+    _, proj1 = _reduced(eig_1, k1)
+    _, proj2 = _reduced(eig_2, k2)
     A, B = proj1 @ D1, proj2 @ D2  # (k1+1, p), (k2+1, p)
     ops = (
-        [(proj1 @ (D1[:, [i]] * phi1), proj2 @ (D2[:, [i]] * phi2)) for i in range(D1.shape[1])]
+        _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
         if w_dcomm > 0
-        else []
+        else None
     )
     lam1 = eig_1.evals[: k1 + 1] * eig_1.area
     lam2 = eig_2.evals[: k2 + 1] * eig_2.area
     sqdiff = (lam1[None, :] - lam2[:, None]) ** 2
     sqdiff /= sqdiff.sum()
-    orient: list[tuple[np.ndarray, np.ndarray]] = []
+    orient: _Commutator | None = None
     if w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None:
-        orient = list(
-            zip(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2), strict=True)
-        )
+        orient = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
     elif w_orient > 0:
         logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
 
@@ -257,6 +294,7 @@ def estimate_fmap(
     return C
 
 
+@one_blas_thread
 def icp_refine(
     fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis, *, iterations: int = 10
 ) -> np.ndarray:
@@ -309,13 +347,21 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int = 0) -> np.n
         return np.arange(n)
     chosen = np.empty(count, dtype=np.int64)
     chosen[0] = start
-    dist = np.sum((vertices - vertices[start]) ** 2, axis=1)
-    for i in range(1, count):
-        chosen[i] = int(np.argmax(dist))
-        np.minimum(dist, np.sum((vertices - vertices[chosen[i]]) ** 2, axis=1), out=dist)
+    X = np.ascontiguousarray(vertices, dtype=np.float64)
+    diff = np.empty_like(X)
+    d = np.empty(n)
+    np.subtract(X, X[start], out=diff)
+    dist = np.einsum("ij,ij->i", diff, diff)
+    for i in range(1, count):  # buffers reused: no allocation per sample
+        c = int(np.argmax(dist))
+        chosen[i] = c
+        np.subtract(X, X[c], out=diff)
+        np.einsum("ij,ij->i", diff, diff, out=d)
+        np.minimum(dist, d, out=dist)
     return chosen
 
 
+@one_blas_thread
 def zoomout_refine(
     fmap_12: Any,
     eig_1: EigenBasis,
@@ -359,15 +405,25 @@ def zoomout_refine(
         s1 = farthest_points(eig_1.vertices, subsample)
         s2 = farthest_points(eig_2.vertices, subsample)
         phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
+        # The least-squares fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns
+        # of one matrix, whose QR factors are nested: factor it once, then each fit is a
+        # GEMM and a triangular solve (when the samples give full column rank).
+        Q, R = np.linalg.qr(psi2)
+        diag = np.abs(np.diag(R))
+        nested_qr = bool(diag.min() > 1e-10 * diag.max())
     while k < k_final:
         k = min(k + step, k_final)
         if subsample is None:
             p2p = p2p_from_fmap(C, eig_1, eig_2)
             C = fmap_from_p2p(p2p, eig_1, eig_2, k1=k, k2=k)
+            continue
+        kc = C.shape[0]
+        p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
+        target = phi1[p2p_sub, : k + 1]
+        if nested_qr:
+            C = scipy.linalg.solve_triangular(R[: k + 1, : k + 1], Q[:, : k + 1].T @ target)
         else:
-            kc = C.shape[0]
-            p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
-            C = np.linalg.lstsq(psi2[:, : k + 1], phi1[p2p_sub, : k + 1], rcond=None)[0]
+            C = np.linalg.lstsq(psi2[:, : k + 1], target, rcond=None)[0]
     return C
 
 

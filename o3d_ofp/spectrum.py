@@ -25,6 +25,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from ._memory import check_memory
+from ._threads import blas_threads
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleanShape, clean_shape
 
@@ -595,9 +596,10 @@ def eigenbasis(
         8.0 * n * (ncv + 3 * (k + 1)) + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0),
         f"the eigensolver (n={n}, k={k})",
     )
-    evals, evecs, res, method = _solve(
-        shape.stiffness, shape.mass, k, maxiter=maxiter, factorization=factorization
-    )
+    with blas_threads(1):  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
+        evals, evecs, res, method = _solve(
+            shape.stiffness, shape.mass, k, maxiter=maxiter, factorization=factorization
+        )
     logger.info(
         "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
         n,

@@ -43,3 +43,36 @@ def eigenproducts_naive(evecs: np.ndarray, order: int):
 def projector(Q: np.ndarray, mass: np.ndarray) -> np.ndarray:
     """M-orthogonal projector Q Qᵀ M as a dense matrix (small n only)."""
     return Q @ (Q.T * mass[None, :])
+
+
+def descriptor_op_loop(eig, k, D):
+    """One multiplication operator Φᵀ M diag(d) Φ per descriptor column, by a plain loop."""
+    phi = eig.evecs[:, : k + 1]
+    proj = (phi * eig.mass[:, None]).T
+    return np.stack([proj @ (D[:, [i]] * phi) for i in range(D.shape[1])])
+
+
+def orientation_op_loop(eig, k, D):
+    """Operators g ↦ <n × ∇d, ∇g>: per face, averaged to the vertices by area, projected."""
+    import scipy.sparse as sp
+
+    from o3d_ofp.geometry import face_areas_normals, face_gradient_operator
+
+    V, F = eig.vertices, eig.faces
+    areas, normals = face_areas_normals(V, F)
+    grads = face_gradient_operator(V, F)
+    phi = eig.evecs[:, : k + 1]
+    proj = (phi * eig.mass[:, None]).T
+    grad_phi = np.stack([g @ phi for g in grads], axis=-1)  # (m, k+1, 3)
+    m = F.shape[0]
+    to_vertex = sp.csr_matrix(
+        (np.repeat(areas / 3.0, 3), (F.reshape(-1), np.repeat(np.arange(m), 3))),
+        shape=(V.shape[0], m),
+    )
+    out = []
+    for j in range(D.shape[1]):
+        gd = np.stack([g @ D[:, j] for g in grads], axis=-1)
+        rot = np.cross(normals, gd)
+        per_face = np.einsum("fc,fkc->fk", rot, grad_phi)
+        out.append(proj @ ((to_vertex @ per_face) / eig.mass[:, None]))
+    return np.stack(out)

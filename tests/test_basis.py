@@ -25,10 +25,13 @@ def test_sphere_order_2_spans_exactly_degree_4(sphere_eig):
 
 def test_sphere_order_3_keeps_degree_6_plus_discretization(sphere_eig):
     B = ofp.ofp_basis(sphere_eig, order=3, tol=1e-2, k=8)
-    # 49 harmonics of degree <= 6; discretisation error lets a few more pass the 1e-2 test
-    # (we keep 50 on this 10242-vertex icosphere, as did an independent implementation).
+    # 49 harmonics of degree <= 6; discretisation error lets a few more pass the 1e-2 test.
+    # Which ones depends on the basis the solver picks inside each repeated eigenvalue of the
+    # sphere (arbitrary): 50 with SuperLU's Lanczos run (as an independent implementation),
+    # 51 with CHOLMOD's. The degree <= 6 content is what must hold:
     assert 49 <= B.size <= 52
-    assert B.size == 50
+    degree = np.floor(np.sqrt(np.sort(B.dirichlet_energies) + 0.25))
+    assert np.all(np.bincount(degree.astype(int))[:7] >= [1, 3, 5, 7, 9, 11, 13])
 
 
 def test_theorem_3_1_eigenpowers_sphere(sphere_eig):

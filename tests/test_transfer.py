@@ -125,17 +125,21 @@ def test_faust_ground_truth_map_ours_beats_k_eigs_and_prods(faust_pair):
 
 
 def test_fmap_energy_gradient_matches_finite_differences():
-    from o3d_ofp.fmap import _energy
+    from o3d_ofp.fmap import _Commutator, _energy
 
     rng = np.random.default_rng(3)
     k2, k1, p = 5, 4, 3
     A, B = rng.standard_normal((k1, p)), rng.standard_normal((k2, p))
     sqdiff = rng.uniform(size=(k2, k1))
-    ops = [(rng.standard_normal((k1, k1)), rng.standard_normal((k2, k2))) for _ in range(2)]
-    orient = [(rng.standard_normal((k1, k1)), rng.standard_normal((k2, k2)))]
+    O1, O2 = rng.standard_normal((2, k1, k1)), rng.standard_normal((2, k2, k2))
+    ops = _Commutator(O1, O2)
+    orient = _Commutator(rng.standard_normal((1, k1, k1)), rng.standard_normal((1, k2, k2)))
     weights = (1.0, 0.3, 0.2, 0.7)
     C = rng.standard_normal((k2, k1))
     _, grad = _energy(C, A, B, sqdiff, ops, orient, weights)
+    # The stacked commutator equals the plain sum over the operators.
+    plain = sum(0.5 * np.sum((C @ O1[i] - O2[i] @ C) ** 2) for i in range(2))
+    assert ops(C)[0] == pytest.approx(plain, rel=1e-12)
     h = 1e-6
     numeric = np.zeros_like(C)
     for idx in np.ndindex(C.shape):
@@ -175,3 +179,34 @@ def test_farthest_points_and_subsampled_zoomout(blob_mesh):
         np.testing.assert_allclose(C, np.eye(21), atol=1e-8)
     with pytest.raises(ValueError, match="subsample must be >= 21"):
         zoomout_refine(np.eye(6), eig, eig, k_final=20, subsample=10)
+
+
+def test_batched_operators_equal_the_per_descriptor_loops(blob_mesh):
+    from o3d_ofp.fmap import _CHUNK, _descriptor_ops, _orientation_ops
+
+    from ._reference import descriptor_op_loop, orientation_op_loop
+
+    eig = ofp.eigenbasis(*blob_mesh, k=12)
+    D = ofp.wks(eig, n_energies=7)
+    assert eig.n_vertices < _CHUNK  # one chunk here; several below
+    for fast, slow in (
+        (_descriptor_ops, descriptor_op_loop),
+        (_orientation_ops, orientation_op_loop),
+    ):
+        ref = slow(eig, 12, D)
+        got = fast(eig, 12, D)
+        # Same sums in another order: agreement to round-off relative to the operators' size.
+        np.testing.assert_allclose(got, ref, atol=1e-12 * np.abs(ref).max())
+    import o3d_ofp.fmap as fmap
+
+    saved = fmap._CHUNK
+    try:
+        fmap._CHUNK = 1000  # several chunks of vertices and faces
+        np.testing.assert_allclose(
+            _orientation_ops(eig, 12, D), orientation_op_loop(eig, 12, D), atol=1e-12
+        )
+        np.testing.assert_allclose(
+            _descriptor_ops(eig, 12, D), descriptor_op_loop(eig, 12, D), atol=1e-12
+        )
+    finally:
+        fmap._CHUNK = saved
