@@ -72,23 +72,26 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     """
     V, F = eig.vertices, eig.faces
     areas, normals = face_areas_normals(V, F)
-    gx, gy, gz = face_gradient_operator(V, F)
+    grads = face_gradient_operator(V, F)  # 3 × (m, n) sparse
     phi = eig.evecs[:, : k + 1]
-    a = k + 1
-    grad_phi = np.stack([g @ phi for g in (gx, gy, gz)], axis=2)  # (m, k+1, 3)
-    gd = [g @ D for g in (gx, gy, gz)]  # 3 × (m, p)
-    nx, ny, nz = (normals[:, [c]] for c in range(3))
-    rot = np.stack(
-        [ny * gd[2] - nz * gd[1], nz * gd[0] - nx * gd[2], nx * gd[1] - ny * gd[0]], axis=1
-    )  # (m, 3, p): n × ∇d_i on each face
-    W = (areas / 3.0)[:, None] * (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]])  # (m, k+1)
-    p = D.shape[1]
+    a, p = k + 1, D.shape[1]
     T = np.zeros((a, a * p))
-    step = 1024  # faces per chunk: H below is (step, k+1, p), ~25 MB at k = 29, p = 100
+    # Everything per chunk of faces: peak memory stays ~(step · (k+1) · p) doubles (25 MB at
+    # k = 29, p = 100) however large the mesh, instead of 3 (faces, p) gradient fields.
+    step = 1024
     for s in range(0, F.shape[0], step):
         sl = slice(s, s + step)
-        H = np.matmul(grad_phi[sl], rot[sl])  # H[f, a, i] = ∇φ_a · (n × ∇d_i) on face f
-        T += W[sl].T @ H.reshape(H.shape[0], a * p)
+        rows = [g[sl] for g in grads]
+        grad_phi = np.stack([g @ phi for g in rows], axis=2)  # (c, k+1, 3)
+        gd = [g @ D for g in rows]  # 3 × (c, p)
+        nx, ny, nz = (normals[sl, c][:, None] for c in range(3))
+        rot = np.stack(
+            [ny * gd[2] - nz * gd[1], nz * gd[0] - nx * gd[2], nx * gd[1] - ny * gd[0]], axis=1
+        )  # (c, 3, p): n × ∇d_i on each face
+        f = F[sl]
+        W = (areas[sl] / 3.0)[:, None] * (phi[f[:, 0]] + phi[f[:, 1]] + phi[f[:, 2]])
+        H = np.matmul(grad_phi, rot)  # H[f, a, i] = ∇φ_a · (n × ∇d_i) on face f
+        T += W.T @ H.reshape(H.shape[0], a * p)
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
 
 
