@@ -82,7 +82,7 @@ class OFPBasis:
 
     Attributes
     ----------
-    Q : (n, q) ndarray of float64
+    Q : (n, q) ndarray of float64 (or float32, see :func:`ofp_basis`'s ``dtype``)
         M-orthonormal basis functions, in candidate order.
     R : (q, P) ndarray of float64
         Gram-Schmidt coefficients ``<q_i, b_j>_M`` (Eq. 17); ``Q R`` reproduces the candidates.
@@ -160,11 +160,16 @@ class OFPBasis:
             Its coefficients in the basis.
         """
         f = as_signal(f, self.n_vertices)
-        return self.Q.T @ mass_weighted(f, self.mass)
+        Mf = mass_weighted(f, self.mass)
+        if self.Q.dtype == np.float32:  # stay in single precision: no float64 copy of Q
+            return (self.Q.T @ Mf.astype(np.float32)).astype(np.float64)
+        return self.Q.T @ Mf
 
     def reconstruct(self, coefficients: Any) -> np.ndarray:
         """Signal ``Q c`` from coefficients of shape (q,) or (q, d)."""
         c = as_signal(coefficients, self.size, name="coefficients")
+        if self.Q.dtype == np.float32:
+            return (self.Q @ c.astype(np.float32)).astype(np.float64)
         return self.Q @ c
 
     def approximate(self, f: Any) -> np.ndarray:
@@ -178,7 +183,7 @@ class OFPBasis:
     @functools.cached_property
     def dirichlet_energies(self) -> np.ndarray:
         """(q,) Dirichlet energy ``q_iᵀ L q_i`` of every (unit-norm) basis function."""
-        energies = np.einsum("ij,ij->j", self.Q, self.eig.stiffness @ self.Q)
+        energies = np.einsum("ij,ij->j", self.Q, self.eig.stiffness @ self.Q).astype(np.float64)
         energies.setflags(write=False)
         return energies
 
@@ -295,6 +300,7 @@ def ofp_basis(
     preset: str | None = None,
     k: int | None = None,
     block_size: int = 128,
+    dtype: Any = np.float64,
 ) -> OFPBasis:
     """Build the orthonormal eigenproduct basis of a shape.
 
@@ -313,6 +319,11 @@ def ofp_basis(
         Multiply only the first ``k`` non-constant eigenfunctions (default: all of ``eig``).
     block_size : int, default 128
         Columns per BLAS-3 step of the orthogonalization (does not change the result).
+    dtype : {numpy.float64, numpy.float32}, default float64
+        Storage of Q. The selection and orthogonalization always run in double precision;
+        float32 then halves the stored basis (and the memory of projections), at the cost of
+        single-precision round-off: measured ‖QᵀMQ − I‖ ≈ 1e-6 (instead of 1e-14) and
+        approximation errors changed by < 1e-6 relative on FAUST (see the README).
 
     Returns
     -------
@@ -340,6 +351,8 @@ def ofp_basis(
     if k < eig.k:
         eig = eig.truncate(k)
     block_size = check_int(block_size, name="block_size", minimum=1)
+    if np.dtype(dtype) not in (np.float64, np.float32):
+        raise ValueError(f"dtype must be float64 or float32; got {dtype!r}")
     total = n_eigenproducts(k, order)
     n = eig.n_vertices
     q_max = min(total, n)  # at most this many functions can be kept
@@ -367,6 +380,8 @@ def ofp_basis(
         )
     if c is not None:
         gs = gs._replace(Q=np.ascontiguousarray(gs.Q[c.index]))
+    if np.dtype(dtype) == np.float32:
+        gs = gs._replace(Q=gs.Q.astype(np.float32))
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")
     logger.info(
         "ofp_basis (%s): k=%d order=%d kept %d of %d candidates",

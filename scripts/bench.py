@@ -66,7 +66,9 @@ def chain(n_target: int, k: int, order: int, tol: float) -> dict:
     e1 = stage("eigensolve", lambda: ofp.eigenbasis(V1, F, k=k))
     e2 = stage("eigensolve", lambda: ofp.eigenbasis(V2, F, k=k))
     for e in (e1, e2):  # the products alone (streamed, as ofp_basis makes them)
-        stage("products", lambda e=e: sum(b.shape[1] for b in eigenproduct_blocks(e.evecs, order)))
+        stage(
+            "products", lambda e=e: sum(b.shape[1] for _, b in eigenproduct_blocks(e.evecs, order))
+        )
     B1 = stage("basis", lambda: ofp.ofp_basis(e1, order=order, tol=tol))
     B2 = stage("basis", lambda: ofp.ofp_basis(e2, order=order, tol=tol))
     row["orthogonalization_s"] = row["basis_s"] - row["products_s"]

@@ -225,3 +225,22 @@ def test_blob_signal_approximation_improves_over_eigs():
     e_eigs = ofp.approximation_error(f, eig.reconstruct(eig.project(f)), eig.mass)
     e_ours = ofp.ofp_basis(eig, order=2).approximation_error(f)
     assert e_ours < e_eigs
+
+
+def test_float32_storage_keeps_the_selection_and_adds_single_precision_error(blob_mesh, tmp_path):
+    eig = ofp.eigenbasis(*blob_mesh, k=20)
+    B64 = ofp.ofp_basis(eig)
+    B32 = ofp.ofp_basis(eig, dtype=np.float32)
+    assert B32.Q.dtype == np.float32
+    np.testing.assert_array_equal(B32.indices, B64.indices)  # selected in double precision
+    gram = B32.Q.astype(np.float64).T @ (eig.mass[:, None] * B32.Q.astype(np.float64))
+    # Rounding each entry to float32 (u = 6e-8) perturbs the Gram matrix by ~sqrt(n)·u.
+    assert np.abs(gram - np.eye(B32.size)).max() < 1e-5
+    f = np.sin(3 * blob_mesh[0])
+    e64, e32 = B64.approximation_error(f), B32.approximation_error(f)
+    assert abs(e32 - e64) < 1e-5 * max(e64, 1e-3)
+    assert B32.project(f).dtype == np.float64
+    B32.save(tmp_path / "b32.npz")
+    assert ofp.OFPBasis.load(tmp_path / "b32.npz").Q.dtype == np.float32
+    with pytest.raises(ValueError, match="dtype must be float64 or float32"):
+        ofp.ofp_basis(eig, dtype=np.int32)

@@ -87,3 +87,38 @@ def test_hks_explicit_times(blob_eig):
     assert D.shape == (blob_eig.n_vertices, 2)
     with pytest.raises(ValueError, match="times must be a non-empty list of positive"):
         hks(blob_eig, times=[-1.0])
+
+
+def _naive_nn(data, queries):
+    """Exact reference: float64 distances, first minimal index."""
+    return np.array([np.argmin(((data - q) ** 2).sum(axis=1)) for q in queries])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_brute_force_with_single_precision_screening_is_exact(seed):
+    """Any scale, offset, dimension, duplicates and near-ties: the float64 answer, always."""
+    rng = np.random.default_rng(seed)
+    n, m, dim = rng.integers(1, 400), rng.integers(1, 300), rng.integers(1, 130)
+    scale, offset = 10.0 ** rng.uniform(-6, 6), 10.0 ** rng.uniform(-3, 4)
+    data = rng.standard_normal((n, dim)) * scale + offset
+    if n > 2:
+        data[1] = data[0]  # an exact tie
+    near = data[rng.integers(0, n, m // 2)] + 1e-9 * scale * rng.standard_normal((m // 2, dim))
+    queries = np.concatenate([near, rng.standard_normal((m - m // 2, dim)) * scale + offset])
+    got = nearest_neighbors(data, queries, method="brute")
+    ref = _naive_nn(data, queries)
+    # Ties may pick either of two equidistant points: compare distances, which must be equal
+    # to the last bit of the reference computation's rounding.
+    d_got = ((data[got] - queries) ** 2).sum(axis=1)
+    d_ref = ((data[ref] - queries) ** 2).sum(axis=1)
+    np.testing.assert_allclose(d_got, d_ref, rtol=1e-12, atol=0)
+    assert np.mean(got == ref) > 0.98  # only ties may differ
+
+
+def test_brute_force_equals_double_precision_on_a_spectral_embedding(blob_eig):
+    from o3d_ofp.correspondence import _brute64
+
+    X = blob_eig.evecs  # (2562, 30): the kind of data ZoomOut and p2p maps search
+    Y = X[::-1] + 1e-7 * np.random.default_rng(0).standard_normal(X.shape)
+    d2 = np.einsum("ij,ij->i", X, X)
+    np.testing.assert_array_equal(nearest_neighbors(X, Y, method="brute"), _brute64(X, Y, d2))
