@@ -69,27 +69,38 @@ def _brute(data: np.ndarray, queries: np.ndarray) -> np.ndarray:
         return _brute64(X, Y, d2)
     gamma = dim * u / (1.0 - dim * u)
     x_max = float(np.sqrt(d2.max()))
-    X32 = X.astype(np.float32)
+    Xt32 = np.ascontiguousarray(X.T, dtype=np.float32)  # (dim, n)
     d2_32 = d2.astype(np.float32)
     q_norm = np.sqrt(np.einsum("ij,ij->i", Y, Y))
     bound = 2.0 * u * float(d2.max()) + (2.0 * gamma + 6.0 * u) * q_norm * x_max
     out = np.empty(Y.shape[0], dtype=np.int64)
-    step = max(1, int(2**23 // max(n, 1)))  # ≤ 32 MB of float32 distances per block
-    rows = np.arange(step)
-    for s in range(0, Y.shape[0], step):
-        dist = Y[s : s + step].astype(np.float32) @ X32.T
-        dist *= -2.0
-        dist += d2_32
-        r = rows[: dist.shape[0]]
-        best = np.argmin(dist, axis=1)
-        best_val = dist[r, best].astype(np.float64)
-        if n > 1:
-            dist[r, best] = np.inf
-            second = np.min(dist, axis=1).astype(np.float64)
-        else:
-            second = np.full(dist.shape[0], np.inf)
-        out[s : s + step] = best
-        unsure = np.flatnonzero(second - best_val <= 2.0 * bound[s : s + step])
+    # Tiles of 512 queries × 2048 points (4 MB of float32 distances) stay in cache while they
+    # are scanned; a running best / second best per query merges the tiles. Measured 2x
+    # faster than whole rows of distances (50k × 20k points, 30-D).
+    rs, cs = 512, 2048
+    for s in range(0, Y.shape[0], rs):
+        q = (-2.0 * Y[s : s + rs]).astype(np.float32)
+        m = q.shape[0]
+        r = np.arange(m)
+        best_val = np.full(m, np.inf, dtype=np.float32)
+        second = np.full(m, np.inf, dtype=np.float32)
+        best = np.zeros(m, dtype=np.int64)
+        for c in range(0, n, cs):
+            dist = q @ Xt32[:, c : c + cs]
+            dist += d2_32[c : c + cs]
+            tile_best = np.argmin(dist, axis=1)
+            tile_val = dist[r, tile_best]
+            dist[r, tile_best] = np.inf
+            tile_second = np.min(dist, axis=1) if dist.shape[1] > 1 else dist[:, 0]
+            better = tile_val < best_val
+            second = np.minimum(
+                np.minimum(second, tile_second), np.where(better, best_val, tile_val)
+            )
+            best = np.where(better, tile_best + c, best)
+            best_val = np.minimum(best_val, tile_val)
+        out[s : s + m] = best
+        gap = second.astype(np.float64) - best_val.astype(np.float64)
+        unsure = np.flatnonzero(~(gap > 2.0 * bound[s : s + m]))
         if unsure.size:
             out[s + unsure] = _brute64(X, Y[s + unsure], d2)
     return out

@@ -18,7 +18,7 @@ from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import face_areas_normals, face_gradient_operator
+from .geometry import face_areas_normals, hat_gradients
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis
 
@@ -72,24 +72,30 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     """
     V, F = eig.vertices, eig.faces
     areas, normals = face_areas_normals(V, F)
-    grads = face_gradient_operator(V, F)  # 3 × (m, n) sparse
+    hats = hat_gradients(V, F)  # (m, 3 corners, 3 coords)
     phi = eig.evecs[:, : k + 1]
     a, p = k + 1, D.shape[1]
     T = np.zeros((a, a * p))
-    # Everything per chunk of faces: peak memory stays ~(step · (k+1) · p) doubles (25 MB at
-    # k = 29, p = 100) however large the mesh, instead of 3 (faces, p) gradient fields.
-    step = 1024
+    # Everything per chunk of faces, from the corner values and hat gradients (no sparse
+    # products): memory stays ~(step · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
+    # large the mesh.
+    step = 2048
     for s in range(0, F.shape[0], step):
         sl = slice(s, s + step)
-        rows = [g[sl] for g in grads]
-        grad_phi = np.stack([g @ phi for g in rows], axis=2)  # (c, k+1, 3)
-        gd = [g @ D for g in rows]  # 3 × (c, p)
+        f, E = F[sl], hats[sl]
+        phi_c = phi[f]  # (c, 3 corners, k+1)
+        grad_phi = np.matmul(phi_c.transpose(0, 2, 1), E)  # (c, k+1, 3): ∇φ_a
+        gd = np.matmul(E.transpose(0, 2, 1), D[f])  # (c, 3, p): ∇d_i
         nx, ny, nz = (normals[sl, c][:, None] for c in range(3))
         rot = np.stack(
-            [ny * gd[2] - nz * gd[1], nz * gd[0] - nx * gd[2], nx * gd[1] - ny * gd[0]], axis=1
+            [
+                ny * gd[:, 2] - nz * gd[:, 1],
+                nz * gd[:, 0] - nx * gd[:, 2],
+                nx * gd[:, 1] - ny * gd[:, 0],
+            ],
+            axis=1,
         )  # (c, 3, p): n × ∇d_i on each face
-        f = F[sl]
-        W = (areas[sl] / 3.0)[:, None] * (phi[f[:, 0]] + phi[f[:, 1]] + phi[f[:, 2]])
+        W = (areas[sl] / 3.0)[:, None] * phi_c.sum(axis=1)  # area-weighted corner sums
         H = np.matmul(grad_phi, rot)  # H[f, a, i] = ∇φ_a · (n × ∇d_i) on face f
         T += W.T @ H.reshape(H.shape[0], a * p)
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))

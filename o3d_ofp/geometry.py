@@ -52,6 +52,32 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
 
 
+def hat_gradients(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Gradient of each corner's hat function on each face.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    (m, 3, 3) ndarray
+        ``[t, c]`` is ∇ of the hat function of corner c on face t, so that the gradient of a
+        piecewise-linear f on face t is ``Σ_c f[faces[t, c]] · [t, c]`` (zero on degenerate
+        faces).
+    """
+    areas, normals = face_areas_normals(vertices, faces)
+    inv2a = np.divide(1.0, 2.0 * areas, out=np.zeros_like(areas), where=areas > 0)
+    grads = []
+    # ∇ of the hat function of corner c is N × e_c / (2A), e_c the edge opposite c (oriented).
+    for c in range(3):
+        a, b = faces[:, (c + 1) % 3], faces[:, (c + 2) % 3]
+        edge = vertices[b] - vertices[a]
+        grads.append(np.cross(normals, edge) * inv2a[:, None])
+    return np.stack(grads, axis=1)
+
+
 def face_gradient_operator(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, ...]:
     """Sparse operators giving the (constant) gradient of a piecewise-linear function per face.
 
@@ -66,18 +92,9 @@ def face_gradient_operator(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.
         ``(gx @ f)[t]`` is the x component of ∇f on face t (zero on degenerate faces).
     """
     n, m = vertices.shape[0], faces.shape[0]
-    areas, normals = face_areas_normals(vertices, faces)
-    inv2a = np.divide(1.0, 2.0 * areas, out=np.zeros_like(areas), where=areas > 0)
+    grads = hat_gradients(vertices, faces)  # (m, 3 corners, 3 coords)
     rows = np.repeat(np.arange(m), 3)
-    mats = []
-    # ∇ of the hat function of corner c is N × e_c / (2A), e_c the edge opposite c (oriented).
-    grads = []
-    for c in range(3):
-        a, b = faces[:, (c + 1) % 3], faces[:, (c + 2) % 3]
-        edge = vertices[b] - vertices[a]
-        grads.append(np.cross(normals, edge) * inv2a[:, None])
-    grads = np.stack(grads, axis=1)  # (m, 3 corners, 3 coords)
     cols = faces.reshape(-1)
-    for d in range(3):
-        mats.append(sp.csr_matrix((grads[:, :, d].reshape(-1), (rows, cols)), shape=(m, n)))
-    return tuple(mats)
+    return tuple(
+        sp.csr_matrix((grads[:, :, d].reshape(-1), (rows, cols)), shape=(m, n)) for d in range(3)
+    )

@@ -234,3 +234,15 @@ def _with_func(parser, command, func):
     sub = next(a for a in parser._actions if a.dest == "command")
     sub.choices[command].set_defaults(func=func)
     return parser
+
+
+def test_cache_dir_reuses_the_basis(files, tmp_path, capsys):
+    cache = tmp_path / "cache"
+    argv = ["approximate", files["src"], "-k", "8", "--cache", str(cache), "-o"]
+    assert main([*argv, str(tmp_path / "a.ply")]) == 0
+    assert len(list(cache.glob("*.npz"))) == 1
+    first = capsys.readouterr().out
+    assert main(["-v", *argv, str(tmp_path / "b.ply")]) == 0
+    assert "loaded from cache" in capsys.readouterr().err
+    assert len(list(cache.glob("*.npz"))) == 1
+    assert "relative error" in first
