@@ -13,12 +13,12 @@ from __future__ import annotations
 import importlib
 import logging
 import os
-import tempfile
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 
+from ._atomic import atomic_path
 from ._validation import as_faces, as_signal, as_vertices
 
 __all__ = [
@@ -417,11 +417,7 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
     """
     o3d = require_open3d()
     path = os.fspath(path)
-    folder, name = os.path.split(os.path.abspath(path))
-    stem, ext = os.path.splitext(name)
-    fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=ext, dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=os.path.splitext(path)[1]) as tmp:
         # Open3D prints warnings (e.g. "OFF cannot include triangle normals") on stdout.
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             if isinstance(geometry, o3d.geometry.TriangleMesh):
@@ -430,13 +426,6 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
                 ok = o3d.io.write_point_cloud(tmp, geometry)
         if not ok:
             raise OSError(f"{path}: Open3D failed to write the file")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def _same_kind_from_arrays(geometry: Any, vertices: np.ndarray, *, colors: Any = None) -> Any:

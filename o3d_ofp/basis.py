@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ._atomic import atomic_path
 from ._memory import check_memory
 from ._threads import single_threaded_below
 from ._validation import as_signal, check_int
@@ -231,13 +232,8 @@ class OFPBasis:
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
-        tmp = f"{path}.{os.getpid()}.tmp.npz"
-        try:
+        with atomic_path(path, suffix=".npz") as tmp:
             np.savez(tmp, **payload)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> OFPBasis:

@@ -250,22 +250,12 @@ _CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 
 
 def _save_npy(path: str, values: Any) -> None:
-    import tempfile
-
     import numpy as np
 
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".o3d_ofp.", suffix=".npy", dir=folder)
-    os.close(fd)
-    try:
+    from ._atomic import atomic_path
+
+    with atomic_path(path, suffix=".npy") as tmp:
         np.save(tmp, values)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def _write_result(path: str, like: Any, V: Any, values: Any, kind: str) -> list[str]:

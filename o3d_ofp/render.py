@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from ._atomic import atomic_path
 from ._validation import as_faces, as_signal, as_vertices
 
 __all__ = [
@@ -439,7 +440,8 @@ def write_png(path: str | os.PathLike[str], image: Any) -> None:
         + chunk(b"IDAT", zlib.compress(raw.tobytes(), 6))
         + chunk(b"IEND", b"")
     )
-    _atomic_write(path, png)
+    with atomic_path(path, suffix=".png") as tmp, open(tmp, "wb") as fh:
+        fh.write(png)
 
 
 def read_png(path: str | os.PathLike[str]) -> np.ndarray:
@@ -480,22 +482,6 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
         lines = img[sub].reshape(int(sub.sum()), w, channels).astype(np.int64)
         img[sub] = (np.cumsum(lines, axis=1) % 256).astype(np.uint8).reshape(-1, w * channels)
     return img.reshape(h, w, 3) if channels == 3 else img.reshape(h, w)
-
-
-def _atomic_write(path: str | os.PathLike[str], data: bytes) -> None:
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".o3d_ofp.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def has_display() -> bool:
