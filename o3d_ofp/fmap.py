@@ -46,9 +46,9 @@ def _descriptors(
     return D[:, keep] / norms[keep]
 
 
-#: Rows (vertices or faces) per chunk when building the operator stacks: bounds the
-#: temporary (rows, (k+1)²) product matrix to ~100 MB at k = 30.
-_CHUNK = 16384
+#: Vertices per chunk when building the descriptor operators: bounds the temporary
+#: (rows, (k+1)²) product matrix to ~15 MB at k = 29.
+_CHUNK = 2048
 
 
 def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
@@ -57,9 +57,11 @@ def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     a = k + 1
     MD = eig.mass[:, None] * D
     T = np.zeros((a * a, D.shape[1]))
+    P_buf = np.empty((min(_CHUNK, phi.shape[0]), a, a))  # reused: no fresh pages per chunk
     for s in range(0, phi.shape[0], _CHUNK):
-        P = (phi[s : s + _CHUNK, :, None] * phi[s : s + _CHUNK, None, :]).reshape(-1, a * a)
-        T += P.T @ MD[s : s + _CHUNK]
+        ph = phi[s : s + _CHUNK]
+        P = np.multiply(ph[:, :, None], ph[:, None, :], out=P_buf[: ph.shape[0]])
+        T += P.reshape(ph.shape[0], a * a).T @ MD[s : s + _CHUNK]
     return np.ascontiguousarray(T.reshape(a, a, -1).transpose(2, 0, 1))
 
 
@@ -80,6 +82,7 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     # products): memory stays ~(step · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
     # large the mesh.
     step = 2048
+    H_buf = np.empty((min(step, F.shape[0]), a, p))  # reused: no fresh pages per chunk
     for s in range(0, F.shape[0], step):
         sl = slice(s, s + step)
         f, E = F[sl], hats[sl]
@@ -96,7 +99,7 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
             axis=1,
         )  # (c, 3, p): n × ∇d_i on each face
         W = (areas[sl] / 3.0)[:, None] * phi_c.sum(axis=1)  # area-weighted corner sums
-        H = np.matmul(grad_phi, rot)  # H[f, a, i] = ∇φ_a · (n × ∇d_i) on face f
+        H = np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i) per face
         T += W.T @ H.reshape(H.shape[0], a * p)
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
 
