@@ -379,7 +379,8 @@ def clean_shape(
             raise ValueError(f"weld_tolerance must lie in [0, 1); got {weld_tolerance}")
     check_int(n_neighbors, name="n_neighbors", minimum=3)
 
-    size = float(np.max(np.ptp(V, axis=0)))
+    with np.errstate(over="ignore"):  # a span beyond float64's range is refused just below
+        size = float(np.max(np.ptp(V, axis=0)))
     if size > 0 and not (_MIN_SIZE < size < _MAX_SIZE):
         problem = "overflow" if size > 1 else "underflow"
         raise ValueError(

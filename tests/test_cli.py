@@ -134,6 +134,12 @@ def test_detail_and_filter(files, tmp_path):
     assert V.shape == files["V"].shape
     # "replace" puts the (approximated) source coordinates on the target.
     assert np.abs(V - files["V"]).max() < 0.05 * np.ptp(files["V"])
+    # "add": the target keeps its shape and gets the source's detail along its normals.
+    out_add = tmp_path / "a.ply"
+    assert main(["detail", files["src"], files["tgt"], "--map", "identity", "--k1", "10",
+                 "--k2", "10", "-o", str(out_add)]) == 0  # fmt: skip
+    added = np.asarray(o3d.io.read_triangle_mesh(str(out_add)).vertices)
+    assert np.abs(added - files["bent"]).max() < 0.1 * np.ptp(files["bent"])
     out = tmp_path / "f.ply"
     assert main(["filter", files["src"], "--smooth", "5", "-k", "10", "-o", str(out)]) == 0
     smooth = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)

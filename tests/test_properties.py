@@ -22,7 +22,7 @@ DOCUMENTED = (ValueError, TypeError, ofp.EigenSolverError)
 finite_coords = st.floats(-10.0, 10.0, allow_nan=False, width=64)
 nasty_coords = st.one_of(
     finite_coords,
-    st.sampled_from([np.nan, np.inf, -np.inf, 1e300, -1e300, 1e-300, 0.0]),
+    st.sampled_from([np.nan, np.inf, -np.inf, 1e300, -1e300, 1.7e308, -1.7e308, 1e-300, 0.0]),
     st.floats(allow_nan=True, allow_infinity=True),
 )
 
