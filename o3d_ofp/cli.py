@@ -290,9 +290,22 @@ def _write_result(path: str, like: Any, V: Any, values: Any, kind: str) -> list[
     return [path, *written]
 
 
+class _Output:
+    """The command's result lines on stdout; nothing with ``-q``."""
+
+    quiet = False
+
+    def write(self, text: str) -> None:
+        if not self.quiet:
+            sys.stdout.write(text)
+
+
+_OUT = _Output()
+
+
 def _report(lines: Sequence[str]) -> None:
     for line in lines:
-        sys.stdout.write(line + "\n")
+        _OUT.write(line + "\n")
 
 
 # --------------------------------------------------------------------------- commands
@@ -541,7 +554,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     os.makedirs(out, exist_ok=True)
     vertices, faces = blob(args.subdivisions, seed=args.seed)
     colors = _demo_signal(vertices)
-    stream = sys.stdout
+    stream = _OUT
     stream.write(
         f"demo: procedural blob with {len(vertices)} vertices, k={args.k} eigenfunctions, "
         f"order {args.order}\n"
@@ -731,7 +744,9 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "-v", "--verbose", action="count", default=0, help="progress and details (repeatable)"
     )
-    parser.add_argument("-q", "--quiet", action="store_true", help="only errors")
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing but errors (files are written)"
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("basis", help="compute a basis once and store it (.npz)")
@@ -873,6 +888,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         level = logging.WARNING
     prog = f"o3d-ofp {args.command}"
+    _OUT.quiet = bool(args.quiet)
     with _logging_to_stderr(level):
         try:
             return args.func(args)

@@ -252,3 +252,11 @@ def test_cache_dir_reuses_the_basis(files, tmp_path, capsys):
     assert "loaded from cache" in capsys.readouterr().err
     assert len(list(cache.glob("*.npz"))) == 1
     assert "relative error" in first
+
+
+def test_quiet_prints_nothing_but_writes(files, tmp_path, capsys):
+    out = tmp_path / "q.ply"
+    assert main(["-q", "approximate", files["src"], "-k", "6", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
+    assert out.exists()
