@@ -325,7 +325,7 @@ def _solve(
     """Eigenpairs with the constant first, checked; retried as documented in ``_ATTEMPTS``."""
     n = mass.shape[0]
     plans: list[tuple[str, dict[str, Any]]] = []
-    if n <= DENSE_MAX_VERTICES:
+    if n <= DENSE_MAX_VERTICES or k + 2 >= n:  # ARPACK needs k + 1 < n - 1 eigenpairs
         plans.append(("dense", {}))
     else:
         for shift, ncv_factor, seed in _ATTEMPTS:
