@@ -141,7 +141,10 @@ def _load_basis(path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namesp
     return B
 
 
-def _compute_basis(V: Any, F: Any, path: str, args: argparse.Namespace, k: int) -> Any:
+def _compute_basis(
+    V: Any, F: Any, path: str, args: argparse.Namespace, k: int, eig_k: int | None = None
+) -> tuple[Any, Any]:
+    """(OFP basis on ``k`` eigenfunctions, the eigenbasis it came from with ``eig_k`` ≥ k)."""
     from .basis import ofp_basis
     from .cache import cached_basis
     from .spectrum import eigenbasis
@@ -149,19 +152,31 @@ def _compute_basis(V: Any, F: Any, path: str, args: argparse.Namespace, k: int) 
     tol = _tol_options(args)
     if args.cache:
         with _stage(f"basis of {path} (cache {args.cache})"):
-            return cached_basis(
+            B = cached_basis(
                 V, F, k=k, order=args.order, cache_dir=args.cache, **tol, **_eig_options(args)
             )
-    with _stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={k})"):
-        eig = eigenbasis(V, F, k=k, **_eig_options(args))
+        return B, B.eig
+    eig_k = max(k, eig_k or 0)
+    with _stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={eig_k})"):
+        eig = eigenbasis(V, F, k=eig_k, clamp_k=eig_k > k, **_eig_options(args))
     with _stage(f"orthogonalized products of {path} (order {args.order})"):
-        return ofp_basis(eig, order=args.order, **tol)
+        return ofp_basis(eig, order=args.order, k=min(k, eig.k), **tol), eig
 
 
-def _basis(V: Any, F: Any, path: str, args: argparse.Namespace, file: str | None, k: int) -> Any:
+def _basis(
+    V: Any,
+    F: Any,
+    path: str,
+    args: argparse.Namespace,
+    file: str | None,
+    k: int,
+    eig_k: int | None = None,
+) -> tuple[Any, Any]:
+    """(OFP basis, its eigenbasis): from ``file`` (checked against the mesh) or computed."""
     if file:
-        return _load_basis(file, V, F, path, args)
-    return _compute_basis(V, F, path, args, k)
+        B = _load_basis(file, V, F, path, args)
+        return B, B.eig
+    return _compute_basis(V, F, path, args, k, eig_k)
 
 
 def _landmarks(spec: str | None) -> Any:
@@ -317,7 +332,7 @@ def _cmd_basis(args: argparse.Namespace) -> int:
     _check_output(args.output, (".npz",))
     geometry = _read(args.mesh)
     V, F = _arrays(geometry, args.mesh)
-    B = _compute_basis(V, F, args.mesh, args, args.k)
+    B, _ = _compute_basis(V, F, args.mesh, args, args.k)
     B.save(args.output)
     report = B.eig.cleaning.report if B.eig.cleaning is not None else None
     _report(
@@ -336,7 +351,7 @@ def _cmd_approximate(args: argparse.Namespace) -> int:
     geometry = _read(args.mesh)
     V, F = _arrays(geometry, args.mesh)
     f, kind = _signal(geometry, args.mesh, args.signal, args.texture)
-    B = _basis(V, F, args.mesh, args, args.basis, args.k)
+    B, _ = _basis(V, F, args.mesh, args, args.basis, args.k)
     approx = B.approximate(f)
     err = B.approximation_error(f)
     written = _write_result(args.output, geometry, V, approx, kind)
@@ -350,10 +365,8 @@ def _cmd_approximate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pair(args: argparse.Namespace) -> dict[str, Any]:
-    """Read both shapes, the map, the landmarks and (cached or new) bases."""
-    from .spectrum import eigenbasis
-
+def _read_pair(args: argparse.Namespace) -> dict[str, Any]:
+    """Read both shapes, the map and the landmarks (everything that can fail fast)."""
     source, target = _read(args.source), _read(args.target)
     V1, F1 = _arrays(source, args.source)
     V2, F2 = _arrays(target, args.target)
@@ -365,31 +378,43 @@ def _pair(args: argparse.Namespace) -> dict[str, Any]:
         for col, n, name in ((0, V1.shape[0], "source"), (1, V2.shape[0], "target")):
             if landmarks[:, col].min() < 0 or landmarks[:, col].max() >= n:
                 raise UsageError(f"--landmarks: {name} indices must lie in [0, {n})")
-    B1 = _basis(V1, F1, args.source, args, args.basis_1, args.k1)
-    B2 = _basis(V2, F2, args.target, args, args.basis_2, args.k2)
-    eigs = (B1.eig, B2.eig)
-    if p2p is None:
-        # The map is fitted on 30 eigenfunctions and refined by ZoomOut up to ~100.
-        big = []
-        for V, F, B, path in ((V1, F1, B1, args.source), (V2, F2, B2, args.target)):
-            want = min(99, V.shape[0] - 1)
-            if B.eig.k >= want:
-                big.append(B.eig)
-                continue
-            with _stage(f"eigenbasis of {path} for map estimation (k={want})"):
-                big.append(eigenbasis(V, F, k=want, clamp_k=True, **_eig_options(args)))
-        eigs = (big[0], big[1])
     return {
         "source": source,
         "target": target,
         "V1": V1,
+        "F1": F1,
         "V2": V2,
         "F2": F2,
         "p2p": p2p,
         "landmarks": landmarks,
-        "bases": (B1, B2),
-        "eigenbases": eigs,
     }
+
+
+#: Eigenfunctions the estimated map is refined to by ZoomOut (as pyFM's standard pipeline).
+_ZOOMOUT_K = 99
+
+
+def _add_bases(args: argparse.Namespace, pair: dict[str, Any]) -> None:
+    """Add the (cached or new) OFP bases and the eigenbases the map estimation needs."""
+    from .spectrum import eigenbasis
+
+    estimate = pair["p2p"] is None
+    bases, eigs = [], []
+    for side, k, file in ((1, args.k1, args.basis_1), (2, args.k2, args.basis_2)):
+        V, F, path = (
+            pair[f"V{side}"],
+            pair[f"F{side}"],
+            getattr(args, ("source", "target")[side - 1]),
+        )
+        B, eig = _basis(V, F, path, args, file, k, _ZOOMOUT_K if estimate else None)
+        want = min(_ZOOMOUT_K, V.shape[0] - 1)
+        if estimate and eig.k < want:  # a cached basis with fewer eigenfunctions
+            with _stage(f"eigenbasis of {path} for map estimation (k={want})"):
+                eig = eigenbasis(V, F, k=want, clamp_k=True, **_eig_options(args))
+        bases.append(B)
+        eigs.append(eig)
+    pair["bases"] = (bases[0], bases[1])
+    pair["eigenbases"] = (eigs[0], eigs[1])
 
 
 def _cmd_transfer(args: argparse.Namespace) -> int:
@@ -397,8 +422,9 @@ def _cmd_transfer(args: argparse.Namespace) -> int:
 
     out_ext = (*_MESH_OUT, *_CLOUD_OUT, ".npy")
     _check_output(args.output, out_ext)
-    pair = _pair(args)
+    pair = _read_pair(args)
     f, kind = _signal(pair["source"], args.source, args.signal, args.texture)
+    _add_bases(args, pair)
     p2p = pair["p2p"]
     eig_1, eig_2 = pair["eigenbases"]
     if p2p is None:
@@ -423,9 +449,10 @@ def _cmd_detail(args: argparse.Namespace) -> int:
     from .pipeline import match
 
     _check_output(args.output, (*_MESH_OUT, *_CLOUD_OUT))
-    pair = _pair(args)
-    if _arrays(pair["source"], args.source)[1] is None:
+    pair = _read_pair(args)
+    if pair["F1"] is None:
         raise UsageError(f"{args.source}: the detail source must be a triangle mesh")
+    _add_bases(args, pair)
     p2p = pair["p2p"]
     if p2p is None:
         with _stage("map estimation (fit + ZoomOut)"):
@@ -459,7 +486,7 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     gains = smooth_gains(args.smooth) if args.smooth is not None else sharpen_gains(args.sharpen)
     geometry = _read(args.mesh)
     V, F = _arrays(geometry, args.mesh)
-    B = _basis(V, F, args.mesh, args, args.basis, args.k)
+    B, _ = _basis(V, F, args.mesh, args, args.basis, args.k)
     with _stage("spectral filter"):
         out = adapters.filter_geometry(geometry, gains=gains, basis=B)
     adapters.write_geometry(args.output, out)
