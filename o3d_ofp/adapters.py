@@ -436,34 +436,6 @@ def _same_kind_from_arrays(geometry: Any, vertices: np.ndarray, *, colors: Any =
     return triangle_mesh_from_arrays(vertices, faces, colors=colors)
 
 
-def _pair_eigenbases(
-    V1: np.ndarray,
-    F1: np.ndarray | None,
-    V2: np.ndarray,
-    F2: np.ndarray | None,
-    k1: int,
-    k2: int,
-    fmap_12: Any,
-    p2p_21: Any,
-) -> tuple[Any, Any]:
-    """Eigenbases of source and target, as large as the map that will be used needs."""
-    from .spectrum import eigenbasis
-
-    if p2p_21 is not None:
-        k_1, k_2 = k1, k2
-    elif fmap_12 is not None:  # a given map may be larger than the bases: use all of it
-        rows, cols = np.shape(fmap_12)
-        k_1, k_2 = max(k1, cols - 1), max(k2, rows - 1)
-    else:  # an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
-        # standard pipeline), never more than a shape allows
-        k_1, k_2 = max(k1, 99), max(k2, 99)
-        return (
-            eigenbasis(V1, F1, k=k_1, clamp_k=True),
-            eigenbasis(V2, F2, k=k_2, clamp_k=True),
-        )
-    return eigenbasis(V1, F1, k=k_1), eigenbasis(V2, F2, k=k_2)
-
-
 def _eigenbases_for(
     V1: np.ndarray,
     F1: np.ndarray | None,
@@ -476,11 +448,27 @@ def _eigenbases_for(
     eigenbases: tuple[Any, Any] | None,
     bases: tuple[Any, Any] | None,
 ) -> tuple[Any, Any]:
-    """Given eigenbases (checked against the shapes), else those of the bases, else computed."""
-    if eigenbases is None and bases is not None and (fmap_12 is not None or p2p_21 is not None):
+    """Given eigenbases (checked against the shapes), else those of the bases, else computed.
+
+    Computed ones are as large as the map needs: a given map may be larger than k1/k2 (all of
+    it is used); an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
+    standard pipeline), never more than a shape allows.
+    """
+    from .spectrum import eigenbasis
+
+    estimate = fmap_12 is None and p2p_21 is None
+    if eigenbases is None and bases is not None and not estimate:
         eigenbases = (bases[0].eig, bases[1].eig)  # no estimation: the bases' own suffice
     if eigenbases is None:
-        return _pair_eigenbases(V1, F1, V2, F2, k1, k2, fmap_12, p2p_21)
+        if estimate:
+            k1, k2 = max(k1, 99), max(k2, 99)
+        elif p2p_21 is None:
+            rows, cols = np.shape(fmap_12)
+            k1, k2 = max(k1, cols - 1), max(k2, rows - 1)
+        return (
+            eigenbasis(V1, F1, k=k1, clamp_k=estimate),
+            eigenbasis(V2, F2, k=k2, clamp_k=estimate),
+        )
     for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
         if eig.n_vertices != V.shape[0]:
             raise ValueError(
