@@ -27,10 +27,9 @@ __all__ = ["estimate_fmap", "farthest_points", "icp_refine", "lift_fmap", "zoomo
 logger = logging.getLogger(__name__)
 
 
-def _reduced(eig: EigenBasis, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, k+1) eigenvectors and their mass-weighted transpose (the projection)."""
-    phi = eig.evecs[:, : k + 1]
-    return phi, (phi * eig.mass[:, None]).T
+def _projection(eig: EigenBasis, k: int) -> np.ndarray:
+    """(k+1, n) mass-weighted transpose of the first k+1 eigenvectors: f ↦ Φᵀ M f."""
+    return (eig.evecs[:, : k + 1] * eig.mass[:, None]).T
 
 
 def _descriptors(
@@ -249,8 +248,7 @@ def estimate_fmap(
     k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
     D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
     D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
-    _, proj1 = _reduced(eig_1, k1)
-    _, proj2 = _reduced(eig_2, k2)
+    proj1, proj2 = _projection(eig_1, k1), _projection(eig_2, k2)
     A, B = proj1 @ D1, proj2 @ D2  # (k1+1, p), (k2+1, p)
     ops = (
         _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
