@@ -375,7 +375,7 @@ def ofp_basis(
             block_size=block_size,
         )
     if c is not None:
-        gs = gs._replace(Q=np.ascontiguousarray(gs.Q[c.index]))
+        gs = gs._replace(Q=np.ascontiguousarray(c.extend(gs.Q)))
     if np.dtype(dtype) == np.float32:
         gs = gs._replace(Q=gs.Q.astype(np.float32))
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")

@@ -429,7 +429,7 @@ def _expand(
     A = sp.csr_matrix((share, (idx, np.arange(c.n_input))), shape=(c.n_vertices, c.n_input))
     stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
     stiffness.sum_duplicates()
-    return evecs[idx], mass, stiffness, faces
+    return c.extend(evecs), mass, stiffness, faces
 
 
 #: Options of :func:`eigenbasis` that change the basis of a given input (besides ``k``).

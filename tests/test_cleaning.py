@@ -318,3 +318,20 @@ def test_nasty_file_gives_a_basis_and_a_self_transfer_or_a_clear_error(name):
     g = transfer_function(X, eig, eig, p2p_21=np.arange(len(V)), k1=k, k2=k, bases=(B, B))
     np.testing.assert_allclose(g, B.approximate(X), atol=1e-9 * np.abs(X).max())
     assert B.approximation_error(X) < 0.2
+
+
+def test_cleaning_maps_values_between_input_and_cleaned_vertices():
+    V, F = icosphere(1)
+    Vd = np.concatenate([V, V[:2]])  # input vertices 42, 43 duplicate 0, 1
+    c = clean_shape(Vd, F).cleaning
+    assert c.n_input == 44 and c.n_vertices == 42
+    np.testing.assert_array_equal(c.multiplicity[:3], [2, 2, 1])
+    g = np.arange(42.0)
+    np.testing.assert_array_equal(c.extend(g), np.concatenate([g, [0.0, 1.0]]))
+    f = np.arange(44.0)
+    f[42], f[43] = 10.0, 20.0  # the duplicates disagree with their representatives
+    r = c.restrict(f)
+    np.testing.assert_allclose(r[:3], [(0 + 10) / 2, (1 + 20) / 2, 2.0])  # means
+    np.testing.assert_allclose(c.restrict(np.column_stack([f, -f]))[:, 1], -r)
+    with pytest.raises(ValueError, match="the cleaned shape has 42"):
+        c.extend(np.zeros(5))
