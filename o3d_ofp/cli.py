@@ -76,13 +76,12 @@ def _load_npy(path: str, what: str) -> Any:
         raise UsageError(f"{path}: not a NumPy .npy file ({what}): {exc}") from exc
 
 
-def _signal(geometry: Any, path: str, spec: str, texture: str | None) -> tuple[Any, str]:
-    """Per-vertex values named by ``--signal``: (array (n,) or (n, d), kind)."""
+def _signal(geometry: Any, V: Any, path: str, spec: str, texture: str | None) -> tuple[Any, str]:
+    """Per-vertex values named by ``--signal`` on ``geometry`` (vertices ``V``), and their kind."""
     import numpy as np
 
     from . import adapters
 
-    V, _ = _arrays(geometry, path)
     if spec == "colors":
         colors = adapters.vertex_colors(geometry)
         if colors is None:
@@ -350,7 +349,7 @@ def _cmd_approximate(args: argparse.Namespace) -> int:
     _check_output(args.output, (*_MESH_OUT, *_CLOUD_OUT, ".npy"))
     geometry = _read(args.mesh)
     V, F = _arrays(geometry, args.mesh)
-    f, kind = _signal(geometry, args.mesh, args.signal, args.texture)
+    f, kind = _signal(geometry, V, args.mesh, args.signal, args.texture)
     B, _ = _basis(V, F, args.mesh, args, args.basis, args.k)
     approx = B.approximate(f)
     err = B.approximation_error(f)
@@ -423,7 +422,7 @@ def _cmd_transfer(args: argparse.Namespace) -> int:
     out_ext = (*_MESH_OUT, *_CLOUD_OUT, ".npy")
     _check_output(args.output, out_ext)
     pair = _read_pair(args)
-    f, kind = _signal(pair["source"], args.source, args.signal, args.texture)
+    f, kind = _signal(pair["source"], pair["V1"], args.source, args.signal, args.texture)
     _add_bases(args, pair)
     p2p = pair["p2p"]
     eig_1, eig_2 = pair["eigenbases"]
