@@ -1,6 +1,10 @@
 """o3d_ofp: Orthogonalized Fourier Polynomials for Open3D meshes and point clouds.
 
-Importing this package does not import Open3D; only :mod:`o3d_ofp.adapters` does, lazily.
+The package is layered (see the README's "Architecture"): :mod:`o3d_ofp.core` (arrays only),
+:mod:`o3d_ofp.workflows` (whole runs over arrays), :mod:`o3d_ofp.boundary` (Open3D geometries
+in and out), and the front ends :mod:`o3d_ofp.cli` and :mod:`o3d_ofp.render`. The names below
+are the public API. Importing the package does not import Open3D: the boundary functions import
+it when they are called.
 
 References
 ----------
@@ -13,49 +17,41 @@ from __future__ import annotations
 
 import logging
 
-from .basis import OFPBasis, approximation_error, ofp_basis
-from .cache import cached_basis
-from .cleaning import CleaningReport, clean_shape
-from .correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap, p2p_from_template
-from .descriptors import hks, wks
-from .fmap import estimate_fmap, icp_refine, lift_fmap, zoomout_refine
-from .laplacian import laplacian
-from .orthogonalize import PRESETS, GramSchmidt, gram_schmidt
-from .pipeline import match, transfer_function
-from .products import eigenproduct_indices, eigenproducts, n_eigenproducts
+from .boundary.api import (
+    cached_basis,
+    eigenbasis,
+    filter_geometry,
+    match,
+    shape_digest,
+    transfer_colors,
+    transfer_detail,
+)
+from .boundary.io import read_geometry, write_geometry
+from .boundary.texture import texture_colors
+from .core.basis import OFPBasis, approximation_error, ofp_basis
+from .core.cleaning import CleaningReport, clean_shape
+from .core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap, p2p_from_template
+from .core.descriptors import hks, wks
+from .core.fmap import estimate_fmap, icp_refine, lift_fmap, zoomout_refine
+from .core.laplacian import laplacian
+from .core.orthogonalize import PRESETS, GramSchmidt, gram_schmidt
+from .core.products import eigenproduct_indices, eigenproducts, n_eigenproducts
+from .core.spectrum import EigenBasis, EigenSolverError
+from .core.transfer import transfer_matrix, transfer_signal
 from .render import render_panel, show
-from .spectrum import EigenBasis, EigenSolverError, eigenbasis, shape_digest
-from .transfer import transfer_matrix, transfer_signal
+from .workflows.matching import Correspondence, MapQuality, match_eigenbases
+from .workflows.pipeline import transfer_function
 
 __version__ = "0.1.0"
-
-
-def _open3d_level(name: str):
-    """Make a package-level alias of an :mod:`o3d_ofp.adapters` function (lazy import)."""
-
-    def call(*args, **kwargs):
-        from . import adapters
-
-        return getattr(adapters, name)(*args, **kwargs)
-
-    call.__name__ = call.__qualname__ = name
-    call.__doc__ = f"Open3D level; see :func:`o3d_ofp.adapters.{name}`."
-    return call
-
-
-transfer_colors = _open3d_level("transfer_colors")
-transfer_detail = _open3d_level("transfer_detail")
-filter_geometry = _open3d_level("filter_geometry")
-texture_colors = _open3d_level("texture_colors")
-read_geometry = _open3d_level("read_geometry")
-write_geometry = _open3d_level("write_geometry")
 
 __all__ = [
     "PRESETS",
     "CleaningReport",
+    "Correspondence",
     "EigenBasis",
     "EigenSolverError",
     "GramSchmidt",
+    "MapQuality",
     "OFPBasis",
     "__version__",
     "approximation_error",
@@ -73,6 +69,7 @@ __all__ = [
     "laplacian",
     "lift_fmap",
     "match",
+    "match_eigenbases",
     "n_eigenproducts",
     "nearest_neighbors",
     "ofp_basis",

@@ -35,10 +35,10 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_basis import PeakRSS, bumpy_torus
 
 import o3d_ofp as ofp
-from o3d_ofp.correspondence import p2p_from_fmap
-from o3d_ofp.fmap import estimate_fmap
-from o3d_ofp.orthogonalize import resolve_tol
-from o3d_ofp.products import eigenproduct_blocks
+from o3d_ofp.core.correspondence import p2p_from_fmap
+from o3d_ofp.core.fmap import estimate_fmap
+from o3d_ofp.core.orthogonalize import resolve_tol
+from o3d_ofp.core.products import eigenproduct_blocks
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 STAGES = ("eigensolve", "products", "orthogonalization", "map", "p2p", "transfer")
@@ -101,7 +101,7 @@ def fit_exponents(rows: list[dict]) -> dict:
 def ours_end_to_end(V1, F1, V2, F2, f) -> tuple[np.ndarray, np.ndarray, float]:
     t0 = time.perf_counter()
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
-    _, p2p = ofp.match(e1, e2)
+    p2p = ofp.match_eigenbases(e1, e2).p2p_21
     g = ofp.transfer_function(f, e1, e2, k1=29, k2=39, order=2, p2p_21=p2p)
     return p2p, g, time.perf_counter() - t0
 
@@ -121,7 +121,8 @@ def pyfm_end_to_end(V1, F1, V2, F2, f) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def head_to_head(repeat: int) -> dict:
-    from o3d_ofp.adapters import geometry_to_arrays, read_geometry
+    from o3d_ofp import read_geometry
+    from o3d_ofp.boundary.convert import geometry_to_arrays
 
     V1, F1 = geometry_to_arrays(read_geometry(DATA / "faust/tr_reg_093.ply"))
     V2, F2 = geometry_to_arrays(read_geometry(DATA / "faust/tr_reg_087.ply"))

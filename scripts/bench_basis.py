@@ -27,9 +27,9 @@ import numpy as np
 import psutil
 
 import o3d_ofp as ofp
-from o3d_ofp.orthogonalize import gram_schmidt, resolve_tol
-from o3d_ofp.products import eigenproducts, n_eigenproducts
-from o3d_ofp.shapes import torus
+from o3d_ofp.core.orthogonalize import gram_schmidt, resolve_tol
+from o3d_ofp.core.products import eigenproducts, n_eigenproducts
+from o3d_ofp.core.shapes import torus
 
 
 class PeakRSS:

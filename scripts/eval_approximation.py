@@ -22,7 +22,8 @@ import numpy as np
 import scipy.io
 
 import o3d_ofp as ofp
-from o3d_ofp.adapters import geometry_to_arrays, read_geometry
+from o3d_ofp import read_geometry
+from o3d_ofp.boundary.convert import geometry_to_arrays
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

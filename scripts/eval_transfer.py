@@ -29,11 +29,12 @@ import numpy as np
 import scipy.io
 
 import o3d_ofp as ofp
-from o3d_ofp.adapters import geometry_to_arrays, read_geometry
-from o3d_ofp.baselines import transfer_eigs, transfer_prods
-from o3d_ofp.correspondence import p2p_from_template
-from o3d_ofp.io import read_vts
-from o3d_ofp.pipeline import match
+from o3d_ofp import read_geometry
+from o3d_ofp.boundary.convert import geometry_to_arrays
+from o3d_ofp.core.baselines import transfer_eigs, transfer_prods
+from o3d_ofp.core.correspondence import p2p_from_template
+from o3d_ofp.core.io import read_vts
+from o3d_ofp.workflows.matching import match_eigenbases
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -157,7 +158,8 @@ def run_pair(name: str, n_eig: int = 200) -> list[str]:
     C_gt_big = ofp.fmap_from_p2p(gt, e1_big, e2_big, k1=max(nk1, k1), k2=max(nk2, k2))
     settings["ground-truth map"] = (C_gt_big, C_gt_big)
     ts = time.perf_counter()
-    C_est_big, p2p_est = match(e1_big, e2_big, zoomout_to=zoom_to)
+    _corr = match_eigenbases(e1_big, e2_big, zoomout_to=zoom_to)
+    C_est_big, p2p_est = _corr.fmap_12, _corr.p2p_21
     t_match = time.perf_counter() - ts
     settings["estimated map"] = (C_est_big, C_est_big)
     for setting, (C_small_src, C_nk_src) in settings.items():
@@ -216,7 +218,7 @@ def head_to_head(name: str) -> str:
     t_pyfm = time.perf_counter() - t0
     t0 = time.perf_counter()
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
-    _, p2p_ours = match(e1, e2)
+    p2p_ours = match_eigenbases(e1, e2).p2p_21
     t_ours = time.perf_counter() - t0
     a, b = p2p_error(p2p_ours, gt, V1, on, area1), p2p_error(p2p_pyfm, gt, V1, on, area1)
     times = f"{t_ours:.1f} | {t_pyfm:.1f} | {t_pyfm / t_ours:.1f}×"

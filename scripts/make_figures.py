@@ -1,12 +1,14 @@
 """Render the README's pictures into docs/ (needs ../shared/data and an EGL context).
 
-    python scripts/make_figures.py [--out docs] [--width 240]
+    python scripts/make_figures.py [--out docs] [--width 480]
 
 1. ``faust_transfer.png``: a function on FAUST 093 transferred to FAUST 087 through an
    *estimated* map (no ground truth), with K eigenfunctions, raw products ("prods") and the
-   two OFP presets, as in the paper's Fig. 10; the relative error is in each title.
-2. ``spot_texture.png``: Spot's UV texture as vertex colors and its approximation with K
-   eigenfunctions and the OFP bases (order 3, as the paper uses for non-human shapes).
+   two OFP presets, as in the paper's Fig. 10; the relative error is in each title, the color
+   bar is labelled with the function.
+2. ``spot_texture.png``: Spot rendered with its UV texture, the texture sampled as vertex
+   colors, and that approximated with K eigenfunctions and the OFP bases (order 3, as the paper
+   uses for non-human shapes).
 3. ``filtering.png``: spectral smoothing and sharpening of a shape (paper's Figs. 14-15).
 4. ``demo.png``: what ``o3d-ofp demo`` draws.
 """
@@ -21,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 import o3d_ofp as ofp
-from o3d_ofp.adapters import geometry_to_arrays, read_geometry, texture_colors
-from o3d_ofp.baselines import approximate_eigs, transfer_eigs, transfer_prods
-from o3d_ofp.filtering import sharpen_gains, smooth_gains, spectral_filter
-from o3d_ofp.pipeline import match
-from o3d_ofp.render import View, render_panel
+from o3d_ofp import read_geometry, texture_colors
+from o3d_ofp.boundary.convert import geometry_to_arrays
+from o3d_ofp.core.baselines import approximate_eigs, transfer_eigs, transfer_prods
+from o3d_ofp.core.filtering import sharpen_gains, smooth_gains, spectral_filter
+from o3d_ofp.render.panel import View, read_png, render_panel
+from o3d_ofp.workflows.matching import match_eigenbases
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -38,7 +41,7 @@ def faust_transfer(out: Path, width: int) -> None:
     V1, F1 = load("faust/tr_reg_093.ply")
     V2, F2 = load("faust/tr_reg_087.ply")
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
-    C, _ = match(e1, e2)
+    C = match_eigenbases(e1, e2).fmap_12
     k1, k2 = 29, 39
     f = np.sin(8 * np.pi * V1[:, 1])  # the paper's sin(8πy) on the raw height
     truth = f  # FAUST registrations share their vertex order: the true image of f is f
@@ -57,37 +60,41 @@ def faust_transfer(out: Path, width: int) -> None:
     for name, g in results.items():
         err = ofp.approximation_error(truth, g, e2.mass)
         items.append((V2, F2, g))
-        titles.append(f"{name} {err:.2f}")
+        titles.append(f"{name}: error {err:.2f}")
     render_panel(
         items,
         out / "faust_transfer.png",
         titles=titles,
-        width=width,
+        width=int(0.8 * width),  # standing bodies: narrower, taller tiles
         height=int(1.3 * width),
         scalar_range=(-1.0, 1.0),
         cmap="coolwarm",
-        view=View(zoom=0.55),
+        colorbar_label="f = sin(8πy)",
     )
 
 
 def spot_texture(out: Path, width: int) -> None:
     mesh = read_geometry(DATA / "models/spot_triangulated.obj")
     V, F = geometry_to_arrays(mesh)
-    colors = texture_colors(mesh, DATA / "models/spot_texture.png")
+    image = read_png(DATA / "models/spot_texture.png")
+    uv = np.asarray(mesh.triangle_uvs)
+    colors = texture_colors(mesh, image)
     eig = ofp.eigenbasis(V, F, k=14)
-    items = [(V, F, colors)]
-    titles = ["texture"]
+    items = [(V, F, None), (V, F, colors)]
+    textures = [(uv, image), None]
+    titles = ["UV texture", "vertex colors"]
     approx = approximate_eigs(colors, eig)
     items.append((V, F, np.clip(approx, 0, 1)))
-    titles.append(f"15 eigs {ofp.approximation_error(colors, approx, eig.mass):.2f}")
+    titles.append(f"15 eigs: error {ofp.approximation_error(colors, approx, eig.mass):.2f}")
     for preset in ("ours", "ours*"):
         B = ofp.ofp_basis(eig, order=3, preset=preset)
         approx = B.approximate(colors)
         items.append((V, F, np.clip(approx, 0, 1)))
-        titles.append(f"{preset} {B.size} {B.approximation_error(colors):.2f}")
+        titles.append(f"{preset} ({B.size}): error {B.approximation_error(colors):.2f}")
+    textures += [None] * (len(items) - len(textures))
     render_panel(
         items, out / "spot_texture.png", titles=titles, width=width, height=width,
-        view=View(front=(0.8, 0.35, -1.0), zoom=0.8),
+        view=View(front=(0.8, 0.35, -1.0)), textures=textures,
     )  # fmt: skip
 
 
@@ -102,8 +109,8 @@ def filtering(out: Path, width: int) -> None:
         (spectral_filter(B, V, sharpen_gains(2.0)), F, grey),
     ]
     render_panel(
-        items, out / "filtering.png", titles=["bunny", "smooth 5", "sharpen 2"], width=width,
-        height=width, view=View(zoom=0.65),
+        items, out / "filtering.png", titles=["bunny", "smoothed (5)", "sharpened (2)"],
+        width=width, height=width,
     )  # fmt: skip
 
 
@@ -121,7 +128,7 @@ def demo(out: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs"))
-    parser.add_argument("--width", type=int, default=240)
+    parser.add_argument("--width", type=int, default=480, help="tile width in pixels (480)")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")

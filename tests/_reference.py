@@ -56,7 +56,7 @@ def orientation_op_loop(eig, k, D):
     """Operators g ↦ <n × ∇d, ∇g>: per face, averaged to the vertices by area, projected."""
     import scipy.sparse as sp
 
-    from o3d_ofp.geometry import face_areas_normals, face_gradient_operator
+    from o3d_ofp.core.geometry import face_areas_normals, face_gradient_operator
 
     V, F = eig.vertices, eig.faces
     areas, normals = face_areas_normals(V, F)

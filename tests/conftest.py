@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.shapes import blob, icosphere
+from o3d_ofp.core.shapes import blob, icosphere
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -25,7 +25,7 @@ def load_shared_mesh(relative: str) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) of a mesh in ../shared/data, read with Open3D."""
     path = shared_path(relative)
     o3d = pytest.importorskip("open3d", reason="Open3D is needed to read the shared meshes")
-    from o3d_ofp.adapters import geometry_to_arrays
+    from o3d_ofp.boundary.convert import geometry_to_arrays
 
     vertices, faces = geometry_to_arrays(o3d.io.read_triangle_mesh(str(path)))
     return vertices, faces

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.shapes import blob
+from o3d_ofp.core.shapes import blob
 
 from .conftest import load_shared_mesh, shared_path
 
@@ -55,7 +55,7 @@ def test_theorem_3_1_eigenpowers_faust(faust_eig):
 
 def test_theorem_3_1_lower_bound_for_products(sphere_eig):
     eig = sphere_eig
-    from o3d_ofp.products import eigenproducts
+    from o3d_ofp.core.products import eigenproducts
 
     P, idx = eigenproducts(eig.evecs[:, :9], 3)
     for col, tup in zip(P.T[9:], idx[9:], strict=True):

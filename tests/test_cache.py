@@ -7,12 +7,12 @@ import logging
 import numpy as np
 
 import o3d_ofp as ofp
-from o3d_ofp.shapes import blob
+from o3d_ofp.core.shapes import blob
 
 
 def test_second_call_loads_and_changes_recompute(tmp_path, caplog):
     V, F = blob(3)
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.cache"):
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.workflows.cache"):
         B1 = ofp.cached_basis(V, F, k=10, cache_dir=tmp_path)
         assert "basis cached" in caplog.text
         caplog.clear()
@@ -38,7 +38,7 @@ def test_unreadable_or_foreign_cache_files_are_recomputed(tmp_path, caplog):
     B = ofp.cached_basis(V, F, k=8, cache_dir=tmp_path)
     (path,) = tmp_path.glob("*.npz")
     path.write_bytes(b"garbage")
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.cache"):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.cache"):
         B2 = ofp.cached_basis(V, F, k=8, cache_dir=tmp_path)
     assert "ignoring unreadable cache file" in caplog.text
     np.testing.assert_allclose(B2.Q, B.Q)
@@ -46,7 +46,7 @@ def test_unreadable_or_foreign_cache_files_are_recomputed(tmp_path, caplog):
     other = ofp.ofp_basis(ofp.eigenbasis(*blob(3, seed=5), k=8))
     other.save(path)
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.cache"):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.cache"):
         B3 = ofp.cached_basis(V, F, k=8, cache_dir=tmp_path)
     assert "belongs to another shape" in caplog.text
     np.testing.assert_allclose(B3.Q, B.Q)

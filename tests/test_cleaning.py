@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp import _memory
-from o3d_ofp.cleaning import AUTO_KEEP_FRACTION, clean_shape
-from o3d_ofp.laplacian import laplacian
-from o3d_ofp.pipeline import transfer_function
-from o3d_ofp.shapes import blob, icosphere
+from o3d_ofp.core import _memory
+from o3d_ofp.core.cleaning import AUTO_KEEP_FRACTION, clean_shape
+from o3d_ofp.core.laplacian import laplacian
+from o3d_ofp.core.shapes import blob, icosphere
+from o3d_ofp.workflows.pipeline import transfer_function
 
 from .conftest import DATA, shared_path
 
@@ -99,7 +99,7 @@ def test_tiny_stray_component_is_dropped_with_a_warning(caplog):
     stray_v = np.array([[3.0, 0, 0], [3.01, 0, 0], [3.0, 0.01, 0]])
     V2 = np.concatenate([V, stray_v])
     F2 = np.concatenate([F, [[len(V), len(V) + 1, len(V) + 2]]])
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.cleaning"):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.cleaning"):
         eig = ofp.eigenbasis(V2, F2, k=8)
     assert "kept the largest of 2 components" in caplog.text
     _check_meaningful(eig, V2.shape[0], 8)
@@ -207,7 +207,7 @@ def test_point_clouds_duplicates_collinear_tiny():
 
 def test_ply_with_triangle_strips_or_only_points_uses_the_point_cloud_path(tmp_path):
     pytest.importorskip("open3d")
-    from o3d_ofp.adapters import read_geometry
+    from o3d_ofp import read_geometry
 
     V, F = icosphere(3)
     header = [
@@ -292,7 +292,8 @@ def test_every_nasty_file_is_listed():
 def test_nasty_file_gives_a_basis_and_a_self_transfer_or_a_clear_error(name):
     path = shared_path(f"nasty/{name}")
     pytest.importorskip("open3d", reason="Open3D reads the nasty/ files")
-    from o3d_ofp.adapters import geometry_to_arrays, read_geometry
+    from o3d_ofp import read_geometry
+    from o3d_ofp.boundary.convert import geometry_to_arrays
 
     V, F = geometry_to_arrays(read_geometry(path))
     V0 = V.copy()

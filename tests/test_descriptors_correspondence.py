@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp import correspondence
-from o3d_ofp.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
-from o3d_ofp.descriptors import hks, wks
+from o3d_ofp.core import correspondence
+from o3d_ofp.core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
+from o3d_ofp.core.descriptors import hks, wks
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_map_errors(blob_eig):
 
 
 def test_read_vts(tmp_path):
-    from o3d_ofp.io import read_vts
+    from o3d_ofp.core.io import read_vts
 
     (tmp_path / "a.vts").write_text("3\n1\n2\n")
     np.testing.assert_array_equal(read_vts(tmp_path / "a.vts"), [2, 0, 1])
@@ -116,9 +116,70 @@ def test_brute_force_with_single_precision_screening_is_exact(seed):
 
 
 def test_brute_force_equals_double_precision_on_a_spectral_embedding(blob_eig):
-    from o3d_ofp.correspondence import _brute64
+    from o3d_ofp.core.correspondence import _brute64
 
     X = blob_eig.evecs  # (2562, 30): the kind of data ZoomOut and p2p maps search
     Y = X[::-1] + 1e-7 * np.random.default_rng(0).standard_normal(X.shape)
     d2 = np.einsum("ij,ij->i", X, X)
     np.testing.assert_array_equal(nearest_neighbors(X, Y, method="brute"), _brute64(X, Y, d2))
+
+
+@pytest.fixture(scope="module")
+def embedding_with_near_ties():
+    """Random 30-D embedding, 300 of whose queries are near-ties float32 cannot separate."""
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(7)
+    data, queries = rng.standard_normal((1500, 30)), rng.standard_normal((1000, 30))
+    d = cdist(data[:300], data, "sqeuclidean")
+    d[np.arange(300), np.arange(300)] = np.inf
+    a, b = data[:300], data[np.argmin(d, axis=1)]
+    # Midpoint of a point and its nearest other point, moved 1e-9 of their gap toward the
+    # first: the two squared distances differ by 8e-9 relative (float32 resolves 6e-8).
+    queries[:300] = 0.5 * (a + b) + 1e-9 * (a - b)
+    ref = np.argmin(cdist(queries, data, "sqeuclidean"), axis=1)  # plain float64, scale 1
+    np.testing.assert_array_equal(ref[:300], np.arange(300))
+    return data, queries, ref
+
+
+@pytest.mark.parametrize("method", ["brute", "kdtree"])
+@pytest.mark.parametrize("scale", [1e-200, 1e-30, 1e-22, 1e-21, 10**18.5, 1e30, 1e200])
+def test_nearest_neighbors_exact_at_extreme_scales(embedding_with_near_ties, scale, method):
+    """Nearest neighbours are scale-invariant: any scale gives the float64 answer at scale 1.
+
+    Before the inputs were scaled by a power of two, 1e-22 and 1e-21 (squared norms in
+    float32's subnormal range, below the rounding bound's assumptions) and 10^18.5 (float32
+    overflow) gave hundreds of wrong indices, 1e±200 (float64 underflow / overflow of squared
+    norms) nearly all wrong, in the brute force and in the k-d tree.
+    """
+    data, queries, ref = embedding_with_near_ties
+    got = nearest_neighbors(data * scale, queries * scale, method=method)
+    np.testing.assert_array_equal(got, ref)
+
+
+def test_nearest_neighbors_degenerate_inputs():
+    rng = np.random.default_rng(11)
+    queries = rng.standard_normal((7, 4))
+    for data in (np.zeros((3, 4)), np.tile([[0.1, 0.2, 0.3, 1e200]], (5, 1))):
+        # every data point is the same point: all are nearest, the first is returned
+        np.testing.assert_array_equal(nearest_neighbors(data, queries, method="brute"), 0)
+    np.testing.assert_array_equal(nearest_neighbors(np.zeros((3, 4)), 1e300 * queries), 0)
+    # Queries 1e250 times farther out than the data's spread: the nearest point is the one
+    # furthest along the query's direction (‖d‖² is negligible next to q·d). The brute force
+    # (‖d‖² − 2 q·d) finds it; a k-d tree, which subtracts coordinates, cannot (q − d = q).
+    data = rng.standard_normal((50, 4))
+    far = 1e250 * queries
+    got = nearest_neighbors(data, far, method="brute")
+    np.testing.assert_array_equal(got, np.argmax(queries @ data.T, axis=1))
+    # a near and a far query in the same block: the far one does not upset the near one
+    mixed = np.concatenate([queries[:1], far[1:2]])
+    np.testing.assert_array_equal(
+        nearest_neighbors(data, mixed, method="brute"),
+        [np.argmin(((data - queries[0]) ** 2).sum(axis=1)), np.argmax(data @ queries[1])],
+    )
+    assert nearest_neighbors(data, np.zeros((0, 4)), method="brute").shape == (0,)
+    bad = data.copy()
+    bad[3, 1] = np.nan
+    for d, q in ((bad, queries), (data, np.full((2, 4), np.inf))):
+        with pytest.raises(ValueError, match="must be finite"):
+            nearest_neighbors(d, q)

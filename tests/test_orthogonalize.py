@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.orthogonalize import gram_schmidt, resolve_tol
-from o3d_ofp.products import eigenproducts
+from o3d_ofp.core.orthogonalize import gram_schmidt, resolve_tol
+from o3d_ofp.core.products import eigenproducts
 
 from ._reference import gram_schmidt_loop, projector
 from .conftest import load_shared_mesh

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from o3d_ofp.products import (
+from o3d_ofp.core.products import (
     eigenproduct_blocks,
     eigenproduct_indices,
     eigenproducts,

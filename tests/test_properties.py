@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 import o3d_ofp as ofp
-from o3d_ofp.cleaning import clean_shape
-from o3d_ofp.shapes import icosphere
+from o3d_ofp.core.cleaning import clean_shape
+from o3d_ofp.core.shapes import icosphere
 
 DOCUMENTED = (ValueError, TypeError, ofp.EigenSolverError)
 
@@ -173,7 +173,7 @@ def test_damaged_meshes(mesh, k):
 
 def test_open3d_geometries_with_bad_indices_are_refused_before_open3d_sees_them():
     o3d = pytest.importorskip("open3d")
-    from o3d_ofp.adapters import geometry_to_arrays
+    from o3d_ofp.boundary.convert import geometry_to_arrays
 
     rng = np.random.default_rng(0)
     V = rng.standard_normal((10, 3))

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from o3d_ofp.shapes import blob
+from o3d_ofp.core.shapes import blob
 
 o3d = pytest.importorskip("open3d", reason="the README example uses Open3D")
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.render import write_png
-from o3d_ofp.shapes import icosphere
-from o3d_ofp.texture import corner_colors_to_vertices, sample_texture
+from o3d_ofp.core.shapes import icosphere
+from o3d_ofp.core.texture import corner_colors_to_vertices, sample_texture
+from o3d_ofp.render.panel import write_png
 
 from .conftest import shared_path
 
@@ -38,7 +38,7 @@ def test_corner_colors_average_at_shared_vertices():
 def test_textured_obj_with_material_and_seams(tmp_path):
     """A cube-like strip with a UV seam: Open3D splits it, the basis welds it back."""
     o3d = pytest.importorskip("open3d")
-    from o3d_ofp.adapters import read_geometry, texture_colors
+    from o3d_ofp import read_geometry, texture_colors
 
     img = np.zeros((8, 8, 3), dtype=np.uint8)
     img[:, :4] = [255, 0, 0]  # left half red, right half blue
@@ -78,7 +78,7 @@ def test_spot_texture_to_vertex_colors_and_cli_transfer(tmp_path):
     obj = shared_path("models/spot_triangulated.obj")
     png = shared_path("models/spot_texture.png")
     pytest.importorskip("open3d")
-    from o3d_ofp.adapters import read_geometry, texture_colors
+    from o3d_ofp import read_geometry, texture_colors
     from o3d_ofp.cli import main
 
     mesh = read_geometry(obj)

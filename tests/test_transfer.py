@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.baselines import approximate_prods, fit_prods, transfer_eigs, transfer_prods
-from o3d_ofp.fmap import lift_fmap
-from o3d_ofp.products import eigenproducts
+from o3d_ofp.core.baselines import approximate_prods, fit_prods, transfer_eigs, transfer_prods
+from o3d_ofp.core.fmap import lift_fmap
+from o3d_ofp.core.products import eigenproducts
 
 from .conftest import load_shared_mesh
 
@@ -125,7 +125,7 @@ def test_faust_ground_truth_map_ours_beats_k_eigs_and_prods(faust_pair):
 
 
 def test_fmap_energy_gradient_matches_finite_differences():
-    from o3d_ofp.fmap import _Commutator, _energy
+    from o3d_ofp.core.fmap import _Commutator, _energy
 
     rng = np.random.default_rng(3)
     k2, k1, p = 5, 4, 3
@@ -166,11 +166,14 @@ def test_prods_baseline_is_scale_invariant(blob_mesh):
 
 
 def test_farthest_points_and_subsampled_zoomout(blob_mesh):
-    from o3d_ofp.fmap import farthest_points, zoomout_refine
+    from o3d_ofp.core.fmap import farthest_points, zoomout_refine
 
     V, F = blob_mesh
-    idx = farthest_points(V, 50)
+    idx = farthest_points(V, 50, start=0)
     assert len(np.unique(idx)) == 50
+    # The default start (farthest from the centroid) does not depend on the vertex order.
+    perm = np.random.default_rng(0).permutation(len(V))
+    np.testing.assert_array_equal(perm[farthest_points(V[perm], 50)], farthest_points(V, 50))
     np.testing.assert_array_equal(farthest_points(V, len(V) + 5), np.arange(len(V)))
     eig = ofp.eigenbasis(V, F, k=20)
     # the identity map is a fixed point of ZoomOut, subsampled or not
@@ -190,8 +193,8 @@ def test_farthest_points_and_subsampled_zoomout(blob_mesh):
 
 def test_subsampled_zoomout_equals_the_least_squares_loop(blob_mesh):
     """The nested-QR fits give the maps of a plain lstsq ZoomOut, step by step."""
-    from o3d_ofp.correspondence import nearest_neighbors
-    from o3d_ofp.fmap import farthest_points, zoomout_refine
+    from o3d_ofp.core.correspondence import nearest_neighbors
+    from o3d_ofp.core.fmap import farthest_points, unit_area, zoomout_refine
 
     V, F = blob_mesh
     target = V.copy()
@@ -199,20 +202,23 @@ def test_subsampled_zoomout_equals_the_least_squares_loop(blob_mesh):
     e1, e2 = ofp.eigenbasis(V, F, k=25), ofp.eigenbasis(target, F, k=25)
     C0 = ofp.fmap_from_p2p(np.arange(len(V)), e1, e2, k1=8, k2=8)
     got = zoomout_refine(C0, e1, e2, k_final=25, subsample=400)
-    s1, s2 = farthest_points(V, 400), farthest_points(target, 400)
-    phi1, psi2 = e1.evecs[s1], e2.evecs[s2]
-    C, k = C0, 8
+    # ZoomOut works between the unit-area bases; the map comes back in the shapes' own areas.
+    scale = np.sqrt(e2.area / e1.area)
+    u1, u2 = unit_area(e1), unit_area(e2)
+    s1, s2 = farthest_points(u1.vertices, 400), farthest_points(u2.vertices, 400)
+    phi1, psi2 = u1.evecs[s1], u2.evecs[s2]
+    C, k = C0 / scale, 8
     while k < 25:
         k += 1
         p2p = nearest_neighbors(phi1[:, : C.shape[0]] @ C.T, psi2[:, : C.shape[0]])
         C = np.linalg.lstsq(psi2[:, : k + 1], phi1[p2p, : k + 1], rcond=None)[0]
     # Same p2p maps at every step (checked by the end result); the fits agree to the
     # conditioning of the sampled basis times round-off.
-    np.testing.assert_allclose(got, C, atol=1e-9)
+    np.testing.assert_allclose(got, C * scale, atol=1e-9)
 
 
 def test_batched_operators_equal_the_per_descriptor_loops(blob_mesh):
-    from o3d_ofp.fmap import _CHUNK, _descriptor_ops, _orientation_ops
+    from o3d_ofp.core.fmap import _CHUNK, _descriptor_ops, _orientation_ops
 
     from ._reference import descriptor_op_loop, orientation_op_loop
 
@@ -227,7 +233,7 @@ def test_batched_operators_equal_the_per_descriptor_loops(blob_mesh):
         got = fast(eig, 12, D)
         # Same sums in another order: agreement to round-off relative to the operators' size.
         np.testing.assert_allclose(got, ref, atol=1e-12 * np.abs(ref).max())
-    import o3d_ofp.fmap as fmap
+    import o3d_ofp.core.fmap as fmap
 
     saved = fmap._CHUNK
     try:

@@ -6,6 +6,7 @@ eigenbasis (constant first) to those of its image in the target eigenbasis.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import Any
@@ -22,9 +23,45 @@ from .geometry import face_areas_normals, hat_gradients
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis
 
-__all__ = ["estimate_fmap", "farthest_points", "icp_refine", "lift_fmap", "zoomout_refine"]
+__all__ = [
+    "estimate_fmap",
+    "farthest_points",
+    "icp_refine",
+    "lift_fmap",
+    "unit_area",
+    "zoomout_refine",
+]
 
 logger = logging.getLogger(__name__)
+
+
+def unit_area(eig: EigenBasis) -> EigenBasis:
+    """Return the same eigenbasis on the shape centred and scaled to unit area.
+
+    Eigenfunctions scale by √area, eigenvalues by area, the mass by 1/area; the stiffness of
+    a surface does not change. Map estimation and refinement work on these, so that their
+    result does not depend on the units of either shape.
+
+    Parameters
+    ----------
+    eig : EigenBasis
+
+    Returns
+    -------
+    EigenBasis
+        A new basis (no digest, the same cleaning map).
+    """
+    area = eig.area
+    root = math.sqrt(area)
+    centre = (eig.mass @ eig.vertices) / area
+    return dataclasses.replace(
+        eig,
+        evals=eig.evals * area,
+        evecs=eig.evecs * root,
+        mass=eig.mass / area,
+        vertices=(eig.vertices - centre) / root,
+        digest="",
+    )
 
 
 def _projection(eig: EigenBasis, k: int) -> np.ndarray:
@@ -245,6 +282,10 @@ def estimate_fmap(
                 f"got {lm.dtype}{lm.shape}"
             )
         lm1, lm2 = lm[:, 0], lm[:, 1]
+    # Work on unit-area copies: every term below is then independent of the shapes' units,
+    # and the map between the unit-area bases is converted back at the end.
+    scale = math.sqrt(eig_2.area / eig_1.area)
+    eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
     k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
     D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
     D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
@@ -255,8 +296,8 @@ def estimate_fmap(
         if w_dcomm > 0
         else None
     )
-    lam1 = eig_1.evals[: k1 + 1] * eig_1.area
-    lam2 = eig_2.evals[: k2 + 1] * eig_2.area
+    lam1 = eig_1.evals[: k1 + 1]
+    lam2 = eig_2.evals[: k2 + 1]
     sqdiff = (lam1[None, :] - lam2[:, None]) ** 2
     sqdiff /= sqdiff.sum()
     orient: _Commutator | None = None
@@ -277,7 +318,7 @@ def estimate_fmap(
         o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
         weights = (w_descr, w_lap, w_dcomm, w_orient * native / max(o_energy, 1e-300))
     C0 = np.zeros((k2 + 1, k1 + 1))
-    C0[0, 0] = math.sqrt(eig_2.area / eig_1.area)  # constant ↦ constant (both φ0 > 0)
+    C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
 
     def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
         C = x.reshape(k2 + 1, k1 + 1)
@@ -301,7 +342,7 @@ def estimate_fmap(
         target = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
         if target > max(k1, k2):
             C = zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
-    return C
+    return C * scale
 
 
 @one_blas_thread
@@ -322,9 +363,12 @@ def icp_refine(
     Returns
     -------
     (k2+1, k1+1) ndarray
-        The refined map (closest to orthogonal for the matched points).
+        The refined map (closest to orthogonal for the matched points, on the unit-area
+        shapes; converted back to the shapes' own areas).
     """
-    C = np.array(fmap_12, dtype=np.float64)
+    scale = math.sqrt(eig_2.area / eig_1.area)
+    C = np.array(fmap_12, dtype=np.float64) / scale
+    eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
     rows, cols = C.shape
     for _ in range(check_int(iterations, name="iterations", minimum=0)):
         p2p = p2p_from_fmap(C, eig_1, eig_2)
@@ -334,10 +378,10 @@ def icp_refine(
         if np.allclose(C_new, C, atol=1e-10):
             break
         C = C_new
-    return C
+    return C * scale
 
 
-def farthest_points(vertices: np.ndarray, count: int, *, start: int = 0) -> np.ndarray:
+def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = None) -> np.ndarray:
     """Farthest-point sampling (Euclidean): ``count`` well-spread vertex indices.
 
     Parameters
@@ -345,8 +389,9 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int = 0) -> np.n
     vertices : (n, 3) ndarray
     count : int
         Samples wanted (all vertices if ``count >= n``).
-    start : int, default 0
-        First sample.
+    start : int, optional
+        First sample (default: the vertex farthest from the centroid, which does not depend
+        on the vertex order, the position or the scale of the shape).
 
     Returns
     -------
@@ -355,9 +400,11 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int = 0) -> np.n
     n = vertices.shape[0]
     if count >= n:
         return np.arange(n)
+    X = np.ascontiguousarray(vertices, dtype=np.float64)
+    if start is None:
+        start = int(np.argmax(np.einsum("ij,ij->i", X - X.mean(axis=0), X - X.mean(axis=0))))
     chosen = np.empty(count, dtype=np.int64)
     chosen[0] = start
-    X = np.ascontiguousarray(vertices, dtype=np.float64)
     diff = np.empty_like(X)
     d = np.empty(n)
     np.subtract(X, X[start], out=diff)
@@ -403,8 +450,10 @@ def zoomout_refine(
     -------
     (k_final+1, k_final+1) ndarray
     """
-    C = np.array(fmap_12, dtype=np.float64)
+    scale = math.sqrt(eig_2.area / eig_1.area)
+    C = np.array(fmap_12, dtype=np.float64) / scale  # between the unit-area bases
     k_final = check_int(k_final, name="k_final", minimum=1, maximum=min(eig_1.k, eig_2.k))
+    eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
     step = check_int(step, name="step", minimum=1)
     k = min(C.shape) - 1
     C = C[: k + 1, : k + 1]
@@ -434,7 +483,7 @@ def zoomout_refine(
             C = scipy.linalg.solve_triangular(R[: k + 1, : k + 1], Q[:, : k + 1].T @ target)
         else:
             C = np.linalg.lstsq(psi2[:, : k + 1], target, rcond=None)[0]
-    return C
+    return C * scale
 
 
 def lift_fmap(

@@ -4,17 +4,25 @@ Conventions (fixed, see ``DESIGN.md``):
 
 * ``k`` counts the non-constant eigenfunctions; an :class:`EigenBasis` holds ``k + 1`` columns.
 * Column 0 is the constant ``1 / sqrt(area)``; eigenvalues ascend; columns are M-orthonormal.
-* Signs are deterministic and independent of vertex order and of the mesh's scale: each
-  non-constant eigenfunction is flipped so that its third moment ``Σ m_i φ_i³`` is positive;
-  when that moment vanishes (``|·| sqrt(area) < 1e-6``, typical of functions that are
-  antisymmetric under a symmetry of the shape) the entry of largest magnitude is made
-  positive. Inside a repeated eigenvalue (perfect symmetries, e.g. the sphere) the basis of
-  the eigenspace itself is arbitrary, as for any eigensolver.
+* Signs are deterministic and, wherever the shape allows it, independent of vertex order,
+  rigid motions and scale (details in ``_fix_signs``): each non-constant eigenfunction is
+  flipped so that its third moment ``Σ m_i φ_i³`` is positive. That moment vanishes
+  (``|·| sqrt(area) <= 1e-6``) for eigenfunctions odd under a symmetry of the shape, and so
+  does every statistic of the eigenfunctions and masses alone; given the vertex positions,
+  such an eigenfunction is made positively correlated with a coordinate across the shape,
+  oriented by the first moments of the already signed eigenfunctions, which decides those
+  odd under a mirror symmetry (bilateral shapes). Otherwise the entry of largest magnitude
+  is made positive, which depends on vertex order when mirror vertices tie: eigenfunctions
+  odd under a rotational symmetry (which no rule invariant to both rotations and vertex order
+  can sign) and shapes with several mirror planes. Inside a
+  repeated eigenvalue (e.g. the sphere) the basis of the eigenspace itself is arbitrary, as
+  for any eigensolver.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 import math
 from typing import Any
@@ -35,6 +43,8 @@ __all__ = [
     "EigenBasis",
     "EigenSolverError",
     "eigenbasis",
+    "input_arrays",
+    "input_digest",
     "shape_digest",
 ]
 
@@ -288,12 +298,96 @@ def _rayleigh_ritz(
     return theta, evecs @ Y
 
 
-def _fix_signs(evecs: np.ndarray, mass: np.ndarray) -> np.ndarray:
+def _fix_signs(
+    evecs: np.ndarray, mass: np.ndarray, vertices: np.ndarray | None = None
+) -> np.ndarray:
+    """Give each eigenfunction a sign independent of vertex order, rigid motions and scale.
+
+    Parameters
+    ----------
+    evecs : (n, k) ndarray
+        Non-constant eigenfunctions, M-orthonormal and M-orthogonal to the constant, in
+        ascending order of eigenvalue.
+    mass : (n,) ndarray
+        Lumped mass.
+    vertices : (n, 3) ndarray, optional
+        The positions the Laplacian was built on; without them step 2 is skipped.
+
+    Returns
+    -------
+    (n, k) ndarray
+        ``evecs`` with each column multiplied by +1 or -1.
+
+    Notes
+    -----
+    With ``f = sqrt(area) φ`` (unit RMS), ``w = m / area`` and "vanishing" meaning
+    ``|·| <= 1e-6`` (``_SKEW_ZERO``), each column is made to satisfy the first that applies of:
+
+    1. ``Σ w f³ > 0``. All odd moments ``Σ w f^(2j+1)`` vanish together for an eigenfunction
+       that is odd under a symmetry of the shape (``f∘σ = -f``), so higher odd moments add
+       nothing; and so does any statistic of the eigenfunctions and the mass alone, which
+       are the same for the shape and its mirror image.
+    2. (``vertices`` given) ``Σ w f h z > 0`` for the first ``h`` in ``1, s_1 f_1, s_2 f_2, ...``
+       (the columns signed by step 1, in order) where it does not vanish (as a correlation
+       ``Σ w f h z / sqrt(Σ w (h z)²)``). ``z = ν·(x - c) / r`` is a coordinate across the
+       shape: ``c`` the centroid, ``r`` the RMS radius, and ``ν = u_a × u_b / |u_a × u_b|``
+       the orientation of the first moments ``u_j = Σ w s_j f_j (x - c) / r`` of the
+       step-1 columns, ``a`` the first with ``|u_a| > 0.05`` and ``b`` the next with
+       ``|û_a × u_b| > 0.05`` (step skipped if there is none). ``z`` is invariant to rigid
+       motions and scale and changes sign in a mirror image, so this decides the
+       eigenfunctions that are odd under a mirror symmetry of the shape (bilateral symmetry:
+       a mirror plane and no other symmetry, as for human and animal bodies), with the same
+       result for every vertex order and pose.
+    3. The entry of largest magnitude is positive.
+
+    Step 3 depends on the vertex order whenever opposite entries tie in magnitude, which is
+    the case for eigenfunctions odd under a symmetry that steps 1-2 cannot decide: a
+    proper rotation (e.g. a 180° turn), because no rule invariant both to vertex order and
+    to rotations can (the turned shape is the same shape with its vertices permuted, and the
+    eigenfunction changes sign); and, by this rule, shapes with two or more mirror planes
+    (their step-1 moments span at most a line). Inside a repeated eigenvalue the basis of
+    the eigenspace is itself arbitrary, as for any eigensolver.
+    """
     area = float(mass.sum())
-    skew = np.sqrt(area) * (mass @ evecs**3)
-    peak = evecs[np.argmax(np.abs(evecs), axis=0), np.arange(evecs.shape[1])]
-    sign = np.where(np.abs(skew) > _SKEW_ZERO, np.sign(skew), np.sign(peak))
-    sign[sign == 0] = 1.0
+    root = math.sqrt(area)
+    skew = root * (mass @ evecs**3)
+    sign = np.where(np.abs(skew) > _SKEW_ZERO, np.sign(skew), 0.0)
+    open_ = np.flatnonzero(sign == 0.0)
+    done = np.flatnonzero(sign != 0.0)
+    if vertices is not None and open_.size and done.size >= 2:
+        w = mass / area
+        Y = vertices - w @ vertices
+        radius = math.sqrt(float(w @ np.einsum("ij,ij->i", Y, Y)))
+        Y = Y / radius if radius > 0.0 else Y
+        U = (evecs.T @ (w[:, None] * Y))[done] * (root * sign[done, None])  # |u_j| <= 1
+        norms = np.linalg.norm(U, axis=1)
+        normal = None
+        large = np.flatnonzero(norms > 0.05)
+        if large.size:
+            a = int(large[0])
+            cross = np.cross(U[a] / norms[a], U[a + 1 :])
+            size = np.linalg.norm(cross, axis=1)
+            apart = np.flatnonzero(size > 0.05)
+            if apart.size:
+                normal = cross[apart[0]] / size[apart[0]]
+        if normal is not None:
+            z = Y @ normal
+            corr = root * (evecs.T @ (w * z))[open_] / math.sqrt(float(w @ z**2))
+            hit = np.abs(corr) > _SKEW_ZERO
+            sign[open_[hit]] = np.sign(corr[hit])
+            open_ = open_[~hit]
+            E = evecs[:, open_]  # usually empty by now: h = s_j f_j is the rare second try
+            for h in done if open_.size else ():
+                g = z * (root * sign[h] * evecs[:, h])
+                corr = root * ((w * g) @ E) / math.sqrt(float(w @ g**2))
+                hit = np.abs(corr) > _SKEW_ZERO
+                sign[open_[hit]] = np.sign(corr[hit])
+                open_, E = open_[~hit], E[:, ~hit]
+                if not open_.size:
+                    break
+    if open_.size:
+        peak = evecs[np.argmax(np.abs(evecs[:, open_]), axis=0), open_]
+        sign[open_] = np.where(peak < 0.0, -1.0, 1.0)
     return evecs * sign
 
 
@@ -321,6 +415,7 @@ def _solve(
     *,
     maxiter: int,
     factorization: str = "auto",
+    vertices: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """Eigenpairs with the constant first, checked; retried as documented in ``_ATTEMPTS``."""
     n = mass.shape[0]
@@ -358,7 +453,7 @@ def _solve(
                 evals, evecs = _dense_eigs(stiffness, mass, k)
             else:
                 evals, evecs = _shift_invert_eigs(stiffness, mass, k, maxiter=maxiter, **options)
-            evals, evecs = _finish(stiffness, mass, evals, evecs, method, k)
+            evals, evecs = _finish(stiffness, mass, evals, evecs, method, k, vertices)
         except (EigenSolverError, np.linalg.LinAlgError) as exc:
             last = exc
             continue
@@ -385,6 +480,7 @@ def _finish(
     evecs: np.ndarray,
     method: str,
     k: int,
+    vertices: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rayleigh-Ritz, ascending order, exact constant first, deterministic signs."""
     n = mass.shape[0]
@@ -404,7 +500,7 @@ def _finish(
     # Keep the rest exactly M-orthogonal to the now exact constant.
     evecs[:, 1:] -= np.outer(const, const @ (mass[:, None] * evecs[:, 1:]))
     evecs[:, 1:] /= np.sqrt(mass @ evecs[:, 1:] ** 2)
-    evecs[:, 1:] = _fix_signs(evecs[:, 1:], mass)
+    evecs[:, 1:] = _fix_signs(evecs[:, 1:], mass, vertices)
     return evals, evecs
 
 
@@ -436,22 +532,41 @@ def _expand(
 DIGEST_OPTIONS = ("weld_tolerance", "components", "mollify_factor", "n_neighbors")
 
 
-def _input_arrays(mesh_or_vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray | None]:
-    from .adapters import geometry_to_arrays, is_open3d_geometry
-
-    if is_open3d_geometry(mesh_or_vertices):
-        if faces is not None:
-            raise ValueError("faces must be None when mesh_or_vertices is an Open3D geometry")
-        vertices, faces = geometry_to_arrays(mesh_or_vertices)
-    else:
-        vertices = mesh_or_vertices
+def input_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return validated float64 copies of vertices (n, 3) and faces (m, 3) (or None)."""
     vertices = as_vertices(vertices)
     faces = None if faces is None else as_faces(faces, vertices.shape[0])
     return vertices, faces
 
 
+def input_digest(vertices: np.ndarray, faces: np.ndarray | None, **options: Any) -> str:
+    """Hex digest identifying a shape and the options its eigenbasis was computed with.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float64
+        Validated vertex positions.
+    faces : (m, 3) ndarray of int64 or None
+        Validated triangles.
+    **options
+        Options that change the eigenbasis (their ``repr`` enters the digest).
+
+    Returns
+    -------
+    str
+        32 hexadecimal characters (BLAKE2b-128).
+    """
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(b"|faces|")
+    if faces is not None:
+        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    h.update(repr(sorted(options.items())).encode())
+    return h.hexdigest()
+
+
 def shape_digest(
-    mesh_or_vertices: Any,
+    vertices: Any,
     faces: Any = None,
     *,
     weld_tolerance: float | None = 1e-9,
@@ -463,7 +578,7 @@ def shape_digest(
 
     Parameters
     ----------
-    mesh_or_vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors
+    vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors
         As in :func:`eigenbasis`.
 
     Returns
@@ -471,7 +586,7 @@ def shape_digest(
     str
         A 32-character hex digest: equal inputs and options give equal digests.
     """
-    vertices, faces = _input_arrays(mesh_or_vertices, faces)
+    vertices, faces = input_arrays(vertices, faces)
     return _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
 
 
@@ -483,8 +598,6 @@ def _digest(
     mollify_factor: float,
     n_neighbors: int,
 ) -> str:
-    from .cache import input_digest
-
     return input_digest(
         vertices,
         faces,
@@ -496,7 +609,7 @@ def _digest(
 
 
 def eigenbasis(
-    mesh_or_vertices: Any,
+    vertices: Any,
     faces: Any = None,
     *,
     k: int = 29,
@@ -517,10 +630,11 @@ def eigenbasis(
 
     Parameters
     ----------
-    mesh_or_vertices : Open3D TriangleMesh / PointCloud (legacy or tensor), or (n, 3) array_like
-        The shape. With an array, ``faces`` gives the triangles (``None``: a point cloud).
+    vertices : (n, 3) array_like of float
+        Vertex (point) positions. (``o3d_ofp.eigenbasis``, the package-level function, also
+        takes an Open3D geometry here.)
     faces : (m, 3) array_like of int, optional
-        Triangles when ``mesh_or_vertices`` is an array; must be ``None`` with an Open3D input.
+        Triangles; ``None`` for a point cloud.
     k : int, default 29
         Number of non-constant eigenfunctions (the paper's K = 30 is ``k=29``); ``1 <= k < n``
         with n the number of vertices after cleaning.
@@ -576,7 +690,7 @@ def eigenbasis(
        Fourier Polynomials for Signal Approximation and Transfer", Computer Graphics Forum
        40(2), 2021 (Eurographics). doi:10.1111/cgf.142645
     """
-    vertices, faces = _input_arrays(mesh_or_vertices, faces)
+    vertices, faces = input_arrays(vertices, faces)
     k = check_int(k, name="k", minimum=1)
     if factorization not in FACTORIZATIONS:
         raise ValueError(f"factorization must be one of {FACTORIZATIONS}; got {factorization!r}")
@@ -607,7 +721,12 @@ def eigenbasis(
     )
     with blas_threads(1):  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
         evals, evecs, res, method = _solve(
-            shape.stiffness, shape.mass, k, maxiter=maxiter, factorization=factorization
+            shape.stiffness,
+            shape.mass,
+            k,
+            maxiter=maxiter,
+            factorization=factorization,
+            vertices=shape.vertices,
         )
     logger.info(
         "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",

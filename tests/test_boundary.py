@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp import adapters
-from o3d_ofp.shapes import icosphere
+from o3d_ofp.boundary import convert as adapters
+from o3d_ofp.core.shapes import icosphere
 
 o3d = pytest.importorskip("open3d", reason="adapter tests need Open3D (pip install 'o3d_ofp[cpu]')")
 

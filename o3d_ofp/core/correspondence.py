@@ -8,6 +8,7 @@ vertex index (0-based).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from typing import Any
 
@@ -33,6 +34,8 @@ logger = logging.getLogger(__name__)
 _BRUTE_MAX_PAIRS = 5e8
 #: Queries timed with each method before choosing one for a large search.
 _PROBE = 256
+#: Queries are scaled to magnitudes of at most 2^this (squared norms stay finite in float64).
+_QUERY_EXP_MAX = 480
 
 
 def _brute64(data: np.ndarray, queries: np.ndarray, d2: np.ndarray) -> np.ndarray:
@@ -49,30 +52,76 @@ def _brute64(data: np.ndarray, queries: np.ndarray, d2: np.ndarray) -> np.ndarra
     return out
 
 
+def _pow2_exponent(a: np.ndarray) -> int | None:
+    """``e`` with ``max|a| · 2⁻ᵉ`` in [1/2, 1); None if ``a`` is empty, zero or not finite."""
+    if a.size == 0:
+        return None
+    top = max(float(a.max()), -float(a.min()))
+    return math.frexp(top)[1] if 0.0 < top < math.inf else None
+
+
+def _pow2_scale(data: np.ndarray, queries: np.ndarray) -> int:
+    """Exponent ``k`` such that ``2ᵏ · data`` has its largest magnitude in [1/2, 1).
+
+    Multiplying by a power of two is exact in binary floating point (barring overflow and
+    underflow, which is what it avoids) and scales every distance by the same factor, so
+    nearest neighbours do not change. ``k`` is lowered when the queries would exceed
+    ``2^_QUERY_EXP_MAX``, which keeps their squared norms finite in float64; 0 if both are zero.
+    """
+    e = _pow2_exponent(data)
+    k = 0 if e is None else -e
+    e_queries = _pow2_exponent(queries)
+    if e_queries is not None:
+        k = min(k, _QUERY_EXP_MAX - e_queries)
+    return k
+
+
 def _brute(data: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Exact nearest neighbours: float32 screening, float64 where the screening is not sure.
 
-    Distances ``‖d‖² − 2 q·d`` are computed in single precision (SGEMM: about twice the speed
-    of DGEMM, half the memory traffic) with the rounding-error bound of a d-term dot product,
-    ``E = 2u·max‖d‖² + (2γ_d + 6u)·‖q‖·max‖d‖`` (u = 2⁻²⁴, γ_d = d·u/(1 − d·u)). A row whose
-    best candidate beats the second by more than 2E has that candidate as its exact nearest
-    neighbour; the other rows (measured: under 1 % on spectral embeddings) are recomputed in
-    double precision. The result is the float64 search's, to the index.
+    The data are centred and both arrays scaled by a power of two (exact, see
+    :func:`_pow2_scale`) so that the data's largest coordinate magnitude is in [1/2, 1): single
+    precision then neither overflows nor loses the data to subnormals, and squared norms do
+    not overflow or underflow in double precision, whatever the input's scale (1e-200 or
+    1e200). Distances ``‖d‖² − 2 q·d`` are computed in single precision (SGEMM: about twice
+    the speed of DGEMM, half the memory traffic) with the rounding-error bound of a d-term dot
+    product, ``E = 2u·max‖d‖² + (2γ_d + 6u)·‖q‖·max‖d‖`` (u = 2⁻²⁴, γ_d = d·u/(1 − d·u)),
+    plus ``2⁻¹⁴⁹·(d + 1 + √d·(max‖d‖ + 2‖q‖))`` for entries or products that fall into
+    float32's subnormal range (absolute error at most half of 2⁻¹⁴⁹ each; after the scaling
+    this term is some 35 orders of magnitude below the others). A row whose best candidate beats the
+    second by more than 2E has that candidate as its exact nearest neighbour; the other rows
+    (measured: under 1 % on spectral embeddings), and queries so far away that a float32
+    partial sum could overflow, are recomputed in double precision. The result is the float64
+    search's, to the index.
     """
     n, dim = data.shape
+    k = _pow2_scale(data, queries)  # first bring the magnitudes to O(1): the mean is finite
+    if k:
+        data, queries = np.ldexp(data, k), np.ldexp(queries, k)
     center = data.mean(axis=0)  # distances do not change; norms (and the bound) shrink
     X = data - center
     Y = queries - center
+    k = _pow2_scale(X, Y)  # then the centred data's spread to O(1)
+    if k:
+        np.ldexp(X, k, out=X)
+        np.ldexp(Y, k, out=Y)
     d2 = np.einsum("ij,ij->i", X, X)
+    d2_max = float(d2.max())
+    if d2_max == 0.0:  # every data point is the same point: all are nearest, take the first
+        return np.zeros(Y.shape[0], dtype=np.int64)
     u = float(np.finfo(np.float32).eps) / 2.0
     if dim * u >= 0.1:  # absurd dimensions: no useful single-precision bound
         return _brute64(X, Y, d2)
     gamma = dim * u / (1.0 - dim * u)
-    x_max = float(np.sqrt(d2.max()))
+    x_max = math.sqrt(d2_max)
     Xt32 = np.ascontiguousarray(X.T, dtype=np.float32)  # (dim, n)
     d2_32 = d2.astype(np.float32)
     q_norm = np.sqrt(np.einsum("ij,ij->i", Y, Y))
-    bound = 2.0 * u * float(d2.max()) + (2.0 * gamma + 6.0 * u) * q_norm * x_max
+    bound = 2.0 * u * d2_max + (2.0 * gamma + 6.0 * u) * q_norm * x_max
+    bound += 2.0**-149 * (dim + 1.0 + math.sqrt(dim) * (x_max + 2.0 * q_norm))
+    # |partial sums| <= 2‖q‖·max‖d‖ + max‖d‖²: beyond 2^120 float32 might overflow (~2^128).
+    far = 2.0 * q_norm * x_max + d2_max > 2.0**120
+    any_far = bool(far.any())
     out = np.empty(Y.shape[0], dtype=np.int64)
     # Tiles of 512 queries × 2048 points (4 MB of float32 distances) stay in cache while they
     # are scanned; a running best / second best per query merges the tiles. Measured 2x
@@ -82,7 +131,10 @@ def _brute(data: np.ndarray, queries: np.ndarray) -> np.ndarray:
     # from the OS each time (page faults cost as much as the product).
     buf = np.empty((rs, min(cs, n)), dtype=np.float32)
     for s in range(0, Y.shape[0], rs):
-        q = (-2.0 * Y[s : s + rs]).astype(np.float32)
+        q = -2.0 * Y[s : s + rs]
+        if any_far:
+            q[far[s : s + rs]] = 0.0  # decided in float64 below; keep the float32 pass finite
+        q = q.astype(np.float32)
         m = q.shape[0]
         r = np.arange(m)
         best_val = np.full(m, np.inf, dtype=np.float32)
@@ -104,7 +156,10 @@ def _brute(data: np.ndarray, queries: np.ndarray) -> np.ndarray:
             best_val = np.minimum(best_val, tile_val)
         out[s : s + m] = best
         gap = second.astype(np.float64) - best_val.astype(np.float64)
-        unsure = np.flatnonzero(~(gap > 2.0 * bound[s : s + m]))
+        sure = gap > 2.0 * bound[s : s + m]
+        if any_far:
+            sure &= ~far[s : s + m]
+        unsure = np.flatnonzero(~sure)
         if unsure.size:
             out[s + unsure] = _brute64(X, Y[s + unsure], d2)
     return out
@@ -134,6 +189,19 @@ def nearest_neighbors(data: Any, queries: Any, *, method: str = "auto") -> np.nd
     -------
     (m,) ndarray of int64
         Row indices into ``data``.
+
+    Raises
+    ------
+    ValueError
+        On mismatched shapes, empty or non-finite data, or an unknown method.
+
+    Notes
+    -----
+    Both methods work on the inputs scaled by a power of two that brings the data's largest
+    magnitude to [1/2, 1): exact in binary floating point, so the answer is that of the
+    unscaled search wherever that one is computable, and embeddings of any magnitude
+    (1e-200 or 1e200, whose squared distances underflow or overflow in float64) are searched
+    as exactly as embeddings of magnitude 1.
     """
     X = np.ascontiguousarray(data, dtype=np.float64)
     Y = np.ascontiguousarray(queries, dtype=np.float64)
@@ -143,6 +211,11 @@ def nearest_neighbors(data: Any, queries: Any, *, method: str = "auto") -> np.nd
         raise ValueError("data is empty")
     if method not in ("auto", "brute", "kdtree"):
         raise ValueError(f"method must be one of 'auto', 'brute', 'kdtree'; got {method!r}")
+    if not (np.isfinite(X).all() and np.isfinite(Y).all()):
+        raise ValueError("data and queries must be finite; they hold NaN or inf")
+    k = _pow2_scale(X, Y)
+    if k:
+        X, Y = np.ldexp(X, k), np.ldexp(Y, k)
     if method == "brute" or (method == "auto" and X.shape[0] * Y.shape[0] <= _BRUTE_MAX_PAIRS):
         return _brute(X, Y)
     if method == "kdtree":

@@ -12,37 +12,13 @@ import logging
 import os
 from typing import Any
 
-import numpy as np
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.orthogonalize import resolve_tol
+from ..core.spectrum import DIGEST_OPTIONS, eigenbasis, shape_digest
 
-__all__ = ["cached_basis", "default_cache_dir", "input_digest"]
+__all__ = ["cached_basis", "default_cache_dir"]
 
 logger = logging.getLogger(__name__)
-
-
-def input_digest(vertices: np.ndarray, faces: np.ndarray | None, **options: Any) -> str:
-    """Hex digest identifying a shape and the options its eigenbasis was computed with.
-
-    Parameters
-    ----------
-    vertices : (n, 3) ndarray of float64
-        Validated vertex positions.
-    faces : (m, 3) ndarray of int64 or None
-        Validated triangles.
-    **options
-        Options that change the eigenbasis (their ``repr`` enters the digest).
-
-    Returns
-    -------
-    str
-        32 hexadecimal characters (BLAKE2b-128).
-    """
-    h = hashlib.blake2b(digest_size=16)
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(b"|faces|")
-    if faces is not None:
-        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    h.update(repr(sorted(options.items())).encode())
-    return h.hexdigest()
 
 
 def default_cache_dir() -> str:
@@ -52,7 +28,7 @@ def default_cache_dir() -> str:
 
 
 def cached_basis(
-    mesh_or_vertices: Any,
+    vertices: Any,
     faces: Any = None,
     *,
     k: int = 29,
@@ -66,7 +42,7 @@ def cached_basis(
 
     Parameters
     ----------
-    mesh_or_vertices, faces
+    vertices, faces
         As in :func:`o3d_ofp.eigenbasis`.
     k, order, tol, preset
         As in :func:`o3d_ofp.eigenbasis` / :func:`o3d_ofp.ofp_basis`.
@@ -80,14 +56,10 @@ def cached_basis(
     OFPBasis
         The basis; its file is ``<cache_dir>/<digest>.npz``.
     """
-    from .basis import OFPBasis, ofp_basis
-    from .orthogonalize import resolve_tol
-    from .spectrum import DIGEST_OPTIONS, eigenbasis, shape_digest
-
     folder = os.fspath(cache_dir) if cache_dir is not None else default_cache_dir()
     os.makedirs(folder, exist_ok=True)
     digest = shape_digest(
-        mesh_or_vertices, faces, **{o: v for o, v in eig_options.items() if o in DIGEST_OPTIONS}
+        vertices, faces, **{o: v for o, v in eig_options.items() if o in DIGEST_OPTIONS}
     )
     t = resolve_tol(tol, preset)
     rest = sorted((o, v) for o, v in eig_options.items() if o not in DIGEST_OPTIONS)
@@ -105,7 +77,7 @@ def cached_basis(
                 logger.info("basis loaded from cache %s", path)
                 return B
             logger.warning("cache file %s belongs to another shape; recomputing", path)
-    B = ofp_basis(eigenbasis(mesh_or_vertices, faces, k=k, **eig_options), order=order, tol=t)
+    B = ofp_basis(eigenbasis(vertices, faces, k=k, **eig_options), order=order, tol=t)
     B.save(path)
     logger.info("basis cached in %s", path)
     return B

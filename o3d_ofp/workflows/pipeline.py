@@ -14,65 +14,22 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import as_signal, check_int
-from .basis import OFPBasis, ofp_basis
-from .correspondence import check_fmap, check_p2p, p2p_from_fmap
-from .fmap import estimate_fmap, zoomout_refine
-from .geometry import vertex_normals
-from .spectrum import EigenBasis
-from .transfer import transfer_matrix, transfer_signal
+from ..core._validation import as_signal, check_int
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
+from ..core.geometry import vertex_normals
+from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.transfer import transfer_matrix, transfer_signal
+from .matching import ESTIMATION_K, Correspondence, match_eigenbases
 
-__all__ = ["detail_heights", "match", "transfer_detail_arrays", "transfer_function"]
+__all__ = [
+    "detail_heights",
+    "eigenbases_for_transfer",
+    "transfer_detail_arrays",
+    "transfer_function",
+]
 
 logger = logging.getLogger(__name__)
-
-
-def match(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    landmarks: Any = None,
-    k_fit: int = 29,
-    zoomout_to: int | None = None,
-    zoomout_subsample: int | None = 2000,
-    **fit_options: Any,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Estimate a map without correspondences: fit a small functional map, then ZoomOut.
-
-    Parameters
-    ----------
-    eig_1, eig_2 : EigenBasis
-        Source and target eigenbases (ZoomOut uses all their eigenfunctions, up to
-        ``zoomout_to``; 99 or more non-constant ones is typical).
-    landmarks : (p, 2) array_like of int, optional
-        Known (source, target) vertex pairs.
-    k_fit : int, default 29
-        Size of the optimized map (the paper's K = 30).
-    zoomout_to : int, optional
-        Final ZoomOut size (default ``min(eig_1.k, eig_2.k)``).
-    zoomout_subsample : int or None, default 2000
-        Run ZoomOut's iterations on this many farthest-point samples of each shape (see
-        :func:`o3d_ofp.fmap.zoomout_refine`); ``None`` uses every vertex. Measured on FAUST,
-        TOSCA and remeshed FAUST pairs: p2p errors within ±0.0006 of the full-resolution
-        ZoomOut, 2.5-4.5× faster. The final p2p map is always computed at full resolution.
-    **fit_options
-        Passed to :func:`o3d_ofp.fmap.estimate_fmap`.
-
-    Returns
-    -------
-    fmap_12 : (K+1, K+1) ndarray
-        The refined functional map (K = ``zoomout_to``).
-    p2p_21 : (n2,) ndarray of int
-        Its point-to-point map.
-    """
-    k_fit = min(k_fit, eig_1.k, eig_2.k)
-    C = estimate_fmap(
-        eig_1, eig_2, k1=k_fit, k2=k_fit, landmarks=landmarks, refine=None, **fit_options
-    )
-    final = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
-    if final > k_fit:
-        C = zoomout_refine(C, eig_1, eig_2, k_final=final, subsample=zoomout_subsample)
-    return C, p2p_from_fmap(C, eig_1, eig_2)
 
 
 def _bases(
@@ -102,6 +59,7 @@ def transfer_function(
     order: int = 2,
     tol: float | None = None,
     preset: str | None = None,
+    correspondence: Correspondence | None = None,
     fmap_12: Any = None,
     p2p_21: Any = None,
     landmarks: Any = None,
@@ -123,6 +81,9 @@ def transfer_function(
         Product order.
     tol, preset
         Orthogonalization threshold (default "ours", 1e-2); see :func:`o3d_ofp.ofp_basis`.
+    correspondence : Correspondence, optional
+        A map from :func:`o3d_ofp.match` (or :meth:`Correspondence.load`); its point map is
+        used.
     fmap_12 : array_like, optional
         A functional map (at least (k2+1, k1+1)); its nearest-neighbour p2p map is used.
     p2p_21 : (n2,) array_like of int, optional
@@ -139,16 +100,23 @@ def transfer_function(
     (n2,) or (n2, d) ndarray
         The transferred signal.
     """
+    if method not in ("p2p", "analytic"):
+        raise ValueError(f"method must be 'p2p' or 'analytic'; got {method!r}")
     f = as_signal(f_1, eig_1.n_vertices, name="f_1")
     B_1, B_2 = bases if bases is not None else _bases(eig_1, eig_2, k1, k2, order, tol, preset)
-    if p2p_21 is not None:
+    if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:
+        raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
+    if correspondence is not None:
+        correspondence.check(eig_1.n_vertices, eig_2.n_vertices)
+        p2p = correspondence.p2p_21
+    elif p2p_21 is not None:
         p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     elif fmap_12 is not None:
         C = np.asarray(fmap_12, dtype=np.float64)
         check_fmap(C, B_2.k + 1, B_1.k + 1)
         p2p = p2p_from_fmap(C, eig_1, eig_2)
     else:
-        C, p2p = match(eig_1, eig_2, landmarks=landmarks)
+        p2p = match_eigenbases(eig_1, eig_2, landmarks=landmarks).p2p_21
     if method == "analytic":
         if fmap_12 is None:
             raise ValueError("method='analytic' needs fmap_12")
@@ -191,6 +159,7 @@ def transfer_detail_arrays(
     order: int = 2,
     tol: float | None = None,
     preset: str | None = "ours*",
+    correspondence: Correspondence | None = None,
     fmap_12: Any = None,
     p2p_21: Any = None,
     landmarks: Any = None,
@@ -211,7 +180,7 @@ def transfer_detail_arrays(
         source's fine detail as heights along its normals: the source's coordinates minus
         their low-pass reconstruction (``k_low`` eigenfunctions), measured along the source
         normals, transferred, scaled by √(area₂/area₁) and added along the target normals.
-    k1, k2, order, tol, preset, fmap_12, p2p_21, landmarks
+    k1, k2, order, tol, preset, correspondence, fmap_12, p2p_21, landmarks
         As in :func:`transfer_function` (default preset "ours*", which the paper prefers for
         detail).
     k_low : int, optional
@@ -234,6 +203,7 @@ def transfer_detail_arrays(
         order=order,
         tol=tol,
         preset=preset,
+        correspondence=correspondence,
         fmap_12=fmap_12,
         p2p_21=p2p_21,
         landmarks=landmarks,
@@ -267,3 +237,46 @@ def _normals(eig: EigenBasis, normals: Any, name: str) -> np.ndarray:
         c = eig.cleaning
         normals = normals[c.representative[c.index]]
     return normals
+
+
+def eigenbases_for_transfer(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    k1: int,
+    k2: int,
+    fmap_12: Any,
+    p2p_21: Any,
+    eigenbases: tuple[Any, Any] | None,
+    bases: tuple[Any, Any] | None,
+    correspondence: Correspondence | None = None,
+) -> tuple[Any, Any]:
+    """Eigenbases for a transfer: given ones (checked), else those of the bases, else computed.
+
+    The one place that decides how many eigenfunctions a map needs.
+
+    Computed ones are as large as the map needs: a given map may be larger than k1/k2 (all of
+    it is used); an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
+    standard pipeline), never more than a shape allows.
+    """
+    estimate = fmap_12 is None and p2p_21 is None and correspondence is None
+    if eigenbases is None and bases is not None and not estimate:
+        eigenbases = (bases[0].eig, bases[1].eig)  # no estimation: the bases' own suffice
+    if eigenbases is None:
+        if estimate:
+            k1, k2 = max(k1, ESTIMATION_K), max(k2, ESTIMATION_K)
+        elif fmap_12 is not None:
+            rows, cols = np.shape(fmap_12)
+            k1, k2 = max(k1, cols - 1), max(k2, rows - 1)
+        return (
+            eigenbasis(V1, F1, k=k1, clamp_k=estimate),
+            eigenbasis(V2, F2, k=k2, clamp_k=estimate),
+        )
+    for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
+        if eig.n_vertices != V.shape[0]:
+            raise ValueError(
+                f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
+                f"{V.shape[0]}: it belongs to another shape"
+            )
+    return eigenbases

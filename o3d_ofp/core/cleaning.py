@@ -43,6 +43,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ._validation import as_faces, as_signal, as_vertices, check_int
+from .geometry import face_areas_normals
+from .laplacian import count_components, laplacian
 
 __all__ = [
     "AUTO_KEEP_FRACTION",
@@ -268,11 +270,6 @@ def _weld(vertices: np.ndarray, tolerance: float | None) -> tuple[np.ndarray, np
     return rank[group], first[order]
 
 
-def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    a, b, c = (vertices[faces[:, i]] for i in range(3))
-    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-
-
 def _pick_component(
     labels: np.ndarray, weights: np.ndarray, policy: str, what: str, unit: str
 ) -> tuple[np.ndarray | None, int, float]:
@@ -364,8 +361,6 @@ def clean_shape(
         On malformed arrays, or a shape that is no surface once cleaned (no face left,
         collinear points, too few points, several comparable components under "auto").
     """
-    from .laplacian import count_components, laplacian
-
     V = as_vertices(vertices)
     n_in = V.shape[0]
     F_in = None if faces is None else as_faces(faces, n_in)
@@ -427,7 +422,7 @@ def clean_shape(
         relabel[live] = np.arange(live.shape[0])
         face_labels = relabel[comp_of_face]
         keep_faces, n_comp, dropped = _pick_component(
-            face_labels, _face_areas(Vg, F), components, "area", "faces"
+            face_labels, face_areas_normals(Vg, F)[0], components, "area", "faces"
         )
         keep_v = used.copy()
         if keep_faces is not None:

@@ -1,0 +1,514 @@
+"""The geometry-level API: Open3D geometries (or array tuples) in, new geometries out.
+
+Built on :mod:`o3d_ofp.workflows`; every function converts its inputs with
+:mod:`o3d_ofp.boundary.convert`, never modifies them, and returns a new geometry of the
+target's own kind.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ..core import spectrum
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.filtering import spectral_filter
+from ..core.spectrum import EigenBasis
+from ..workflows import cache
+from ..workflows.matching import (
+    ESTIMATION_K,
+    FIT_K,
+    Correspondence,
+    check_landmarks,
+    match_eigenbases,
+    required_k,
+)
+from ..workflows.pipeline import eigenbases_for_transfer, transfer_detail_arrays, transfer_function
+from .convert import (
+    geometry_kind,
+    geometry_to_arrays,
+    is_open3d_geometry,
+    like_target,
+    require_open3d,
+    vertex_colors,
+)
+
+__all__ = [
+    "as_arrays",
+    "cached_basis",
+    "eigenbasis",
+    "filter_geometry",
+    "match",
+    "shape_digest",
+    "transfer_colors",
+    "transfer_detail",
+]
+
+logger = logging.getLogger(__name__)
+
+
+def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[Any, Any]:
+    """(vertices, faces) of an Open3D geometry, a ``(vertices, faces)`` tuple, or arrays.
+
+    Parameters
+    ----------
+    shape : Open3D TriangleMesh / PointCloud (legacy or tensor), (vertices, faces) tuple, or
+        (n, 3) array_like of vertex positions
+        The shape.
+    faces : (m, 3) array_like of int, optional
+        Triangles when ``shape`` is an array of vertices (``None``: a point cloud).
+    name : str
+        Name used in error messages.
+
+    Returns
+    -------
+    vertices : (n, 3) ndarray of float64 (a copy)
+    faces : (m, 3) ndarray of int64 or None
+    """
+    if is_open3d_geometry(shape):
+        if faces is not None:
+            raise ValueError(f"faces must be None when {name} is an Open3D geometry")
+        return geometry_to_arrays(shape)
+    if isinstance(shape, tuple):
+        if len(shape) != 2:
+            raise ValueError(f"{name} as a tuple must be (vertices, faces); got {len(shape)} items")
+        if faces is not None:
+            raise ValueError(f"faces must be None when {name} is a (vertices, faces) tuple")
+        shape, faces = shape
+    return spectrum.input_arrays(shape, faces)
+
+
+def eigenbasis(
+    mesh_or_vertices: Any,
+    faces: Any = None,
+    *,
+    k: int = 29,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+    mollify_factor: float = 1e-5,
+    n_neighbors: int = 30,
+    maxiter: int | None = None,
+    clamp_k: bool = False,
+    factorization: str = "auto",
+) -> EigenBasis:
+    """Compute the ``k + 1`` smallest Laplace-Beltrami eigenpairs of a mesh or point cloud.
+
+    Parameters
+    ----------
+    mesh_or_vertices : Open3D TriangleMesh / PointCloud (legacy or tensor), (vertices, faces)
+        tuple, or (n, 3) array_like of float
+        The shape; with an array of vertices, ``faces`` gives the triangles (``None``: a
+        point cloud).
+    faces : (m, 3) array_like of int, optional
+        Triangles when ``mesh_or_vertices`` is an array.
+    k : int, default 29
+        Non-constant eigenfunctions (the paper's K = 30 is ``k=29``).
+    weld_tolerance, components, mollify_factor, n_neighbors, maxiter, clamp_k, factorization
+        As in :func:`o3d_ofp.core.spectrum.eigenbasis`.
+
+    Returns
+    -------
+    EigenBasis
+        Eigenvalues ``(k+1,)``, M-orthonormal eigenvectors ``(n, k+1)`` with the constant first,
+        the lumped mass and the stiffness, on the input's n vertices.
+
+    References
+    ----------
+    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+       and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
+    """
+    V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
+    return spectrum.eigenbasis(
+        V,
+        F,
+        k=k,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        mollify_factor=mollify_factor,
+        n_neighbors=n_neighbors,
+        maxiter=maxiter,
+        clamp_k=clamp_k,
+        factorization=factorization,
+    )
+
+
+def shape_digest(
+    mesh_or_vertices: Any,
+    faces: Any = None,
+    *,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+    mollify_factor: float = 1e-5,
+    n_neighbors: int = 30,
+) -> str:
+    """Identify a shape and the options its eigenbasis depends on (``EigenBasis.digest``).
+
+    Parameters
+    ----------
+    mesh_or_vertices, faces
+        As in :func:`eigenbasis`.
+    weld_tolerance, components, mollify_factor, n_neighbors
+        As in :func:`eigenbasis`.
+
+    Returns
+    -------
+    str
+        A 32-character hex digest: equal inputs and options give equal digests.
+    """
+    V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
+    return spectrum.shape_digest(
+        V,
+        F,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        mollify_factor=mollify_factor,
+        n_neighbors=n_neighbors,
+    )
+
+
+def cached_basis(
+    mesh_or_vertices: Any,
+    faces: Any = None,
+    *,
+    k: int = 29,
+    order: int = 2,
+    tol: float | None = None,
+    preset: str | None = None,
+    cache_dir: Any = None,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+    mollify_factor: float = 1e-5,
+    n_neighbors: int = 30,
+) -> OFPBasis:
+    """Return the OFP basis of a shape, from the cache when it was computed before.
+
+    Parameters
+    ----------
+    mesh_or_vertices, faces
+        As in :func:`eigenbasis`.
+    k, order, tol, preset
+        As in :func:`eigenbasis` / :func:`o3d_ofp.ofp_basis`.
+    cache_dir : str or os.PathLike, optional
+        Folder of cached bases (default ``$XDG_CACHE_HOME/o3d_ofp``); created if missing.
+    weld_tolerance, components, mollify_factor, n_neighbors
+        As in :func:`eigenbasis`.
+
+    Returns
+    -------
+    OFPBasis
+        The basis; its file is ``<cache_dir>/<digest>.npz``.
+    """
+    V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
+    return cache.cached_basis(
+        V,
+        F,
+        k=k,
+        order=order,
+        tol=tol,
+        preset=preset,
+        cache_dir=cache_dir,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        mollify_factor=mollify_factor,
+        n_neighbors=n_neighbors,
+    )
+
+
+def match(
+    source: Any,
+    target: Any,
+    *,
+    landmarks: Any = None,
+    k_fit: int = FIT_K,
+    zoomout_to: int = ESTIMATION_K,
+    zoomout_subsample: int | None = 2000,
+    descriptors: str = "wks",
+    w_orient: float = 1.0,
+    components: str = "auto",
+    eigenbases: tuple[EigenBasis, EigenBasis] | None = None,
+) -> Correspondence:
+    """Find, for every target vertex, its source vertex: one call, any units, with a verdict.
+
+    Descriptor fit (WKS, Laplacian and descriptor commutativity, orientation-preserving term)
+    then ZoomOut to 100 eigenfunctions and the point map, all on unit-area copies of the
+    shapes: the map does not change when either shape is scaled, moved or rotated.
+
+    Parameters
+    ----------
+    source, target : Open3D TriangleMesh or PointCloud (legacy or tensor), or a
+        (vertices, faces) tuple of arrays (faces None for points)
+        The shapes; neither is modified.
+    landmarks : (p, 2) array_like of int, optional
+        Known (source vertex, target vertex) pairs; a few of them fix symmetric or
+        ambiguous pairs.
+    k_fit : int, default 29
+        Size of the map fitted to the descriptors (the paper's K = 30).
+    zoomout_to : int, default 99
+        Eigenfunctions the map is refined to (fewer only when a shape has fewer vertices).
+    zoomout_subsample : int or None, default 2000
+        ZoomOut iterates on this many farthest-point samples of each shape.
+    descriptors : {"wks", "hks"}, default "wks"
+        Descriptor family.
+    w_orient : float, default 1.0
+        Weight of the orientation-preserving term.
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (see :func:`eigenbasis`).
+    eigenbases : (EigenBasis, EigenBasis), optional
+        Precomputed eigenbases with at least ``zoomout_to`` eigenfunctions each.
+
+    Returns
+    -------
+    Correspondence
+        ``p2p_21`` (n2,), the functional map, the options and ``quality`` (``coverage``,
+        ``suspect`` and the measures behind it). A suspect map is logged as a warning with
+        the likely causes and the fix; ``save(path)`` / ``Correspondence.load(path)`` keep it.
+
+    References
+    ----------
+    .. [1] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
+       ACM TOG 38(6), 2019.
+    """
+    V1, F1 = as_arrays(source, name="source")
+    V2, F2 = as_arrays(target, name="target")
+    landmarks = check_landmarks(landmarks, V1.shape[0], V2.shape[0])  # before any eigensolve
+    if eigenbases is None:
+        eig_1 = spectrum.eigenbasis(
+            V1, F1, k=required_k(V1.shape[0], zoomout_to), clamp_k=True, components=components
+        )
+        eig_2 = spectrum.eigenbasis(
+            V2, F2, k=required_k(V2.shape[0], zoomout_to), clamp_k=True, components=components
+        )
+    else:
+        eig_1, eig_2 = eigenbases
+        for eig, V, name in ((eig_1, V1, "source"), (eig_2, V2, "target")):
+            if eig.n_vertices != V.shape[0]:
+                raise ValueError(
+                    f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
+                    f"{V.shape[0]}: it belongs to another shape"
+                )
+    return match_eigenbases(
+        eig_1,
+        eig_2,
+        landmarks=landmarks,
+        k_fit=k_fit,
+        zoomout_to=zoomout_to,
+        zoomout_subsample=zoomout_subsample,
+        descriptors=descriptors,
+        w_orient=w_orient,
+    )
+
+
+def transfer_colors(
+    source: Any,
+    target: Any,
+    *,
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    preset: str | None = "ours",
+    tol: float | None = None,
+    correspondence: Correspondence | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    method: str = "p2p",
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
+) -> Any:
+    """Transfer vertex colors from one Open3D geometry to another.
+
+    Parameters
+    ----------
+    source, target : Open3D TriangleMesh or PointCloud (legacy or tensor)
+        The shapes; neither is modified. The source must have vertex colors (for any other
+        per-vertex signal use the array-level :func:`o3d_ofp.transfer_function`).
+    k1, k2 : int, default 29, 39
+        Eigenfunctions multiplied on the source and the target (the paper's K = 30 / 40 for
+        humans; order 3 with k ≈ 11-14 for other shapes).
+    order : int, default 2
+        Product order.
+    preset, tol
+        Orthogonalization threshold ("ours" = 1e-2 by default, "ours*" = 1e-9).
+    correspondence : Correspondence, optional
+        A map from :func:`match` (or ``Correspondence.load``).
+    fmap_12, p2p_21, landmarks
+        A known functional map, a known point-to-point map (target vertex → source vertex),
+        or known (source, target) landmark pairs for the estimation. Without any of them the
+        map is estimated by :func:`match`.
+    method : {"p2p", "analytic"}
+        Transfer matrix computation (see :func:`o3d_ofp.transfer_matrix`).
+    eigenbases : (EigenBasis, EigenBasis), optional
+        Precomputed eigenbases of source and target (e.g. from cached bases); with an
+        estimated map they should hold ~100 eigenfunctions for ZoomOut.
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed OFP bases (then ``k1``, ``k2``, ``order``, ``preset``, ``tol`` are unused).
+
+    Returns
+    -------
+    geometry
+        A new geometry of the target's own kind (legacy or tensor, mesh or cloud) with every
+        attribute of the target, colored with the transferred colors (clipped to [0, 1]).
+
+    References
+    ----------
+    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+       and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
+    """
+    V1, F1 = as_arrays(source, name="source")
+    V2, F2 = as_arrays(target, name="target")
+    f = vertex_colors(source) if is_open3d_geometry(source) else None
+    if f is None:
+        raise ValueError(
+            "the source has no vertex colors to transfer (for a texture use "
+            "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
+            "o3d_ofp.transfer_function)"
+        )
+    eig_1, eig_2 = eigenbases_for_transfer(
+        V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+    )
+    g = transfer_function(
+        f,
+        eig_1,
+        eig_2,
+        k1=k1,
+        k2=k2,
+        order=order,
+        preset=preset,
+        tol=tol,
+        correspondence=correspondence,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        method=method,
+        bases=bases,
+    )
+    return like_target(target, colors=np.clip(g, 0.0, 1.0))
+
+
+def transfer_detail(
+    source: Any,
+    target: Any,
+    *,
+    mode: str = "add",
+    k1: int = 29,
+    k2: int = 39,
+    order: int = 2,
+    preset: str | None = "ours*",
+    tol: float | None = None,
+    correspondence: Correspondence | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    k_low: int | None = None,
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
+) -> Any:
+    """Give the target the source's geometric detail; return a new displaced geometry.
+
+    Parameters
+    ----------
+    source : Open3D TriangleMesh
+        Shape with the detail.
+    target : Open3D TriangleMesh or PointCloud
+        Shape to displace (a cloud without normals gets estimated, consistently oriented
+        ones). Neither input is modified.
+    mode : {"add", "replace"}, default "add"
+        "replace": the paper's Fig. 13, the target takes the transferred source coordinates.
+        "add": the target keeps its shape and pose and gets the source's high-frequency
+        heights along its normals (see :func:`o3d_ofp.pipeline.transfer_detail_arrays`).
+    k1, k2, order, preset, tol, correspondence, fmap_12, p2p_21, landmarks
+        As in :func:`transfer_colors` (default preset "ours*").
+    k_low : int, optional
+        Eigenfunctions of the low-pass that separates detail from shape ("add" mode;
+        default ``k1``).
+    eigenbases, bases
+        Precomputed eigenbases / OFP bases, as in :func:`transfer_colors`.
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        A new geometry of the target's own kind with moved vertices (every other attribute of
+        the target kept).
+    """
+    o3d = require_open3d()
+    V1, F1 = as_arrays(source, name="source")
+    V2, F2 = as_arrays(target, name="target")
+    if F1 is None:
+        raise ValueError("source must be a TriangleMesh (its normals and detail need faces)")
+    normals_2 = None
+    if F2 is None:
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V2))
+        kind = geometry_kind(target)
+        if kind == "legacy_cloud" and target.has_normals():
+            normals_2 = np.asarray(target.normals, dtype=np.float64).copy()
+        else:
+            cloud.estimate_normals()
+            cloud.orient_normals_consistent_tangent_plane(15)
+            normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
+    eig_1, eig_2 = eigenbases_for_transfer(
+        V1, F1, V2, F2, max(k1, k_low or 0), k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+    )
+    moved = transfer_detail_arrays(
+        eig_1,
+        eig_2,
+        mode=mode,
+        k1=k1,
+        k2=k2,
+        order=order,
+        preset=preset,
+        tol=tol,
+        correspondence=correspondence,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        k_low=k_low,
+        normals_2=normals_2,
+        bases=bases,
+    )
+    return like_target(target, vertices=moved)
+
+
+def filter_geometry(
+    geometry: Any,
+    *,
+    gains: Any,
+    k: int = 14,
+    order: int = 3,
+    preset: str | None = "ours*",
+    tol: float | None = None,
+    basis: Any = None,
+) -> Any:
+    """Spectrally filter the vertex coordinates of a mesh (the paper's Figs. 14-15).
+
+    Parameters
+    ----------
+    geometry : Open3D TriangleMesh or PointCloud
+        Input; not modified.
+    gains : callable or (q,) array_like
+        See :func:`o3d_ofp.filtering.spectral_filter` (e.g. ``smooth_gains(5)``,
+        ``sharpen_gains(2)``).
+    k, order, preset, tol
+        The basis (the paper uses order 3 on the first 15 eigenfunctions: ``k=14``).
+    basis : OFPBasis, optional
+        A precomputed basis of this geometry (then ``k``, ``order``, ``preset``, ``tol`` are
+        unused).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+        A new geometry of the input's own kind with filtered vertex positions (every other
+        attribute kept).
+    """
+    V, F = geometry_to_arrays(geometry)
+    if basis is None:
+        B = ofp_basis(spectrum.eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
+    elif basis.n_vertices != V.shape[0]:
+        raise ValueError(
+            f"basis has {basis.n_vertices} vertices but the geometry has {V.shape[0]}: it "
+            "belongs to another shape"
+        )
+    else:
+        B = basis
+    return like_target(geometry, vertices=spectral_filter(B, V, gains))

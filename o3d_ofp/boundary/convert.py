@@ -1,0 +1,346 @@
+"""Conversion between Open3D geometries and arrays: the only way Open3D data enters the package.
+
+Open3D geometries go in as copies (``np.asarray`` on an Open3D vector is a *live view*; we never
+hand one out) and come back as new geometries built from validated arrays (Open3D does not
+bounds-check triangle indices and crashes the interpreter on bad ones).
+
+Both the legacy API (``open3d.geometry.TriangleMesh``/``PointCloud``) and the tensor API
+(``open3d.t.geometry.TriangleMesh``/``PointCloud``) are accepted. Open3D itself is imported
+lazily, by :func:`require_open3d`, so importing this module does not import Open3D.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from ..core._validation import as_faces, as_signal, as_vertices
+
+__all__ = [
+    "OPEN3D_INSTALL_HINT",
+    "geometry_kind",
+    "geometry_to_arrays",
+    "is_open3d_geometry",
+    "like_target",
+    "point_cloud_from_arrays",
+    "require_open3d",
+    "triangle_mesh_from_arrays",
+    "vertex_colors",
+]
+
+logger = logging.getLogger(__name__)
+
+OPEN3D_INSTALL_HINT = (
+    "pip install open3d-cpu   (CPU-only build, Linux x86_64; or: pip install open3d; from a "
+    "clone of o3d_ofp: pip install '.[cpu]'). On a fresh Debian/Ubuntu also run: "
+    "apt-get install -y --no-install-recommends libgl1 libegl1 libusb-1.0-0"
+)
+
+
+def require_open3d() -> ModuleType:
+    """Import and return :mod:`open3d`, or raise an ``ImportError`` saying how to install it.
+
+    Returns
+    -------
+    module
+        The ``open3d`` module.
+
+    Raises
+    ------
+    ImportError
+        If Open3D (or one of the system libraries it loads) is missing.
+    """
+    try:
+        return importlib.import_module("open3d")
+    except ImportError as exc:
+        raise ImportError(
+            f"this function needs Open3D, which could not be imported ({exc}). Install it with: "
+            f"{OPEN3D_INSTALL_HINT}"
+        ) from exc
+
+
+def is_open3d_geometry(obj: Any) -> bool:
+    """Tell whether ``obj`` is an Open3D geometry, without importing Open3D.
+
+    Parameters
+    ----------
+    obj : object
+        Anything.
+
+    Returns
+    -------
+    bool
+        True for instances of classes defined in an ``open3d`` module.
+    """
+    return type(obj).__module__.split(".")[0] == "open3d"
+
+
+def geometry_kind(geometry: Any) -> str:
+    """Return one of ``legacy_mesh``, ``legacy_cloud``, ``tensor_mesh``, ``tensor_cloud``."""
+    o3d = require_open3d()
+    if isinstance(geometry, o3d.geometry.TriangleMesh):
+        return "legacy_mesh"
+    if isinstance(geometry, o3d.geometry.PointCloud):
+        return "legacy_cloud"
+    if isinstance(geometry, o3d.t.geometry.TriangleMesh):
+        return "tensor_mesh"
+    if isinstance(geometry, o3d.t.geometry.PointCloud):
+        return "tensor_cloud"
+    raise TypeError(
+        "geometry must be an Open3D TriangleMesh or PointCloud (legacy open3d.geometry or "
+        f"tensor open3d.t.geometry); got {type(geometry).__module__}.{type(geometry).__name__}"
+    )
+
+
+def _tensor_attr(attrs: Any, key: str) -> np.ndarray | None:
+    if key not in attrs:
+        return None
+    return np.array(attrs[key].cpu().numpy(), copy=True)
+
+
+def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Copy an Open3D geometry into plain arrays.
+
+    Parameters
+    ----------
+    geometry : open3d.geometry.TriangleMesh, PointCloud, or their ``open3d.t`` counterparts
+        The input; it is not modified.
+
+    Returns
+    -------
+    vertices : (n, 3) ndarray of float64
+        A copy of the vertex positions (points of a cloud).
+    faces : (m, 3) ndarray of int64 or None
+        A copy of the triangles, or ``None`` for a point cloud.
+
+    Raises
+    ------
+    TypeError
+        If ``geometry`` is not one of the supported types.
+    ValueError
+        If it has no vertices, non-finite coordinates or out-of-range triangles.
+    """
+    kind = geometry_kind(geometry)
+    if kind == "legacy_mesh":
+        raw_v = np.array(geometry.vertices, dtype=np.float64, copy=True)
+        raw_f = np.array(geometry.triangles, dtype=np.int64, copy=True)
+    elif kind == "legacy_cloud":
+        raw_v, raw_f = np.array(geometry.points, dtype=np.float64, copy=True), None
+    elif kind == "tensor_mesh":
+        raw_v = _tensor_attr(geometry.vertex, "positions")
+        raw_f = _tensor_attr(geometry.triangle, "indices")
+        if raw_v is None:
+            raw_v = np.zeros((0, 3))
+        if raw_f is None:
+            raw_f = np.zeros((0, 3), dtype=np.int64)
+    else:
+        raw_v, raw_f = _tensor_attr(geometry.point, "positions"), None
+        if raw_v is None:
+            raw_v = np.zeros((0, 3))
+    vertices = as_vertices(raw_v.reshape(-1, 3), name="geometry vertices")
+    if raw_f is None:
+        return vertices, None
+    faces = as_faces(raw_f.reshape(-1, 3), vertices.shape[0], name="geometry triangles")
+    return vertices, faces
+
+
+def vertex_colors(geometry: Any) -> np.ndarray | None:
+    """Copy the per-vertex (per-point) RGB colors of an Open3D geometry.
+
+    Parameters
+    ----------
+    geometry : Open3D TriangleMesh or PointCloud (legacy or tensor)
+        The input; it is not modified.
+
+    Returns
+    -------
+    (n, 3) ndarray of float64 or None
+        Colors in [0, 1], or ``None`` when the geometry has none.
+    """
+    kind = geometry_kind(geometry)
+    if kind == "legacy_mesh":
+        colors = (
+            np.array(geometry.vertex_colors, dtype=np.float64)
+            if geometry.has_vertex_colors()
+            else None
+        )
+    elif kind == "legacy_cloud":
+        colors = np.array(geometry.colors, dtype=np.float64) if geometry.has_colors() else None
+    else:
+        attrs = geometry.vertex if kind == "tensor_mesh" else geometry.point
+        colors = _tensor_attr(attrs, "colors")
+        if colors is not None:
+            if np.issubdtype(colors.dtype, np.integer):  # uint8 colors in the tensor API
+                colors = colors.astype(np.float64) / np.iinfo(colors.dtype).max
+            colors = colors.astype(np.float64)
+    if colors is None or colors.size == 0:
+        return None
+    return colors.reshape(-1, 3)
+
+
+def _checked_colors(colors: Any, n: int, name: str) -> np.ndarray:
+    arr = as_signal(colors, n, name=name)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3) with n = {n}; got {arr.shape}")
+    return np.clip(arr, 0.0, 1.0)
+
+
+def _checked_normals(normals: Any, n: int, name: str) -> np.ndarray:
+    arr = as_signal(normals, n, name=name)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3) with n = {n}; got {arr.shape}")
+    return arr
+
+
+def triangle_mesh_from_arrays(
+    vertices: Any,
+    faces: Any,
+    *,
+    colors: Any = None,
+    normals: Any = None,
+) -> Any:
+    """Build a new legacy ``open3d.geometry.TriangleMesh`` from validated arrays.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex positions.
+    faces : (m, 3) array_like of int
+        Triangles, 0-based indices into ``vertices``.
+    colors : (n, 3) array_like of float, optional
+        Per-vertex RGB; values are clipped to [0, 1].
+    normals : (n, 3) array_like of float, optional
+        Per-vertex normals. When omitted, normals are computed by Open3D so the mesh renders lit.
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        A new mesh that shares no memory with the inputs.
+
+    Raises
+    ------
+    ValueError
+        If the shapes disagree or an index is out of range (checked here because Open3D does
+        not check and crashes on bad indices).
+    """
+    o3d = require_open3d()
+    v = as_vertices(vertices)
+    f = as_faces(faces, v.shape[0])
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32))
+    )
+    if colors is not None:
+        mesh.vertex_colors = o3d.utility.Vector3dVector(
+            _checked_colors(colors, v.shape[0], "colors")
+        )
+    if normals is not None:
+        mesh.vertex_normals = o3d.utility.Vector3dVector(
+            _checked_normals(normals, v.shape[0], "normals")
+        )
+    else:
+        mesh.compute_vertex_normals()
+    return mesh
+
+
+def point_cloud_from_arrays(points: Any, *, colors: Any = None, normals: Any = None) -> Any:
+    """Build a new legacy ``open3d.geometry.PointCloud`` from validated arrays.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like of float
+        Point positions.
+    colors : (n, 3) array_like of float, optional
+        Per-point RGB; values are clipped to [0, 1].
+    normals : (n, 3) array_like of float, optional
+        Per-point normals.
+
+    Returns
+    -------
+    open3d.geometry.PointCloud
+        A new point cloud that shares no memory with the inputs.
+    """
+    o3d = require_open3d()
+    p = as_vertices(points, name="points")
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+    if colors is not None:
+        cloud.colors = o3d.utility.Vector3dVector(_checked_colors(colors, p.shape[0], "colors"))
+    if normals is not None:
+        cloud.normals = o3d.utility.Vector3dVector(_checked_normals(normals, p.shape[0], "normals"))
+    return cloud
+
+
+def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any:
+    """Return a copy of ``target`` (same kind, every attribute kept) with new positions or colors.
+
+    Parameters
+    ----------
+    target : Open3D TriangleMesh or PointCloud (legacy or tensor), or (vertices, faces) tuple
+        The geometry the result is made like; it is not modified. A tuple gives a new legacy
+        ``TriangleMesh`` (``PointCloud`` when faces is None).
+    vertices : (n, 3) array_like of float, optional
+        New positions (normals, where the target has them, are recomputed for meshes).
+    colors : (n, 3) array_like of float, optional
+        New per-vertex colors in [0, 1] (clipped).
+
+    Returns
+    -------
+    geometry
+        A new geometry of the target's own kind: triangles, UVs, textures, material ids,
+        normals and every other attribute the target has are carried over; only what is
+        passed is replaced.
+    """
+    if isinstance(target, tuple):
+        V, F = target
+        V = as_vertices(V if vertices is None else vertices)
+        if F is None:
+            return point_cloud_from_arrays(V, colors=colors)
+        return triangle_mesh_from_arrays(V, F, colors=colors)
+    o3d = require_open3d()
+    kind = geometry_kind(target)
+    V0, _ = geometry_to_arrays(target)
+    n = V0.shape[0]
+    V = None if vertices is None else as_vertices(vertices)
+    if V is not None and V.shape[0] != n:
+        raise ValueError(f"vertices has {V.shape[0]} rows; the target has {n} vertices")
+    C = None if colors is None else _checked_colors(colors, n, "colors")
+    if kind in ("legacy_mesh", "legacy_cloud"):
+        out = type(target)(target)  # Open3D's copy constructor: every attribute
+        if kind == "legacy_mesh":
+            if V is not None:
+                out.vertices = o3d.utility.Vector3dVector(V)
+                if target.has_triangle_normals():
+                    out.compute_triangle_normals()
+                if target.has_vertex_normals():
+                    out.compute_vertex_normals()
+            if C is not None:
+                out.vertex_colors = o3d.utility.Vector3dVector(C)
+        else:
+            if V is not None:
+                out.points = o3d.utility.Vector3dVector(V)
+                if target.has_normals():
+                    out.estimate_normals()
+            if C is not None:
+                out.colors = o3d.utility.Vector3dVector(C)
+        return out
+    out = target.clone()
+    attrs = out.vertex if kind == "tensor_mesh" else out.point
+    if V is not None:
+        dtype = attrs["positions"].dtype
+        attrs["positions"] = o3d.core.Tensor(V).to(dtype)
+        if kind == "tensor_mesh" and "normals" in attrs:
+            out.compute_vertex_normals()
+        if kind == "tensor_mesh" and "normals" in out.triangle:
+            out.compute_triangle_normals()
+        if kind == "tensor_cloud" and "normals" in attrs:
+            out.estimate_normals()
+    if C is not None:
+        old = attrs["colors"].dtype if "colors" in attrs else o3d.core.float32
+        if old in (o3d.core.uint8, o3d.core.UInt8):
+            attrs["colors"] = o3d.core.Tensor(np.round(C * 255.0).astype(np.uint8))
+        else:
+            attrs["colors"] = o3d.core.Tensor(C).to(old)
+    return out

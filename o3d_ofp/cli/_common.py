@@ -1,0 +1,248 @@
+"""What the commands share: reading inputs, checking outputs, bases, maps, result lines.
+
+Every check that can fail is made before the expensive work, and every message names the
+file or the flag.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "CLOUD_OUT",
+    "MESH_HELP",
+    "MESH_OUT",
+    "UsageError",
+    "add_basis_options",
+    "basis_for",
+    "check_cache_dir",
+    "check_output",
+    "eig_options",
+    "load_npy",
+    "read_shape",
+    "report",
+    "stage",
+    "tol_options",
+]
+
+logger = logging.getLogger(__name__)
+
+MESH_HELP = "mesh or point cloud (any format Open3D reads: PLY, OBJ, OFF, STL, GLB, ...)"
+MESH_OUT = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
+CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+
+
+class UsageError(Exception):
+    """Bad input or arguments: reported in one line, exit code 2."""
+
+
+class _Output:
+    """The command's result lines on stdout; nothing with ``-q``."""
+
+    quiet = False
+
+    def write(self, text: str) -> None:
+        if not self.quiet:
+            sys.stdout.write(text)
+
+
+OUT = _Output()
+
+
+def report(lines: Sequence[str]) -> None:
+    """Print result lines (silenced by ``-q``)."""
+    for line in lines:
+        OUT.write(line + "\n")
+
+
+@contextlib.contextmanager
+def stage(what: str) -> Iterator[None]:
+    """Log a long stage at INFO: its start and its duration."""
+    logger.info("%s ...", what)
+    t0 = time.perf_counter()
+    yield
+    logger.info("%s: done in %.2f s", what, time.perf_counter() - t0)
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
+    """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
+    from ..boundary.convert import geometry_to_arrays, require_open3d
+    from ..boundary.io import read_geometry
+
+    require_open3d()
+    if not os.path.exists(path):
+        raise UsageError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise UsageError(f"{path}: is a directory, not a mesh file")
+    try:
+        geometry = read_geometry(path)
+        V, F = geometry_to_arrays(geometry)
+    except ValueError as exc:
+        raise UsageError(f"{path}: cannot read a mesh or point cloud ({exc})") from exc
+    return geometry, V, F
+
+
+def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
+    """Load a real-valued ``.npy`` array; one-line errors name the file and the flag."""
+    if not os.path.isfile(path):
+        raise UsageError(f"{flag} {path}: no such file")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): {exc}") from exc
+    if not isinstance(arr, np.ndarray):
+        raise UsageError(f"{flag} {path}: expected one array ({what}), got an archive")
+    if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+        raise UsageError(f"{flag} {path}: must hold real numbers ({what}); got dtype {arr.dtype}")
+    return arr
+
+
+def tol_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``tol``/``preset`` keywords from ``--tol``/``--preset``."""
+    if args.tol is not None:
+        return {"tol": args.tol, "preset": None}
+    return {"tol": None, "preset": args.preset}
+
+
+def eig_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keywords of the eigenbasis that the flags set."""
+    return {"components": args.components}
+
+
+def check_output(
+    path: str, allowed: Sequence[str], *, inputs: Sequence[str] = (), flag: str = "-o"
+) -> None:
+    """Refuse a bad output path before any work.
+
+    Wrong extension, missing folder, a directory, or one of the inputs (which would be
+    overwritten).
+    """
+    ext = os.path.splitext(path)[1].lower()
+    if os.path.isdir(path):
+        raise UsageError(f"{flag} {path}: is a directory; give a file name")
+    if ext not in allowed:
+        raise UsageError(f"{flag} {path}: the output must end with one of {', '.join(allowed)}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
+    for source in inputs:
+        if source and os.path.exists(path) and os.path.samefile(path, source):
+            raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
+
+
+def check_cache_dir(path: str | None) -> None:
+    """``--cache DIR`` must be a folder (created when missing), not a file."""
+    if path and os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"--cache {path}: is a file, not a folder")
+
+
+# --------------------------------------------------------------------------- bases
+
+
+def _load_basis(path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str):
+    from ..core.basis import OFPBasis
+    from ..core.spectrum import shape_digest
+
+    if not os.path.isfile(path):
+        raise UsageError(f"{flag} {path}: no such basis file")
+    try:
+        B = OFPBasis.load(path)
+    except ValueError as exc:
+        raise UsageError(f"{flag} {path}: {exc}") from exc
+    if B.eig.digest != shape_digest(V, F, **eig_options(args)):
+        raise UsageError(
+            f"{flag} {path}: this basis was computed for another mesh than {mesh_path} (or "
+            "with other cleaning options); recompute it with: o3d-ofp basis " + mesh_path
+        )
+    return B
+
+
+def basis_for(
+    V: Any,
+    F: Any,
+    path: str,
+    args: argparse.Namespace,
+    *,
+    k: int | None,
+    default_k: int = 29,
+    k_flag: str = "-k",
+    eig_k: int | None = None,
+    file: str | None = None,
+    file_flag: str = "--basis",
+) -> tuple[Any, Any]:
+    """(OFP basis on ``k`` eigenfunctions, its eigenbasis with ``eig_k`` >= k).
+
+    From ``file`` (checked against the mesh and, when the k flag was given, ``k``), the
+    ``--cache`` folder, or computed (``k`` None: ``default_k``).
+    """
+    from ..core.basis import ofp_basis
+    from ..core.spectrum import eigenbasis
+    from ..workflows.cache import cached_basis
+
+    if file:
+        B = _load_basis(file, V, F, path, args, file_flag)
+        if k is not None and B.k != k:
+            raise UsageError(
+                f"{file_flag} {file}: holds a basis on k={B.k} eigenfunctions, but {k_flag} {k} "
+                f"was given; drop {k_flag} or recompute the basis"
+            )
+        return B, B.eig
+    k = default_k if k is None else k
+    tol = tol_options(args)
+    if getattr(args, "cache", None) and eig_k is None:
+        with stage(f"basis of {path} (cache {args.cache})"):
+            B = cached_basis(
+                V, F, k=k, order=args.order, cache_dir=args.cache, **tol, **eig_options(args)
+            )
+        return B, B.eig
+    eig_k = max(k, eig_k or 0)
+    with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={eig_k})"):
+        eig = eigenbasis(V, F, k=eig_k, clamp_k=eig_k > k, **eig_options(args))
+    with stage(f"orthogonalized products of {path} (order {args.order})"):
+        return ofp_basis(eig, order=args.order, k=min(k, eig.k), **tol), eig
+
+
+def add_basis_options(
+    p: argparse.ArgumentParser,
+    *,
+    k: int | None = 29,
+    preset: str = "ours",
+    order: int = 2,
+) -> None:
+    """Add the flags every basis-building command has (``-k`` only when ``k`` is given)."""
+    from ._types import positive_int, unit_float
+
+    if k is not None:
+        p.add_argument("-k", "--k", type=positive_int, help=f"non-constant eigenfunctions ({k})")
+    p.add_argument("--order", type=positive_int, default=order, help=f"product order N ({order})")
+    p.add_argument(
+        "--preset",
+        choices=("ours", "ours*"),
+        default=preset,
+        help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})",
+    )
+    p.add_argument("--tol", type=unit_float, help="explicit threshold in (0, 1) (over --preset)")
+    p.add_argument(
+        "--components",
+        choices=("auto", "largest", "error"),
+        default="auto",
+        help="several connected components: keep the largest if it holds >= 90%% of the area "
+        "(auto), always keep the largest, or refuse (auto)",
+    )
+    p.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="reuse bases cached in DIR (computed and stored there the first time)",
+    )

@@ -1,0 +1,230 @@
+"""What ``transfer`` and ``detail`` share: two shapes, a map (given, read or estimated)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+from typing import Any
+
+import numpy as np
+
+from ._common import MESH_HELP, UsageError, add_basis_options, basis_for, eig_options, stage
+from ._types import positive_int
+
+__all__ = ["Pair", "add_pair_options", "estimate_or_use_map", "read_pair"]
+
+#: Exit code of a suspect map under --strict (nothing is written).
+SUSPECT_EXIT = 3
+
+
+class SuspectMap(Exception):
+    """The estimated map is suspect and ``--strict`` was given."""
+
+
+@dataclasses.dataclass
+class Pair:
+    """Two shapes and what the flags say about their map."""
+
+    source: Any
+    target: Any
+    V1: np.ndarray
+    F1: np.ndarray | None
+    V2: np.ndarray
+    F2: np.ndarray | None
+    correspondence: Any  # Correspondence or None (estimate)
+    landmarks: np.ndarray | None
+
+
+def add_pair_options(p: argparse.ArgumentParser, *, preset: str) -> None:
+    """Positional source/target and the map, basis and landmark flags."""
+    p.add_argument("source", help="source " + MESH_HELP)
+    p.add_argument("target", help="target " + MESH_HELP)
+    p.add_argument("--k1", type=positive_int, help="source eigenfunctions (29)")
+    p.add_argument("--k2", type=positive_int, help="target eigenfunctions (39)")
+    add_basis_options(p, k=None, preset=preset)
+    p.add_argument(
+        "--map",
+        default="estimate",
+        help="estimate (default: WKS fit + ZoomOut to 100), identity (same vertices), MAP.npz "
+        "(from --save-map), a file with one source vertex per target vertex (.vts 1-based / "
+        ".npy 0-based), or SRC.vts,TGT.vts matching both shapes to a template",
+    )
+    p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="a suspect estimated map is an error (exit 3, nothing written)",
+    )
+    p.add_argument(
+        "--landmarks", help="known pairs for the estimation: 12:40,500:611 or a 2-column file"
+    )
+    p.add_argument("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
+    p.add_argument("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")
+
+
+def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
+    if not spec:
+        return None
+    if os.path.isfile(spec):
+        try:
+            pairs = np.loadtxt(spec, dtype=np.float64, ndmin=2)
+        except ValueError as exc:
+            raise UsageError(f"--landmarks {spec}: not two integer columns: {exc}") from exc
+    else:
+        try:
+            pairs = np.array(
+                [[float(x) for x in item.split(":")] for item in spec.split(",")], dtype=float
+            )
+        except ValueError as exc:
+            raise UsageError(
+                f"--landmarks must be a file or pairs like 12:40,500:611; got {spec!r}"
+            ) from exc
+    if (
+        pairs.ndim != 2
+        or pairs.shape[1] != 2
+        or not np.all(np.isfinite(pairs))
+        or np.any(pairs != np.round(pairs))
+    ):
+        raise UsageError(f"--landmarks must be integer (source, target) pairs; got {spec!r}")
+    pairs = pairs.astype(np.int64)
+    for col, n, name in ((0, n1, "source"), (1, n2, "target")):
+        if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
+            raise UsageError(f"--landmarks: {name} indices must lie in [0, {n})")
+    return pairs
+
+
+def _read_map(spec: str, n1: int, n2: int, V2: np.ndarray) -> Any:
+    """Read the Correspondence named by ``--map`` (None: estimate), checked for both shapes."""
+    from ..core.correspondence import p2p_from_template
+    from ..core.io import read_vts
+    from ..workflows.matching import Correspondence
+
+    if spec == "estimate":
+        return None
+    if spec == "identity":
+        if n1 != n2:
+            raise UsageError(
+                f"--map identity needs shapes with the same vertices; got {n1} and {n2}"
+            )
+        return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
+    files = spec.split(",")
+    for f in files:
+        if not os.path.isfile(f):
+            raise UsageError(
+                f"--map {f}: no such map file (--map estimate|identity|MAP.npz|FILE[,FILE])"
+            )
+    if len(files) == 2:  # correspondences of both shapes to a common template
+        try:
+            p2p = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2)
+        except (ValueError, TypeError) as exc:
+            raise UsageError(f"--map {spec}: {exc}") from exc
+        if p2p.max() >= n1:
+            raise UsageError(f"--map {files[0]}: source indices must lie in [1, {n1}] (1-based)")
+        return Correspondence(p2p_21=p2p, n_source=n1, method="template")
+    if len(files) != 1:
+        raise UsageError(f"--map takes one file or two comma-separated .vts files; got {spec!r}")
+    path = files[0]
+    if path.endswith(".npz"):
+        try:
+            corr = Correspondence.load(path)
+            corr.check(n1, n2, name=f"--map {path}")
+        except (ValueError, TypeError) as exc:
+            raise UsageError(f"--map {exc}" if str(exc).startswith(path) else str(exc)) from exc
+        return corr
+    if path.endswith(".npy"):
+        from ._common import load_npy
+
+        p2p = load_npy(path, "0-based target->source map", flag="--map")
+    else:
+        try:
+            p2p = read_vts(path)
+        except ValueError as exc:
+            raise UsageError(f"--map {exc}") from exc
+    p2p = np.asarray(p2p)
+    if p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer):
+        raise UsageError(
+            f"--map {path}: a map file lists one source vertex per target vertex ({n2} "
+            f"integers); got shape {p2p.shape} and dtype {p2p.dtype}"
+        )
+    if p2p.min() < 0 or p2p.max() >= n1:
+        raise UsageError(
+            f"--map {path}: source indices must lie in [0, {n1}) (1-based in .vts); got "
+            f"[{p2p.min()}, {p2p.max()}]"
+        )
+    return Correspondence(p2p_21=p2p, n_source=n1, method="given")
+
+
+def read_pair(args: argparse.Namespace) -> Pair:
+    """Read both shapes, the map and the landmarks: everything that can fail fast."""
+    from ._common import check_cache_dir, read_shape
+
+    check_cache_dir(getattr(args, "cache", None))
+    if args.save_map:
+        if not args.save_map.endswith(".npz"):
+            raise UsageError(f"--save-map {args.save_map}: must end with .npz")
+        if not os.path.isdir(os.path.dirname(os.path.abspath(args.save_map))):
+            raise UsageError(f"--save-map {args.save_map}: the folder does not exist")
+    source, V1, F1 = read_shape(args.source)
+    target, V2, F2 = read_shape(args.target)
+    corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
+    landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
+    if landmarks is not None and corr is not None:
+        raise UsageError("--landmarks only apply with --map estimate")
+    if args.strict and corr is not None:
+        raise UsageError("--strict applies to an estimated map (--map estimate)")
+    return Pair(source, target, V1, F1, V2, F2, corr, landmarks)
+
+
+def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any, Any]:
+    """(B1, B2, eig_1, eig_2): the OFP bases and the eigenbases the map needs."""
+    from ..core.spectrum import eigenbasis
+    from ..workflows.matching import ESTIMATION_K, required_k
+
+    estimate = pair.correspondence is None
+    out = []
+    for side, k, default, file in ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2)):
+        V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
+        path = args.source if side == 1 else args.target
+        want = required_k(V.shape[0], ESTIMATION_K) if estimate else None
+        B, eig = basis_for(
+            V,
+            F,
+            path,
+            args,
+            k=k,
+            default_k=default,
+            k_flag=f"--k{side}",
+            eig_k=want,
+            file=file,
+            file_flag=f"--basis-{side}",
+        )
+        if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
+            with stage(f"eigenbasis of {path} for map estimation (k={want})"):
+                eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
+        out.append((B, eig))
+    (B1, e1), (B2, e2) = out
+    return B1, B2, e1, e2
+
+
+def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2: Any) -> Any:
+    """Return the pair's map: the given one, or estimated (quality printed, --strict)."""
+    from ..workflows.matching import match_eigenbases
+    from ._common import report
+    from ._progress import stage_progress
+
+    corr = pair.correspondence
+    if corr is None:
+        with (
+            stage("map estimation (descriptor fit, ZoomOut, point map)"),
+            stage_progress("matching") as progress,
+        ):
+            corr = match_eigenbases(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
+        report([corr.quality.summary(), *corr.quality.notes])
+        if corr.quality.suspect:
+            if args.strict:
+                raise SuspectMap("; ".join(corr.quality.reasons))
+    if args.save_map:
+        corr.save(args.save_map)
+        report([f"wrote the map to {args.save_map}"])
+    return corr

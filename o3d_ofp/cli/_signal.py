@@ -1,0 +1,86 @@
+"""Signals named by ``--signal`` and writing per-vertex results."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from ._common import UsageError, load_npy
+
+__all__ = ["read_signal", "write_result"]
+
+
+def read_signal(
+    geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None
+) -> tuple[np.ndarray, str]:
+    """(values (n,) or (n, d), kind) of ``--signal`` on the geometry read from ``path``."""
+    from ..boundary.convert import vertex_colors
+    from ..boundary.texture import texture_colors
+
+    if texture is not None and spec != "texture":
+        raise UsageError("--texture applies to --signal texture")
+    if texture is not None and not os.path.isfile(texture):
+        raise UsageError(f"--texture {texture}: no such image file")
+    if spec == "colors":
+        colors = vertex_colors(geometry)
+        if colors is None:
+            hint = ""
+            if getattr(geometry, "has_triangle_uvs", lambda: False)():
+                hint = " (it has texture coordinates: use --signal texture)"
+            raise UsageError(f"{path}: has no vertex colors{hint}")
+        return colors, "colors"
+    if spec == "texture":
+        try:
+            return texture_colors(geometry, texture), "colors"
+        except (ValueError, TypeError, FileNotFoundError) as exc:
+            raise UsageError(f"{path}: {exc}") from exc
+    if spec == "xyz":
+        return V, "xyz"
+    if spec.endswith(".npy"):
+        f = load_npy(spec, "per-vertex signal", flag="--signal")
+        if f.ndim not in (1, 2) or f.shape[0] != V.shape[0]:
+            raise UsageError(
+                f"--signal {spec}: has shape {f.shape} but {path} has {V.shape[0]} vertices "
+                "(expected (n,) or (n, d))"
+            )
+        if not np.all(np.isfinite(f)):
+            raise UsageError(f"--signal {spec}: must hold finite numbers")
+        return f.astype(np.float64), "array"
+    raise UsageError(f"--signal must be colors, texture, xyz or a FILE.npy; got {spec!r}")
+
+
+def _save_npy(path: str, values: np.ndarray) -> None:
+    from ..core._atomic import atomic_path
+
+    with atomic_path(path, suffix=".npy") as tmp:
+        np.save(tmp, values)
+
+
+def write_result(path: str, like: Any, values: np.ndarray, kind: str) -> list[str]:
+    """Write ``values`` on a copy of the geometry ``like``: colored, moved, or a ``.npy``.
+
+    Returns the files written. A general signal goes to a ``.npy`` beside the geometry, which
+    shows its first channel through a colormap.
+    """
+    from ..boundary.convert import like_target
+    from ..boundary.io import write_geometry
+    from ..render.panel import colormap
+
+    if path.lower().endswith(".npy"):
+        _save_npy(path, values)
+        return [path]
+    written = []
+    if kind == "xyz":
+        out = like_target(like, vertices=values)
+    elif kind == "colors" or (values.ndim == 2 and values.shape[1] == 3):
+        out = like_target(like, colors=np.clip(values, 0.0, 1.0))
+    else:
+        out = like_target(like, colors=colormap(values if values.ndim == 1 else values[:, 0]))
+    if kind == "array":
+        npy = os.path.splitext(path)[0] + ".npy"
+        _save_npy(npy, values)
+        written.append(npy)
+    write_geometry(path, out)
+    return [path, *written]

@@ -1,0 +1,131 @@
+"""The ``o3d-ofp`` parser and entry point: global flags, logging, exit codes.
+
+Exit codes: 0 success; 2 bad usage or bad input (one line on stderr naming the file or the
+flag, no traceback); 3 a suspect estimated map under ``--strict`` (nothing written); 1 an
+internal error (``-v`` adds the traceback). Long stages log at INFO on stderr (``-q``
+silences everything but errors); a progress bar is drawn when stderr is a terminal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from . import approximate, basis, demo, detail, filter, render, transfer
+from ._common import OUT, UsageError
+from ._pair import SUSPECT_EXIT, SuspectMap
+from ._progress import ENABLED
+
+__all__ = ["build_parser", "main"]
+
+logger = logging.getLogger(__name__)
+
+COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line (and a pointer to --help)."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser of every command."""
+    parser = _Parser(
+        prog="o3d-ofp",
+        description="Orthogonalized Fourier Polynomials (Maggioli et al., EG 2021) for Open3D: "
+        "bases, approximation, filtering and transfer of signals between shapes.",
+    )
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="details and tracebacks (repeatable)"
+    )
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing but errors (files are written)"
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+@contextlib.contextmanager
+def _logging_to_stderr(level: int) -> Iterator[None]:
+    """Send the package's log records to the current stderr for the duration of a command."""
+    root = logging.getLogger("o3d_ofp")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("o3d-ofp: %(message)s"))
+    saved = (root.level, root.propagate)
+    root.addHandler(handler)
+    root.setLevel(level)
+    root.propagate = False
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(saved[0])
+        root.propagate = saved[1]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit code: 0 success, 2 bad usage or input, 3 suspect map under ``--strict``,
+        1 internal error.
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help
+        return int(exc.code or 0)
+    if args.quiet:
+        level = logging.ERROR
+    elif args.verbose > 1:
+        level = logging.DEBUG
+    else:
+        level = logging.INFO  # the long stages say what they do
+    prog = f"o3d-ofp {args.command}"
+    OUT.quiet = bool(args.quiet)
+    ENABLED.on = not args.quiet
+    with _logging_to_stderr(level):
+        try:
+            return args.func(args)
+        except SuspectMap as exc:
+            sys.stderr.write(
+                f"{prog}: error: the estimated map is suspect (--strict): {exc}; nothing written\n"
+            )
+            return SUSPECT_EXIT
+        except (
+            UsageError,
+            ValueError,
+            TypeError,
+            FileNotFoundError,
+            FileExistsError,
+            IsADirectoryError,
+            PermissionError,
+        ) as exc:
+            sys.stderr.write(f"{prog}: error: {exc}\n")
+            return 2
+        except ImportError as exc:
+            sys.stderr.write(f"{prog}: error: {exc}\n")
+            return 1
+        except KeyboardInterrupt:
+            sys.stderr.write(f"{prog}: interrupted\n")
+            return 130
+        except Exception as exc:
+            if args.verbose:
+                logger.exception("internal error")
+            sys.stderr.write(f"{prog}: internal error: {type(exc).__name__}: {exc}\n")
+            return 1
