@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import os
 
 __all__ = ["available_memory", "check_memory", "format_bytes"]
 
@@ -11,17 +10,14 @@ logger = logging.getLogger(__name__)
 
 
 def available_memory() -> int | None:
-    """Bytes of memory the system can give us now (``MemAvailable``), or None if unknown."""
+    """Bytes of memory the system can give us now (psutil's ``available``), or None if unknown."""
     try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+        import psutil
+    except ImportError:  # pragma: no cover - a dependency
+        return None
     try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
+        return int(psutil.virtual_memory().available)
+    except (OSError, RuntimeError, AttributeError):
         return None
 
 
