@@ -197,7 +197,7 @@ def estimate_fmap(
     landmarks: Any = None,
     w_descr: float = 1.0,
     w_lap: float = 1e-2,
-    w_dcomm: float = 1e-1,
+    w_dcomm: float | tuple[float, ...] = 1e-1,
     w_orient: float = 1.0,
     refine: str | None = "zoomout",
     zoomout_to: int | None = None,
@@ -233,9 +233,11 @@ def estimate_fmap(
         Known pairs (source vertex, target vertex); their wave (heat) kernel maps are added
         to the descriptors.
     w_descr, w_lap, w_dcomm : float
-        Weights of the descriptor, Laplacian and descriptor-commutativity terms. The
-        eigenvalues are made dimensionless by the areas and the Laplacian term normalized to
-        unit sum, so the weights do not depend on the shapes' scale.
+        Weights of the descriptor, Laplacian and descriptor-commutativity terms. Everything is
+        computed on unit-area copies of the shapes and the Laplacian term normalized to unit
+        sum, so the weights do not depend on the shapes' scale. ``w_dcomm`` may be a tuple of
+        weights (with ``refine=None``): one map per weight is returned, in a list, the
+        descriptors and operators being built once.
     w_orient : float, default 1.0
         Weight of the orientation term relative to the others (it is rescaled so that, at
         the identity map, it equals ``w_orient`` times the other terms). Ignored for point
@@ -253,7 +255,7 @@ def estimate_fmap(
     Returns
     -------
     (k2+1, k1+1) ndarray
-        ``fmap_12``.
+        ``fmap_12`` (a list of them when ``w_dcomm`` is a tuple).
 
     References
     ----------
@@ -291,9 +293,10 @@ def estimate_fmap(
     D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
     proj1, proj2 = _projection(eig_1, k1), _projection(eig_2, k2)
     A, B = proj1 @ D1, proj2 @ D2  # (k1+1, p), (k2+1, p)
+    dcomm_weights = tuple(float(w) for w in np.atleast_1d(w_dcomm))
     ops = (
         _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if w_dcomm > 0
+        if max(dcomm_weights) > 0
         else None
     )
     lam1 = eig_1.evals[: k1 + 1]
@@ -311,31 +314,39 @@ def estimate_fmap(
     ) -> tuple[float, np.ndarray]:
         return _energy(C, A, B, sqdiff, ops, orient, weights)
 
-    weights = (w_descr, w_lap, w_dcomm, 0.0)
-    if orient:
-        eye = np.eye(k2 + 1, k1 + 1)
-        native = terms(eye, weights)[0]
-        o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
-        weights = (w_descr, w_lap, w_dcomm, w_orient * native / max(o_energy, 1e-300))
-    C0 = np.zeros((k2 + 1, k1 + 1))
-    C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
+    fits = []
+    for wc in dcomm_weights:  # the operators above are built once for every weight
+        weights = (w_descr, w_lap, wc, 0.0)
+        if orient:
+            eye = np.eye(k2 + 1, k1 + 1)
+            native = terms(eye, weights)[0]
+            o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
+            weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
+        C0 = np.zeros((k2 + 1, k1 + 1))
+        C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
 
-    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-        C = x.reshape(k2 + 1, k1 + 1)
-        e, g = terms(C, weights)
-        g[:, 0] = 0.0  # the first column stays fixed
-        return e, g.ravel()
+        def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
+            C = x.reshape(k2 + 1, k1 + 1)
+            e, g = terms(C, weights)
+            g[:, 0] = 0.0  # the first column stays fixed
+            return e, g.ravel()
 
-    res = scipy.optimize.minimize(
-        fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
-    )
-    C = res.x.reshape(k2 + 1, k1 + 1)
-    logger.info(
-        "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g)",
-        res.message,
-        res.nit,
-        res.fun,
-    )
+        res = scipy.optimize.minimize(
+            fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
+        )
+        logger.info(
+            "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
+            res.message,
+            res.nit,
+            res.fun,
+            wc,
+        )
+        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+    if len(fits) > 1:
+        if refine is not None:
+            raise ValueError("several w_dcomm weights give several maps: use refine=None")
+        return [C * scale for C in fits]
+    C = fits[0]
     if refine == "icp":
         C = icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
     elif refine == "zoomout":

@@ -296,11 +296,16 @@ class Correspondence:
         The functional map between the eigenbases (convention of :func:`o3d_ofp.fmap_from_p2p`),
         when the map was estimated.
     method : str
-        How the map was made: ``"estimate"``, ``"given"``, ``"identity"``, ``"template"``.
+        How the map was made: ``"estimate"``, ``"closest"``, ``"given"``, ``"identity"``,
+        ``"template"``.
     options : mapping
         The options used (JSON-serializable).
     quality : MapQuality or None
         The quality report (``None`` for a map given by the caller).
+    faces_21 : (n2,) ndarray of int64 or None
+        For a precise (surface) map: the source triangle each target vertex maps into.
+    barycentric_21 : (n2, 3) ndarray of float64 or None
+        Its barycentric coordinates in that triangle (rows sum to 1).
     """
 
     p2p_21: np.ndarray
@@ -309,6 +314,8 @@ class Correspondence:
     method: str = "given"
     options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     quality: MapQuality | None = None
+    faces_21: np.ndarray | None = None
+    barycentric_21: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p2p = check_p2p(self.p2p_21, np.shape(self.p2p_21)[0], self.n_source)
@@ -318,6 +325,22 @@ class Correspondence:
             C = np.array(self.fmap_12, dtype=np.float64)
             C.setflags(write=False)
             object.__setattr__(self, "fmap_12", C)
+        if (self.faces_21 is None) != (self.barycentric_21 is None):
+            raise ValueError("faces_21 and barycentric_21 go together")
+        if self.faces_21 is not None:
+            n2 = p2p.shape[0]
+            faces = np.array(self.faces_21, dtype=np.int64)
+            bary = np.array(self.barycentric_21, dtype=np.float64)
+            if faces.shape != (n2,) or bary.shape != (n2, 3):
+                raise ValueError(
+                    f"faces_21 and barycentric_21 must have shapes ({n2},) and ({n2}, 3); got "
+                    f"{faces.shape} and {bary.shape}"
+                )
+            if not np.all(np.isfinite(bary)) or np.abs(bary.sum(axis=1) - 1).max() > 1e-6:
+                raise ValueError("barycentric_21 rows must be finite and sum to 1")
+            for arr, name in ((faces, "faces_21"), (bary, "barycentric_21")):
+                arr.setflags(write=False)
+                object.__setattr__(self, name, arr)
 
     @property
     def n_target(self) -> int:
@@ -353,6 +376,9 @@ class Correspondence:
             payload["fmap_12"] = self.fmap_12
         if self.quality is not None:
             payload["quality"] = np.array(json.dumps(dataclasses.asdict(self.quality)))
+        if self.faces_21 is not None:
+            payload["faces_21"] = self.faces_21
+            payload["barycentric_21"] = self.barycentric_21
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
@@ -392,6 +418,8 @@ class Correspondence:
                     method=str(data["method"]),
                     options=json.loads(str(data["options"])),
                     quality=quality,
+                    faces_21=data["faces_21"] if "faces_21" in data else None,
+                    barycentric_21=data["barycentric_21"] if "barycentric_21" in data else None,
                 )
             except (TypeError, ValueError, KeyError) as exc:
                 raise ValueError(f"{name}: damaged correspondence file ({exc})") from exc
@@ -500,31 +528,29 @@ def match_eigenbases(
     # Two starts: the descriptor-commutativity term helps on some pairs (FAUST: 0.026 with it,
     # 0.16 without) and hurts on others (TOSCA centaurs: 0.094 with, 0.015 without); each is
     # refined by ZoomOut and the map whose spectral embeddings align better is kept.
+    logger.info(
+        "match: descriptor fits (%dx%d, commutativity weights %s)",
+        k_fit + 1,
+        k_fit + 1,
+        DCOMM_WEIGHTS,
+    )
+    report("descriptor fit", 0.0)
+    fits = estimate_fmap(
+        u1,
+        u2,
+        k1=k_fit,
+        k2=k_fit,
+        landmarks=landmarks,
+        descriptors=descriptors,
+        w_dcomm=DCOMM_WEIGHTS,
+        w_orient=w_orient,
+        refine=None,
+    )
     best: tuple[float, np.ndarray, float] | None = None
-    for i, w_dcomm in enumerate(DCOMM_WEIGHTS):
-        logger.info(
-            "match: descriptor fit %d/%d (%dx%d, commutativity weight %g)",
-            i + 1,
-            len(DCOMM_WEIGHTS),
-            k_fit + 1,
-            k_fit + 1,
-            w_dcomm,
-        )
-        report(f"descriptor fit {i + 1}", 0.35 * i)
-        C = estimate_fmap(
-            u1,
-            u2,
-            k1=k_fit,
-            k2=k_fit,
-            landmarks=landmarks,
-            descriptors=descriptors,
-            w_dcomm=w_dcomm,
-            w_orient=w_orient,
-            refine=None,
-        )
+    for i, (C, w_dcomm) in enumerate(zip(fits, DCOMM_WEIGHTS, strict=True)):
         if final > k_fit:
-            logger.info("match: ZoomOut %d -> %d", k_fit, final)
-            report(f"ZoomOut {i + 1}", 0.35 * i + 0.15)
+            logger.info("match: ZoomOut %d -> %d (start %d)", k_fit, final, i + 1)
+            report(f"ZoomOut {i + 1}", 0.2 + 0.35 * i)
             C = zoomout_refine(C, u1, u2, k_final=final, subsample=zoomout_subsample)
         residual = alignment_residual(C, u1, u2, samples=zoomout_subsample or 2000)
         logger.info("match: start %d alignment residual %.4g", i + 1, residual)
