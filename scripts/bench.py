@@ -114,8 +114,9 @@ def pyfm_end_to_end(V1, F1, V2, F2, f) -> tuple[np.ndarray, np.ndarray, float]:
     model = FunctionalMapping(TriMesh(V1, F1), TriMesh(V2, F2))
     model.preprocess(n_descr=100, descr_type="WKS", k_process=100, k_descr=100, verbose=False)
     model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0, verbose=False)
-    model.zoomout_refine(nit=70, step=1, verbose=False)  # 30 → 100
-    p2p = model.get_p2p()
+    # pyfmaps 1.3.1: zoomout_refine RETURNS the refined map (model.FM_12 is not updated).
+    FM = model.zoomout_refine(nit=70, step=1, subsample=2000, verbose=False)  # 30 → 100
+    p2p = model.get_p2p(FM=FM)
     g = f[p2p]  # pyFM's transfer of a signal: pull back through the point map
     return p2p, g, time.perf_counter() - t0
 

@@ -213,8 +213,9 @@ def head_to_head(name: str) -> str:
     model = FunctionalMapping(TriMesh(V1, F1), TriMesh(V2, F2))
     model.preprocess(n_descr=100, descr_type="WKS", k_process=100, k_descr=100)
     model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0)
-    model.zoomout_refine(nit=70, step=1)  # 30 → 100
-    p2p_pyfm = model.get_p2p()
+    # pyfmaps 1.3.1: zoomout_refine RETURNS the refined map (model.FM_12 is not updated).
+    FM = model.zoomout_refine(nit=70, step=1, subsample=2000)  # 30 → 100
+    p2p_pyfm = model.get_p2p(FM=FM)
     t_pyfm = time.perf_counter() - t0
     t0 = time.perf_counter()
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)

@@ -1,0 +1,148 @@
+"""Matching at scale and against pyFM: map error, seconds and peak memory, in one run.
+
+    python scripts/bench_match.py --levels 0 1 2 3 [--pyfm-levels 0 1] [--pairs]
+
+``--levels``: FAUST 093 -> 087 (6890 vertices, one shared triangulation), midpoint-subdivided
+``level`` times (27.5k, 110k, 440k vertices): the truth stays the identity at every vertex.
+For each size: ``ofp.match`` end to end (both eigenbases included) followed by the transfer of
+the vertex colors (OFP bases k1 = 29, k2 = 39, order 2), and pyFM 1.3.1's documented
+pipeline (``pip install pyfmaps``; WKS, fit K = 30 with the orientation term, ZoomOut 30 ->
+100 on 2000 samples, whose returned map is passed to ``get_p2p(FM=...)``) for the levels in
+``--pyfm-levels``. ``--pairs``: every ground-truth pair of ../shared/data, ours and pyFM.
+
+Map error: mean distance between the matched and the true source vertex / sqrt(source area).
+Peak memory: the process's resident set, sampled every 5 ms during the call (psutil). The load
+average is printed with every row: ratios are evidence only on a quiet machine (pyFM slows
+down under load far more than ours, which inflates them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+import o3d_ofp as ofp
+from o3d_ofp.boundary.convert import geometry_to_arrays
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+class Peak:
+    """Seconds and peak resident memory (bytes) of the block."""
+
+    def __enter__(self) -> Peak:
+        self._proc = psutil.Process()
+        self.peak = self._proc.memory_info().rss
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+        self._t0 = time.perf_counter()
+        return self
+
+    def _watch(self) -> None:
+        while not self._stop.wait(0.005):
+            self.peak = max(self.peak, self._proc.memory_info().rss)
+
+    def __exit__(self, *exc: object) -> None:
+        self.seconds = time.perf_counter() - self._t0
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, self._proc.memory_info().rss)
+
+
+def faust_pair(level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    import open3d as o3d
+
+    meshes = []
+    for name in ("tr_reg_093", "tr_reg_087"):
+        mesh = o3d.io.read_triangle_mesh(str(DATA / "faust" / f"{name}.ply"))
+        if level:
+            mesh = mesh.subdivide_midpoint(level)
+        meshes.append(geometry_to_arrays(mesh))
+    (V1, F1), (V2, F2) = meshes
+    return V1, F1, V2, F2
+
+
+def colors_of(V: np.ndarray) -> np.ndarray:
+    return 0.5 + 0.5 * np.sin(4.0 * V / np.ptp(V, axis=0).max() * np.pi)
+
+
+def ours(V1, F1, V2, F2) -> tuple[np.ndarray, float, float]:
+    """p2p_21, seconds and peak bytes of match + color transfer."""
+    with Peak() as m:
+        corr = ofp.match((V1, F1), (V2, F2))
+        e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=39)
+        ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
+    return corr.p2p_21, m.seconds, m.peak
+
+
+def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float]:
+    from pyFM.functional import FunctionalMapping
+    from pyFM.mesh import TriMesh
+
+    with Peak() as m:
+        model = FunctionalMapping(TriMesh(V1, F1), TriMesh(V2, F2))
+        model.preprocess(n_descr=100, descr_type="WKS", k_process=100, k_descr=100, verbose=False)
+        model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0, verbose=False)
+        FM = model.zoomout_refine(nit=70, step=1, subsample=2000, verbose=False)  # returned
+        p2p = model.get_p2p(FM=FM)
+        _ = colors_of(V1)[p2p]  # pyFM's transfer: the pull-back through the point map
+    return p2p, m.seconds, m.peak
+
+
+def error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, target_idx, source_idx) -> float:
+    area = ofp.laplacian(V1, F1)[1].sum()
+    return float(
+        np.linalg.norm(V1[p2p[target_idx]] - V1[source_idx], axis=1).mean() / np.sqrt(area)
+    )
+
+
+def row(name: str, n: int, err: float, seconds: float, peak: float, who: str) -> str:
+    load = os.getloadavg()[0]
+    return f"| {name} | {n} | {who} | {err:.4f} | {seconds:.1f} | {peak / 1e9:.2f} | {load:.1f} |"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--levels", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--pyfm-levels", type=int, nargs="*", default=[])
+    parser.add_argument("--pairs", action="store_true")
+    args = parser.parse_args(argv)
+    if not DATA.is_dir():
+        sys.stderr.write(f"needs the shared data at {DATA}\n")
+        return 2
+    print(f"{os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f} at the start")
+    print("| pair | vertices | method | map error | s | peak GB | load |")
+    print("|---|---|---|---|---|---|---|")
+    for level in args.levels:
+        V1, F1, V2, F2 = faust_pair(level)
+        every = np.arange(len(V2))
+        runs = [("ours", ours)] + ([("pyFM", pyfm)] if level in args.pyfm_levels else [])
+        for who, fn in runs:
+            p2p, seconds, peak = fn(V1, F1, V2, F2)
+            err = error(p2p, V1, F1, every, every)
+            print(row(f"FAUST 093->087 x{4**level}", len(V1), err, seconds, peak, who), flush=True)
+    if args.pairs:
+        from eval_matching import PAIRS, load, truth
+
+        for a, b, kind in PAIRS:
+            V1, F1 = load(a)
+            V2, F2 = load(b)
+            t, s = truth(a, b, kind, len(V2))
+            for who, fn in (("ours", ours), ("pyFM", pyfm)):
+                p2p, seconds, peak = fn(V1, F1, V2, F2)
+                name = f"{Path(a).stem}->{Path(b).stem}"
+                print(row(name, len(V1), error(p2p, V1, F1, t, s), seconds, peak, who), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
