@@ -26,6 +26,7 @@ from .boundary.api import (
     transfer_colors,
     transfer_detail,
 )
+from .boundary.bake import texture_pullback, transfer_texture
 from .boundary.io import read_geometry, write_geometry
 from .boundary.texture import texture_colors
 from .core.basis import OFPBasis, approximation_error, ofp_basis
@@ -80,11 +81,13 @@ __all__ = [
     "shape_digest",
     "show",
     "texture_colors",
+    "texture_pullback",
     "transfer_colors",
     "transfer_detail",
     "transfer_function",
     "transfer_matrix",
     "transfer_signal",
+    "transfer_texture",
     "wks",
     "write_geometry",
     "zoomout_refine",

@@ -102,3 +102,40 @@ def test_bad_geometries():
     with pytest.raises(ValueError, match="geometry vertices is empty"):
         ofp.eigenbasis(o3d.geometry.PointCloud(), k=3)
     assert not adapters.is_open3d_geometry(np.zeros(3))
+
+
+@pytest.mark.parametrize("ascii_ply", [False, True])
+def test_a_ply_cut_short_is_refused(tmp_path, ascii_ply):
+    from o3d_ofp import read_geometry
+
+    V, F = icosphere(2)
+    mesh = adapters.triangle_mesh_from_arrays(V, F)
+    path = tmp_path / "whole.ply"
+    o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=ascii_ply)
+    assert len(read_geometry(path).vertices) == len(V)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(data[: len(data) // 2])  # header intact, body cut short
+    with pytest.raises(ValueError, match=r"cut\.ply: .*cut short|cut\.ply: Open3D read"):
+        read_geometry(cut)
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty"):
+        read_geometry(tmp_path / "empty.ply")
+
+
+def test_textured_obj_written_with_its_material_and_no_temporary_files(tmp_path):
+    from o3d_ofp import read_geometry, write_geometry
+
+    V, F = icosphere(1)
+    mesh = adapters.triangle_mesh_from_arrays(V, F)
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(np.random.default_rng(0).random((3 * len(F), 2)))
+    mesh.textures = [o3d.geometry.Image(np.full((8, 8, 3), 200, dtype=np.uint8))]
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(F), dtype=np.int32))
+    write_geometry(tmp_path / "out.obj", mesh)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert "out.obj" in names and "out.mtl" in names
+    assert not [n for n in names if n.startswith(".")], names  # nothing hidden left behind
+    mtl = (tmp_path / "out.mtl").read_text()
+    assert "map_Kd" in mtl and "/" not in mtl.split("map_Kd")[1].split()[0]  # relative name
+    back = read_geometry(tmp_path / "out.obj")
+    assert back.has_triangle_uvs() and any(np.asarray(t).size > 1 for t in back.textures)

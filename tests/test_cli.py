@@ -334,3 +334,39 @@ def test_basis_file_conflicting_with_k_is_refused(files, capsys, tmp_path):
     code = main(["approximate", files["src"], "--basis", str(out), "-k", "12", "-o",
                  str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2 and "holds a basis on k=8" in capsys.readouterr().err
+
+
+def test_textured_source_onto_a_target_with_uvs_bakes_a_texture(tmp_path, capsys):
+    """OBJ + MTL + PNG out, the image in the target's UV layout, no hidden files left."""
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(3)
+    u = 0.5 + np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(V[:, 2], -1, 1)) / np.pi
+    img = np.zeros((64, 64, 3), dtype=np.uint8)
+    img[:32] = [250, 20, 20]  # top half of the image (v > 0.5): red; bottom: blue
+    img[32:] = [20, 20, 250]
+    from o3d_ofp.render.panel import write_png
+
+    write_png(tmp_path / "tex.png", img)
+    (tmp_path / "src.mtl").write_text("newmtl m\nmap_Kd tex.png\n")
+    lines = ["mtllib src.mtl", "usemtl m"]
+    lines += [f"v {a} {b} {c}" for a, b, c in V]
+    lines += [f"vt {a} {b}" for a, b in zip(u, v, strict=True)]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in F + 1]
+    (tmp_path / "src.obj").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out" / "baked.obj"
+    out.parent.mkdir()
+    code = main(["transfer", str(tmp_path / "src.obj"), str(tmp_path / "src.obj"), "--map",
+                 "identity", "--texture-size", "128", "-o", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    names = sorted(p.name for p in out.parent.iterdir())
+    assert "baked.obj" in names and "baked.mtl" in names
+    assert any(n.endswith(".png") for n in names) and not [n for n in names if n[0] == "."]
+    back = o3d.io.read_triangle_mesh(str(out))
+    from o3d_ofp import texture_colors
+
+    colors = texture_colors(back)
+    Vb = np.asarray(back.vertices)
+    north, south = Vb[:, 2] > 0.5, Vb[:, 2] < -0.5
+    assert colors[north, 0].mean() > 0.8 and colors[south, 2].mean() > 0.8

@@ -97,3 +97,78 @@ def test_spot_texture_to_vertex_colors_and_cli_transfer(tmp_path):
     g = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     err = np.linalg.norm(g - colors) / np.linalg.norm(colors)
     assert err < 0.25  # identity map: the basis approximation of the texture (measured 16 %)
+
+
+def _spot_with_material(folder):
+    """Spot as an OBJ with a material file naming its texture, so Open3D loads the image."""
+    import shutil
+
+    obj = shared_path("models/spot_triangulated.obj")
+    png = shared_path("models/spot_texture.png")
+    shutil.copy(png, folder / "spot_texture.png")
+    (folder / "spot.mtl").write_text("newmtl spot\nmap_Kd spot_texture.png\n")
+    (folder / "spot.obj").write_text("mtllib spot.mtl\nusemtl spot\n" + obj.read_text())
+    return folder / "spot.obj", png
+
+
+def test_own_texture_read_by_open3d_gives_the_file_colors(tmp_path):
+    """Legacy meshes keep their images bottom-up; tensor meshes keep them as in the file."""
+    o3d = pytest.importorskip("open3d")
+    from o3d_ofp import texture_colors
+
+    obj, png = _spot_with_material(tmp_path)
+    expected = texture_colors(o3d.io.read_triangle_mesh(str(obj)), png)
+    legacy = o3d.io.read_triangle_mesh(str(obj))
+    file_image = np.asarray(o3d.io.read_image(str(png)))
+    # What Open3D 0.20's legacy OBJ reader does: an empty default image first, the file's
+    # material numbered 1, and its image flipped upside down.
+    loaded = [np.asarray(t) for t in legacy.textures if not t.is_empty()]
+    assert len(loaded) == 1 and np.array_equal(loaded[0][::-1], file_image)
+    assert np.all(np.asarray(legacy.triangle_material_ids) == len(legacy.textures) - 1)
+    assert np.abs(texture_colors(legacy) - expected).mean() < 0.01  # was 0.18 (upside down)
+    # Material ids that name the empty default image, or no ids at all: the one real image.
+    for ids in (np.zeros(len(legacy.triangles), dtype=np.int32), np.zeros(0, dtype=np.int32)):
+        other = o3d.geometry.TriangleMesh(legacy)
+        other.triangle_material_ids = o3d.utility.IntVector(ids)
+        assert np.abs(texture_colors(other) - expected).mean() < 0.01
+    # The tensor reader: UVs per triangle, the image as the material's albedo map.
+    tensor = o3d.t.io.read_triangle_mesh(str(obj))
+    assert "texture_uvs" in tensor.triangle and "albedo" in tensor.material.texture_maps
+    assert np.abs(texture_colors(tensor) - expected).mean() < 0.01
+    assert np.abs(texture_colors(tensor, png) - expected).mean() < 0.01
+    # Per-vertex UVs on a tensor mesh (as glTF files give them) work too.
+    V, F = icosphere(1)
+    uv = np.column_stack([0.5 + 0.4 * V[:, 0], 0.5 + 0.4 * V[:, 1]])
+    flat = o3d.t.geometry.TriangleMesh(o3d.core.Tensor(V), o3d.core.Tensor(F))
+    flat.vertex["texture_uvs"] = o3d.core.Tensor(uv)
+    np.testing.assert_allclose(
+        texture_colors(flat, file_image), np.clip(sample_texture(file_image, uv), 0, 1)
+    )
+
+
+def test_written_legacy_texture_is_the_right_way_up(tmp_path):
+    """legacy_texture_image stores a top-down array bottom-up; the OBJ writer restores it."""
+    o3d = pytest.importorskip("open3d")
+    from o3d_ofp.boundary.texture import legacy_texture_image, mesh_texture
+
+    img = np.zeros((4, 4, 3), dtype=np.uint8)
+    img[:2] = [255, 0, 0]  # top half red, bottom half blue
+    img[2:] = [0, 0, 255]
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(V[F.reshape(-1), :2])  # u = x, v = y
+    mesh.textures = [legacy_texture_image(img)]
+    mesh.triangle_material_ids = o3d.utility.IntVector([0, 0])
+    assert np.array_equal(np.asarray(mesh.textures[0]), img[::-1])
+    np.testing.assert_array_equal(mesh_texture(mesh).images[0], img)
+    top = mesh_texture(mesh).sample([1], [[0.25, 0.25, 0.5]])  # the point (0.25, 0.75): v up
+    np.testing.assert_allclose(top, [[1.0, 0.0, 0.0]])
+    path = tmp_path / "square.obj"
+    assert o3d.io.write_triangle_mesh(str(path), mesh)
+    (png,) = tmp_path.glob("*.png")
+    np.testing.assert_array_equal(np.asarray(o3d.io.read_image(str(png))), img)
+    back = o3d.io.read_triangle_mesh(str(path))
+    np.testing.assert_allclose(
+        mesh_texture(back).corner_colors(), mesh_texture(mesh).corner_colors(), atol=1e-6
+    )

@@ -21,9 +21,8 @@ from ..workflows.matching import (
     ESTIMATION_K,
     FIT_K,
     Correspondence,
-    check_landmarks,
+    match_arrays,
     match_eigenbases,
-    required_k,
 )
 from ..workflows.pipeline import eigenbases_for_transfer, transfer_detail_arrays, transfer_function
 from .convert import (
@@ -272,32 +271,24 @@ def match(
     """
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
-    landmarks = check_landmarks(landmarks, V1.shape[0], V2.shape[0])  # before any eigensolve
+    options = {
+        "landmarks": landmarks,
+        "k_fit": k_fit,
+        "zoomout_to": zoomout_to,
+        "zoomout_subsample": zoomout_subsample,
+        "descriptors": descriptors,
+        "w_orient": w_orient,
+    }
     if eigenbases is None:
-        eig_1 = spectrum.eigenbasis(
-            V1, F1, k=required_k(V1.shape[0], zoomout_to), clamp_k=True, components=components
-        )
-        eig_2 = spectrum.eigenbasis(
-            V2, F2, k=required_k(V2.shape[0], zoomout_to), clamp_k=True, components=components
-        )
-    else:
-        eig_1, eig_2 = eigenbases
-        for eig, V, name in ((eig_1, V1, "source"), (eig_2, V2, "target")):
-            if eig.n_vertices != V.shape[0]:
-                raise ValueError(
-                    f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
-                    f"{V.shape[0]}: it belongs to another shape"
-                )
-    return match_eigenbases(
-        eig_1,
-        eig_2,
-        landmarks=landmarks,
-        k_fit=k_fit,
-        zoomout_to=zoomout_to,
-        zoomout_subsample=zoomout_subsample,
-        descriptors=descriptors,
-        w_orient=w_orient,
-    )
+        return match_arrays(V1, F1, V2, F2, components=components, **options)
+    eig_1, eig_2 = eigenbases
+    for eig, V, name in ((eig_1, V1, "source"), (eig_2, V2, "target")):
+        if eig.n_vertices != V.shape[0]:
+            raise ValueError(
+                f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
+                f"{V.shape[0]}: it belongs to another shape"
+            )
+    return match_eigenbases(eig_1, eig_2, **options)
 
 
 def transfer_colors(

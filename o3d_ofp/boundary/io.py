@@ -1,17 +1,97 @@
-"""Reading and writing geometries with Open3D (atomically)."""
+"""Reading and writing geometries with Open3D: every read checked, every write atomic.
+
+Open3D's readers report a damaged file (a PLY body cut short, say) only as a console warning
+and return zero-filled or empty data; :func:`read_geometry` therefore checks what came back
+against the file itself. :func:`write_geometry` writes into a temporary folder beside the
+destination and moves the files into place (the geometry file last), so an OBJ's material and
+texture files get their final names and a failure leaves nothing behind.
+"""
 
 from __future__ import annotations
 
 import logging
 import os
+import shutil
+import tempfile
 from typing import Any
 
-from ..core._atomic import atomic_path
 from .convert import require_open3d
 
 __all__ = ["read_geometry", "write_geometry"]
 
 logger = logging.getLogger(__name__)
+
+_PLY_SIZES = {
+    "char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
+    "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4,
+    "double": 8, "float64": 8,
+}  # fmt: skip
+
+
+def _ply_counts(path: str) -> tuple[str, dict[str, int], int, int] | None:
+    """(format, element counts, header bytes, minimal body bytes) of a PLY file, or None."""
+    with open(path, "rb") as fh:
+        head = fh.read(5)
+        if not (head.startswith(b"ply\n") or head == b"ply\r\n"):
+            return None
+        fh.seek(0)
+        fmt, counts, minimal, element = "", {}, 0, None
+        lines = 0
+        while True:
+            raw = fh.readline()
+            lines += 1
+            if not raw or lines > 10000:
+                return None
+            words = raw.decode("ascii", errors="replace").split()
+            if not words:
+                continue
+            if words[0] == "format" and len(words) > 1:
+                fmt = words[1]
+            elif words[0] == "element" and len(words) == 3:
+                element = words[1]
+                counts[element] = int(words[2]) if words[2].isdigit() else 0
+            elif words[0] == "property" and element is not None:
+                n = counts[element]
+                if words[1] == "list" and len(words) >= 5:
+                    # at least the count itself per element (a list may be empty)
+                    minimal += n * _PLY_SIZES.get(words[2], 1)
+                else:
+                    minimal += n * _PLY_SIZES.get(words[1], 1)
+            elif words[0] == "end_header":
+                return fmt, counts, fh.tell(), minimal
+
+
+def _check_read(path: str, n_vertices: int) -> None:
+    """Refuse a file Open3D read only partly (a PLY whose body is cut short)."""
+    if not path.lower().endswith(".ply"):
+        return
+    try:
+        info = _ply_counts(path)
+    except (OSError, ValueError):
+        info = None
+    if info is None:
+        return
+    fmt, counts, header, minimal = info
+    expected = counts.get("vertex", n_vertices)
+    size = os.path.getsize(path)
+    if fmt.startswith("binary") and size < header + minimal:
+        raise ValueError(
+            f"{path}: the file is cut short ({size} bytes; its header announces at least "
+            f"{header + minimal}): a damaged or incomplete download"
+        )
+    if fmt == "ascii":
+        with open(path, "rb") as fh:
+            fh.seek(header)
+            body_lines = sum(1 for line in fh if line.strip())
+        if body_lines < sum(counts.values()):
+            raise ValueError(
+                f"{path}: the file is cut short ({body_lines} data lines; its header announces "
+                f"{sum(counts.values())})"
+            )
+    if n_vertices != expected:
+        raise ValueError(
+            f"{path}: Open3D read {n_vertices} vertices but the header announces {expected}"
+        )
 
 
 def read_geometry(path: str | os.PathLike[str]) -> Any:
@@ -34,19 +114,25 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     FileNotFoundError
         If ``path`` does not exist.
     ValueError
-        If Open3D cannot read it or it holds no points.
+        If Open3D cannot read it, it holds no points, or it is cut short (checked against the
+        PLY header, since Open3D only prints a warning and fills the rest with zeros).
     """
     o3d = require_open3d()
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such file")
+    if os.path.getsize(path) == 0:
+        raise ValueError(f"{path}: the file is empty")
     # Open3D prints a warning for a file with points but no triangles: that case is handled.
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh = o3d.io.read_triangle_mesh(path)
     if len(mesh.vertices) and len(mesh.triangles):
+        _check_read(path, len(mesh.vertices))
         return mesh
-    cloud = o3d.io.read_point_cloud(path)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cloud = o3d.io.read_point_cloud(path)
     if len(cloud.points):
+        _check_read(path, len(cloud.points))
         logger.info(
             "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
             "read as a point cloud of %d points",
@@ -58,28 +144,48 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
 
 
 def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
-    """Write an Open3D mesh or point cloud atomically (temporary file, then rename).
+    """Write an Open3D mesh or point cloud atomically.
+
+    Everything Open3D writes (for an OBJ with a texture: the OBJ, its ``.mtl`` and the
+    texture images, named after the destination) goes to a temporary folder beside the
+    destination first, then each file is moved into place, the geometry file last.
 
     Parameters
     ----------
     path : str or os.PathLike
         Destination; the extension picks the format.
-    geometry : open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+    geometry : Open3D TriangleMesh or PointCloud (legacy or tensor)
         What to write.
 
     Raises
     ------
     OSError
-        If Open3D fails to write; no partial file is left at ``path``.
+        If Open3D fails to write; nothing is left at ``path`` or beside it.
     """
     o3d = require_open3d()
     path = os.fspath(path)
-    with atomic_path(path, suffix=os.path.splitext(path)[1]) as tmp:
+    folder = os.path.dirname(os.path.abspath(path))
+    name = os.path.basename(path)
+    tmpdir = tempfile.mkdtemp(prefix=f".{name}.", dir=folder)
+    try:
+        tmp = os.path.join(tmpdir, name)
         # Open3D prints warnings (e.g. "OFF cannot include triangle normals") on stdout.
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             if isinstance(geometry, o3d.geometry.TriangleMesh):
                 ok = o3d.io.write_triangle_mesh(tmp, geometry)
-            else:
+            elif isinstance(geometry, o3d.geometry.PointCloud):
                 ok = o3d.io.write_point_cloud(tmp, geometry)
-        if not ok:
+            elif isinstance(geometry, o3d.t.geometry.TriangleMesh):
+                ok = o3d.t.io.write_triangle_mesh(tmp, geometry)
+            else:
+                ok = o3d.t.io.write_point_cloud(tmp, geometry)
+        if not ok or not os.path.isfile(tmp):
             raise OSError(f"{path}: Open3D failed to write the file")
+        umask = os.umask(0)
+        os.umask(umask)
+        extras = sorted(f for f in os.listdir(tmpdir) if f != name)
+        for f in [*extras, name]:  # the geometry file last: it refers to the others
+            os.chmod(os.path.join(tmpdir, f), 0o666 & ~umask)
+            os.replace(os.path.join(tmpdir, f), os.path.join(folder, f))
+    finally:
+        shutil.rmtree(tmpdir, ignore_errors=True)

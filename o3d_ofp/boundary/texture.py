@@ -1,7 +1,25 @@
-"""UV textures of Open3D meshes: per-vertex colors sampled from the image."""
+"""UV textures of Open3D meshes: per-vertex colors sampled from the image.
+
+Orientation conventions (measured on Open3D 0.20, see ``tests/test_texture.py``):
+
+* UVs are OBJ/OpenGL texture coordinates everywhere (u right, v **up**), in the legacy
+  ``TriangleMesh.triangle_uvs`` as in the tensor ``triangle["texture_uvs"]``; glTF files are
+  converted to this convention by Open3D's readers.
+* Image *files*, arrays given by the caller, ``open3d.io.read_image`` and the tensor mesh's
+  ``material.texture_maps["albedo"]`` hold their rows top-down (row 0 is v = 1).
+* The legacy ``TriangleMesh.textures`` hold their rows **bottom-up** (row 0 is v = 0, the
+  OpenGL upload order): Open3D's legacy OBJ and glTF readers flip every image when they load
+  it and the OBJ writer flips it back when it saves it. The legacy OBJ reader also puts an
+  empty image first (the default material) and numbers the file's materials from 1.
+
+:class:`MeshTexture` reads any of these into one form (top-down images, per-corner UVs, one
+image index per triangle); :func:`legacy_texture_image` makes an image for
+``TriangleMesh.textures`` out of a top-down array.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from types import ModuleType
@@ -12,24 +30,278 @@ import numpy as np
 from ..core.texture import corner_colors_to_vertices, sample_texture
 from .convert import geometry_kind, geometry_to_arrays, require_open3d
 
-__all__ = ["texture_colors"]
+__all__ = ["MeshTexture", "corner_uvs", "legacy_texture_image", "mesh_texture", "texture_colors"]
 
 logger = logging.getLogger(__name__)
 
 
 def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
+    """Read a top-down (H, W[, C]) array from a path, an array or an Open3D image."""
     if isinstance(image, (str, os.PathLike)):
         path = os.fspath(image)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"{path}: no such texture file")
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             image = o3d.io.read_image(path)
-        if np.asarray(image).size == 0:
+        if _is_empty(image):
             raise ValueError(f"{path}: Open3D could not read this image (PNG and JPEG are read)")
+    if isinstance(image, o3d.t.geometry.Image):
+        image = image.as_tensor().cpu().numpy()
     arr = np.array(np.asarray(image), copy=True)
-    if arr.ndim not in (2, 3) or arr.size == 0:
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[:, :, 0]
+    if arr.ndim not in (2, 3) or arr.size == 0 or arr.dtype == object:
         raise ValueError(f"{name} must be an (H, W[, C]) image; got shape {arr.shape}")
     return arr
+
+
+def _is_empty(image: Any) -> bool:
+    """Tell an Open3D image without pixels (``np.asarray`` of one is a 0-d object array)."""
+    if hasattr(image, "is_empty"):
+        return bool(image.is_empty())
+    return np.asarray(image).ndim < 2 or np.asarray(image).size == 0
+
+
+def legacy_texture_image(image: Any) -> Any:
+    """Make an image for a legacy mesh's ``textures`` out of a top-down array.
+
+    Parameters
+    ----------
+    image : (H, W, C) or (H, W) array_like
+        The texture as it is stored in a file (row 0 is the top of the image, v = 1); uint8 or
+        float in [0, 1] (converted to uint8).
+
+    Returns
+    -------
+    open3d.geometry.Image
+        The same image with its rows bottom-up, the order Open3D's legacy meshes keep (their
+        OBJ writer flips it back, so the written file is the right way up).
+    """
+    o3d = require_open3d()
+    arr = np.asarray(image)
+    if arr.ndim not in (2, 3) or arr.size == 0:
+        raise ValueError(f"image must have shape (H, W, C) or (H, W); got {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.integer):
+        arr = np.round(np.clip(arr, 0.0, 1.0) * 255.0)
+    arr = arr.astype(np.uint8)
+    return o3d.geometry.Image(np.ascontiguousarray(arr[::-1]))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MeshTexture:
+    """A textured mesh as arrays: geometry, per-corner UVs, top-down images, image per triangle.
+
+    Attributes
+    ----------
+    vertices : (n, 3) ndarray of float64
+        Vertex positions.
+    faces : (m, 3) ndarray of int64
+        Triangles.
+    uvs : (m, 3, 2) ndarray of float64
+        Texture coordinates of the triangle corners (u right, v up).
+    images : tuple of (H, W, C) or (H, W) ndarray
+        The texture images, rows top-down (as in an image file).
+    material : (m,) ndarray of int64
+        Index into ``images`` of each triangle's image, -1 for a triangle without one.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray
+    images: tuple[np.ndarray, ...]
+    material: np.ndarray
+
+    def uv_at(self, triangles: Any, barycentric: Any) -> np.ndarray:
+        """Texture coordinates of surface points.
+
+        Parameters
+        ----------
+        triangles : (p,) array_like of int
+            Triangle of each point.
+        barycentric : (p, 3) array_like of float
+            Its barycentric coordinates (weights of the triangle's corners 0, 1, 2).
+
+        Returns
+        -------
+        (p, 2) ndarray of float64
+            The interpolated UVs.
+        """
+        t = np.asarray(triangles, dtype=np.int64)
+        w = np.asarray(barycentric, dtype=np.float64)
+        return np.einsum("pk,pkd->pd", w, self.uvs[t])
+
+    def sample(self, triangles: Any, barycentric: Any) -> np.ndarray:
+        """RGB colors of the texture at surface points (bilinear, see ``sample_texture``).
+
+        Parameters
+        ----------
+        triangles : (p,) array_like of int
+            Triangle of each point.
+        barycentric : (p, 3) array_like of float
+            Its barycentric coordinates.
+
+        Returns
+        -------
+        (p, 3) ndarray of float64
+            Colors in [0, 1]; 0 on triangles without an image.
+        """
+        t = np.asarray(triangles, dtype=np.int64)
+        return self._sample_uv(self.uv_at(t, barycentric), self.material[t])
+
+    def _sample_uv(self, uv: np.ndarray, material: np.ndarray) -> np.ndarray:
+        out = np.zeros((uv.shape[0], 3))
+        for mid, img in enumerate(self.images):
+            sel = material == mid
+            if not np.any(sel):
+                continue
+            sampled = sample_texture(img, uv[sel])
+            if sampled.shape[1] < 3:
+                sampled = np.repeat(sampled[:, :1], 3, axis=1)
+            out[sel] = sampled[:, :3]
+        return np.clip(out, 0.0, 1.0)
+
+    def corner_colors(self) -> np.ndarray:
+        """(3m, 3) colors sampled at the triangle corners, in the order ``faces.reshape(-1)``."""
+        return self._sample_uv(self.uvs.reshape(-1, 2), np.repeat(self.material, 3))
+
+
+def _no_uvs(n_uvs: int, n_faces: int) -> ValueError:
+    return ValueError(
+        f"the mesh has no per-corner texture coordinates ({n_uvs} UVs for {n_faces} "
+        "triangles): there is no texture to sample"
+    )
+
+
+def _no_image() -> ValueError:
+    return ValueError(
+        "the mesh has UVs but no texture image was loaded (no material file next to it?): pass "
+        "the image explicitly (texture=... / --texture FILE)"
+    )
+
+
+def _legacy_parts(mesh: Any, n_faces: int) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    uv = np.array(mesh.triangle_uvs, dtype=np.float64)
+    if uv.shape[0] != 3 * n_faces:
+        raise _no_uvs(uv.shape[0], n_faces)
+    # Legacy textures are bottom-up: flip them to the file's (top-down) orientation. Empty
+    # images (the OBJ reader's default material) stay as placeholders so the ids still match.
+    images = [
+        np.zeros((0, 0)) if _is_empty(t) else np.array(np.asarray(t)[::-1], copy=True)
+        for t in mesh.textures
+    ]
+    material = np.array(mesh.triangle_material_ids, dtype=np.int64)
+    if material.shape[0] != n_faces:
+        material = np.zeros(n_faces, dtype=np.int64)
+    return uv.reshape(n_faces, 3, 2), images, material
+
+
+def _tensor_parts(mesh: Any, faces: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    n_faces = faces.shape[0]
+    if "texture_uvs" in mesh.triangle:
+        uv = np.array(mesh.triangle["texture_uvs"].cpu().numpy(), dtype=np.float64)
+        if uv.shape != (n_faces, 3, 2):
+            raise _no_uvs(uv.size // 2, n_faces)
+    elif "texture_uvs" in mesh.vertex:  # per-vertex UVs (e.g. from a glTF file)
+        uv = np.array(mesh.vertex["texture_uvs"].cpu().numpy(), dtype=np.float64)[faces]
+    else:
+        raise _no_uvs(0, n_faces)
+    images = []
+    if mesh.has_valid_material() and "albedo" in mesh.material.texture_maps:
+        albedo = mesh.material.texture_maps["albedo"]
+        images.append(np.array(albedo.as_tensor().cpu().numpy(), copy=True))
+    return uv, images, np.zeros(n_faces, dtype=np.int64)
+
+
+def corner_uvs(mesh: Any) -> np.ndarray:
+    """Copy the texture coordinates of a mesh's triangle corners (no image needed).
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        A mesh with per-corner UVs (legacy ``triangle_uvs``, tensor ``triangle["texture_uvs"]``
+        or ``vertex["texture_uvs"]``). It is not modified.
+
+    Returns
+    -------
+    (m, 3, 2) ndarray of float64
+        UVs of the corners of every triangle (u right, v up).
+
+    Raises
+    ------
+    ValueError
+        If the mesh has no UVs (or non-finite ones).
+    """
+    kind = geometry_kind(mesh)
+    if kind not in ("legacy_mesh", "tensor_mesh"):
+        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
+    _, F = geometry_to_arrays(mesh)
+    assert F is not None
+    if kind == "legacy_mesh":
+        uv = _legacy_parts(mesh, F.shape[0])[0]
+    else:
+        uv = _tensor_parts(mesh, F)[0]
+    if not np.all(np.isfinite(uv)):
+        raise ValueError("the mesh's texture coordinates hold NaN or inf")
+    return uv
+
+
+def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
+    """Read a mesh's UVs and texture images into a :class:`MeshTexture`.
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        A mesh with per-corner UVs: legacy ``triangle_uvs``, or tensor
+        ``triangle["texture_uvs"]`` (or ``vertex["texture_uvs"]``). It is not modified.
+    texture : str, os.PathLike, (H, W[, C]) ndarray or Open3D image, optional
+        The texture, rows top-down as in an image file (``open3d.io.read_image`` gives such an
+        image), used for every triangle. Default: the mesh's own images, legacy ``textures``
+        (chosen by ``triangle_material_ids``) or the tensor material's ``albedo`` map.
+
+    Returns
+    -------
+    MeshTexture
+        Copies of the geometry, UVs and images; the images top-down.
+
+    Raises
+    ------
+    ValueError
+        If the mesh has no UVs, or no image is given or loaded.
+    """
+    o3d = require_open3d()
+    kind = geometry_kind(mesh)
+    if kind not in ("legacy_mesh", "tensor_mesh"):
+        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
+    V, F = geometry_to_arrays(mesh)
+    assert F is not None
+    if kind == "legacy_mesh":
+        uv, images, material = _legacy_parts(mesh, F.shape[0])
+    else:
+        uv, images, material = _tensor_parts(mesh, F)
+    if not np.all(np.isfinite(uv)):
+        raise ValueError("the mesh's texture coordinates hold NaN or inf")
+    if texture is not None:
+        images = [_image_array(texture, o3d, "texture")]
+        material = np.zeros(F.shape[0], dtype=np.int64)
+    filled = [i for i, im in enumerate(images) if im.ndim >= 2 and im.size > 0]
+    if not filled:
+        raise _no_image()
+    valid = (material >= 0) & (material < len(images))
+    valid[valid] = np.isin(material[valid], filled)
+    if not np.all(valid):
+        if len(filled) == 1:
+            # e.g. material ids 0 pointing at the reader's empty default image: one real image.
+            material = np.where(valid, material, filled[0])
+        else:
+            logger.warning(
+                "texture: %d of %d triangles name no loaded image; they get black",
+                int(np.count_nonzero(~valid)),
+                F.shape[0],
+            )
+            material = np.where(valid, material, -1)
+    return MeshTexture(
+        vertices=V, faces=F, uvs=uv, images=tuple(images), material=material.astype(np.int64)
+    )
 
 
 def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
@@ -37,11 +309,15 @@ def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
 
     Parameters
     ----------
-    mesh : open3d.geometry.TriangleMesh (or ``open3d.t.geometry.TriangleMesh``)
-        A mesh with per-triangle-corner UVs (``triangle_uvs``), e.g. read from an OBJ.
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        A mesh with per-triangle-corner UVs (legacy ``triangle_uvs``, tensor
+        ``triangle["texture_uvs"]``), e.g. read from an OBJ by ``open3d.io.read_triangle_mesh``
+        or ``open3d.t.io.read_triangle_mesh``.
     texture : str, os.PathLike, ndarray or open3d.geometry.Image, optional
-        The texture image; default the mesh's own textures (loaded by Open3D from the OBJ's
-        material file), one per material id.
+        The texture image, rows top-down as in an image file; default the mesh's own textures
+        (loaded by Open3D from the OBJ's material file: legacy ``textures`` by material id, or
+        the tensor material's albedo map). Both give the same colors: the legacy meshes' images
+        are stored bottom-up and are read that way.
 
     Returns
     -------
@@ -56,39 +332,6 @@ def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
     ValueError
         If the mesh has no UVs, or no texture image is given or loaded.
     """
-    o3d = require_open3d()
-    if geometry_kind(mesh) == "tensor_mesh":
-        mesh = mesh.to_legacy()
-    if geometry_kind(mesh) != "legacy_mesh":
-        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
-    V, F = geometry_to_arrays(mesh)
-    uv = np.array(mesh.triangle_uvs, dtype=np.float64)
-    if uv.shape[0] != 3 * F.shape[0]:
-        raise ValueError(
-            f"the mesh has no per-corner texture coordinates ({uv.shape[0]} UVs for "
-            f"{F.shape[0]} triangles): there is no texture to sample"
-        )
-    if texture is not None:
-        images = [_image_array(texture, o3d, "texture")]
-        material = np.zeros(F.shape[0], dtype=np.int64)
-    else:
-        images = [np.array(np.asarray(t), copy=True) for t in mesh.textures]
-        if not images or all(im.size == 0 for im in images):
-            raise ValueError(
-                "the mesh has UVs but no texture image was loaded (no material file next to "
-                "it?): pass the image explicitly (texture=... / --texture FILE)"
-            )
-        material = np.array(mesh.triangle_material_ids, dtype=np.int64)
-        if material.shape[0] != F.shape[0]:
-            material = np.zeros(F.shape[0], dtype=np.int64)
-    corners = np.zeros((3 * F.shape[0], 3))
-    corner_material = np.repeat(material, 3)
-    for mid, img in enumerate(images):
-        sel = corner_material == mid
-        if not np.any(sel) or img.size == 0:
-            continue
-        sampled = sample_texture(img, uv[sel])
-        if sampled.shape[1] == 1:
-            sampled = np.repeat(sampled, 3, axis=1)
-        corners[sel] = sampled[:, :3]
-    return np.clip(corner_colors_to_vertices(F, corners, V.shape[0]), 0.0, 1.0)
+    tex = mesh_texture(mesh, texture)
+    corners = tex.corner_colors()
+    return np.clip(corner_colors_to_vertices(tex.faces, corners, tex.vertices.shape[0]), 0.0, 1.0)

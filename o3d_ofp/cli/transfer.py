@@ -7,6 +7,7 @@ import argparse
 from ._common import CLOUD_OUT, MESH_OUT, UsageError, check_output, report, stage
 from ._pair import add_pair_options, bases_for_pair, estimate_or_use_map, read_pair
 from ._signal import read_signal, write_result
+from ._types import positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -17,10 +18,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_pair_options(p, preset="ours")
     p.add_argument(
         "--signal",
-        default="colors",
-        help="colors, texture, xyz or FILE.npy of the source (default colors)",
+        help="colors, texture (as vertex colors), xyz or FILE.npy of the source; default: the "
+        "source's texture baked into the target's own UV layout when the source is textured "
+        "and the target has UVs, else its vertex colors",
     )
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
+    p.add_argument(
+        "--texture-size",
+        type=positive_int,
+        default=1024,
+        help="size of the baked texture image in pixels (1024)",
+    )
     p.add_argument(
         "-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values"
     )
@@ -33,7 +41,9 @@ def run(args: argparse.Namespace) -> int:
 
     check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=(args.source, args.target))
     pair = read_pair(args)
-    f, kind = read_signal(pair.source, pair.V1, args.source, args.signal, args.texture)
+    if args.signal is None and _bakeable(pair, args.output):
+        return _bake(args, pair)
+    f, kind = read_signal(pair.source, pair.V1, args.source, args.signal or "colors", args.texture)
     B1, B2, eig_1, eig_2 = bases_for_pair(args, pair)
     corr = estimate_or_use_map(args, pair, eig_1, eig_2)
     if corr.n_source != pair.V1.shape[0]:
@@ -46,6 +56,59 @@ def run(args: argparse.Namespace) -> int:
             f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map "
             f"{corr.method}",
             "wrote " + ", ".join(written),
+        ]
+    )
+    return 0
+
+
+def _bakeable(pair, output: str) -> bool:
+    """Tell whether to bake: a textured source, a target with UVs, an output that keeps them."""
+    has_uvs = getattr(pair.target, "has_triangle_uvs", lambda: False)
+    source_uvs = getattr(pair.source, "has_triangle_uvs", lambda: False)
+    return bool(
+        pair.F1 is not None
+        and pair.F2 is not None
+        and source_uvs()
+        and has_uvs()
+        and output.lower().endswith((".obj", ".glb", ".gltf"))
+    )
+
+
+def _bake(args: argparse.Namespace, pair) -> int:
+    """Bake the source's texture into the target's UV layout and write OBJ + MTL + PNG."""
+    from ..boundary.bake import transfer_texture
+    from ..boundary.io import write_geometry
+    from ..core.spectrum import eigenbasis
+    from ..workflows.matching import ESTIMATION_K, required_k
+    from ._common import eig_options
+    from ._pair import estimate_or_use_map
+
+    eigs = (None, None)
+    if pair.correspondence is None:
+        with stage("eigenbases for map estimation"):
+            eigs = tuple(
+                eigenbasis(V, F, k=required_k(V.shape[0], ESTIMATION_K), clamp_k=True,
+                           **eig_options(args))
+                for V, F in ((pair.V1, pair.F1), (pair.V2, pair.F2))
+            )  # fmt: skip
+    corr = estimate_or_use_map(args, pair, *eigs)
+    with stage(f"texture bake ({args.texture_size} x {args.texture_size})"):
+        try:
+            out = transfer_texture(
+                pair.source,
+                pair.target,
+                correspondence=corr,
+                size=args.texture_size,
+                texture=args.texture,
+            )
+        except (FileNotFoundError, TypeError) as exc:
+            raise UsageError(str(exc)) from exc
+    write_geometry(args.output, out)
+    report(
+        [
+            f"{args.source} -> {args.target}: texture baked in the target's UV layout "
+            f"({args.texture_size} px), map {corr.method}",
+            f"wrote {args.output} (with its material and texture image)",
         ]
     )
     return 0

@@ -23,7 +23,7 @@ from ..core._atomic import atomic_path
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from ..core.fmap import estimate_fmap, farthest_points, unit_area, zoomout_refine
 from ..core.geometry import vertex_normals
-from ..core.spectrum import EigenBasis
+from ..core.spectrum import EigenBasis, eigenbasis
 
 __all__ = [
     "ESTIMATION_K",
@@ -33,6 +33,7 @@ __all__ = [
     "alignment_residual",
     "check_landmarks",
     "map_quality",
+    "match_arrays",
     "match_eigenbases",
     "required_k",
 ]
@@ -587,3 +588,41 @@ def match_eigenbases(
         options=options,
         quality=quality,
     )
+
+
+def match_arrays(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray | None,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray | None,
+    *,
+    components: str = "auto",
+    **options: Any,
+) -> Correspondence:
+    """Estimate a map between two shapes given as arrays: eigenbases, then :func:`match_eigenbases`.
+
+    Parameters
+    ----------
+    vertices_1, faces_1 : (n1, 3) ndarray, (m1, 3) ndarray or None
+        Source shape (faces None: a point cloud).
+    vertices_2, faces_2 : (n2, 3) ndarray, (m2, 3) ndarray or None
+        Target shape.
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    **options
+        Keyword options of :func:`match_eigenbases` (``landmarks``, ``k_fit``, ``zoomout_to``,
+        ...).
+
+    Returns
+    -------
+    Correspondence
+    """
+    landmarks = check_landmarks(
+        options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
+    )  # before any eigensolve
+    zoomout_to = options.get("zoomout_to", ESTIMATION_K)
+    eigs = [
+        eigenbasis(V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components)
+        for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))
+    ]
+    return match_eigenbases(eigs[0], eigs[1], **{**options, "landmarks": landmarks})

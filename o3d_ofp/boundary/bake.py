@@ -1,0 +1,588 @@
+"""Texture transfer between meshes: baking into the target's own UV layout, or UV pull-back.
+
+:func:`transfer_texture` bakes a new image in the target's UV layout: every texel covered by a
+target UV triangle is a target surface point; the map carries it to a source surface point and
+the source texture is sampled there. Per-vertex colors can only vary linearly over a target
+triangle; a baked texture keeps the source's detail inside the triangles.
+
+:func:`texture_pullback` is the cheap alternative (pyFM's texture export): the target borrows
+the source's image and gets, at each triangle corner, the source UV of the mapped point.
+
+:func:`texture_error` measures either result against the truth on shapes in the same pose.
+
+Maps are given per target vertex (:class:`o3d_ofp.workflows.matching.Correspondence`, with or
+without its precise ``faces_21`` / ``barycentric_21`` surface points, or a plain ``p2p_21``);
+a texel inside target triangle (a, b, c) with barycentric weights (wa, wb, wc) goes to the
+source surface point nearest to ``wa P(a) + wb P(b) + wc P(c)``, with P the mapped points.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from ..core.correspondence import check_p2p
+from ..workflows.matching import Correspondence, match_arrays
+from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
+from .texture import MeshTexture, corner_uvs, legacy_texture_image, mesh_texture
+
+__all__ = ["source_colors_at", "texture_error", "texture_pullback", "transfer_texture"]
+
+logger = logging.getLogger(__name__)
+
+#: Queries per call to Open3D's closest-point search (bounds the temporary memory).
+_CHUNK = 1 << 20
+
+
+class _Surface:
+    """Closest points on a triangle mesh (Open3D ``RaycastingScene``), in float32 around a centre.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+        Vertex positions (2D UVs are given with a zero third coordinate).
+    faces : (m, 3) ndarray of int
+        Triangles.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        o3d = require_open3d()
+        self._o3d = o3d
+        self.centre = vertices.mean(axis=0)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(
+            np.ascontiguousarray(vertices - self.centre, dtype=np.float32),
+            np.ascontiguousarray(faces, dtype=np.uint32),
+        )
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest surface points of ``points`` (p, 3).
+
+        Returns
+        -------
+        triangles : (p,) ndarray of int64
+            Triangle of each closest point.
+        barycentric : (p, 3) ndarray of float64
+            Its barycentric weights (of the triangle's corners 0, 1, 2).
+        distance : (p,) ndarray of float64
+            Distance from the query to it.
+        """
+        n = points.shape[0]
+        tri = np.empty(n, dtype=np.int64)
+        bary = np.empty((n, 3))
+        dist = np.empty(n)
+        for start in range(0, n, _CHUNK):
+            sl = slice(start, min(start + _CHUNK, n))
+            q = np.ascontiguousarray(points[sl] - self.centre, dtype=np.float32)
+            ans = self.scene.compute_closest_points(self._o3d.core.Tensor(q))
+            tri[sl] = ans["primitive_ids"].numpy().astype(np.int64)
+            uv = ans["primitive_uvs"].numpy().astype(np.float64)
+            # Open3D's primitive uv (s, t): point = (1 - s - t) a + s b + t c.
+            w = np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]])
+            w = np.clip(w, 0.0, None)
+            bary[sl] = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+            dist[sl] = np.linalg.norm(ans["points"].numpy().astype(np.float64) - q, axis=1)
+        return tri, bary, dist
+
+    def covering(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Triangles of a flat (z = 0) mesh under points of the plane (vertical rays).
+
+        Returns
+        -------
+        triangles : (p,) ndarray of int64
+            The triangle each point lies in, -1 for none.
+        barycentric : (p, 3) ndarray of float64
+            The point's barycentric weights in it (undefined where none).
+        """
+        n = points.shape[0]
+        tri = np.full(n, -1, dtype=np.int64)
+        bary = np.zeros((n, 3))
+        for start in range(0, n, _CHUNK):
+            sl = slice(start, min(start + _CHUNK, n))
+            rays = np.zeros((sl.stop - start, 6), dtype=np.float32)
+            rays[:, :2] = points[sl, :2] - self.centre[:2]
+            rays[:, 2] = 1.0 - self.centre[2]
+            rays[:, 5] = -1.0
+            ans = self.scene.cast_rays(self._o3d.core.Tensor(rays))
+            found = np.isfinite(ans["t_hit"].numpy())
+            ids = ans["primitive_ids"].numpy().astype(np.int64)
+            tri[sl] = np.where(found, ids, -1)
+            uv = ans["primitive_uvs"].numpy().astype(np.float64)
+            w = np.clip(np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]]), 0, None)
+            bary[sl] = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+        return tri, bary
+
+
+def _legacy_copy(target: Any) -> Any:
+    """Copy ``target`` into a new legacy mesh, every attribute kept (tensor meshes converted)."""
+    o3d = require_open3d()
+    kind = geometry_kind(target)
+    if kind == "tensor_mesh":
+        return target.to_legacy()
+    if kind != "legacy_mesh":
+        raise TypeError("target must be an Open3D TriangleMesh with texture coordinates")
+    return o3d.geometry.TriangleMesh(target)
+
+
+def _estimate(V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray) -> Correspondence:
+    """Estimate the default map (``o3d_ofp.match`` with its defaults, on arrays)."""
+    logger.info("texture transfer: no map given, estimating one (eigenbases and ZoomOut)")
+    return match_arrays(V1, F1, V2, F2)
+
+
+def _mapped_points(
+    V1: np.ndarray,
+    F1: np.ndarray,
+    V2: np.ndarray,
+    F2: np.ndarray,
+    correspondence: Correspondence | None,
+    p2p_21: Any,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Source surface point of every target vertex.
+
+    Returns
+    -------
+    points : (n2, 3) ndarray of float64
+        The mapped points.
+    triangles : (n2,) ndarray of int64 or None
+        Their source triangles, when the map gives them (``faces_21``).
+    barycentric : (n2, 3) ndarray of float64 or None
+        Their barycentric weights there.
+    """
+    n1, n2 = V1.shape[0], V2.shape[0]
+    if correspondence is not None and p2p_21 is not None:
+        raise ValueError("give either correspondence or p2p_21, not both")
+    if correspondence is None and p2p_21 is None:
+        correspondence = _estimate(V1, F1, V2, F2)
+    if correspondence is not None:
+        if not isinstance(correspondence, Correspondence):
+            raise TypeError(
+                f"correspondence must be an o3d_ofp Correspondence; got "
+                f"{type(correspondence).__name__} (a vertex map goes in p2p_21=)"
+            )
+        correspondence.check(n1, n2)
+        if correspondence.faces_21 is not None:
+            tri = np.asarray(correspondence.faces_21, dtype=np.int64)
+            if tri.min() < 0 or tri.max() >= F1.shape[0]:
+                raise ValueError(
+                    f"correspondence.faces_21 must index the source's {F1.shape[0]} triangles; "
+                    f"got [{tri.min()}, {tri.max()}]"
+                )
+            bary = np.asarray(correspondence.barycentric_21, dtype=np.float64)
+            return np.einsum("pk,pkd->pd", bary, V1[F1[tri]]), tri, bary
+        p2p = correspondence.p2p_21
+    else:
+        p2p = check_p2p(p2p_21, n2, n1)
+    return V1[p2p], None, None
+
+
+def _rasterize(
+    uv: np.ndarray, size: int, band: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Find the texels of a (size × size) image that UV triangles cover or nearly cover.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) ndarray of float
+        Corner UVs (v up); coordinates outside [0, 1] wrap around (GL_REPEAT).
+    size : int
+        Image side.
+    band : float
+        Texels whose centre lies within this distance (in texels) of a triangle are kept, with
+        the nearest point of the nearest triangle.
+
+    Returns
+    -------
+    texels : (p,) ndarray of int64
+        Flat indices (row-major, rows top-down) of the kept texels.
+    triangles : (p,) ndarray of int64
+        The triangle of each.
+    barycentric : (p, 3) ndarray of float64
+        The barycentric weights of the texel centre (of its nearest point) in it.
+    inside : (p,) ndarray of bool
+        True where a triangle covers the texel centre.
+    """
+    m = uv.shape[0]
+    shift = np.floor(uv.mean(axis=1))  # bring every triangle next to [0, 1]^2
+    local = uv - shift[:, None, :]
+    lo, hi = local.min(axis=1), local.max(axis=1)
+    pad = (band + 1.0) / size
+    crosses = np.any(lo < pad, axis=1) | np.any(hi > 1.0 - pad, axis=1)
+    copies = [local]
+    owner = [np.arange(m)]
+    idx = np.flatnonzero(crosses)
+    for du in (-1.0, 0.0, 1.0):
+        for dv in (-1.0, 0.0, 1.0):
+            if (du, dv) != (0.0, 0.0) and idx.size:
+                copies.append(local[idx] + np.array([du, dv]))
+                owner.append(idx)
+    all_uv = np.concatenate(copies)
+    all_owner = np.concatenate(owner)
+    k = all_uv.shape[0]
+    pts = np.concatenate([all_uv.reshape(-1, 2), np.zeros((3 * k, 1))], axis=1)
+    surface = _Surface(pts, np.arange(3 * k).reshape(k, 3))
+    n = size * size
+    # Centres inside a triangle: one vertical ray each (much cheaper than closest points).
+    hit = np.zeros(n, dtype=bool)
+    hit_idx, hit_tri, hit_bary = [], [], []
+    for start in range(0, n, _CHUNK):
+        flat = np.arange(start, min(start + _CHUNK, n))
+        tri, bary = surface.covering(_centres(flat, size))
+        found = tri >= 0
+        hit[flat[found]] = True
+        hit_idx.append(flat[found])
+        hit_tri.append(tri[found])
+        hit_bary.append(bary[found])
+    # Centres near a triangle: around the hit texels and around every triangle corner (a chart
+    # smaller than a texel covers no centre), closest points within ``band`` texels.
+    seeds = hit.copy()
+    corner = np.floor(all_uv.reshape(-1, 2) * size).astype(np.int64)
+    corner = corner[np.all((corner >= 0) & (corner < size), axis=1)]
+    seeds[(size - 1 - corner[:, 1]) * size + corner[:, 0]] = True
+    near = (
+        ndimage.binary_dilation(
+            seeds.reshape(size, size),
+            structure=np.ones((3, 3), dtype=bool),
+            iterations=math.ceil(band) + 1,
+        ).ravel()
+        & ~hit
+    )
+    near_idx = np.flatnonzero(near)
+    tri, bary, dist = surface.closest(_centres(near_idx, size))
+    keep = dist * size <= band
+    n_hit = int(np.count_nonzero(hit))
+    return (
+        np.concatenate([*hit_idx, near_idx[keep]]),
+        all_owner[np.concatenate([*hit_tri, tri[keep]])],
+        np.concatenate([*hit_bary, bary[keep]]),
+        np.concatenate([np.ones(n_hit, dtype=bool), dist[keep] * size < 1e-3]),
+    )
+
+
+def _centres(flat: np.ndarray, size: int) -> np.ndarray:
+    """(p, 3) UV centres (z = 0) of texels given by flat row-major indices, rows top-down."""
+    rows, cols = np.divmod(flat, size)
+    return np.column_stack([(cols + 0.5) / size, 1.0 - (rows + 0.5) / size, np.zeros(flat.size)])
+
+
+def _dilate(image: np.ndarray, filled: np.ndarray, dilate: int) -> np.ndarray:
+    """Grow the filled region ``dilate`` texels outward (nearest filled texel); rest: mean color."""
+    out = image.copy()
+    if not np.any(filled):
+        return out
+    dist, (ir, ic) = ndimage.distance_transform_edt(~filled, return_indices=True)
+    grow = ~filled & (dist <= dilate)
+    out[grow] = image[ir[grow], ic[grow]]
+    rest = ~filled & ~grow
+    out[rest] = image[filled].mean(axis=0)
+    return out
+
+
+def transfer_texture(
+    source: Any,
+    target: Any,
+    *,
+    correspondence: Correspondence | None = None,
+    p2p_21: Any = None,
+    size: int = 1024,
+    texture: Any = None,
+    dilate: int = 8,
+) -> Any:
+    """Bake the source's texture into a new image in the target's own UV layout.
+
+    Every texel covered by a target UV triangle is the target surface point at its centre; it
+    is carried to the source surface through the map (the mapped points of the triangle's
+    corners interpolated with the texel's barycentric weights, then projected onto the source
+    with Open3D's ``RaycastingScene.compute_closest_points``) and the source texture is
+    sampled there (bilinear). Texels whose centre lies outside every triangle but within √2
+    texels of one (they are read by bilinear sampling at the triangle's edges) take the
+    nearest point of the nearest triangle; the baked region is then grown ``dilate`` texels
+    outward with the nearest baked texel's color, so seams do not turn black.
+
+    Parameters
+    ----------
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The textured source (per-corner UVs and an image, see :func:`mesh_texture`); not
+        modified.
+    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The target, with its own per-corner UVs (``triangle_uvs``); not modified.
+    correspondence : Correspondence, optional
+        The map, one source point per target vertex: its precise surface points
+        (``faces_21``, ``barycentric_21``) when it has them, else its vertex map ``p2p_21``.
+    p2p_21 : (n2,) array_like of int, optional
+        A vertex map instead (source vertex of every target vertex). Without any map one is
+        estimated with the steps and defaults of :func:`o3d_ofp.match` (shapes must be
+        close to isometric; check the logged quality report).
+    size : int, default 1024
+        Side of the baked (size × size) image.
+    texture : str, os.PathLike, ndarray or Open3D image, optional
+        The source's texture, rows top-down as in a file; default the source's own images.
+    dilate : int, default 8
+        Texels the baked region is grown by; texels beyond get the mean baked color.
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        A new legacy mesh: a copy of the target (every attribute kept, ``triangle_uvs``
+        unchanged) with ``textures`` = [the baked image] and all ``triangle_material_ids`` 0.
+        The image is stored bottom-up like every legacy Open3D texture (see
+        :mod:`o3d_ofp.boundary.texture`), so ``open3d.io.write_triangle_mesh`` writes it the
+        right way up.
+
+    Raises
+    ------
+    ValueError
+        If the target has no UVs, the source no texture, or the map does not fit the shapes.
+    """
+    if int(size) != size or not 1 <= int(size) <= 8192:
+        raise ValueError(f"size must be an integer in [1, 8192]; got {size!r}")
+    if int(dilate) != dilate or dilate < 0:
+        raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
+    size, dilate = int(size), int(dilate)
+    src = mesh_texture(source, texture)
+    target_uv = corner_uvs(target)
+    V2, F2 = geometry_to_arrays(target)
+    assert F2 is not None
+    points, _, _ = _mapped_points(src.vertices, src.faces, V2, F2, correspondence, p2p_21)
+
+    texels, tri2, bary2, inside = _rasterize(target_uv, size, band=math.sqrt(2.0) + 1e-6)
+    logger.info(
+        "texture transfer: %d texels inside %d target triangles, %d at their edges",
+        int(np.count_nonzero(inside)),
+        F2.shape[0],
+        int(np.count_nonzero(~inside)),
+    )
+    q = np.einsum("pk,pkd->pd", bary2, points[F2[tri2]])
+    tri1, bary1, _ = _Surface(src.vertices, src.faces).closest(q)
+    colors = src.sample(tri1, bary1)
+
+    image = np.zeros((size * size, 3), dtype=np.float32)
+    image[texels] = colors
+    filled = np.zeros(size * size, dtype=bool)
+    filled[texels] = True
+    image = _dilate(image.reshape(size, size, 3), filled.reshape(size, size), dilate)
+    baked = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+    o3d = require_open3d()
+    out = _legacy_copy(target)
+    out.textures = [legacy_texture_image(baked)]
+    out.triangle_material_ids = o3d.utility.IntVector(np.zeros(F2.shape[0], dtype=np.int32))
+    return out
+
+
+def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Barycentric weights (possibly negative) of points projected onto triangles' planes.
+
+    Parameters
+    ----------
+    points : (p, 3) ndarray
+        Points.
+    corners : (p, 3, 3) ndarray
+        One triangle per point.
+
+    Returns
+    -------
+    (p, 3) ndarray of float64
+        Weights summing to 1 (NaN for a degenerate triangle).
+    """
+    a = corners[:, 0]
+    e1, e2 = corners[:, 1] - a, corners[:, 2] - a
+    d = points - a
+    g11 = np.einsum("ij,ij->i", e1, e1)
+    g12 = np.einsum("ij,ij->i", e1, e2)
+    g22 = np.einsum("ij,ij->i", e2, e2)
+    r1 = np.einsum("ij,ij->i", e1, d)
+    r2 = np.einsum("ij,ij->i", e2, d)
+    det = g11 * g22 - g12**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(det > 1e-30 * (g11 + g22) ** 2, (g22 * r1 - g12 * r2) / det, np.nan)
+        t = np.where(det > 1e-30 * (g11 + g22) ** 2, (g11 * r2 - g12 * r1) / det, np.nan)
+    return np.column_stack([1.0 - s - t, s, t])
+
+
+def texture_pullback(
+    source: Any,
+    target: Any,
+    *,
+    correspondence: Correspondence | None = None,
+    p2p_21: Any = None,
+    texture: Any = None,
+) -> Any:
+    """Give the target the source's texture image and, at its triangle corners, source UVs.
+
+    The cheap alternative to :func:`transfer_texture` (pyFM's texture export): no new image,
+    each target triangle corner gets the source UV of its mapped point, and the texture varies
+    inside a target triangle as the source's does inside the image of that triangle in UV
+    space. A target triangle whose corners land in different source UV charts would span the
+    atlas; such corners get the UV the chart of the triangle's centre extends to them (the
+    point's barycentric weights in that source triangle's plane), so the triangle stays in one
+    chart. Texture detail is still lost where the map is coarse or a target triangle covers
+    more than one source chart.
+
+    Parameters
+    ----------
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The textured source; not modified.
+    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The target (its own UVs, if any, are replaced); not modified.
+    correspondence : Correspondence, optional
+        The map (its ``faces_21`` / ``barycentric_21`` surface points when present).
+    p2p_21 : (n2,) array_like of int, optional
+        A vertex map instead; without any map one is estimated (see :func:`transfer_texture`).
+    texture : str, os.PathLike, ndarray or Open3D image, optional
+        The source's texture, rows top-down as in a file; default the source's own images.
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        A new legacy mesh: a copy of the target with ``triangle_uvs`` in the source's layout,
+        the source's images as ``textures`` (bottom-up, as legacy meshes keep them) and each
+        triangle's material id that of the source triangle under its centre.
+    """
+    o3d = require_open3d()
+    src = mesh_texture(source, texture)
+    V2, F2 = geometry_to_arrays(target)
+    assert F2 is not None
+    V1, F1 = src.vertices, src.faces
+    points, tri, bary = _mapped_points(V1, F1, V2, F2, correspondence, p2p_21)
+    surface = _Surface(V1, F1)
+    if tri is None:
+        tri, bary, _ = surface.closest(points)
+    assert bary is not None
+    own = src.uv_at(tri, bary)[F2]  # (m2, 3, 2): each corner's UV in its own triangle
+    ref_tri, ref_bary, _ = surface.closest(points[F2].mean(axis=1))
+    ref_uv = src.uv_at(ref_tri, ref_bary)  # (m2, 2)
+    corner_points = points[F2].reshape(-1, 3)
+    ref_of_corner = np.repeat(ref_tri, 3)
+    w = _plane_barycentric(corner_points, V1[F1[ref_of_corner]])
+    extended = np.einsum("pk,pkd->pd", w, src.uvs[ref_of_corner]).reshape(-1, 3, 2)
+    same_material = src.material[tri][F2] == src.material[ref_tri][:, None]
+    far = np.linalg.norm(own - extended, axis=2) > np.linalg.norm(
+        extended - ref_uv[:, None, :], axis=2
+    )
+    swap = np.isfinite(extended).all(axis=2) & (far | ~same_material)
+    uv = np.where(swap[:, :, None], extended, own)
+    logger.info(
+        "texture pull-back: %d of %d corners moved into the chart of their triangle's centre",
+        int(np.count_nonzero(swap)),
+        swap.size,
+    )
+    out = _legacy_copy(target)
+    out.triangle_uvs = o3d.utility.Vector2dVector(uv.reshape(-1, 2))
+    # Only the loaded images go along (not the OBJ reader's empty default): renumber them.
+    loaded = [i for i, img in enumerate(src.images) if img.size > 0]
+    renumber = np.zeros(len(src.images), dtype=np.int32)
+    renumber[loaded] = np.arange(len(loaded), dtype=np.int32)
+    out.textures = [legacy_texture_image(_as_uint8(src.images[i])) for i in loaded]
+    material = renumber[np.maximum(src.material[ref_tri], 0)]
+    out.triangle_material_ids = o3d.utility.IntVector(material)
+    return out
+
+
+def _as_uint8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint8:
+        return image
+    if np.issubdtype(image.dtype, np.integer):
+        return np.round(image.astype(np.float64) / np.iinfo(image.dtype).max * 255).astype(np.uint8)
+    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.ndarray:
+    """Sample the source's texture at the source surface points nearest to ``points``.
+
+    Parameters
+    ----------
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The textured source; not modified.
+    points : (p, 3) array_like of float
+        Query points (e.g. the target's vertices, for shapes in the same pose).
+    texture : str, os.PathLike, ndarray or Open3D image, optional
+        The source's texture, rows top-down; default the source's own images.
+
+    Returns
+    -------
+    (p, 3) ndarray of float64
+        Colors in [0, 1].
+    """
+    src = mesh_texture(source, texture)
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or not np.all(np.isfinite(P)):
+        raise ValueError(f"points must be a finite (p, 3) array; got shape {P.shape}")
+    tri, bary, _ = _Surface(src.vertices, src.faces).closest(P)
+    return src.sample(tri, bary)
+
+
+def _surface_samples(
+    V: np.ndarray, F: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    tri = rng.choice(F.shape[0], size=n, p=area / area.sum())
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    bary = np.column_stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2])
+    return tri, bary
+
+
+def texture_error(
+    mesh: Any,
+    source: Any,
+    *,
+    colors: str = "auto",
+    samples: int = 20000,
+    seed: int = 0,
+    texture: Any = None,
+) -> float:
+    """Mean color error of a colored target at random surface points, against the source.
+
+    The truth at a target surface point is the source texture at the source surface point
+    nearest to it: a measure for a target that is the source remeshed in the same pose (the
+    closest point is then the true corresponding point).
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The colored target, e.g. a result of :func:`transfer_texture`; not modified.
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The textured source; not modified.
+    colors : {"auto", "texture", "vertex"}, default "auto"
+        What colors the target: its UV texture (sampled bilinearly), or its vertex colors
+        (interpolated linearly over the triangles). "auto": the texture when the mesh has
+        UVs and an image, else the vertex colors.
+    samples : int, default 20000
+        Number of random surface points (uniform by area).
+    seed : int, default 0
+        Seed of the random points.
+    texture : str, os.PathLike, ndarray or Open3D image, optional
+        The source's texture, rows top-down; default the source's own images.
+
+    Returns
+    -------
+    float
+        Mean absolute difference per color channel, in [0, 1].
+    """
+    if colors not in ("auto", "texture", "vertex"):
+        raise ValueError(f"colors must be 'auto', 'texture' or 'vertex'; got {colors!r}")
+    tex: MeshTexture | None = None
+    if colors in ("auto", "texture"):
+        try:
+            tex = mesh_texture(mesh)
+        except ValueError:
+            if colors == "texture":
+                raise
+    V, F = geometry_to_arrays(mesh)
+    if F is None or F.shape[0] == 0:
+        raise ValueError("mesh must be a triangle mesh")
+    rng = np.random.default_rng(seed)
+    tri, bary = _surface_samples(V, F, int(samples), rng)
+    if tex is not None:
+        got = tex.sample(tri, bary)
+    else:
+        C = vertex_colors(mesh)
+        if C is None:
+            raise ValueError("the mesh has neither a texture nor vertex colors")
+        got = np.einsum("pk,pkd->pd", bary, C[F[tri]])
+    truth = source_colors_at(source, np.einsum("pk,pkd->pd", bary, V[F[tri]]), texture=texture)
+    return float(np.abs(got - truth).mean())

@@ -1,0 +1,247 @@
+"""Texture baking into the target's UV layout, UV pull-back, and their measured errors."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from o3d_ofp.core.texture import sample_texture
+
+from .conftest import shared_path
+
+o3d = pytest.importorskip("open3d")
+
+from o3d_ofp.boundary.bake import (  # noqa: E402
+    source_colors_at,
+    texture_error,
+    texture_pullback,
+    transfer_texture,
+)
+from o3d_ofp.boundary.texture import corner_uvs, mesh_texture  # noqa: E402
+from o3d_ofp.workflows.matching import Correspondence  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def spot(tmp_path_factory):
+    """Spot read by Open3D's legacy OBJ reader with its own material (texture loaded by it)."""
+    obj = shared_path("models/spot_triangulated.obj")
+    png = shared_path("models/spot_texture.png")
+    folder = tmp_path_factory.mktemp("spot")
+    shutil.copy(png, folder / "spot_texture.png")
+    (folder / "spot.mtl").write_text("newmtl spot\nmap_Kd spot_texture.png\n")
+    (folder / "spot.obj").write_text("mtllib spot.mtl\nusemtl spot\n" + obj.read_text())
+    mesh = o3d.io.read_triangle_mesh(str(folder / "spot.obj"))
+    image = np.asarray(o3d.io.read_image(str(png)))
+    return mesh, image, folder / "spot.obj"
+
+
+@pytest.fixture(scope="module")
+def decimated(spot):
+    """Spot welded, decimated to 3000 triangles and given new UVs by UVAtlas: a remeshing."""
+    mesh = spot[0]
+    welded = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)
+    welded.remove_duplicated_vertices()
+    small = o3d.t.geometry.TriangleMesh.from_legacy(welded.simplify_quadric_decimation(3000))
+    small.compute_uvatlas(size=1024, parallel_partitions=4)
+    return small.to_legacy()
+
+
+def _closest_map(source, target):
+    """Map to the closest source surface points: the true map of a remeshing in the same pose."""
+    from o3d_ofp.boundary.bake import _Surface
+
+    V1, F1 = np.asarray(source.vertices), np.asarray(source.triangles)
+    tri, bary, _ = _Surface(V1, F1).closest(np.asarray(target.vertices))
+    p2p = F1[tri, np.argmax(bary, axis=1)]
+    return Correspondence(
+        p2p_21=p2p, n_source=len(V1), faces_21=tri, barycentric_21=bary, method="closest"
+    )
+
+
+def _per_vertex_error(source, target):
+    """Measure the best per-vertex coloring: the truth at the vertices, interpolated."""
+    best = o3d.geometry.TriangleMesh(target)
+    truth = source_colors_at(source, np.asarray(target.vertices))
+    best.vertex_colors = o3d.utility.Vector3dVector(truth)
+    return texture_error(best, source, colors="vertex", samples=30000)
+
+
+def _snapshot(mesh):
+    return {
+        "v": np.array(mesh.vertices),
+        "f": np.array(mesh.triangles),
+        "uv": np.array(mesh.triangle_uvs),
+        "ids": np.array(mesh.triangle_material_ids),
+        "tex": [np.array(np.asarray(t)) for t in mesh.textures if not t.is_empty()],
+        "vc": np.array(mesh.vertex_colors),
+    }
+
+
+def _same(a, b):
+    assert a.keys() == b.keys()
+    for key in a:
+        if key == "tex":
+            assert len(a[key]) == len(b[key])
+            for x, y in zip(a[key], b[key], strict=True):
+                np.testing.assert_array_equal(x, y)
+        else:
+            np.testing.assert_array_equal(a[key], b[key])
+
+
+def _covered(uv, size):
+    """Texels whose centre lies inside a UV triangle, found here independently (no wrap)."""
+    covered = np.zeros((size, size), dtype=bool)
+    for tri in uv * size:
+        x = tri[:, 0] - 0.5
+        y = size - tri[:, 1] - 0.5  # row coordinate of the texel centres (rows top-down)
+        c0, c1 = int(np.floor(x.min())), int(np.ceil(x.max()))
+        r0, r1 = int(np.floor(y.min())), int(np.ceil(y.max()))
+        rr, cc = np.mgrid[max(r0, 0) : min(r1, size - 1) + 1, max(c0, 0) : min(c1, size - 1) + 1]
+        (x0, x1, x2), (y0, y1, y2) = x, y
+        det = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
+        if abs(det) < 1e-12:
+            continue
+        a = ((y1 - y2) * (cc - x2) + (x2 - x1) * (rr - y2)) / det
+        b = ((y2 - y0) * (cc - x2) + (x0 - x2) * (rr - y2)) / det
+        inside = (a >= 0) & (b >= 0) & (1 - a - b >= 0)
+        covered[rr[inside], cc[inside]] = True
+    return covered
+
+
+def test_identity_bake_reproduces_the_source_texture(spot):
+    mesh = spot[0]
+    before = _snapshot(mesh)
+    baked = transfer_texture(mesh, mesh, p2p_21=np.arange(len(mesh.vertices)), size=1024)
+    _same(before, _snapshot(mesh))  # the target (here also the source) is not modified
+    # A new legacy mesh: the target's geometry and UVs, one texture, material ids 0.
+    assert baked is not mesh and len(baked.textures) == 1
+    assert np.all(np.asarray(baked.triangle_material_ids) == 0)
+    np.testing.assert_array_equal(np.asarray(baked.triangle_uvs), before["uv"])
+    np.testing.assert_array_equal(np.asarray(baked.triangles), before["f"])
+    err = texture_error(baked, mesh, samples=30000)
+    assert err < 0.02  # measured 0.0000: the same layout, texel for texel
+    # The baked image is the source's own image wherever a UV triangle covers a texel.
+    covered = _covered(corner_uvs(mesh), 1024)
+    top_down = np.asarray(baked.textures[0])[::-1]
+    diff = np.abs(top_down.astype(int) - spot[1].astype(int)).max(axis=2)
+    assert covered.mean() > 0.3 and np.all(diff[covered] <= 1)
+
+
+def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
+    source = spot[0]
+    corr = _closest_map(source, decimated)
+    per_vertex = _per_vertex_error(source, decimated)
+    baked = transfer_texture(source, decimated, correspondence=corr, size=1024)
+    err_surface = texture_error(baked, source, samples=30000)
+    baked_p2p = transfer_texture(source, decimated, p2p_21=corr.p2p_21, size=1024)
+    err_vertex_map = texture_error(baked_p2p, source, samples=30000)
+    # Measured: per-vertex 0.044, baked 0.0004 (surface map) and 0.0095 (vertex map).
+    assert err_surface <= 0.7 * per_vertex
+    assert err_vertex_map <= 0.7 * per_vertex
+    assert err_surface < err_vertex_map
+
+
+def test_baked_texture_has_no_black_texels_inside_triangles_or_the_dilation_band(spot, decimated):
+    source, image = spot[0], spot[1]
+    bright = np.maximum(image, 12)  # no black anywhere in the source: black = a hole
+    size, dilate = 256, 4
+    baked = transfer_texture(
+        source,
+        decimated,
+        correspondence=_closest_map(source, decimated),
+        size=size,
+        texture=bright,
+        dilate=dilate,
+    )
+    top_down = np.asarray(baked.textures[0])[::-1]  # legacy textures are stored bottom-up
+    covered = _covered(corner_uvs(decimated), size)
+    assert covered.mean() > 0.3
+    band = ndimage.distance_transform_edt(~covered) <= dilate
+    black = np.all(top_down == 0, axis=2)
+    assert not np.any(black & covered)
+    assert not np.any(black & band)
+    assert not np.any(black)  # beyond the band: the mean baked color
+
+
+def test_obj_round_trip_keeps_the_texture_the_right_way_up(spot, decimated, tmp_path):
+    source = spot[0]
+    baked = transfer_texture(
+        source, decimated, correspondence=_closest_map(source, decimated), size=512
+    )
+    path = tmp_path / "baked.obj"
+    assert o3d.io.write_triangle_mesh(str(path), baked)
+    pngs = sorted(tmp_path.glob("*.png"))
+    assert len(pngs) == 1
+    # The file on disk, sampled with OBJ's convention (row 0 at v = 1) at the target's UVs,
+    # shows the source's colors at the corresponding points: the right way up.
+    written = np.asarray(o3d.io.read_image(str(pngs[0])))
+    rng = np.random.default_rng(3)
+    F = np.asarray(decimated.triangles)
+    V = np.asarray(decimated.vertices)
+    uv = corner_uvs(decimated)
+    tri = rng.integers(0, F.shape[0], 5000)
+    r1, r2 = np.sqrt(rng.random(5000)), rng.random(5000)
+    w = np.column_stack([1 - r1, r1 * (1 - r2), r1 * r2])
+    truth = source_colors_at(source, np.einsum("pk,pkd->pd", w, V[F[tri]]))
+    at = np.einsum("pk,pkd->pd", w, uv[tri])
+    right = np.abs(sample_texture(written, at) - truth).mean()
+    upside_down = np.abs(sample_texture(written[::-1], at) - truth).mean()
+    assert right < 0.02 and upside_down > 10 * right
+    # Read back by Open3D (legacy and tensor readers): the same colors as before writing.
+    again = o3d.io.read_triangle_mesh(str(path))
+    assert texture_error(again, source, samples=20000) < 0.02
+    # Per corner (the reader splits vertices at UV seams); the OBJ keeps UVs to 6 digits.
+    corners = mesh_texture(baked).corner_colors()
+    np.testing.assert_allclose(mesh_texture(again).corner_colors(), corners, atol=2e-3)
+    tensor = o3d.t.io.read_triangle_mesh(str(path))
+    np.testing.assert_allclose(mesh_texture(tensor).corner_colors(), corners, atol=2e-3)
+
+
+def test_pullback_borrows_the_source_layout(spot, decimated):
+    source = spot[0]
+    before = _snapshot(decimated)
+    corr = _closest_map(source, decimated)
+    pulled = texture_pullback(source, decimated, correspondence=corr)
+    _same(before, _snapshot(decimated))
+    assert len(pulled.textures) == 1  # the source's one image (its empty default dropped)
+    np.testing.assert_array_equal(np.asarray(pulled.textures[0]), np.asarray(source.textures[1]))
+    assert np.asarray(pulled.triangle_uvs).shape == (3 * len(decimated.triangles), 2)
+    err = texture_error(pulled, source, samples=30000)
+    assert err < 0.5 * _per_vertex_error(source, decimated)  # measured 0.0023 vs 0.044
+    # On the source itself with the identity map: the source's own UVs, exactly.
+    same = texture_pullback(source, source, p2p_21=np.arange(len(source.vertices)))
+    assert texture_error(same, source, samples=20000) < 1e-3
+
+
+def test_tensor_meshes_are_accepted(spot, decimated):
+    source_legacy, _, obj = spot
+    source = o3d.t.io.read_triangle_mesh(str(obj))  # texture_uvs per triangle + albedo map
+    target = o3d.t.geometry.TriangleMesh.from_legacy(decimated)
+    corr = _closest_map(source_legacy, decimated)
+    baked = transfer_texture(source, target, correspondence=corr, size=256)
+    reference = transfer_texture(source_legacy, decimated, correspondence=corr, size=256)
+    assert isinstance(baked, o3d.geometry.TriangleMesh)
+    np.testing.assert_array_equal(np.asarray(baked.textures[0]), np.asarray(reference.textures[0]))
+    assert mesh_texture(baked).images[0].shape == (256, 256, 3)
+
+
+def test_bad_arguments(spot, decimated):
+    source = spot[0]
+    plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
+    n2 = len(decimated.vertices)
+    p2p = np.zeros(n2, dtype=np.int64)
+    with pytest.raises(ValueError, match="no per-corner texture coordinates"):
+        transfer_texture(source, plain, p2p_21=p2p)
+    with pytest.raises(ValueError, match="either correspondence or p2p_21"):
+        transfer_texture(source, decimated, p2p_21=p2p, correspondence=Correspondence(p2p, 3225))
+    with pytest.raises(ValueError, match="belongs to other shapes"):
+        transfer_texture(source, decimated, correspondence=Correspondence(p2p, 10))
+    with pytest.raises(ValueError, match="size"):
+        transfer_texture(source, decimated, p2p_21=p2p, size=0)
+    with pytest.raises(ValueError, match="dilate"):
+        transfer_texture(source, decimated, p2p_21=p2p, dilate=-1)
+    with pytest.raises(ValueError, match="no texture image"):
+        transfer_texture(decimated, decimated, p2p_21=np.arange(n2))
