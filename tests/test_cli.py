@@ -370,3 +370,17 @@ def test_textured_source_onto_a_target_with_uvs_bakes_a_texture(tmp_path, capsys
     Vb = np.asarray(back.vertices)
     north, south = Vb[:, 2] > 0.5, Vb[:, 2] < -0.5
     assert colors[north, 0].mean() > 0.8 and colors[south, 2].mean() > 0.8
+
+
+def test_messages_name_the_flags_not_the_keywords(tmp_path, capsys):
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.boundary.io import write_geometry
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(2)
+    two = triangle_mesh_from_arrays(np.vstack([V, V + 5.0]), np.vstack([F, F + len(V)]))
+    write_geometry(tmp_path / "two.ply", two)
+    code = main(["approximate", str(tmp_path / "two.ply"), "--signal", "xyz", "-o",
+                 str(tmp_path / "x.ply")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "--components largest" in err and "components='largest'" not in err

@@ -26,6 +26,21 @@ logger = logging.getLogger(__name__)
 
 COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
 
+#: Library keywords that error messages mention, and the flags that set them.
+KEYWORD_FLAGS = {
+    "components='largest'": "--components largest",
+    "components='auto'": "--components auto",
+    "components='error'": "--components error",
+    "landmarks=[[source, target], ...] / ": "",
+}
+
+
+def _in_flags(message: str) -> str:
+    """Say the command line's flags where a library message names its keywords."""
+    for keyword, flag in KEYWORD_FLAGS.items():
+        message = message.replace(keyword, flag)
+    return message
+
 
 class _Parser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line (and a pointer to --help)."""
@@ -104,7 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
         except SuspectMap as exc:
             sys.stderr.write(
-                f"{prog}: error: the estimated map is suspect (--strict): {exc}; nothing written\n"
+                f"{prog}: error: the estimated map is suspect (--strict): {_in_flags(str(exc))}; "
+                "nothing written\n"
             )
             return SUSPECT_EXIT
         except (
@@ -116,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             IsADirectoryError,
             PermissionError,
         ) as exc:
-            sys.stderr.write(f"{prog}: error: {exc}\n")
+            sys.stderr.write(f"{prog}: error: {_in_flags(str(exc))}\n")
             return 2
         except ImportError as exc:
             sys.stderr.write(f"{prog}: error: {exc}\n")
