@@ -24,7 +24,13 @@ from ..workflows.matching import (
     match_arrays,
     match_eigenbases,
 )
-from ..workflows.pipeline import eigenbases_for_transfer, transfer_detail_arrays, transfer_function
+from ..workflows.pipeline import (
+    eigenbases_for_transfer,
+    pull_back,
+    transfer_detail_arrays,
+    transfer_function,
+)
+from .closest import closest_correspondence
 from .convert import (
     geometry_kind,
     geometry_to_arrays,
@@ -219,6 +225,8 @@ def match(
     source: Any,
     target: Any,
     *,
+    method: str = "estimate",
+    align: bool = False,
     landmarks: Any = None,
     k_fit: int = FIT_K,
     zoomout_to: int = ESTIMATION_K,
@@ -239,6 +247,15 @@ def match(
     source, target : Open3D TriangleMesh or PointCloud (legacy or tensor), or a
         (vertices, faces) tuple of arrays (faces None for points)
         The shapes; neither is modified.
+    method : {"estimate", "closest"}, default "estimate"
+        "estimate": the spectral map (any pose, any units). "closest": for shapes that are
+        already aligned in space (a scan and its simplified or remeshed copy): every target
+        vertex goes to its closest point on the source surface (Open3D's RaycastingScene),
+        kept exactly as a triangle and barycentric coordinates in the Correspondence; the
+        spectral options below are then unused.
+    align : bool, default False
+        With ``method="closest"``: rigid pre-alignment by ICP for shapes that are almost
+        aligned.
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs.
@@ -269,8 +286,14 @@ def match(
     .. [1] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
+    if method not in ("estimate", "closest"):
+        raise ValueError(f"method must be 'estimate' or 'closest'; got {method!r}")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
+    if method == "closest":
+        return closest_correspondence(V1, F1, V2, faces_2=F2, align=align)
+    if align:
+        raise ValueError("align=True applies to method='closest' (the spectral map needs none)")
     options = {
         "landmarks": landmarks,
         "k_fit": k_fit,
@@ -305,6 +328,7 @@ def transfer_colors(
     p2p_21: Any = None,
     landmarks: Any = None,
     method: str = "p2p",
+    via_basis: bool | None = None,
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
 ) -> Any:
@@ -330,6 +354,10 @@ def transfer_colors(
         map is estimated by :func:`match`.
     method : {"p2p", "analytic"}
         Transfer matrix computation (see :func:`o3d_ofp.transfer_matrix`).
+    via_basis : bool, optional
+        Transfer through the OFP bases (the paper's transfer, robust to a noisy map) or pull
+        the colors back exactly through the map. Default: exact pull-back for a surface map
+        (``match(method="closest")``), the bases otherwise.
     eigenbases : (EigenBasis, EigenBasis), optional
         Precomputed eigenbases of source and target (e.g. from cached bases); with an
         estimated map they should hold ~100 eigenfunctions for ZoomOut.
@@ -356,6 +384,15 @@ def transfer_colors(
             "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
             "o3d_ofp.transfer_function)"
         )
+    exact = correspondence is not None and correspondence.barycentric_21 is not None
+    if via_basis is False or (via_basis is None and exact):
+        if correspondence is None:
+            if p2p_21 is None:
+                raise ValueError("via_basis=False needs a correspondence or p2p_21")
+            correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
+        correspondence.check(V1.shape[0], V2.shape[0])
+        logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
+        return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
     eig_1, eig_2 = eigenbases_for_transfer(
         V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
     )

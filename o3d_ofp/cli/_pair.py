@@ -46,9 +46,14 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str) -> None:
     p.add_argument(
         "--map",
         default="estimate",
-        help="estimate (default: WKS fit + ZoomOut to 100), identity (same vertices), MAP.npz "
+        help="estimate (default: WKS fit + ZoomOut to 100), closest (closest points on the "
+        "source surface, for shapes already aligned in space; --align for nearly aligned "
+        "ones), identity (same vertices), MAP.npz "
         "(from --save-map), a file with one source vertex per target vertex (.vts 1-based / "
         ".npy 0-based), or SRC.vts,TGT.vts matching both shapes to a template",
+    )
+    p.add_argument(
+        "--align", action="store_true", help="with --map closest: rigid ICP pre-alignment first"
     )
     p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     p.add_argument(
@@ -100,7 +105,7 @@ def _read_map(spec: str, n1: int, n2: int, V2: np.ndarray) -> Any:
     from ..core.io import read_vts
     from ..workflows.matching import Correspondence
 
-    if spec == "estimate":
+    if spec in ("estimate", "closest"):
         return None
     if spec == "identity":
         if n1 != n2:
@@ -168,11 +173,29 @@ def read_pair(args: argparse.Namespace) -> Pair:
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
     corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
+    if args.align and args.map != "closest":
+        raise UsageError("--align applies to --map closest")
+    if args.map == "closest":
+        from ..boundary.closest import closest_correspondence
+
+        if args.landmarks:
+            raise UsageError("--landmarks apply to --map estimate, not --map closest")
+        with stage("closest points on the source surface"):
+            try:
+                corr = closest_correspondence(V1, F1, V2, faces_2=F2, align=args.align)
+            except ValueError as exc:
+                raise UsageError(f"--map closest: {exc}") from exc
+        if corr.quality is not None:
+            from ._common import report
+
+            report([corr.quality.summary(), *corr.quality.reasons, *corr.quality.notes])
+            if corr.quality.suspect and args.strict:
+                raise SuspectMap("; ".join(corr.quality.reasons))
     landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
     if landmarks is not None and corr is not None:
         raise UsageError("--landmarks only apply with --map estimate")
-    if args.strict and corr is not None:
-        raise UsageError("--strict applies to an estimated map (--map estimate)")
+    if args.strict and corr is not None and args.map != "closest":
+        raise UsageError("--strict applies to an estimated map (--map estimate or closest)")
     return Pair(source, target, V1, F1, V2, F2, corr, landmarks)
 
 

@@ -44,6 +44,18 @@ def run(args: argparse.Namespace) -> int:
     if args.signal is None and _bakeable(pair, args.output):
         return _bake(args, pair)
     f, kind = read_signal(pair.source, pair.V1, args.source, args.signal or "colors", args.texture)
+    given = pair.correspondence
+    if given is not None and given.barycentric_21 is not None:  # a surface map: exact pull-back
+        from ..workflows.pipeline import pull_back
+
+        if args.save_map:
+            given.save(args.save_map)
+        with stage("pull-back through the surface map"):
+            g = pull_back(f, given, pair.F1)
+        written = write_result(args.output, pair.target, g, kind)
+        report([f"{args.source} -> {args.target}: exact pull-back, map {given.method}",
+                "wrote " + ", ".join(written)])  # fmt: skip
+        return 0
     B1, B2, eig_1, eig_2 = bases_for_pair(args, pair)
     corr = estimate_or_use_map(args, pair, eig_1, eig_2)
     if corr.n_source != pair.V1.shape[0]:

@@ -25,6 +25,7 @@ from .matching import ESTIMATION_K, Correspondence, match_eigenbases
 __all__ = [
     "detail_heights",
     "eigenbases_for_transfer",
+    "pull_back",
     "transfer_detail_arrays",
     "transfer_function",
 ]
@@ -280,3 +281,40 @@ def eigenbases_for_transfer(
                 f"{V.shape[0]}: it belongs to another shape"
             )
     return eigenbases
+
+
+def pull_back(f_1: Any, correspondence: Correspondence, faces_1: Any = None) -> np.ndarray:
+    """Carry a source signal to the target exactly through the map (no basis).
+
+    With a surface map (``correspondence.barycentric_21``, e.g. ``match(method="closest")``)
+    every target vertex gets the source signal interpolated at its point on the source
+    surface; otherwise the value at its source vertex.
+
+    Parameters
+    ----------
+    f_1 : (n1,) or (n1, d) array_like of float
+        Source signal.
+    correspondence : Correspondence
+        The map.
+    faces_1 : (m1, 3) array_like of int, optional
+        The source triangles the surface map refers to (required with a surface map).
+
+    Returns
+    -------
+    (n2,) or (n2, d) ndarray
+    """
+    f = as_signal(f_1, correspondence.n_source, name="f_1")
+    if correspondence.barycentric_21 is None:
+        return f[correspondence.p2p_21]
+    if faces_1 is None:
+        raise ValueError("a surface map needs the source triangles (faces_1)")
+    F = np.asarray(faces_1)
+    if F.ndim != 2 or F.shape[1] != 3 or correspondence.faces_21.max() >= F.shape[0]:
+        raise ValueError(
+            f"faces_1 has shape {F.shape}: not the triangles the correspondence refers to"
+        )
+    corners = F[correspondence.faces_21]  # (n2, 3) source vertices
+    w = correspondence.barycentric_21
+    if f.ndim == 1:
+        return np.einsum("ij,ij->i", f[corners], w)
+    return np.einsum("ijd,ij->id", f[corners], w)

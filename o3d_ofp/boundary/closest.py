@@ -1,0 +1,738 @@
+"""Maps between shapes that are already aligned in space: closest points on the source surface.
+
+A high-resolution scan and its simplified or remeshed copy occupy the same place: the map from
+the copy to the scan is, for every target vertex, the closest point on the source *surface*
+(a triangle and barycentric coordinates in it, not just the nearest source vertex). Open3D's
+:class:`open3d.t.geometry.RaycastingScene` (an Embree BVH) finds the closest triangle; the
+point on it is then recomputed in float64, so the result does not depend on the units or
+position of the shapes (the scene itself works in float32, on centred, unit-diagonal copies).
+
+For shapes that are only *almost* aligned, ``align=True`` first registers the target onto the
+source with a rigid point-to-plane ICP. Shapes that are not aligned at all need the spectral
+estimate instead (:func:`o3d_ofp.workflows.matching.match_eigenbases`); the quality report says
+so when the closest points are far away.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+import time
+from typing import Any
+
+import numpy as np
+
+from ..core._validation import as_faces, as_vertices
+from ..core.geometry import face_areas_normals
+from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality
+from .convert import require_open3d
+
+__all__ = [
+    "ICP_MAX_SAMPLES",
+    "ICP_MIN_SAMPLES",
+    "ICP_SAMPLES_PER_VERTEX",
+    "MAX_MEAN_DISTANCE",
+    "closest_correspondence",
+    "closest_points",
+]
+
+logger = logging.getLogger(__name__)
+
+#: The map is suspect when the mean closest-point distance exceeds this fraction of the source's
+#: bounding-box diagonal: the shapes are not aligned. Measured (closest target vertex -> source
+#: surface): a decimated copy of the bunny 2e-7; the paper's detail-transfer pair
+#: (models/t1_donut -> t0_donut, aligned, with large bumps) 0.029-0.032; the same shape turned by
+#: 90° 0.03-0.26 (bunny 0.06-0.09, FAUST 0.04-0.26); two different shapes normalized to the same
+#: box 0.034-0.15.
+MAX_MEAN_DISTANCE = 0.05
+#: Above this mean distance (but below :data:`MAX_MEAN_DISTANCE`) a note says the shapes may be
+#: misaligned or differ in geometry: a 10° turn gives 0.006-0.03.
+MEAN_DISTANCE_NOTE = 0.02
+#: A note is added when the largest distance exceeds this fraction (a part of the target is
+#: missing from the source, or a few vertices are far away).
+MAX_DISTANCE_NOTE = 0.1
+#: Default ICP correspondence distance, as a fraction of the source's bounding-box diagonal.
+ICP_DISTANCE = 0.05
+#: ICP (Open3D) aligns onto points sampled uniformly (seeded) on the source surface, with their
+#: triangle's normal: this many per target vertex, between :data:`ICP_MIN_SAMPLES` and
+#: :data:`ICP_MAX_SAMPLES` (a point-cloud source: at most that many of its points). A refinement
+#: against the exact surface follows, so the sampling only needs to bring ICP close: on blob(5)
+#: turned by 4°, 60k samples leave 1e-5 of the diagonal, the refinement 1e-16.
+ICP_SAMPLES_PER_VERTEX = 20
+ICP_MIN_SAMPLES = 50_000
+ICP_MAX_SAMPLES = 200_000
+#: ICP iterations at each of the two correspondence distances (3x the maximum, then the maximum).
+ICP_ITERATIONS = 50
+#: At most this many iterations of the final point-to-plane refinement against the exact source
+#: surface; it stops when a step (rotation vector and translation, in fractions of the diagonal)
+#: is smaller than :data:`REFINE_STEP` (measured: 3-4 iterations; below 1e-9 the steps only
+#: wander between triangles).
+REFINE_ITERATIONS = 20
+REFINE_STEP = 1e-8
+#: Below this fitness (fraction of target vertices within the ICP distance) the ICP result is
+#: doubtful and a note says so.
+ICP_MIN_FITNESS = 0.8
+#: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
+#: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
+#: returned: by the smallest face index.
+_SNAP = 1e-8
+
+
+def _frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and diagonal of the bounding box of ``vertices`` ((3,) ndarray, float > 0)."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    return 0.5 * (lo + hi), diag if diag > 0 else 1.0
+
+
+def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of the closest point of each triangle to each point, in float64.
+
+    The Voronoi-region method of Ericson, *Real-Time Collision Detection* (5.1.5), vectorized:
+    weights that vanish (closest point on an edge or at a vertex) are exactly 0.
+
+    Parameters
+    ----------
+    p, a, b, c : (n, 3) ndarray of float64
+        Query points and the corners of the triangle of each.
+
+    Returns
+    -------
+    (n, 3) ndarray of float64
+        Weights of ``a``, ``b``, ``c`` (non-negative, rows sum to 1; NaN rows where the
+        triangle is degenerate and the formula divides by zero).
+    """
+
+    def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", x, y)
+
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v_in, w_in = vb / denom, vc / denom
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    out = np.stack([1.0 - v_in - w_in, v_in, w_in], axis=1)  # interior
+    regions = (  # in reverse priority: later assignments win, as Ericson's early returns do
+        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), lambda: (0 * t_bc, 1.0 - t_bc, t_bc)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: (1.0 - t_ac, 0 * t_ac, t_ac)),
+        ((d6 >= 0) & (d5 <= d6), lambda: (0 * d6, 0 * d6, 0 * d6 + 1.0)),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: (1.0 - t_ab, t_ab, 0 * t_ab)),
+        ((d3 >= 0) & (d4 <= d3), lambda: (0 * d3, 0 * d3 + 1.0, 0 * d3)),
+        ((d1 <= 0) & (d2 <= 0), lambda: (0 * d1 + 1.0, 0 * d1, 0 * d1)),
+    )
+    for mask, weights in regions:
+        if mask.any():
+            out[mask] = np.stack(weights(), axis=1)[mask]
+    return out
+
+
+def _canonical_faces(
+    faces: np.ndarray, n1: int, face_ids: np.ndarray, bary: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move points on an edge or at a vertex to the smallest-index triangle holding it.
+
+    Parameters
+    ----------
+    faces : (m, 3) ndarray of int64
+        Source triangles.
+    n1 : int
+        Number of source vertices.
+    face_ids : (n,) ndarray of int64
+        Triangle of each point.
+    bary : (n, 3) ndarray of float64
+        Its weights, with exact zeros where the point lies on the triangle's boundary.
+
+    Returns
+    -------
+    face_ids : (n,) ndarray of int64
+    bary : (n, 3) ndarray of float64
+        The same points, expressed in the canonical triangle.
+    """
+    corners = faces[face_ids]  # (n, 3)
+    support = bary > 0
+    n_support = support.sum(axis=1)
+    new_ids = face_ids.copy()
+    # A key per vertex (v) or edge (min * n1 + max + n1 * n1, never equal to a vertex key).
+    keys = np.full(face_ids.shape[0], -1, dtype=np.int64)
+    at_vertex = n_support == 1
+    keys[at_vertex] = corners[at_vertex, np.argmax(bary[at_vertex], axis=1)]
+    on_edge = n_support == 2
+    if on_edge.any():
+        pair = np.sort(corners[on_edge][support[on_edge]].reshape(-1, 2), axis=1)
+        keys[on_edge] = pair[:, 0] * n1 + pair[:, 1] + n1 * n1
+    moved = keys >= 0
+    if not moved.any():
+        return face_ids, bary
+    wanted = np.unique(keys[moved])
+    # Keys of every vertex and edge of the candidate triangles, with the triangle's index.
+    wanted_vertices = np.unique(
+        np.concatenate([wanted[wanted < n1], (wanted[wanted >= n1] - n1 * n1) // n1])
+    )
+    candidates = np.flatnonzero(np.isin(faces, wanted_vertices).any(axis=1))
+    cf = faces[candidates]
+    edge_keys = [
+        np.minimum(cf[:, i], cf[:, j]) * n1 + np.maximum(cf[:, i], cf[:, j]) + n1 * n1
+        for i, j in ((0, 1), (1, 2), (2, 0))
+    ]
+    all_keys = np.concatenate([cf[:, 0], cf[:, 1], cf[:, 2], *edge_keys])
+    all_faces = np.tile(candidates, 6)
+    order = np.lexsort((all_faces, all_keys))  # by key, then by face index
+    all_keys, all_faces = all_keys[order], all_faces[order]
+    first = np.flatnonzero(np.r_[True, all_keys[1:] != all_keys[:-1]])
+    pos = np.searchsorted(all_keys[first], keys[moved])
+    new_ids[moved] = all_faces[first[pos]]
+    # Carry each non-zero weight to the corner of the new triangle holding the same vertex.
+    rows = np.flatnonzero(moved & (new_ids != face_ids))
+    if rows.size:
+        old_c, new_c = corners[rows], faces[new_ids[rows]]
+        new_b = np.zeros((rows.size, 3))
+        for j in range(3):
+            k = np.argmax(old_c[:, j, None] == new_c, axis=1)
+            w = np.where(support[rows, j], bary[rows, j], 0.0)
+            np.add.at(new_b, (np.arange(rows.size), k), w)
+        bary = bary.copy()
+        bary[rows] = new_b
+    return new_ids, bary
+
+
+def closest_points(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point on a triangle mesh's surface to each query point.
+
+    The closest triangle comes from Open3D's ``RaycastingScene`` (float32, on a copy centred on
+    the mesh's bounding box and scaled to unit diagonal); the point on it is recomputed in
+    float64. A point on an edge or at a vertex is reported in the smallest-index triangle
+    holding it, so the answer does not depend on the BVH's order.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Mesh vertices.
+    faces : (m, 3) array_like of int
+        Mesh triangles.
+    points : (q, 3) array_like of float
+        Query points.
+
+    Returns
+    -------
+    face_ids : (q,) ndarray of int64
+        Triangle holding each closest point.
+    barycentric : (q, 3) ndarray of float64
+        Its barycentric coordinates: weights of the triangle's vertices in face order
+        (non-negative, rows sum to 1).
+    closest : (q, 3) ndarray of float64
+        The closest points, ``sum_i barycentric[:, i] * vertices[faces[face_ids, i]]``.
+    distances : (q,) ndarray of float64
+        Distance from each query point to its closest point.
+
+    Raises
+    ------
+    ValueError
+        On badly shaped arrays or out-of-range faces (the message names the argument).
+    """
+    V = as_vertices(vertices, name="vertices")
+    F = as_faces(faces, V.shape[0], name="faces")
+    P = as_vertices(points, name="points")
+    return _Surface(V, F).closest(P)
+
+
+class _Surface:
+    """A source mesh ready for closest-point queries.
+
+    An Open3D ``RaycastingScene`` of its copy centred on its bounding box and scaled to unit
+    diagonal (the scene works in float32).
+
+    Parameters
+    ----------
+    V : (n1, 3) ndarray of float64
+        Vertices (checked).
+    F : (m1, 3) ndarray of int64
+        Triangles (checked).
+    """
+
+    def __init__(self, V: np.ndarray, F: np.ndarray) -> None:
+        o3d = require_open3d()
+        self._o3d = o3d
+        self.V, self.F = V, F
+        self.centre, self.diag = _frame(V)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(self.normalize(V), dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.uint32)),
+        )
+
+    def normalize(self, P: np.ndarray) -> np.ndarray:
+        """Points in the centred, unit-diagonal frame ((q, 3) -> (q, 3))."""
+        return (P - self.centre) / self.diag
+
+    def query(
+        self, Pn: np.ndarray, *, canonical: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Closest surface points of normalized query points.
+
+        Parameters
+        ----------
+        Pn : (q, 3) ndarray of float64
+            Query points in the normalized frame.
+        canonical : bool, default True
+            Report points on an edge or at a vertex in the smallest-index triangle holding them
+            (not needed while aligning).
+
+        Returns
+        -------
+        face_ids : (q,) ndarray of int64
+        barycentric : (q, 3) ndarray of float64
+        corners : (q, 3, 3) ndarray of float64
+            The triangles' corners, normalized frame.
+        distances : (q,) ndarray of float64
+            Distances in the normalized frame (fractions of the diagonal).
+        """
+        ans = self.scene.compute_closest_points(self._o3d.core.Tensor(Pn.astype(np.float32)))
+        face_ids = ans["primitive_ids"].numpy().astype(np.int64)
+        uv = ans["primitive_uvs"].numpy().astype(np.float64)
+        found = ans["points"].numpy().astype(np.float64)
+        # RaycastingScene's convention (checked in the tests): point = (1-u-v) A + u B + v C.
+        bary_o3d = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
+        corners = self.normalize(self.V[self.F[face_ids]])  # (q, 3, 3), float64
+        bary = np.clip(_closest_on_triangles(Pn, *corners.transpose(1, 0, 2)), 0.0, 1.0)
+        d64 = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
+        d32 = np.linalg.norm(Pn - found, axis=1)
+        bad = ~np.isfinite(d64) | (d64 > d32 + 1e-6)  # degenerate triangles: keep Open3D's answer
+        if bad.any():
+            logger.debug("closest points: %d degenerate triangles kept as found", bad.sum())
+            bary[bad] = np.clip(bary_o3d[bad], 0.0, 1.0)
+        bary[bary < _SNAP] = 0.0
+        bary /= bary.sum(axis=1, keepdims=True)
+        if canonical:
+            new_ids, bary = _canonical_faces(self.F, self.V.shape[0], face_ids, bary)
+            if not np.array_equal(new_ids, face_ids):
+                corners = self.normalize(self.V[self.F[new_ids]])
+            face_ids = new_ids
+        distances = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
+        return face_ids, bary, corners, distances
+
+    def closest(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`closest_points` in the shapes' units (same returns)."""
+        face_ids, bary, _, _ = self.query(self.normalize(P))
+        closest = np.einsum("qi,qij->qj", bary, self.V[self.F[face_ids]])
+        return face_ids, bary, closest, np.linalg.norm(P - closest, axis=1)
+
+
+def _check_options(align: Any, max_icp_distance: Any) -> tuple[bool, float | None]:
+    if not isinstance(align, (bool, np.bool_)):
+        raise TypeError(f"align must be True or False; got {align!r}")
+    if max_icp_distance is None:
+        return bool(align), None
+    if isinstance(max_icp_distance, bool) or not isinstance(max_icp_distance, numbers.Real):
+        raise TypeError(f"max_icp_distance must be a positive number; got {max_icp_distance!r}")
+    value = float(max_icp_distance)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"max_icp_distance must be a positive finite number; got {value}")
+    return bool(align), value
+
+
+def _surface_samples(
+    V: np.ndarray, F: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform random points on a mesh's surface, with their triangle's normal.
+
+    Parameters
+    ----------
+    V : (n1, 3) ndarray
+        Vertices.
+    F : (m1, 3) ndarray
+        Triangles.
+    n : int
+        Number of points.
+    rng : numpy.random.Generator
+        Random source.
+
+    Returns
+    -------
+    points : (n, 3) ndarray
+    normals : (n, 3) ndarray
+        Unit normals of the triangles the points lie in (point-to-plane ICP against these
+        planes is exact, unlike planes through the vertices).
+    """
+    areas, face_normals = face_areas_normals(V, F)
+    total = areas.sum()
+    if not total > 0:
+        raise ValueError("faces_1: every triangle is degenerate (the source has no area)")
+    cdf = np.cumsum(areas / total)
+    face = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"), F.shape[0] - 1)
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    bary = np.stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2], axis=1)
+    return np.einsum("qi,qij->qj", bary, V[F[face]]), face_normals[face]
+
+
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of the rotation vector ``omega`` (3,) (Rodrigues)."""
+    angle = float(np.linalg.norm(omega))
+    if angle == 0.0:
+        return np.eye(3)
+    k = omega / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def _fit(
+    surface: _Surface, Pn: np.ndarray, T: np.ndarray, distance: float
+) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact fit of transformed target points to the source surface (normalized frame).
+
+    Returns
+    -------
+    fitness : float
+        Fraction of points within ``distance`` of the surface.
+    rmse : float
+        RMS distance of those (0 when there are none).
+    X : (q, 3) ndarray
+        The transformed points.
+    closest : (q, 3) ndarray
+        Their closest surface points.
+    normals : (q, 3) ndarray
+        Unit normals of the triangles holding those (zero for degenerate triangles).
+    """
+    X = Pn @ T[:3, :3].T + T[:3, 3]
+    _, bary, corners, d = surface.query(X, canonical=False)
+    closest = np.einsum("qi,qij->qj", bary, corners)
+    n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+    inlier = d < distance
+    rmse = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else 0.0
+    return float(inlier.mean()), rmse, X, closest, n
+
+
+def _refine_on_surface(
+    surface: _Surface, Pn: np.ndarray, T: np.ndarray, distance: float
+) -> np.ndarray:
+    """Point-to-plane ICP against the exact closest points on the source's triangles.
+
+    Open3D's ICP matches sampled points; this last stage matches the surface itself, so a target
+    lying on the source surface is put back exactly (to float precision), whatever the sampling.
+
+    Parameters
+    ----------
+    surface : _Surface
+        The source.
+    Pn : (q, 3) ndarray
+        Target points, normalized frame.
+    T : (4, 4) ndarray
+        Starting transform (normalized frame).
+    distance : float
+        Correspondence distance (fraction of the diagonal).
+
+    Returns
+    -------
+    (4, 4) ndarray
+        The refined transform.
+    """
+    T = T.copy()
+    for _ in range(REFINE_ITERATIONS):
+        _, _, X, Q, n = _fit(surface, Pn, T, distance)
+        inlier = np.linalg.norm(X - Q, axis=1) < distance
+        if inlier.sum() < 6:
+            break
+        A = np.hstack([np.cross(X, n), n])[inlier]
+        r = np.einsum("ij,ij->i", Q - X, n)[inlier]
+        step = np.linalg.lstsq(A, r, rcond=None)[0]
+        dR = _rotation(step[:3])
+        T[:3, :3] = dR @ T[:3, :3]
+        T[:3, 3] = dR @ T[:3, 3] + step[3:]
+        if np.linalg.norm(step) < REFINE_STEP:
+            break
+    return T
+
+
+def _icp(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    surface: _Surface | None,
+    V2: np.ndarray,
+    centre: np.ndarray,
+    diag: float,
+    max_distance: float,
+) -> tuple[np.ndarray, float, float, float]:
+    """Rigid point-to-plane ICP of the target vertices onto the source, from the identity.
+
+    Open3D's ICP on points sampled on the source surface (3x the distance, then the distance),
+    then, for a mesh source, a point-to-plane refinement against the exact closest points.
+
+    Parameters
+    ----------
+    V1 : (n1, 3) ndarray
+        Source vertices.
+    F1 : (m1, 3) ndarray or None
+        Source triangles (None: normals are estimated from the points).
+    surface : _Surface or None
+        The source mesh's closest-point scene (None for a point cloud).
+    V2 : (n2, 3) ndarray
+        Target vertices.
+    centre : (3,) ndarray
+        Centre of the source's bounding box.
+    diag : float
+        Its diagonal.
+    max_distance : float
+        Correspondence distance, in the shapes' units.
+
+    Returns
+    -------
+    transform : (4, 4) ndarray
+        Rigid transform taking the target into the source's frame (shapes' units).
+    fitness : float
+        Fraction of target vertices within ``max_distance`` of the source after alignment.
+    inlier_rmse : float
+        RMS distance of those, in the shapes' units.
+    fitness_identity : float
+        The fitness before alignment. When ICP ends with a worse fit (lower fitness, or equal
+        fitness and a larger RMSE) than the identity, the identity is returned.
+    """
+    o3d = require_open3d()
+    reg = o3d.pipelines.registration
+    rng = np.random.default_rng(0)
+    n_samples = min(ICP_MAX_SAMPLES, max(ICP_MIN_SAMPLES, ICP_SAMPLES_PER_VERTEX * V2.shape[0]))
+    if F1 is not None:
+        points, normals = _surface_samples(V1, F1, n_samples, rng)
+    else:
+        idx = np.arange(V1.shape[0])
+        if idx.size > n_samples:
+            idx = np.sort(rng.choice(idx.size, n_samples, replace=False))
+        points, normals = V1[idx], None
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector((points - centre) / diag))
+    if normals is not None:
+        source.normals = o3d.utility.Vector3dVector(normals)
+    else:
+        source.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=20))
+    Pn = (V2 - centre) / diag
+    target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Pn))
+    distance = max_distance / diag
+    T = np.eye(4)
+    for scale in (3.0, 1.0):  # coarse to fine: 3x the distance, then the distance itself
+        result = reg.registration_icp(
+            target,
+            source,
+            scale * distance,
+            T,
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(
+                relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=ICP_ITERATIONS
+            ),
+        )
+        T = np.asarray(result.transformation, dtype=np.float64).copy()
+    if surface is not None:
+        T = _refine_on_surface(surface, Pn, T, distance)
+        start = _fit(surface, Pn, np.eye(4), distance)[:2]
+        end = _fit(surface, Pn, T, distance)[:2]
+    else:
+        first = reg.evaluate_registration(target, source, distance, np.eye(4))
+        start = (float(first.fitness), float(first.inlier_rmse))
+        end = (float(result.fitness), float(result.inlier_rmse))
+    if (end[0], -end[1]) < (start[0], -start[1]):
+        logger.info(
+            "ICP fits worse than the identity (fitness %.3f < %.3f): the identity is kept",
+            end[0],
+            start[0],
+        )
+        T, end = np.eye(4), start
+    # Back to the shapes' units: x -> R x + (c - R c + diag t).
+    R, t = T[:3, :3], T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = centre - R @ centre + diag * t
+    return out, end[0], end[1] * diag, start[0]
+
+
+def closest_correspondence(
+    vertices_1: Any,
+    faces_1: Any,
+    vertices_2: Any,
+    *,
+    faces_2: Any = None,
+    align: bool = False,
+    max_icp_distance: float | None = None,
+) -> Correspondence:
+    """Map every target vertex to the closest point on the source surface (aligned shapes).
+
+    For shapes that already occupy the same place (a scan and its simplified or remeshed
+    copy): no eigenbasis is computed. With ``align=True`` a rigid point-to-plane ICP first
+    brings an *almost* aligned target onto the source; shapes that are not aligned at all need
+    the spectral estimate (the report marks the map suspect then).
+
+    Parameters
+    ----------
+    vertices_1 : (n1, 3) array_like of float
+        Source vertices.
+    faces_1 : (m1, 3) array_like of int or None
+        Source triangles; None for a point-cloud source (nearest source point, no barycentric
+        coordinates).
+    vertices_2 : (n2, 3) array_like of float
+        Target vertices.
+    faces_2 : (m2, 3) array_like of int, optional
+        Target triangles: only used for the area ratio in the quality report.
+    align : bool, default False
+        Rigidly register the target onto the source (ICP from the identity) before the query.
+    max_icp_distance : float, optional
+        ICP correspondence distance in the shapes' units; default 5 % of the source's
+        bounding-box diagonal. The ICP runs at 3x this distance, then at this distance.
+
+    Returns
+    -------
+    Correspondence
+        ``method="closest"``; ``p2p_21`` (n2,) is the source vertex of largest barycentric weight
+        in the closest triangle (the nearest source point for a point cloud), ``faces_21`` (n2,)
+        and ``barycentric_21`` (n2, 3) give the closest point itself (weights of the triangle's
+        vertices in face order). ``options`` (JSON-serializable) holds ``align``, ``source``
+        (``"mesh"`` or ``"points"``), ``max_icp_distance`` (as given), ``mean_distance_rel`` and
+        ``max_distance_rel`` (closest-point distances as fractions of the source's
+        bounding-box diagonal) and, when ``align=True``, ``icp``: ``transformation`` (4x4 list,
+        taking the target into the source's frame: the query points are
+        ``V2 @ T[:3, :3].T + T[:3, 3]``), ``fitness`` and ``inlier_rmse`` (shapes' units) after
+        alignment, ``fitness_identity`` before it, ``max_correspondence_distance`` (shapes'
+        units), ``rotation_degrees`` and ``translation``. The quality report is suspect when the
+        mean distance exceeds :data:`MAX_MEAN_DISTANCE` of the source's diagonal; orthogonality,
+        inconsistency and reversed_fraction are NaN (no functional map), area_ratio too unless
+        ``faces_2`` is given.
+
+    Raises
+    ------
+    ValueError
+        On badly shaped arrays, out-of-range faces or a non-positive ``max_icp_distance``
+        (the message names the argument).
+    TypeError
+        On non-numeric arrays or a non-boolean ``align``.
+    """
+    t0 = time.perf_counter()
+    V1 = as_vertices(vertices_1, name="vertices_1")
+    F1 = None if faces_1 is None else as_faces(faces_1, V1.shape[0], name="faces_1")
+    V2 = as_vertices(vertices_2, name="vertices_2")
+    F2 = None if faces_2 is None else as_faces(faces_2, V2.shape[0], name="faces_2")
+    align, max_icp_distance = _check_options(align, max_icp_distance)
+    n1, n2 = V1.shape[0], V2.shape[0]
+    centre, diag = _frame(V1)
+    options: dict[str, Any] = {
+        "align": align,
+        "source": "points" if F1 is None else "mesh",
+        "max_icp_distance": max_icp_distance,
+    }
+    notes: list[str] = []
+    surface = None if F1 is None else _Surface(V1, F1)
+    query = V2
+    if align:
+        max_distance = ICP_DISTANCE * diag if max_icp_distance is None else max_icp_distance
+        transform, fitness, rmse, fitness_0 = _icp(V1, F1, surface, V2, centre, diag, max_distance)
+        query = V2 @ transform[:3, :3].T + transform[:3, 3]
+        angle = math.degrees(
+            math.acos(float(np.clip((np.trace(transform[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        )
+        options["icp"] = {
+            "transformation": transform.tolist(),
+            "fitness": fitness,
+            "fitness_identity": fitness_0,
+            "inlier_rmse": rmse,
+            "max_correspondence_distance": max_distance,
+            "rotation_degrees": angle,
+            "translation": float(np.linalg.norm(transform[:3, 3])),
+        }
+        logger.info(
+            "ICP: rotation %.3g°, fitness %.3f, inlier RMSE %.3g of the diagonal",
+            angle,
+            fitness,
+            rmse / diag,
+        )
+        if fitness < ICP_MIN_FITNESS:
+            notes.append(
+                f"ICP fitness {fitness:.2f}: only that fraction of the target lies within "
+                f"{max_distance:.3g} of the source after alignment (a partial target, or a "
+                "pose too far from the source's for ICP)"
+            )
+
+    if F1 is None:
+        from scipy.spatial import cKDTree
+
+        distances, p2p = cKDTree(V1).query(query, workers=-1)
+        p2p = p2p.astype(np.int64)
+        faces_21 = bary = None
+    else:
+        faces_21, bary, _, distances = surface.closest(query)
+        p2p = F1[faces_21, np.argmax(bary, axis=1)]
+
+    mean_rel = float(distances.mean() / diag)
+    max_rel = float(distances.max() / diag)
+    options["mean_distance_rel"] = mean_rel
+    options["max_distance_rel"] = max_rel
+    reasons: list[str] = []
+    retry = "" if align else "pass align=True if they are almost aligned; "
+    if mean_rel > MAX_MEAN_DISTANCE:
+        after = " even after ICP (align=True)" if align else ""
+        reasons.append(
+            f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} of "
+            f"the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point map "
+            f"(--map closest) is only for shapes in the same place: {retry}otherwise use the "
+            "spectral estimate (--map estimate)"
+        )
+    notes.append(
+        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} of the source's "
+        "bounding-box diagonal"
+    )
+    if MEAN_DISTANCE_NOTE < mean_rel <= MAX_MEAN_DISTANCE:
+        notes.append(
+            f"the target lies {mean_rel:.3g} of the diagonal from the source on average: the "
+            f"shapes differ in geometry or are slightly misaligned ({retry}a closest-point map "
+            "needs shapes in the same place)"
+        )
+    if max_rel > MAX_DISTANCE_NOTE and not reasons:
+        notes.append(
+            f"some target vertices lie far from the source (up to {max_rel:.3g} of its "
+            "diagonal): parts of the target may be missing from the source"
+        )
+    area_ratio = math.nan
+    if F2 is not None and F1 is not None:
+        a1 = face_areas_normals(V1, F1)[0].sum()
+        a2 = face_areas_normals(V2, F2)[0].sum()
+        area_ratio = float(a2 / a1) if a1 > 0 else math.nan
+        if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
+            notes.append(
+                f"the target's area is {area_ratio:.3g} times the source's: not the same "
+                "surface (different units, or a partial shape)"
+            )
+    hit = np.unique(p2p).size
+    quality = MapQuality(
+        coverage=hit / n1,
+        coverage_ratio=hit / min(n1, n2),
+        orthogonality=math.nan,
+        inconsistency=math.nan,
+        reversed_fraction=math.nan,
+        area_ratio=area_ratio,
+        suspect=bool(reasons),
+        reasons=tuple(reasons),
+        notes=tuple(notes),
+    )
+    seconds = time.perf_counter() - t0
+    logger.info(
+        "closest map: %d target vertices onto %d source vertices in %.2f s, mean distance "
+        "%.3g of the diagonal",
+        n2,
+        n1,
+        seconds,
+        mean_rel,
+    )
+    if reasons:
+        logger.warning("%s", reasons[0])
+    return Correspondence(
+        p2p_21=p2p,
+        n_source=n1,
+        method="closest",
+        options=options,
+        quality=quality,
+        faces_21=faces_21,
+        barycentric_21=bary,
+    )
