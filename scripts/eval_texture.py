@@ -127,7 +127,8 @@ def render(source, target, best, corr, path: Path) -> None:
         V, F = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
         tex = mesh_texture(mesh)
         items.append((V, F, None))
-        textures.append((corner_uvs(mesh).reshape(-1, 2), tex.images[0]))
+        image = next(im for im in tex.images if im.size)  # the legacy reader adds an empty one
+        textures.append((corner_uvs(mesh).reshape(-1, 2), image))
         titles.append(title)
     Vt, Ft = np.asarray(target.vertices), np.asarray(target.triangles)
     items.insert(1, (Vt, Ft, np.full((len(Vt), 3), 0.75)))
