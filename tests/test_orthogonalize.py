@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
+from o3d_ofp.core import orthogonalize
 from o3d_ofp.core.orthogonalize import gram_schmidt, resolve_tol
 from o3d_ofp.core.products import eigenproducts
 
@@ -64,7 +65,24 @@ def test_strict_threshold_agrees_with_reference_up_to_fragility(real_candidates)
     assert abs(err[0] - err[1]) < 1e-3 * max(err[1], 1e-3)
 
 
-def test_block_size_does_not_change_selection():
+def _spy_gram_path(monkeypatch):
+    """Record what every call of the Gram-matrix selection returned (-1: not certified)."""
+    results = []
+    real = orthogonalize._select_by_gram
+
+    def spy(*args, **kwargs):
+        t = real(*args, **kwargs)
+        results.append(t)
+        return t
+
+    monkeypatch.setattr(orthogonalize, "_select_by_gram", spy)
+    return results
+
+
+# 1e-6 goes through the recursive projections; 1e-3 and 1e-2 through the Gram-matrix selection
+# (tol >= _GRAM_MIN_TOL), whose decisions must not depend on how the columns are cut either.
+@pytest.mark.parametrize("tol", [1e-6, 1e-3, 1e-2])
+def test_block_size_does_not_change_selection(tol, monkeypatch):
     rng = np.random.default_rng(1)
     n = 300
     base = rng.standard_normal((n, 25))
@@ -74,14 +92,20 @@ def test_block_size_does_not_change_selection():
         axis=1,
     )
     mass = rng.uniform(0.5, 2.0, n)
-    ref = gram_schmidt(B, mass, tol=1e-6, block_size=1)
+    gram_results = _spy_gram_path(monkeypatch)
+    ref = gram_schmidt(B, mass, tol=tol, block_size=1)
     for bs in (3, 16, 64, 500):
-        gs = gram_schmidt(B, mass, tol=1e-6, block_size=bs)
+        gs = gram_schmidt(B, mass, tol=tol, block_size=bs)
         np.testing.assert_array_equal(gs.kept, ref.kept)
         np.testing.assert_allclose(projector(gs.Q, mass), projector(ref.Q, mass), atol=1e-10)
-    _, kept_loop = gram_schmidt_loop(B, mass, 1e-6)
+    _, kept_loop = gram_schmidt_loop(B, mass, tol)
     np.testing.assert_array_equal(ref.kept, kept_loop)
     assert len(ref.kept) == 25 + 25  # base, then the 25 independent products base * base[:, 0]
+    if tol >= orthogonalize._GRAM_MIN_TOL:
+        # the Gram selection itself decided (certified) every block here, none fell back
+        assert gram_results and min(gram_results) >= 0
+    else:
+        assert not gram_results
 
 
 def test_scale_invariance_zero_and_duplicate_columns():
@@ -144,3 +168,57 @@ def test_gram_path_falls_back_when_cholesky_fails(monkeypatch):
     got = gram_schmidt(B, mass, tol=1e-2)
     np.testing.assert_array_equal(got.kept, expected.kept)
     assert _orth_error(got.Q, mass) < 1e-12
+
+
+def _kahan_candidates(n, p, tol, seed, margin=1.05):
+    """Kahan-like candidates: M-orthonormal directions mixed by a Kahan matrix.
+
+    K = diag(s^j)(I − c·strictly-upper ones) with s² + c² = 1 has unit columns whose residual
+    against the columns before it is s^j; s is set so that the last one is ``margin·tol``.
+    So every candidate is kept by the column loop, yet K's condition number grows like
+    ((1 + c)/s)^p (computed: 7e13 for p = 100 at tol = 1e-2, 1e20 to 5e28 for the others
+    here): residuals taken from the Gram matrix, whose error grows with its square, are
+    meaningless.
+    """
+    rng = np.random.default_rng(seed)
+    s = (margin * tol) ** (1.0 / (p - 1))
+    c = np.sqrt(1.0 - s * s)
+    K = s ** np.arange(p)[:, None] * (np.eye(p) - c * np.triu(np.ones((p, p)), 1))
+    mass = rng.uniform(0.5, 2.0, n)
+    U, _ = np.linalg.qr(rng.standard_normal((n, p)))
+    return (U / np.sqrt(mass)[:, None]) @ K, mass
+
+
+@pytest.mark.parametrize(
+    ("p", "tol", "seed"),
+    [
+        # Before the Gram selection was certified it kept 66 of 100, 281 of 300, all 150 but
+        # with ‖QᵀMQ − I‖ = 8e-6 (Cholesky-QR2 of an ill-conditioned block), 143 of 200.
+        (100, 1e-2, 0),
+        (300, 1e-2, 0),
+        (150, 1e-2, 1),
+        (200, 1e-3, 2),
+        # Recursive path: the right selection, but ‖QᵀMQ − I‖ was 3e-10..4e-10 before the
+        # re-orthogonalization check.
+        (300, 1e-6, 3),
+        (300, 1e-9, 4),
+    ],
+)
+def test_kahan_like_candidates_keep_the_loop_selection_and_orthonormality(
+    p, tol, seed, monkeypatch
+):
+    B, mass = _kahan_candidates(3000, p, tol, seed)
+    gram_results = _spy_gram_path(monkeypatch)
+    gs = gram_schmidt(B, mass, tol=tol)
+    _, kept_ref = gram_schmidt_loop(B, mass, tol)
+    np.testing.assert_array_equal(kept_ref, np.arange(p))  # all residuals are above tol
+    np.testing.assert_array_equal(gs.kept, kept_ref)
+    assert _orth_error(gs.Q, mass) <= 1e-10
+    # Q R reproduces the candidates (all kept) and R stays upper triangular
+    norms = np.sqrt(mass @ B**2)
+    assert (np.sqrt(mass @ (gs.Q @ gs.R - B) ** 2) / norms).max() < 1e-10
+    assert np.all(np.tril(gs.R, -1) == 0)
+    if tol >= orthogonalize._GRAM_MIN_TOL:
+        # The Gram selection was tried on every block and refused at least one (the recursive
+        # projections then decided it): the case this test is about.
+        assert len(gram_results) == -(-p // 128) and min(gram_results) == -1

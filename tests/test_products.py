@@ -31,14 +31,19 @@ def test_count_order_and_values_match_naive(k, order):
 @pytest.mark.parametrize("block_size", [1, 7, 64, 1000])
 def test_blocks_tile_the_matrix(block_size):
     evecs = np.random.default_rng(0).standard_normal((30, 7))
-    full, _ = eigenproducts(evecs, 3)
+    # eigenproducts() is assembled from eigenproduct_blocks(): compare with the naive
+    # enumeration instead, which shares no code with either.
+    ref, _ = eigenproducts_naive(evecs, 3)
     starts, cols = [], []
     for start, block in eigenproduct_blocks(evecs, 3, block_size=block_size):
+        assert block.shape == (30, min(block_size, ref.shape[1] - start)) and block.shape[1] > 0
         starts.append(start)
         cols.append(block)
-        assert block.shape[1] <= block_size
-    assert starts[0] == 0
-    np.testing.assert_array_equal(np.concatenate(cols, axis=1), full)
+    # consecutive blocks starting at column 0, covering every candidate exactly once
+    np.testing.assert_array_equal(starts, np.cumsum([0] + [c.shape[1] for c in cols[:-1]]))
+    tiled = np.concatenate(cols, axis=1)
+    assert tiled.shape == ref.shape
+    np.testing.assert_allclose(tiled, ref, rtol=1e-13, atol=0)
 
 
 def test_indices_for_large_order_do_not_build_a_tensor():

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -47,6 +49,39 @@ def test_self_transfer_reproduces_span(blob_mesh):
     np.testing.assert_allclose(T12, np.eye(B.size), atol=1e-12)
 
 
+@pytest.mark.parametrize("scale", [1.0, 1.5])
+def test_analytic_transfer_is_exact_for_a_permuted_copy(blob_mesh, scale):
+    # The same surface with its vertices shuffled, moved and scaled: target vertex i is source
+    # vertex perm[i]. Its eigenfunctions are the source's, permuted and divided by the scale
+    # (M-normalization); the eigensolver orients them the same way, so some are flipped here by
+    # hand (as another solver could return them). C = Ψᵀ M₂ Φ[perm] is then scale times a
+    # signed identity, C̃ maps every eigenproduct exactly (with the product of the signs), and
+    # Eq. (20), O = R₂ C̃ R₁ᵀ (R₁ R₁ᵀ)⁻¹, must transfer any signal of the source span exactly.
+    V, F = blob_mesh
+    rng = np.random.default_rng(7)
+    perm = rng.permutation(len(V))
+    V2, F2 = scale * V[perm] + np.array([0.3, -1.0, 2.0]), np.argsort(perm)[F]
+    eig_1, eig_2 = ofp.eigenbasis(V, F, k=10), ofp.eigenbasis(V2, F2, k=10)
+    flips = np.array([1, -1, 1, -1, -1, 1, 1, -1, 1, 1, -1], dtype=float)
+    eig_2 = dataclasses.replace(eig_2, evecs=eig_2.evecs * flips)
+    C = ofp.fmap_from_p2p(perm, eig_1, eig_2)
+    np.testing.assert_allclose(C, scale * np.diag(flips), atol=1e-8 * scale)
+    B_1, B_2 = ofp.ofp_basis(eig_1, order=2), ofp.ofp_basis(eig_2, order=2)
+    np.testing.assert_array_equal(B_1.indices, B_2.indices)  # the drop test ignores signs
+    analytic = ofp.transfer_matrix(B_1, B_2, C, method="analytic")
+    p2p = ofp.transfer_matrix(B_1, B_2, p2p_21=perm)
+    # Both are scale times the signed identity relating the orthonormal bases (Q₂ = Q₁[perm] S
+    # / scale), with the signs of the flipped products: a wrong sign in C̃ would show there.
+    assert np.any(np.diag(p2p) < 0)
+    np.testing.assert_allclose(np.abs(analytic), scale * np.eye(B_1.size), atol=1e-8)
+    np.testing.assert_allclose(analytic, p2p, atol=1e-8)
+    f = B_1.reconstruct(rng.standard_normal((B_1.size, 2)))
+    for T12 in (analytic, p2p):
+        np.testing.assert_allclose(
+            ofp.transfer_signal(f, B_1, B_2, T12), f[perm], atol=1e-8 * np.abs(f).max()
+        )
+
+
 def test_transfer_errors(small_pair):
     eig_1, eig_2 = small_pair
     B_1, B_2 = ofp.ofp_basis(eig_1, order=2, k=6), ofp.ofp_basis(eig_2, order=2, k=5)
@@ -73,7 +108,12 @@ def test_prods_baseline_fits_in_span(blob_mesh):
     f = P[:, 3] + 0.5 * P[:, 20]
     approx = approximate_prods(f, eig, 2)
     err = ofp.approximation_error(f, approx, eig.mass)
-    assert err < 0.05  # truncated SVD keeps the dominant directions only (σ/σ₁ > 0.014)
+    # f lies in the span of the products, but the truncated SVD keeps only the directions with
+    # σ/σ₁ > (k − 1)·2e-3 = 0.014 (27 of 45 here), so the fit is not exact. Measured: 3.8e-3
+    # (3.8e-3..4.0e-3 on blob levels 3-5). The ratios next to the cut are 0.024 and 0.0094, far
+    # from 0.014, so round-off cannot change the kept set: the bound 6e-3 (1.6x) only absorbs
+    # eigensolver and mesh changes, and the lower one checks that directions are truncated.
+    assert 1e-3 < err < 6e-3
     assert fit_prods(np.column_stack([f, f]), eig, 2).shape == (P.shape[1], 2)
 
 

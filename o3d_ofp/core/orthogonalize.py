@@ -13,16 +13,37 @@ still removed more than half of the norm: Kahan's "twice is enough" test). Insid
 per-column drop test then runs
 
 * for ``tol >= 1e-4``, on the block's Gram matrix (a Cholesky factorization that skips dropped
-  columns: its residuals are exact to ~b·ε/tol² relative), the kept columns being orthonormalized
-  by Cholesky-QR applied twice;
-* for smaller ``tol``, by recursive halving: the left half is processed, the right half is
-  projected twice on what it kept, and so on down to single columns, which resolves residuals
-  down to round-off.
+  columns), the kept columns being orthonormalized by Cholesky-QR applied twice. Residuals
+  taken from a Gram matrix carry errors that grow with the square of the block's condition
+  number, so every decision is checked against a first-order bound of that error (see
+  `_select_by_gram`); a block with any residual within the bound of the threshold, or too
+  ill-conditioned for the bound to hold (graded, Kahan-like columns), is handed to the
+  recursive path below. On eigenproducts at ``tol = 1e-2`` every block passes; at 1e-3 and
+  1e-4 the first one (the nearly collinear low-degree products) usually does not.
+* for smaller ``tol`` (and for the blocks above), by recursive halving: the left half is
+  processed, the right half is projected twice on what it kept, and so on down to single
+  columns; a column whose in-block projections removed all but 1e-3 of its norm is projected
+  once more on everything kept before its test.
 
-Either way each candidate meets every function kept before it before its drop test, so the
-selection is that of the column loop (tests compare both). The kept functions are M-orthonormal
-to round-off (‖QᵀMQ − I‖ ~ 1e-14) whatever ``tol``, where the paper's single-pass classical
-Gram-Schmidt loses orthogonality.
+Either way each candidate meets every function kept before it before its drop test, and the
+selection is that of the column loop (modified Gram-Schmidt applied twice; the tests compare
+both, on eigenproducts and on Kahan-like candidates) except for a residual within rounding
+distance of ``tol`` times its norm: in the recursive path that distance is the loss of
+orthogonality accumulated inside the block (before the repair below) times the column's norm,
+~1e-14 relative on most blocks, up to a few 1e-10 seen (order-3 FAUST products at 1e-9,
+Kahan-like candidates). At ``tol = 1e-9`` real meshes do have residuals that close, and
+algorithms equal in exact arithmetic keep slightly different sets.
+
+Orthonormality: after each block, the loss of orthogonality of its new functions (to each other
+and to the older ones) is estimated with random probes, and if it exceeds 1e-12 they are
+projected once more on the older ones and orthonormalized by Cholesky-QR (rare on eigenproducts:
+a few blocks at ``tol = 1e-9``; without it the losses compound from block to block, up to a
+complete loss on order-3 products at 1e-9). The kept functions are M-orthonormal to
+‖QᵀMQ − I‖ ≲ 1e-12 (the probes' threshold), ~1e-14 in practice (measured <= 7e-14 on FAUST,
+TOSCA and bunny eigenproducts of order 2 and 3 at 1e-2 .. 1e-9, and on Kahan-like
+candidates), whatever ``tol``, where the paper's single-pass classical Gram-Schmidt loses
+orthogonality. ``R`` is computed from the final functions: ``Q R`` reproduces the kept
+candidates to round-off.
 """
 
 from __future__ import annotations
@@ -49,10 +70,17 @@ PRESETS: dict[str, float] = {"ours": 1e-2, "ours*": 1e-9}
 #: ~ε·norm, so its relative size stays below ~1e3·ε).
 _DEEP_CANCELLATION = 1e-3
 
-#: Thresholds at least this large use the Gram-matrix selection inside a block (exact there:
-#: see `_select_by_gram`); smaller ones the recursive projections, which resolve residuals down
-#: to round-off.
+#: Thresholds at least this large try the Gram-matrix selection inside a block (accepted only
+#: where its error bound certifies every decision: see `_select_by_gram`); smaller ones use the
+#: recursive projections directly (at tol < 1e-4 the bound would rarely certify anything).
 _GRAM_MIN_TOL = 1e-4
+
+#: Random probes of a block's loss of orthogonality (see `_reorthogonalize`), and the loss (an
+#: estimate of the Frobenius norm of the block's columns of QᵀQ − I) above which its new
+#: functions are re-orthogonalized. Round-off alone gives ~1e-14; with 8 probes, a loss 100
+#: times the threshold goes unnoticed with probability ~1e-15 (χ² with 8 degrees of freedom).
+_N_PROBES = 8
+_REORTH_TOL = 1e-12
 
 
 def resolve_tol(tol: Any = None, preset: Any = None) -> float:
@@ -261,43 +289,79 @@ def _select_by_gram(
     start: int,
     kept: list[int],
 ) -> int:
-    """Select as :func:`_select_in_block` does, but from the Gram matrix WᵀW.
+    """Select as :func:`_select_in_block` does, but from the Gram matrix WᵀW, when provably safe.
 
     The residual of column j against the columns kept before it in the block is the Schur
     complement ``G_jj − ‖L⁻¹ G_Kj‖²`` of a Cholesky factorization that skips dropped columns.
-    Its absolute error is ~b·ε·‖w_j‖², so the relative error of a residual at the threshold is
-    ~b·ε / (2 tol²): 1e-11 at tol = 1e-2, which is why this path is used only for
-    ``tol >= _GRAM_MIN_TOL``. The kept vectors are then formed by Cholesky-QR applied twice
-    (orthonormal to round-off: the kept columns have condition number below ~1/tol).
-    Returns how many were kept; ``kept`` and ``W`` are untouched if it raises.
+    Its rounding error is not small in general: with ``x = G_KK⁻¹ G_Kj`` (the coefficients of
+    ``w_j``'s projection on the kept columns) and ``d = sqrt(diag G)``, a componentwise backward
+    error ``|ΔG| ≤ γ d dᵀ`` of the Gram matrix and of the factorization moves it by up to
+    ``γ (d_j + Σ_i |x_i| d_i)²`` to first order. That is ~γ‖w_j‖² for well-conditioned blocks
+    but grows with the square of the block's condition number: on graded, Kahan-like columns
+    it exceeds the residuals themselves, and decisions taken from it are wrong. So the bound is
+    evaluated for every column once the selection is done (one triangular solve for all of
+    them), and the selection is accepted only if no residual lies within it of the threshold
+    and the first-order expansion is valid (``γ · t · ‖L̃⁻¹‖_F² ≤ 0.1`` for the kept block's
+    Cholesky factor scaled to a unit diagonal). The kept vectors are then formed by
+    Cholesky-QR applied twice, accurate to round-off because the same condition bounds their
+    condition number by ~(0.1/γ)^½.
+
+    Returns
+    -------
+    int
+        How many were kept, or -1 when the selection cannot be certified (the caller uses the
+        recursive projections; ``kept`` is then untouched).
 
     Raises
     ------
     numpy.linalg.LinAlgError
-        If the Cholesky factorization of the second pass fails (the caller falls back).
+        If the Cholesky factorization of the second pass fails (the caller falls back; ``kept``
+        is untouched).
     """
+    n, b = W.shape
     G = _inner(W, W)
-    b = W.shape[1]
+    d = np.sqrt(np.maximum(np.diag(G), 0.0))
     chol = np.zeros((b, b))  # lower-triangular factor of the kept columns' Gram matrix
+    proj = np.zeros((b, b))  # column j: L⁻¹ G[sel, j] over the columns kept before j
+    res2 = np.zeros(b)
+    thr2 = (tol * norm0) ** 2
     sel: list[int] = []
     for j in range(b):
         if norm0[j] == 0.0:
             continue
         m = len(sel)
+        res2[j] = G[j, j]
         if m:
             r = scipy.linalg.solve_triangular(
                 chol[:m, :m], G[sel, j], lower=True, check_finite=False
             )
-            res2 = G[j, j] - r @ r
-        else:
-            r, res2 = None, G[j, j]
-        if res2 < (tol * norm0[j]) ** 2:
+            proj[:m, j] = r
+            res2[j] -= r @ r
+        if res2[j] < thr2[j]:
             continue
-        if m:
-            chol[m, :m] = r
-        chol[m, m] = np.sqrt(res2)
+        chol[m, :m] = proj[:m, j]
+        chol[m, m] = np.sqrt(res2[j])
         sel.append(j)
     t = len(sel)
+    # A posteriori certificate of every decision (see above). γ covers the Gram matrix's dot
+    # products of length n and the factorization's of length <= b, with a factor 2 to spare.
+    gamma = (n + 2 * b) * np.finfo(np.float64).eps
+    spread = d.copy()
+    if t:
+        L = chol[:t, :t]
+        coef = scipy.linalg.solve_triangular(
+            L, proj[:t], lower=True, trans="T", check_finite=False
+        )  # column j: the coefficients x of w_j on the kept columns (zero from its own on)
+        d_kept = d[sel]
+        spread += d_kept @ np.abs(coef)
+        scaled_inv = scipy.linalg.solve_triangular(
+            L / d_kept[:, None], np.eye(t), lower=True, check_finite=False
+        )
+        if gamma * t * np.sum(scaled_inv**2) > 0.1:
+            return -1
+    live = norm0 > 0.0
+    if np.any(np.abs(res2[live] - thr2[live]) <= 2.0 * gamma * spread[live] ** 2):
+        return -1
     if t == 0:
         return 0
     Qn = out[:, :t]
@@ -311,6 +375,53 @@ def _select_by_gram(
             Qn[...] = done
     kept.extend(start + j for j in sel)
     return t
+
+
+def _reorthogonalize(older: np.ndarray, Qn: np.ndarray, seed: int) -> None:
+    """Restore, in place, the orthonormality of a block's new functions if it was lost.
+
+    The loss ``‖[older, Qn]ᵀ Qn − [0; I]‖_F`` is estimated with ``_N_PROBES`` Gaussian probe
+    vectors ``Z`` (``E[‖E Z‖_F²] = _N_PROBES · ‖E‖_F²``; reading ``older`` and ``Qn`` once or
+    twice, it costs a few percent of the block). When it exceeds ``_REORTH_TOL``, ``Qn`` is
+    projected once more on ``older`` and orthonormalized by Cholesky-QR, then probed again.
+    Both steps keep ``span(older, Qn[:, :i])`` for every i, so the rows of R computed from the
+    result afterwards still reproduce the kept candidates and stay upper trapezoidal.
+    """
+    t = Qn.shape[1]
+    if t == 0:
+        return
+    Z = np.asfortranarray(np.random.default_rng(seed).standard_normal((t, _N_PROBES)))
+    for attempt in range(4):
+        Y = dgemm(1.0, Qn, Z)
+        loss_new = np.linalg.norm(_inner(Qn, Y) - Z)
+        loss_old = np.linalg.norm(_inner(older, Y)) if older.shape[1] else 0.0
+        if max(loss_new, loss_old) <= _REORTH_TOL * np.sqrt(_N_PROBES):
+            return
+        if attempt == 3:
+            logger.warning(
+                "%d new functions stay non-orthonormal after re-orthogonalization "
+                "(probed loss %.1e)",
+                t,
+                max(loss_new, loss_old) / np.sqrt(_N_PROBES),
+            )
+            return
+        logger.debug(
+            "re-orthogonalizing %d new functions (probed loss %.1e, %.1e vs older)",
+            t,
+            loss_new / np.sqrt(_N_PROBES),
+            loss_old / np.sqrt(_N_PROBES),
+        )
+        if loss_old > 0.0:
+            _subtract_product(Qn, older, _inner(older, Qn))
+        try:
+            T = scipy.linalg.cholesky(_inner(Qn, Qn), lower=True, check_finite=False)
+        except np.linalg.LinAlgError:  # far from orthonormal: Householder QR, same spans
+            q, r = np.linalg.qr(Qn)
+            Qn[...] = q * np.where(np.diag(r) < 0, -1.0, 1.0)
+            continue
+        done = dtrsm(1.0, np.asfortranarray(T), Qn, side=1, lower=1, trans_a=1, overwrite_b=1)
+        if not np.shares_memory(done, Qn):
+            Qn[...] = done
 
 
 def gram_schmidt_blocks(
@@ -380,9 +491,12 @@ def gram_schmidt_blocks(
             try:
                 t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
             except np.linalg.LinAlgError:  # Cholesky-QR broke down: an ill-conditioned block
-                logger.debug("block at %d: Gram path failed, using recursive projections", start)
+                t = -1
+            if t < 0:
+                logger.debug("block at %d: Gram selection not certified; recursive path", start)
         if t < 0:
             t = _select_in_block(W, new_cols, norm0, n1, basis.view, tol, start, kept)
+        _reorthogonalize(basis.view, new_cols[:, :t], seed=start)
         # Eq. (17): R[i, j] = <q_i, b_j>. Older rows are the projection coefficients; rows of
         # the functions kept in this block are their products with the projected block (the
         # old-basis part is orthogonal to them); functions kept later give 0.
