@@ -120,7 +120,7 @@ def demo(out: Path) -> None:
     from o3d_ofp.cli import main
 
     with tempfile.TemporaryDirectory() as tmp:
-        if main(["-q", "demo", "-o", tmp, "--subdivisions", "4"]) != 0:
+        if main(["-q", "demo", "-o", tmp]) != 0:
             raise SystemExit("the demo failed")
         os.replace(os.path.join(tmp, "demo.png"), out / "demo.png")
 

@@ -183,3 +183,14 @@ def test_nearest_neighbors_degenerate_inputs():
     for d, q in ((bad, queries), (data, np.full((2, 4), np.inf))):
         with pytest.raises(ValueError, match="must be finite"):
             nearest_neighbors(d, q)
+
+
+def test_p2p_from_fmap_holds_when_the_target_is_scaled(blob_mesh):
+    """fmap_from_p2p's convention (C = s·I for a copy scaled by s) round-trips at any scale."""
+    V, F = blob_mesh
+    e1 = ofp.eigenbasis(V, F, k=12)
+    for s in (1e-3, 1.0, 1e3):
+        e2 = ofp.eigenbasis(V * s, F, k=12)
+        C = ofp.fmap_from_p2p(np.arange(len(V)), e1, e2)
+        np.testing.assert_allclose(C, s * np.eye(13), atol=1e-6 * s)
+        np.testing.assert_array_equal(ofp.p2p_from_fmap(C, e1, e2), np.arange(len(V)))

@@ -343,8 +343,12 @@ def p2p_from_fmap(
             f"({eig_2.k + 1}, {eig_1.k + 1}) (target rows, source columns)"
         )
     C = check_fmap(C, rows, cols)
+    # fmap_12 maps coefficients in the shapes' own eigenbases (fmap_from_p2p's convention, in
+    # which a copy scaled to s² the area has C = s·I): on unit-area bases the mapped source
+    # rows are A1/A2 times Φ Cᵀ, so the two embeddings are compared at the same scale.
     with single_threaded_below(max(eig_1.n_vertices, eig_2.n_vertices)):
-        return nearest_neighbors(eig_1.evecs[:, :cols] @ C.T, eig_2.evecs[:, :rows], method=method)
+        mapped = eig_1.evecs[:, :cols] @ C.T * (eig_1.area / eig_2.area)
+        return nearest_neighbors(mapped, eig_2.evecs[:, :rows], method=method)
 
 
 def p2p_from_template(corr_1: Any, corr_2: Any, vertices_2: Any) -> np.ndarray:

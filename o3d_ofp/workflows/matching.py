@@ -23,6 +23,7 @@ from ..core._atomic import atomic_path
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from ..core.fmap import estimate_fmap, farthest_points, unit_area, zoomout_refine
 from ..core.geometry import vertex_normals
+from ..core.multiscale import local_p2p_from_fmap
 from ..core.spectrum import EigenBasis, eigenbasis
 
 __all__ = [
@@ -64,6 +65,11 @@ MAX_REVERSED = 0.35
 AREA_RATIO_NOTE = 1.5
 
 _FORMAT_VERSION = 1
+
+#: Above this many (source x target) vertex pairs the final point map is found by the
+#: cell-pruned exact search of :func:`o3d_ofp.core.multiscale.local_p2p_from_fmap` (measured,
+#: FAUST subdivided: 110k x 110k in 2.7 s instead of 98 s, the same map) rather than a scan.
+DENSE_PAIRS = 2e8
 
 #: Weights of the descriptor-commutativity term tried by :func:`match_eigenbases`.
 DCOMM_WEIGHTS = (0.1, 0.0)
@@ -561,7 +567,10 @@ def match_eigenbases(
     _, C, w_dcomm = best
     logger.info("match: point map at full resolution (%d target vertices)", eig_2.n_vertices)
     report("point map", 0.7)
-    p2p = p2p_from_fmap(C, u1, u2)
+    if eig_1.n_vertices * eig_2.n_vertices > DENSE_PAIRS:
+        p2p = local_p2p_from_fmap(C, u1, u2)  # exact, without the quadratic scan
+    else:
+        p2p = p2p_from_fmap(C, u1, u2)
     fmap_12 = C * math.sqrt(eig_2.area / eig_1.area)  # back to the shapes' own areas
     report("quality", 0.95)
     quality = map_quality(p2p, eig_1, eig_2, fmap_12)
