@@ -139,3 +139,32 @@ def test_textured_obj_written_with_its_material_and_no_temporary_files(tmp_path)
     assert "map_Kd" in mtl and "/" not in mtl.split("map_Kd")[1].split()[0]  # relative name
     back = read_geometry(tmp_path / "out.obj")
     assert back.has_triangle_uvs() and any(np.asarray(t).size > 1 for t in back.textures)
+
+
+def test_results_keep_the_targets_kind_and_attributes(legacy_mesh):
+    """Every kind in, the same kind out; attributes the operation does not replace are kept."""
+    V, F = adapters.geometry_to_arrays(legacy_mesh)
+    legacy_mesh.compute_vertex_normals()
+    legacy_mesh.triangle_uvs = o3d.utility.Vector2dVector(np.zeros((3 * len(F), 2)))
+    tmesh = o3d.t.geometry.TriangleMesh.from_legacy(legacy_mesh)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V))
+    cloud.normals = o3d.utility.Vector3dVector(V)
+    tcloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(V.astype(np.float32)))
+    tcloud.point.colors = o3d.core.Tensor(np.zeros((len(V), 3), np.uint8))
+    new = np.full((len(V), 3), 0.5)
+    for target in (legacy_mesh, tmesh, cloud, tcloud):
+        before = adapters.geometry_to_arrays(target)[0].copy()
+        colored = adapters.like_target(target, colors=new)
+        assert type(colored) is type(target)
+        np.testing.assert_allclose(adapters.vertex_colors(colored), new, atol=1 / 255)
+        moved = adapters.like_target(target, vertices=2 * V)
+        assert type(moved) is type(target)
+        np.testing.assert_allclose(adapters.geometry_to_arrays(moved)[0], 2 * V, rtol=1e-6)
+        np.testing.assert_array_equal(adapters.geometry_to_arrays(target)[0], before)  # untouched
+    kept = adapters.like_target(legacy_mesh, colors=new)
+    assert kept.has_triangle_uvs() and kept.has_vertex_normals()
+    np.testing.assert_allclose(
+        np.asarray(kept.vertex_normals), np.asarray(legacy_mesh.vertex_normals)
+    )
+    assert "normals" in adapters.like_target(tmesh, vertices=2 * V).vertex
+    assert adapters.like_target(tcloud, colors=new).point.colors.dtype == o3d.core.uint8

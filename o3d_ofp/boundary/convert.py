@@ -339,7 +339,7 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
             out.estimate_normals()
     if C is not None:
         old = attrs["colors"].dtype if "colors" in attrs else o3d.core.float32
-        if old in (o3d.core.uint8, o3d.core.UInt8):
+        if old == o3d.core.uint8:
             attrs["colors"] = o3d.core.Tensor(np.round(C * 255.0).astype(np.uint8))
         else:
             attrs["colors"] = o3d.core.Tensor(C).to(old)
