@@ -1,21 +1,74 @@
-"""Spectral filtering in an orthonormal eigenproduct basis (the paper's Sec. 4.2, Figs. 14-15).
+"""Spectral filtering of shapes: OFP coefficients (the paper's Sec. 4.2) and coordinate low-pass.
 
-A signal's coefficients ``c = Qᵀ M f`` are scaled by gains that depend on each basis function's
-Dirichlet energy (its "frequency"), then the signal is rebuilt. Because Q is orthonormal the
-coefficients are unique and the edit is stable, unlike with raw eigenproducts.
+* :func:`spectral_filter`, :func:`smooth_gains`, :func:`sharpen_gains`,
+  :func:`edit_coefficient`: a signal's coefficients ``c = Qᵀ M f`` in an orthonormal
+  eigenproduct basis are scaled by gains that depend on each basis function's Dirichlet energy
+  (its "frequency"), then the signal is rebuilt (Figs. 14-15). Because Q is orthonormal the
+  coefficients are unique and the edit is stable, unlike with raw eigenproducts.
+* :func:`smooth_coordinates`, :func:`sharpen_coordinates`: a low-pass of the vertex
+  coordinates over the *whole* spectrum of the shape's Laplacian (not only the span of a
+  basis), with one meaning of its strength at every scale and resolution, that keeps the
+  enclosed volume. The smoothed shape is the low-pass itself (nothing of the input above the
+  cut is added back), so noise is removed; sharpening amplifies what the low-pass removes.
+
+The low-pass is a Butterworth filter of order 4 in the eigenvalues λ of ``L φ = λ μ φ``
+(``L`` the cotangent stiffness, ``μ = area / n`` the same mass at every vertex):
+``g(λ) = 1 / (1 + (t λ)⁴)`` with ``t = (smooth · √area)²``. It is applied exactly, without
+computing eigenfunctions, as a sum of two complex shifted solves (partial fractions of
+``1/(1 + x⁴)``). ``smooth`` is a length: the smoothing radius as a fraction of √area, i.e.
+detail smaller than about ``smooth · √area`` is removed — on a uniformly sampled mesh; with the
+same mass at every vertex the radius follows the local sampling (``∝ sqrt(m_i / m̄)``, m_i the
+vertex area), so a mesh denser in its detailed parts keeps more of them. This is invariant
+under scaling and under uniform refinement. Measured (``scripts/eval_detail.py``, noise of
+0.5 % of the diagonal along the normals): with the lumped (true) vertex areas as mass the best
+results were 10-25 % farther from the clean meshes, behind Open3D's Taubin smoothing; with the
+same mass at every vertex they are closer than Taubin's best on every mesh tried.
 """
 
 from __future__ import annotations
 
+import logging
+import math
+import numbers
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 
-from ._validation import as_signal, check_int
+from ._validation import as_signal, as_vertices, check_int
 from .basis import OFPBasis
+from .spectrum import EigenBasis
 
-__all__ = ["edit_coefficient", "sharpen_gains", "smooth_gains", "spectral_filter"]
+__all__ = [
+    "DEFAULT_SMOOTH",
+    "MAX_SHARPEN",
+    "MAX_SMOOTH",
+    "edit_coefficient",
+    "lowpass",
+    "sharpen_coordinates",
+    "sharpen_gains",
+    "smooth_coordinates",
+    "smooth_gains",
+    "spectral_filter",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Default smoothing radius, as a fraction of √area. Measured on the bunny, FAUST 093 and TOSCA
+#: centaur2 with noise of 0.5 % of the bounding-box diagonal along the normals: 0.50-0.61 times
+#: the noisy mesh's distance to the clean one (the best radius, 0.010-0.012, gives 0.48-0.56).
+DEFAULT_SMOOTH = 0.01
+#: Largest accepted ``smooth``: a radius of a quarter of √area already reduces a human to a blob.
+MAX_SMOOTH = 0.25
+#: Largest accepted ``sharpen``. Measured on five shared meshes (bunny, bunny_small, teddy,
+#: FAUST 093, centaur2) at ``smooth`` <= 0.02: up to 2, at most 0.13 % of the triangles turn
+#: over; at 3 up to 0.53 %, at 5 up to 1.9 %, at 10 up to 8 % (the shape is then noise).
+MAX_SHARPEN = 2.0
+#: Order of the Butterworth low-pass (4: flat pass band, so the shape itself barely shrinks;
+#: measured 3 and 4 alike, 2 and 1 shrink more and denoise less).
+_ORDER = 4
 
 
 def smooth_gains(strength: float = 5.0) -> Callable[[np.ndarray], np.ndarray]:
@@ -134,3 +187,181 @@ def edit_coefficient(B: OFPBasis, f: Any, rank: int, delta: Any) -> np.ndarray:
     return x + (
         np.outer(q, d) if x.ndim == 2 and d.ndim == 1 else q[:, None] * d if x.ndim == 2 else q * d
     )
+
+
+def _check_amount(value: Any, name: str, maximum: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number; got {value!r}")
+    value = float(value)
+    if not (math.isfinite(value) and 0.0 <= value <= maximum):
+        raise ValueError(f"{name} must be in [0, {maximum:g}]; got {value}")
+    return value
+
+
+def _eigenbasis_of(B: Any) -> EigenBasis:
+    eig = B.eig if isinstance(B, OFPBasis) else B
+    if not isinstance(eig, EigenBasis):
+        raise TypeError(f"B must be an OFPBasis or an EigenBasis; got {type(B).__name__}")
+    return eig
+
+
+def _uniform_mass(eig: EigenBasis) -> np.ndarray:
+    """``area / n`` at every cleaned vertex, split among welded copies; 0 on removed ones."""
+    c = eig.cleaning
+    if c is None:
+        return np.full(eig.n_vertices, eig.area / eig.n_vertices)
+    mult = c.multiplicity.astype(np.float64)[c.index]
+    return np.where(c.kept, eig.area / c.n_vertices / np.maximum(mult, 1.0), 0.0)
+
+
+def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
+    """Butterworth low-pass of a per-vertex signal over the whole spectrum of the Laplacian.
+
+    Gains ``1 / (1 + (t λ)⁴)``, ``t = (smooth · √area)²``, ``λ`` the eigenvalues of
+    ``L φ = λ (area / n) φ`` (see the module notes); computed exactly with two complex sparse
+    solves, no eigenfunctions.
+
+    Parameters
+    ----------
+    B : OFPBasis or EigenBasis
+        The shape (its stiffness and area are used).
+    f : (n,) or (n, d) array_like of float
+        Signal.
+    smooth : float, default 0.01
+        Smoothing radius as a fraction of √area, in [0, 0.25]; 0 returns ``f``.
+
+    Returns
+    -------
+    ndarray, shape of ``f``
+        The low-passed signal (constants are kept exactly).
+    """
+    eig = _eigenbasis_of(B)
+    smooth = _check_amount(smooth, "smooth", MAX_SMOOTH)
+    x = as_signal(f, eig.n_vertices)
+    if smooth == 0.0:
+        return x
+    X = x.reshape(x.shape[0], -1)
+    mu = _uniform_mass(eig)
+    empty = mu <= 0
+    t = smooth * smooth * eig.area
+    rhs = mu[:, None] * X
+    out = np.zeros_like(X)
+    # 1/(1 + x⁴) = Σ_k (−r_k/4) / (x − r_k) over the roots r_k of 1 + x⁴ (conjugate pairs:
+    # the two with positive imaginary part, doubled, real part taken). x ↦ t λ becomes the
+    # operator (t L − r M)⁻¹ M.
+    for k in range(_ORDER // 2):
+        r = complex(np.exp(1j * np.pi * (2 * k + 1) / _ORDER))
+        A = (t * eig.stiffness - sp.diags(r * mu + empty)).tocsc().astype(np.complex128)
+        lu = sla.splu(A)
+        out += 2.0 * np.real((-r / _ORDER) * lu.solve(rhs.astype(np.complex128)))
+    if np.any(empty):  # vertices removed by the cleaning: the value of their stand-in
+        c = eig.cleaning
+        stand_in = c.representative[c.index]
+        out[empty] = out[stand_in[empty]]
+    return out.reshape(x.shape)
+
+
+def _signed_volume(V: np.ndarray, F: np.ndarray) -> float:
+    V = V - V.mean(axis=0)
+    return float(np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6)
+
+
+def _keep_size(eig: EigenBasis, reference: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Scale X about its centroid to the enclosed volume of ``reference`` (clouds: RMS radius)."""
+    w = eig.mass / eig.area
+    centre = w @ X
+    if eig.faces is not None:
+        v_ref, v_out = _signed_volume(reference, eig.faces), _signed_volume(X, eig.faces)
+        ratio = v_ref / v_out if v_out != 0 else 0.0
+        if not ratio > 0:
+            logger.warning("the enclosed volume is not defined here; the size is not restored")
+            return X
+        s = ratio ** (1.0 / 3.0)
+    else:
+        r_ref = math.sqrt(w @ ((reference - w @ reference) ** 2).sum(1))
+        r_out = math.sqrt(w @ ((X - centre) ** 2).sum(1))
+        s = r_ref / r_out if r_out > 0 else 1.0
+    return centre + s * (X - centre)
+
+
+def smooth_coordinates(
+    B: Any, vertices: Any, *, smooth: float = DEFAULT_SMOOTH, keep_volume: bool = True
+) -> np.ndarray:
+    """Low-pass of the vertex coordinates that does not shrink the shape.
+
+    Parameters
+    ----------
+    B : OFPBasis or EigenBasis
+        The shape's basis (its Laplacian, area and faces are used; the result is not limited to
+        the span of the basis).
+    vertices : (n, 3) array_like of float
+        Coordinates to smooth (usually the shape's own vertices).
+    smooth : float, default 0.01
+        Smoothing radius as a fraction of √area, in [0, 0.25] (see the module notes): detail
+        smaller than about ``smooth · √area`` is removed, at every scale and resolution.
+    keep_volume : bool, default True
+        Scale the result about its centroid so that it encloses the volume of ``vertices``
+        (for a point cloud: keeps the mass-weighted RMS distance to the centroid).
+
+    Returns
+    -------
+    (n, 3) ndarray
+        The smoothed coordinates (the low-pass itself: nothing above the cut is added back).
+
+    Raises
+    ------
+    ValueError
+        If ``smooth`` is outside [0, 0.25] (the message names ``smooth``).
+    """
+    eig = _eigenbasis_of(B)
+    V = as_vertices(vertices)
+    if V.shape[0] != eig.n_vertices:
+        raise ValueError(f"vertices has {V.shape[0]} rows; the basis has {eig.n_vertices}")
+    X = lowpass(eig, V, smooth=smooth)
+    return _keep_size(eig, V, X) if keep_volume and smooth > 0 else X
+
+
+def sharpen_coordinates(
+    B: Any,
+    vertices: Any,
+    *,
+    sharpen: float = 1.0,
+    smooth: float = DEFAULT_SMOOTH,
+    keep_volume: bool = True,
+) -> np.ndarray:
+    """Enhance detail: ``X + sharpen · (X − lowpass(X))`` (unsharp masking).
+
+    Parameters
+    ----------
+    B : OFPBasis or EigenBasis
+        The shape's basis (see :func:`smooth_coordinates`).
+    vertices : (n, 3) array_like of float
+        Coordinates.
+    sharpen : float, default 1.0
+        Gain added to the detail smaller than ``smooth · √area``, in [0, 2]: the detail is
+        multiplied by ``1 + sharpen``. The range is where measured shapes stay clean (at most
+        0.13 % of the triangles turned over, see :data:`MAX_SHARPEN`); values outside are
+        refused.
+    smooth : float, default 0.01
+        Size of the detail that is enhanced (as in :func:`smooth_coordinates`).
+    keep_volume : bool, default True
+        Scale the result about its centroid to the input's enclosed volume.
+
+    Returns
+    -------
+    (n, 3) ndarray
+        The sharpened coordinates.
+
+    Raises
+    ------
+    ValueError
+        If ``sharpen`` is outside [0, 2] or ``smooth`` outside [0, 0.25] (the message names
+        the keyword).
+    """
+    sharpen = _check_amount(sharpen, "sharpen", MAX_SHARPEN)
+    eig = _eigenbasis_of(B)
+    V = as_vertices(vertices)
+    if V.shape[0] != eig.n_vertices:
+        raise ValueError(f"vertices has {V.shape[0]} rows; the basis has {eig.n_vertices}")
+    X = V + sharpen * (V - lowpass(eig, V, smooth=smooth))
+    return _keep_size(eig, V, X) if keep_volume and sharpen > 0 and smooth > 0 else X
