@@ -2,7 +2,8 @@
 
 The package is layered (see the README's "Architecture"): :mod:`o3d_ofp.core` (arrays only),
 :mod:`o3d_ofp.workflows` (whole runs over arrays), :mod:`o3d_ofp.boundary` (Open3D geometries
-in and out), and the front ends :mod:`o3d_ofp.cli` and :mod:`o3d_ofp.render`. The names below
+in and out), :mod:`o3d_ofp.collections` (many shapes, on Dask) and the front ends
+:mod:`o3d_ofp.cli` and :mod:`o3d_ofp.render`. The names below
 are the public API. Importing the package does not import Open3D: the boundary functions import
 it when they are called.
 
@@ -29,6 +30,7 @@ from .boundary.api import (
 from .boundary.bake import texture_pullback, transfer_texture
 from .boundary.io import read_geometry, write_geometry
 from .boundary.texture import texture_colors
+from .collections import TargetResult, bases_many, transfer_many, write_summary
 from .core.basis import OFPBasis, approximation_error, ofp_basis
 from .core.cleaning import CleaningReport, clean_shape
 from .core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap, p2p_from_template
@@ -54,8 +56,10 @@ __all__ = [
     "GramSchmidt",
     "MapQuality",
     "OFPBasis",
+    "TargetResult",
     "__version__",
     "approximation_error",
+    "bases_many",
     "cached_basis",
     "clean_shape",
     "eigenbasis",
@@ -85,11 +89,13 @@ __all__ = [
     "transfer_colors",
     "transfer_detail",
     "transfer_function",
+    "transfer_many",
     "transfer_matrix",
     "transfer_signal",
     "transfer_texture",
     "wks",
     "write_geometry",
+    "write_summary",
     "zoomout_refine",
 ]
 

@@ -270,7 +270,11 @@ def _open3d_quad():
     V, F, uv, img = _quad_with_texture()
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
     mesh.triangle_uvs = o3d.utility.Vector2dVector(uv)
-    mesh.textures = [o3d.geometry.Image(img)]
+    # Legacy textures are stored bottom-up (see o3d_ofp.boundary.texture): made from the
+    # top-down array the way Open3D's own readers store a file's image.
+    from o3d_ofp.boundary.texture import legacy_texture_image
+
+    mesh.textures = [legacy_texture_image(img)]
     mesh.triangle_material_ids = o3d.utility.IntVector([0, 0])
     return mesh
 
@@ -322,3 +326,44 @@ def test_show_without_notebook(tmp_path, monkeypatch):
     )
     assert path == str(target) and len(opened) == 1
     assert read_png(target).shape[1] == 200
+
+
+def test_cli_render_draws_an_obj_with_its_own_texture(tmp_path, capsys):
+    from PIL import Image
+
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.render.panel import read_png
+
+    # Written by hand, so the truth is the OBJ convention: the image file's first row at v = 1.
+    _, _, _, img = _quad_with_texture()  # top-left red, top-right green, bottom-left blue
+    Image.fromarray(img).resize((64, 64), Image.NEAREST).save(tmp_path / "quad.png")
+    (tmp_path / "quad.mtl").write_text("newmtl m\nmap_Kd quad.png\n")
+    (tmp_path / "quad.obj").write_text(
+        "mtllib quad.mtl\nusemtl m\n"
+        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    out = tmp_path / "panel.png"
+    argv = ["render", str(tmp_path / "quad.obj"), "-o", str(out), "--width", "120",
+            "--height", "120"]  # fmt: skip
+    if main(argv) != 0:
+        err = capsys.readouterr().err
+        if "EGL" in err or "OpenGL" in err or "unavailable" in err.lower():
+            pytest.skip(f"no EGL/OpenGL context on this machine: {err}")
+        pytest.fail(err)
+    panel = read_png(out).astype(int)
+    # Each texture color covers a large area (an untextured or averaged quad has none of them),
+    # red above blue and left of green: the image is not drawn upside down or mirrored.
+    masks = {
+        "red": (panel[..., 0] > 150) & (panel[..., 1] < 90) & (panel[..., 2] < 90),
+        "green": (panel[..., 1] > 150) & (panel[..., 0] < 90) & (panel[..., 2] < 90),
+        "blue": (panel[..., 2] > 150) & (panel[..., 0] < 90) & (panel[..., 1] < 90),
+    }
+    centre = {}
+    for name, mask in masks.items():
+        assert mask.sum() > 0.05 * 120 * 120, name
+        ys, xs = np.nonzero(mask)
+        centre[name] = (ys.mean(), xs.mean())
+    assert centre["red"][0] < centre["blue"][0] - 20
+    assert centre["red"][1] < centre["green"][1] - 20

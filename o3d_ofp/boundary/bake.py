@@ -305,9 +305,10 @@ def transfer_texture(
 
     Parameters
     ----------
-    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
-        The textured source (per-corner UVs and an image, see :func:`mesh_texture`); not
-        modified.
+    source : open3d.geometry.TriangleMesh, open3d.t.geometry.TriangleMesh or MeshTexture
+        The textured source (per-corner UVs and an image, see :func:`mesh_texture`), or its
+        arrays already read by :func:`mesh_texture` (picklable: what a collection run sends
+        to its workers); not modified.
     target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
         The target, with its own per-corner UVs (``triangle_uvs``); not modified.
     correspondence : Correspondence, optional
@@ -343,7 +344,12 @@ def transfer_texture(
     if int(dilate) != dilate or dilate < 0:
         raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
     size, dilate = int(size), int(dilate)
-    src = mesh_texture(source, texture)
+    if isinstance(source, MeshTexture):
+        if texture is not None:
+            raise ValueError("texture= applies to a source mesh; a MeshTexture has its images")
+        src = source
+    else:
+        src = mesh_texture(source, texture)
     target_uv = corner_uvs(target)
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None

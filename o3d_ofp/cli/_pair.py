@@ -36,10 +36,18 @@ class Pair:
     landmarks: np.ndarray | None
 
 
-def add_pair_options(p: argparse.ArgumentParser, *, preset: str) -> None:
-    """Positional source/target and the map, basis and landmark flags."""
+def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool = False) -> None:
+    """Positional source/target(s) and the map, basis and landmark flags.
+
+    With ``several``, ``target`` is a list (files and folders: see :mod:`._many`).
+    """
     p.add_argument("source", help="source " + MESH_HELP)
-    p.add_argument("target", help="target " + MESH_HELP)
+    if several:
+        p.add_argument(
+            "target", nargs="+", help="target " + MESH_HELP + "; several, or a folder of them"
+        )
+    else:
+        p.add_argument("target", help="target " + MESH_HELP)
     p.add_argument("--k1", type=positive_int, help="source eigenfunctions (29)")
     p.add_argument("--k2", type=positive_int, help="target eigenfunctions (39)")
     add_basis_options(p, k=None, preset=preset)

@@ -35,8 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read the meshes (and scalars), render, write the PNG."""
-    from ..boundary.convert import vertex_colors
-    from ..render.panel import View, render_panel
+    from ..render.panel import View, geometry_items, render_panel
 
     check_output(args.output, (".png",), inputs=args.mesh)
     titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
@@ -47,10 +46,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             f"--scalars has {len(scalars)} entries for {len(args.mesh)} meshes ('-' for none)"
         )
-    items = []
+    items, textures = [], []
     for i, path in enumerate(args.mesh):
         geometry, V, F = read_shape(path)
-        colors = vertex_colors(geometry)
+        (item,), (texture,) = geometry_items([geometry])  # colors, or the mesh's own texture
+        colors = item[2]
         if scalars and scalars[i] != "-":
             values = load_npy(scalars[i], "per-vertex scalars", flag="--scalars")
             if values.ndim == 2 and values.shape[1] == 1:
@@ -60,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
                     f"--scalars {scalars[i]}: shape {values.shape}, expected ({V.shape[0]},) "
                     f"for {path}"
                 )
-            colors = values.astype(np.float64)
+            colors, texture = values.astype(np.float64), None
         items.append((V, F, colors))
+        textures.append(texture)
     view = View(front=args.front, up=args.up, zoom=args.zoom)
     options = {k: v for k, v in (("width", args.width), ("height", args.height)) if v}
     if args.label:
@@ -72,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
                 items,
                 args.output,
                 titles=titles,
+                textures=textures,
                 columns=args.columns,
                 view=view,
                 cmap=args.colormap,

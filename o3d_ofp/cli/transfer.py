@@ -5,6 +5,14 @@ from __future__ import annotations
 import argparse
 
 from ._common import CLOUD_OUT, MESH_OUT, UsageError, check_output, report, stage
+from ._many import (
+    PAIR_ONLY,
+    add_collection_options,
+    check_single,
+    is_collection,
+    refuse_flags,
+    run_transfers,
+)
 from ._pair import add_pair_options, bases_for_pair, estimate_or_use_map, read_pair
 from ._signal import read_signal, write_result
 from ._types import positive_int
@@ -15,7 +23,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("transfer", help="transfer a signal from a source to a target shape")
-    add_pair_options(p, preset="ours")
+    add_pair_options(p, preset="ours", several=True)
     p.add_argument(
         "--signal",
         help="colors, texture (as vertex colors), xyz or FILE.npy of the source; default: the "
@@ -30,15 +38,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="size of the baked texture image in pixels (1024)",
     )
     p.add_argument(
-        "-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values"
+        "-o",
+        "--output",
+        required=True,
+        help="colored target (mesh/cloud), or .npy values; with several targets a folder",
     )
+    add_collection_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Read, match (or read the map), transfer, write."""
+    """Read, match (or read the map), transfer, write (for each target)."""
     from ..workflows.pipeline import transfer_function
 
+    if is_collection(args.target, args.output):
+        return _run_many(args)
+    check_single(args)
+    args.target = args.target[0]
     check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=(args.source, args.target))
     pair = read_pair(args)
     if args.signal is None and _bakeable(pair, args.output):
@@ -71,6 +87,31 @@ def run(args: argparse.Namespace) -> int:
         ]
     )
     return 0
+
+
+def _run_many(args: argparse.Namespace) -> int:
+    """One source onto many targets: colors, or the texture baked into each target's UVs."""
+    from ..boundary.io import read_geometry
+    from ..boundary.texture import mesh_texture
+
+    refuse_flags(args, PAIR_ONLY)
+    if args.signal not in (None, "colors", "texture"):
+        raise UsageError(
+            f"--signal {args.signal}: with several targets the signal is colors or texture"
+        )
+    kind, signal = "colors", args.signal or "auto"
+    if args.signal is None:
+        try:  # a textured source: baked into the targets' own UV layouts, as for one target
+            mesh_texture(read_geometry(args.source))
+            kind = "texture"
+        except (TypeError, ValueError, FileNotFoundError):
+            pass
+    return run_transfers(
+        args,
+        kind=kind,
+        options={"k1": args.k1, "k2": args.k2, "signal": signal,
+                 "texture_size": args.texture_size},
+    )  # fmt: skip
 
 
 def _bakeable(pair, output: str) -> bool:

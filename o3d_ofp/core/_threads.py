@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
@@ -28,22 +29,76 @@ logger = logging.getLogger(__name__)
 PARALLEL_ROWS = 100_000
 
 
+#: BLAS limits are process-wide: the calls active in every thread share one record, so that
+#: interleaved calls (threads of a Dask worker) neither lift each other's limit nor leave it
+#: behind. The strictest active limit applies; the last call out restores what the first found.
+_LOCK = threading.Lock()
+_ACTIVE: list[int] = []
+_ORIGINAL: list[Any] = []  # the threadpoolctl object of the first entrant (0 or 1 element)
+
+
+def _take_control() -> None:
+    """Let this thread change OpenBLAS' pool (callers hold :data:`_LOCK`).
+
+    threadpoolctl >= 3.8 lets only one "controlling" thread change a shared OpenBLAS pool and
+    silently ignores the others: without this, a limit set or restored by a second thread
+    (the last one out of an interleaved pair, or any thread after the main one set a limit)
+    would not happen.
+    """
+    from threadpoolctl import OpenBLASController
+
+    clear = getattr(OpenBLASController, "clear_controlling_thread", None)
+    if clear is not None:
+        clear(force=True)
+
+
+def _apply(limit: int) -> Any:
+    from threadpoolctl import threadpool_limits
+
+    _take_control()
+    return threadpool_limits(limits=limit, user_api="blas")
+
+
+def _restore(limiter: Any) -> None:
+    _take_control()
+    limiter.restore_original_limits()
+    _take_control()  # released: the caller's other code may set limits again
+
+
 @contextlib.contextmanager
 def blas_threads(limit: int | None) -> Iterator[None]:
     """Limit BLAS (OpenBLAS, MKL, BLIS) to ``limit`` threads inside the block (None: no limit).
 
+    Safe in threads: while several blocks are open in any threads, the smallest of their
+    limits applies, and the setting found by the first one is restored when the last closes.
     A no-op when :mod:`threadpoolctl` is not installed.
     """
     if limit is None:
         yield
         return
     try:
-        from threadpoolctl import threadpool_limits
+        import threadpoolctl  # noqa: F401
     except ImportError:  # pragma: no cover - a dependency, but never required to run
         yield
         return
-    with threadpool_limits(limits=limit, user_api="blas"):
+    limit = int(limit)
+    with _LOCK:
+        _ACTIVE.append(limit)
+        if _ORIGINAL:
+            if limit < min(_ACTIVE[:-1]):
+                _apply(limit)
+        else:
+            _ORIGINAL.append(_apply(limit))
+    try:
         yield
+    finally:
+        with _LOCK:
+            before = min(_ACTIVE)
+            _ACTIVE.remove(limit)
+            if not _ACTIVE:
+                _restore(_ORIGINAL.pop())
+            elif min(_ACTIVE) != before:
+                _apply(min(_ACTIVE))
 
 
 def single_threaded_below(rows: int) -> contextlib.AbstractContextManager[None]:

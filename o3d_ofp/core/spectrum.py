@@ -25,6 +25,7 @@ import dataclasses
 import hashlib
 import logging
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -35,7 +36,7 @@ import scipy.sparse.linalg as sla
 from ._memory import check_memory
 from ._threads import blas_threads
 from ._validation import as_faces, as_signal, as_vertices, check_int
-from .cleaning import Cleaning, CleanShape, clean_shape
+from .cleaning import Cleaning, CleaningReport, CleanShape, clean_shape
 
 __all__ = [
     "DIGEST_OPTIONS",
@@ -160,6 +161,72 @@ class EigenBasis:
         """Signal ``Φ c`` from coefficients of shape (k+1,) or (k+1, d)."""
         c = as_signal(coefficients, self.k + 1, name="coefficients")
         return self.evecs @ c
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Return the basis as named arrays, for ``np.savez`` (read by :meth:`from_arrays`).
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``evals`` (k+1,), ``evecs`` (n, k+1), ``mass`` (n,), ``vertices`` (n, 3),
+            ``faces`` (m, 3) (zero rows for a point cloud), the stiffness as CSR arrays
+            ``L_data``/``L_indices``/``L_indptr``, ``digest``, and ``clean_*`` when the input
+            was cleaned.
+        """
+        L = self.stiffness
+        arrays: dict[str, np.ndarray] = {
+            "evals": self.evals,
+            "evecs": self.evecs,
+            "mass": self.mass,
+            "vertices": self.vertices,
+            "faces": self.faces if self.faces is not None else np.zeros((0, 3), np.int64),
+            "L_data": L.data,
+            "L_indices": L.indices,
+            "L_indptr": L.indptr,
+            "digest": np.array(self.digest),
+        }
+        if self.cleaning is not None:
+            c = self.cleaning
+            arrays["clean_index"] = c.index
+            arrays["clean_kept"] = c.kept
+            arrays["clean_representative"] = c.representative
+            arrays["clean_report"] = c.report.as_array()
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, data: Mapping[str, np.ndarray]) -> EigenBasis:
+        """Rebuild a basis from :meth:`to_arrays`' arrays (e.g. an open ``np.load`` file).
+
+        Raises
+        ------
+        KeyError
+            If an array is missing.
+        ValueError
+            If the arrays do not fit together.
+        """
+        n = data["mass"].shape[0]
+        stiffness = sp.csr_matrix(
+            (data["L_data"], data["L_indices"], data["L_indptr"]), shape=(n, n)
+        )
+        cleaning = None
+        if "clean_index" in data:
+            cleaning = Cleaning(
+                index=data["clean_index"],
+                kept=data["clean_kept"],
+                representative=data["clean_representative"],
+                report=CleaningReport.from_array(data["clean_report"]),
+            )
+        faces = data["faces"]
+        return cls(
+            evals=data["evals"],
+            evecs=data["evecs"],
+            mass=data["mass"],
+            stiffness=stiffness,
+            vertices=data["vertices"],
+            faces=faces if faces.shape[0] else None,
+            cleaning=cleaning,
+            digest=str(data["digest"]) if "digest" in data else "",
+        )
 
 
 def _dense_eigs(

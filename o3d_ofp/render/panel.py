@@ -39,6 +39,7 @@ __all__ = [
     "RenderUnavailable",
     "View",
     "colormap",
+    "geometry_items",
     "read_png",
     "render_images",
     "render_panel",
@@ -588,25 +589,38 @@ def in_notebook() -> bool:
     return shell is not None and getattr(shell, "kernel", None) is not None
 
 
-def _geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]], list[Any]]:
-    """Arrays (and UV textures, when an Open3D mesh has one) of each geometry."""
+def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]], list[Any]]:
+    """Return the arrays (and UV texture, when an Open3D mesh has one) of each geometry.
+
+    Parameters
+    ----------
+    geometries : sequence of Open3D geometries
+        Meshes and point clouds (not modified).
+
+    Returns
+    -------
+    items : list of (vertices (n, 3), faces (m, 3) or None, colors (n, 3) or None)
+        As :func:`render_images` takes them.
+    textures : list of (uv (3m, 2), image) or None
+        As :func:`render_images` takes them (None for an untextured geometry).
+    """
     from ..boundary.convert import geometry_kind, geometry_to_arrays, vertex_colors
+    from ..boundary.texture import mesh_texture, texture_colors
 
     items, textures = [], []
     for g in geometries:
         V, F = geometry_to_arrays(g)
         colors, texture = vertex_colors(g), None
-        if F is not None and geometry_kind(g) == "legacy_mesh" and g.textures:
-            images = [np.asarray(t) for t in g.textures]
-            uv = np.asarray(g.triangle_uvs)
-            ids = np.asarray(g.triangle_material_ids)
-            usable = [im for im in images if im.size]
-            if uv.shape[0] == 3 * F.shape[0] and usable:
-                if len(images) == 1 or ids.size == 0 or np.all(ids == 0):
-                    texture = (uv, usable[0])
-                else:  # several materials: sample them into vertex colors
-                    from ..boundary.texture import texture_colors
-
+        if F is not None and geometry_kind(g) in ("legacy_mesh", "tensor_mesh"):
+            try:  # the mesh's own texture, read the way every other function reads it
+                tex = mesh_texture(g)
+            except (TypeError, ValueError):
+                tex = None
+            if tex is not None:
+                used = np.unique(tex.material)
+                if used.size == 1 and used[0] >= 0:
+                    texture = (tex.uvs.reshape(-1, 2), tex.images[int(used[0])])
+                else:  # several images: sample them into vertex colors
                     colors = texture_colors(g)
         items.append((V, F, colors))
         textures.append(texture)
@@ -654,7 +668,7 @@ def show(
     if has_display() and not notebook:
         require_open3d().visualization.draw_geometries(geoms)
         return None
-    items, textures = _geometry_items(geoms)
+    items, textures = geometry_items(geoms)
     panel = render_panel(
         items, titles=titles, width=width, height=height, view=view, textures=textures
     )

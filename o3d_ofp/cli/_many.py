@@ -1,0 +1,154 @@
+"""Several targets at once (``transfer``/``detail`` TARGET... -o DIR) and ``basis`` of a collection.
+
+One source onto a list or folder of targets runs on the collection engine
+(:mod:`o3d_ofp.collections`, on Dask): the source's bases are computed once, each target is a
+task, a failing target is reported and never stops the others, every result is written
+atomically to ``DIR/<target file name>``, and a rerun skips targets whose output is newer than
+both inputs. The summary is printed (one line per target) and written as ``DIR/summary.csv``
+and ``DIR/summary.json``; the exit code is 1 when any target failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from ._common import UsageError, report
+from ._progress import ENABLED
+from ._types import nonnegative_int
+
+__all__ = [
+    "add_collection_options",
+    "check_single",
+    "is_collection",
+    "refuse_flags",
+    "report_records",
+    "run_transfers",
+]
+
+#: Flags of the two-shape commands that make no sense for a collection, and why.
+PAIR_ONLY = {
+    "landmarks": "--landmarks (vertex pairs belong to one pair of shapes)",
+    "save_map": "--save-map (one map per pair)",
+    "basis_1": "--basis-1 (use --cache DIR)",
+    "basis_2": "--basis-2 (use --cache DIR)",
+    "align": "--align (--map closest is for one pair)",
+    "texture": "--texture (the source's own texture is used)",
+}
+
+
+def add_collection_options(p: argparse.ArgumentParser) -> None:
+    """Add the flags of runs over several shapes."""
+    g = p.add_argument_group(
+        "several shapes",
+        "give several targets or a folder of them; -o is then a folder (created if missing), "
+        "with summary.csv and summary.json",
+    )
+    g.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run on this Dask cluster (default: a local cluster, one worker process per core)",
+    )
+    g.add_argument(
+        "--workers",
+        type=nonnegative_int,
+        help="worker processes of the local cluster (default: the cores; 0: in this process)",
+    )
+    g.add_argument(
+        "--force",
+        action="store_true",
+        help="redo targets whose output is newer than both inputs (default: skip them)",
+    )
+
+
+def is_collection(targets: Sequence[str], output: str | None) -> bool:
+    """Whether a command runs over several shapes: several targets, a folder, or ``-o DIR/``."""
+    if len(targets) > 1 or any(os.path.isdir(t) for t in targets):
+        return True
+    return output is not None and (os.path.isdir(output) or output.endswith(("/", os.sep)))
+
+
+def check_single(args: argparse.Namespace) -> None:
+    """Refuse the collection flags on a run over one pair of shapes."""
+    for name, flag in (("scheduler", "--scheduler"), ("workers", "--workers")):
+        if getattr(args, name, None) is not None:
+            raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
+    if getattr(args, "force", False):
+        raise UsageError("--force applies to several targets (TARGET... or a folder)")
+
+
+def refuse_flags(args: argparse.Namespace, flags: Mapping[str, str]) -> None:
+    """Refuse flags given (not None / not False) that a collection run cannot honour."""
+    for name, flag in flags.items():
+        value = getattr(args, name, None)
+        if value not in (None, False):
+            raise UsageError(f"{flag} does not apply to several targets")
+
+
+def _check_output_dir(path: str) -> None:
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UsageError(f"-o {path}: the folder {parent} does not exist")
+
+
+def report_records(records: Sequence[Any]) -> int:
+    """Print one line per shape and a count; return 1 when any failed, else 0."""
+    lines = []
+    for r in records:
+        if r.status == "failed":
+            lines.append(f"failed   {r.name}: {r.error}")
+        elif r.status == "skipped":
+            lines.append(f"skipped  {r.name}: up to date ({r.output})")
+        else:
+            cov = "" if r.coverage != r.coverage else f", map coverage {r.coverage:.2f}"
+            sus = " (SUSPECT map)" if r.suspect else ""
+            where = f" -> {r.output}" if r.output else ""
+            lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
+    counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
+    lines.append(", ".join(f"{n} {s}" for s, n in counts.items()))
+    report(lines)
+    return 1 if counts["failed"] else 0
+
+
+def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:
+    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``."""
+    from ..collections import transfer_many, write_summary
+    from ._common import check_cache_dir
+
+    _check_output_dir(args.output)
+    check_cache_dir(args.cache)
+    if args.map not in ("estimate", "identity"):
+        raise UsageError(
+            f"--map {args.map}: with several targets the map is 'estimate' or 'identity'"
+        )
+    if not os.path.isfile(args.source):
+        raise UsageError(f"{args.source}: no such source file")
+    try:
+        records = transfer_many(
+            args.source,
+            args.target,
+            kind=kind,
+            client=args.scheduler,
+            output_dir=args.output,
+            cache_dir=args.cache,
+            workers=args.workers,
+            skip_existing=not args.force,
+            progress=ENABLED.on,
+            map=args.map,
+            components=args.components,
+            strict=args.strict,
+            order=args.order,
+            tol=args.tol,
+            preset=None if args.tol is not None else args.preset,
+            **{k: v for k, v in options.items() if v is not None},
+        )
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from exc
+    csv_path, json_path = write_summary(records, args.output)
+    code = report_records(records)
+    report([f"summary: {csv_path}, {json_path}"])
+    return code

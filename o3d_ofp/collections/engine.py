@@ -1,0 +1,698 @@
+"""Collections on a Dask cluster: one source onto many targets, and the bases of many shapes.
+
+:func:`transfer_many` prepares the source once in the calling process (its eigenbasis for map
+estimation and its OFP basis), broadcasts it to every worker, and runs one task per target:
+read, eigenbasis (from the cache when there is one), map, transfer, atomic write. A target's
+failure (unreadable file, refused shape, a worker killed for memory) is that target's record;
+the others go on. A rerun skips targets whose output is newer than both inputs.
+
+Without a ``client`` a :class:`distributed.LocalCluster` sized to the machine is started for
+the call (one single-threaded worker process per core, BLAS limited to one thread per worker
+through the workers' environment) and closed afterwards; ``client=`` (a
+:class:`distributed.Client` or a scheduler address ``"tcp://HOST:PORT"``) runs on an existing
+cluster; ``workers=0`` runs everything in the calling process, one shape after the other,
+without Dask. Dask is imported only when it is used.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import os
+import sys
+import time
+import uuid
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any
+
+from ..boundary.convert import (
+    geometry_to_arrays,
+    is_open3d_geometry,
+    like_target,
+    vertex_colors,
+)
+from ..boundary.io import read_geometry, write_geometry
+from ..boundary.texture import mesh_texture, texture_colors
+from ..core.orthogonalize import resolve_tol
+from ..workflows.matching import ESTIMATION_K
+from .results import TargetResult
+from .tasks import (
+    BasisJob,
+    ShapeSpec,
+    SharedSource,
+    TransferJob,
+    basis_task,
+    failed,
+    shape_bases,
+    transfer_task,
+)
+
+__all__ = [
+    "BLAS_ENV",
+    "COUNTERS",
+    "MESH_EXTENSIONS",
+    "bases_many",
+    "expand_paths",
+    "local_workers",
+    "open_client",
+    "transfer_many",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Work done in this process, for tests and benchmarks: ``"source_bases"`` counts the source
+#: preparations of :func:`transfer_many` (one per call that has work to do: the source's
+#: eigenbasis and OFP basis are never computed per target), ``"target_eigenbases_computed"`` /
+#: ``"target_eigenbases_cached"`` the targets' eigenbases solved / loaded from the cache.
+COUNTERS: Counter[str] = Counter()
+
+#: File extensions taken from a directory given as a target or a shape.
+MESH_EXTENSIONS = (
+    ".ply", ".obj", ".off", ".stl", ".glb", ".gltf", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts",
+)  # fmt: skip
+#: Outputs of these kinds cannot hold vertex colors: a colored target is written as ``.ply``.
+_NO_COLORS = (".stl", ".xyz", ".xyzn", ".pts")
+
+#: Environment of the workers of the local cluster: one BLAS / OpenMP thread per worker, so
+#: that n single-threaded workers on n cores do not oversubscribe them (set before the worker
+#: process starts, which is when OpenBLAS reads it).
+BLAS_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "BLIS_NUM_THREADS": "1",
+    "VECLIB_MAXIMUM_THREADS": "1",
+}
+
+_TRANSFER_OPTIONS = {
+    "map": "estimate",
+    "k1": 29,
+    "k2": 39,
+    "order": 2,
+    "tol": None,
+    "preset": None,  # "ours" for colors, "ours*" for detail
+    "mode": "add",
+    "k_low": None,
+    "components": "auto",
+    "strict": False,
+    "signal": "auto",
+    "texture_size": 1024,
+}
+#: What each kind of transfer is.
+KINDS = ("colors", "texture", "detail")
+
+
+def local_workers() -> int:
+    """Return the number of cores this process may run on (the default number of workers)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def expand_paths(items: Iterable[Any]) -> list[Any]:
+    """Replace every directory among ``items`` by the mesh files in it (sorted, not recursive).
+
+    Parameters
+    ----------
+    items : iterable of str, os.PathLike or Open3D geometries
+        Files, directories and geometries; only directories are changed.
+
+    Returns
+    -------
+    list
+        Files (as ``str``) and geometries, in order; a directory contributes its files with
+        one of :data:`MESH_EXTENSIONS` (hidden files skipped).
+    """
+    out: list[Any] = []
+    for item in items:
+        if isinstance(item, (str, os.PathLike)):
+            path = os.fspath(item)
+            if os.path.isdir(path):
+                out.extend(
+                    os.path.join(path, f)
+                    for f in sorted(os.listdir(path))
+                    if not f.startswith(".")
+                    and f.lower().endswith(MESH_EXTENSIONS)
+                    and os.path.isfile(os.path.join(path, f))
+                )
+            else:
+                out.append(path)
+        else:
+            out.append(item)
+    return out
+
+
+@contextlib.contextmanager
+def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[Any]:
+    """Yield a Dask client: the one given, one connected to an address, or a local cluster's.
+
+    Parameters
+    ----------
+    client : distributed.Client or str, optional
+        An existing client (used as is, left open), or a scheduler address
+        ``"tcp://HOST:PORT"`` (a client is opened and closed afterwards). ``None``: a
+        :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes on
+        127.0.0.1, BLAS limited to one thread each (:data:`BLAS_ENV`), closed afterwards.
+    workers : int, optional
+        Workers of the local cluster (default: :func:`local_workers`).
+
+    Yields
+    ------
+    distributed.Client
+
+    Raises
+    ------
+    ImportError
+        If Dask's ``distributed`` is not installed (``pip install 'o3d_ofp[dask]'``).
+    """
+    try:
+        import distributed
+    except ImportError as exc:
+        raise ImportError(
+            "collections on a cluster need Dask: pip install 'dask[distributed]' (or "
+            "'o3d_ofp[dask]'); workers=0 runs in this process without it"
+        ) from exc
+    if client is not None and not isinstance(client, str):
+        yield client
+        return
+    if isinstance(client, str):
+        logger.info("connecting to the Dask scheduler at %s", client)
+        with distributed.Client(client) as c:
+            yield c
+        return
+    n = local_workers() if workers is None else workers
+    logger.info("starting a local Dask cluster: %d worker processes x 1 thread", n)
+    import dask
+
+    with _worker_environment() as pre_spawn:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
+            cluster = distributed.LocalCluster(  # the nannies read the config here
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+        with cluster, distributed.Client(cluster) as c:
+            yield c
+
+
+@contextlib.contextmanager
+def _worker_environment() -> Iterator[dict[str, Any]]:
+    """Yield the pre-spawn environment of local workers: :data:`BLAS_ENV`, no malloc tuning.
+
+    Dask's nannies copy ``distributed.nanny.pre-spawn-environ`` into this process's
+    environment before spawning each worker (and leave it there); a variable already set in
+    this process wins over that config, and a Nanny's ``env=`` comes too late for BLAS (the
+    worker has imported numpy by then), so :data:`BLAS_ENV` is set here while the cluster
+    lives, and everything is put back as it was afterwards.
+
+    Dask's default ``MALLOC_TRIM_THRESHOLD_=65536`` is left out: it fixes glibc's mmap
+    threshold at 128 KiB, so every temporary array of the spectral code is a fresh mmap whose
+    pages fault in again. Measured on a FAUST target (6890 vertices, map estimated): 5 s of
+    system time per target on top of 10 s of user time with it, 0.2-0.7 s without.
+    """
+    import dask
+
+    env: dict[str, Any] = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+    env.update(BLAS_ENV)
+    env["MALLOC_TRIM_THRESHOLD_"] = None  # None: not set (Dask's convention)
+    keys = [*env, "PYTHONHASHSEED"]
+    saved = {k: os.environ.get(k) for k in keys}
+    if os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+        logger.info(
+            "MALLOC_TRIM_THRESHOLD_ is set in this process's environment (by an earlier Dask "
+            "cluster?): not passed on to the workers"
+        )
+        os.environ.pop("MALLOC_TRIM_THRESHOLD_")
+    # Dask takes a variable already in this process's environment over its config, and a
+    # Nanny's env= is applied after the worker has imported numpy: set them here.
+    os.environ.update(BLAS_ENV)
+    try:
+        yield env
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _progress_bar(total: int, desc: str, enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    on = enabled and sys.stderr.isatty()
+    return tqdm(total=total, desc=desc, unit="shape", file=sys.stderr, disable=not on)
+
+
+def _log_record(r: TargetResult) -> None:
+    if r.status == "failed":
+        logger.warning("%s: failed: %s", r.name, r.error)
+    elif r.status == "skipped":
+        logger.info("%s: skipped (already done: %s)", r.name, r.output)
+    else:
+        extra = "" if math.isnan(r.coverage) else f", map coverage {r.coverage:.2f}"
+        logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, extra)
+        if r.suspect:
+            logger.warning("%s: the map is suspect (see its record)", r.name)
+
+
+def _run(
+    task: Callable[[Any, ShapeSpec], TargetResult],
+    shared: Any,
+    specs: Sequence[ShapeSpec],
+    *,
+    kind: str,
+    client: Any,
+    workers: int | None,
+    progress: bool,
+) -> list[TargetResult]:
+    """Run ``task(shared, spec)`` for every spec; exceptions of a task become its record."""
+    if not specs:
+        return []
+    records: list[TargetResult] = []
+    bar = _progress_bar(len(specs), kind, progress)
+    with bar:
+        if client is None and workers == 0:
+            for spec in specs:
+                r = task(shared, spec)
+                _log_record(r)
+                records.append(r)
+                bar.update()
+            return records
+        n = None if workers is None else min(workers, len(specs))
+        if client is None and n is None:
+            n = min(local_workers(), len(specs))
+        with open_client(client, workers=n) as c:
+            records = _run_on(c, task, shared, specs, kind=kind, bar=bar)
+    return records
+
+
+def _run_on(
+    c: Any,
+    task: Callable[[Any, ShapeSpec], TargetResult],
+    shared: Any,
+    specs: Sequence[ShapeSpec],
+    *,
+    kind: str,
+    bar: Any,
+) -> list[TargetResult]:
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    threads = c.nthreads()
+    if threads and max(threads.values()) > 1:
+        logger.info(
+            "some Dask workers run %d threads: correct (the library is thread-safe), but their "
+            "shapes share the process's cores and BLAS thread limits; one thread per worker "
+            "process is usually faster",
+            max(threads.values()),
+        )
+    token = uuid.uuid4().hex[:8]
+    shared_future = c.scatter(shared, broadcast=True, hash=False)
+    started = time.perf_counter()
+    futures = {
+        c.submit(
+            task, shared_future, spec, key=f"o3d-ofp-{kind}-{spec.index}-{token}", pure=False
+        ): spec
+        for spec in specs
+    }
+    records = []
+    try:
+        for future in as_completed(futures):
+            spec = futures[future]
+            try:
+                r = future.result()
+            except KilledWorker as exc:
+                r = failed(
+                    spec,
+                    f"KilledWorker: the worker running this shape died (out of memory?): {exc}",
+                    kind=kind,
+                    seconds=time.perf_counter() - started,
+                )
+            except Exception as exc:  # the task's own errors are records; this is Dask's
+                r = failed(
+                    spec, f"{type(exc).__name__}: {exc}", kind=kind,
+                    seconds=time.perf_counter() - started,
+                )  # fmt: skip
+            future.release()
+            _log_record(r)
+            records.append(r)
+            bar.update()
+    finally:
+        for future in futures:
+            if not future.done():
+                future.cancel()
+        shared_future.release()
+    return records
+
+
+def _outputs(
+    items: Sequence[Any], output_dir: str | None, kind: str
+) -> tuple[list[str], list[str | None]]:
+    """(name, output path) of every target; duplicate names get ``-<index>`` before the suffix."""
+    names = []
+    for i, item in enumerate(items):
+        if isinstance(item, str):
+            name = os.path.basename(item)
+            if kind == "texture":  # OBJ + MTL + PNG (vertex colors for a target without UVs)
+                name = os.path.splitext(name)[0] + ".obj"
+            elif kind == "colors" and name.lower().endswith(_NO_COLORS):
+                name = os.path.splitext(name)[0] + ".ply"
+        else:
+            name = f"target_{i}.ply"
+        names.append(name)
+    seen = Counter(names)
+    names = [
+        f"{os.path.splitext(n)[0]}-{i}{os.path.splitext(n)[1]}" if seen[n] > 1 else n
+        for i, n in enumerate(names)
+    ]
+    if output_dir is None:
+        return names, [None] * len(names)
+    outs: list[str | None] = []
+    for item, name in zip(items, names, strict=True):
+        out = os.path.join(output_dir, name)
+        if isinstance(item, str) and os.path.abspath(out) == os.path.abspath(item):
+            raise ValueError(
+                f"output_dir {output_dir} holds the target {item}: its output would overwrite "
+                "it; write to another folder"
+            )
+        outs.append(out)
+    return names, outs
+
+
+def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
+    """Whether ``output`` exists and is newer than every input (all of them files)."""
+    if output is None or any(p is None for p in inputs):
+        return False
+    try:
+        done = os.stat(output).st_mtime_ns
+        return all(done > os.stat(p).st_mtime_ns for p in inputs if p is not None)
+    except OSError:
+        return False
+
+
+def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> TransferJob:
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}; got {kind!r}")
+    unknown = sorted(set(options) - set(_TRANSFER_OPTIONS))
+    if unknown:
+        raise TypeError(
+            f"unknown option(s) {', '.join(unknown)}; transfer_many takes "
+            f"{', '.join(sorted(_TRANSFER_OPTIONS))}"
+        )
+    o = {**_TRANSFER_OPTIONS, **options}
+    if o["map"] not in ("estimate", "identity"):
+        raise ValueError(f"map must be 'estimate' or 'identity'; got {o['map']!r}")
+    if o["mode"] not in ("add", "replace"):
+        raise ValueError(f"mode must be 'add' or 'replace'; got {o['mode']!r}")
+    if o["components"] not in ("auto", "largest", "error"):
+        raise ValueError(f"components must be auto, largest or error; got {o['components']!r}")
+    if o["signal"] not in ("auto", "colors", "texture"):
+        raise ValueError(f"signal must be 'auto', 'colors' or 'texture'; got {o['signal']!r}")
+    if kind == "texture" and o["signal"] == "colors":
+        raise ValueError(
+            "kind='texture' bakes the source's texture: signal='colors' does not apply"
+        )
+    ints = ("k1", "k2", "order", "texture_size") + (("k_low",) if o["k_low"] is not None else ())
+    for name in ints:
+        value = o[name]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    if o["texture_size"] > 8192:
+        raise ValueError(f"texture_size must be at most 8192; got {o['texture_size']}")
+    if o["preset"] is None and o["tol"] is None:
+        o["preset"] = "ours*" if kind == "detail" else "ours"
+    resolve_tol(o["tol"], o["preset"])  # refuse a bad tol / preset now
+    return TransferJob(
+        kind=kind,
+        cache_dir=None if cache_dir is None else os.fspath(cache_dir),
+        **o,
+    )
+
+
+def _source(source: Any, job: TransferJob) -> SharedSource:
+    """Read the source and compute its bases, once for every target."""
+    path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
+    geometry = read_geometry(path) if path is not None else source
+    if not is_open3d_geometry(geometry):
+        raise TypeError(f"source must be a file or an Open3D geometry; got {type(source).__name__}")
+    name = os.path.basename(path) if path else "source"
+    V, F = geometry_to_arrays(geometry)
+    signal, texture = None, None
+    if job.kind == "texture":
+        try:
+            texture = mesh_texture(geometry)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name}: the source has no texture to bake: {exc}") from exc
+    if job.kind in ("colors", "texture"):
+        signal = _source_colors(geometry, name, job.signal, quiet=job.kind == "texture")
+    elif F is None:
+        raise ValueError(f"{name}: the source of a detail transfer must be a triangle mesh")
+    t0 = time.perf_counter()
+    eig, B, cached = shape_bases(V, F, job, 1)
+    COUNTERS["source_bases"] += 1
+    logger.info(
+        "source %s: %d vertices, eigenbasis k=%d%s, OFP basis %d functions (%.1f s); shared "
+        "with every target",
+        name, V.shape[0], eig.k, " (cached)" if cached else "", B.size, time.perf_counter() - t0,
+    )  # fmt: skip
+    return SharedSource(name, V, F, eig, B, signal, job, texture)
+
+
+def _source_colors(geometry: Any, name: str, signal: str, *, quiet: bool = False) -> Any:
+    """Return the source's colors per vertex: its vertex colors or its texture sampled there."""
+    colors = vertex_colors(geometry) if signal in ("auto", "colors") else None
+    if colors is not None or signal == "colors":
+        if colors is None:
+            raise ValueError(f"{name}: the source has no vertex colors to transfer")
+        return colors
+    try:
+        colors = texture_colors(geometry)
+    except (TypeError, ValueError, FileNotFoundError) as exc:
+        raise ValueError(
+            f"{name}: the source has no vertex colors and no usable texture ({exc})"
+        ) from exc
+    if signal == "auto" and not quiet:
+        logger.info("%s: no vertex colors; transferring its texture sampled at its vertices", name)
+    return colors
+
+
+def transfer_many(
+    source: Any,
+    targets: Iterable[Any],
+    *,
+    kind: str = "colors",
+    client: Any = None,
+    output_dir: str | os.PathLike[str] | None = None,
+    cache_dir: str | os.PathLike[str] | None = None,
+    workers: int | None = None,
+    skip_existing: bool = True,
+    progress: bool = True,
+    **options: Any,
+) -> list[TargetResult]:
+    """Transfer one source's colors, texture or geometric detail onto many targets.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or Open3D geometry
+        The source shape (with vertex colors or a texture for ``kind="colors"``, a texture
+        for ``"texture"``, a triangle mesh for ``"detail"``). Its eigenbasis and OFP basis
+        are computed once, here, and shared with every task (``COUNTERS["source_bases"]``
+        counts it).
+    targets : iterable of str, os.PathLike or Open3D geometries
+        Target files, directories (their mesh files, sorted) and geometries.
+    kind : {"colors", "texture", "detail"}, default "colors"
+        Vertex colors (:func:`o3d_ofp.transfer_colors`); the source's texture baked into
+        each target's own UV layout (:func:`o3d_ofp.transfer_texture`, written as OBJ + MTL +
+        PNG; a target without UVs gets vertex colors); or detail
+        (:func:`o3d_ofp.transfer_detail`).
+    client : distributed.Client or str, optional
+        Run on this cluster (a client, or a scheduler address ``"tcp://HOST:PORT"``). Default:
+        a local cluster of ``workers`` processes, started and closed by this call.
+    output_dir : str or os.PathLike, optional
+        Folder of the results (created when missing): ``<output_dir>/<target file name>``
+        (``target_<i>.ply`` for a geometry; ``.ply`` for a colored target whose format holds
+        no colors; ``-<i>`` added to names given twice), each written atomically. ``None``:
+        nothing is written and each record keeps the values.
+    cache_dir : str or os.PathLike, optional
+        Eigenbasis and OFP-basis cache (see :mod:`o3d_ofp.workflows.cache`): a second run over
+        the same shapes solves no eigenproblem again. Damaged entries are recomputed.
+    workers : int, optional
+        Processes of the local cluster (default: the cores of this machine, at most one per
+        target); ``0`` runs in this process without Dask. Ignored with ``client``.
+    skip_existing : bool, default True
+        Skip (status ``"skipped"``) a target whose output is newer than both the source and
+        the target files (never for inputs given as geometries).
+    progress : bool, default True
+        A progress bar over the targets on stderr when it is a terminal.
+    **options
+        ``map`` ("estimate" (default) or "identity": targets with the source's vertices),
+        ``k1`` (29), ``k2`` (39), ``order`` (2), ``preset`` ("ours" for colors, "ours*" for
+        detail), ``tol``, ``mode`` ("add" or "replace", detail), ``k_low`` (detail),
+        ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
+        ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
+        vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture").
+
+    Returns
+    -------
+    list of TargetResult
+        One record per target, in the order given: status, output, seconds, map coverage and
+        suspect flag, error message (see :class:`TargetResult`).
+
+    Raises
+    ------
+    ValueError, TypeError
+        For bad options, an unreadable source or one without colors (before any work).
+    ImportError
+        When a cluster is needed and Dask is not installed.
+    """
+    job = _transfer_job(kind, cache_dir, options)
+    items = expand_paths(targets)
+    if not items:
+        raise ValueError("no targets (empty list, or directories without mesh files)")
+    out_dir = None if output_dir is None else os.fspath(output_dir)
+    if out_dir is not None:
+        os.makedirs(out_dir, exist_ok=True)
+    names, outputs = _outputs(items, out_dir, kind)
+    source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
+    if source_path is not None and not os.path.isfile(source_path):
+        raise FileNotFoundError(f"{source_path}: no such source file")
+    records: dict[int, TargetResult] = {}
+    todo: list[int] = []
+    for i, item in enumerate(items):
+        path = item if isinstance(item, str) else None
+        if skip_existing and path is not None and _up_to_date(outputs[i], (source_path, path)):
+            logger.info("%s: skipped: %s is newer than the source and the target", names[i],
+                        outputs[i])  # fmt: skip
+            records[i] = TargetResult(
+                index=i, name=names[i], path=path, status="skipped", output=outputs[i], kind=kind
+            )
+        else:
+            todo.append(i)
+    if todo:
+        shared = _source(source, job)
+        specs = [_spec(i, items[i], names[i], outputs[i], kind) for i in todo]
+        ready = [s for s in specs if isinstance(s, ShapeSpec)]
+        for s in specs:
+            if isinstance(s, TargetResult):
+                records[s.index] = s
+        for r in _run(
+            transfer_task, shared, ready, kind=kind, client=client, workers=workers,
+            progress=progress,
+        ):  # fmt: skip
+            records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
+            COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+    results = [records[i] for i in range(len(items))]
+    counts = Counter(r.status for r in results)
+    logger.info("transfer_many (%s): %s", kind, dict(counts))
+    return results
+
+
+def _spec(i: int, item: Any, name: str, output: str | None, kind: str) -> ShapeSpec | TargetResult:
+    """Return the task input of a target: a geometry is sent as arrays (written back here)."""
+    if isinstance(item, str):
+        return ShapeSpec(i, name, item, None, output)
+    try:
+        arrays = geometry_to_arrays(item)
+    except (TypeError, ValueError) as exc:
+        return failed(ShapeSpec(i, name, None), f"{type(exc).__name__}: {exc}", kind=kind)
+    return ShapeSpec(i, name, None, arrays, None)
+
+
+def _finish_in_memory(r: TargetResult, item: Any, output: str | None, kind: str) -> TargetResult:
+    """Write the result of a target given as a geometry like that geometry (same kind)."""
+    if isinstance(item, str) or r.status != "ok" or output is None:
+        return r
+    try:
+        if kind == "colors":
+            geometry = like_target(item, colors=r.values)
+        else:
+            geometry = like_target(item, vertices=r.values)
+        write_geometry(output, geometry)
+    except Exception as exc:  # a target's failure is its record, never the run's
+        logger.warning("%s: failed to write %s: %s: %s", r.name, output, type(exc).__name__, exc)
+        return dataclasses.replace(
+            r, status="failed", error=f"{type(exc).__name__}: {exc}", values=None
+        )
+    return dataclasses.replace(r, output=output, values=None)
+
+
+def bases_many(
+    paths: Iterable[Any],
+    *,
+    cache_dir: str | os.PathLike[str],
+    client: Any = None,
+    k: int = 29,
+    order: int = 2,
+    preset: str | None = "ours",
+    tol: float | None = None,
+    components: str = "auto",
+    eigenbasis_k: int | None = ESTIMATION_K,
+    workers: int | None = None,
+    progress: bool = True,
+) -> list[TargetResult]:
+    """Compute and cache the bases of a whole collection, on the same engine as transfers.
+
+    Each shape's OFP basis goes where :func:`o3d_ofp.cached_basis` (and the CLI's
+    ``--cache``) looks for it; with ``eigenbasis_k`` its eigenbasis for map estimation is
+    cached too (and the OFP basis built from it: one eigensolve per shape), so a later
+    :func:`transfer_many` with the same ``cache_dir`` solves no eigenproblem.
+
+    Parameters
+    ----------
+    paths : iterable of str, os.PathLike or Open3D geometries
+        Shape files, directories (their mesh files, sorted) and geometries.
+    cache_dir : str or os.PathLike
+        The cache folder (created when missing).
+    client : distributed.Client or str, optional
+        As in :func:`transfer_many`.
+    k, order, preset, tol, components
+        The OFP basis (see :func:`o3d_ofp.cached_basis`).
+    eigenbasis_k : int or None, default 99
+        Also cache the eigenbasis with this many eigenfunctions (fewer on small shapes), the
+        one :func:`transfer_many` estimates maps with; ``None``: only the OFP basis.
+    workers : int, optional
+        As in :func:`transfer_many` (``0``: in this process, without Dask).
+    progress : bool, default True
+        A progress bar on stderr when it is a terminal.
+
+    Returns
+    -------
+    list of TargetResult
+        One record per shape (``kind="basis"``, ``output`` the basis file, ``skipped`` when
+        everything was already cached, ``failed`` with the message otherwise).
+    """
+    for name, value in (("k", k), ("order", order), ("eigenbasis_k", eigenbasis_k)):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int) or value < 1
+        ):
+            raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    if components not in ("auto", "largest", "error"):
+        raise ValueError(f"components must be auto, largest or error; got {components!r}")
+    resolve_tol(tol, preset)
+    folder = os.fspath(cache_dir)
+    os.makedirs(folder, exist_ok=True)
+    job = BasisJob(
+        cache_dir=folder, k=k, order=order, tol=tol, preset=preset if tol is None else None,
+        components=components, eigenbasis_k=eigenbasis_k,
+    )  # fmt: skip
+    items = expand_paths(paths)
+    if not items:
+        raise ValueError("no shapes (empty list, or directories without mesh files)")
+    names, _ = _outputs(items, None, "basis")
+    specs = [_spec(i, item, names[i], None, "basis") for i, item in enumerate(items)]
+    records = {s.index: s for s in specs if isinstance(s, TargetResult)}
+    ready = [s for s in specs if isinstance(s, ShapeSpec)]
+    for r in _run(
+        basis_task, job, ready, kind="basis", client=client, workers=workers, progress=progress
+    ):
+        records[r.index] = r
+    results = [records[i] for i in range(len(items))]
+    logger.info("bases_many: %s", dict(Counter(r.status for r in results)))
+    return results

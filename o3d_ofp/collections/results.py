@@ -1,0 +1,146 @@
+"""The record of one shape of a collection run, and the summary files of a run."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import logging
+import math
+import os
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from ..core._atomic import atomic_path
+
+__all__ = ["STATUSES", "SUMMARY_FIELDS", "TargetResult", "write_summary"]
+
+logger = logging.getLogger(__name__)
+
+#: What happened to a shape: done, failed (see ``error``), or skipped (its output was up to
+#: date, or its cache entries were already there).
+STATUSES = ("ok", "failed", "skipped")
+
+
+@dataclasses.dataclass(frozen=True)
+class TargetResult:
+    """What happened to one shape of a collection run.
+
+    Attributes
+    ----------
+    index : int
+        Position of the shape in the list given (after directories were expanded).
+    name : str
+        File name of the shape (``target_<index>.ply`` for a geometry given without a path).
+    path : str or None
+        The input file, or ``None`` for a geometry.
+    status : {"ok", "failed", "skipped"}
+        Done; failed (``error`` says why; the other shapes went on); or skipped (the output
+        was newer than both inputs, or for bases: every cache entry was already there).
+    output : str or None
+        The file written (the transferred target, or the cached basis for
+        :func:`~o3d_ofp.collections.bases_many`); ``None`` when nothing was written.
+    seconds : float
+        Wall time spent on the shape (on its worker).
+    coverage : float
+        Map coverage: fraction of the source's vertices some target vertex maps to; NaN
+        when no map was made.
+    suspect : bool or None
+        Whether the quality check found the map doubtful (``None``: no map).
+    error : str
+        Why the shape failed (exception type and message); empty otherwise.
+    kind : {"colors", "detail", "basis"}
+        What was done.
+    n_vertices : int
+        Vertices of the shape (0 when it could not be read).
+    cached : bool
+        Whether its eigenbasis came from the cache.
+    worker : str
+        Address of the Dask worker that ran it (``"local"`` in the calling process).
+    values : (n, 3) ndarray or None
+        The transferred colors (kind "colors") or the new vertex positions ("detail"), kept
+        only when no ``output_dir`` was given; not part of the summary files.
+    """
+
+    index: int
+    name: str
+    path: str | None
+    status: str
+    output: str | None = None
+    seconds: float = 0.0
+    coverage: float = math.nan
+    suspect: bool | None = None
+    error: str = ""
+    kind: str = "colors"
+    n_vertices: int = 0
+    cached: bool = False
+    worker: str = ""
+    values: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}; got {self.status!r}")
+
+    @property
+    def ok(self) -> bool:
+        """True unless the shape failed."""
+        return self.status != "failed"
+
+    def row(self) -> dict[str, Any]:
+        """Return the summary row: every field but ``values`` (NaN coverage as ``None``)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        del out["values"]
+        if isinstance(out["coverage"], float) and math.isnan(out["coverage"]):
+            out["coverage"] = None
+        out["seconds"] = round(float(out["seconds"]), 3)
+        return out
+
+
+#: Columns of summary.csv (and keys of every summary.json row), in order.
+SUMMARY_FIELDS = tuple(f.name for f in dataclasses.fields(TargetResult) if f.name != "values")
+
+
+def write_summary(
+    results: Iterable[TargetResult], output_dir: str | os.PathLike[str]
+) -> tuple[str, str]:
+    """Write ``summary.csv`` and ``summary.json`` (one row per shape) into ``output_dir``.
+
+    Both files are written atomically. The JSON file holds ``{"counts": {status: n},
+    "results": [row, ...]}``; the CSV file one row per shape with the columns
+    :data:`SUMMARY_FIELDS` (empty cells for ``None``).
+
+    Parameters
+    ----------
+    results : iterable of TargetResult
+        The records of a run (from :func:`~o3d_ofp.collections.transfer_many` or
+        :func:`~o3d_ofp.collections.bases_many`).
+    output_dir : str or os.PathLike
+        Folder (created when missing).
+
+    Returns
+    -------
+    csv_path, json_path : str
+        The files written.
+    """
+    rows = [r.row() for r in results]
+    folder = os.fspath(output_dir)
+    os.makedirs(folder, exist_ok=True)
+    counts = {s: sum(r["status"] == s for r in rows) for s in STATUSES}
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=SUMMARY_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: "" if v is None else v for k, v in r.items()})
+    csv_path = os.path.join(folder, "summary.csv")
+    json_path = os.path.join(folder, "summary.json")
+    for path, text in (
+        (csv_path, buf.getvalue()),
+        (json_path, json.dumps({"counts": counts, "results": rows}, indent=1) + "\n"),
+    ):
+        with atomic_path(path, suffix=".tmp") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    logger.info("summary of %d shapes (%s) in %s", len(rows), counts, folder)
+    return csv_path, json_path

@@ -1,0 +1,404 @@
+"""The work done for one shape of a collection, on a Dask worker or in the calling process.
+
+Every function here takes only picklable arguments (the shared source, one shape's spec, the
+options) and returns a :class:`~o3d_ofp.collections.results.TargetResult`; an exception of the
+shape (unreadable file, refused shape, failed solve) becomes a failed record instead of
+stopping the run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from ..boundary.api import transfer_detail
+from ..boundary.bake import transfer_texture
+from ..boundary.convert import geometry_kind, geometry_to_arrays, like_target
+from ..boundary.io import read_geometry, write_geometry
+from ..boundary.texture import MeshTexture
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.spectrum import EigenBasis, eigenbasis
+from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
+from ..workflows.matching import ESTIMATION_K, Correspondence, match_eigenbases, required_k
+from ..workflows.pipeline import transfer_function
+from .results import TargetResult
+
+__all__ = [
+    "BasisJob",
+    "ShapeSpec",
+    "SharedSource",
+    "TransferJob",
+    "basis_task",
+    "failed",
+    "shape_bases",
+    "transfer_task",
+    "worker_name",
+]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class TransferJob:
+    """Options of a collection transfer (validated by the engine).
+
+    Attributes
+    ----------
+    kind : {"colors", "texture", "detail"}
+        What is transferred: vertex colors (the source's, or its texture sampled at its
+        vertices), the source's texture baked into each target's own UV layout (targets
+        without UVs get vertex colors), or geometric detail.
+    map : {"estimate", "identity"}
+        How each target's map is made: estimated (descriptors, ZoomOut), or the identity
+        (targets with the source's vertices, e.g. registrations of one template).
+    k1, k2, order, tol, preset
+        The OFP bases of source and target (see :func:`o3d_ofp.transfer_function`).
+    mode, k_low
+        Detail transfer (see :func:`o3d_ofp.transfer_detail`).
+    signal : {"auto", "colors", "texture"}
+        What the source's colors are (kinds "colors" and "texture"): its vertex colors, its
+        texture sampled at its vertices, or (auto) the first of these it has.
+    texture_size : int
+        Side of the baked image (kind "texture").
+    components : str
+        Connected-component policy of the eigenbases.
+    strict : bool
+        A suspect map fails the target (nothing written).
+    cache_dir : str or None
+        Eigenbasis / basis cache folder.
+    """
+
+    kind: str = "colors"
+    map: str = "estimate"
+    k1: int = 29
+    k2: int = 39
+    order: int = 2
+    tol: float | None = None
+    preset: str | None = "ours"
+    mode: str = "add"
+    k_low: int | None = None
+    components: str = "auto"
+    strict: bool = False
+    signal: str = "auto"
+    texture_size: int = 1024
+    cache_dir: str | None = None
+
+    def eig_k(self, n_vertices: int, side: int) -> tuple[int, bool]:
+        """(k, clamp_k) of a shape's eigenbasis: ~100 for map estimation, else k1 / k2."""
+        if self.map == "estimate":
+            return required_k(n_vertices, ESTIMATION_K), True
+        return (max(self.k1, self.k_low or 0) if side == 1 else self.k2), False
+
+
+@dataclasses.dataclass(frozen=True)
+class BasisJob:
+    """Options of :func:`~o3d_ofp.collections.bases_many` (validated by the engine)."""
+
+    cache_dir: str
+    k: int = 29
+    order: int = 2
+    tol: float | None = None
+    preset: str | None = "ours"
+    components: str = "auto"
+    eigenbasis_k: int | None = ESTIMATION_K
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SharedSource:
+    """The source, computed once in the caller and shared with every task.
+
+    Attributes
+    ----------
+    name : str
+        For messages.
+    vertices : (n1, 3) ndarray of float64
+        Source positions.
+    faces : (m1, 3) ndarray of int64 or None
+        Source triangles.
+    eig : EigenBasis
+        Source eigenbasis (k = 99 for map estimation).
+    basis : OFPBasis
+        Source OFP basis (k1 eigenfunctions).
+    signal : (n1, 3) ndarray or None
+        Source vertex colors (kinds "colors" and "texture").
+    job : TransferJob
+        The options.
+    texture : MeshTexture or None
+        The source's UVs and images (kind "texture").
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray | None
+    eig: EigenBasis
+    basis: OFPBasis
+    signal: np.ndarray | None
+    job: TransferJob
+    texture: MeshTexture | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ShapeSpec:
+    """One shape to process: a file, or the arrays of a geometry given in memory.
+
+    Attributes
+    ----------
+    index : int
+        Position in the run.
+    name : str
+        Output file name (and the name in messages).
+    path : str or None
+        Input file (read on the worker).
+    arrays : ((n, 3) ndarray, (m, 3) ndarray or None) or None
+        Vertices and faces of a geometry given in memory.
+    output : str or None
+        Where the worker writes the result (``None``: return the values instead).
+    """
+
+    index: int
+    name: str
+    path: str | None
+    arrays: tuple[np.ndarray, np.ndarray | None] | None = None
+    output: str | None = None
+
+
+def worker_name() -> str:
+    """Address of the Dask worker running this task, or ``"local"``."""
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return "local"
+
+
+def failed(
+    spec: ShapeSpec, error: str, *, kind: str, seconds: float = 0.0, **extra: Any
+) -> TargetResult:
+    """Return a failed record for ``spec`` with the message ``error``."""
+    return TargetResult(
+        index=spec.index,
+        name=spec.name,
+        path=spec.path,
+        status="failed",
+        seconds=seconds,
+        error=error,
+        kind=kind,
+        **extra,
+    )
+
+
+def _read(spec: ShapeSpec) -> tuple[Any, np.ndarray, np.ndarray | None]:
+    """(geometry or (V, F) tuple, vertices, faces) of a shape."""
+    if spec.path is not None:
+        geometry = read_geometry(spec.path)
+        V, F = geometry_to_arrays(geometry)
+        return geometry, V, F
+    assert spec.arrays is not None
+    V, F = spec.arrays
+    return (V, F), V, F
+
+
+def shape_bases(
+    V: np.ndarray,
+    F: np.ndarray | None,
+    job: TransferJob,
+    side: int,
+) -> tuple[EigenBasis, OFPBasis, bool]:
+    """Eigenbasis and OFP basis of one side of a transfer, from the cache when there is one.
+
+    Parameters
+    ----------
+    V : (n, 3) ndarray of float64
+        Vertices.
+    F : (m, 3) ndarray of int64 or None
+        Triangles (``None``: a point cloud).
+    job : TransferJob
+        The options.
+    side : {1, 2}
+        Source (k1) or target (k2).
+
+    Returns
+    -------
+    eig : EigenBasis
+        ~100 eigenfunctions for map estimation, else ``k1`` / ``k2``.
+    basis : OFPBasis
+        The OFP basis on ``k1`` / ``k2`` of them.
+    cached : bool
+        Whether the eigenbasis came from the cache.
+    """
+    k_eig, clamp = job.eig_k(V.shape[0], side)
+    k_basis = job.k1 if side == 1 else job.k2
+    if job.cache_dir is not None:
+        eig, cached = fetch_eigenbasis(
+            V, F, k=k_eig, clamp_k=clamp, cache_dir=job.cache_dir, components=job.components
+        )
+        B, _ = fetch_basis(
+            V, F, k=min(k_basis, eig.k), order=job.order, tol=job.tol, preset=job.preset,
+            cache_dir=job.cache_dir, eig=eig, components=job.components,
+        )  # fmt: skip
+        return eig, B, cached
+    eig = eigenbasis(V, F, k=k_eig, clamp_k=clamp, components=job.components)
+    B = ofp_basis(eig, order=job.order, tol=job.tol, preset=job.preset, k=min(k_basis, eig.k))
+    return eig, B, False
+
+
+def _correspondence(source: SharedSource, eig_2: EigenBasis) -> Correspondence:
+    if source.job.map == "estimate":
+        return match_eigenbases(source.eig, eig_2)
+    n1, n2 = source.eig.n_vertices, eig_2.n_vertices
+    if n1 != n2:
+        raise ValueError(
+            f"map='identity' needs a target with the source's {n1} vertices; it has {n2}"
+        )
+    return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
+
+
+def _has_uvs(target: Any) -> bool:
+    """Whether a target read from a file is a mesh with per-corner texture coordinates."""
+    kind = geometry_kind(target) if not isinstance(target, tuple) else "arrays"
+    if kind == "legacy_mesh":
+        return bool(target.has_triangle_uvs())
+    if kind == "tensor_mesh":
+        return "texture_uvs" in target.triangle or "texture_uvs" in target.vertex
+    return False
+
+
+def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
+    """Transfer the source's colors or detail onto one target; never raises for the target.
+
+    Parameters
+    ----------
+    source : SharedSource
+        The source with its bases (shared by every task).
+    spec : ShapeSpec
+        The target.
+
+    Returns
+    -------
+    TargetResult
+        ``ok`` with the output written (or the values kept), or ``failed`` with the message.
+    """
+    job = source.job
+    t0 = time.perf_counter()
+    n2, cached, coverage, suspect = 0, False, math.nan, None
+    try:
+        target, V2, F2 = _read(spec)
+        n2 = V2.shape[0]
+        eig_2, B2, cached = shape_bases(V2, F2, job, 2)
+        corr = _correspondence(source, eig_2)
+        if corr.quality is not None:
+            coverage, suspect = corr.quality.coverage, corr.quality.suspect
+        else:
+            coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
+        if suspect and job.strict:
+            raise ValueError("suspect map (strict): " + "; ".join(corr.quality.reasons))
+        bases = (source.basis, B2)
+        if job.kind == "texture" and _has_uvs(target):
+            assert source.texture is not None
+            result = transfer_texture(
+                source.texture, target, correspondence=corr, size=job.texture_size
+            )
+            values = None
+        elif job.kind in ("colors", "texture"):
+            g = transfer_function(
+                source.signal, source.eig, eig_2, correspondence=corr, bases=bases
+            )
+            values, result = np.clip(g, 0.0, 1.0), None
+        else:
+            result = transfer_detail(
+                (source.vertices, source.faces), target, mode=job.mode, k1=job.k1,
+                k_low=job.k_low, correspondence=corr, eigenbases=(source.eig, eig_2), bases=bases,
+            )  # fmt: skip
+            values = geometry_to_arrays(result)[0]
+        if spec.output is None and result is not None and values is None:
+            raise ValueError("a baked texture needs an output folder (output_dir)")
+        if spec.output is not None:
+            write_geometry(
+                spec.output, like_target(target, colors=values) if result is None else result
+            )
+            values = None
+    except Exception as exc:  # a target's failure is its record, never the run's
+        logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
+        return failed(
+            spec, f"{type(exc).__name__}: {exc}", kind=job.kind,
+            seconds=time.perf_counter() - t0, n_vertices=n2, cached=cached, worker=worker_name(),
+        )  # fmt: skip
+    return TargetResult(
+        index=spec.index,
+        name=spec.name,
+        path=spec.path,
+        status="ok",
+        output=spec.output,
+        seconds=time.perf_counter() - t0,
+        coverage=float(coverage),
+        suspect=bool(suspect),
+        kind=job.kind,
+        n_vertices=n2,
+        cached=cached,
+        worker=worker_name(),
+        values=values,
+    )
+
+
+def basis_task(job: BasisJob, spec: ShapeSpec) -> TargetResult:
+    """Compute (or find) one shape's cached eigenbasis and OFP basis; never raises for it.
+
+    Parameters
+    ----------
+    job : BasisJob
+        The options and the cache folder.
+    spec : ShapeSpec
+        The shape.
+
+    Returns
+    -------
+    TargetResult
+        ``output`` is the basis' cache file; ``skipped`` when every entry was already cached.
+    """
+    t0 = time.perf_counter()
+    n, cached = 0, False
+    try:
+        _, V, F = _read(spec)
+        n = V.shape[0]
+        eig = None
+        cached = True
+        if job.eigenbasis_k is not None:
+            eig, cached = fetch_eigenbasis(
+                V, F, k=required_k(n, job.eigenbasis_k), clamp_k=True, cache_dir=job.cache_dir,
+                components=job.components,
+            )  # fmt: skip
+            if eig.k < job.k:
+                eig = None  # a smaller eigenbasis than the basis needs: fetch_basis solves again
+        _, basis_cached = fetch_basis(
+            V, F, k=job.k, order=job.order, tol=job.tol, preset=job.preset,
+            cache_dir=job.cache_dir, eig=eig, components=job.components,
+        )  # fmt: skip
+        cached = cached and basis_cached
+        output = basis_cache_path(
+            V, F, k=job.k, order=job.order, tol=job.tol, preset=job.preset,
+            cache_dir=job.cache_dir, components=job.components,
+        )  # fmt: skip
+    except Exception as exc:  # a shape's failure is its record, never the run's
+        logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
+        return failed(
+            spec, f"{type(exc).__name__}: {exc}", kind="basis",
+            seconds=time.perf_counter() - t0, n_vertices=n, worker=worker_name(),
+        )  # fmt: skip
+    return TargetResult(
+        index=spec.index,
+        name=spec.name,
+        path=spec.path,
+        status="skipped" if cached else "ok",
+        output=output,
+        seconds=time.perf_counter() - t0,
+        kind="basis",
+        n_vertices=n,
+        cached=cached,
+        worker=worker_name(),
+    )

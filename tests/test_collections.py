@@ -1,0 +1,522 @@
+"""Collections: one source onto many targets and the bases of many shapes, on a real scheduler.
+
+The cluster is started here (two single-threaded worker processes on 127.0.0.1). The shapes
+are small procedural blobs and bent copies with the same vertex order, so the identity is the
+ground truth of every map.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from o3d_ofp.core.shapes import blob
+
+o3d = pytest.importorskip("open3d", reason="collections read and write with Open3D")
+distributed = pytest.importorskip("distributed", reason="collections run on Dask")
+
+from o3d_ofp.boundary.convert import triangle_mesh_from_arrays  # noqa: E402
+from o3d_ofp.boundary.io import read_geometry, write_geometry  # noqa: E402
+from o3d_ofp.collections import (  # noqa: E402
+    COUNTERS,
+    SUMMARY_FIELDS,
+    TargetResult,
+    bases_many,
+    transfer_many,
+    write_summary,
+)
+
+
+def _bent(V, amount):
+    W = V.copy()
+    W[:, 1] += amount * W[:, 0] ** 2
+    return W
+
+
+@pytest.fixture(scope="module")
+def client():
+    """Start a real scheduler, two worker processes; a task that kills its worker fails at once.
+
+    The workers get the collections' environment (one BLAS thread, Dask's malloc setting left
+    out), which is also put back in this process afterwards.
+    """
+    import dask
+
+    from o3d_ofp.collections.engine import _worker_environment
+
+    with _worker_environment() as pre_spawn:
+        config = {
+            "distributed.scheduler.allowed-failures": 0,
+            "distributed.nanny.pre-spawn-environ": pre_spawn,
+        }
+        with dask.config.set(config):
+            cluster = distributed.LocalCluster(
+                processes=True,
+                n_workers=2,
+                threads_per_worker=1,
+                host="127.0.0.1",
+                dashboard_address=None,
+                silence_logs=logging.CRITICAL,
+            )
+        with cluster, distributed.Client(cluster) as c:
+            yield c
+
+
+@pytest.fixture(scope="module")
+def shapes(tmp_path_factory):
+    """Write a colored source, three bent copies, a corrupt PLY; (paths, V, F, colors)."""
+    d = tmp_path_factory.mktemp("collection")
+    V, F = blob(3)  # 642 vertices
+    colors = 0.5 + 0.5 * np.sin(3 * V)
+    write_geometry(d / "src.ply", triangle_mesh_from_arrays(V, F, colors=colors))
+    for i, amount in enumerate((0.1, 0.15, 0.2)):
+        write_geometry(d / f"t{i}.ply", triangle_mesh_from_arrays(_bent(V, amount), F))
+    header = b"ply\nformat binary_little_endian 1.0\nelement vertex 642\nproperty float x\n"
+    (d / "bad.ply").write_bytes(header + b"end_header\n\x00\x01\x02")
+    paths = {p.stem: str(p) for p in d.iterdir()}
+    return paths, V, F, colors
+
+
+def _colors(path):
+    return np.asarray(read_geometry(path).vertex_colors)
+
+
+def test_all_ok_on_a_cluster_and_a_bad_target_fails_alone(client, shapes, tmp_path):
+    paths, V, _, colors = shapes
+    before = COUNTERS["source_bases"]
+    targets = [paths["t0"], paths["bad"], paths["t1"]]
+    results = transfer_many(paths["src"], targets, client=client, output_dir=tmp_path)
+    assert COUNTERS["source_bases"] - before == 1  # once, in the caller, for every target
+    assert [r.status for r in results] == ["ok", "failed", "ok"]
+    assert [r.name for r in results] == ["t0.ply", "bad.ply", "t1.ply"]
+    bad = results[1]
+    assert "cut short" in bad.error and bad.error.startswith("ValueError")
+    assert bad.output is None and not (tmp_path / "bad.ply").exists()
+    workers = set(client.scheduler_info()["workers"])
+    for r in (results[0], results[2]):
+        assert r.output == str(tmp_path / r.name)
+        assert r.worker in workers and r.n_vertices == len(V) and r.seconds > 0
+        assert r.coverage > 0.5 and r.suspect is False
+        # The bent copies keep the vertex order: the identity is the ground truth.
+        assert np.abs(_colors(r.output) - colors).mean() < 0.05
+    csv_path, json_path = write_summary(results, tmp_path)
+    lines = Path(csv_path).read_text().splitlines()
+    assert lines[0].split(",") == list(SUMMARY_FIELDS) and len(lines) == 4
+    summary = json.loads(Path(json_path).read_text())
+    assert summary["counts"] == {"ok": 2, "failed": 1, "skipped": 0}
+    assert summary["results"][1]["status"] == "failed" and summary["results"][1]["coverage"] is None
+
+
+def test_rerun_skips_finished_work_and_redoes_a_touched_input(client, shapes, tmp_path, caplog):
+    paths, *_ = shapes
+    targets = [paths["t0"], paths["t1"], paths["t2"]]
+    run = dict(client=client, output_dir=tmp_path, map="identity")
+    first = transfer_many(paths["src"], targets, **run)
+    assert [r.status for r in first] == ["ok"] * 3
+    before = COUNTERS["source_bases"]
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.collections"):
+        again = transfer_many(paths["src"], targets, **run)
+    assert [r.status for r in again] == ["skipped"] * 3
+    assert "t1.ply: skipped" in caplog.text
+    assert "newer than the source and the target" in caplog.text
+    assert COUNTERS["source_bases"] == before  # nothing to do: no source basis either
+    future = time.time() + 5
+    os.utime(paths["t1"], (future, future))
+    third = transfer_many(paths["src"], targets, **run)
+    assert [r.status for r in third] == ["skipped", "ok", "skipped"]
+    forced = transfer_many(paths["src"], targets[:1], skip_existing=False, **run)
+    assert forced[0].status == "ok"
+
+
+def test_second_run_reuses_the_cached_eigenbases(client, shapes, tmp_path):
+    paths, *_ = shapes
+    targets = [paths["t0"], paths["t1"]]
+    cache = tmp_path / "cache"
+    run = dict(client=client, cache_dir=cache, map="identity", skip_existing=False)
+    first = transfer_many(paths["src"], targets, output_dir=tmp_path / "a", **run)
+    assert [(r.status, r.cached) for r in first] == [("ok", False)] * 2
+    entries = sorted(cache.glob("eig-*.npz"))
+    assert len(entries) == 3  # the source's and the two targets'
+    cached_before = COUNTERS["target_eigenbases_cached"]
+    second = transfer_many(paths["src"], targets, output_dir=tmp_path / "b", **run)
+    assert [(r.status, r.cached) for r in second] == [("ok", True)] * 2
+    assert COUNTERS["target_eigenbases_cached"] - cached_before == 2
+    for a, b in zip(first, second, strict=True):
+        np.testing.assert_allclose(_colors(b.output), _colors(a.output), atol=1e-6)
+
+
+def test_a_scheduler_address_opens_a_client(client, shapes, tmp_path):
+    paths, *_ = shapes
+    address = client.scheduler.address
+    assert address.startswith("tcp://127.0.0.1:")
+    (r,) = transfer_many(paths["src"], [paths["t2"]], client=address, output_dir=tmp_path,
+                         map="identity")  # fmt: skip
+    assert r.status == "ok" and r.worker in client.scheduler_info()["workers"]
+
+
+def test_damaged_cache_entries_are_recomputed_and_rewritten(shapes, tmp_path, caplog):
+    from o3d_ofp.workflows.cache import cached_basis, fetch_basis, fetch_eigenbasis
+
+    _, V, F, _ = shapes
+    eig, hit = fetch_eigenbasis(V, F, k=20, cache_dir=tmp_path)
+    assert not hit
+    (path,) = tmp_path.glob("eig-*.npz")
+    good = path.read_bytes()
+    for damaged in (b"", good[: len(good) // 2]):  # zero bytes, cut short
+        path.write_bytes(damaged)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.cache"):
+            again, hit = fetch_eigenbasis(V, F, k=20, cache_dir=tmp_path)
+        assert not hit and "damaged cache entry" in caplog.text
+        np.testing.assert_array_equal(again.evecs, eig.evecs)
+        assert path.stat().st_size == len(good)
+    assert fetch_eigenbasis(V, F, k=20, cache_dir=tmp_path)[1]
+    # The OFP basis goes where cached_basis looks, and a damaged one is recomputed too.
+    B, hit = fetch_basis(V, F, k=10, cache_dir=tmp_path, eig=eig)
+    assert not hit
+    np.testing.assert_array_equal(cached_basis(V, F, k=10, cache_dir=tmp_path).Q, B.Q)
+    (bpath,) = (p for p in tmp_path.glob("*.npz") if not p.name.startswith("eig-"))
+    bpath.write_bytes(b"")
+    assert not fetch_basis(V, F, k=10, cache_dir=tmp_path)[1]
+    assert fetch_basis(V, F, k=10, cache_dir=tmp_path)[1]
+
+
+def test_two_targets_given_as_geometries(client, shapes, tmp_path):
+    paths, V, F, colors = shapes
+    targets = [triangle_mesh_from_arrays(_bent(V, a), F) for a in (0.1, 0.2)]
+    results = transfer_many(
+        paths["src"], targets, client=client, output_dir=tmp_path, map="identity"
+    )
+    assert [(r.status, r.name, r.path) for r in results] == [
+        ("ok", "target_0.ply", None),
+        ("ok", "target_1.ply", None),
+    ]
+    for r in results:
+        assert r.output == str(tmp_path / r.name) and r.values is None
+        assert np.abs(_colors(r.output) - colors).mean() < 0.05
+    assert not targets[0].has_vertex_colors()  # the inputs are not modified
+    # Without output_dir nothing is written and the records keep the values.
+    kept = transfer_many(paths["src"], targets, client=client, map="identity")
+    assert all(r.output is None and r.values.shape == (len(V), 3) for r in kept)
+    np.testing.assert_allclose(
+        kept[0].values, _colors(results[0].output), atol=1 / 255
+    )  # PLY: uint8
+
+
+def test_detail_in_this_process(shapes, tmp_path):
+    paths, V, _, _ = shapes
+    before = COUNTERS["source_bases"]
+    results = transfer_many(
+        paths["src"],
+        [paths["t0"], paths["t1"]],
+        kind="detail",
+        workers=0,
+        output_dir=tmp_path,
+        map="identity",
+    )
+    assert COUNTERS["source_bases"] - before == 1
+    assert [(r.status, r.kind, r.worker) for r in results] == [("ok", "detail", "local")] * 2
+    moved = np.asarray(read_geometry(results[0].output).vertices)
+    bent = _bent(V, 0.1)
+    assert moved.shape == bent.shape and 0 < np.abs(moved - bent).max() < 0.1 * np.ptp(bent)
+
+
+def test_bases_many_fills_the_cache_that_transfers_reuse(client, shapes, tmp_path, caplog):
+    import o3d_ofp as ofp
+    from o3d_ofp.boundary.convert import geometry_to_arrays
+
+    paths, *_ = shapes
+    cache = tmp_path / "cache"
+    shapes_ = [paths["t0"], paths["bad"], paths["t1"]]
+    results = bases_many(shapes_, cache_dir=cache, client=client, k=39)
+    assert [(r.status, r.kind) for r in results] == [
+        ("ok", "basis"),
+        ("failed", "basis"),
+        ("ok", "basis"),
+    ]
+    assert "cut short" in results[1].error
+    assert all(os.path.isfile(r.output) for r in results if r.ok)
+    again = bases_many(shapes_, cache_dir=cache, client=client, k=39)
+    assert [r.status for r in again] == ["skipped", "failed", "skipped"]
+    n_files = len(list(cache.iterdir()))
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.workflows.cache"):
+        ofp.cached_basis(*geometry_to_arrays(read_geometry(paths["t0"])), k=39, cache_dir=cache)
+    assert f"basis loaded from cache {results[0].output}" in caplog.text  # the CLI's --cache
+    assert len(list(cache.iterdir())) == n_files
+    out = transfer_many(
+        paths["src"], [paths["t0"]], client=client, cache_dir=cache, output_dir=tmp_path / "out"
+    )
+    assert [(r.status, r.cached) for r in out] == [("ok", True)]
+
+
+def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
+    paths, *_ = shapes
+    with pytest.raises(TypeError, match="unknown option"):
+        transfer_many(paths["src"], [paths["t0"]], workers=0, k3=4)
+    with pytest.raises(ValueError, match="kind"):
+        transfer_many(paths["src"], [paths["t0"]], kind="zzz", workers=0)
+    with pytest.raises(ValueError, match="no texture to bake"):
+        transfer_many(paths["src"], [paths["t0"]], kind="texture", workers=0)
+    with pytest.raises(ValueError, match="signal"):
+        transfer_many(paths["src"], [paths["t0"]], signal="xyz", workers=0)
+    with pytest.raises(ValueError, match="texture_size"):
+        transfer_many(paths["src"], [paths["t0"]], texture_size=0, workers=0)
+    with pytest.raises(ValueError, match="no vertex colors"):
+        transfer_many(paths["t0"], [paths["t1"]], workers=0, skip_existing=False)
+    with pytest.raises(ValueError, match="would overwrite"):
+        transfer_many(paths["src"], [paths["t0"]], output_dir=os.path.dirname(paths["t0"]))
+    with pytest.raises(FileNotFoundError):
+        transfer_many(str(tmp_path / "nope.ply"), [paths["t0"]], workers=0)
+    with pytest.raises(ValueError, match="no targets"):
+        transfer_many(paths["src"], [str(tmp_path)], workers=0)
+
+
+def test_importing_collections_does_not_import_dask():
+    code = (
+        "import sys, o3d_ofp.collections\n"
+        "bad = [m for m in ('dask', 'distributed', 'open3d', 'tqdm') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# --------------------------------------------------------------------------- thread safety
+
+
+def _transfer(seed):
+    """One whole transfer on a 2562-vertex pair (CHOLMOD + Lanczos, descriptors, ZoomOut)."""
+    from o3d_ofp.core.basis import ofp_basis
+    from o3d_ofp.core.spectrum import eigenbasis
+    from o3d_ofp.workflows.matching import match_eigenbases
+    from o3d_ofp.workflows.pipeline import transfer_function
+
+    V, F = blob(4, seed=seed)
+    e1, e2 = eigenbasis(V, F, k=30), eigenbasis(_bent(V, 0.15), F, k=30)
+    corr = match_eigenbases(e1, e2, k_fit=15, zoomout_to=30, zoomout_subsample=300)
+    bases = (ofp_basis(e1, k=15), ofp_basis(e2, k=20))
+    f = transfer_function(V, e1, e2, correspondence=corr, bases=bases)
+    return e2.evecs, corr.p2p_21, f
+
+
+def _blas_threads():
+    from threadpoolctl import threadpool_info
+
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+@pytest.fixture
+def restore_blas():
+    """Put the process' BLAS thread count back (concurrent calls may leave it changed)."""
+    from threadpoolctl import threadpool_limits
+
+    before = _blas_threads()
+    yield before
+    threadpool_limits(limits=max(before), user_api="blas")
+
+
+def test_two_transfers_in_threads_match_the_serial_results(restore_blas):
+    serial = [_transfer(s) for s in (0, 1)]
+    with ThreadPoolExecutor(2) as pool:
+        threaded = list(pool.map(_transfer, (0, 1)))
+    for (e_s, p_s, g_s), (e_t, p_t, g_t) in zip(serial, threaded, strict=True):
+        # Equal up to round-off: BLAS limits are process-wide, so a product outside a limited
+        # block may run on one thread while the other thread is inside one (a different
+        # summation order: differences of a few ulps, measured 3e-14 on entries of size ~0.3).
+        # Two threads overwriting each other's data would differ at O(1).
+        np.testing.assert_allclose(e_t, e_s, rtol=0, atol=1e-10)
+        np.testing.assert_array_equal(p_t, p_s)
+        np.testing.assert_allclose(g_t, g_s, rtol=0, atol=1e-10)
+    # and the process' BLAS setting is what it was (not left at the limit of the stages)
+    assert _blas_threads() == restore_blas
+
+
+def test_blas_thread_limits_survive_concurrent_calls(restore_blas):
+    from o3d_ofp.core._threads import blas_threads
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def first():
+        with blas_threads(1):
+            a_in.set()
+            b_in.wait(10)
+        a_out.set()
+
+    def second():
+        a_in.wait(10)
+        with blas_threads(1):
+            b_in.set()
+            a_out.wait(10)
+            seen["inside"] = _blas_threads()
+
+    threads = [threading.Thread(target=f) for f in (first, second)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen["inside"] == [1] * len(seen["inside"])  # still limited inside the second call
+    assert _blas_threads() == restore_blas  # and the process' setting back afterwards
+
+
+# --------------------------------------------------------------------------- the CLI
+
+
+def _cli(*argv):
+    from o3d_ofp.cli.main import main
+
+    return main([str(a) for a in argv])
+
+
+def test_cli_several_targets_on_a_scheduler_summary_rerun_and_force(client, shapes, tmp_path,
+                                                                    capsys):  # fmt: skip
+    paths, _, _, colors = shapes
+    out = tmp_path / "out"
+    args = ["transfer", paths["src"], paths["t0"], paths["bad"], paths["t1"], "-o", out,
+            "--scheduler", client.scheduler.address, "--map", "identity"]  # fmt: skip
+    assert _cli(*args) == 1  # one target failed: exit 1, the others written
+    text = capsys.readouterr().out
+    assert "failed   bad.ply: ValueError" in text and "ok       t0.ply" in text
+    assert "2 ok, 1 failed, 0 skipped" in text
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "summary.json", "t0.ply",
+                                                     "t1.ply"]  # fmt: skip
+    for name in ("t0.ply", "t1.ply"):
+        assert np.abs(_colors(out / name) - colors).mean() < 0.05
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"ok": 2, "failed": 1, "skipped": 0}
+    # Rerun: the finished targets are skipped and said so; only the bad one is tried again.
+    assert _cli(*args) == 1
+    text = capsys.readouterr().out
+    assert "skipped  t0.ply: up to date" in text and "0 ok, 1 failed, 2 skipped" in text
+    # All good targets: exit 0; --force redoes finished work.
+    good = [a for a in args if a != paths["bad"]]
+    assert _cli(*good, "--force") == 0
+    assert "2 ok, 0 failed, 0 skipped" in capsys.readouterr().out
+
+
+def test_cli_folder_of_targets_in_process_and_basis_of_a_collection(shapes, tmp_path, capsys):
+    paths, *_ = shapes
+    folder = tmp_path / "targets"
+    folder.mkdir()
+    for name in ("t0", "t1"):
+        (folder / f"{name}.ply").write_bytes(Path(paths[name]).read_bytes())
+    cache = tmp_path / "cache"
+    assert _cli("basis", folder, paths["src"], "--cache", cache, "--workers", "0") == 0
+    assert "3 ok, 0 failed, 0 skipped" in capsys.readouterr().out
+    assert len(list(cache.glob("eig-*.npz"))) == 3  # the eigenbases the map estimation needs
+    assert _cli("basis", folder, "--cache", cache, "--workers", "0") == 0
+    assert "0 ok, 0 failed, 2 skipped" in capsys.readouterr().out  # all cached already
+    solved = COUNTERS["target_eigenbases_computed"]
+    out = tmp_path / "out"
+    assert _cli("transfer", paths["src"], folder, "-o", out, "--workers", "0",
+                "--cache", cache) == 0  # fmt: skip
+    assert COUNTERS["target_eigenbases_computed"] == solved  # every eigenbasis from the cache
+    assert (out / "t0.ply").is_file() and (out / "t1.ply").is_file()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--landmarks", "0:0"], "--landmarks (vertex pairs belong to one pair of shapes) does"),
+        (["--save-map", "m.npz"], "--save-map (one map per pair) does not apply"),
+        (["--map", "closest"], "--map closest: with several targets the map is"),
+        (["--signal", "xyz"], "--signal xyz: with several targets the signal is"),
+        (["--k1", "0"], "--k1: expected a positive integer"),
+    ],
+)
+def test_cli_several_targets_refuses_pair_only_flags(shapes, tmp_path, capsys, extra, message):
+    paths, *_ = shapes
+    argv = ["transfer", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "o", *extra]
+    assert _cli(*argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before any work
+
+
+def test_cli_bad_collection_usage_is_refused(shapes, tmp_path, capsys):
+    paths, *_ = shapes
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    cases = [
+        (["transfer", paths["src"], paths["t0"], paths["t1"], "-o", a_file],
+         "is a file; with several targets -o names a folder"),
+        (["transfer", paths["src"], paths["t0"], "-o", tmp_path / "one.ply", "--workers", "2"],
+         "--workers applies to several targets"),
+        (["basis", paths["t0"], paths["t1"], "-o", tmp_path / "b.npz"],
+         "-o names the basis file of ONE shape"),
+        (["basis", paths["t0"], paths["t1"]], "give -o FILE.npz (one shape) or --cache DIR"),
+        (["basis", paths["t0"], paths["t1"], "--cache", a_file], "--cache"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        assert _cli(*argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+    assert a_file.read_text() == "x"
+
+
+def _textured(V, F, image):
+    """Build a mesh with spherical per-corner UVs and ``image`` as its texture."""
+    mesh = triangle_mesh_from_arrays(V, F)
+    P = V[F.reshape(-1)]
+    u = 0.5 + np.arctan2(P[:, 1], P[:, 0]) / (2 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(P[:, 2] / np.linalg.norm(P, axis=1), -1, 1)) / np.pi
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(np.column_stack([u, v]))
+    mesh.textures = [o3d.geometry.Image(image)]
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(F), dtype=np.int32))
+    return mesh
+
+
+def test_cli_textured_source_bakes_every_target_like_the_two_shape_command(shapes, tmp_path,
+                                                                           capsys):  # fmt: skip
+    from PIL import Image
+
+    _, V, F, _ = shapes
+    yy, xx = np.mgrid[0:64, 0:64]
+    image = np.stack([(xx * 4) % 256, (yy * 4) % 256, ((xx // 8 + yy // 8) % 2) * 255], axis=-1)
+    write_geometry(tmp_path / "src.obj", _textured(V, F, image.astype(np.uint8)))
+    for i, amount in enumerate((0.1, 0.2)):
+        write_geometry(
+            tmp_path / f"t{i}.obj",
+            _textured(_bent(V, amount), F, image[::-1].copy().astype(np.uint8)),
+        )
+    out = tmp_path / "out"
+    argv = ["transfer", tmp_path / "src.obj", tmp_path / "t0.obj", tmp_path / "t1.obj", "-o", out,
+            "--workers", "0", "--texture-size", "64"]  # fmt: skip
+    assert _cli(*argv) == 0
+    assert (out / "t0.obj").is_file() and (out / "t0.mtl").is_file()
+    assert _cli("transfer", tmp_path / "src.obj", tmp_path / "t0.obj", "-o", tmp_path / "one.obj",
+                "--texture-size", "64") == 0  # fmt: skip
+    many = sorted(out.glob("t0*.png"))
+    one = sorted(tmp_path.glob("one*.png"))
+    assert len(many) == 1 and len(one) == 1
+    # The same map and the same bake: the same image, texel for texel (and a real picture).
+    baked = np.asarray(Image.open(many[0]))
+    np.testing.assert_array_equal(baked, np.asarray(Image.open(one[0])))
+    assert baked.std() > 20
+
+
+# --------------------------------------------------------------------------- last: kills a worker
+
+
+def test_a_killed_worker_is_a_failed_record(client):
+    from o3d_ofp.collections.engine import _progress_bar, _run_on
+    from o3d_ofp.collections.tasks import ShapeSpec
+
+    def task(shared, spec):
+        if spec.index == 1:
+            os._exit(1)  # what the nanny's memory monitor does to a worker over its limit
+        return TargetResult(index=spec.index, name=spec.name, path=None, status="ok")
+
+    specs = [ShapeSpec(0, "a", None), ShapeSpec(1, "b", None)]
+    with _progress_bar(2, "test", False) as bar:
+        records = _run_on(client, task, None, specs, kind="colors", bar=bar)
+    by_index = {r.index: r for r in records}
+    assert by_index[0].status == "ok"
+    assert by_index[1].status == "failed" and by_index[1].error.startswith("KilledWorker")
