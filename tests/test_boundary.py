@@ -168,3 +168,252 @@ def test_results_keep_the_targets_kind_and_attributes(legacy_mesh):
     )
     assert "normals" in adapters.like_target(tmesh, vertices=2 * V).vertex
     assert adapters.like_target(tcloud, colors=new).point.colors.dtype == o3d.core.uint8
+
+
+def _sphere_uvs(V):
+    u = 0.5 + np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(V[:, 2], -1, 1)) / np.pi
+    return np.stack([u, v], axis=1)
+
+
+def _textured_sphere():
+    """Build a legacy icosphere with sphere UVs and a texture: red top, blue bottom half."""
+    from o3d_ofp.boundary.texture import legacy_texture_image
+
+    V, F = icosphere(2)
+    mesh = adapters.triangle_mesh_from_arrays(V, F, colors=0.5 + 0.5 * V)
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(_sphere_uvs(V)[F.reshape(-1)])
+    img = np.zeros((64, 64, 3), dtype=np.uint8)
+    img[:32] = [250, 20, 20]  # rows top-down: v > 0.5 (the north) is red
+    img[32:] = [20, 20, 250]
+    mesh.textures = [legacy_texture_image(img)]
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(F), dtype=np.int32))
+    return mesh, V, F
+
+
+def _match_vertices(V_back, V):
+    """Index into V of each read-back vertex (Open3D's glTF reader may reorder them)."""
+    from scipy.spatial import cKDTree
+
+    dist, idx = cKDTree(V).query(V_back)
+    # glTF stores float32: a unit sphere's coordinates round by <= 6e-8; 1e-6 leaves room.
+    assert dist.max() < 1e-6
+    assert len(np.unique(idx)) == len(V)  # one to one
+    return idx
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_textured_gltf_round_trip(tmp_path, ext):
+    from o3d_ofp import read_geometry, texture_colors, write_geometry
+    from o3d_ofp.boundary.texture import mesh_texture
+
+    mesh, V, F = _textured_sphere()
+    before = np.asarray(mesh.triangle_uvs).copy()
+    write_geometry(tmp_path / f"out{ext}", mesh)
+    np.testing.assert_array_equal(np.asarray(mesh.triangle_uvs), before)  # input untouched
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert not [n for n in names if n.startswith(".")], names
+    if ext == ".gltf":  # the buffer and the image beside it, named after the output
+        assert names == ["out.bin", "out.gltf", "out_albedo.png"]
+    else:
+        assert names == ["out.glb"]
+    back = read_geometry(tmp_path / f"out{ext}")
+    Vb, Fb = np.asarray(back.vertices), np.asarray(back.triangles)
+    idx = _match_vertices(Vb, V)
+    # The same triangles (as vertex sets), each with the same UVs at the same corners.
+    original = {tuple(sorted(t)): i for i, t in enumerate(F)}
+    uv_back = np.asarray(back.triangle_uvs).reshape(-1, 3, 2)
+    uv_orig = before.reshape(-1, 3, 2)
+    assert len(Fb) == len(F)
+    for j, t in enumerate(idx[Fb]):
+        i = original[tuple(sorted(t))]
+        for corner in range(3):
+            c = list(F[i]).index(t[corner])
+            # float32 UVs: 1e-6 covers their rounding.
+            np.testing.assert_allclose(uv_back[j, corner], uv_orig[i, c], atol=1e-6)
+    # The texture came back the right way up: the per-vertex colors equal the original's.
+    expected = texture_colors(mesh)[idx]
+    np.testing.assert_allclose(texture_colors(back), expected, atol=1.5 / 255)
+    assert expected[Vb[:, 2] > 0.5, 0].mean() > 0.9  # and they are not trivially equal
+    image = [im for im in mesh_texture(back).images if im.size]
+    assert len(image) == 1 and image[0].shape == (64, 64, 3)
+    # vertex colors are kept too (8 bits or float32 in the file)
+    np.testing.assert_allclose(
+        np.asarray(back.vertex_colors), np.asarray(mesh.vertex_colors)[idx], atol=1.0 / 255
+    )
+
+
+def test_plain_glb_is_readable(tmp_path):
+    # Open3D's legacy writer produces .glb files that no reader accepts; ours go through the
+    # tensor writer and are read back before they are moved into place.
+    from o3d_ofp import read_geometry, write_geometry
+
+    V, F = icosphere(2)
+    write_geometry(tmp_path / "plain.glb", adapters.triangle_mesh_from_arrays(V, F))
+    back = read_geometry(tmp_path / "plain.glb")
+    _match_vertices(np.asarray(back.vertices), V)
+    assert len(back.triangles) == len(F)
+
+
+def test_gltf_refuses_several_texture_images(tmp_path):
+    from o3d_ofp import write_geometry
+
+    mesh, _, F = _textured_sphere()
+    mesh.textures = [mesh.textures[0], mesh.textures[0]]
+    ids = np.zeros(len(F), dtype=np.int32)
+    ids[: len(F) // 2] = 1
+    mesh.triangle_material_ids = o3d.utility.IntVector(ids)
+    with pytest.raises(ValueError, match=r"2 texture images.*write an \.obj"):
+        write_geometry(tmp_path / "two.glb", mesh)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_gltf_that_open3d_cannot_read_back_is_refused(tmp_path, monkeypatch):
+    # Simulate the writer producing a file without the texture: the check catches it and
+    # nothing is left behind.
+    from o3d_ofp import write_geometry
+
+    mesh, _, _ = _textured_sphere()
+    real = o3d.t.io.write_triangle_mesh
+
+    def untextured(path, m, *args, **kwargs):
+        m = m.clone()
+        m.material = o3d.visualization.Material("defaultLit")  # no albedo map
+        return real(path, m, *args, **kwargs)
+
+    monkeypatch.setattr(o3d.t.io, "write_triangle_mesh", untextured)
+    with pytest.raises(OSError, match="did not write the texture"):
+        write_geometry(tmp_path / "x.glb", mesh)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- landmark picking
+
+
+def test_pick_landmarks_pairs_the_two_windows_in_order(legacy_mesh, monkeypatch):
+    from o3d_ofp.boundary.pick import pick_landmarks
+
+    calls = []
+
+    def picker(geometry, title):
+        calls.append((geometry, title))
+        return [3, 7, 11] if len(calls) == 1 else [30, 70, 110]
+
+    target = o3d.t.geometry.TriangleMesh.from_legacy(legacy_mesh)
+    pairs = pick_landmarks(legacy_mesh, target, picker=picker)
+    np.testing.assert_array_equal(pairs, [[3, 30], [7, 70], [11, 110]])
+    assert pairs.dtype == np.int64
+    assert calls[0][0] is legacy_mesh and calls[1][0] is target  # source first
+    assert "3 matching vertices" in calls[1][1]
+    with pytest.raises(ValueError, match="count=2 pairs were asked for; 3 were picked"):
+        pick_landmarks(legacy_mesh, target, count=2, picker=_picker_from([[1, 2, 3], [4, 5, 6]]))
+    with pytest.raises(ValueError, match="count must be >= 1"):
+        pick_landmarks(legacy_mesh, target, count=0, picker=picker)
+
+
+def _picker_from(answers):
+    answers = list(answers)
+    return lambda geometry, title: answers.pop(0)
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "message"),
+    [
+        ([1, 2], [1], "picked 2 vertices on the source but 1 on the target"),
+        ([], [1], "no vertex was picked on the source"),
+        ([1], [], "no vertex was picked on the target"),
+        ([1, 1], [2, 3], "source vertex 1 was picked twice"),
+        ([1, 2], [3, 3], "target vertex 3 was picked twice"),
+        ([-1], [0], r"source vertices must lie in \[0, 162\)"),
+        ([0], [162], r"target vertices must lie in \[0, 162\)"),
+    ],
+)
+def test_picks_that_do_not_pair_up_are_refused(legacy_mesh, a, b, message):
+    from o3d_ofp.boundary.pick import pick_landmarks
+
+    with pytest.raises(ValueError, match=message):
+        pick_landmarks(legacy_mesh, legacy_mesh, picker=_picker_from([a, b]))
+
+
+def test_pick_landmarks_without_display_refuses_before_opening(legacy_mesh, monkeypatch):
+    from o3d_ofp.boundary import pick
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(pick.sys, "platform", "linux")
+    monkeypatch.setattr(pick, "_pick_in_window", lambda *a: pytest.fail("a window was opened"))
+    assert not pick.has_display()
+    with pytest.raises(RuntimeError, match="needs a display"):
+        pick.pick_landmarks(legacy_mesh, legacy_mesh)
+    monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-0")
+    assert pick.has_display()
+
+
+def test_the_picking_window_shows_vertices_in_the_arrays_order(legacy_mesh):
+    # The window shows a copy built from geometry_to_arrays, so a picked index is an index
+    # into the arrays the eigenbasis uses, for every kind of input.
+    from o3d_ofp.boundary.pick import _viewable
+
+    V, _ = icosphere(2)
+    cloud = adapters.point_cloud_from_arrays(V[::-1])
+    for geometry in (legacy_mesh, o3d.t.geometry.TriangleMesh.from_legacy(legacy_mesh), cloud):
+        shown = _viewable(geometry)
+        points = shown.vertices if hasattr(shown, "vertices") else shown.points
+        np.testing.assert_array_equal(np.asarray(points), adapters.geometry_to_arrays(geometry)[0])
+    assert _viewable(legacy_mesh).has_vertex_colors()  # the shape's own colors are shown
+
+
+def test_tensor_textured_mesh_to_glb(tmp_path):
+    from o3d_ofp import read_geometry, texture_colors, write_geometry
+
+    mesh, V, _ = _textured_sphere()
+    tmesh = o3d.t.geometry.TriangleMesh()
+    tmesh.vertex.positions = o3d.core.Tensor(V.astype(np.float32))
+    tmesh.triangle.indices = o3d.core.Tensor(np.asarray(mesh.triangles, dtype=np.int64))
+    tmesh.triangle.texture_uvs = o3d.core.Tensor(
+        np.asarray(mesh.triangle_uvs, dtype=np.float32).reshape(-1, 3, 2)
+    )
+    img = np.zeros((64, 64, 3), dtype=np.uint8)
+    img[:32], img[32:] = [250, 20, 20], [20, 20, 250]
+    tmesh.material.set_default_properties()
+    tmesh.material.texture_maps["albedo"] = o3d.t.geometry.Image(o3d.core.Tensor(img))
+    write_geometry(tmp_path / "t.glb", tmesh)
+    back = read_geometry(tmp_path / "t.glb")
+    idx = _match_vertices(np.asarray(back.vertices), V)
+    np.testing.assert_allclose(texture_colors(back), texture_colors(mesh)[idx], atol=1.5 / 255)
+
+
+def test_picking_window_wiring_with_a_stand_in_visualizer(legacy_mesh, monkeypatch):
+    # The real window cannot open on a machine without a display; a stand-in with the same
+    # methods checks the calls: the copy shown, the window closed even on error, the indices.
+    from o3d_ofp.boundary import pick
+
+    log = []
+
+    class StandIn:
+        opens = True
+
+        def create_window(self, window_name, width, height):
+            log.append(("create", window_name))
+            return self.opens
+
+        def add_geometry(self, geometry):
+            log.append(("add", len(geometry.vertices)))
+
+        def run(self):
+            log.append(("run",))
+
+        def destroy_window(self):
+            log.append(("destroy",))
+
+        def get_picked_points(self):
+            return [np.int64(4), 9]
+
+    for name in ("create_window", "add_geometry", "run", "destroy_window", "get_picked_points"):
+        assert hasattr(o3d.visualization.VisualizerWithEditing, name)  # the real API has them
+    monkeypatch.setattr(o3d.visualization, "VisualizerWithEditing", StandIn)
+    assert pick._pick_in_window(legacy_mesh, "source") == [4, 9]
+    assert log == [("create", "source"), ("add", 162), ("run",), ("destroy",)]
+    StandIn.opens = False
+    with pytest.raises(RuntimeError, match="could not open a window"):
+        pick._pick_in_window(legacy_mesh, "source")

@@ -15,6 +15,10 @@ import shutil
 import tempfile
 from typing import Any
 
+import numpy as np
+
+from ..core._atomic import default_file_mode
+from ._verbosity import open3d_errors_only
 from .convert import require_open3d
 
 __all__ = ["read_geometry", "write_geometry"]
@@ -124,12 +128,12 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     if os.path.getsize(path) == 0:
         raise ValueError(f"{path}: the file is empty")
     # Open3D prints a warning for a file with points but no triangles: that case is handled.
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+    with open3d_errors_only():
         mesh = o3d.io.read_triangle_mesh(path)
     if len(mesh.vertices) and len(mesh.triangles):
         _check_read(path, len(mesh.vertices))
         return mesh
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+    with open3d_errors_only():
         cloud = o3d.io.read_point_cloud(path)
     if len(cloud.points):
         _check_read(path, len(cloud.points))
@@ -143,12 +147,90 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     raise ValueError(f"{path}: Open3D could not read any vertices from this file")
 
 
+GLTF = (".gltf", ".glb")
+
+
+def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
+    """(tensor mesh for Open3D's glTF writer, whether it carries a texture image).
+
+    Open3D 0.20's legacy writer cannot be used for glTF: its ``.glb`` files cannot be read
+    back (not even by Open3D: "Buffer view ... out of range") and it drops UVs and textures
+    ("this file format does not support writing textures"). The tensor writer (ASSIMP) writes
+    positions, normals, colors, per-corner UVs and one ``albedo`` image correctly (float32).
+    """
+    if isinstance(mesh, o3d.t.geometry.TriangleMesh):
+        has_image = mesh.has_valid_material() and "albedo" in mesh.material.texture_maps
+        return mesh, bool(has_image and "texture_uvs" in mesh.triangle)
+    from .convert import geometry_to_arrays
+    from .texture import mesh_texture
+
+    V, F = geometry_to_arrays(mesh)
+    out = o3d.t.geometry.TriangleMesh()
+    out.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(V, dtype=np.float32))
+    out.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.int64))
+    if mesh.has_vertex_normals():
+        out.vertex.normals = o3d.core.Tensor(np.asarray(mesh.vertex_normals, dtype=np.float32))
+    if mesh.has_vertex_colors():
+        out.vertex.colors = o3d.core.Tensor(np.asarray(mesh.vertex_colors, dtype=np.float32))
+    if not mesh.has_triangle_uvs():
+        return out, False
+    try:
+        tex = mesh_texture(mesh)
+    except ValueError:  # UVs without an image: keep the UVs
+        uvs = np.asarray(mesh.triangle_uvs, dtype=np.float32).reshape(-1, 3, 2)
+        if uvs.shape[0] == F.shape[0]:
+            out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs))
+        return out, False
+    out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(tex.uvs, dtype=np.float32))
+    used = np.unique(tex.material[tex.material >= 0])
+    used = [int(i) for i in used if tex.images[i].size]
+    if len(used) > 1:
+        raise ValueError(
+            f"this mesh uses {len(used)} texture images; Open3D writes one image per mesh to "
+            "glTF: write an .obj (OBJ + MTL + images) instead"
+        )
+    if not used:
+        return out, False
+    image = tex.images[used[0]]
+    if image.dtype != np.uint8:
+        image = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    out.material.set_default_properties()
+    out.material.texture_maps["albedo"] = o3d.t.geometry.Image(
+        o3d.core.Tensor(np.ascontiguousarray(image))
+    )
+    return out, True
+
+
+def _check_gltf(path: str, shown: str, n_vertices: int, textured: bool, o3d: Any) -> None:
+    """Read a written glTF back: Open3D has written unreadable or untextured files before."""
+    with open3d_errors_only():
+        back = o3d.t.io.read_triangle_mesh(path)
+    n = back.vertex.positions.shape[0] if "positions" in back.vertex else 0
+    if n != n_vertices:
+        raise OSError(
+            f"{shown}: Open3D wrote a glTF file it cannot read back ({n} of {n_vertices} "
+            "vertices); write .ply or .obj instead"
+        )
+    if textured and not (back.has_valid_material() and "albedo" in back.material.texture_maps):
+        raise OSError(
+            f"{shown}: Open3D did not write the texture into the glTF file; write an .obj "
+            "(OBJ + MTL + PNG) instead"
+        )
+
+
 def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
     """Write an Open3D mesh or point cloud atomically.
 
     Everything Open3D writes (for an OBJ with a texture: the OBJ, its ``.mtl`` and the
     texture images, named after the destination) goes to a temporary folder beside the
     destination first, then each file is moved into place, the geometry file last.
+
+    glTF (``.gltf`` with its ``.bin`` and image files beside it, or one ``.glb``) is written
+    with Open3D's tensor writer, since the legacy one writes ``.glb`` files nobody can read
+    and drops UVs and textures: positions (float32, the glTF type), normals, vertex colors,
+    per-corner UVs and ONE texture image (as the ``albedo`` map). The file is read back to
+    check it. Open3D's glTF *readers* may reorder the vertices (ASSIMP post-processing): the
+    file keeps the mesh's order, but a mesh read back need not.
 
     Parameters
     ----------
@@ -159,8 +241,11 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
 
     Raises
     ------
+    ValueError
+        For glTF, a mesh that uses several texture images (write an OBJ instead).
     OSError
-        If Open3D fails to write; nothing is left at ``path`` or beside it.
+        If Open3D fails to write, or writes a glTF it cannot read back (or without the
+        texture); nothing is left at ``path`` or beside it.
     """
     o3d = require_open3d()
     path = os.fspath(path)
@@ -169,9 +254,16 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
     tmpdir = tempfile.mkdtemp(prefix=f".{name}.", dir=folder)
     try:
         tmp = os.path.join(tmpdir, name)
+        gltf = name.lower().endswith(GLTF) and isinstance(
+            geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)
+        )
+        if gltf:
+            geometry, textured = _gltf_mesh(geometry, o3d)
         # Open3D prints warnings (e.g. "OFF cannot include triangle normals") on stdout.
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            if isinstance(geometry, o3d.geometry.TriangleMesh):
+        with open3d_errors_only():
+            if gltf:
+                ok = o3d.t.io.write_triangle_mesh(tmp, geometry)
+            elif isinstance(geometry, o3d.geometry.TriangleMesh):
                 ok = o3d.io.write_triangle_mesh(tmp, geometry)
             elif isinstance(geometry, o3d.geometry.PointCloud):
                 ok = o3d.io.write_point_cloud(tmp, geometry)
@@ -181,11 +273,12 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
                 ok = o3d.t.io.write_point_cloud(tmp, geometry)
         if not ok or not os.path.isfile(tmp):
             raise OSError(f"{path}: Open3D failed to write the file")
-        umask = os.umask(0)
-        os.umask(umask)
+        if gltf:
+            _check_gltf(tmp, path, geometry.vertex.positions.shape[0], textured, o3d)
+        mode = default_file_mode()
         extras = sorted(f for f in os.listdir(tmpdir) if f != name)
         for f in [*extras, name]:  # the geometry file last: it refers to the others
-            os.chmod(os.path.join(tmpdir, f), 0o666 & ~umask)
+            os.chmod(os.path.join(tmpdir, f), mode)
             os.replace(os.path.join(tmpdir, f), os.path.join(folder, f))
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..core.texture import corner_colors_to_vertices, sample_texture
+from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d
 
 __all__ = ["MeshTexture", "corner_uvs", "legacy_texture_image", "mesh_texture", "texture_colors"]
@@ -41,7 +42,7 @@ def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
         path = os.fspath(image)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"{path}: no such texture file")
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        with open3d_errors_only():
             image = o3d.io.read_image(path)
         if _is_empty(image):
             raise ValueError(f"{path}: Open3D could not read this image (PNG and JPEG are read)")

@@ -25,6 +25,7 @@ __all__ = [
     "add_basis_options",
     "basis_for",
     "check_cache_dir",
+    "check_job_memory",
     "check_output",
     "eig_options",
     "load_npy",
@@ -122,12 +123,13 @@ def eig_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def check_output(
-    path: str, allowed: Sequence[str], *, inputs: Sequence[str] = (), flag: str = "-o"
+    path: str, allowed: Sequence[str], *, inputs: Sequence[str | None] = (), flag: str = "-o"
 ) -> None:
     """Refuse a bad output path before any work.
 
     Wrong extension, missing folder, a directory, or one of the inputs (which would be
-    overwritten).
+    overwritten). ``inputs`` may hold flag values that are not files (``None``, ``"colors"``):
+    only existing files are compared.
     """
     ext = os.path.splitext(path)[1].lower()
     if os.path.isdir(path):
@@ -137,8 +139,13 @@ def check_output(
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
-    for source in inputs:
-        if source and os.path.exists(path) and os.path.samefile(path, source):
+    for source in inputs:  # names that are not files ("colors", "estimate") are skipped
+        if (
+            isinstance(source, str)
+            and os.path.exists(path)
+            and os.path.exists(source)
+            and os.path.samefile(path, source)
+        ):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
 
 
@@ -149,6 +156,46 @@ def check_cache_dir(path: str | None) -> None:
 
 
 # --------------------------------------------------------------------------- bases
+
+
+def check_job_memory(
+    jobs: Sequence[tuple[str, int, int, int, int]], *, advice: str, limit: float | None = None
+) -> None:
+    """Refuse, before any eigensolve, bases whose estimated peak memory exceeds what is free.
+
+    Parameters
+    ----------
+    jobs : sequence of (path, n_vertices, k, eig_k, order)
+        The bases the command will compute (the peaks are added up: a conservative bound when
+        a pair's bases are computed one after the other and both are kept).
+    advice : str
+        How to lower the estimate, naming the flags (e.g. ``"lower -k or --order, or use a
+        simplified mesh"``), for the message.
+    limit : float, optional
+        Bytes allowed (default: the memory available now, from psutil).
+    """
+    from ..core import _memory
+
+    if not jobs:
+        return
+    need = sum(
+        _memory.basis_job_bytes(n, k=k, order=order, eig_k=eig_k) for _, n, k, eig_k, order in jobs
+    )
+    if limit is None:
+        limit = _memory.available_memory()
+        if limit is None:
+            return
+    what = " and ".join(
+        f"{path} ({n} vertices, k={max(k, eig_k)}, order {order})"
+        for path, n, k, eig_k, order in jobs
+    )
+    if need > limit:
+        raise UsageError(
+            f"the basis of {what} needs about {_memory.format_bytes(need)} of memory, more than "
+            f"the {_memory.format_bytes(limit)} available: {advice}"
+        )
+    logger.debug("memory estimate for %s: %s of %s", what, _memory.format_bytes(need),
+                 _memory.format_bytes(limit))  # fmt: skip
 
 
 def _load_basis(path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str):
@@ -167,6 +214,16 @@ def _load_basis(path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namesp
             "with other cleaning options); recompute it with: o3d-ofp basis " + mesh_path
         )
     return B
+
+
+def _in_cache(V: Any, F: Any, k: int, args: argparse.Namespace) -> bool:
+    """Tell whether ``--cache`` holds a (non-empty) entry for this basis."""
+    from ..workflows.cache import basis_cache_path
+
+    entry = basis_cache_path(
+        V, F, k=k, order=args.order, cache_dir=args.cache, **tol_options(args), **eig_options(args)
+    )
+    return os.path.isfile(entry) and os.path.getsize(entry) > 0
 
 
 def basis_for(
@@ -201,7 +258,13 @@ def basis_for(
         return B, B.eig
     k = default_k if k is None else k
     tol = tol_options(args)
-    if getattr(args, "cache", None) and eig_k is None:
+    cached = getattr(args, "cache", None) and eig_k is None
+    if not (cached and _in_cache(V, F, k, args)):  # a cache hit only reads its file
+        check_job_memory(
+            [(path, V.shape[0], k, eig_k or k, args.order)],
+            advice=f"lower {k_flag} or --order, or use a simplified mesh (fewer vertices)",
+        )
+    if cached:
         with stage(f"basis of {path} (cache {args.cache})"):
             B = cached_basis(
                 V, F, k=k, order=args.order, cache_dir=args.cache, **tol, **eig_options(args)

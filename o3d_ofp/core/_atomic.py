@@ -7,7 +7,47 @@ import os
 import tempfile
 from collections.abc import Iterator
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_path", "current_umask", "default_file_mode"]
+
+
+def _umask_from_proc() -> int | None:
+    """Read the umask from ``/proc/self/status`` (Linux >= 4.7); None where it is not there."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _umask_at_import() -> int:
+    # os.umask can only be read by setting it; done once, while the module is imported (under
+    # the import lock), never at run time where another thread could create a file meanwhile.
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
+_UMASK_AT_IMPORT = _umask_from_proc()
+if _UMASK_AT_IMPORT is None:  # pragma: no cover - not Linux
+    _UMASK_AT_IMPORT = _umask_at_import()
+
+
+def current_umask() -> int:
+    """Return the process umask, read without changing it (thread-safe).
+
+    From ``/proc/self/status`` where the system has it (so a later ``os.umask`` call is
+    seen); elsewhere the value when this module was imported.
+    """
+    umask = _umask_from_proc()
+    return _UMASK_AT_IMPORT if umask is None else umask
+
+
+def default_file_mode() -> int:
+    """Permissions of a newly created file: ``0o666 & ~umask``."""
+    return 0o666 & ~current_umask()
 
 
 @contextlib.contextmanager
@@ -32,9 +72,7 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[s
     os.close(fd)
     try:
         yield tmp
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        os.chmod(tmp, default_file_mode())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -12,16 +12,16 @@ import dataclasses
 import functools
 import logging
 import os
+import zipfile
+import zlib
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from ._atomic import atomic_path
 from ._memory import check_memory
 from ._threads import single_threaded_below
 from ._validation import as_signal, check_int
-from .cleaning import Cleaning, CleaningReport
 from .orthogonalize import PRESETS, gram_schmidt_blocks, resolve_tol
 from .products import eigenproduct_blocks, eigenproduct_indices, n_eigenproducts
 from .spectrum import EigenBasis, mass_weighted
@@ -31,6 +31,13 @@ __all__ = ["OFPBasis", "approximation_error", "ofp_basis"]
 logger = logging.getLogger(__name__)
 
 _FORMAT_VERSION = 1
+#: What reading a damaged ``.npz`` raises: zero bytes, EOFError (or ValueError); cut short,
+#: zipfile.BadZipFile; a corrupt member, zlib.error or ValueError; a missing array, KeyError.
+_DAMAGED = (EOFError, KeyError, zipfile.BadZipFile, zlib.error, ValueError, OSError)
+
+
+class _NotABasis(ValueError):
+    """A readable ``.npz`` that is not an o3d_ofp basis (or of another format version)."""
 
 
 def approximation_error(f: Any, f_approx: Any, mass: Any, *, per_channel: bool = False) -> Any:
@@ -203,8 +210,6 @@ class OFPBasis:
         path : str or os.PathLike
             Destination; ``.npz`` is appended by NumPy if missing.
         """
-        eig = self.eig
-        L = eig.stiffness
         payload = {
             "format_version": np.int64(_FORMAT_VERSION),
             "Q": self.Q,
@@ -213,22 +218,8 @@ class OFPBasis:
             "k": np.int64(self.k),
             "order": np.int64(self.order),
             "tol": np.float64(self.tol),
-            "evals": eig.evals,
-            "evecs": eig.evecs,
-            "mass": eig.mass,
-            "vertices": eig.vertices,
-            "faces": eig.faces if eig.faces is not None else np.zeros((0, 3), np.int64),
-            "L_data": L.data,
-            "L_indices": L.indices,
-            "L_indptr": L.indptr,
-            "digest": np.array(eig.digest),
+            **self.eig.to_arrays(),
         }
-        if eig.cleaning is not None:
-            c = eig.cleaning
-            payload["clean_index"] = c.index
-            payload["clean_kept"] = c.kept
-            payload["clean_representative"] = c.representative
-            payload["clean_report"] = c.report.as_array()
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
@@ -241,51 +232,46 @@ class OFPBasis:
 
         Raises
         ------
+        FileNotFoundError
+            If ``path`` does not exist.
         ValueError
-            If the file is not an o3d_ofp basis or its version is unknown.
+            If the file is not an o3d_ofp basis, its version is unknown, or it is damaged
+            (zero bytes, cut short, a corrupt or missing member): a cache treats this as a
+            miss and recomputes.
         """
-        try:
-            data = np.load(os.fspath(path), allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"cannot read basis file {os.fspath(path)!r}: {exc}") from exc
-        with data:
-            if "format_version" not in data or int(data["format_version"]) != _FORMAT_VERSION:
+        path = os.fspath(path)
+        # Our own handle, closed on every path: np.load leaks the one it opens itself when
+        # the zip directory of a cut-short file cannot be read.
+        with open(path, "rb") as fh:
+            try:
+                data = np.load(fh, allow_pickle=False)
+                if not isinstance(data, np.lib.npyio.NpzFile):  # one .npy array
+                    raise _NotABasis(f"{path!r} is not an o3d_ofp basis file (.npz)")
+                with data:
+                    return cls._from_npz(data, path)
+            except _NotABasis:
+                raise
+            except _DAMAGED as exc:
                 raise ValueError(
-                    f"{os.fspath(path)!r} is not an o3d_ofp basis file (version {_FORMAT_VERSION})"
-                )
-            n = data["mass"].shape[0]
-            faces = data["faces"]
-            stiffness = sp.csr_matrix(
-                (data["L_data"], data["L_indices"], data["L_indptr"]), shape=(n, n)
-            )
-            cleaning = None
-            if "clean_index" in data:
-                report = CleaningReport.from_array(data["clean_report"])
-                cleaning = Cleaning(
-                    index=data["clean_index"],
-                    kept=data["clean_kept"],
-                    representative=data["clean_representative"],
-                    report=report,
-                )
-            eig = EigenBasis(
-                evals=data["evals"],
-                evecs=data["evecs"],
-                mass=data["mass"],
-                stiffness=stiffness,
-                vertices=data["vertices"],
-                faces=faces if faces.shape[0] else None,
-                cleaning=cleaning,
-                digest=str(data["digest"]) if "digest" in data else "",
-            )
-            return cls(
-                Q=data["Q"],
-                R=data["R"],
-                indices=data["indices"],
-                eig=eig,
-                k=int(data["k"]),
-                order=int(data["order"]),
-                tol=float(data["tol"]),
-            )
+                    f"cannot read basis file {path!r} (damaged or incomplete; recompute it): "
+                    f"{type(exc).__name__}: {exc}"
+                ) from exc
+
+    @classmethod
+    def _from_npz(cls, data: Any, path: str) -> OFPBasis:
+        """Build the basis from an open ``np.load`` archive (errors name ``path``)."""
+        if "format_version" not in data or int(data["format_version"]) != _FORMAT_VERSION:
+            raise _NotABasis(f"{path!r} is not an o3d_ofp basis file (version {_FORMAT_VERSION})")
+        eig = EigenBasis.from_arrays(data)
+        return cls(
+            Q=data["Q"],
+            R=data["R"],
+            indices=data["indices"],
+            eig=eig,
+            k=int(data["k"]),
+            order=int(data["order"]),
+            tol=float(data["tol"]),
+        )
 
 
 def ofp_basis(
