@@ -29,6 +29,7 @@ from .boundary.api import (
 )
 from .boundary.bake import texture_pullback, transfer_texture
 from .boundary.io import read_geometry, write_geometry
+from .boundary.pick import pick_landmarks
 from .boundary.texture import texture_colors
 from .collections import TargetResult, bases_many, transfer_many, write_summary
 from .core.basis import OFPBasis, approximation_error, ofp_basis
@@ -80,6 +81,7 @@ __all__ = [
     "ofp_basis",
     "p2p_from_fmap",
     "p2p_from_template",
+    "pick_landmarks",
     "read_geometry",
     "render_panel",
     "shape_digest",

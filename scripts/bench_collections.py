@@ -79,10 +79,17 @@ def _warm() -> bool:
 
 
 def _peak_mb() -> float:
-    """Peak resident memory of this process (MB; Linux reports ru_maxrss in KiB)."""
-    import resource
+    """Peak resident memory of this process in MB: its memory's high-water mark.
 
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    ``VmHWM`` from ``/proc/self/status`` (Linux), which starts afresh in a new program; not
+    ``ru_maxrss``, which Linux carries over ``execve`` from the parent, so a worker spawned by
+    a large process would report the parent's peak.
+    """
+    with open("/proc/self/status", encoding="ascii") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    raise RuntimeError("no VmHWM in /proc/self/status")
 
 
 def run(mode: str, source: str, targets: list[str], out: str) -> dict:

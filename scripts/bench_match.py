@@ -1,19 +1,25 @@
 """Matching at scale and against pyFM: map error, seconds and peak memory, in one run.
 
-    python scripts/bench_match.py --levels 0 1 2 3 [--pyfm-levels 0 1] [--pairs]
+    python scripts/bench_match.py [--levels 0 1 2] [--big] [--pyfm-levels 0 1] [--pairs]
+                                  [--direct] [--match-only]
 
-``--levels``: FAUST 093 -> 087 (6890 vertices, one shared triangulation), midpoint-subdivided
-``level`` times (27.5k, 110k, 440k vertices): the truth stays the identity at every vertex.
+``--levels`` (default 0 1 2; ``--big`` adds 3): FAUST 093 -> 087 (6890 vertices, one shared
+triangulation), midpoint-subdivided ``level`` times (27.5k, 110k, 440k vertices): the truth
+stays the identity at every vertex. Meshes above 50k vertices take the dense path (coarse
+meshes, see o3d_ofp.workflows.dense); ``--direct`` forces the direct one for comparison.
 For each size: ``ofp.match`` end to end (both eigenbases included) followed by the transfer of
 the vertex colors (OFP bases k1 = 29, k2 = 39, order 2), and pyFM 1.3.1's documented
 pipeline (``pip install pyfmaps``; WKS, fit K = 30 with the orientation term, ZoomOut 30 ->
 100 on 2000 samples, whose returned map is passed to ``get_p2p(FM=...)``) for the levels in
-``--pyfm-levels``. ``--pairs``: every ground-truth pair of ../shared/data, ours and pyFM.
+``--pyfm-levels`` (default 0 1: pyFM takes minutes above). ``--pairs``: every ground-truth
+pair of ../shared/data, ours and pyFM.
 
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
-Peak memory: the process's resident set, sampled every 5 ms during the call (psutil). The load
-average is printed with every row: ratios are evidence only on a quiet machine (pyFM slows
-down under load far more than ours, which inflates them).
+Columns: map error, seconds of the match alone and end to end (match + color transfer), peak
+memory (the process's resident set, sampled every 5 ms during the call, psutil), the
+1-minute load average when the row ended, and the speed-up over pyFM. A warning is printed
+when the load exceeded half the cores: ratios are evidence only on a quiet machine (pyFM
+slows down under load far more than ours, which inflates them).
 """
 
 from __future__ import annotations
@@ -75,16 +81,26 @@ def colors_of(V: np.ndarray) -> np.ndarray:
     return 0.5 + 0.5 * np.sin(4.0 * V / np.ptp(V, axis=0).max() * np.pi)
 
 
-def ours(V1, F1, V2, F2) -> tuple[np.ndarray, float, float]:
-    """p2p_21, seconds and peak bytes of match + color transfer."""
+def ours(
+    V1, F1, V2, F2, *, dense_above=None, transfer=True
+) -> tuple[np.ndarray, float, float, float]:
+    """p2p_21, seconds of the match, seconds and peak bytes of match + color transfer."""
+    from o3d_ofp.workflows.matching import match_arrays
+
     with Peak() as m:
-        corr = ofp.match((V1, F1), (V2, F2))
-        e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=39)
-        ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
-    return corr.p2p_21, m.seconds, m.peak
+        t0 = time.perf_counter()
+        if dense_above is None:
+            corr = ofp.match((V1, F1), (V2, F2))
+        else:
+            corr = match_arrays(V1, F1, V2, F2, dense_above=dense_above)
+        t_match = time.perf_counter() - t0
+        if transfer:
+            e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=39)
+            ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
+    return corr.p2p_21, t_match, m.seconds, m.peak
 
 
-def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float]:
+def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float, float]:
     from pyFM.functional import FunctionalMapping
     from pyFM.mesh import TriMesh
 
@@ -94,8 +110,9 @@ def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float]:
         model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0, verbose=False)
         FM = model.zoomout_refine(nit=70, step=1, subsample=2000, verbose=False)  # returned
         p2p = model.get_p2p(FM=FM)
+        t_match = time.perf_counter() - m._t0
         _ = colors_of(V1)[p2p]  # pyFM's transfer: the pull-back through the point map
-    return p2p, m.seconds, m.peak
+    return p2p, t_match, m.seconds, m.peak
 
 
 def error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, target_idx, source_idx) -> float:
@@ -105,31 +122,72 @@ def error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, target_idx, source_id
     )
 
 
-def row(name: str, n: int, err: float, seconds: float, peak: float, who: str) -> str:
+BUSY = 0.5  # load average per core above which timings are flagged
+
+
+def row(
+    name: str,
+    n: int,
+    err: float,
+    t_match: float,
+    seconds: float | None,
+    peak: float,
+    who: str,
+    ratio: str,
+) -> tuple[str, float]:
     load = os.getloadavg()[0]
-    return f"| {name} | {n} | {who} | {err:.4f} | {seconds:.1f} | {peak / 1e9:.2f} | {load:.1f} |"
+    flag = " (busy)" if load > BUSY * (os.cpu_count() or 1) else ""
+    total = "-" if seconds is None else f"{seconds:.1f}"
+    return (
+        f"| {name} | {n} | {who} | {err:.4f} | {t_match:.1f} | {total} | "
+        f"{peak / 1e9:.2f} | {load:.1f}{flag} | {ratio} |",
+        load,
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--levels", type=int, nargs="*", default=[0, 1, 2])
-    parser.add_argument("--pyfm-levels", type=int, nargs="*", default=[])
+    parser.add_argument("--big", action="store_true", help="add level 3 (440k vertices)")
+    parser.add_argument("--pyfm-levels", type=int, nargs="*", default=[0, 1])
+    parser.add_argument("--direct", action="store_true", help="never the dense path")
+    parser.add_argument(
+        "--match-only", action="store_true", help="no color transfer (its column shows '-')"
+    )
     parser.add_argument("--pairs", action="store_true")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
         return 2
-    print(f"{os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f} at the start")
-    print("| pair | vertices | method | map error | s | peak GB | load |")
-    print("|---|---|---|---|---|---|---|")
-    for level in args.levels:
+    levels = sorted(set(args.levels) | ({3} if args.big else set()))
+    dense_above = 10**12 if args.direct else None
+    cores = os.cpu_count() or 1
+    print(f"{cores} cores; load average {os.getloadavg()[0]:.1f} at the start")
+    print(
+        "| pair | vertices | method | map error | match s | match + transfer s | peak GB | "
+        "load | pyFM / ours |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    loads = [os.getloadavg()[0]]
+    for level in levels:
         V1, F1, V2, F2 = faust_pair(level)
         every = np.arange(len(V2))
-        runs = [("ours", ours)] + ([("pyFM", pyfm)] if level in args.pyfm_levels else [])
-        for who, fn in runs:
-            p2p, seconds, peak = fn(V1, F1, V2, F2)
+        name = f"FAUST 093->087 x{4**level}"
+        p2p, t_match, seconds, peak = ours(
+            V1, F1, V2, F2, dense_above=dense_above, transfer=not args.match_only
+        )
+        err = error(p2p, V1, F1, every, every)
+        total = None if args.match_only else seconds
+        line, load = row(name, len(V1), err, t_match, total, peak, "ours", "")
+        print(line, flush=True)
+        loads.append(load)
+        if level in args.pyfm_levels:
+            p2p, t_match, t_pyfm, peak = pyfm(V1, F1, V2, F2)
             err = error(p2p, V1, F1, every, every)
-            print(row(f"FAUST 093->087 x{4**level}", len(V1), err, seconds, peak, who), flush=True)
+            ratio = f"{t_pyfm / seconds:.1f}x"
+            line, load = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM", ratio)
+            print(line, flush=True)
+            loads.append(load)
     if args.pairs:
         from eval_matching import PAIRS, load, truth
 
@@ -137,10 +195,24 @@ def main(argv: list[str] | None = None) -> int:
             V1, F1 = load(a)
             V2, F2 = load(b)
             t, s = truth(a, b, kind, len(V2))
-            for who, fn in (("ours", ours), ("pyFM", pyfm)):
-                p2p, seconds, peak = fn(V1, F1, V2, F2)
-                name = f"{Path(a).stem}->{Path(b).stem}"
-                print(row(name, len(V1), error(p2p, V1, F1, t, s), seconds, peak, who), flush=True)
+            name = f"{Path(a).stem}->{Path(b).stem}"
+            p2p, t_match, t_ours, peak = ours(V1, F1, V2, F2)
+            line, ld = row(
+                name, len(V1), error(p2p, V1, F1, t, s), t_match, t_ours, peak, "ours", ""
+            )
+            print(line, flush=True)
+            p2p, t_match, t_pyfm, peak = pyfm(V1, F1, V2, F2)
+            ratio = f"{t_pyfm / t_ours:.1f}x"
+            line, ld2 = row(
+                name, len(V1), error(p2p, V1, F1, t, s), t_match, t_pyfm, peak, "pyFM", ratio
+            )
+            print(line, flush=True)
+            loads += [ld, ld2]
+    if max(loads) > BUSY * cores:
+        print(
+            f"WARNING: the machine was busy (load average up to {max(loads):.1f} on {cores} "
+            "cores): the seconds and the ratios are not evidence; rerun on a quiet machine."
+        )
     return 0
 
 

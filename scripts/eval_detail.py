@@ -7,8 +7,8 @@ truth's: 019's area is 0.90 of 094's). Source = pose 1 with its detail;
 target = pose 2 projected on its first 30 eigenfunctions (its detail removed); truth = pose 2.
 For doing nothing (the smoothed target), the simple baseline (the source's height along its
 normals above its own 30-eigenfunction low-pass, carried by the map and added along the
-target's normals), ours (:func:`o3d_ofp.workflows.detail.transfer_detail_frames`, defaults)
-and today's ``transfer_detail_arrays(mode="add")``: mean vertex distance to the truth / √area,
+target's normals) and ours (:func:`o3d_ofp.workflows.detail.transfer_detail_frames`, defaults,
+what ``ofp.transfer_detail`` and ``o3d-ofp detail`` do): mean vertex distance to the truth / √area,
 mean normal angle (degrees), area and volume ratios to the truth; with the true map and with
 the map estimated by ``match_eigenbases`` on k = 99 eigenbases.
 
@@ -17,12 +17,14 @@ diagonal); symmetric mean point-to-surface distance to the clean mesh (/ diagona
 volume ratio to the clean mesh, for :func:`o3d_ofp.core.filtering.smooth_coordinates` at
 several ``smooth`` and Open3D's ``filter_smooth_taubin`` at several iteration counts.
 
-Pictures with error colormaps go to ``--out`` (default ``build/eval_detail``).
+Pictures with error colormaps go to ``--out`` (default ``build/eval_detail``); ``--figure``
+writes the README's picture of the modes (FAUST 093 → 087, true map).
 
 Usage::
 
     python scripts/eval_detail.py                 # both tables, pictures
     python scripts/eval_detail.py --only detail --variants
+    python scripts/eval_detail.py --only figure --figure docs/detail_transfer.png
 """
 
 from __future__ import annotations
@@ -45,7 +47,6 @@ from o3d_ofp.workflows.detail import (
     transfer_detail_frames,
 )
 from o3d_ofp.workflows.matching import match_eigenbases
-from o3d_ofp.workflows.pipeline import transfer_detail_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -97,9 +98,9 @@ def baseline_heights(eig_1: ofp.EigenBasis, eig_2: ofp.EigenBasis, p2p: np.ndarr
 def run_detail(args: argparse.Namespace, out: Path) -> None:
     from o3d_ofp.render.panel import render_panel
 
-    methods = ["nothing", "baseline", "ours", "today add"]
+    methods = ["nothing", "baseline", "ours"]
     if args.variants:
-        methods += ["ours carry=ofp", "ours keep=False", "ours band=20", "ours band=40"]
+        methods += ["ours carry=ofp", "ours replace-detail", "ours band=20", "ours band=40"]
     rows: dict[tuple[str, str, str], dict[str, float]] = {}
     for name, (src, tgt) in DETAIL_PAIRS.items():
         t0 = time.perf_counter()
@@ -121,14 +122,13 @@ def run_detail(args: argparse.Namespace, out: Path) -> None:
                 "nothing": smooth,
                 "baseline": baseline_heights(eig_1, eig_2, p2p),
                 "ours": transfer_detail_frames(eig_1, eig_2, p2p_21=p2p),
-                "today add": transfer_detail_arrays(eig_1, eig_2, mode="add", p2p_21=p2p),
             }
             if args.variants:
                 results["ours carry=ofp"] = transfer_detail_frames(
                     eig_1, eig_2, p2p_21=p2p, carry="ofp"
                 )
-                results["ours keep=False"] = transfer_detail_frames(
-                    eig_1, eig_2, p2p_21=p2p, keep_target_detail=False
+                results["ours replace-detail"] = transfer_detail_frames(
+                    eig_1, eig_2, p2p_21=p2p, mode="replace-detail"
                 )
                 for b in (20, 40):
                     results[f"ours band={b}"] = transfer_detail_frames(
@@ -139,7 +139,7 @@ def run_detail(args: argparse.Namespace, out: Path) -> None:
             if not args.no_render:
                 err_of = {m: np.linalg.norm(results[m] - V2, axis=1) for m in results}
                 top = float(np.percentile(err_of["nothing"], 95))
-                shown = ["nothing", "baseline", "ours", "today add"]
+                shown = ["nothing", "baseline", "ours"]
                 items = [(V1, F, None), (V2, F2, None)]
                 items += [(results[m], F2, err_of[m]) for m in shown]
                 path = out / f"detail_{name}_{map_name.split()[0]}.png"
@@ -287,9 +287,40 @@ def run_smoothing(args: argparse.Namespace, out: Path) -> None:
             )
 
 
+def modes_figure(path: Path) -> None:
+    """Render the detail transfer's modes on FAUST 093 → 087 (target: 087, smoothed)."""
+    from o3d_ofp.render.panel import render_panel
+
+    V1, F = load("faust/tr_reg_093.ply")
+    V2, _ = load("faust/tr_reg_087.ply")
+    smooth = lowpass_coordinates(ofp.eigenbasis(V2, F, k=TARGET_BAND), TARGET_BAND)
+    source, target = (V1, F), (smooth, F)
+    p2p = np.arange(len(V2))
+    shown = [("source (093)", V1), ("target (087, smoothed)", smooth)]
+    for mode in ("add", "replace-detail", "coordinates"):
+        t0 = time.perf_counter()
+        X = np.asarray(ofp.transfer_detail(source, target, mode=mode, p2p_21=p2p).vertices)
+        d = detail_metrics(X, V2, F)
+        print(
+            f"figure: mode {mode}: distance to the truth {d['dist']:.4f} √area "
+            f"({time.perf_counter() - t0:.0f} s)"
+        )
+        shown.append((f'mode="{mode}"', X))
+    shown.append(("truth (087)", V2))
+    render_panel(
+        [(X, F, None) for _, X in shown],
+        path,
+        titles=[t for t, _ in shown],
+        width=300,
+        height=480,
+    )
+    print(f"wrote {path}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--only", choices=("detail", "smoothing"))
+    parser.add_argument("--only", choices=("detail", "smoothing", "figure"))
+    parser.add_argument("--figure", help="write the README's picture of the modes here (.png)")
     parser.add_argument("--variants", action="store_true", help="also print ours' variants")
     parser.add_argument("--no-render", action="store_true", help="skip the pictures")
     parser.add_argument("--out", default=str(ROOT / "build" / "eval_detail"))
@@ -300,6 +331,8 @@ def main() -> None:
         run_detail(args, out)
     if args.only in (None, "smoothing"):
         run_smoothing(args, out)
+    if args.figure:
+        modes_figure(Path(args.figure))
 
 
 if __name__ == "__main__":

@@ -229,6 +229,30 @@ def test_detail_in_this_process(shapes, tmp_path):
     moved = np.asarray(read_geometry(results[0].output).vertices)
     bent = _bent(V, 0.1)
     assert moved.shape == bent.shape and 0 < np.abs(moved - bent).max() < 0.1 * np.ptp(bent)
+    # The same as the two-shape call with the same map (PLY stores float32 coordinates).
+    import o3d_ofp as ofp
+
+    one = ofp.transfer_detail(
+        read_geometry(paths["src"]), read_geometry(paths["t0"]), p2p_21=np.arange(len(V))
+    )
+    np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-6 * np.ptp(bent))
+
+
+def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):
+    paths, V, _, _ = shapes
+    out = tmp_path / "out"
+    argv = ["detail", paths["src"], paths["t0"], paths["t1"], "-o", out, "--workers", "0",
+            "--map", "identity", "--mode", "replace-detail", "--band", "20"]  # fmt: skip
+    assert _cli(*argv) == 0
+    assert "2 ok, 0 failed, 0 skipped" in capsys.readouterr().out
+    import o3d_ofp as ofp
+
+    one = ofp.transfer_detail(read_geometry(paths["src"]), read_geometry(paths["t1"]),
+                              p2p_21=np.arange(len(V)), mode="replace-detail", band=20)  # fmt: skip
+    moved = np.asarray(read_geometry(out / "t1.ply").vertices)
+    np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-5)
+    assert _cli(*argv[:-2], "--band", "40", "--k1", "30") == 2  # refused before any work
+    assert "--band 40 needs at least 40 eigenfunctions" in capsys.readouterr().err
 
 
 def test_bases_many_fills_the_cache_that_transfers_reuse(client, shapes, tmp_path, caplog):

@@ -8,15 +8,32 @@ target's own kind.
 from __future__ import annotations
 
 import logging
+import warnings
 from typing import Any
 
 import numpy as np
 
 from ..core import spectrum
+from ..core._validation import check_int
 from ..core.basis import OFPBasis, ofp_basis
-from ..core.filtering import spectral_filter
+from ..core.correspondence import p2p_from_fmap
+from ..core.filtering import (
+    DEFAULT_SMOOTH,
+    MAX_SHARPEN,
+    MAX_SMOOTH,
+    check_amount,
+    sharpen_coordinates,
+    smooth_coordinates,
+    spectral_filter,
+)
 from ..core.spectrum import EigenBasis
 from ..workflows import cache
+from ..workflows.detail import (
+    DETAIL_BAND,
+    ROTATION_K,
+    check_detail_options,
+    transfer_detail_frames,
+)
 from ..workflows.matching import (
     ESTIMATION_K,
     FIT_K,
@@ -27,16 +44,14 @@ from ..workflows.matching import (
 from ..workflows.pipeline import (
     eigenbases_for_transfer,
     pull_back,
-    transfer_detail_arrays,
     transfer_function,
 )
 from .closest import closest_correspondence
 from .convert import (
-    geometry_kind,
     geometry_to_arrays,
     is_open3d_geometry,
     like_target,
-    require_open3d,
+    point_normals,
     vertex_colors,
 )
 
@@ -227,6 +242,7 @@ def match(
     *,
     method: str = "estimate",
     align: bool = False,
+    partial: bool = False,
     landmarks: Any = None,
     k_fit: int = FIT_K,
     zoomout_to: int = ESTIMATION_K,
@@ -256,6 +272,14 @@ def match(
     align : bool, default False
         With ``method="closest"``: rigid pre-alignment by ICP for shapes that are almost
         aligned.
+    partial : bool, default False
+        The target is a part of the source (a one-sided scan, a cut), **in the same units**:
+        partial functional maps (Rodolà et al. 2017: a slanted restriction map from the area
+        ratio, fitted to local descriptors (diffused curvatures, WKS at common energies) with
+        the orientation term, then a partial ZoomOut; see
+        :func:`o3d_ofp.workflows.partial.match_partial_eigenbases`). ``quality.overlap``
+        gives the estimated fraction of the source covered; ``method="partial"`` in the
+        result. Without it, a target that looks like a part of the source is flagged suspect.
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs.
@@ -288,6 +312,20 @@ def match(
     """
     if method not in ("estimate", "closest"):
         raise ValueError(f"method must be 'estimate' or 'closest'; got {method!r}")
+    if not isinstance(partial, bool):
+        raise TypeError(f"partial must be True or False; got {partial!r}")
+    if partial and method != "estimate":
+        raise ValueError("partial=True applies to method='estimate' (closest points need none)")
+    if partial:
+        from ..workflows.partial import check_partial_options
+
+        check_partial_options(
+            k_fit=k_fit,
+            zoomout_to=zoomout_to,
+            zoomout_subsample=zoomout_subsample,
+            descriptors=descriptors,
+            w_orient=w_orient,
+        )
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     if method == "closest":
@@ -302,6 +340,16 @@ def match(
         "descriptors": descriptors,
         "w_orient": w_orient,
     }
+    if eigenbases is None and partial:
+        from ..workflows.matching import check_landmarks, required_k
+
+        check_landmarks(landmarks, V1.shape[0], V2.shape[0])  # before any eigensolve
+        eigenbases = tuple(
+            spectrum.eigenbasis(
+                V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components
+            )
+            for V, F in ((V1, F1), (V2, F2))
+        )
     if eigenbases is None:
         return match_arrays(V1, F1, V2, F2, components=components, **options)
     eig_1, eig_2 = eigenbases
@@ -311,6 +359,10 @@ def match(
                 f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
                 f"{V.shape[0]}: it belongs to another shape"
             )
+    if partial:
+        from ..workflows.partial import match_partial_eigenbases
+
+        return match_partial_eigenbases(eig_1, eig_2, **options)
     return match_eigenbases(eig_1, eig_2, **options)
 
 
@@ -420,80 +472,140 @@ def transfer_detail(
     target: Any,
     *,
     mode: str = "add",
+    band: int = DETAIL_BAND,
+    amount: float = 1.0,
+    correspondence: Correspondence | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
     k1: int = 29,
     k2: int = 39,
     order: int = 2,
     preset: str | None = "ours*",
     tol: float | None = None,
-    correspondence: Correspondence | None = None,
-    fmap_12: Any = None,
-    p2p_21: Any = None,
-    landmarks: Any = None,
     k_low: int | None = None,
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
 ) -> Any:
     """Give the target the source's geometric detail; return a new displaced geometry.
 
+    The detail of a shape is what its coordinates have above its first ``band``
+    Laplace-Beltrami eigenfunctions. It is carried through the map and re-applied in the
+    target's local frames (fitted rotations between the two low-pass shapes), where the map
+    is trusted; see :mod:`o3d_ofp.workflows.detail`.
+
     Parameters
     ----------
-    source : Open3D TriangleMesh
+    source : Open3D TriangleMesh or PointCloud (legacy or tensor), or (vertices, faces)
         Shape with the detail.
-    target : Open3D TriangleMesh or PointCloud
-        Shape to displace (a cloud without normals gets estimated, consistently oriented
-        ones). Neither input is modified.
-    mode : {"add", "replace"}, default "add"
-        "replace": the paper's Fig. 13, the target takes the transferred source coordinates.
-        "add": the target keeps its shape and pose and gets the source's high-frequency
-        heights along its normals (see :func:`o3d_ofp.pipeline.transfer_detail_arrays`).
-    k1, k2, order, preset, tol, correspondence, fmap_12, p2p_21, landmarks
-        As in :func:`transfer_colors` (default preset "ours*").
+    target : Open3D TriangleMesh or PointCloud (legacy or tensor), or (vertices, faces)
+        Shape to displace. Neither input is modified. A point cloud without normals gets
+        normals estimated by Open3D (used where the map is not trusted).
+    mode : {"add", "replace-detail", "coordinates"}, default "add"
+        "add": the target keeps its pose, its low-frequency shape and its own detail, and
+        gains the source's detail on top (for a smooth target). "replace-detail": the
+        target's own detail above ``band`` is replaced by the source's (a shape given itself
+        with the identity map comes back unchanged). "coordinates": the paper's Fig. 13, the
+        source's coordinates transferred with OFP bases replace the target's (the target
+        takes the source's pose; ``k1``, ``k2``, ``order``, ``preset``, ``tol``, ``bases``
+        are used only here). "replace" is the deprecated former name of "coordinates".
+    band : int, default 30
+        Eigenfunctions of the low band the detail is measured above: a count, so it means the
+        same at every resolution and scale. Lower takes more of the source's shape (and
+        pose), higher only its finer detail.
+    amount : float, default 1.0
+        Multiplies the transferred detail, in [0, 10].
+    correspondence, fmap_12, p2p_21, landmarks
+        The map, as in :func:`transfer_colors` (none: estimated by :func:`match`).
+    k1, k2, order, preset, tol
+        OFP bases of mode "coordinates" (default preset "ours*").
     k_low : int, optional
-        Eigenfunctions of the low-pass that separates detail from shape ("add" mode;
-        default ``k1``).
-    eigenbases, bases
-        Precomputed eigenbases / OFP bases, as in :func:`transfer_colors`.
+        Deprecated name of ``band`` (a ``DeprecationWarning``).
+    eigenbases : (EigenBasis, EigenBasis), optional
+        Precomputed eigenbases of source and target: with at least ``band`` eigenfunctions
+        (~100 for an estimated map); a smaller one is computed again, larger.
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed OFP bases for mode "coordinates" (ignored by the other modes).
 
     Returns
     -------
-    open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
+    geometry
         A new geometry of the target's own kind with moved vertices (every other attribute of
         the target kept).
+
+    Raises
+    ------
+    ValueError, TypeError
+        For a bad ``mode``, ``band``, ``amount`` or ``k_low`` (the message names the keyword),
+        before any eigensolve.
     """
-    o3d = require_open3d()
+    if k_low is not None:
+        warnings.warn("k_low is deprecated; use band", DeprecationWarning, stacklevel=2)
+        band = k_low
+    mode, band, amount = check_detail_options(
+        mode=mode, band=band, amount=amount, names={"band": "band" if k_low is None else "k_low"}
+    )
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
-    if F1 is None:
-        raise ValueError("source must be a TriangleMesh (its normals and detail need faces)")
-    normals_2 = None
-    if F2 is None:
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V2))
-        kind = geometry_kind(target)
-        if kind == "legacy_cloud" and target.has_normals():
-            normals_2 = np.asarray(target.normals, dtype=np.float64).copy()
-        else:
-            cloud.estimate_normals()
-            cloud.orient_normals_consistent_tangent_plane(15)
-            normals_2 = np.asarray(cloud.normals, dtype=np.float64).copy()
+    if mode == "coordinates":
+        for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
+            check_int(value, name=name, minimum=1)
+        eig_1, eig_2 = eigenbases_for_transfer(
+            V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+        )
+        moved = transfer_function(
+            eig_1.vertices,
+            eig_1,
+            eig_2,
+            k1=k1,
+            k2=k2,
+            order=order,
+            preset=preset,
+            tol=tol,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            landmarks=landmarks,
+            bases=bases,
+        )
+        return like_target(target, vertices=moved)
+    need = max(band, ROTATION_K)
+    if eigenbases is not None:  # too small for the band: computed again, larger
+        larger = []
+        sides = zip(eigenbases, (V1, V2), (F1, F2), ("source", "target"), strict=True)
+        for eig, V, F, name in sides:
+            if isinstance(eig, EigenBasis) and eig.k < need and eig.n_vertices == V.shape[0]:
+                logger.info(
+                    "transfer_detail: the %s eigenbasis has %d eigenfunctions, band %d needs %d: "
+                    "computing it again",
+                    name,
+                    eig.k,
+                    band,
+                    need,
+                )
+                eig = spectrum.eigenbasis(V, F, k=need)
+            larger.append(eig)
+        eigenbases = (larger[0], larger[1])
+    normals_1 = point_normals(source, V1) if F1 is None and is_open3d_geometry(source) else None
+    normals_2 = point_normals(target, V2) if F2 is None and is_open3d_geometry(target) else None
     eig_1, eig_2 = eigenbases_for_transfer(
-        V1, F1, V2, F2, max(k1, k_low or 0), k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+        V1, F1, V2, F2, need, need, fmap_12, p2p_21, eigenbases, None, correspondence
     )
-    moved = transfer_detail_arrays(
+    if correspondence is None and p2p_21 is None:
+        if fmap_12 is not None:
+            p2p_21 = p2p_from_fmap(fmap_12, eig_1, eig_2)
+        else:
+            correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
+    moved = transfer_detail_frames(
         eig_1,
         eig_2,
-        mode=mode,
-        k1=k1,
-        k2=k2,
-        order=order,
-        preset=preset,
-        tol=tol,
-        correspondence=correspondence,
-        fmap_12=fmap_12,
         p2p_21=p2p_21,
-        landmarks=landmarks,
-        k_low=k_low,
+        correspondence=correspondence,
+        mode=mode,
+        band=band,
+        amount=amount,
+        normals_1=normals_1,
         normals_2=normals_2,
-        bases=bases,
     )
     return like_target(target, vertices=moved)
 
@@ -501,42 +613,87 @@ def transfer_detail(
 def filter_geometry(
     geometry: Any,
     *,
-    gains: Any,
+    smooth: float | None = None,
+    sharpen: float | None = None,
+    keep_volume: bool = True,
+    gains: Any = None,
     k: int = 14,
     order: int = 3,
     preset: str | None = "ours*",
     tol: float | None = None,
     basis: Any = None,
 ) -> Any:
-    """Spectrally filter the vertex coordinates of a mesh (the paper's Figs. 14-15).
+    """Smooth or sharpen the vertex coordinates of a mesh or a point cloud.
+
+    ``smooth`` alone returns the low-pass shape (:func:`o3d_ofp.filtering.smooth_coordinates`,
+    a Butterworth low-pass over the whole spectrum of the Laplacian, nothing of the input
+    above the cut added back, the enclosed volume kept). ``sharpen`` multiplies the detail
+    smaller than ``smooth`` by ``1 + sharpen`` (:func:`o3d_ofp.filtering.sharpen_coordinates`).
+    ``gains`` filters instead the coefficients in an OFP basis (the paper's Figs. 14-15).
 
     Parameters
     ----------
-    geometry : Open3D TriangleMesh or PointCloud
+    geometry : Open3D TriangleMesh or PointCloud (legacy or tensor)
         Input; not modified.
-    gains : callable or (q,) array_like
-        See :func:`o3d_ofp.filtering.spectral_filter` (e.g. ``smooth_gains(5)``,
-        ``sharpen_gains(2)``).
+    smooth : float, optional
+        Smoothing radius as a fraction of √area, in [0, 0.25]: detail smaller than about
+        ``smooth · √area`` is removed, the same at every scale and resolution (0.01, the
+        default with ``sharpen``, removes noise of about 0.5 % of the bounding-box diagonal
+        on a human or the bunny). With ``sharpen``: the size of the detail enhanced.
+    sharpen : float, optional
+        Detail gain in [0, 2] (the detail is multiplied by ``1 + sharpen``; beyond 2
+        triangles start turning over, so larger values are refused).
+    keep_volume : bool, default True
+        Scale the result about its centroid to the input's enclosed volume (a point cloud:
+        its spread).
+    gains : callable or (q,) array_like, optional
+        Instead of ``smooth`` / ``sharpen``: gains of the OFP basis functions, see
+        :func:`o3d_ofp.filtering.spectral_filter` (e.g. ``smooth_gains(5)``).
     k, order, preset, tol
-        The basis (the paper uses order 3 on the first 15 eigenfunctions: ``k=14``).
-    basis : OFPBasis, optional
+        The OFP basis for ``gains`` (the paper uses order 3 on the first 15 eigenfunctions:
+        ``k=14``).
+    basis : OFPBasis or EigenBasis, optional
         A precomputed basis of this geometry (then ``k``, ``order``, ``preset``, ``tol`` are
-        unused).
+        unused; ``gains`` needs an OFPBasis).
 
     Returns
     -------
     open3d.geometry.TriangleMesh or open3d.geometry.PointCloud
         A new geometry of the input's own kind with filtered vertex positions (every other
         attribute kept).
+
+    Raises
+    ------
+    ValueError
+        For none or a wrong combination of ``smooth`` / ``sharpen`` / ``gains``, or a value
+        outside its range (the message names the keyword), before any eigensolve.
     """
+    if gains is not None and (smooth is not None or sharpen is not None):
+        raise ValueError("give gains alone, or smooth and/or sharpen (not both)")
+    if gains is None and smooth is None and sharpen is None:
+        raise ValueError("give smooth (a radius in [0, 0.25]), sharpen (in [0, 2]) or gains")
+    if gains is None:
+        smooth = check_amount(DEFAULT_SMOOTH if smooth is None else smooth, "smooth", MAX_SMOOTH)
+        if sharpen is not None:
+            sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
     V, F = geometry_to_arrays(geometry)
-    if basis is None:
-        B = ofp_basis(spectrum.eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
-    elif basis.n_vertices != V.shape[0]:
+    if basis is not None and basis.n_vertices != V.shape[0]:
         raise ValueError(
             f"basis has {basis.n_vertices} vertices but the geometry has {V.shape[0]}: it "
             "belongs to another shape"
         )
+    if gains is None:
+        # The low-pass needs only the Laplacian (and the cleaning) of an eigenbasis.
+        eig = basis if basis is not None else spectrum.eigenbasis(V, F, k=1)
+        if sharpen is None:
+            X = smooth_coordinates(eig, V, smooth=smooth, keep_volume=keep_volume)
+        else:
+            X = sharpen_coordinates(eig, V, sharpen=sharpen, smooth=smooth, keep_volume=keep_volume)
+        return like_target(geometry, vertices=X)
+    if basis is None:
+        B = ofp_basis(spectrum.eigenbasis(V, F, k=k), order=order, preset=preset, tol=tol)
+    elif not isinstance(basis, OFPBasis):
+        raise TypeError(f"gains need an OFPBasis as basis; got {type(basis).__name__}")
     else:
         B = basis
     return like_target(geometry, vertices=spectral_filter(B, V, gains))

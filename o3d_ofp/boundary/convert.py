@@ -27,6 +27,7 @@ __all__ = [
     "is_open3d_geometry",
     "like_target",
     "point_cloud_from_arrays",
+    "point_normals",
     "require_open3d",
     "triangle_mesh_from_arrays",
     "vertex_colors",
@@ -180,6 +181,49 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
     if colors is None or colors.size == 0:
         return None
     return colors.reshape(-1, 3)
+
+
+#: Neighbours of each point for the normals Open3D estimates on a cloud without normals (the
+#: point-cloud Laplacian's default neighbourhood, :func:`o3d_ofp.core.laplacian.laplacian`).
+NORMAL_NEIGHBORS = 30
+
+
+def point_normals(geometry: Any, points: Any = None) -> np.ndarray:
+    """Return unit normals of a point cloud: its own, or estimated and oriented by Open3D.
+
+    Parameters
+    ----------
+    geometry : Open3D PointCloud (legacy or tensor)
+        The cloud; it is not modified.
+    points : (n, 3) array_like, optional
+        Its points as arrays (default: read from ``geometry``).
+
+    Returns
+    -------
+    (n, 3) ndarray of float64
+        The cloud's normals when it has them, else normals fitted on the
+        :data:`NORMAL_NEIGHBORS` nearest points and oriented consistently over the cloud
+        (``orient_normals_consistent_tangent_plane``; the global sign is arbitrary).
+    """
+    kind = geometry_kind(geometry)
+    given = None
+    if kind == "legacy_cloud" and geometry.has_normals():
+        given = np.array(geometry.normals, dtype=np.float64)
+    elif kind == "tensor_cloud":
+        given = _tensor_attr(geometry.point, "normals")
+    P = as_vertices(geometry_to_arrays(geometry)[0] if points is None else points)
+    if given is not None and given.shape == P.shape and np.all(np.isfinite(given)):
+        n = np.asarray(given, dtype=np.float64)
+    else:
+        o3d = require_open3d()
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+        k = min(NORMAL_NEIGHBORS, max(P.shape[0] - 1, 3))
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=k))
+        cloud.orient_normals_consistent_tangent_plane(min(15, k))
+        n = np.array(cloud.normals, dtype=np.float64)
+        logger.debug("estimated normals of a %d-point cloud (%d neighbours)", P.shape[0], k)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def _checked_colors(colors: Any, n: int, name: str) -> np.ndarray:

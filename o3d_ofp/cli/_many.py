@@ -36,6 +36,8 @@ PAIR_ONLY = {
     "basis_2": "--basis-2 (use --cache DIR)",
     "align": "--align (--map closest is for one pair)",
     "texture": "--texture (the source's own texture is used)",
+    "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
+    "partial": "--partial (for one pair of shapes)",
 }
 
 
@@ -63,11 +65,13 @@ def add_collection_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def is_collection(targets: Sequence[str], output: str | None) -> bool:
-    """Whether a command runs over several shapes: several targets, a folder, or ``-o DIR/``."""
-    if len(targets) > 1 or any(os.path.isdir(t) for t in targets):
-        return True
-    return output is not None and (os.path.isdir(output) or output.endswith(("/", os.sep)))
+def is_collection(targets: Sequence[str]) -> bool:
+    """Whether a command runs over several shapes: several targets, or a folder of them.
+
+    One target file is the two-shape form, whose ``-o`` names a file (an existing folder is
+    refused as such).
+    """
+    return len(targets) > 1 or any(os.path.isdir(t) for t in targets)
 
 
 def check_single(args: argparse.Namespace) -> None:

@@ -63,6 +63,12 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     p.add_argument(
         "--align", action="store_true", help="with --map closest: rigid ICP pre-alignment first"
     )
+    p.add_argument(
+        "--partial",
+        action="store_true",
+        help="with --map estimate: the target is a part of the source (a one-sided scan, a "
+        "cut) in the same units: partial functional maps; the report gives the overlap",
+    )
     p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     p.add_argument(
         "--strict",
@@ -70,7 +76,15 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
         help="a suspect estimated map is an error (exit 3, nothing written)",
     )
     p.add_argument(
-        "--landmarks", help="known pairs for the estimation: 12:40,500:611 or a 2-column file"
+        "--landmarks",
+        help="known pairs for the estimation: 12:40,500:611, a 2-column file, or 'pick' (pick "
+        "them on both shapes in Open3D's vertex-selection window; needs a display)",
+    )
+    p.add_argument(
+        "--save-landmarks",
+        metavar="FILE",
+        help="write the landmark pairs used (e.g. picked) as a 2-column file (to reuse: "
+        "--landmarks FILE)",
     )
     p.add_argument("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
     p.add_argument("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")
@@ -105,6 +119,44 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
             raise UsageError(f"--landmarks: {name} indices must lie in [0, {n})")
     return pairs
+
+
+def _check_landmark_flags(args: argparse.Namespace) -> None:
+    """Refuse ``--landmarks pick`` without a display, and a bad ``--save-landmarks``, early."""
+    save = getattr(args, "save_landmarks", None)
+    if save:
+        if not args.landmarks:
+            raise UsageError("--save-landmarks needs --landmarks (pick, pairs or a file)")
+        if os.path.isdir(save):
+            raise UsageError(f"--save-landmarks {save}: is a directory")
+        if not os.path.isdir(os.path.dirname(os.path.abspath(save))):
+            raise UsageError(f"--save-landmarks {save}: the folder does not exist")
+        for path in (args.source, args.target, args.landmarks):
+            if path and os.path.exists(path) and os.path.exists(save):
+                if os.path.samefile(path, save):
+                    raise UsageError(f"--save-landmarks {save}: is an input of this command")
+    if args.landmarks != "pick":
+        return
+    from ..boundary.pick import has_display
+
+    if args.map != "estimate":
+        raise UsageError("--landmarks pick applies to --map estimate")
+    if not has_display():
+        raise UsageError(
+            "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
+            "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
+            "(two columns: source vertex, target vertex)"
+        )
+
+
+def _pick(source: Any, target: Any) -> np.ndarray:
+    """Pick the landmark pairs in Open3D's window (``--landmarks pick``)."""
+    from ..boundary.pick import pick_landmarks
+
+    try:
+        return pick_landmarks(source, target)
+    except (ValueError, RuntimeError) as exc:
+        raise UsageError(f"--landmarks pick: {exc}") from exc
 
 
 def _read_map(spec: str, n1: int, n2: int, V2: np.ndarray) -> Any:
@@ -173,6 +225,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
     from ._common import check_cache_dir, read_shape
 
     check_cache_dir(getattr(args, "cache", None))
+    _check_landmark_flags(args)
     if args.save_map:
         if not args.save_map.endswith(".npz"):
             raise UsageError(f"--save-map {args.save_map}: must end with .npz")
@@ -183,6 +236,8 @@ def read_pair(args: argparse.Namespace) -> Pair:
     corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
     if args.align and args.map != "closest":
         raise UsageError("--align applies to --map closest")
+    if getattr(args, "partial", False) and args.map != "estimate":
+        raise UsageError("--partial applies to --map estimate")
     if args.map == "closest":
         from ..boundary.closest import closest_correspondence
 
@@ -199,11 +254,32 @@ def read_pair(args: argparse.Namespace) -> Pair:
             report([corr.quality.summary(), *corr.quality.reasons, *corr.quality.notes])
             if corr.quality.suspect and args.strict:
                 raise SuspectMap("; ".join(corr.quality.reasons))
-    landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    if landmarks is not None and corr is not None:
+    if args.landmarks and corr is not None:
         raise UsageError("--landmarks only apply with --map estimate")
     if args.strict and corr is not None and args.map != "closest":
         raise UsageError("--strict applies to an estimated map (--map estimate or closest)")
+    if corr is None and args.map == "estimate":  # the eigenbases of the estimation must fit
+        from ..workflows.matching import ESTIMATION_K, required_k
+        from ._common import check_job_memory
+
+        check_job_memory(
+            [(p, V.shape[0], 1, required_k(V.shape[0], ESTIMATION_K), 1)
+             for p, V in ((args.source, V1), (args.target, V2))],
+            advice="the map estimation needs 99 eigenfunctions per shape: use simplified "
+            "meshes (fewer vertices), or give the map with --map FILE",
+        )  # fmt: skip
+    if args.landmarks == "pick":
+        landmarks = _pick(source, target)
+    else:
+        landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
+    if landmarks is not None and getattr(args, "save_landmarks", None):
+        from ..core._atomic import atomic_path
+
+        with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
+            np.savetxt(tmp, landmarks, fmt="%d", header="source_vertex target_vertex (0-based)")
+        from ._common import report
+
+        report([f"wrote {landmarks.shape[0]} landmark pairs to {args.save_landmarks}"])
     return Pair(source, target, V1, F1, V2, F2, corr, landmarks)
 
 
@@ -211,8 +287,21 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     """(B1, B2, eig_1, eig_2): the OFP bases and the eigenbases the map needs."""
     from ..core.spectrum import eigenbasis
     from ..workflows.matching import ESTIMATION_K, required_k
+    from ._common import check_job_memory
 
     estimate = pair.correspondence is None
+    jobs = [
+        (path, V.shape[0], k or default, required_k(V.shape[0], ESTIMATION_K) if estimate else 0,
+         args.order)
+        for path, V, k, default, file in (
+            (args.source, pair.V1, args.k1, 29, args.basis_1),
+            (args.target, pair.V2, args.k2, 39, args.basis_2),
+        )
+        if not file
+    ]  # fmt: skip
+    check_job_memory(
+        jobs, advice="lower --k1/--k2 or --order, or use simplified meshes (fewer vertices)"
+    )
     out = []
     for side, k, default, file in ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2)):
         V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
@@ -250,7 +339,10 @@ def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2:
             stage("map estimation (descriptor fit, ZoomOut, point map)"),
             stage_progress("matching") as progress,
         ):
-            corr = match_eigenbases(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
+            match = match_eigenbases
+            if getattr(args, "partial", False):
+                from ..workflows.partial import match_partial_eigenbases as match
+            corr = match(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
         report([corr.quality.summary(), *corr.quality.notes])
         if corr.quality.suspect:
             if args.strict:

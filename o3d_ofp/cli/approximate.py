@@ -38,7 +38,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=(args.mesh,))
+    check_output(
+        args.output,
+        (*MESH_OUT, *CLOUD_OUT, ".npy"),
+        inputs=(args.mesh, args.signal, args.texture, args.basis),
+    )
     check_cache_dir(args.cache)
     geometry, V, F = read_shape(args.mesh)
     f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture)

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.products import n_eigenproducts
 
     check_cache_dir(args.cache)
-    if args.output is None or is_collection(args.mesh, None):
+    if args.output is None or is_collection(args.mesh):
         return _run_many(args)
     check_single(args)
     (mesh,) = args.mesh

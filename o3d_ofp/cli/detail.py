@@ -1,59 +1,194 @@
-"""``o3d-ofp detail``: give the target the source's geometric detail."""
+"""``o3d-ofp detail``: give the target the source's geometric detail.
+
+The per-pair work is :func:`detail_one` (one target, one output), so that several targets can
+share one parsed command line.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
+from typing import Any
 
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, check_output, report, stage, tol_options
+from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT, MODES, ROTATION_K
+from ._common import (
+    CLOUD_OUT,
+    MESH_OUT,
+    UsageError,
+    check_output,
+    eig_options,
+    report,
+    stage,
+    tol_options,
+)
+from ._many import (
+    PAIR_ONLY,
+    add_collection_options,
+    check_single,
+    is_collection,
+    refuse_flags,
+    run_transfers,
+)
 from ._pair import add_pair_options, bases_for_pair, estimate_or_use_map, read_pair
-from ._types import positive_int
+from ._types import bounded_float, positive_int
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "check_options", "detail_one", "run"]
+
+logger = logging.getLogger(__name__)
+
+_MODE_HELP = (
+    "add: the target keeps its pose, shape and own detail and gains the source's detail "
+    "(above --band eigenfunctions) in its local frames; replace-detail: the target's own "
+    "detail is replaced by the source's; coordinates: the paper's Fig. 13, the source's "
+    "coordinates transferred with OFP bases replace the target's (the target takes the "
+    "source's pose; uses --k1/--k2/--order/--preset); replace: deprecated name of coordinates "
+    "(add)"
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("detail", help="give the target the source's geometric detail")
-    add_pair_options(p, preset="ours*")
+    add_pair_options(p, preset="ours*", several=True)
+    p.add_argument("--mode", choices=(*MODES, "replace"), default="add", help=_MODE_HELP)
     p.add_argument(
-        "--mode",
-        choices=("add", "replace"),
-        default="add",
-        help="add: source detail along the target's normals; replace: transferred coordinates "
-        "(the paper's Fig. 13) (add)",
+        "--band",
+        type=positive_int,
+        help=f"the detail is what lies above this many eigenfunctions, the same at every "
+        f"resolution and scale ({DETAIL_BAND}); lower takes more of the source's shape",
     )
-    p.add_argument("--k-low", type=positive_int, help="low-pass size for --mode add (k1)")
-    p.add_argument("-o", "--output", required=True, help="displaced target")
+    p.add_argument(
+        "--amount",
+        type=bounded_float(0.0, MAX_AMOUNT),
+        default=1.0,
+        help=f"multiplies the transferred detail, in [0, {MAX_AMOUNT:g}] (1)",
+    )
+    p.add_argument("--k-low", type=positive_int, help="deprecated name of --band")
+    p.add_argument(
+        "-o", "--output", required=True, help="displaced target; with several targets a folder"
+    )
+    add_collection_options(p)
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Read, match (or read the map), move the target's vertices, write."""
+def check_options(args: argparse.Namespace) -> None:
+    """Check the detail flags against each other (before reading anything); normalize them.
+
+    Sets ``args.band`` (from ``--band``, ``--k-low`` or the default) and turns the deprecated
+    ``--mode replace`` into ``coordinates``.
+
+    Raises
+    ------
+    UsageError
+        Naming the flag.
+    """
+    if args.mode == "replace":
+        logger.warning("--mode replace is deprecated; use --mode coordinates")
+        args.mode = "coordinates"
+    flag = "--band"
+    if args.k_low is not None:
+        logger.warning("--k-low is deprecated; use --band")
+        if args.band is not None and args.band != args.k_low:
+            raise UsageError(f"--k-low {args.k_low} and --band {args.band} disagree: give --band")
+        args.band, flag = args.k_low, "--k-low"
+    if args.band is None:
+        args.band = DETAIL_BAND
+    elif args.mode == "coordinates":
+        raise UsageError(f"{flag} does not apply to --mode coordinates (it has no detail band)")
+    args.band_flag = flag
+    if args.mode != "coordinates":
+        for side in (1, 2):
+            k = getattr(args, f"k{side}")
+            if k is not None and k < args.band:
+                raise UsageError(
+                    f"{flag} {args.band} needs at least {args.band} eigenfunctions of each shape, "
+                    f"but --k{side} is {k}: raise --k{side} or lower {flag}"
+                )
+
+
+def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
+    """Eigenbases for the detail modes: --band (and the map estimation) decide their size."""
+    from ..core.spectrum import eigenbasis
+    from ..workflows.matching import ESTIMATION_K, required_k
+    from ._common import check_job_memory
+
+    estimate = pair.correspondence is None
+    sides = [(args.source, pair.V1, pair.F1, args.k1, args.basis_1)]
+    sides.append((args.target, pair.V2, pair.F2, args.k2, args.basis_2))
+    wants = []
+    for path, V, _, k, _ in sides:
+        need = max(args.band, ROTATION_K, k or 0)
+        if need > V.shape[0] - 2:
+            raise UsageError(
+                f"{args.band_flag} {args.band}: {path} has {V.shape[0]} vertices, too few for "
+                f"{need} eigenfunctions (lower {args.band_flag})"
+            )
+        wants.append(max(need, required_k(V.shape[0], ESTIMATION_K)) if estimate else need)
+    check_job_memory(
+        [
+            (path, V.shape[0], want, want, 1)
+            for (path, V, *_), want in zip(sides, wants, strict=True)
+        ],
+        advice=f"lower {args.band_flag}, or use simplified meshes (fewer vertices)",
+    )
+    eigs = []
+    if args.basis_1 or args.basis_2:  # cached bases: their eigenbases, when large enough
+        eigs = list(bases_for_pair(args, pair)[2:])
+    out = []
+    for i, ((path, V, F, _, _), want) in enumerate(zip(sides, wants, strict=True)):
+        if eigs and eigs[i].k >= want:
+            out.append(eigs[i])
+            continue
+        with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={want})"):
+            out.append(eigenbasis(V, F, k=want, clamp_k=estimate, **eig_options(args)))
+    return out[0], out[1]
+
+
+def detail_one(args: argparse.Namespace, target_path: str, output_path: str) -> list[str]:
+    """Read, match (or read the map), move one target's vertices, write; return report lines.
+
+    ``args`` must have passed :func:`check_options`.
+    """
     from ..boundary.api import transfer_detail
     from ..boundary.io import write_geometry
 
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT), inputs=(args.source, args.target))
-    if args.k_low is not None and args.k_low > (args.k1 or 29):
-        raise UsageError(f"--k-low {args.k_low} must not exceed --k1 ({args.k1 or 29})")
-    pair = read_pair(args)
-    if pair.F1 is None:
-        raise UsageError(f"{args.source}: the detail source must be a triangle mesh")
-    B1, B2, eig_1, eig_2 = bases_for_pair(args, pair)
-    corr = estimate_or_use_map(args, pair, eig_1, eig_2)
+    check_output(output_path, (*MESH_OUT, *CLOUD_OUT), inputs=(args.source, target_path))
+    one = argparse.Namespace(**{**vars(args), "target": target_path})
+    pair = read_pair(one)
+    if args.mode == "coordinates":
+        B1, B2, eig_1, eig_2 = bases_for_pair(one, pair)
+        ofp_options = dict(k1=B1.k, k2=B2.k, order=args.order, bases=(B1, B2), **tol_options(args))
+    else:
+        eig_1, eig_2 = _eigenbases(one, pair)
+        ofp_options = {}
+    corr = estimate_or_use_map(one, pair, eig_1, eig_2)
     with stage(f"detail transfer ({args.mode})"):
         moved = transfer_detail(
             pair.source,
             pair.target,
             mode=args.mode,
-            k1=B1.k,
-            k2=B2.k,
-            order=args.order,
-            **tol_options(args),
-            p2p_21=corr.p2p_21,
-            bases=(B1, B2),
+            band=args.band,
+            amount=args.amount,
+            correspondence=corr,
             eigenbases=(eig_1, eig_2),
-            k_low=args.k_low,
+            **ofp_options,
         )
-    write_geometry(args.output, moved)
-    report([f"{args.source} -> {args.target}: detail ({args.mode})", f"wrote {args.output}"])
+    write_geometry(output_path, moved)
+    what = args.mode if args.mode == "coordinates" else f"{args.mode}, band {args.band}"
+    return [f"{args.source} -> {target_path}: detail ({what})", f"wrote {output_path}"]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check the flags, then transfer the detail to the target (or to each target)."""
+    if is_collection(args.target):
+        refuse_flags(args, PAIR_ONLY)
+        check_options(args)
+        options = {"k1": args.k1, "k2": args.k2, "mode": args.mode, "band": args.band,
+                   "amount": args.amount}  # fmt: skip
+        return run_transfers(args, kind="detail", options=options)
+    check_single(args)
+    args.target = args.target[0]
+    check_output(args.output, (*MESH_OUT, *CLOUD_OUT), inputs=(args.source, args.target))
+    check_options(args)
+    report(detail_one(args, args.target, args.output))
     return 0

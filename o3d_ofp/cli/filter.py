@@ -1,4 +1,8 @@
-"""``o3d-ofp filter``: smooth or sharpen a shape spectrally."""
+"""``o3d-ofp filter``: smooth or sharpen a shape (a low-pass over its Laplacian's spectrum).
+
+``--smooth`` is one length at every scale and resolution (a fraction of √area, see
+:mod:`o3d_ofp.core.filtering`); ``--sharpen`` is a gain in [0, 2].
+"""
 
 from __future__ import annotations
 
@@ -9,38 +13,53 @@ from ._common import (
     MESH_HELP,
     MESH_OUT,
     UsageError,
-    add_basis_options,
     basis_for,
-    check_cache_dir,
+    check_job_memory,
     check_output,
+    eig_options,
     read_shape,
     report,
     stage,
 )
-from ._types import bounded_float, positive_int
+from ._types import bounded_float
 
 __all__ = ["add_parser", "run"]
-
-#: Sharpening amounts beyond this multiply the highest frequencies by more than 11: the shape
-#: is then noise, not a sharper version of itself.
-MAX_SHARPEN = 10.0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
-    p = sub.add_parser("filter", help="smooth or sharpen a shape spectrally")
+    from ..core.filtering import DEFAULT_SMOOTH, MAX_SHARPEN, MAX_SMOOTH
+
+    p = sub.add_parser("filter", help="smooth or sharpen a shape (volume kept)")
     p.add_argument("mesh", help=MESH_HELP)
     p.add_argument(
-        "--smooth", type=bounded_float(0.0, 1e3), help="low-pass strength in [0, 1000] (e.g. 5)"
+        "--smooth",
+        type=bounded_float(0.0, MAX_SMOOTH),
+        help=f"smoothing radius as a fraction of sqrt(surface area), in [0, {MAX_SMOOTH:g}]: "
+        "detail smaller than about SMOOTH * sqrt(area) is removed, the same at every scale and "
+        f"resolution (e.g. {DEFAULT_SMOOTH:g}); with --sharpen: the size of the detail "
+        f"enhanced ({DEFAULT_SMOOTH:g})",
     )
     p.add_argument(
         "--sharpen",
         type=bounded_float(0.0, MAX_SHARPEN),
-        help=f"enhancement amount in [0, {MAX_SHARPEN:g}] (e.g. 2)",
+        help=f"detail gain in [0, {MAX_SHARPEN:g}]: the detail smaller than --smooth is "
+        "multiplied by 1 + SHARPEN (beyond 2 triangles turn over)",
     )
-    p.add_argument("-k", "--k", type=positive_int, help="eigenfunctions (14, as the paper)")
-    add_basis_options(p, k=None, preset="ours*", order=3)
-    p.add_argument("--basis", help="cached basis of MESH (.npz)")
+    p.add_argument(
+        "--keep-size",
+        choices=("volume", "none"),
+        default="volume",
+        help="rescale the result to the input's enclosed volume (a cloud: its spread) (volume)",
+    )
+    p.add_argument(
+        "--components",
+        choices=("auto", "largest", "error"),
+        default="auto",
+        help="several connected components: keep the largest if it holds >= 90%% of the area "
+        "(auto), always keep the largest, or refuse (auto)",
+    )
+    p.add_argument("--basis", help="cached basis of MESH (.npz; its Laplacian is used)")
     p.add_argument("-o", "--output", required=True, help="filtered mesh or cloud")
     p.set_defaults(func=run)
 
@@ -49,18 +68,34 @@ def run(args: argparse.Namespace) -> int:
     """Filter the coordinates and write the shape."""
     from ..boundary.api import filter_geometry
     from ..boundary.io import write_geometry
-    from ..core.filtering import sharpen_gains, smooth_gains
+    from ..core.filtering import DEFAULT_SMOOTH
+    from ..core.spectrum import eigenbasis
 
     check_output(args.output, (*MESH_OUT, *CLOUD_OUT), inputs=(args.mesh,))
-    check_cache_dir(args.cache)
-    if (args.smooth is None) == (args.sharpen is None):
-        raise UsageError("give exactly one of --smooth STRENGTH or --sharpen AMOUNT")
-    gains = smooth_gains(args.smooth) if args.smooth is not None else sharpen_gains(args.sharpen)
+    if args.smooth is None and args.sharpen is None:
+        raise UsageError("give --smooth RADIUS and/or --sharpen GAIN")
     geometry, V, F = read_shape(args.mesh)
-    B, _ = basis_for(V, F, args.mesh, args, k=args.k, default_k=14, file=args.basis)
-    with stage("spectral filter"):
-        out = filter_geometry(geometry, gains=gains, basis=B)
+    if args.basis:
+        B, _ = basis_for(V, F, args.mesh, args, k=None, file=args.basis)
+    else:
+        check_job_memory(
+            [(args.mesh, V.shape[0], 1, 1, 1)], advice="use a simplified mesh (fewer vertices)"
+        )
+        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} vertices)"):
+            B = eigenbasis(V, F, k=1, **eig_options(args))
+    with stage("low-pass filter"):
+        out = filter_geometry(
+            geometry,
+            smooth=args.smooth,
+            sharpen=args.sharpen,
+            keep_volume=args.keep_size == "volume",
+            basis=B.eig if hasattr(B, "eig") else B,
+        )
     write_geometry(args.output, out)
-    what = f"smooth {args.smooth}" if args.smooth is not None else f"sharpen {args.sharpen}"
-    report([f"{args.mesh}: {what} with {B.size} basis functions", f"wrote {args.output}"])
+    if args.sharpen is None:
+        what = f"smooth {args.smooth:g} (radius {args.smooth:g} sqrt(area))"
+    else:
+        size = DEFAULT_SMOOTH if args.smooth is None else args.smooth
+        what = f"sharpen {args.sharpen:g} (detail smaller than {size:g} sqrt(area))"
+    report([f"{args.mesh}: {what}", f"wrote {args.output}"])
     return 0

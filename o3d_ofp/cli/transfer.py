@@ -51,11 +51,13 @@ def run(args: argparse.Namespace) -> int:
     """Read, match (or read the map), transfer, write (for each target)."""
     from ..workflows.pipeline import transfer_function
 
-    if is_collection(args.target, args.output):
+    if is_collection(args.target):
         return _run_many(args)
     check_single(args)
     args.target = args.target[0]
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=(args.source, args.target))
+    inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
+              args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
+    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs)
     pair = read_pair(args)
     if args.signal is None and _bakeable(pair, args.output):
         return _bake(args, pair)

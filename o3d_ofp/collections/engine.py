@@ -37,6 +37,8 @@ from ..boundary.convert import (
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import mesh_texture, texture_colors
 from ..core.orthogonalize import resolve_tol
+from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT
+from ..workflows.detail import MODES as DETAIL_MODES
 from ..workflows.matching import ESTIMATION_K
 from .results import TargetResult
 from .tasks import (
@@ -95,7 +97,9 @@ _TRANSFER_OPTIONS = {
     "tol": None,
     "preset": None,  # "ours" for colors, "ours*" for detail
     "mode": "add",
-    "k_low": None,
+    "band": DETAIL_BAND,
+    "amount": 1.0,
+    "k_low": None,  # deprecated name of band
     "components": "auto",
     "strict": False,
     "signal": "auto",
@@ -409,8 +413,24 @@ def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> Transfe
     o = {**_TRANSFER_OPTIONS, **options}
     if o["map"] not in ("estimate", "identity"):
         raise ValueError(f"map must be 'estimate' or 'identity'; got {o['map']!r}")
-    if o["mode"] not in ("add", "replace"):
-        raise ValueError(f"mode must be 'add' or 'replace'; got {o['mode']!r}")
+    if o["mode"] == "replace":
+        logger.warning("mode='replace' is deprecated; use mode='coordinates'")
+        o["mode"] = "coordinates"
+    if o["mode"] not in DETAIL_MODES:
+        raise ValueError(f"mode must be one of {', '.join(DETAIL_MODES)}; got {o['mode']!r}")
+    k_low = o.pop("k_low")
+    if k_low is not None:
+        logger.warning("k_low is deprecated; use band")
+        if "band" in options and options["band"] != k_low:
+            raise ValueError(f"k_low={k_low} and band={options['band']} disagree: give band")
+        o["band"] = k_low
+    amount = o["amount"]
+    if (
+        isinstance(amount, bool)
+        or not isinstance(amount, (int, float))
+        or not (0.0 <= amount <= MAX_AMOUNT)
+    ):
+        raise ValueError(f"amount must be a number in [0, {MAX_AMOUNT:g}]; got {amount!r}")
     if o["components"] not in ("auto", "largest", "error"):
         raise ValueError(f"components must be auto, largest or error; got {o['components']!r}")
     if o["signal"] not in ("auto", "colors", "texture"):
@@ -419,8 +439,7 @@ def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> Transfe
         raise ValueError(
             "kind='texture' bakes the source's texture: signal='colors' does not apply"
         )
-    ints = ("k1", "k2", "order", "texture_size") + (("k_low",) if o["k_low"] is not None else ())
-    for name in ints:
+    for name in ("k1", "k2", "order", "texture_size", "band"):
         value = o[name]
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer; got {value!r}")
@@ -534,7 +553,8 @@ def transfer_many(
     **options
         ``map`` ("estimate" (default) or "identity": targets with the source's vertices),
         ``k1`` (29), ``k2`` (39), ``order`` (2), ``preset`` ("ours" for colors, "ours*" for
-        detail), ``tol``, ``mode`` ("add" or "replace", detail), ``k_low`` (detail),
+        detail), ``tol``, ``mode`` ("add", "replace-detail" or "coordinates", detail, see
+        :func:`o3d_ofp.transfer_detail`), ``band`` (30, detail), ``amount`` (1.0, detail),
         ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
         vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture").

@@ -24,6 +24,7 @@ from ..boundary.texture import MeshTexture
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
+from ..workflows.detail import DETAIL_BAND, ROTATION_K
 from ..workflows.matching import ESTIMATION_K, Correspondence, match_eigenbases, required_k
 from ..workflows.pipeline import transfer_function
 from .results import TargetResult
@@ -58,7 +59,7 @@ class TransferJob:
         (targets with the source's vertices, e.g. registrations of one template).
     k1, k2, order, tol, preset
         The OFP bases of source and target (see :func:`o3d_ofp.transfer_function`).
-    mode, k_low
+    mode, band, amount
         Detail transfer (see :func:`o3d_ofp.transfer_detail`).
     signal : {"auto", "colors", "texture"}
         What the source's colors are (kinds "colors" and "texture"): its vertex colors, its
@@ -81,7 +82,8 @@ class TransferJob:
     tol: float | None = None
     preset: str | None = "ours"
     mode: str = "add"
-    k_low: int | None = None
+    band: int = DETAIL_BAND
+    amount: float = 1.0
     components: str = "auto"
     strict: bool = False
     signal: str = "auto"
@@ -92,7 +94,10 @@ class TransferJob:
         """(k, clamp_k) of a shape's eigenbasis: ~100 for map estimation, else k1 / k2."""
         if self.map == "estimate":
             return required_k(n_vertices, ESTIMATION_K), True
-        return (max(self.k1, self.k_low or 0) if side == 1 else self.k2), False
+        k = self.k1 if side == 1 else self.k2
+        if self.kind == "detail" and self.mode != "coordinates":
+            k = max(k, self.band, ROTATION_K)  # the detail band and the local frames
+        return k, False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -312,8 +317,10 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
             values, result = np.clip(g, 0.0, 1.0), None
         else:
             result = transfer_detail(
-                (source.vertices, source.faces), target, mode=job.mode, k1=job.k1,
-                k_low=job.k_low, correspondence=corr, eigenbases=(source.eig, eig_2), bases=bases,
+                (source.vertices, source.faces), target, mode=job.mode, band=job.band,
+                amount=job.amount, k1=job.k1, k2=job.k2, order=job.order, tol=job.tol,
+                preset=None if job.tol is not None else job.preset, correspondence=corr,
+                eigenbases=(source.eig, eig_2), bases=bases,
             )  # fmt: skip
             values = geometry_to_arrays(result)[0]
         if spec.output is None and result is not None and values is None:

@@ -45,6 +45,7 @@ __all__ = [
     "DEFAULT_SMOOTH",
     "MAX_SHARPEN",
     "MAX_SMOOTH",
+    "check_amount",
     "edit_coefficient",
     "lowpass",
     "sharpen_coordinates",
@@ -189,7 +190,16 @@ def edit_coefficient(B: OFPBasis, f: Any, rank: int, delta: Any) -> np.ndarray:
     )
 
 
-def _check_amount(value: Any, name: str, maximum: float) -> float:
+def check_amount(value: Any, name: str, maximum: float) -> float:
+    """Return ``value`` as a float in [0, maximum]; else raise naming ``name``.
+
+    Raises
+    ------
+    TypeError
+        If ``value`` is not a real number (booleans included).
+    ValueError
+        If it is not finite or outside [0, maximum].
+    """
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a number; got {value!r}")
     value = float(value)
@@ -236,7 +246,7 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
         The low-passed signal (constants are kept exactly).
     """
     eig = _eigenbasis_of(B)
-    smooth = _check_amount(smooth, "smooth", MAX_SMOOTH)
+    smooth = check_amount(smooth, "smooth", MAX_SMOOTH)
     x = as_signal(f, eig.n_vertices)
     if smooth == 0.0:
         return x
@@ -252,7 +262,18 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     for k in range(_ORDER // 2):
         r = complex(np.exp(1j * np.pi * (2 * k + 1) / _ORDER))
         A = (t * eig.stiffness - sp.diags(r * mu + empty)).tocsc().astype(np.complex128)
-        lu = sla.splu(A)
+        # A = t L − r M is complex symmetric with Im(xᴴ A x) = −Im(r) xᴴ M x < 0 for x ≠ 0
+        # (on kept vertices): every principal submatrix is nonsingular, so elimination with
+        # diagonal pivots in a symmetric fill-reducing order cannot break down. Measured on a
+        # 10242-vertex sphere: L + U hold 0.93 M nonzeros against 1.34 M with SuperLU's
+        # default (COLAMD, partial pivoting), results equal to 3e-15 (timings on the shared
+        # machine, load 5 on 2 cores, were 2.1-2.9 s against 3.5-19.8 s, not reliable).
+        lu = sla.splu(
+            A,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
         out += 2.0 * np.real((-r / _ORDER) * lu.solve(rhs.astype(np.complex128)))
     if np.any(empty):  # vertices removed by the cleaning: the value of their stand-in
         c = eig.cleaning
@@ -358,7 +379,7 @@ def sharpen_coordinates(
         If ``sharpen`` is outside [0, 2] or ``smooth`` outside [0, 0.25] (the message names
         the keyword).
     """
-    sharpen = _check_amount(sharpen, "sharpen", MAX_SHARPEN)
+    sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
     eig = _eigenbasis_of(B)
     V = as_vertices(vertices)
     if V.shape[0] != eig.n_vertices:

@@ -11,7 +11,9 @@ The 100 eigenpairs of a large mesh cost more than the search (80 s per shape at 
 vertices): :func:`coarse_eigenbasis` computes them on a subsample, a map estimated between two
 coarse versions is carried to the full shapes by :func:`extend_p2p` (interpolated coarse
 eigenfunctions, exact local search) and projected on small full-resolution bases by
-:func:`extend_fmap`.
+:func:`extend_fmap`. :func:`coarse_mesh` gives the coarse versions that
+:mod:`o3d_ofp.workflows.dense` matches (a point-cloud subsample, :func:`coarse_eigenbasis`,
+measured on FAUST x4: error 0.21 instead of 0.03).
 """
 
 from __future__ import annotations
@@ -28,10 +30,10 @@ from scipy.spatial import cKDTree
 from ._threads import blas_threads
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p
-from .fmap import farthest_points
+from .fmap import farthest_points, grid_samples
 from .spectrum import EigenBasis, eigenbasis
 
-__all__ = ["coarse_eigenbasis", "extend_fmap", "extend_p2p", "local_p2p_from_fmap"]
+__all__ = ["coarse_eigenbasis", "coarse_mesh", "extend_fmap", "extend_p2p", "local_p2p_from_fmap"]
 
 logger = logging.getLogger(__name__)
 
@@ -760,3 +762,80 @@ def extend_fmap(
         fmap_coarse, coarse_1, coarse_2, eig_1.vertices, eig_2.vertices, neighbours=neighbours
     )
     return fmap_from_p2p(p2p, eig_1, eig_2, k1=k1, k2=k2), p2p
+
+
+def _edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """(n, n) symmetric sparse matrix of the mesh's edge lengths."""
+    n = vertices.shape[0]
+    i = faces[:, [0, 1, 2]].ravel()
+    j = faces[:, [1, 2, 0]].ravel()
+    length = np.linalg.norm(vertices[i] - vertices[j], axis=1)
+    # A zero length would read as "no edge": keep welded-but-distinct vertices connected.
+    length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1e-300))
+    G = sp.coo_matrix((length, (i, j)), shape=(n, n)).tocsr()
+    return G.maximum(G.T).tocsr()
+
+
+def coarse_mesh(
+    vertices: Any, faces: Any, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Build a coarse triangle mesh of a dense one: the dual of its geodesic Voronoi cells.
+
+    About ``count`` well-spread vertices (one per occupied cube of a grid in the shape's
+    principal frame: O(n), and independent of the pose, scale and vertex order) become the
+    coarse vertices; every vertex joins the cell of the sample nearest along the mesh's edges
+    (one multi-source Dijkstra, O(n log n)), and every face whose three corners lie in three
+    different cells gives a coarse triangle between them (once, oriented as that face). Cells
+    follow the surface, so parts close in space but not on the surface (hands by the thighs)
+    stay apart.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+    count : int
+        Coarse vertices wanted (at most n; the result has ``count`` ± 10 %).
+
+    Returns
+    -------
+    coarse_vertices : (s, 3) ndarray of float64
+        Positions of the samples.
+    coarse_faces : (f, 3) ndarray of int64
+        Coarse triangles.
+    samples : (s,) ndarray of int64
+        Index of every coarse vertex in ``vertices``.
+    cell : (n,) ndarray of int64
+        Coarse vertex (cell) of every vertex.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    V = np.ascontiguousarray(vertices, dtype=np.float64)
+    F = np.ascontiguousarray(faces, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"vertices must have shape (n, 3); got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0:
+        raise ValueError(f"faces must have shape (m, 3) with m >= 1; got {F.shape}")
+    if F.min() < 0 or F.max() >= V.shape[0]:
+        raise ValueError(f"faces index vertices outside [0, {V.shape[0]})")
+    n = V.shape[0]
+    count = check_int(count, name="count", minimum=4, maximum=n)
+    samples = grid_samples(V, count)
+    count = samples.shape[0]
+    _, _, source = dijkstra(
+        _edge_graph(V, F),
+        directed=False,
+        indices=samples,
+        min_only=True,
+        return_predecessors=True,
+    )
+    label = np.full(n, -1, dtype=np.int64)
+    label[samples] = np.arange(count)
+    cell = label[np.maximum(source, 0)]
+    cell[source < 0] = -1
+    far = np.flatnonzero(cell < 0)  # vertices no sample reaches (other components)
+    if far.size:
+        cell[far] = cKDTree(V[samples]).query(V[far], k=1, workers=-1)[1]
+    L = cell[F]
+    L = L[(L[:, 0] != L[:, 1]) & (L[:, 1] != L[:, 2]) & (L[:, 0] != L[:, 2])]
+    _, first = np.unique(np.sort(L, axis=1), axis=0, return_index=True)
+    return V[samples], L[np.sort(first)], samples, cell

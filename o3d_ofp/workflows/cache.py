@@ -104,14 +104,6 @@ def _read_cached(path: str, load: Any, digest: str, what: str) -> Any:
     return value
 
 
-def _load_basis(path: str) -> OFPBasis:
-    # Our own handle first: np.load leaks the one it opens when a cut-short file's zip
-    # directory cannot be read.
-    with open(path, "rb") as fh, zipfile.ZipFile(fh):
-        pass
-    return OFPBasis.load(path)
-
-
 def eigenbasis_cache_path(
     vertices: Any,
     faces: Any = None,
@@ -338,7 +330,7 @@ def fetch_basis(
             f"eig must be this shape's eigenbasis with at least k={k} eigenfunctions (it has "
             f"{eig.k}{'' if eig.digest == digest else ' and belongs to another shape'})"
         )
-    B = _read_cached(path, _load_basis, digest, "basis")
+    B = _read_cached(path, OFPBasis.load, digest, "basis")
     if B is not None:
         return B, True
     if eig is None:

@@ -34,9 +34,15 @@ a map and re-applied in the target's local frames:
   total vertex masses of the two shapes), so it follows the sizes of the two shapes and
   not their units.
 
-The result keeps the target's pose and low-frequency shape; ``keep_target_detail`` chooses
-whether the target's own detail is kept (the source's is added to the target as it is) or
-replaced (added to the target's low-pass shape).
+The result keeps the target's pose and low-frequency shape. Modes (:data:`MODES`):
+
+* ``"add"`` (default): the target keeps its own detail and gains the source's on top (right
+  for a smooth target, which is taken as its own low-pass shape).
+* ``"replace-detail"``: the target's own detail above ``band`` is removed and the source's
+  put in its place (a shape given itself as source comes back unchanged).
+* ``"coordinates"``: the paper's Fig. 13, the source's coordinates transferred with OFP bases
+  replace the target's (the target's pose is lost); ``"replace"`` is its former, deprecated
+  name.
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from __future__ import annotations
 import logging
 import math
 import numbers
+import warnings
 from typing import Any
 
 import numpy as np
@@ -62,7 +69,9 @@ __all__ = [
     "DETAIL_BAND",
     "FIT_RANGE",
     "MAX_AMOUNT",
+    "MODES",
     "ROTATION_K",
+    "check_detail_options",
     "detail_vectors",
     "local_rotations",
     "lowpass_coordinates",
@@ -91,7 +100,10 @@ FIT_RANGE = (0.7, 0.9)
 #: Largest ``amount``: a detail exaggerated ten times is no longer the source's detail.
 MAX_AMOUNT = 10.0
 
-_MODES = ("add", "coordinates", "replace")
+#: Detail transfer modes (see the module notes); "replace" is a deprecated alias of
+#: "coordinates".
+MODES = ("add", "replace-detail", "coordinates")
+_ALIASES = {"replace": "coordinates"}
 _CARRIES = ("p2p", "ofp")
 
 
@@ -232,6 +244,56 @@ def local_rotations(
     return rotations, np.clip(fit, -1.0, 1.0)
 
 
+def check_detail_options(
+    *, mode: str = "add", band: Any = DETAIL_BAND, amount: Any = 1.0, names: Any = None
+) -> tuple[str, int, float]:
+    """Check the detail transfer's options before any work; return them normalized.
+
+    Parameters
+    ----------
+    mode, band, amount
+        As in :func:`transfer_detail_frames` (``band`` is only checked to be a positive
+        integer here: whether the eigenbases hold it is checked when they exist).
+    names : mapping of str to str, optional
+        The names to use in messages instead of the keywords (e.g. the CLI's flags:
+        ``{"mode": "--mode", "band": "--band", "amount": "--amount"}``).
+
+    Returns
+    -------
+    mode : str
+        One of :data:`MODES` ("replace" becomes "coordinates", with a ``DeprecationWarning``).
+    band : int
+    amount : float
+
+    Raises
+    ------
+    ValueError, TypeError
+        Naming the keyword (or ``names[keyword]``).
+    """
+    name = {"mode": "mode", "band": "band", "amount": "amount", **(names or {})}
+    if mode in _ALIASES:
+        warnings.warn(
+            f"{name['mode']} {mode!r} is deprecated; use {_ALIASES[mode]!r}",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        mode = _ALIASES[mode]
+    if mode not in MODES:
+        raise ValueError(
+            f"{name['mode']} must be one of {', '.join(map(repr, MODES))}; got {mode!r}"
+        )
+    if isinstance(band, bool) or not isinstance(band, numbers.Integral):
+        raise TypeError(f"{name['band']} must be an integer number of eigenfunctions; got {band!r}")
+    if band < 1:
+        raise ValueError(f"{name['band']} must be >= 1; got {band}")
+    if isinstance(amount, bool) or not isinstance(amount, numbers.Real):
+        raise TypeError(f"{name['amount']} must be a number; got {amount!r}")
+    amount = float(amount)
+    if not (math.isfinite(amount) and 0.0 <= amount <= MAX_AMOUNT):
+        raise ValueError(f"{name['amount']} must be in [0, {MAX_AMOUNT:g}]; got {amount}")
+    return mode, int(band), amount
+
+
 def _check_band(band: Any, eig: EigenBasis, name: str) -> int:
     if isinstance(band, bool) or not isinstance(band, numbers.Integral):
         raise TypeError(f"band must be an integer number of eigenfunctions; got {band!r}")
@@ -267,7 +329,6 @@ def transfer_detail_frames(
     correspondence: Correspondence | None = None,
     mode: str = "add",
     band: int = DETAIL_BAND,
-    keep_target_detail: bool = True,
     amount: float = 1.0,
     carry: str = "p2p",
     rotation_k: int = ROTATION_K,
@@ -294,23 +355,21 @@ def transfer_detail_frames(
     correspondence : Correspondence, optional
         A map from :func:`o3d_ofp.workflows.matching.match_eigenbases` (its point map is
         used). Give exactly one of the two.
-    mode : {"add", "coordinates", "replace"}, default "add"
-        "add": the detail transfer described in :mod:`o3d_ofp.workflows.detail`.
-        "coordinates": the paper's Fig. 13, the source's coordinates transferred with OFP
-        bases replace the target's (``k1``, ``k2``, ``order``, ``preset``, ``tol``, ``bases``
-        as in :func:`~o3d_ofp.workflows.pipeline.transfer_function`); "replace" is its former
-        name and does the same.
+    mode : {"add", "replace-detail", "coordinates"}, default "add"
+        "add": the target keeps its own detail and the source's is added on top (right for a
+        smooth target: it is taken as its own low-pass shape). "replace-detail": the
+        target's own detail above ``band`` is replaced by the source's (added to the target's
+        low-pass shape; a shape given itself as source then comes back unchanged). Measured
+        on smoothed targets: "replace-detail" is 1.18-1.31x doing nothing, as re-projecting an
+        already smoothed target on the eigenfunctions of its own (smoothed) surface removes
+        more of it. "coordinates": the paper's Fig. 13, the source's coordinates transferred
+        with OFP bases replace the target's (``k1``, ``k2``, ``order``, ``preset``, ``tol``,
+        ``bases`` as in :func:`~o3d_ofp.workflows.pipeline.transfer_function`). "replace" is
+        the deprecated former name of "coordinates" (a ``DeprecationWarning``).
     band : int, default 30
         Low band, in eigenfunctions: the detail is the part of the coordinates above the
         first ``band`` eigenfunctions. Lower takes more of the source's shape (and of its
         pose), higher only its finer detail.
-    keep_target_detail : bool, default True
-        True: the source's detail is added to the target as it is (right for a smooth target:
-        the target is taken as its own low-pass shape). False: the target's own detail above
-        ``band`` is replaced, the source's is added to the target's low-pass shape (a shape
-        given itself as source then comes back unchanged). Measured on smoothed targets:
-        False is 1.18-1.31x doing nothing, as re-projecting an already smoothed target on the
-        eigenfunctions of its own (smoothed) surface removes more of it.
     amount : float, default 1.0
         Multiplies the transferred detail, in [0, 10] (0 returns the base surface).
     carry : {"p2p", "ofp"}, default "p2p"
@@ -348,18 +407,12 @@ def transfer_detail_frames(
         eigenbasis, an ``amount`` outside [0, 10], a bad ``fit_range``, or no / two maps;
         each message names the keyword.
     """
-    if mode not in _MODES:
-        raise ValueError(f"mode must be one of {', '.join(map(repr, _MODES))}; got {mode!r}")
+    mode, _, amount = check_detail_options(mode=mode, band=band, amount=amount)
     if carry not in _CARRIES:
         raise ValueError(f"carry must be 'p2p' or 'ofp'; got {carry!r}")
     for name, e in (("eig_1", eig_1), ("eig_2", eig_2)):
         if not isinstance(e, EigenBasis):
             raise TypeError(f"{name} must be an EigenBasis; got {type(e).__name__}")
-    if isinstance(amount, bool) or not isinstance(amount, numbers.Real):
-        raise TypeError(f"amount must be a number; got {amount!r}")
-    amount = float(amount)
-    if not (math.isfinite(amount) and 0.0 <= amount <= MAX_AMOUNT):
-        raise ValueError(f"amount must be in [0, {MAX_AMOUNT:g}]; got {amount}")
     if (p2p_21 is None) == (correspondence is None):
         raise ValueError("give exactly one of p2p_21 and correspondence")
     if correspondence is not None:
@@ -368,7 +421,7 @@ def transfer_detail_frames(
     else:
         p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     ofp_kw = dict(k1=k1, k2=k2, order=order, preset=preset, tol=tol, p2p_21=p2p, bases=bases)
-    if mode != "add":
+    if mode == "coordinates":
         return transfer_function(eig_1.vertices, eig_1, eig_2, **ofp_kw)
 
     band_1 = _check_band(band, eig_1, "eig_1")
@@ -381,7 +434,7 @@ def transfer_detail_frames(
     low_1 = lowpass_coordinates(eig_1, band_1)
     detail_1 = eig_1.vertices - low_1
     X2 = np.array(eig_2.vertices)
-    base = X2 if keep_target_detail else lowpass_coordinates(eig_2, band_1)
+    base = X2 if mode == "add" else lowpass_coordinates(eig_2, band_1)
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]
     else:

@@ -24,7 +24,9 @@ from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p
 from ..core.fmap import estimate_fmap, farthest_points, unit_area, zoomout_refine
 from ..core.geometry import vertex_normals
 from ..core.multiscale import local_p2p_from_fmap
+from ..core.partial import boundary_length
 from ..core.spectrum import EigenBasis, eigenbasis
+from .dense import COARSE_VERTICES, DENSE_VERTICES, match_dense
 
 __all__ = [
     "ESTIMATION_K",
@@ -63,6 +65,17 @@ MAX_REVERSED = 0.35
 #: Areas that differ by more than this factor are reported (different units or a partial
 #: shape); the map itself does not depend on the units.
 AREA_RATIO_NOTE = 1.5
+#: A full-shape map is suspect as a partial shape when the smaller shape has less than
+#: 1 / PARTIAL_AREA_RATIO of the larger's area AND more boundary: its boundary length / sqrt(area)
+#: exceeds the larger's by EXTRA_BOUNDARY. Area alone cannot tell a part from other units
+#: (the estimation normalizes areas: a scaled copy maps correctly), and correct pairs differ
+#: by up to 1.30 in area (FAUST remeshed 002 -> 007, both closed). Measured
+#: on the cuts of scripts/eval_partial.py (50-80 % kept): 1.0-5.8; on the pairs of the shared
+#: data: 0 (closed shapes) and 0.04 (SHREC'19 scans, both with holes).
+PARTIAL_AREA_RATIO = 1.2
+EXTRA_BOUNDARY = 0.4
+#: With partial=True, a target larger than the source by this factor cannot be a part of it.
+PARTIAL_MAX_AREA_RATIO = 1.1
 
 _FORMAT_VERSION = 1
 
@@ -73,6 +86,12 @@ DENSE_PAIRS = 2e8
 
 #: Weights of the descriptor-commutativity term tried by :func:`match_eigenbases`.
 DCOMM_WEIGHTS = (0.1, 0.0)
+#: The starts are compared after ZoomOut to this size, and only the better one is refined
+#: further (ZoomOut to 39 costs ~8 % of ZoomOut to 99). Measured on the 5 ground-truth pairs
+#: of ../shared/data with both starts refined to 39, 49 and 99: the same start wins at every
+#: size (one pair's two starts give the same map); the kept map is the one ZoomOut to 99
+#: gives from it, as before.
+SELECT_K = 39
 
 
 def alignment_residual(
@@ -152,6 +171,9 @@ class MapQuality:
         Why it is doubtful, with the likely causes and the fix; empty when it is not.
     notes : tuple of str
         Remarks that do not make the map suspect (e.g. very different areas).
+    overlap : float or None
+        For a partial map: estimated fraction of the source's area the target covers; None
+        otherwise.
     """
 
     coverage: float
@@ -163,6 +185,7 @@ class MapQuality:
     suspect: bool
     reasons: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    overlap: float | None = None
 
     def summary(self) -> str:
         """One line: the measures and the verdict."""
@@ -172,6 +195,7 @@ class MapQuality:
             f"the smaller shape), orthogonality {self.orthogonality:.3f}, inconsistency "
             f"{self.inconsistency:.3f}, reversed triangles {self.reversed_fraction:.3f}, area "
             f"ratio {self.area_ratio:.3g}"
+            + (f", overlap {self.overlap:.2f}" if self.overlap is not None else "")
         )
 
 
@@ -180,6 +204,9 @@ def map_quality(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
     fmap_12: np.ndarray | None = None,
+    *,
+    partial: bool = False,
+    overlap: float | None = None,
 ) -> MapQuality:
     """Judge a point map (and the functional map it came from) without ground truth.
 
@@ -192,6 +219,12 @@ def map_quality(
     fmap_12 : (K+1, K+1) ndarray, optional
         The functional map the point map was extracted from (same convention as
         :func:`o3d_ofp.fmap_from_p2p`).
+    partial : bool, default False
+        The map was made for a part (the target) of the source: areas may differ, but a
+        target larger than the source is suspect. Without it, a shape that looks like a part
+        of the other (smaller, with more boundary) makes the map suspect.
+    overlap : float, optional
+        Estimated fraction of the source covered (partial maps), kept in the report.
 
     Returns
     -------
@@ -229,9 +262,10 @@ def map_quality(
         reasons.append(
             f"the point map disagrees with the functional map (inconsistency {incons:.2f})"
         )
+    reasons.extend(_area_reasons(eig_1, eig_2, area_ratio, partial))
     suspect = bool(reasons)
     notes = []
-    if not (1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE):
+    if not partial and not (1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE):
         notes.append(
             f"the target's area is {area_ratio:.3g} times the source's (different units? a "
             "partial shape?); the estimated map does not depend on the units"
@@ -252,7 +286,37 @@ def map_quality(
         suspect=suspect,
         reasons=tuple(reasons),
         notes=tuple(notes),
+        overlap=None if overlap is None else float(overlap),
     )
+
+
+def _area_reasons(
+    eig_1: EigenBasis, eig_2: EigenBasis, area_ratio: float, partial: bool
+) -> list[str]:
+    """Why the areas make a map doubtful: a part matched as a whole, or a partial map onto less."""
+    if partial:
+        if area_ratio <= PARTIAL_MAX_AREA_RATIO:
+            return []
+        return [
+            f"partial=True but the target's area is {area_ratio:.3g} times the source's: it "
+            "cannot be a part of the source; fix: make the whole shape the source (swap them) "
+            "and give both in the same units (rescale)"
+        ]
+    if max(area_ratio, 1 / area_ratio) <= PARTIAL_AREA_RATIO:
+        return []
+    small, large = (eig_2, eig_1) if area_ratio < 1 else (eig_1, eig_2)
+    extra = boundary_length(small.vertices, small.faces) / math.sqrt(small.area)
+    extra -= boundary_length(large.vertices, large.faces) / math.sqrt(large.area)
+    if extra <= EXTRA_BOUNDARY:
+        return []  # a scaled shape (other units) keeps its boundary: its map is right
+    part = "target" if area_ratio < 1 else "source"
+    return [
+        f"the {part} looks like a part of the other shape ({min(area_ratio, 1 / area_ratio):.2f}"
+        f" of its area, {extra:.2f} more boundary per sqrt(area)): a full-shape map cannot "
+        "match a part; fix: partial=True / --partial with the whole shape as the source"
+        + (" (swap source and target)" if part == "source" else "")
+        + ", in the same units (rescale first if they differ)"
+    ]
 
 
 def _outward(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -303,7 +367,8 @@ class Correspondence:
         The functional map between the eigenbases (convention of :func:`o3d_ofp.fmap_from_p2p`),
         when the map was estimated.
     method : str
-        How the map was made: ``"estimate"``, ``"closest"``, ``"given"``, ``"identity"``,
+        How the map was made: ``"estimate"``, ``"partial"`` (the target a part of the
+        source, :mod:`o3d_ofp.workflows.partial`), ``"closest"``, ``"given"``, ``"identity"``,
         ``"template"``.
     options : mapping
         The options used (JSON-serializable).
@@ -554,17 +619,22 @@ def match_eigenbases(
         refine=None,
     )
     best: tuple[float, np.ndarray, float] | None = None
+    select = min(final, max(k_fit, SELECT_K))
     for i, (C, w_dcomm) in enumerate(zip(fits, DCOMM_WEIGHTS, strict=True)):
-        if final > k_fit:
-            logger.info("match: ZoomOut %d -> %d (start %d)", k_fit, final, i + 1)
-            report(f"ZoomOut {i + 1}", 0.2 + 0.35 * i)
-            C = zoomout_refine(C, u1, u2, k_final=final, subsample=zoomout_subsample)
+        if select > k_fit:
+            logger.info("match: ZoomOut %d -> %d (start %d)", k_fit, select, i + 1)
+            report(f"ZoomOut {i + 1}", 0.2 + 0.1 * i)
+            C = zoomout_refine(C, u1, u2, k_final=select, subsample=zoomout_subsample)
         residual = alignment_residual(C, u1, u2, samples=zoomout_subsample or 2000)
         logger.info("match: start %d alignment residual %.4g", i + 1, residual)
         if best is None or residual < best[0]:
             best = (residual, C, w_dcomm)
     assert best is not None
     _, C, w_dcomm = best
+    if final > select:  # only the better start goes on
+        logger.info("match: ZoomOut %d -> %d", select, final)
+        report("ZoomOut", 0.4)
+        C = zoomout_refine(C, u1, u2, k_final=final, subsample=zoomout_subsample)
     logger.info("match: point map at full resolution (%d target vertices)", eig_2.n_vertices)
     report("point map", 0.7)
     if eig_1.n_vertices * eig_2.n_vertices > DENSE_PAIRS:
@@ -606,9 +676,14 @@ def match_arrays(
     faces_2: np.ndarray | None,
     *,
     components: str = "auto",
+    dense_above: int | None = None,
     **options: Any,
 ) -> Correspondence:
     """Estimate a map between two shapes given as arrays: eigenbases, then :func:`match_eigenbases`.
+
+    Two meshes of which one has more than ``dense_above`` vertices are matched on coarse
+    copies and the map extended to every vertex (:func:`o3d_ofp.workflows.dense.match_dense`):
+    no full-resolution eigenpair is computed.
 
     Parameters
     ----------
@@ -618,6 +693,11 @@ def match_arrays(
         Target shape.
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    dense_above : int, optional
+        Vertex count above which two meshes take the dense path (default
+        :data:`o3d_ofp.workflows.dense.DENSE_VERTICES`, 50000; 0 always, a huge value never).
+        ``coarse_vertices=`` (in ``options``) sets the coarse meshes' size there (default
+        :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`).
     **options
         Keyword options of :func:`match_eigenbases` (``landmarks``, ``k_fit``, ``zoomout_to``,
         ...).
@@ -629,6 +709,25 @@ def match_arrays(
     landmarks = check_landmarks(
         options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
     )  # before any eigensolve
+    if dense_above is None:
+        dense_above = DENSE_VERTICES
+    if isinstance(dense_above, bool) or not isinstance(dense_above, (int, np.integer)):
+        raise TypeError(f"dense_above must be an int; got {type(dense_above).__name__}")
+    coarse_vertices = options.pop("coarse_vertices", COARSE_VERTICES)
+    n_max = max(vertices_1.shape[0], vertices_2.shape[0])
+    if faces_1 is not None and faces_2 is not None and n_max > dense_above:
+        logger.info("match: %d vertices > %d: dense path (coarse meshes)", n_max, dense_above)
+        return match_dense(
+            vertices_1,
+            faces_1,
+            vertices_2,
+            faces_2,
+            estimate=match_eigenbases,
+            k=options.get("zoomout_to", ESTIMATION_K),
+            coarse_vertices=coarse_vertices,
+            components=components,
+            **{**options, "landmarks": landmarks},
+        )
     zoomout_to = options.get("zoomout_to", ESTIMATION_K)
     eigs = [
         eigenbasis(V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components)

@@ -1,7 +1,7 @@
 """End-to-end transfer between two shapes, on arrays: map, bases, transfer matrix, signal.
 
-The Open3D-level functions (:func:`o3d_ofp.adapters.transfer_colors`,
-:func:`o3d_ofp.adapters.transfer_detail`) call these.
+The Open3D-level functions (:func:`o3d_ofp.transfer_colors`, :func:`o3d_ofp.transfer_detail`)
+call these; the detail transfer itself is :mod:`o3d_ofp.workflows.detail`.
 
 Defaults follow the paper: order 2 with k₁ = 29, k₂ = 39 non-constant eigenfunctions (its
 K = 30 / 40, for humans); order 3 with k ≈ 11-14 suits other shapes (Tables 2, 5, 6).
@@ -17,16 +17,13 @@ import numpy as np
 from ..core._validation import as_signal, check_int
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
-from ..core.geometry import vertex_normals
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.transfer import transfer_matrix, transfer_signal
 from .matching import ESTIMATION_K, Correspondence, match_eigenbases
 
 __all__ = [
-    "detail_heights",
     "eigenbases_for_transfer",
     "pull_back",
-    "transfer_detail_arrays",
     "transfer_function",
 ]
 
@@ -125,119 +122,6 @@ def transfer_function(
     else:
         transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=p2p)
     return transfer_signal(f, B_1, B_2, transfer_12)
-
-
-def detail_heights(eig: EigenBasis, normals: np.ndarray, *, k_low: int | None = None) -> np.ndarray:
-    """Fine detail as a height along the normals: ``<X − low-pass(X), n>``.
-
-    Parameters
-    ----------
-    eig : EigenBasis
-        The shape's eigenbasis (its vertices are the coordinates X).
-    normals : (n, 3) ndarray
-        Unit vertex normals.
-    k_low : int, optional
-        Eigenfunctions of the low-pass reconstruction (default: all of ``eig``).
-
-    Returns
-    -------
-    (n,) ndarray
-        Signed height of every vertex above the smooth shape.
-    """
-    low = eig if k_low is None else eig.truncate(k_low)
-    X = eig.vertices
-    smooth = low.reconstruct(low.project(X))
-    return np.einsum("ij,ij->i", X - smooth, normals)
-
-
-def transfer_detail_arrays(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    mode: str = "add",
-    k1: int = 29,
-    k2: int = 39,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = "ours*",
-    correspondence: Correspondence | None = None,
-    fmap_12: Any = None,
-    p2p_21: Any = None,
-    landmarks: Any = None,
-    k_low: int | None = None,
-    normals_1: Any = None,
-    normals_2: Any = None,
-    bases: tuple[OFPBasis, OFPBasis] | None = None,
-) -> np.ndarray:
-    """Move the target's vertices to carry the source's geometric detail.
-
-    Parameters
-    ----------
-    eig_1, eig_2 : EigenBasis
-        Source (with detail) and target eigenbases.
-    mode : {"add", "replace"}, default "add"
-        "replace" (the paper's Fig. 13): the source's vertex coordinates are transferred and
-        replace the target's. "add": the target keeps its own shape and pose and receives the
-        source's fine detail as heights along its normals: the source's coordinates minus
-        their low-pass reconstruction (``k_low`` eigenfunctions), measured along the source
-        normals, transferred, scaled by √(area₂/area₁) and added along the target normals.
-    k1, k2, order, tol, preset, correspondence, fmap_12, p2p_21, landmarks
-        As in :func:`transfer_function` (default preset "ours*", which the paper prefers for
-        detail).
-    k_low : int, optional
-        Low-pass size for "add" (default: ``k1``).
-    normals_1, normals_2 : (n, 3) array_like, optional
-        Unit normals (default: area-weighted vertex normals; required for point clouds).
-    bases : (OFPBasis, OFPBasis), optional
-        Precomputed bases, as in :func:`transfer_function`.
-
-    Returns
-    -------
-    (n2, 3) ndarray
-        New target vertex positions.
-    """
-    if mode not in ("add", "replace"):
-        raise ValueError(f"mode must be 'add' or 'replace'; got {mode!r}")
-    kw = dict(
-        k1=k1,
-        k2=k2,
-        order=order,
-        tol=tol,
-        preset=preset,
-        correspondence=correspondence,
-        fmap_12=fmap_12,
-        p2p_21=p2p_21,
-        landmarks=landmarks,
-        bases=bases,
-    )
-    if mode == "replace":
-        return transfer_function(eig_1.vertices, eig_1, eig_2, **kw)
-    n1 = _normals(eig_1, normals_1, "normals_1")
-    n2 = _normals(eig_2, normals_2, "normals_2")
-    heights = detail_heights(eig_1, n1, k_low=k1 if k_low is None else k_low)
-    moved = transfer_function(heights, eig_1, eig_2, **kw)
-    moved *= np.sqrt(eig_2.area / eig_1.area)
-    return eig_2.vertices + moved[:, None] * n2
-
-
-def _normals(eig: EigenBasis, normals: Any, name: str) -> np.ndarray:
-    if normals is not None:
-        arr = as_signal(normals, eig.n_vertices, name=name)
-        if arr.ndim != 2 or arr.shape[1] != 3:
-            raise ValueError(f"{name} must have shape (n, 3); got {arr.shape}")
-        norm = np.linalg.norm(arr, axis=1, keepdims=True)
-        return np.divide(arr, norm, out=np.zeros_like(arr), where=norm > 0)
-    if eig.faces is None:
-        raise ValueError(
-            f"{name} are needed for a point cloud (it has no faces to compute them from)"
-        )
-    normals = vertex_normals(eig.vertices, eig.faces)
-    if eig.cleaning is not None:
-        # Faces reference only the representative of each welded group: give every input
-        # vertex (duplicate or removed) the normal of the cleaned vertex standing for it.
-        c = eig.cleaning
-        normals = normals[c.representative[c.index]]
-    return normals
 
 
 def eigenbases_for_transfer(

@@ -1,0 +1,236 @@
+"""Matching dense meshes on coarse copies (``o3d_ofp.workflows.dense``, ``core.multiscale``).
+
+The dense path must give the quality of the direct match, not depend on the units, pose or
+vertex order, and never build anything quadratic in the vertex count.
+"""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from o3d_ofp.core.fmap import farthest_points, grid_samples
+from o3d_ofp.core.multiscale import coarse_mesh
+from o3d_ofp.core.shapes import blob
+from o3d_ofp.workflows.dense import match_dense
+from o3d_ofp.workflows.matching import match_arrays, match_eigenbases
+
+from .conftest import load_shared_mesh
+
+
+def _twisted(V: np.ndarray) -> np.ndarray:
+    """Twist about the x axis (angle proportional to x): a non-rigid copy.
+
+    0.3 rad per unit: the direct match finds it (error 0.035); a twist of 0.8 is too far from
+    an isometry for any spectral map (0.37, direct and dense alike).
+    """
+    a = 0.3 * V[:, 0]
+    c, s = np.cos(a), np.sin(a)
+    return np.stack([V[:, 0], c * V[:, 1] - s * V[:, 2], s * V[:, 1] + c * V[:, 2]], axis=1)
+
+
+def _rotation(seed: int) -> np.ndarray:
+    q, r = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _area(V: np.ndarray, F: np.ndarray) -> float:
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    return float(np.linalg.norm(np.cross(e1, e2), axis=1).sum() / 2.0)
+
+
+def _error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, truth: np.ndarray) -> float:
+    """Mean distance to the true source vertex / sqrt(source area) (the benchmarks' measure)."""
+    return float(np.linalg.norm(V1[p2p] - V1[truth], axis=1).mean() / math.sqrt(_area(V1, F1)))
+
+
+def _midpoint(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint subdivision (every triangle into four): the same numbering for the same F."""
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    edges, inverse = np.unique(E, axis=0, return_inverse=True)
+    mid = V.shape[0] + inverse.reshape(3, -1).T  # (m, 3): midpoints of edges 01, 12, 20
+    a, b, c = F.T
+    ab, bc, ca = mid.T
+    faces = np.concatenate(
+        [np.stack(t, axis=1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))]
+    )
+    return np.concatenate([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])]), faces
+
+
+@pytest.fixture(scope="module")
+def blob5():
+    return blob(5)  # 10242 vertices
+
+
+# --- coarse meshes -------------------------------------------------------------------------
+
+
+def test_coarse_mesh_is_a_closed_surface(blob5):
+    V, F = blob5
+    Vc, Fc, samples, cell = coarse_mesh(V, F, 1000)
+    s = Vc.shape[0]
+    assert abs(s - 1000) <= 100  # documented: count ± 10 %
+    np.testing.assert_array_equal(Vc, V[samples])
+    np.testing.assert_array_equal(cell[samples], np.arange(s))  # each sample heads its cell
+    assert cell.min() == 0 and cell.max() == s - 1
+    assert np.unique(Fc).size == s  # every coarse vertex is used
+    E = np.sort(np.concatenate([Fc[:, [0, 1]], Fc[:, [1, 2]], Fc[:, [2, 0]]]), axis=1)
+    _, count = np.unique(E, axis=0, return_counts=True)
+    # The dual of the Voronoi cells of a closed surface: (nearly) every edge between two
+    # triangles, Euler characteristic 2 (a few non-manifold spots where 4 cells meet).
+    assert np.mean(count == 2) >= 0.99
+    assert abs(s - count.size + Fc.shape[0] - 2) <= 6
+    # Orientation kept: coarse normals point outwards like the blob's (star-shaped about 0).
+    n = np.cross(Vc[Fc[:, 1]] - Vc[Fc[:, 0]], Vc[Fc[:, 2]] - Vc[Fc[:, 0]])
+    assert np.mean(np.einsum("ij,ij->i", n, Vc[Fc].mean(axis=1)) > 0) >= 0.99
+
+
+def test_coarse_mesh_independent_of_units_pose_and_order(blob5):
+    V, F = blob5
+    _, _, ref, _ = coarse_mesh(V, F, 1000)
+    ref = set(ref.tolist())
+    perm = np.random.default_rng(0).permutation(V.shape[0])
+    inv = np.argsort(perm)
+    moved = [
+        (V * 1e-3, F, np.arange(V.shape[0])),
+        (V * 1e3 @ _rotation(1).T + [5.0, -3.0, 40.0], F, np.arange(V.shape[0])),
+        (V[perm], inv[F], perm),  # vertex i of the permuted shape is vertex perm[i]
+    ]
+    for Vm, Fm, back in moved:
+        samples = set(back[coarse_mesh(Vm, Fm, 1000)[2]].tolist())
+        # The same samples, to round-off (a vertex exactly between two cubes may differ).
+        assert len(samples & ref) >= 0.99 * len(ref)
+
+
+def test_coarse_mesh_rejects_bad_input(blob5):
+    V, F = blob5
+    with pytest.raises(ValueError, match="count"):
+        coarse_mesh(V, F, 2)
+    with pytest.raises(ValueError, match="faces"):
+        coarse_mesh(V, F[:, :2], 100)
+    with pytest.raises(ValueError, match="faces"):
+        coarse_mesh(V, F + V.shape[0], 100)
+
+
+def test_pooled_farthest_points_spread_like_exact():
+    V, _ = _midpoint(*blob(5))  # 40962 vertices > FPS_POOL · 500 = 16000: the pooled sampling
+    count = 500
+    pooled = farthest_points(V, count)
+    assert pooled.shape == (count,) and np.unique(pooled).size == count
+
+    def covering(samples: np.ndarray) -> float:
+        return float(cKDTree(V[samples]).query(V)[0].max())
+
+    # exact FPS, from the same start rule (the pooled path is taken only without ``start``)
+    X = V - V.mean(axis=0)
+    exact = farthest_points(V, count, start=int(np.argmax(np.einsum("ij,ij->i", X, X))))
+    # FPS is a 2-approximation of the best covering radius; the pooled sampling must stay
+    # close to the exact one (measured: 1.05x).
+    assert covering(pooled) <= 1.3 * covering(exact)
+    perm = np.random.default_rng(1).permutation(V.shape[0])
+    assert set(perm[farthest_points(V[perm], count)].tolist()) == set(pooled.tolist())
+    g = grid_samples(V, 4000)
+    assert abs(g.size - 4000) <= 400 and np.unique(g).size == g.size
+
+
+# --- the dense match -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def twisted_pair(blob5):
+    V, F = blob5
+    return V, F, _twisted(V) * 1.7, F  # the truth: the identity
+
+
+@pytest.fixture(scope="module")
+def direct_and_dense(twisted_pair):
+    V1, F1, V2, F2 = twisted_pair
+    direct = match_arrays(V1, F1, V2, F2, dense_above=10**9)
+    dense = match_arrays(V1, F1, V2, F2, dense_above=0, coarse_vertices=3000)
+    return direct, dense
+
+
+def test_dense_path_as_good_as_direct(twisted_pair, direct_and_dense):
+    V1, F1, V2, _ = twisted_pair
+    direct, dense = direct_and_dense
+    assert direct.options.get("dense") is None and dense.options["dense"] is True
+    truth = np.arange(V2.shape[0])
+    e_direct = _error(direct.p2p_21, V1, F1, truth)
+    e_dense = _error(dense.p2p_21, V1, F1, truth)
+    # Measured: direct 0.035, dense (3000 coarse vertices) 0.031. The dense path
+    # interpolates eigenfunctions of a coarser mesh: allowed 1.25x the direct error plus a
+    # quarter of the coarse spacing (sqrt(area / 3000) / sqrt(area) / 4 = 0.0046).
+    assert e_dense <= 1.25 * e_direct + 0.25 / math.sqrt(3000)
+    assert dense.fmap_12 is None and dense.quality is not None and not dense.quality.suspect
+    assert dense.quality.coverage == np.unique(dense.p2p_21).size / V1.shape[0]
+
+
+def test_dense_path_invariant_to_units_pose_and_order(twisted_pair, direct_and_dense):
+    V1, F1, V2, F2 = twisted_pair
+    _, ref = direct_and_dense
+    perm = np.random.default_rng(2).permutation(V2.shape[0])
+    inv = np.argsort(perm)
+    # All at once (any one breaking fails the test): the source in other units, the target
+    # shrunk, rotated, moved and with its vertices in another order.
+    V2m = (1e-3 * V2 @ _rotation(3).T + [0.2, 0.0, -1.0])[perm]
+    moved = match_arrays(1e3 * V1, F1, V2m, inv[F2], dense_above=0, coarse_vertices=3000)
+    p2p = moved.p2p_21[inv]
+    # The same coarse meshes (to round-off), hence the same map but for round-off, which the
+    # fit's optimizer and ZoomOut amplify into moves to neighbouring vertices (permuting the
+    # vertices reorders every sum). Measured (each change alone): 95.6 % (pose, units) and
+    # 86.2 % (order) of the vertices identical, mean move 0.05 / 0.15 edge lengths, error
+    # 1.002x / 1.007x the reference.
+    spacing = math.sqrt(_area(V1, F1) / V1.shape[0])
+    truth = np.arange(V2.shape[0])
+    assert np.mean(p2p == ref.p2p_21) >= 0.8
+    assert np.linalg.norm(V1[p2p] - V1[ref.p2p_21], axis=1).mean() <= 0.3 * spacing
+    assert _error(p2p, V1, F1, truth) <= 1.05 * _error(ref.p2p_21, V1, F1, truth)
+
+
+def test_dense_path_has_no_quadratic_memory():
+    # 40962 vertices per shape: an (n1 x n2) float32 array alone is 6.7 GB; the dense path
+    # must stay far below (its largest arrays are (n, 100) embeddings, 33 MB each).
+    V, F = _midpoint(*blob(5))
+    V2 = _twisted(V) * 1.7
+    tracemalloc.start()
+    try:
+        corr = match_arrays(V, F, V2, F, dense_above=20_000, coarse_vertices=2500)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert corr.options["dense"] is True  # the size alone chose the dense path
+    assert peak < 0.6e9, peak / 1e9
+    # and it is a right map (measured 0.03; a failed one: 0.37)
+    assert _error(corr.p2p_21, V, F, np.arange(V.shape[0])) < 0.06
+
+
+def test_dense_path_rejects_bad_input(twisted_pair):
+    V1, F1, V2, F2 = twisted_pair
+    with pytest.raises(ValueError, match="landmarks"):
+        match_arrays(V1, F1, V2, F2, dense_above=0, landmarks=[[0, V2.shape[0]]])
+    with pytest.raises(ValueError, match="landmarks"):
+        match_dense(V1, F1, V2, F2, estimate=match_eigenbases, k=99, landmarks=[[0, -1]])
+    with pytest.raises(ValueError, match="coarse_vertices"):
+        match_arrays(V1, F1, V2, F2, dense_above=0, coarse_vertices=10)
+    with pytest.raises(ValueError, match="faces"):
+        match_dense(V1, None, V2, F2, estimate=match_eigenbases, k=99)
+    with pytest.raises(TypeError, match="dense_above"):
+        match_arrays(V1, F1, V2, F2, dense_above=1.5)
+
+
+@pytest.mark.slow
+def test_dense_path_on_a_subdivided_human():
+    # FAUST 093 -> 087 midpoint-subdivided (27554 vertices, one triangulation: the truth is
+    # the identity). Measured: direct 0.0255, dense 0.0274 with 10000 coarse vertices.
+    V1, F1 = _midpoint(*load_shared_mesh("faust/tr_reg_093.ply"))
+    V2, F2 = _midpoint(*load_shared_mesh("faust/tr_reg_087.ply"))
+    truth = np.arange(V2.shape[0])
+    direct = match_arrays(V1, F1, V2, F2, dense_above=10**9)
+    dense = match_arrays(V1, F1, V2, F2, dense_above=0)
+    e_direct, e_dense = (_error(c.p2p_21, V1, F1, truth) for c in (direct, dense))
+    assert e_dense <= 1.25 * e_direct, (e_dense, e_direct)

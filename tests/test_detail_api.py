@@ -1,0 +1,299 @@
+"""``ofp.transfer_detail`` / ``ofp.filter_geometry`` and ``o3d-ofp detail`` / ``filter``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.polynomial import legendre
+
+import o3d_ofp as ofp
+from o3d_ofp.cli import main
+from o3d_ofp.core.filtering import smooth_coordinates, smooth_gains
+from o3d_ofp.core.geometry import vertex_normals
+from o3d_ofp.core.shapes import blob, icosphere
+
+o3d = pytest.importorskip("open3d", reason="Open3D-level functions and the command line")
+from o3d_ofp.boundary.convert import (  # noqa: E402
+    point_cloud_from_arrays,
+    triangle_mesh_from_arrays,
+)
+
+
+def _bumpy_sphere(level=3):
+    """Return a unit sphere and the same sphere with known bumps (degree-10 and -9 harmonics)."""
+    V, F = icosphere(level)
+    n = V / np.linalg.norm(V, axis=1, keepdims=True)
+    h = 0.03 * (legendre.legval(n[:, 2], [0] * 10 + [1]) + legendre.legval(n[:, 0], [0] * 9 + [1]))
+    return n, (1 + h)[:, None] * n, h, F
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    smooth, bumpy, h, F = _bumpy_sphere(4)  # 2562 vertices
+    return smooth, bumpy, h, F
+
+
+def test_bumps_onto_the_smooth_sphere_open3d_level(spheres):
+    smooth, bumpy, h, F = spheres
+    source, target = triangle_mesh_from_arrays(bumpy, F), triangle_mesh_from_arrays(smooth, F)
+    before = np.asarray(target.vertices).copy()
+    identity = np.arange(len(smooth))
+    # band 24: the whole degrees <= 4 of the sphere (its eigenvalues repeat 3, 5, 7, 9 times)
+    out = ofp.transfer_detail(source, target, p2p_21=identity, band=24)
+    np.testing.assert_array_equal(np.asarray(target.vertices), before)  # input untouched
+    X = np.asarray(out.vertices)
+    # measured 0.072 (doing nothing: 1.0): the known bumps come back
+    assert np.linalg.norm(X - bumpy, axis=1).mean() / np.abs(h).mean() < 0.1
+    # the default band (30) on the same pair: the same (measured 0.070)
+    X30 = np.asarray(ofp.transfer_detail(source, target, p2p_21=identity).vertices)
+    assert np.linalg.norm(X30 - bumpy, axis=1).mean() / np.abs(h).mean() < 0.1
+
+
+def test_detail_onto_itself_with_the_identity_returns_the_input(spheres):
+    _, bumpy, _, F = spheres
+    mesh = triangle_mesh_from_arrays(bumpy, F)
+    out = ofp.transfer_detail(mesh, mesh, mode="replace-detail", p2p_21=np.arange(len(bumpy)))
+    np.testing.assert_allclose(np.asarray(out.vertices), bumpy, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def blob_pair():
+    """Return a bumpy blob (source) and a smooth bent copy (target), same vertex order."""
+    V, F = blob(3)  # 642 vertices
+    n = vertex_normals(V, F)
+    source = V + 0.02 * (np.sin(12 * V[:, 0]) * np.cos(10 * V[:, 1]))[:, None] * n
+    target = V.copy()
+    target[:, 1] += 0.15 * target[:, 0] ** 2
+    return source, target, F
+
+
+def _detail(source, target, F, **kw):
+    kw.setdefault("p2p_21", np.arange(len(target)))
+    out = ofp.transfer_detail((source, F), (target, F), band=20, **kw)
+    return np.asarray(out.vertices)
+
+
+def test_scale_and_permutation_invariance_open3d_level(blob_pair):
+    source, target, F = blob_pair
+    ref = _detail(source, target, F)
+    assert np.abs(ref - target).max() > 1e-3  # the detail is there
+    got = _detail(1e3 * source, 1e-2 * target, F)
+    np.testing.assert_allclose(got / 1e-2, ref, atol=1e-7 * np.ptp(ref))
+    rng = np.random.default_rng(1)
+    perm = rng.permutation(len(target))  # new vertex i = old perm[i]
+    inv = np.argsort(perm)
+    got = ofp.transfer_detail(
+        (source, F), (target[perm], inv[F]), band=20, p2p_21=perm
+    )  # target vertex i (old perm[i]) comes from source vertex perm[i]
+    np.testing.assert_allclose(np.asarray(got.vertices), ref[perm], atol=1e-8 * np.ptp(ref))
+
+
+def test_coordinates_mode_and_its_deprecated_name(blob_pair):
+    source, target, F = blob_pair
+    kw = dict(p2p_21=np.arange(len(target)), k1=10, k2=10)
+    X = np.asarray(ofp.transfer_detail((source, F), (target, F), mode="coordinates", **kw).vertices)
+    # the paper's Fig. 13: the target takes the (approximated) source coordinates
+    assert np.abs(X - source).max() < 0.05 * np.ptp(source)
+    with pytest.warns(DeprecationWarning, match="'replace' is deprecated"):
+        old = ofp.transfer_detail((source, F), (target, F), mode="replace", **kw)
+    np.testing.assert_allclose(np.asarray(old.vertices), X)
+    with pytest.warns(DeprecationWarning, match="k_low is deprecated"):
+        a = ofp.transfer_detail((source, F), (target, F), k_low=20, p2p_21=kw["p2p_21"])
+    np.testing.assert_allclose(np.asarray(a.vertices), _detail(source, target, F))
+
+
+@pytest.fixture
+def no_eigensolve(monkeypatch):
+    """Make any eigensolve fail the test: the refusals must come before one."""
+    from o3d_ofp.core import spectrum
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("an eigensolve ran before the refusal")
+
+    monkeypatch.setattr(spectrum, "_solve", refuse)
+
+
+def test_transfer_detail_refuses_bad_options_before_any_eigensolve(blob_pair, no_eigensolve):
+    source, target, F = blob_pair
+    mesh_1, mesh_2 = triangle_mesh_from_arrays(source, F), triangle_mesh_from_arrays(target, F)
+    cases = [
+        ({"mode": "swap"}, ValueError, "mode must be one of 'add', 'replace-detail'"),
+        ({"band": 0}, ValueError, "band must be >= 1"),
+        ({"band": 2.5}, TypeError, "band must be an integer"),
+        ({"band": True}, TypeError, "band must be an integer"),
+        ({"amount": -0.5}, ValueError, "amount must be in [0, 10]"),
+        ({"amount": float("inf")}, ValueError, "amount must be in [0, 10]"),
+        ({"amount": "1"}, TypeError, "amount must be a number"),
+    ]
+    for kw, exc, message in cases:
+        with pytest.raises(exc, match=message.replace("[", r"\[").replace("]", r"\]")):
+            ofp.transfer_detail(mesh_1, mesh_2, **kw)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="k_low must be >= 1"):
+        ofp.transfer_detail(mesh_1, mesh_2, k_low=0)
+    np.testing.assert_array_equal(np.asarray(mesh_2.vertices), target)
+
+
+def test_transfer_detail_computes_too_small_eigenbases_again(blob_pair):
+    source, target, F = blob_pair
+    small = ofp.eigenbasis(source, F, k=12), ofp.eigenbasis(target, F, k=12)
+    identity = np.arange(len(target))
+    got = ofp.transfer_detail((source, F), (target, F), band=20, eigenbases=small, p2p_21=identity)
+    np.testing.assert_allclose(np.asarray(got.vertices), _detail(source, target, F), atol=1e-12)
+
+
+def test_detail_onto_a_point_cloud_gets_estimated_normals(blob_pair):
+    source, target, F = blob_pair
+    cloud = point_cloud_from_arrays(target)
+    assert not cloud.has_normals()
+    out = ofp.transfer_detail(
+        triangle_mesh_from_arrays(source, F), cloud, band=20, p2p_21=np.arange(len(target))
+    )
+    assert isinstance(out, o3d.geometry.PointCloud) and not cloud.has_normals()
+    X = np.asarray(out.points)
+    mesh_result = _detail(source, target, F)
+    # the cloud's Laplacian is not the mesh's, but on this smooth target the rotations and
+    # the scale barely depend on it: measured cosine 1 - 2e-8, norm ratio 0.996
+    d_cloud, d_mesh = X - target, mesh_result - target
+    cos = np.sum(d_cloud * d_mesh) / np.linalg.norm(d_cloud) / np.linalg.norm(d_mesh)
+    assert cos > 0.99 and 0.95 < np.linalg.norm(d_cloud) / np.linalg.norm(d_mesh) < 1.05
+
+
+# ---------------------------------------------------------------------------- filter_geometry
+
+
+def _volume(V, F):
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def test_filter_geometry_smooth_is_the_volume_keeping_lowpass(spheres):
+    smooth, _, _, F = spheres
+    rng = np.random.default_rng(0)
+    noisy = smooth * (1 + 0.01 * rng.standard_normal(len(smooth)))[:, None]
+    mesh = triangle_mesh_from_arrays(noisy, F)
+    # radius 0.03 √area = 0.11, above the edge length (0.08): the per-vertex noise goes
+    out = np.asarray(ofp.filter_geometry(mesh, smooth=0.03).vertices)
+    np.testing.assert_array_equal(np.asarray(mesh.vertices), noisy)  # input untouched
+    eig = ofp.eigenbasis(noisy, F, k=1)
+    np.testing.assert_allclose(out, smooth_coordinates(eig, noisy, smooth=0.03), atol=1e-12)
+    # denoised (measured: mean radius error 0.0080 -> 0.0013) and the volume kept exactly
+    r = np.linalg.norm(out, axis=1)
+    assert np.abs(r - 1).mean() < 0.25 * np.abs(np.linalg.norm(noisy, axis=1) - 1).mean()
+    assert _volume(out, F) == pytest.approx(_volume(noisy, F), rel=1e-9)
+    # the same meaning at every scale: the result of the scaled input is the scaled result
+    scaled = ofp.filter_geometry(triangle_mesh_from_arrays(7 * noisy, F), smooth=0.03)
+    np.testing.assert_allclose(np.asarray(scaled.vertices), 7 * out, atol=1e-12)
+
+
+def test_filter_geometry_sharpen_gains_and_refusals(blob_pair, monkeypatch):
+    source, _, F = blob_pair
+    mesh = triangle_mesh_from_arrays(source, F)
+    sharp = np.asarray(ofp.filter_geometry(mesh, sharpen=1.0, smooth=0.02).vertices)
+    low = np.asarray(ofp.filter_geometry(mesh, smooth=0.02, keep_volume=False).vertices)
+    # unsharp masking: the detail above the low-pass doubles (before the volume is restored)
+    raw = np.asarray(
+        ofp.filter_geometry(mesh, sharpen=1.0, smooth=0.02, keep_volume=False).vertices
+    )
+    np.testing.assert_allclose(raw - source, source - low, atol=1e-12)
+    assert _volume(sharp, F) == pytest.approx(_volume(source, F), rel=1e-9)
+    g = np.asarray(ofp.filter_geometry(mesh, gains=smooth_gains(5.0), k=10).vertices)
+    assert g.shape == source.shape and not np.allclose(g, source)  # gains= still works
+    from o3d_ofp.core import spectrum
+
+    monkeypatch.setattr(spectrum, "_solve", lambda *a, **k: pytest.fail("eigensolve ran"))
+    for kw, message in [
+        ({}, "give smooth"),
+        ({"smooth": 0.3}, "smooth must be in [0, 0.25]"),
+        ({"smooth": -0.01}, "smooth must be in [0, 0.25]"),
+        ({"sharpen": 2.5}, "sharpen must be in [0, 2]"),
+        ({"sharpen": float("nan")}, "sharpen must be in [0, 2]"),
+        ({"smooth": 0.01, "gains": [1.0]}, "give gains alone"),
+    ]:
+        with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+            ofp.filter_geometry(mesh, **kw)
+
+
+# ---------------------------------------------------------------------------- command line
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, blob_pair):
+    from o3d_ofp import write_geometry
+
+    source, target, F = blob_pair
+    d = tmp_path_factory.mktemp("detail_cli")
+    paths = {"src": str(d / "src.ply"), "tgt": str(d / "tgt.ply"), "cloud": str(d / "c.ply")}
+    write_geometry(paths["src"], triangle_mesh_from_arrays(source, F))
+    write_geometry(paths["tgt"], triangle_mesh_from_arrays(target, F))
+    write_geometry(paths["cloud"], point_cloud_from_arrays(target))
+    return paths
+
+
+def test_cli_detail_modes(files, tmp_path, capsys):
+    out = tmp_path / "d.ply"
+    argv = ["detail", files["src"], files["tgt"], "--map", "identity", "--band", "20"]
+    assert main([*argv, "-o", str(out)]) == 0
+    X = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    np.testing.assert_allclose(X, _detail(*_pair_arrays(files)), atol=1e-5)  # float32 file
+    assert "band 20" in capsys.readouterr().out
+    out_c = tmp_path / "c.ply"
+    coords = ["detail", files["src"], files["tgt"], "--map", "identity", "--k1", "10"]
+    assert main([*coords, "--k2", "10", "--mode", "coordinates", "-o", str(out_c)]) == 0
+    out_r = tmp_path / "r.ply"
+    assert main([*coords, "--k2", "10", "--mode", "replace", "-o", str(out_r)]) == 0
+    assert "deprecated" in capsys.readouterr().err
+    np.testing.assert_allclose(
+        np.asarray(o3d.io.read_triangle_mesh(str(out_r)).vertices),
+        np.asarray(o3d.io.read_triangle_mesh(str(out_c)).vertices),
+    )
+    out_p = tmp_path / "p.ply"
+    cloud = ["detail", files["src"], files["cloud"], "--map", "identity", "--band", "20"]
+    assert main([*cloud, "-o", str(out_p)]) == 0
+    assert len(o3d.io.read_point_cloud(str(out_p)).points) == len(_pair_arrays(files)[1])
+
+
+def _pair_arrays(files):
+    from o3d_ofp import read_geometry
+    from o3d_ofp.boundary.convert import geometry_to_arrays
+
+    V1, F = geometry_to_arrays(read_geometry(files["src"]))
+    V2, _ = geometry_to_arrays(read_geometry(files["tgt"]))
+    return V1, V2, F
+
+
+BAD = [
+    (["detail", "{src}", "{tgt}", "--band", "0"], "expected a positive integer"),
+    (["detail", "{src}", "{tgt}", "--band", "40", "--k1", "20"], "--band 40 needs at least 40"),
+    (["detail", "{src}", "{tgt}", "--k-low", "20", "--k2", "10"], "--k-low 20 needs at least"),
+    (["detail", "{src}", "{tgt}", "--k-low", "20", "--band", "25"], "--k-low 20 and --band 25"),
+    (["detail", "{src}", "{tgt}", "--amount", "11"], "argument --amount"),
+    (["detail", "{src}", "{tgt}", "--mode", "swap"], "argument --mode: invalid choice"),
+    (["detail", "{src}", "{tgt}", "--mode", "coordinates", "--band", "20"], "--band does not"),
+    (["detail", "{src}", "{tgt}", "--map", "identity", "--band", "700"], "--band 700: "),
+    (["filter", "{src}"], "give --smooth RADIUS and/or --sharpen GAIN"),
+    (["filter", "{src}", "--smooth", "5"], "argument --smooth: expected a number in [0, 0.25]"),
+    (["filter", "{src}", "--sharpen", "2.5"], "argument --sharpen: expected a number in [0, 2]"),
+    (["filter", "{src}", "--sharpen", "-1"], "argument --sharpen: expected a number in [0, 2]"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), BAD)
+def test_cli_refusals_exit_2_with_one_line(files, capsys, tmp_path, no_eigensolve, argv, message):
+    argv = [a.format(**files) for a in argv] + ["-o", str(tmp_path / "x.ply")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and message in err.strip().splitlines()[-1], err
+    assert not list(tmp_path.iterdir())  # no output, no temporary file
+
+
+def test_cli_filter_smooth_and_sharpen(files, tmp_path):
+    V, _, F = _pair_arrays(files)
+    out = tmp_path / "s.ply"
+    assert main(["filter", files["src"], "--smooth", "0.02", "-o", str(out)]) == 0
+    X = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    ref = smooth_coordinates(ofp.eigenbasis(V, F, k=1), V, smooth=0.02)
+    np.testing.assert_allclose(X, ref, atol=1e-5)  # float32 file
+    out = tmp_path / "h.ply"
+    assert main(["filter", files["src"], "--sharpen", "1", "--smooth", "0.02", "-o", str(out)]) == 0
+    Y = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    assert np.linalg.norm(Y - ref, axis=1).mean() > 1.5 * np.linalg.norm(V - ref, axis=1).mean()
