@@ -144,6 +144,20 @@ def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
     assert err_surface < err_vertex_map
 
 
+def test_a_target_without_uvs_gets_an_atlas_and_the_baked_texture(spot, decimated):
+    source = spot[0]
+    plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
+    before = _snapshot(plain)
+    corr = _closest_map(source, plain)
+    baked = transfer_texture(source, plain, correspondence=corr, size=512, atlas=True)
+    _same(_snapshot(plain), before)  # the target is not modified
+    assert len(baked.vertices) == len(plain.vertices) and baked.has_triangle_uvs()
+    np.testing.assert_array_equal(np.asarray(baked.triangles), np.asarray(plain.triangles))
+    # A new layout that holds the texture as well as the target's own UVAtlas layout does:
+    # far better than the best per-vertex coloring (measured 0.044 per vertex).
+    assert texture_error(baked, source, samples=30000) <= 0.7 * _per_vertex_error(source, plain)
+
+
 def test_baked_texture_has_no_black_texels_inside_triangles_or_the_dilation_band(spot, decimated):
     source, image = spot[0], spot[1]
     bright = np.maximum(image, 12)  # no black anywhere in the source: black = a hole
@@ -233,8 +247,10 @@ def test_bad_arguments(spot, decimated):
     plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
     n2 = len(decimated.vertices)
     p2p = np.zeros(n2, dtype=np.int64)
-    with pytest.raises(ValueError, match="no per-corner texture coordinates"):
+    with pytest.raises(ValueError, match="no texture coordinates: pass atlas=True"):
         transfer_texture(source, plain, p2p_21=p2p)
+    with pytest.raises(TypeError, match="atlas"):
+        transfer_texture(source, decimated, p2p_21=p2p, atlas="yes")
     with pytest.raises(ValueError, match="either correspondence or p2p_21"):
         transfer_texture(source, decimated, p2p_21=p2p, correspondence=Correspondence(p2p, 3225))
     with pytest.raises(ValueError, match="belongs to other shapes"):
@@ -245,3 +261,18 @@ def test_bad_arguments(spot, decimated):
         transfer_texture(source, decimated, p2p_21=p2p, dilate=-1)
     with pytest.raises(ValueError, match="no texture image"):
         transfer_texture(decimated, decimated, p2p_21=np.arange(n2))
+
+
+def test_cli_uv_atlas_bakes_into_a_target_without_uvs(spot, decimated, tmp_path, capsys):
+    from o3d_ofp.cli.main import main
+
+    plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
+    o3d.io.write_triangle_mesh(str(tmp_path / "plain.ply"), plain)
+    argv = ["transfer", str(spot[2]), str(tmp_path / "plain.ply"), "--map", "closest",
+            "--texture-size", "256"]  # fmt: skip
+    assert main([*argv, "-o", str(tmp_path / "out.obj"), "--uv-atlas"]) == 0
+    out = o3d.io.read_triangle_mesh(str(tmp_path / "out.obj"))
+    assert out.has_triangle_uvs() and any(not t.is_empty() for t in out.textures)
+    assert main([*argv, "-o", str(tmp_path / "out.ply"), "--uv-atlas"]) == 2
+    assert "--uv-atlas bakes the source's texture into a new atlas" in capsys.readouterr().err
+    assert not (tmp_path / "out.ply").exists()

@@ -30,7 +30,14 @@ from ..workflows.matching import Correspondence, match_arrays
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .texture import MeshTexture, corner_uvs, legacy_texture_image, mesh_texture
 
-__all__ = ["source_colors_at", "texture_error", "texture_pullback", "transfer_texture"]
+__all__ = [
+    "has_uvs",
+    "source_colors_at",
+    "texture_error",
+    "texture_pullback",
+    "transfer_texture",
+    "with_uv_atlas",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -126,6 +133,60 @@ def _legacy_copy(target: Any) -> Any:
     if kind != "legacy_mesh":
         raise TypeError("target must be an Open3D TriangleMesh with texture coordinates")
     return o3d.geometry.TriangleMesh(target)
+
+
+def has_uvs(mesh: Any) -> bool:
+    """Tell whether an Open3D mesh has per-corner texture coordinates for every triangle.
+
+    Parameters
+    ----------
+    mesh : Open3D geometry
+        Any geometry (a point cloud has none).
+
+    Returns
+    -------
+    bool
+    """
+    kind = geometry_kind(mesh)
+    if kind == "legacy_mesh":
+        return bool(mesh.has_triangle_uvs())
+    if kind == "tensor_mesh":
+        return "texture_uvs" in mesh.triangle or "texture_uvs" in mesh.vertex
+    return False
+
+
+def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
+    """Return a legacy copy of a mesh with a new UV atlas (Open3D's ``compute_uvatlas``).
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The mesh (not modified).
+    size : int, default 1024
+        Texture size the atlas is laid out for (the gutter between charts is in texels).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        The mesh with its vertices, triangles and other attributes, and ``triangle_uvs``.
+
+    Raises
+    ------
+    ValueError
+        If Open3D changed the vertices or gave no UVs.
+    """
+    o3d = require_open3d()
+    kind = geometry_kind(mesh)
+    if kind not in ("legacy_mesh", "tensor_mesh"):
+        raise TypeError("a UV atlas needs a triangle mesh")
+    t = mesh.clone() if kind == "tensor_mesh" else o3d.t.geometry.TriangleMesh.from_legacy(mesh)
+    n = t.vertex.positions.shape[0]
+    logger.info("texture transfer: computing a UV atlas for the target (%d vertices)", n)
+    t.compute_uvatlas(size=int(size))
+    out = t.to_legacy()
+    if len(out.vertices) != n or not out.has_triangle_uvs():
+        raise ValueError("Open3D's compute_uvatlas changed the mesh's vertices or gave no UVs")
+    return out
 
 
 def _estimate(V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray) -> Correspondence:
@@ -291,6 +352,7 @@ def transfer_texture(
     size: int = 1024,
     texture: Any = None,
     dilate: int = 8,
+    atlas: bool = False,
 ) -> Any:
     """Bake the source's texture into a new image in the target's own UV layout.
 
@@ -324,6 +386,10 @@ def transfer_texture(
         The source's texture, rows top-down as in a file; default the source's own images.
     dilate : int, default 8
         Texels the baked region is grown by; texels beyond get the mean baked color.
+    atlas : bool, default False
+        For a target without UVs: give it a new UV atlas first (Open3D's
+        ``compute_uvatlas``, ``size`` texels wide; its vertices are kept) and bake into it.
+        Without it such a target is an error (per-vertex colors: :func:`transfer_colors`).
 
     Returns
     -------
@@ -337,8 +403,11 @@ def transfer_texture(
     Raises
     ------
     ValueError
-        If the target has no UVs, the source no texture, or the map does not fit the shapes.
+        If the target has no UVs (and not ``atlas``), the source no texture, or the map does
+        not fit the shapes.
     """
+    if not isinstance(atlas, bool):
+        raise TypeError(f"atlas must be True or False; got {atlas!r}")
     if int(size) != size or not 1 <= int(size) <= 8192:
         raise ValueError(f"size must be an integer in [1, 8192]; got {size!r}")
     if int(dilate) != dilate or dilate < 0:
@@ -350,6 +419,13 @@ def transfer_texture(
         src = source
     else:
         src = mesh_texture(source, texture)
+    if not has_uvs(target):
+        if not atlas:
+            raise ValueError(
+                "the target has no texture coordinates: pass atlas=True (CLI: --uv-atlas) to "
+                "bake into a new UV atlas, or transfer per-vertex colors (transfer_colors)"
+            )
+        target = with_uv_atlas(target, size=size)
     target_uv = corner_uvs(target)
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None

@@ -32,6 +32,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
     p.add_argument(
+        "--uv-atlas",
+        action="store_true",
+        help="a textured source onto a mesh target WITHOUT UVs: give the target a new UV "
+        "atlas (Open3D's compute_uvatlas) and bake the texture into it (output .obj/.glb/.gltf)",
+    )
+    p.add_argument(
         "--texture-size",
         type=positive_int,
         default=1024,
@@ -55,12 +61,23 @@ def run(args: argparse.Namespace) -> int:
         return _run_many(args)
     check_single(args)
     args.target = args.target[0]
+    if args.uv_atlas and (
+        args.signal is not None or not args.output.lower().endswith((".obj", ".glb", ".gltf"))
+    ):
+        raise UsageError(
+            "--uv-atlas bakes the source's texture into a new atlas: it needs an "
+            ".obj/.glb/.gltf output (-o) and no --signal"
+        )
     inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
               args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
     check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs)
     pair = read_pair(args)
-    if args.signal is None and _bakeable(pair, args.output):
+    if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
         return _bake(args, pair)
+    if args.uv_atlas:
+        raise UsageError(
+            "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
+        )
     f, kind = read_signal(pair.source, pair.V1, args.source, args.signal or "colors", args.texture)
     given = pair.correspondence
     if given is not None and given.barycentric_21 is not None:  # a surface map: exact pull-back
@@ -112,19 +129,19 @@ def _run_many(args: argparse.Namespace) -> int:
         args,
         kind=kind,
         options={"k1": args.k1, "k2": args.k2, "signal": signal,
-                 "texture_size": args.texture_size},
+                 "texture_size": args.texture_size, "atlas": args.uv_atlas},
     )  # fmt: skip
 
 
-def _bakeable(pair, output: str) -> bool:
-    """Tell whether to bake: a textured source, a target with UVs, an output that keeps them."""
-    has_uvs = getattr(pair.target, "has_triangle_uvs", lambda: False)
-    source_uvs = getattr(pair.source, "has_triangle_uvs", lambda: False)
+def _bakeable(pair, output: str, *, atlas: bool = False) -> bool:
+    """Tell whether to bake: textured source, target with UVs (or an atlas), OBJ/glTF out."""
+    from ..boundary.bake import has_uvs
+
     return bool(
         pair.F1 is not None
         and pair.F2 is not None
-        and source_uvs()
-        and has_uvs()
+        and has_uvs(pair.source)
+        and (atlas or has_uvs(pair.target))
         and output.lower().endswith((".obj", ".glb", ".gltf"))
     )
 
@@ -155,6 +172,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
                 correspondence=corr,
                 size=args.texture_size,
                 texture=args.texture,
+                atlas=args.uv_atlas,
             )
         except (FileNotFoundError, TypeError) as exc:
             raise UsageError(str(exc)) from exc

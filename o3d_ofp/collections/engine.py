@@ -104,6 +104,7 @@ _TRANSFER_OPTIONS = {
     "strict": False,
     "signal": "auto",
     "texture_size": 1024,
+    "atlas": False,
 }
 #: What each kind of transfer is.
 KINDS = ("colors", "texture", "detail")
@@ -443,6 +444,8 @@ def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> Transfe
         value = o[name]
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    if not isinstance(o["atlas"], bool):
+        raise ValueError(f"atlas must be True or False; got {o['atlas']!r}")
     if o["texture_size"] > 8192:
         raise ValueError(f"texture_size must be at most 8192; got {o['texture_size']}")
     if o["preset"] is None and o["tol"] is None:
@@ -557,7 +560,9 @@ def transfer_many(
         :func:`o3d_ofp.transfer_detail`), ``band`` (30, detail), ``amount`` (1.0, detail),
         ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
-        vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture").
+        vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture"), ``atlas``
+        (False; kind "texture": a mesh target without UVs gets a new UV atlas and the baked
+        texture instead of vertex colors).
 
     Returns
     -------

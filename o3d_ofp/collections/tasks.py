@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from ..boundary.api import transfer_detail
-from ..boundary.bake import transfer_texture
-from ..boundary.convert import geometry_kind, geometry_to_arrays, like_target
+from ..boundary.bake import has_uvs, transfer_texture
+from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import MeshTexture
 from ..core.basis import OFPBasis, ofp_basis
@@ -66,6 +66,8 @@ class TransferJob:
         texture sampled at its vertices, or (auto) the first of these it has.
     texture_size : int
         Side of the baked image (kind "texture").
+    atlas : bool
+        Kind "texture": a mesh target without UVs gets a new UV atlas to bake into.
     components : str
         Connected-component policy of the eigenbases.
     strict : bool
@@ -88,6 +90,7 @@ class TransferJob:
     strict: bool = False
     signal: str = "auto"
     texture_size: int = 1024
+    atlas: bool = False
     cache_dir: str | None = None
 
     def eig_k(self, n_vertices: int, side: int) -> tuple[int, bool]:
@@ -264,16 +267,6 @@ def _correspondence(source: SharedSource, eig_2: EigenBasis) -> Correspondence:
     return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
 
 
-def _has_uvs(target: Any) -> bool:
-    """Whether a target read from a file is a mesh with per-corner texture coordinates."""
-    kind = geometry_kind(target) if not isinstance(target, tuple) else "arrays"
-    if kind == "legacy_mesh":
-        return bool(target.has_triangle_uvs())
-    if kind == "tensor_mesh":
-        return "texture_uvs" in target.triangle or "texture_uvs" in target.vertex
-    return False
-
-
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     """Transfer the source's colors or detail onto one target; never raises for the target.
 
@@ -304,11 +297,16 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         if suspect and job.strict:
             raise ValueError("suspect map (strict): " + "; ".join(corr.quality.reasons))
         bases = (source.basis, B2)
-        if job.kind == "texture" and _has_uvs(target):
+        if (
+            job.kind == "texture"
+            and not isinstance(target, tuple)
+            and (has_uvs(target) or (job.atlas and spec.arrays is None and F2 is not None))
+        ):
             assert source.texture is not None
             result = transfer_texture(
-                source.texture, target, correspondence=corr, size=job.texture_size
-            )
+                source.texture, target, correspondence=corr, size=job.texture_size,
+                atlas=job.atlas,
+            )  # fmt: skip
             values = None
         elif job.kind in ("colors", "texture"):
             g = transfer_function(
