@@ -13,14 +13,13 @@ from typing import Any
 import numpy as np
 
 from ._validation import check_int
-from .spectrum import EigenBasis
+from .spectrum import EigenBasis, check_eigenbasis
 
 __all__ = ["hks", "hks_times", "wks", "wks_energies"]
 
 
 def _nonconstant(eig: EigenBasis, k: int | None) -> tuple[np.ndarray, np.ndarray]:
-    if not isinstance(eig, EigenBasis):
-        raise TypeError(f"eig must be an EigenBasis; got {type(eig).__name__}")
+    check_eigenbasis(eig, "eig")
     k = eig.k if k is None else check_int(k, name="k", minimum=1, maximum=eig.k)
     return eig.evals[1 : k + 1], eig.evecs[:, 1 : k + 1]
 

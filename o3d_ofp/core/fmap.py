@@ -21,7 +21,7 @@ from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_fr
 from .descriptors import hks, wks
 from .geometry import face_areas_normals, hat_gradients
 from .products import eigenproduct_indices
-from .spectrum import EigenBasis
+from .spectrum import EigenBasis, check_eigenbasis
 
 __all__ = [
     "estimate_fmap",
@@ -272,9 +272,8 @@ def estimate_fmap(
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    for name, e in (("eig_1", eig_1), ("eig_2", eig_2)):
-        if not isinstance(e, EigenBasis):
-            raise TypeError(f"{name} must be an EigenBasis; got {type(e).__name__}")
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
     k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
     k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
     if descriptors not in ("wks", "hks"):

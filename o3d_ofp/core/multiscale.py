@@ -31,7 +31,7 @@ from ._threads import blas_threads
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p
 from .fmap import farthest_points, grid_samples
-from .spectrum import EigenBasis, eigenbasis
+from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
 __all__ = ["coarse_eigenbasis", "coarse_mesh", "extend_fmap", "extend_p2p", "local_p2p_from_fmap"]
 
@@ -64,10 +64,20 @@ def _morton_order(vertices: np.ndarray) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
-def _check_basis(eig: Any, name: str) -> EigenBasis:
-    if not isinstance(eig, EigenBasis):
-        raise TypeError(f"{name} must be an EigenBasis; got {type(eig).__name__}")
-    return eig
+def _checked_fmap(
+    fmap: Any, basis_1: EigenBasis, basis_2: EigenBasis, *, name: str, bases: str
+) -> np.ndarray:
+    """Check a functional map (rows: target basis, columns: source basis) against both bases."""
+    C = np.asarray(fmap, dtype=np.float64)
+    if C.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D matrix; got shape {C.shape}")
+    rows, cols = C.shape
+    if not (1 <= rows <= basis_2.k + 1 and 1 <= cols <= basis_1.k + 1):
+        raise ValueError(
+            f"{name} has shape {C.shape} but the {bases} allow at most "
+            f"({basis_2.k + 1}, {basis_1.k + 1}) (target rows, source columns)"
+        )
+    return check_fmap(C, rows, cols, name=name)
 
 
 def _default_samples(n1: int) -> int:
@@ -292,18 +302,9 @@ def local_p2p_from_fmap(
     (n2,) ndarray of int64
         ``p2p_21``: for every target vertex, a source vertex.
     """
-    eig_1 = _check_basis(eig_1, "eig_1")
-    eig_2 = _check_basis(eig_2, "eig_2")
-    C = np.asarray(fmap_12, dtype=np.float64)
-    if C.ndim != 2:
-        raise ValueError(f"fmap_12 must be a 2-D matrix; got shape {C.shape}")
-    rows, cols = C.shape
-    if not (1 <= rows <= eig_2.k + 1 and 1 <= cols <= eig_1.k + 1):
-        raise ValueError(
-            f"fmap_12 has shape {C.shape} but the eigenbases allow at most "
-            f"({eig_2.k + 1}, {eig_1.k + 1}) (target rows, source columns)"
-        )
-    C = check_fmap(C, rows, cols)
+    eig_1 = check_eigenbasis(eig_1, "eig_1")
+    eig_2 = check_eigenbasis(eig_2, "eig_2")
+    C = _checked_fmap(fmap_12, eig_1, eig_2, name="fmap_12", bases="eigenbases")
     n1 = eig_1.n_vertices
     if n_samples is None:
         n_samples = _default_samples(n1)
@@ -683,23 +684,15 @@ def extend_p2p(
     (n2,) ndarray of int64
         ``p2p_21`` between the full shapes.
     """
-    coarse_1 = _check_basis(coarse_1, "coarse_1")
-    coarse_2 = _check_basis(coarse_2, "coarse_2")
+    coarse_1 = check_eigenbasis(coarse_1, "coarse_1")
+    coarse_2 = check_eigenbasis(coarse_2, "coarse_2")
     V1 = np.ascontiguousarray(vertices_1, dtype=np.float64)
     V2 = np.ascontiguousarray(vertices_2, dtype=np.float64)
     for name, V in (("vertices_1", V1), ("vertices_2", V2)):
         if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] == 0:
             raise ValueError(f"{name} must have shape (n, 3) with n >= 1; got {V.shape}")
-    C = np.asarray(fmap_coarse, dtype=np.float64)
-    if C.ndim != 2:
-        raise ValueError(f"fmap_coarse must be a 2-D matrix; got shape {C.shape}")
+    C = _checked_fmap(fmap_coarse, coarse_1, coarse_2, name="fmap_coarse", bases="coarse bases")
     rows, cols = C.shape
-    if not (1 <= rows <= coarse_2.k + 1 and 1 <= cols <= coarse_1.k + 1):
-        raise ValueError(
-            f"fmap_coarse has shape {C.shape} but the coarse bases allow at most "
-            f"({coarse_2.k + 1}, {coarse_1.k + 1}) (target rows, source columns)"
-        )
-    C = check_fmap(C, rows, cols, name="fmap_coarse")
     neighbours = check_int(neighbours, name="neighbours", minimum=1)
     n1 = V1.shape[0]
     n_samples = _default_samples(n1) if n_samples is None else n_samples
@@ -756,8 +749,8 @@ def extend_fmap(
     p2p_21 : (n2,) ndarray of int64
         The full-resolution point map it was projected from.
     """
-    eig_1 = _check_basis(eig_1, "eig_1")
-    eig_2 = _check_basis(eig_2, "eig_2")
+    eig_1 = check_eigenbasis(eig_1, "eig_1")
+    eig_2 = check_eigenbasis(eig_2, "eig_2")
     p2p = extend_p2p(
         fmap_coarse, coarse_1, coarse_2, eig_1.vertices, eig_2.vertices, neighbours=neighbours
     )

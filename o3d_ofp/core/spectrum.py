@@ -43,6 +43,7 @@ __all__ = [
     "FACTORIZATIONS",
     "EigenBasis",
     "EigenSolverError",
+    "check_eigenbasis",
     "eigenbasis",
     "input_arrays",
     "input_digest",
@@ -227,6 +228,25 @@ class EigenBasis:
             cleaning=cleaning,
             digest=str(data["digest"]) if "digest" in data else "",
         )
+
+
+def check_eigenbasis(eig: Any, name: str = "eig") -> EigenBasis:
+    """Return ``eig`` if it is an :class:`EigenBasis`, else raise a ``TypeError`` naming ``name``.
+
+    Parameters
+    ----------
+    eig : object
+        What the caller was given.
+    name : str, default "eig"
+        The keyword it was given as (for the message).
+
+    Returns
+    -------
+    EigenBasis
+    """
+    if not isinstance(eig, EigenBasis):
+        raise TypeError(f"{name} must be an EigenBasis; got {type(eig).__name__}")
+    return eig
 
 
 def _dense_eigs(

@@ -61,7 +61,7 @@ from ..core._validation import check_int
 from ..core.basis import OFPBasis
 from ..core.correspondence import check_p2p
 from ..core.geometry import face_areas_normals, vertex_normals
-from ..core.spectrum import EigenBasis
+from ..core.spectrum import EigenBasis, check_eigenbasis
 from .matching import Correspondence
 from .pipeline import transfer_function
 
@@ -410,9 +410,8 @@ def transfer_detail_frames(
     mode, _, amount = check_detail_options(mode=mode, band=band, amount=amount)
     if carry not in _CARRIES:
         raise ValueError(f"carry must be 'p2p' or 'ofp'; got {carry!r}")
-    for name, e in (("eig_1", eig_1), ("eig_2", eig_2)):
-        if not isinstance(e, EigenBasis):
-            raise TypeError(f"{name} must be an EigenBasis; got {type(e).__name__}")
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
     if (p2p_21 is None) == (correspondence is None):
         raise ValueError("give exactly one of p2p_21 and correspondence")
     if correspondence is not None:

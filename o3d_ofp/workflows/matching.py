@@ -25,7 +25,7 @@ from ..core.fmap import estimate_fmap, farthest_points, unit_area, zoomout_refin
 from ..core.geometry import vertex_normals
 from ..core.multiscale import local_p2p_from_fmap
 from ..core.partial import boundary_length
-from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.spectrum import EigenBasis, check_eigenbasis, eigenbasis
 from .dense import COARSE_VERTICES, DENSE_VERTICES, match_dense
 
 __all__ = [
@@ -588,9 +588,8 @@ def match_eigenbases(
     .. [2] J. Ren et al., "Continuous and Orientation-preserving Correspondences via
        Functional Maps", ACM TOG 37(6), 2018.
     """
-    for name, e in (("eig_1", eig_1), ("eig_2", eig_2)):
-        if not isinstance(e, EigenBasis):
-            raise TypeError(f"{name} must be an EigenBasis; got {type(e).__name__}")
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
     _check_sizes(eig_1, eig_2, k_fit, zoomout_to)
     k_fit = min(k_fit, eig_1.k, eig_2.k)
     final = min(zoomout_to, eig_1.k, eig_2.k)

@@ -27,7 +27,7 @@ from ..core.partial import (
     rescaled,
     slant,
 )
-from ..core.spectrum import EigenBasis
+from ..core.spectrum import EigenBasis, check_eigenbasis
 from .matching import (
     DCOMM_WEIGHTS,
     ESTIMATION_K,
@@ -154,12 +154,6 @@ def check_partial_options(
         raise ValueError(f"w_orient must be a finite number >= 0; got {w_orient!r}")
 
 
-def _check_basis(eig: Any, name: str) -> EigenBasis:
-    if not isinstance(eig, EigenBasis):
-        raise TypeError(f"{name} must be an EigenBasis; got {type(eig).__name__}")
-    return eig
-
-
 def match_partial_eigenbases(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
@@ -221,7 +215,7 @@ def match_partial_eigenbases(
     .. [2] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    eig_1, eig_2 = _check_basis(eig_1, "eig_1"), _check_basis(eig_2, "eig_2")
+    eig_1, eig_2 = check_eigenbasis(eig_1, "eig_1"), check_eigenbasis(eig_2, "eig_2")
     check_partial_options(
         k_fit=k_fit,
         zoomout_to=zoomout_to,
