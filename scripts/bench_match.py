@@ -7,19 +7,20 @@
 triangulation), midpoint-subdivided ``level`` times (27.5k, 110k, 440k vertices): the truth
 stays the identity at every vertex. Meshes above 50k vertices take the dense path (coarse
 meshes, see o3d_ofp.workflows.dense); ``--direct`` forces the direct one for comparison.
-For each size: ``ofp.match`` end to end (both eigenbases included) followed by the transfer of
-the vertex colors (OFP bases k1 = 29, k2 = 39, order 2), and pyFM 1.3.1's documented
+For each size: what ``ofp.transfer_colors`` runs (the map with its eigenbases, then the
+transfer of the vertex colors through OFP bases k1 = 29, k2 = 39, order 2; with
+``--match-only``, ``ofp.match`` alone), and pyFM 1.3.1's documented
 pipeline (``pip install pyfmaps``; WKS, fit K = 30 with the orientation term, ZoomOut 30 ->
 100 on 2000 samples, whose returned map is passed to ``get_p2p(FM=...)``) for the levels in
 ``--pyfm-levels`` (default 0 1: pyFM takes minutes above). ``--pairs``: every ground-truth
 pair of ../shared/data, ours and pyFM.
 
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
-Columns: map error, seconds of the match alone and end to end (match + color transfer), peak
-memory (the process's resident set, sampled every 5 ms during the call, psutil), the
-1-minute load average when the row ended, and the speed-up over pyFM. A warning is printed
-when the load exceeded half the cores: ratios are evidence only on a quiet machine (pyFM
-slows down under load far more than ours, which inflates them).
+Columns: map error, seconds until the map exists (its eigenbases included) and end to end
+(match + color transfer), peak memory (the process's resident set, sampled every 5 ms during
+the call, psutil), the 1-minute load average when the row ended, and the speed-up over pyFM.
+A warning is printed when the load exceeded half the cores: ratios are evidence only on a
+quiet machine (pyFM slows down under load far more than ours, which inflates them).
 """
 
 from __future__ import annotations
@@ -84,19 +85,31 @@ def colors_of(V: np.ndarray) -> np.ndarray:
 def ours(
     V1, F1, V2, F2, *, dense_above=None, transfer=True
 ) -> tuple[np.ndarray, float, float, float]:
-    """p2p_21, seconds of the match, seconds and peak bytes of match + color transfer."""
-    from o3d_ofp.workflows.matching import match_arrays
+    """p2p_21, seconds of the match, seconds and peak bytes of match + color transfer.
 
-    with Peak() as m:
-        t0 = time.perf_counter()
-        if dense_above is None:
-            corr = ofp.match((V1, F1), (V2, F2))
-        else:
-            corr = match_arrays(V1, F1, V2, F2, dense_above=dense_above)
-        t_match = time.perf_counter() - t0
-        if transfer:
-            e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=39)
-            ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
+    With the transfer: what ``ofp.transfer_colors(source, target)`` runs on arrays (the
+    eigenbases the transfer and the estimation share, the map, the OFP bases, the transfer);
+    "match" is then the time until the map exists (its eigenbases included). Without it:
+    ``ofp.match`` alone.
+    """
+    from o3d_ofp.workflows import matching
+    from o3d_ofp.workflows.pipeline import estimate_for_transfer
+
+    saved = matching.DENSE_VERTICES
+    if dense_above is not None:
+        matching.DENSE_VERTICES = dense_above
+    try:
+        with Peak() as m:
+            t0 = time.perf_counter()
+            if transfer:
+                e1, e2, corr = estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
+                t_match = time.perf_counter() - t0
+                ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
+            else:
+                corr = ofp.match((V1, F1), (V2, F2))
+                t_match = time.perf_counter() - t0
+    finally:
+        matching.DENSE_VERTICES = saved
     return corr.p2p_21, t_match, m.seconds, m.peak
 
 

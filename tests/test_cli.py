@@ -131,6 +131,39 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     assert "wrote" in capsys.readouterr().out
 
 
+def test_transfer_and_detail_of_a_dense_pair_match_on_coarse_copies(
+    files, monkeypatch, capsys, tmp_path
+):
+    from o3d_ofp.workflows import matching
+
+    # The 642-vertex blob made "dense" (above 500 vertices, coarse copies of 400): the
+    # commands must estimate on the coarse copies, never with ~100 full-size eigenfunctions.
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
+    asked: list[int] = []
+    real = matching.match_eigenbases
+
+    def spy(eig_1, eig_2, **options):
+        asked.append(eig_1.n_vertices)
+        return real(eig_1, eig_2, **options)
+
+    monkeypatch.setattr(matching, "match_eigenbases", spy)
+    out, saved = tmp_path / "t.ply", tmp_path / "map.npz"
+    args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]
+    assert main([*args, "-o", str(out), "--save-map", str(saved)]) == 0
+    assert "dense path" in capsys.readouterr().err
+    assert asked and max(asked) < len(files["V"])  # estimated between the coarse copies only
+    # the map is the library's dense-path map (its accuracy is tested in test_dense.py)
+    dense = matching.match_arrays(files["V"], files["F"], files["bent"], files["F"])
+    assert dense.options["dense"] is True
+    np.testing.assert_array_equal(np.load(saved)["p2p_21"], dense.p2p_21)
+    assert o3d.io.read_triangle_mesh(str(out)).has_vertex_colors()
+    asked.clear()
+    out_d = tmp_path / "d.ply"
+    assert main(["detail", files["src"], files["tgt"], "--band", "10", "-o", str(out_d)]) == 0
+    assert asked and max(asked) < len(files["V"])
+
+
 def test_detail_and_filter(files, tmp_path):
     out = tmp_path / "d.ply"
     assert main(["detail", files["src"], files["tgt"], "--map", "identity", "--k1", "10",

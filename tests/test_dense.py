@@ -234,3 +234,59 @@ def test_dense_path_on_a_subdivided_human():
     dense = match_arrays(V1, F1, V2, F2, dense_above=0)
     e_direct, e_dense = (_error(c.p2p_21, V1, F1, truth) for c in (direct, dense))
     assert e_dense <= 1.25 * e_direct, (e_dense, e_direct)
+
+
+# --- transfers route large pairs through the dense path ------------------------------------
+
+
+@pytest.fixture
+def small_threshold(monkeypatch):
+    """Make 10k-vertex shapes 'dense' (threshold 5000, coarse meshes of 3000 vertices)."""
+    from o3d_ofp.workflows import matching
+
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 5000)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 3000)
+
+
+def _spy_eigenbasis(monkeypatch, module) -> list[int]:
+    sizes: list[int] = []
+    real = module.eigenbasis
+
+    def spy(V, F, *, k, **options):
+        sizes.append(k)
+        return real(V, F, k=k, **options)
+
+    monkeypatch.setattr(module, "eigenbasis", spy)
+    return sizes
+
+
+def test_transfer_of_a_dense_pair_computes_no_full_size_estimation_basis(
+    monkeypatch, small_threshold, twisted_pair
+):
+    from o3d_ofp.workflows import pipeline
+
+    V1, F1, V2, F2 = twisted_pair
+    sizes = _spy_eigenbasis(monkeypatch, pipeline)
+    e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
+    assert corr.options["dense"] is True
+    assert sizes == [29, 39]  # at full resolution only what the OFP bases need
+    assert (e1.k, e2.k) == (29, 39)
+    # the coarse map is right (measured 0.03 at 3000 coarse vertices; a failed map: > 0.3)
+    assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06
+    # the transfer itself goes through it: colors come back close to the source's
+    from o3d_ofp.workflows.pipeline import transfer_function
+
+    f = np.sin(3 * V1[:, 0] / np.ptp(V1))
+    g = transfer_function(f, e1, e2, correspondence=corr)
+    assert np.abs(g - f).mean() < 0.1 * np.abs(f - f.mean()).mean()
+
+
+def test_transfer_below_the_threshold_shares_one_eigensolve(monkeypatch, twisted_pair):
+    from o3d_ofp.workflows import pipeline
+
+    V1, F1, V2, F2 = twisted_pair
+    sizes = _spy_eigenbasis(monkeypatch, pipeline)
+    e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
+    assert corr.options.get("dense") is None
+    assert sizes == [99, 99]  # one basis per shape serves the estimation and the transfer
+    assert (e1.k, e2.k) == (99, 99)

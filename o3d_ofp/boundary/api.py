@@ -43,6 +43,7 @@ from ..workflows.matching import (
 )
 from ..workflows.pipeline import (
     eigenbases_for_transfer,
+    estimate_for_transfer,
     pull_back,
     transfer_function,
 )
@@ -366,6 +367,12 @@ def match(
     return match_eigenbases(eig_1, eig_2, **options)
 
 
+def _estimates(correspondence: Any, fmap_12: Any, p2p_21: Any, eigenbases: Any, bases: Any) -> bool:
+    """Whether a transfer estimates its map and computes its own eigenbases."""
+    given = (correspondence, fmap_12, p2p_21, eigenbases, bases)
+    return all(x is None for x in given)
+
+
 def transfer_colors(
     source: Any,
     target: Any,
@@ -445,9 +452,15 @@ def transfer_colors(
         correspondence.check(V1.shape[0], V2.shape[0])
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
         return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
-    eig_1, eig_2 = eigenbases_for_transfer(
-        V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
-    )
+    if _estimates(correspondence, fmap_12, p2p_21, eigenbases, bases):
+        eig_1, eig_2, correspondence = estimate_for_transfer(
+            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks
+        )
+        landmarks = None  # used by the estimation
+    else:
+        eig_1, eig_2 = eigenbases_for_transfer(
+            V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+        )
     g = transfer_function(
         f,
         eig_1,
@@ -550,9 +563,15 @@ def transfer_detail(
     if mode == "coordinates":
         for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
             check_int(value, name=name, minimum=1)
-        eig_1, eig_2 = eigenbases_for_transfer(
-            V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
-        )
+        if _estimates(correspondence, fmap_12, p2p_21, eigenbases, bases):
+            eig_1, eig_2, correspondence = estimate_for_transfer(
+                V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks
+            )
+            landmarks = None  # used by the estimation
+        else:
+            eig_1, eig_2 = eigenbases_for_transfer(
+                V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+            )
         moved = transfer_function(
             eig_1.vertices,
             eig_1,
@@ -588,9 +607,14 @@ def transfer_detail(
         eigenbases = (larger[0], larger[1])
     normals_1 = point_normals(source, V1) if F1 is None and is_open3d_geometry(source) else None
     normals_2 = point_normals(target, V2) if F2 is None and is_open3d_geometry(target) else None
-    eig_1, eig_2 = eigenbases_for_transfer(
-        V1, F1, V2, F2, need, need, fmap_12, p2p_21, eigenbases, None, correspondence
-    )
+    if _estimates(correspondence, fmap_12, p2p_21, eigenbases, None):
+        eig_1, eig_2, correspondence = estimate_for_transfer(
+            V1, F1, V2, F2, k1=need, k2=need, landmarks=landmarks
+        )
+    else:
+        eig_1, eig_2 = eigenbases_for_transfer(
+            V1, F1, V2, F2, need, need, fmap_12, p2p_21, eigenbases, None, correspondence
+        )
     if correspondence is None and p2p_21 is None:
         if fmap_12 is not None:
             p2p_21 = p2p_from_fmap(fmap_12, eig_1, eig_2)

@@ -12,7 +12,13 @@ import numpy as np
 from ._common import MESH_HELP, UsageError, add_basis_options, basis_for, eig_options, stage
 from ._types import positive_int
 
-__all__ = ["Pair", "add_pair_options", "estimate_or_use_map", "read_pair"]
+__all__ = [
+    "Pair",
+    "add_pair_options",
+    "estimate_dense_first",
+    "estimate_or_use_map",
+    "read_pair",
+]
 
 #: Exit code of a suspect map under --strict (nothing is written).
 SUSPECT_EXIT = 3
@@ -258,7 +264,8 @@ def read_pair(args: argparse.Namespace) -> Pair:
         raise UsageError("--landmarks only apply with --map estimate")
     if args.strict and corr is not None and args.map != "closest":
         raise UsageError("--strict applies to an estimated map (--map estimate or closest)")
-    if corr is None and args.map == "estimate":  # the eigenbases of the estimation must fit
+    if corr is None and args.map == "estimate" and not _dense(args, V1, F1, V2, F2):
+        # the eigenbases of the estimation must fit (the dense path computes none of them)
         from ..workflows.matching import ESTIMATION_K, required_k
         from ._common import check_job_memory
 
@@ -327,6 +334,54 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     return B1, B2, e1, e2
 
 
+def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool:
+    """Whether the estimated map of this pair takes the dense path (coarse meshes)."""
+    from ..workflows.matching import uses_dense_path
+
+    meshes = F1 is not None and F2 is not None
+    return not getattr(args, "partial", False) and uses_dense_path(V1.shape[0], V2.shape[0], meshes)
+
+
+def _report_quality(args: argparse.Namespace, corr: Any) -> None:
+    """Print the quality of an estimated map; ``--strict`` turns a suspect one into an error."""
+    from ._common import report
+
+    report([corr.quality.summary(), *corr.quality.notes])
+    if corr.quality.suspect and args.strict:
+        raise SuspectMap("; ".join(corr.quality.reasons))
+
+
+def estimate_dense_first(args: argparse.Namespace, pair: Pair) -> Pair:
+    """Two large meshes: estimate their map now, on coarse copies (no full-size eigenbasis).
+
+    Returns the pair with its map when it took the dense path, the pair unchanged otherwise
+    (the map is then estimated from the eigenbases the bases are built from).
+    """
+    if pair.correspondence is not None or args.map != "estimate":
+        return pair
+    if not _dense(args, pair.V1, pair.F1, pair.V2, pair.F2):
+        return pair
+    from ..workflows.matching import match_arrays
+    from ._progress import stage_progress
+
+    n = max(pair.V1.shape[0], pair.V2.shape[0])
+    with (
+        stage(f"map estimation on coarse copies ({n} vertices: dense path)"),
+        stage_progress("matching") as progress,
+    ):
+        corr = match_arrays(
+            pair.V1,
+            pair.F1,
+            pair.V2,
+            pair.F2,
+            landmarks=pair.landmarks,
+            progress=progress,
+            **eig_options(args),
+        )
+    _report_quality(args, corr)
+    return dataclasses.replace(pair, correspondence=corr)
+
+
 def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2: Any) -> Any:
     """Return the pair's map: the given one, or estimated (quality printed, --strict)."""
     from ..workflows.matching import match_eigenbases
@@ -343,10 +398,7 @@ def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2:
             if getattr(args, "partial", False):
                 from ..workflows.partial import match_partial_eigenbases as match
             corr = match(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
-        report([corr.quality.summary(), *corr.quality.notes])
-        if corr.quality.suspect:
-            if args.strict:
-                raise SuspectMap("; ".join(corr.quality.reasons))
+        _report_quality(args, corr)
     if args.save_map:
         corr.save(args.save_map)
         report([f"wrote the map to {args.save_map}"])

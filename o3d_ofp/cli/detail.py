@@ -29,7 +29,13 @@ from ._many import (
     refuse_flags,
     run_transfers,
 )
-from ._pair import add_pair_options, bases_for_pair, estimate_or_use_map, read_pair
+from ._pair import (
+    add_pair_options,
+    bases_for_pair,
+    estimate_dense_first,
+    estimate_or_use_map,
+    read_pair,
+)
 from ._types import bounded_float, positive_int
 
 __all__ = ["add_parser", "check_options", "detail_one", "run"]
@@ -154,7 +160,7 @@ def detail_one(args: argparse.Namespace, target_path: str, output_path: str) -> 
 
     check_output(output_path, (*MESH_OUT, *CLOUD_OUT), inputs=(args.source, target_path))
     one = argparse.Namespace(**{**vars(args), "target": target_path})
-    pair = read_pair(one)
+    pair = estimate_dense_first(one, read_pair(one))
     if args.mode == "coordinates":
         B1, B2, eig_1, eig_2 = bases_for_pair(one, pair)
         ofp_options = dict(k1=B1.k, k2=B2.k, order=args.order, bases=(B1, B2), **tol_options(args))

@@ -13,7 +13,13 @@ from ._many import (
     refuse_flags,
     run_transfers,
 )
-from ._pair import add_pair_options, bases_for_pair, estimate_or_use_map, read_pair
+from ._pair import (
+    add_pair_options,
+    bases_for_pair,
+    estimate_dense_first,
+    estimate_or_use_map,
+    read_pair,
+)
 from ._signal import read_signal, write_result
 from ._types import positive_int
 
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
         )
     f, kind = read_signal(pair.source, pair.V1, args.source, args.signal or "colors", args.texture)
+    pair = estimate_dense_first(args, pair)
     given = pair.correspondence
     if given is not None and given.barycentric_21 is not None:  # a surface map: exact pull-back
         from ..workflows.pipeline import pull_back
@@ -153,8 +160,8 @@ def _bake(args: argparse.Namespace, pair) -> int:
     from ..core.spectrum import eigenbasis
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eig_options
-    from ._pair import estimate_or_use_map
 
+    pair = estimate_dense_first(args, pair)
     eigs = (None, None)
     if pair.correspondence is None:
         with stage("eigenbases for map estimation"):

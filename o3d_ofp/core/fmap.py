@@ -153,6 +153,7 @@ class _Commutator:
         p, a, _ = O1.shape
         b = O2.shape[1]
         self.p, self.a, self.b = p, a, b
+        self.O1, self.O2 = O1, O2
         self.O1_h = np.ascontiguousarray(O1.transpose(1, 0, 2).reshape(a, p * a))  # [O1_1 ..]
         self.O1T_v = np.ascontiguousarray(O1.transpose(0, 2, 1).reshape(p * a, a))  # [O1_iᵀ;]
         self.O2_v = np.ascontiguousarray(O2.reshape(p * b, b))  # [O2_1; O2_2; ...]
@@ -165,6 +166,24 @@ class _Commutator:
         d_v = d.reshape(b, p, a).transpose(1, 0, 2).reshape(p * b, a)  # [d_1; d_2; ...]
         grad = d @ self.O1T_v - self.O2T_h @ d_v  # Σ d_i O1_iᵀ − Σ O2_iᵀ d_i
         return 0.5 * float(np.sum(d * d)), grad
+
+    def hessian(self) -> np.ndarray:
+        """(b·a, b·a) Hessian of the term in the row-major vectorization of C (b, a).
+
+        ``vec(C P) = (I ⊗ Pᵀ) vec C`` and ``vec(Q C) = (Q ⊗ I) vec C``, so the term is
+        ``½ Σᵢ ‖Kᵢ vec C‖²`` with ``Kᵢ = I ⊗ O1ᵢᵀ − O2ᵢ ⊗ I`` and
+        ``Σ KᵢᵀKᵢ = I ⊗ Σ O1ᵢO1ᵢᵀ + Σ O2ᵢᵀO2ᵢ ⊗ I − (M + Mᵀ)``, ``M = Σᵢ O2ᵢ ⊗ O1ᵢ``.
+        """
+        a, b = self.a, self.b
+        P = self.O1_h @ self.O1_h.T  # Σ O1ᵢ O1ᵢᵀ
+        Q = self.O2_v.T @ self.O2_v  # Σ O2ᵢᵀ O2ᵢ
+        H = np.kron(np.eye(b), P) + np.kron(Q, np.eye(a))
+        # M[(r, s), (t, u)] = Σᵢ O2ᵢ[r, t] O1ᵢ[s, u]: one GEMM over the stack axis
+        M = np.tensordot(self.O2, self.O1, axes=(0, 0)).transpose(0, 2, 1, 3)
+        M = M.reshape(b * a, b * a)
+        H -= M
+        H -= M.T
+        return H
 
 
 def _energy(
@@ -190,6 +209,44 @@ def _energy(
     return float(energy), grad
 
 
+def _minimize_quadratic(
+    C0: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    sqdiff: np.ndarray,
+    ops: _Commutator | None,
+    orient: _Commutator | None,
+    weights: tuple[float, float, float, float],
+) -> np.ndarray:
+    """Exact minimizer of the :func:`_energy` over C with its first column fixed to C0's.
+
+    The energy is ``½ cᵀ H c − gᵀ c + const`` in the row-major vectorization c of C (b, a),
+    with ``H = wd I ⊗ A Aᵀ + wl diag(sqdiff) + wc H_dcomm + wo H_orient`` and
+    ``g = wd vec(B Aᵀ)``; the free entries solve ``H_ff c_f = g_f − H_fx c_x``.
+    """
+    wd, wl, wc, wo = weights
+    b, a = C0.shape
+    H = wd * np.kron(np.eye(b), A @ A.T)
+    H[np.diag_indices_from(H)] += wl * sqdiff.ravel()
+    for w, term in ((wc, ops), (wo, orient)):
+        if w != 0 and term is not None:
+            H += w * term.hessian()
+    g = wd * (B @ A.T).ravel()
+    fixed = np.zeros((b, a), dtype=bool)
+    fixed[:, 0] = True
+    fixed = fixed.ravel()
+    free = ~fixed
+    rhs = g[free] - H[np.ix_(free, fixed)] @ C0.ravel()[fixed]
+    H_ff = H[np.ix_(free, free)]
+    try:
+        x = scipy.linalg.cho_solve(scipy.linalg.cho_factor(H_ff, check_finite=False), rhs)
+    except np.linalg.LinAlgError:  # only semi-definite (e.g. descriptors of rank < a)
+        x = scipy.linalg.lstsq(H_ff, rhs, check_finite=False)[0]
+    c = C0.ravel().copy()
+    c[free] = x
+    return c.reshape(b, a)
+
+
 @one_blas_thread
 def estimate_fmap(
     eig_1: EigenBasis,
@@ -208,7 +265,9 @@ def estimate_fmap(
     refine: str | None = "zoomout",
     zoomout_to: int | None = None,
     icp_iterations: int = 10,
+    solver: str = "direct",
     maxiter: int = 15000,
+    ftol: float = 2.2e-9,
 ) -> np.ndarray:
     """Estimate a functional map between two shapes without any correspondence.
 
@@ -220,7 +279,11 @@ def estimate_fmap(
     with A, B the descriptors' coefficients, Dᵢ the multiplication operators of the descriptors
     (Nogneng & Ovsjanikov 2017) and Gᵢ the orientation-preserving operators
     ``g ↦ <n × ∇dᵢ, ∇g>`` (Ren et al. 2018; without them maps between symmetric shapes can
-    flip left and right). L-BFGS-B with analytic gradients; then optional refinement.
+    flip left and right). Every term is quadratic in C: the minimizer solves one linear system
+    of (k2+1)·k1 unknowns, whose matrix is assembled from the operators' Kronecker structure
+    (``solver="direct"``, exact); ``solver="lbfgs"`` runs L-BFGS-B with analytic gradients
+    instead (pyFM's way: stops near the same minimizer, 20-60 times slower). Then optional
+    refinement.
 
     Parameters
     ----------
@@ -255,8 +318,13 @@ def estimate_fmap(
         back to (k2+1, k1+1).
     icp_iterations : int, default 10
         Iterations of ICP refinement.
+    solver : {"direct", "lbfgs"}, default "direct"
+        How the energy is minimized (see above).
     maxiter : int, default 15000
-        Bound on L-BFGS-B iterations.
+        Bound on L-BFGS-B iterations (``solver="lbfgs"``).
+    ftol : float, default 2.2e-9
+        L-BFGS-B's relative energy and gradient tolerances (``solver="lbfgs"``; SciPy's
+        default ftol).
 
     Returns
     -------
@@ -278,6 +346,8 @@ def estimate_fmap(
     k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
     if descriptors not in ("wks", "hks"):
         raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
+    if solver not in ("direct", "lbfgs"):
+        raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
     if refine not in ("zoomout", "icp", None):
         raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
     lm1 = lm2 = None
@@ -329,6 +399,14 @@ def estimate_fmap(
             weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
         C0 = np.zeros((k2 + 1, k1 + 1))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
+        if solver == "direct":
+            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
+            logger.info(
+                "estimate_fmap: direct solve (energy %.4g, w_dcomm %g)",
+                terms(fits[-1], weights)[0],
+                wc,
+            )
+            continue
 
         def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
             C = x.reshape(k2 + 1, k1 + 1)
@@ -337,7 +415,11 @@ def estimate_fmap(
             return e, g.ravel()
 
         res = scipy.optimize.minimize(
-            fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
+            fun,
+            C0.ravel(),
+            jac=True,
+            method="L-BFGS-B",
+            options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
         )
         logger.info(
             "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
@@ -496,6 +578,7 @@ def zoomout_refine(
     k_final: int,
     step: int = 1,
     subsample: int | None = None,
+    samples: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """ZoomOut (Melzi et al. 2019): grow the map one eigenfunction at a time through p2p maps.
 
@@ -514,6 +597,10 @@ def zoomout_refine(
         ZoomOut paper): each step then costs a small nearest-neighbour search and a small
         least-squares fit instead of full-resolution ones. ``None``: all vertices, with the
         mass-weighted projection.
+    samples : tuple of two (s,) int arrays, optional
+        The samples of each shape, when the caller already has them (``farthest_points`` of
+        both shapes with ``subsample`` samples, as computed here otherwise): callers that
+        refine several maps between the same shapes sample them once.
 
     Returns
     -------
@@ -526,12 +613,22 @@ def zoomout_refine(
     step = check_int(step, name="step", minimum=1)
     k = min(C.shape) - 1
     C = C[: k + 1, : k + 1]
-    if subsample is not None and subsample >= min(eig_1.n_vertices, eig_2.n_vertices):
+    if samples is not None:
+        s1, s2 = (np.asarray(s, dtype=np.int64) for s in samples)
+        for name, s_, eig in (("source", s1, eig_1), ("target", s2, eig_2)):
+            if s_.ndim != 1 or s_.size <= k_final or s_.min() < 0 or s_.max() >= eig.n_vertices:
+                raise ValueError(
+                    f"samples: the {name} samples must be more than k_final = {k_final} vertex "
+                    f"indices in [0, {eig.n_vertices})"
+                )
+        subsample = s1.size
+    elif subsample is not None and subsample >= min(eig_1.n_vertices, eig_2.n_vertices):
         subsample = None  # small shapes: the full-resolution iteration is exact and cheap
     if subsample is not None:
         subsample = check_int(subsample, name="subsample", minimum=k_final + 1)
-        s1 = farthest_points(eig_1.vertices, subsample)
-        s2 = farthest_points(eig_2.vertices, subsample)
+        if samples is None:
+            s1 = farthest_points(eig_1.vertices, subsample)
+            s2 = farthest_points(eig_2.vertices, subsample)
         phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
         # The least-squares fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns
         # of one matrix, whose QR factors are nested: factor it once, then each fit is a

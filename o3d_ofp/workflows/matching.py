@@ -39,6 +39,7 @@ __all__ = [
     "match_arrays",
     "match_eigenbases",
     "required_k",
+    "uses_dense_path",
 ]
 
 logger = logging.getLogger(__name__)
@@ -95,7 +96,12 @@ SELECT_K = 39
 
 
 def alignment_residual(
-    fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, samples: int = 2000
+    fmap_12: np.ndarray,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    samples: int = 2000,
+    sample_indices: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> float:
     """Mean distance between the target's spectral embedding and its nearest mapped source row.
 
@@ -110,14 +116,20 @@ def alignment_residual(
         Unit-area source and target eigenbases.
     samples : int, default 2000
         Farthest-point samples per shape.
+    sample_indices : tuple of two int arrays, optional
+        Those samples, when the caller has them already.
 
     Returns
     -------
     float
     """
     k = min(fmap_12.shape) - 1
-    s1 = farthest_points(eig_1.vertices, samples)
-    s2 = farthest_points(eig_2.vertices, samples)
+    if sample_indices is None:
+        sample_indices = (
+            farthest_points(eig_1.vertices, samples),
+            farthest_points(eig_2.vertices, samples),
+        )
+    s1, s2 = sample_indices
     mapped = eig_1.evecs[s1, : k + 1] @ fmap_12[: k + 1, : k + 1].T
     psi = eig_2.evecs[s2, : k + 1]
     nn = nearest_neighbors(mapped, psi)
@@ -619,12 +631,24 @@ def match_eigenbases(
     )
     best: tuple[float, np.ndarray, float] | None = None
     select = min(final, max(k_fit, SELECT_K))
+    # The farthest-point samples of both shapes, drawn once for every ZoomOut below and the
+    # comparison of the starts (they depend on the shapes only).
+    n_samples = zoomout_subsample or 2000
+    samples = (farthest_points(u1.vertices, n_samples), farthest_points(u2.vertices, n_samples))
+    zoom_samples = (
+        samples
+        if zoomout_subsample is not None
+        and zoomout_subsample < min(eig_1.n_vertices, eig_2.n_vertices)
+        else None
+    )
     for i, (C, w_dcomm) in enumerate(zip(fits, DCOMM_WEIGHTS, strict=True)):
         if select > k_fit:
             logger.info("match: ZoomOut %d -> %d (start %d)", k_fit, select, i + 1)
             report(f"ZoomOut {i + 1}", 0.2 + 0.1 * i)
-            C = zoomout_refine(C, u1, u2, k_final=select, subsample=zoomout_subsample)
-        residual = alignment_residual(C, u1, u2, samples=zoomout_subsample or 2000)
+            C = zoomout_refine(
+                C, u1, u2, k_final=select, subsample=zoomout_subsample, samples=zoom_samples
+            )
+        residual = alignment_residual(C, u1, u2, sample_indices=samples)
         logger.info("match: start %d alignment residual %.4g", i + 1, residual)
         if best is None or residual < best[0]:
             best = (residual, C, w_dcomm)
@@ -633,7 +657,9 @@ def match_eigenbases(
     if final > select:  # only the better start goes on
         logger.info("match: ZoomOut %d -> %d", select, final)
         report("ZoomOut", 0.4)
-        C = zoomout_refine(C, u1, u2, k_final=final, subsample=zoomout_subsample)
+        C = zoomout_refine(
+            C, u1, u2, k_final=final, subsample=zoomout_subsample, samples=zoom_samples
+        )
     logger.info("match: point map at full resolution (%d target vertices)", eig_2.n_vertices)
     report("point map", 0.7)
     if eig_1.n_vertices * eig_2.n_vertices > DENSE_PAIRS:
@@ -666,6 +692,31 @@ def match_eigenbases(
         options=options,
         quality=quality,
     )
+
+
+def uses_dense_path(
+    n_vertices_1: int, n_vertices_2: int, meshes: bool, dense_above: int | None = None
+) -> bool:
+    """Tell whether :func:`match_arrays` matches two shapes on coarse copies (the dense path).
+
+    Parameters
+    ----------
+    n_vertices_1, n_vertices_2 : int
+        Vertices of the source and the target.
+    meshes : bool
+        Whether both shapes are meshes (point clouds never take the dense path).
+    dense_above : int, optional
+        The threshold (default :data:`o3d_ofp.workflows.dense.DENSE_VERTICES`).
+
+    Returns
+    -------
+    bool
+    """
+    if dense_above is None:
+        dense_above = DENSE_VERTICES
+    if isinstance(dense_above, bool) or not isinstance(dense_above, (int, np.integer)):
+        raise TypeError(f"dense_above must be an int; got {type(dense_above).__name__}")
+    return bool(meshes and max(n_vertices_1, n_vertices_2) > dense_above)
 
 
 def match_arrays(
@@ -708,14 +759,11 @@ def match_arrays(
     landmarks = check_landmarks(
         options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
     )  # before any eigensolve
-    if dense_above is None:
-        dense_above = DENSE_VERTICES
-    if isinstance(dense_above, bool) or not isinstance(dense_above, (int, np.integer)):
-        raise TypeError(f"dense_above must be an int; got {type(dense_above).__name__}")
     coarse_vertices = options.pop("coarse_vertices", COARSE_VERTICES)
     n_max = max(vertices_1.shape[0], vertices_2.shape[0])
-    if faces_1 is not None and faces_2 is not None and n_max > dense_above:
-        logger.info("match: %d vertices > %d: dense path (coarse meshes)", n_max, dense_above)
+    meshes = faces_1 is not None and faces_2 is not None
+    if uses_dense_path(vertices_1.shape[0], vertices_2.shape[0], meshes, dense_above):
+        logger.info("match: %d vertices: dense path (coarse meshes)", n_max)
         return match_dense(
             vertices_1,
             faces_1,

@@ -19,10 +19,19 @@ from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.transfer import transfer_matrix, transfer_signal
-from .matching import ESTIMATION_K, Correspondence, match_eigenbases
+from .matching import (
+    ESTIMATION_K,
+    Correspondence,
+    check_landmarks,
+    match_arrays,
+    match_eigenbases,
+    required_k,
+    uses_dense_path,
+)
 
 __all__ = [
     "eigenbases_for_transfer",
+    "estimate_for_transfer",
     "pull_back",
     "transfer_function",
 ]
@@ -165,6 +174,67 @@ def eigenbases_for_transfer(
                 f"{V.shape[0]}: it belongs to another shape"
             )
     return eigenbases
+
+
+def estimate_for_transfer(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    *,
+    k1: int,
+    k2: int,
+    landmarks: Any = None,
+    components: str = "auto",
+    progress: Any = None,
+) -> tuple[EigenBasis, EigenBasis, Correspondence]:
+    """Compute the eigenbases of a transfer and estimate its map, by the cheaper route.
+
+    Up to :data:`o3d_ofp.workflows.dense.DENSE_VERTICES` vertices, one eigensolve per shape of
+    ~100 eigenfunctions serves the estimation and the bases (which use its leading
+    ``k1``/``k2``). Above (two meshes), the map is estimated on coarse copies
+    (:func:`o3d_ofp.workflows.matching.match_arrays`' dense path) and only ``k1``/``k2``
+    eigenfunctions are computed at full resolution.
+
+    Parameters
+    ----------
+    V1, F1 : (n1, 3) ndarray, (m1, 3) ndarray or None
+        Source shape.
+    V2, F2 : (n2, 3) ndarray, (m2, 3) ndarray or None
+        Target shape.
+    k1, k2 : int
+        Eigenfunctions the transfer needs on each side.
+    landmarks : (p, 2) array_like of int, optional
+        Known (source, target) pairs (checked before any eigensolve).
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    progress : callable, optional
+        ``progress(stage, fraction_done)`` of the map estimation.
+
+    Returns
+    -------
+    eig_1, eig_2 : EigenBasis
+        With at least ``k1`` / ``k2`` eigenfunctions.
+    correspondence : Correspondence
+        The estimated map (its quality logged by the estimation).
+    """
+    k1 = check_int(k1, name="k1", minimum=1)
+    k2 = check_int(k2, name="k2", minimum=1)
+    landmarks = check_landmarks(landmarks, V1.shape[0], V2.shape[0])
+    meshes = F1 is not None and F2 is not None
+    if uses_dense_path(V1.shape[0], V2.shape[0], meshes):
+        corr = match_arrays(
+            V1, F1, V2, F2, landmarks=landmarks, components=components, progress=progress
+        )
+        eig_1 = eigenbasis(V1, F1, k=k1, components=components)
+        eig_2 = eigenbasis(V2, F2, k=k2, components=components)
+        return eig_1, eig_2, corr
+    eig_1, eig_2 = (
+        eigenbasis(V, F, k=max(k, required_k(V.shape[0])), clamp_k=True, components=components)
+        for V, F, k in ((V1, F1, k1), (V2, F2, k2))
+    )
+    corr = match_eigenbases(eig_1, eig_2, landmarks=landmarks, progress=progress)
+    return eig_1, eig_2, corr
 
 
 def pull_back(f_1: Any, correspondence: Correspondence, faces_1: Any = None) -> np.ndarray:
