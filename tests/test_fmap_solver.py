@@ -74,3 +74,23 @@ def test_direct_fit_equals_a_converged_lbfgs(bent_pair):
 def test_solver_keyword_is_checked(bent_pair):
     with pytest.raises(ValueError, match="solver"):
         estimate_fmap(*bent_pair, solver="newton")
+
+
+def test_farthest_points_equal_the_plain_full_update():
+    from o3d_ofp.core.fmap import farthest_points
+
+    def plain(X: np.ndarray, count: int, start: int) -> np.ndarray:
+        chosen, dist = [start], np.einsum("ij,ij->i", X - X[start], X - X[start])
+        for _ in range(1, count):
+            c = int(np.argmax(dist))
+            chosen.append(c)
+            dist = np.minimum(dist, np.einsum("ij,ij->i", X - X[c], X - X[c]))
+        return np.array(chosen)
+
+    rng = np.random.default_rng(3)
+    V, _ = blob(4)  # a surface (2562 vertices) and a noisy cloud: the k-d tree's pruning is
+    for X in (V, V + 0.01 * rng.normal(size=V.shape)):  # exact, so the samples are equal
+        for start in (0, 1234):
+            np.testing.assert_array_equal(
+                farthest_points(X, 600, start=start), plain(X, 600, start)
+            )
