@@ -238,6 +238,40 @@ def test_detail_in_this_process(shapes, tmp_path):
     np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-6 * np.ptp(bent))
 
 
+def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_path, monkeypatch):
+    from o3d_ofp.collections import tasks
+    from o3d_ofp.workflows import matching
+
+    paths, V, F, _ = shapes
+    # The 642-vertex shapes made "dense" (above 500 vertices, coarse copies of 400): each
+    # target's map comes from the dense path, no ~100-eigenfunction basis of any full shape.
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
+    sizes: list[int] = []
+    real = tasks.eigenbasis
+
+    def spy(V, F, *, k, **options):
+        sizes.append(k)
+        return real(V, F, k=k, **options)
+
+    monkeypatch.setattr(tasks, "eigenbasis", spy)
+    results = transfer_many(
+        paths["src"], [paths["t0"], paths["t1"]], workers=0, output_dir=tmp_path, k1=12, k2=12
+    )
+    assert [r.status for r in results] == ["ok", "ok"]
+    assert sizes == [12, 12, 12]  # the source once, each target: the OFP bases' size only
+    # each target's colors are those of the two-shape pipeline through the dense-path map
+    corr = matching.match_arrays(V, F, _bent(V, 0.1), F)
+    assert corr.options["dense"] is True
+    colors = np.asarray(read_geometry(paths["src"]).vertex_colors)
+    e1, e2 = real(V, F, k=12), real(_bent(V, 0.1), F, k=12)
+    from o3d_ofp.workflows.pipeline import transfer_function
+
+    g = np.clip(transfer_function(colors, e1, e2, k1=12, k2=12, correspondence=corr), 0, 1)
+    # PLY stores colors as 8-bit: half a step of 1/255
+    np.testing.assert_allclose(_colors(results[0].output), g, atol=0.5 / 255 + 1e-9)
+
+
 def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):
     paths, V, _, _ = shapes
     out = tmp_path / "out"

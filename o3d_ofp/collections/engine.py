@@ -39,7 +39,7 @@ from ..boundary.texture import mesh_texture, texture_colors
 from ..core.orthogonalize import resolve_tol
 from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT
 from ..workflows.detail import MODES as DETAIL_MODES
-from ..workflows.matching import ESTIMATION_K
+from ..workflows.matching import ESTIMATION_K, uses_dense_path
 from .results import TargetResult
 from .tasks import (
     BasisJob,
@@ -477,7 +477,10 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
     elif F is None:
         raise ValueError(f"{name}: the source of a detail transfer must be a triangle mesh")
     t0 = time.perf_counter()
-    eig, B, cached = shape_bases(V, F, job, 1)
+    # A source on the dense path (more vertices than its threshold) has its maps to mesh
+    # targets estimated on coarse copies: its own eigenbasis serves the transfers only.
+    dense = job.map == "estimate" and uses_dense_path(V.shape[0], 0, F is not None)
+    eig, B, cached = shape_bases(V, F, job, 1, dense=dense)
     COUNTERS["source_bases"] += 1
     logger.info(
         "source %s: %d vertices, eigenbasis k=%d%s, OFP basis %d functions (%.1f s); shared "

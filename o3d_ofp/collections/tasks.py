@@ -25,7 +25,14 @@ from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
 from ..workflows.detail import DETAIL_BAND, ROTATION_K
-from ..workflows.matching import ESTIMATION_K, Correspondence, match_eigenbases, required_k
+from ..workflows.matching import (
+    ESTIMATION_K,
+    Correspondence,
+    match_arrays,
+    match_eigenbases,
+    required_k,
+    uses_dense_path,
+)
 from ..workflows.pipeline import transfer_function
 from .results import TargetResult
 
@@ -93,9 +100,13 @@ class TransferJob:
     atlas: bool = False
     cache_dir: str | None = None
 
-    def eig_k(self, n_vertices: int, side: int) -> tuple[int, bool]:
-        """(k, clamp_k) of a shape's eigenbasis: ~100 for map estimation, else k1 / k2."""
-        if self.map == "estimate":
+    def eig_k(self, n_vertices: int, side: int, *, dense: bool = False) -> tuple[int, bool]:
+        """(k, clamp_k) of a shape's eigenbasis: ~100 for map estimation, else k1 / k2.
+
+        ``dense``: the map of this shape is estimated on coarse copies (the dense path), so
+        its own eigenbasis serves the transfer only.
+        """
+        if self.map == "estimate" and not dense:
             return required_k(n_vertices, ESTIMATION_K), True
         k = self.k1 if side == 1 else self.k2
         if self.kind == "detail" and self.mode != "coordinates":
@@ -217,6 +228,8 @@ def shape_bases(
     F: np.ndarray | None,
     job: TransferJob,
     side: int,
+    *,
+    dense: bool = False,
 ) -> tuple[EigenBasis, OFPBasis, bool]:
     """Eigenbasis and OFP basis of one side of a transfer, from the cache when there is one.
 
@@ -230,6 +243,8 @@ def shape_bases(
         The options.
     side : {1, 2}
         Source (k1) or target (k2).
+    dense : bool, default False
+        The shape's map is estimated on the dense path (no ~100-eigenfunction basis needed).
 
     Returns
     -------
@@ -240,7 +255,7 @@ def shape_bases(
     cached : bool
         Whether the eigenbasis came from the cache.
     """
-    k_eig, clamp = job.eig_k(V.shape[0], side)
+    k_eig, clamp = job.eig_k(V.shape[0], side, dense=dense)
     k_basis = job.k1 if side == 1 else job.k2
     if job.cache_dir is not None:
         eig, cached = fetch_eigenbasis(
@@ -256,9 +271,28 @@ def shape_bases(
     return eig, B, False
 
 
-def _correspondence(source: SharedSource, eig_2: EigenBasis) -> Correspondence:
-    if source.job.map == "estimate":
-        return match_eigenbases(source.eig, eig_2)
+def _dense_pair(source: SharedSource, V2: np.ndarray, F2: np.ndarray | None) -> bool:
+    """Whether this target's map is estimated on the dense path (coarse copies)."""
+    meshes = source.faces is not None and F2 is not None
+    n1 = source.vertices.shape[0]
+    return source.job.map == "estimate" and uses_dense_path(n1, V2.shape[0], meshes)
+
+
+def _correspondence(
+    source: SharedSource, eig_2: EigenBasis, V2: np.ndarray, F2: np.ndarray | None
+) -> Correspondence:
+    job = source.job
+    if _dense_pair(source, V2, F2):  # the coarse bases are the pair's own: made here
+        return match_arrays(source.vertices, source.faces, V2, F2, components=job.components)
+    if job.map == "estimate":
+        eig_1 = source.eig
+        need = required_k(eig_1.n_vertices, ESTIMATION_K)
+        if eig_1.k < need:  # a large source (dense path) onto a small or point-cloud target
+            logger.info("source eigenbasis of %d functions for this target's estimation", need)
+            eig_1 = eigenbasis(
+                source.vertices, source.faces, k=need, clamp_k=True, components=job.components
+            )
+        return match_eigenbases(eig_1, eig_2)
     n1, n2 = source.eig.n_vertices, eig_2.n_vertices
     if n1 != n2:
         raise ValueError(
@@ -288,8 +322,8 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     try:
         target, V2, F2 = _read(spec)
         n2 = V2.shape[0]
-        eig_2, B2, cached = shape_bases(V2, F2, job, 2)
-        corr = _correspondence(source, eig_2)
+        eig_2, B2, cached = shape_bases(V2, F2, job, 2, dense=_dense_pair(source, V2, F2))
+        corr = _correspondence(source, eig_2, V2, F2)
         if corr.quality is not None:
             coverage, suspect = corr.quality.coverage, corr.quality.suspect
         else:
