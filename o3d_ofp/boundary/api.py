@@ -341,6 +341,13 @@ def match(
         "descriptors": descriptors,
         "w_orient": w_orient,
     }
+    if partial:
+        for F, name in ((F1, "source"), (F2, "target")):
+            if F is None:  # before any eigensolve (the workflow refuses it too)
+                raise ValueError(
+                    f"partial=True needs triangle meshes: the {name} is a point cloud (no "
+                    "faces); mesh it first or match without partial=True"
+                )
     if eigenbases is None and partial:
         from ..workflows.matching import check_landmarks, required_k
 

@@ -244,6 +244,13 @@ def read_pair(args: argparse.Namespace) -> Pair:
         raise UsageError("--align applies to --map closest")
     if getattr(args, "partial", False) and args.map != "estimate":
         raise UsageError("--partial applies to --map estimate")
+    if getattr(args, "partial", False):
+        for F, path in ((F1, args.source), (F2, args.target)):
+            if F is None:
+                raise UsageError(
+                    f"--partial needs triangle meshes: {path} is a point cloud (no faces); "
+                    "mesh it first or match without --partial"
+                )
     if args.map == "closest":
         from ..boundary.closest import closest_correspondence
 

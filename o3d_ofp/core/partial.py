@@ -32,6 +32,12 @@ Method (what :func:`fit_partial_fmap`, :func:`partial_zoomout` and :func:`partia
 4. The source membership ``v = Φ Cᵀ 1``: the smooth indicator of the part on the source
    (Rodolà's ``v``, here read off the map rather than optimized), whose area is the overlap.
 
+5. A check without ground truth (:func:`geodesic_distortion`): a part of a near-isometric
+   shape keeps geodesic distances, so the mean change of the distances between target samples
+   and between their images ranks the refined starts and flags a map that sends a region to
+   the wrong place or a target that is no part of the source; :func:`map_stretch` (mapped
+   edge lengths) is a cheaper measure of tears, reported only.
+
 This replaces the alternation of C with a TV-regularized membership of the original
 algorithm by the ZoomOut refinement; it is not shown to be as good as the original on every
 cut: ``scripts/eval_partial.py`` measures it (README, "Scans").
@@ -63,6 +69,7 @@ from .fmap import (
     _Commutator,
     _descriptor_ops,
     _energy,
+    _minimize_quadratic,
     _orientation_ops,
     _projection,
     farthest_points,
@@ -72,6 +79,8 @@ from .spectrum import EigenBasis
 __all__ = [
     "boundary_length",
     "fit_partial_fmap",
+    "geodesic_distortion",
+    "map_stretch",
     "membership",
     "partial_p2p",
     "partial_residual",
@@ -156,6 +165,107 @@ def boundary_length(vertices: np.ndarray, faces: np.ndarray | None) -> float:
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
     return float(np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1).sum())
+
+
+def map_stretch(
+    p2p_21: np.ndarray, vertices_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray | None
+) -> float:
+    """How much a point map tears the target apart: mapped edge length over edge length.
+
+    ``Σ_e ‖x₁(π(i)) − x₁(π(j))‖ / Σ_e ‖x₂(i) − x₂(j)‖`` over the target's edges ``e = (i, j)``,
+    both shapes in the same units. A continuous map of a near-isometric part is about 1 (a
+    nearest-vertex map is a staircase: measured 1.1-1.4 on correct maps, whatever the two
+    resolutions, since a path's image has about the path's length); every place where the map
+    jumps (a limb sent to the other limb, a piece turned over) adds the length of the jump, so
+    maps that are wrong on a large region give 2 or more (see
+    :data:`o3d_ofp.workflows.partial.MAX_STRETCH`).
+
+    Parameters
+    ----------
+    p2p_21 : (n2,) ndarray of int
+        For every target vertex, its source vertex.
+    vertices_1, vertices_2 : (n1, 3), (n2, 3) ndarray
+        Source and target vertices, same units.
+    faces_2 : (m2, 3) ndarray of int or None
+        Target triangles; ``None`` (a point cloud): NaN.
+
+    Returns
+    -------
+    float
+    """
+    if faces_2 is None or len(faces_2) == 0:
+        return math.nan
+    F = np.asarray(faces_2, dtype=np.int64)
+    edges = np.unique(
+        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
+    )
+    V1 = np.asarray(vertices_1, dtype=np.float64)
+    V2 = np.asarray(vertices_2, dtype=np.float64)
+    p2p = np.asarray(p2p_21, dtype=np.int64)
+    length = np.linalg.norm(V2[edges[:, 0]] - V2[edges[:, 1]], axis=1).sum()
+    mapped = np.linalg.norm(V1[p2p[edges[:, 0]]] - V1[p2p[edges[:, 1]]], axis=1).sum()
+    return float(mapped / length) if length > 0 else math.nan
+
+
+def _edge_graph(vertices: np.ndarray, faces: np.ndarray) -> Any:
+    import scipy.sparse as sp
+
+    F = np.asarray(faces, dtype=np.int64)
+    E = np.unique(
+        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
+    )
+    w = np.linalg.norm(vertices[E[:, 0]] - vertices[E[:, 1]], axis=1)
+    n = vertices.shape[0]
+    return sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
+
+
+def geodesic_distortion(
+    p2p_21: np.ndarray,
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray | None,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray | None,
+    *,
+    samples: int = 40,
+) -> float:
+    """Mean change of geodesic distances under a point map, relative to the mean distance.
+
+    ``mean |d₂(a, b) − d₁(π a, π b)| / mean d₂(a, b)`` over pairs of ``samples`` farthest-point
+    target samples, with ``d`` the shortest-path distance along the mesh edges (on both shapes,
+    so its overestimate of the geodesic cancels to first order). A map of a part onto the
+    same kind of shape (a near-isometry, same units) keeps distances: measured 0.07-0.16 on
+    correct maps of ``scripts/eval_partial.py``; a map that sends a region to the wrong place
+    (a limb onto another, front onto back) changes the distances from that region.
+
+    Parameters
+    ----------
+    p2p_21 : (n2,) ndarray of int
+        For every target vertex, its source vertex.
+    vertices_1, faces_1, vertices_2, faces_2
+        Source and target meshes, same units. ``None`` faces (a point cloud): NaN.
+    samples : int, default 40
+        Target samples (Dijkstra runs from each, on both shapes).
+
+    Returns
+    -------
+    float
+    """
+    import scipy.sparse.csgraph as csgraph
+
+    if faces_1 is None or faces_2 is None or len(faces_1) == 0 or len(faces_2) == 0:
+        return math.nan
+    V1 = np.asarray(vertices_1, dtype=np.float64)
+    V2 = np.asarray(vertices_2, dtype=np.float64)
+    p2p = np.asarray(p2p_21, dtype=np.int64)
+    s2 = farthest_points(V2, min(samples, V2.shape[0]))
+    d2 = csgraph.dijkstra(_edge_graph(V2, faces_2), directed=False, indices=s2)[:, s2]
+    s1 = p2p[s2]
+    d1 = csgraph.dijkstra(_edge_graph(V1, faces_1), directed=False, indices=s1)[:, s1]
+    ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
+    scale = d2[ok].mean() if ok.any() else 0.0
+    if not scale > 0:
+        return math.nan
+    return float(np.abs(d1[ok] - d2[ok]).mean() / scale)
 
 
 #: Weight of the curvature descriptors against the wave kernel's (each column has unit norm on
@@ -298,6 +408,7 @@ def fit_partial_fmap(
     w_dcomm: tuple[float, ...] = (0.1, 0.0),
     w_orient: float = 1.0,
     w_rows: float = 1.0,
+    solver: str = "lbfgs",
     maxiter: int = 15000,
 ) -> list[np.ndarray]:
     """Fit restriction maps (source full, target a part) to common-energy descriptors.
@@ -325,6 +436,13 @@ def fit_partial_fmap(
         slanted identity).
     w_dcomm : tuple of float
         One map is fitted per descriptor-commutativity weight (the operators are built once).
+    w_rows : float
+        Weight of ``½ ‖C Cᵀ − I‖²`` (``solver="lbfgs"`` only).
+    solver : {"lbfgs", "direct"}, default "lbfgs"
+        ``"lbfgs"``: L-BFGS-B on the energy with the row term (quartic) from C = 0;
+        ``"direct"``: the exact minimizer of the quadratic energy without the row term, one
+        linear solve (:func:`o3d_ofp.core.fmap._minimize_quadratic`). The two are different
+        starts, not the same minimizer.
     maxiter : int
         Bound on L-BFGS-B iterations.
 
@@ -338,6 +456,8 @@ def fit_partial_fmap(
     .. [1] E. Rodolà et al., "Partial Functional Correspondence", CGF 36(1), 2017.
     """
     k2 = check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
+    if solver not in ("lbfgs", "direct"):
+        raise ValueError(f"solver must be 'lbfgs' or 'direct'; got {solver!r}")
     k1 = slant(eig_1.evals, eig_2.evals, k2)
     D1, D2 = _common_wks(
         eig_1,
@@ -370,6 +490,10 @@ def fit_partial_fmap(
             native = _energy(ref, A, B, sqdiff, ops, None, weights)[0]
             o_energy = _energy(ref, A, B, sqdiff, None, orient, (0.0, 0.0, 0.0, 1.0))[0]
             weights = (w_descr, w_lap, float(wc), w_orient * native / max(o_energy, 1e-300))
+        if solver == "direct":
+            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
+            logger.info("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
+            continue
 
         def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
             C = x.reshape(k2 + 1, k1 + 1)
