@@ -1,6 +1,6 @@
 """Render the README's pictures into docs/ (needs ../shared/data and an EGL context).
 
-    python scripts/make_figures.py [--out docs] [--width 480]
+    python scripts/make_figures.py [--out docs] [--width 480] [--only NAME ...]
 
 1. ``faust_transfer.png``: a function on FAUST 093 transferred to FAUST 087 through an
    *estimated* map (no ground truth), with K eigenfunctions, raw products ("prods") and the
@@ -11,6 +11,10 @@
    uses for non-human shapes).
 3. ``filtering.png``: spectral smoothing and sharpening of a shape (paper's Figs. 14-15).
 4. ``demo.png``: what ``o3d-ofp demo`` draws.
+5. ``partial_match.png``: FAUST 087 with its legs cut off, matched onto the whole 093 with
+   ``partial=True`` and without; a function of the source pulled back through each map.
+
+``--only NAME ...`` renders only those figures.
 """
 
 from __future__ import annotations
@@ -114,6 +118,34 @@ def filtering(out: Path, width: int) -> None:
     )  # fmt: skip
 
 
+def partial_match(out: Path, width: int) -> None:
+    """Render a part (legs cut off) matched onto the whole body, with and without partial=True."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from eval_partial import error, plane_cut
+
+    V1, F1 = load("faust/tr_reg_093.ply")
+    V2, F2 = load("faust/tr_reg_087.ply")
+    Vc, Fc, truth, kept = plane_cut(V2, F2, axis=1, side=1, fraction=0.65)
+    f = np.sin(6 * np.pi * V1[:, 1] / np.ptp(V1[:, 1])) * np.cos(4 * V1[:, 0] / np.ptp(V1))
+    area = ofp.laplacian(V1, F1)[1].sum()
+    items, titles = [(V1, F1, f), (Vc, Fc, f[truth])], ["source (whole)", "part, truth"]
+    for partial in (True, False):
+        corr = ofp.match((V1, F1), (Vc, Fc), partial=partial)
+        verdict = "suspect" if corr.quality.suspect else "ok"
+        items.append((Vc, Fc, f[corr.p2p_21]))
+        label = "partial=True" if partial else "partial=False"
+        titles.append(f"{label}: error {error(V1, corr.p2p_21, truth, area):.3f} ({verdict})")
+    render_panel(
+        items,
+        out / "partial_match.png",
+        titles=titles,
+        width=int(0.8 * width),
+        height=int(1.3 * width),
+        cmap="coolwarm",
+        colorbar_label=f"a function pulled back through the map (kept area {kept:.2f})",
+    )
+
+
 def demo(out: Path) -> None:
     import tempfile
 
@@ -125,20 +157,30 @@ def demo(out: Path) -> None:
         os.replace(os.path.join(tmp, "demo.png"), out / "demo.png")
 
 
+FIGURES = {
+    "faust_transfer": faust_transfer,
+    "spot_texture": spot_texture,
+    "filtering": filtering,
+    "partial_match": partial_match,
+    "demo": lambda out, width: demo(out),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs"))
     parser.add_argument("--width", type=int, default=480, help="tile width in pixels (480)")
+    parser.add_argument(
+        "--only", nargs="*", choices=sorted(FIGURES), help="render only these figures"
+    )
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    faust_transfer(out, args.width)
-    spot_texture(out, args.width)
-    filtering(out, args.width)
-    demo(out)
+    for name in args.only or sorted(FIGURES):
+        FIGURES[name](out, args.width)
     for p in sorted(out.glob("*.png")):
         sys.stdout.write(f"{p} {p.stat().st_size // 1024} kB\n")
     return 0
