@@ -140,7 +140,8 @@ class SharedSource:
     faces : (m1, 3) ndarray of int64 or None
         Source triangles.
     eig : EigenBasis
-        Source eigenbasis (k = 99 for map estimation).
+        Source eigenbasis (k = 99 for map estimation; k1, or the detail band, for a source on
+        the dense path, whose maps are estimated on coarse copies).
     basis : OFPBasis
         Source OFP basis (k1 eigenfunctions).
     signal : (n1, 3) ndarray or None
