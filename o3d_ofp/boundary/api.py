@@ -42,8 +42,7 @@ from ..workflows.matching import (
     match_eigenbases,
 )
 from ..workflows.pipeline import (
-    eigenbases_for_transfer,
-    estimate_for_transfer,
+    prepare_transfer,
     pull_back,
     transfer_function,
 )
@@ -374,12 +373,6 @@ def match(
     return match_eigenbases(eig_1, eig_2, **options)
 
 
-def _estimates(correspondence: Any, fmap_12: Any, p2p_21: Any, eigenbases: Any, bases: Any) -> bool:
-    """Whether a transfer estimates its map and computes its own eigenbases."""
-    given = (correspondence, fmap_12, p2p_21, eigenbases, bases)
-    return all(x is None for x in given)
-
-
 def transfer_colors(
     source: Any,
     target: Any,
@@ -459,15 +452,20 @@ def transfer_colors(
         correspondence.check(V1.shape[0], V2.shape[0])
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
         return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
-    if _estimates(correspondence, fmap_12, p2p_21, eigenbases, bases):
-        eig_1, eig_2, correspondence = estimate_for_transfer(
-            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks
-        )
-        landmarks = None  # used by the estimation
-    else:
-        eig_1, eig_2 = eigenbases_for_transfer(
-            V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
-        )
+    eig_1, eig_2, correspondence = prepare_transfer(
+        V1,
+        F1,
+        V2,
+        F2,
+        k1=k1,
+        k2=k2,
+        correspondence=correspondence,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        eigenbases=eigenbases,
+        bases=bases,
+    )
     g = transfer_function(
         f,
         eig_1,
@@ -480,7 +478,6 @@ def transfer_colors(
         correspondence=correspondence,
         fmap_12=fmap_12,
         p2p_21=p2p_21,
-        landmarks=landmarks,
         method=method,
         bases=bases,
     )
@@ -570,15 +567,20 @@ def transfer_detail(
     if mode == "coordinates":
         for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
             check_int(value, name=name, minimum=1)
-        if _estimates(correspondence, fmap_12, p2p_21, eigenbases, bases):
-            eig_1, eig_2, correspondence = estimate_for_transfer(
-                V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks
-            )
-            landmarks = None  # used by the estimation
-        else:
-            eig_1, eig_2 = eigenbases_for_transfer(
-                V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
-            )
+        eig_1, eig_2, correspondence = prepare_transfer(
+            V1,
+            F1,
+            V2,
+            F2,
+            k1=k1,
+            k2=k2,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            landmarks=landmarks,
+            eigenbases=eigenbases,
+            bases=bases,
+        )
         moved = transfer_function(
             eig_1.vertices,
             eig_1,
@@ -591,7 +593,6 @@ def transfer_detail(
             correspondence=correspondence,
             fmap_12=fmap_12,
             p2p_21=p2p_21,
-            landmarks=landmarks,
             bases=bases,
         )
         return like_target(target, vertices=moved)
@@ -614,19 +615,21 @@ def transfer_detail(
         eigenbases = (larger[0], larger[1])
     normals_1 = point_normals(source, V1) if F1 is None and is_open3d_geometry(source) else None
     normals_2 = point_normals(target, V2) if F2 is None and is_open3d_geometry(target) else None
-    if _estimates(correspondence, fmap_12, p2p_21, eigenbases, None):
-        eig_1, eig_2, correspondence = estimate_for_transfer(
-            V1, F1, V2, F2, k1=need, k2=need, landmarks=landmarks
-        )
-    else:
-        eig_1, eig_2 = eigenbases_for_transfer(
-            V1, F1, V2, F2, need, need, fmap_12, p2p_21, eigenbases, None, correspondence
-        )
-    if correspondence is None and p2p_21 is None:
-        if fmap_12 is not None:
-            p2p_21 = p2p_from_fmap(fmap_12, eig_1, eig_2)
-        else:
-            correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
+    eig_1, eig_2, correspondence = prepare_transfer(
+        V1,
+        F1,
+        V2,
+        F2,
+        k1=need,
+        k2=need,
+        correspondence=correspondence,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        eigenbases=eigenbases,
+    )
+    if fmap_12 is not None:
+        p2p_21 = p2p_from_fmap(fmap_12, eig_1, eig_2)
     moved = transfer_detail_frames(
         eig_1,
         eig_2,

@@ -30,8 +30,8 @@ from .matching import (
 )
 
 __all__ = [
-    "eigenbases_for_transfer",
     "estimate_for_transfer",
+    "prepare_transfer",
     "pull_back",
     "transfer_function",
 ]
@@ -133,7 +133,63 @@ def transfer_function(
     return transfer_signal(f, B_1, B_2, transfer_12)
 
 
-def eigenbases_for_transfer(
+def prepare_transfer(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    *,
+    k1: int,
+    k2: int,
+    correspondence: Correspondence | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
+) -> tuple[EigenBasis, EigenBasis, Correspondence | None]:
+    """Decide the eigenbases and the map of a transfer (the one place that does).
+
+    Nothing given: :func:`estimate_for_transfer` (the cheaper route, dense path on large
+    meshes). Eigenbases or bases given without a map: they are checked (or computed from the
+    bases' size) and the map is estimated on them. A map given: eigenbases as large as it
+    needs, the map passed through.
+
+    Parameters
+    ----------
+    V1, F1 : (n1, 3) ndarray, (m1, 3) ndarray or None
+        Source shape.
+    V2, F2 : (n2, 3) ndarray, (m2, 3) ndarray or None
+        Target shape.
+    k1, k2 : int
+        Eigenfunctions the transfer needs on each side.
+    correspondence, fmap_12, p2p_21 : optional
+        A known map (at most one).
+    landmarks : (p, 2) array_like of int, optional
+        Known (source, target) pairs for an estimated map.
+    eigenbases : (EigenBasis, EigenBasis), optional
+        Precomputed eigenbases (checked against the shapes).
+    bases : (OFPBasis, OFPBasis), optional
+        Precomputed OFP bases (their eigenbases are used when a map is given).
+
+    Returns
+    -------
+    eig_1, eig_2 : EigenBasis
+    correspondence : Correspondence or None
+        The given or estimated map; None when ``fmap_12`` or ``p2p_21`` is given.
+    """
+    known = correspondence is not None or fmap_12 is not None or p2p_21 is not None
+    if not known and eigenbases is None and bases is None:
+        return estimate_for_transfer(V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks)
+    eig_1, eig_2 = _eigenbases(
+        V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+    )
+    if not known:
+        correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
+    return eig_1, eig_2, correspondence
+
+
+def _eigenbases(
     V1: np.ndarray,
     F1: np.ndarray | None,
     V2: np.ndarray,
@@ -147,8 +203,6 @@ def eigenbases_for_transfer(
     correspondence: Correspondence | None = None,
 ) -> tuple[Any, Any]:
     """Eigenbases for a transfer: given ones (checked), else those of the bases, else computed.
-
-    The one place that decides how many eigenfunctions a map needs.
 
     Computed ones are as large as the map needs: a given map may be larger than k1/k2 (all of
     it is used); an estimated map is refined by ZoomOut to ~100 eigenfunctions (as in pyFM's
