@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from o3d_ofp.core.fmap import _Commutator, _energy, _minimize_quadratic, estimate_fmap
+from o3d_ofp.core.fmap import (
+    _Commutator,
+    _energy,
+    _minimize_quadratic,
+    estimate_fmap,
+    estimate_fmaps,
+)
 from o3d_ofp.core.shapes import blob
 from o3d_ofp.core.spectrum import eigenbasis
 
@@ -69,6 +75,24 @@ def test_direct_fit_equals_a_converged_lbfgs(bent_pair):
         # L-BFGS-B pushed to its limit stops within ~1e-5 of the minimizer (measured on FAUST:
         # 5e-8 and 2e-5 relative); the default tolerance stops 1e-4 to 2e-2 away.
         assert np.linalg.norm(C - R) <= 1e-4 * np.linalg.norm(R)
+
+
+def test_fits_of_several_sizes_equal_the_fits_one_by_one(bent_pair):
+    e1, e2 = bent_pair
+    landmarks = np.array([[0, 0], [50, 50]])
+    shared = estimate_fmaps(e1, e2, sizes=(12, 20), w_dcomm=(0.1, 0.0), landmarks=landmarks)
+    assert [(k, w) for k, w, _ in shared] == [(12, 0.1), (12, 0.0), (20, 0.1), (20, 0.0)]
+    for k in (12, 20):
+        alone = estimate_fmap(
+            e1, e2, k1=k, k2=k, w_dcomm=(0.1, 0.0), landmarks=landmarks, refine=None
+        )
+        got = [C for size, _, C in shared if size == k]
+        for C, R in zip(got, alone, strict=True):
+            assert C.shape == (k + 1, k + 1)
+            # The same linear system from the leading blocks of larger operators: round-off.
+            assert np.allclose(C, R, rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="sizes"):
+        estimate_fmaps(e1, e2, sizes=(41,))
 
 
 def test_solver_keyword_is_checked(bent_pair):

@@ -284,7 +284,9 @@ def match(
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs.
     k_fit : int, default 29
-        Size of the map fitted to the descriptors (the paper's K = 30).
+        Size of the map fitted to the descriptors (the paper's K = 30); a second fit of 39
+        functions is a further start (the map whose spectral embeddings align best after
+        ZoomOut is kept; ``options["k_fit"]`` says which).
     zoomout_to : int, default 99
         Eigenfunctions the map is refined to (fewer only when a shape has fewer vertices).
     zoomout_subsample : int or None, default 2000

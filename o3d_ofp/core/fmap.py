@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,7 @@ from .spectrum import EigenBasis, check_eigenbasis
 
 __all__ = [
     "estimate_fmap",
+    "estimate_fmaps",
     "farthest_points",
     "icp_refine",
     "lift_fmap",
@@ -248,6 +250,129 @@ def _minimize_quadratic(
     return c.reshape(b, a)
 
 
+def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Split (p, 2) landmark pairs into source and target vertices (None, None without)."""
+    if landmarks is None:
+        return None, None
+    lm = np.asarray(landmarks)
+    if lm.ndim != 2 or lm.shape[1] != 2 or not np.issubdtype(lm.dtype, np.integer):
+        raise ValueError(
+            f"landmarks must be a (p, 2) integer array of vertex pairs; got {lm.dtype}{lm.shape}"
+        )
+    return lm[:, 0], lm[:, 1]
+
+
+class _FitTerms:
+    """The terms of :func:`estimate_fmap`'s energy on two unit-area bases, built once.
+
+    Descriptors are computed from ``k_descriptors`` eigenpairs whatever the map's size, so the
+    coefficients and operator stacks of a smaller map are the leading blocks of a larger one's:
+    :meth:`fit` solves any size up to the one they were built for.
+    """
+
+    def __init__(
+        self,
+        eig_1: EigenBasis,
+        eig_2: EigenBasis,
+        k1: int,
+        k2: int,
+        *,
+        descriptors: str,
+        n_descriptors: int,
+        k_descriptors: int,
+        landmarks: tuple[np.ndarray | None, np.ndarray | None],
+        dcomm: bool,
+        orient: bool,
+    ) -> None:
+        k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
+        lm1, lm2 = landmarks
+        D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
+        D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
+        self.A, self.B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
+        self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
+        self.dcomm = (
+            (_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2)) if dcomm else None
+        )
+        self.orient = None
+        if orient and eig_1.faces is not None and eig_2.faces is not None:
+            self.orient = (_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
+        elif orient:
+            logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
+
+    def fit(
+        self,
+        k1: int,
+        k2: int,
+        *,
+        weights: tuple[float, float, float, float],
+        solver: str = "direct",
+        maxiter: int = 15000,
+        ftol: float = 2.2e-9,
+    ) -> np.ndarray:
+        """Minimize the energy over (k2+1, k1+1) maps, the constant kept on the constant.
+
+        ``weights`` are (descriptors, Laplacian, commutativity, orientation); the orientation
+        weight is relative (rescaled so that, at the identity map, the term equals it times the
+        others).
+        """
+        a, b = k1 + 1, k2 + 1
+        A, B = self.A[:a], self.B[:b]
+        sqdiff = (self.lam1[None, :a] - self.lam2[:b, None]) ** 2
+        sqdiff /= sqdiff.sum()
+
+        def block(stacks: tuple[np.ndarray, np.ndarray] | None) -> _Commutator | None:
+            if stacks is None:
+                return None
+            return _Commutator(stacks[0][:, :a, :a], stacks[1][:, :b, :b])
+
+        w_descr, w_lap, wc, w_orient = weights
+        ops = block(self.dcomm) if wc > 0 else None
+        orient = block(self.orient) if w_orient > 0 else None
+
+        def terms(C: np.ndarray, w: tuple[float, float, float, float]) -> tuple[float, np.ndarray]:
+            return _energy(C, A, B, sqdiff, ops, orient, w)
+
+        weights = (w_descr, w_lap, wc, 0.0)
+        if orient:
+            eye = np.eye(b, a)
+            native = terms(eye, weights)[0]
+            o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
+            weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
+        C0 = np.zeros((b, a))
+        C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
+        if solver == "direct":
+            C = _minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights)
+            logger.info(
+                "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
+                b,
+                a,
+                terms(C, weights)[0],
+                wc,
+            )
+            return C
+
+        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+            e, g = terms(x.reshape(b, a), weights)
+            g[:, 0] = 0.0  # the first column stays fixed
+            return e, g.ravel()
+
+        res = scipy.optimize.minimize(
+            fun,
+            C0.ravel(),
+            jac=True,
+            method="L-BFGS-B",
+            options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
+        )
+        logger.info(
+            "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
+            res.message,
+            res.nit,
+            res.fun,
+            wc,
+        )
+        return res.x.reshape(b, a)
+
+
 @one_blas_thread
 def estimate_fmap(
     eig_1: EigenBasis,
@@ -351,85 +476,34 @@ def estimate_fmap(
         raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
     if refine not in ("zoomout", "icp", None):
         raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
-    lm1 = lm2 = None
-    if landmarks is not None:
-        lm = np.asarray(landmarks)
-        if lm.ndim != 2 or lm.shape[1] != 2 or not np.issubdtype(lm.dtype, np.integer):
-            raise ValueError(
-                "landmarks must be a (p, 2) integer array of vertex pairs; "
-                f"got {lm.dtype}{lm.shape}"
-            )
-        lm1, lm2 = lm[:, 0], lm[:, 1]
+    lm1, lm2 = _landmark_pairs(landmarks)
     # Work on unit-area copies: every term below is then independent of the shapes' units,
     # and the map between the unit-area bases is converted back at the end.
     scale = math.sqrt(eig_2.area / eig_1.area)
     eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
-    k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
-    D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
-    D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
-    proj1, proj2 = _projection(eig_1, k1), _projection(eig_2, k2)
-    A, B = proj1 @ D1, proj2 @ D2  # (k1+1, p), (k2+1, p)
-    dcomm_weights = tuple(float(w) for w in np.atleast_1d(w_dcomm))
-    ops = (
-        _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if max(dcomm_weights) > 0
-        else None
+    terms = _FitTerms(
+        eig_1,
+        eig_2,
+        k1,
+        k2,
+        descriptors=descriptors,
+        n_descriptors=n_descriptors,
+        k_descriptors=k_descriptors,
+        landmarks=(lm1, lm2),
+        dcomm=max(np.atleast_1d(w_dcomm)) > 0,
+        orient=w_orient > 0,
     )
-    lam1 = eig_1.evals[: k1 + 1]
-    lam2 = eig_2.evals[: k2 + 1]
-    sqdiff = (lam1[None, :] - lam2[:, None]) ** 2
-    sqdiff /= sqdiff.sum()
-    orient: _Commutator | None = None
-    if w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None:
-        orient = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    elif w_orient > 0:
-        logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
-
-    def terms(
-        C: np.ndarray, weights: tuple[float, float, float, float]
-    ) -> tuple[float, np.ndarray]:
-        return _energy(C, A, B, sqdiff, ops, orient, weights)
-
-    fits = []
-    for wc in dcomm_weights:  # the operators above are built once for every weight
-        weights = (w_descr, w_lap, wc, 0.0)
-        if orient:
-            eye = np.eye(k2 + 1, k1 + 1)
-            native = terms(eye, weights)[0]
-            o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
-            weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
-        C0 = np.zeros((k2 + 1, k1 + 1))
-        C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
-        if solver == "direct":
-            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
-            logger.info(
-                "estimate_fmap: direct solve (energy %.4g, w_dcomm %g)",
-                terms(fits[-1], weights)[0],
-                wc,
-            )
-            continue
-
-        def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
-            C = x.reshape(k2 + 1, k1 + 1)
-            e, g = terms(C, weights)
-            g[:, 0] = 0.0  # the first column stays fixed
-            return e, g.ravel()
-
-        res = scipy.optimize.minimize(
-            fun,
-            C0.ravel(),
-            jac=True,
-            method="L-BFGS-B",
-            options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
+    fits = [
+        terms.fit(
+            k1,
+            k2,
+            weights=(w_descr, w_lap, float(wc), w_orient),
+            solver=solver,
+            maxiter=maxiter,
+            ftol=ftol,
         )
-        logger.info(
-            "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
-            res.message,
-            res.nit,
-            res.fun,
-            wc,
-        )
-        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+        for wc in np.atleast_1d(w_dcomm)
+    ]
     if len(fits) > 1:
         if refine is not None:
             raise ValueError("several w_dcomm weights give several maps: use refine=None")
@@ -442,6 +516,75 @@ def estimate_fmap(
         if target > max(k1, k2):
             C = zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
     return C * scale
+
+
+@one_blas_thread
+def estimate_fmaps(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    sizes: Sequence[int],
+    w_dcomm: Sequence[float] = (1e-1,),
+    descriptors: str = "wks",
+    n_descriptors: int = 100,
+    k_descriptors: int = 100,
+    landmarks: Any = None,
+    w_descr: float = 1.0,
+    w_lap: float = 1e-2,
+    w_orient: float = 1.0,
+) -> list[tuple[int, float, np.ndarray]]:
+    """Square descriptor fits of several sizes and commutativity weights, the terms built once.
+
+    The same energy and exact solve as :func:`estimate_fmap` (``solver="direct"``, no
+    refinement) for every size in ``sizes`` and every weight in ``w_dcomm``: the descriptors
+    and the operator stacks are built once, at the largest size, and the smaller fits use
+    their leading blocks (the same maps :func:`estimate_fmap` gives size by size).
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases, with at least ``max(sizes)`` eigenfunctions each.
+    sizes : sequence of int
+        Non-constant eigenfunctions of each fitted map (k1 = k2 = k).
+    w_dcomm : sequence of float, default (0.1,)
+        Weights of the descriptor-commutativity term.
+    descriptors, n_descriptors, k_descriptors, landmarks, w_descr, w_lap, w_orient
+        As in :func:`estimate_fmap`.
+
+    Returns
+    -------
+    list of (int, float, (k+1, k+1) ndarray)
+        ``(k, w_dcomm, fmap_12)`` for every size, then every weight, in the order given.
+    """
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
+    if descriptors not in ("wks", "hks"):
+        raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
+    top = min(eig_1.k, eig_2.k)
+    sizes = [check_int(k, name="sizes", minimum=1, maximum=top) for k in sizes]
+    weights = [float(w) for w in w_dcomm]
+    if not sizes or not weights:
+        raise ValueError("sizes and w_dcomm must name at least one fit each")
+    scale = math.sqrt(eig_2.area / eig_1.area)
+    u1, u2 = unit_area(eig_1), unit_area(eig_2)
+    k = max(sizes)
+    terms = _FitTerms(
+        u1,
+        u2,
+        k,
+        k,
+        descriptors=descriptors,
+        n_descriptors=n_descriptors,
+        k_descriptors=k_descriptors,
+        landmarks=_landmark_pairs(landmarks),
+        dcomm=max(weights) > 0,
+        orient=w_orient > 0,
+    )
+    return [
+        (size, wc, scale * terms.fit(size, size, weights=(w_descr, w_lap, wc, w_orient)))
+        for size in sizes
+        for wc in weights
+    ]
 
 
 @one_blas_thread

@@ -1,10 +1,11 @@
 """Matching two shapes: one call from eigenbases to a checked point-to-point map.
 
 The rules of a whole match live here, once: how many eigenfunctions the estimation needs
-(:data:`ESTIMATION_K`, :data:`FIT_K`), the order of the steps (descriptor fit with the
-orientation term, ZoomOut, the final point map), and the quality report that says when a map
-is doubtful. Everything runs on unit-area copies of the eigenbases, so the result does not
-depend on the units, position or orientation of either shape.
+(:data:`ESTIMATION_K`, :data:`FIT_K`, :data:`WIDE_FIT_K`), the order of the steps (descriptor
+fits with the orientation term, ZoomOut, the choice among the starts, the final point map),
+and the quality report that says when a map is doubtful. Everything runs on unit-area copies
+of the eigenbases, so the result does not depend on the units, position or orientation of
+either shape.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 
 from ..core._atomic import atomic_path
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
-from ..core.fmap import estimate_fmap, farthest_points, unit_area, zoomout_refine
+from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refine
 from ..core.geometry import vertex_normals
 from ..core.multiscale import local_p2p_from_fmap
 from ..core.partial import boundary_length
@@ -87,12 +88,21 @@ DENSE_PAIRS = 2e8
 
 #: Weights of the descriptor-commutativity term tried by :func:`match_eigenbases`.
 DCOMM_WEIGHTS = (0.1, 0.0)
-#: The starts are compared after ZoomOut to this size, and only the better one is refined
-#: further (ZoomOut to 39 costs ~8 % of ZoomOut to 99). Measured on the 5 ground-truth pairs
-#: of ../shared/data with both starts refined to 39, 49 and 99: the same start wins at every
-#: size (one pair's two starts give the same map); the kept map is the one ZoomOut to 99
-#: gives from it, as before.
-SELECT_K = 39
+#: Size of the second descriptor fit of :func:`match_eigenbases` (beside ``k_fit``, the
+#: paper's 29). Measured on the 6 ground-truth pairs of ../shared/data (eigenbases of 99
+#: functions, fits of 20, 29, 39 and 49, each weight, ZoomOut to 99): the fit of 39 gives the
+#: better map on FAUST 093 -> 087 (0.0166 against 0.0257) and FAUST remeshed 002 -> 007
+#: (0.0212 against 0.0386; pyFM 0.0229), 29 on the centaurs (0.0149 against 0.088) and no
+#: size is best everywhere, so both are starts. A third fit of 49, compared at 99, was kept
+#: only on 093 -> 087 (0.0163).
+WIDE_FIT_K = 39
+#: The starts (each fit size with each weight) are compared by :func:`alignment_residual`
+#: after ZoomOut to this size, and only the best one is refined further. Measured on the 6
+#: pairs above, comparing after ZoomOut to 39 (where the fit of 39 is not refined yet) keeps
+#: the fit of 29 on every pair (093 -> 087 0.0257, 002 -> 007 0.0386); after ZoomOut to 49
+#: and to 99 the same starts win except on the SHREC'19 pair (0.324 at 49, 0.524 at 99: both
+#: wrong maps), and comparing at 49 takes 2.0-3.1 s per 5-10k pair against 4.3-5.5 s at 99.
+SELECT_K = 49
 
 
 def alignment_residual(
@@ -574,7 +584,9 @@ def match_eigenbases(
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs.
     k_fit : int, default 29
-        Size of the map fitted to the descriptors (the paper's K = 30).
+        Size of the map fitted to the descriptors (the paper's K = 30). A second fit of
+        :data:`WIDE_FIT_K` (39) functions, when ``zoomout_to`` exceeds it, is a further start;
+        ``options["k_fit"]`` of the result says which fit the kept map came from.
     zoomout_to : int, default 99
         Size ZoomOut refines the map to.
     zoomout_subsample : int or None, default 2000
@@ -608,29 +620,24 @@ def match_eigenbases(
     landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
     report = progress or (lambda stage, done: None)
     u1, u2 = unit_area(eig_1), unit_area(eig_2)
-    # Two starts: the descriptor-commutativity term helps on some pairs (FAUST: 0.026 with it,
-    # 0.16 without) and hurts on others (TOSCA centaurs: 0.094 with, 0.015 without); each is
-    # refined by ZoomOut and the map whose spectral embeddings align better is kept.
-    logger.info(
-        "match: descriptor fits (%dx%d, commutativity weights %s)",
-        k_fit + 1,
-        k_fit + 1,
-        DCOMM_WEIGHTS,
-    )
+    # Four starts: the descriptor-commutativity term helps on some pairs (FAUST: 0.026 with it,
+    # 0.16 without) and hurts on others (TOSCA centaurs: 0.094 with, 0.015 without), and so
+    # does the larger fit (WIDE_FIT_K); each is refined by ZoomOut and the map whose spectral
+    # embeddings align best is kept.
+    wide = min(WIDE_FIT_K, final)
+    sizes = [k_fit, wide] if wide > k_fit else [k_fit]
+    logger.info("match: descriptor fits (sizes %s, commutativity weights %s)", sizes, DCOMM_WEIGHTS)
     report("descriptor fit", 0.0)
-    fits = estimate_fmap(
+    starts = estimate_fmaps(
         u1,
         u2,
-        k1=k_fit,
-        k2=k_fit,
+        sizes=sizes,
+        w_dcomm=DCOMM_WEIGHTS,
         landmarks=landmarks,
         descriptors=descriptors,
-        w_dcomm=DCOMM_WEIGHTS,
         w_orient=w_orient,
-        refine=None,
     )
-    best: tuple[float, np.ndarray, float] | None = None
-    select = min(final, max(k_fit, SELECT_K))
+    select = min(final, max(sizes[-1], SELECT_K))
     # The farthest-point samples of both shapes, drawn once for every ZoomOut below and the
     # comparison of the starts (they depend on the shapes only).
     n_samples = zoomout_subsample or 2000
@@ -641,22 +648,23 @@ def match_eigenbases(
         and zoomout_subsample < min(eig_1.n_vertices, eig_2.n_vertices)
         else None
     )
-    for i, (C, w_dcomm) in enumerate(zip(fits, DCOMM_WEIGHTS, strict=True)):
-        if select > k_fit:
-            logger.info("match: ZoomOut %d -> %d (start %d)", k_fit, select, i + 1)
-            report(f"ZoomOut {i + 1}", 0.2 + 0.1 * i)
+    best: tuple[float, np.ndarray, int, float] | None = None
+    for i, (k, w_dcomm, C) in enumerate(starts):
+        if select > k:
+            logger.info("match: ZoomOut %d -> %d (start %d)", k, select, i + 1)
+            report(f"ZoomOut {i + 1}", 0.1 + 0.5 * i / len(starts))
             C = zoomout_refine(
                 C, u1, u2, k_final=select, subsample=zoomout_subsample, samples=zoom_samples
             )
         residual = alignment_residual(C, u1, u2, sample_indices=samples)
         logger.info("match: start %d alignment residual %.4g", i + 1, residual)
         if best is None or residual < best[0]:
-            best = (residual, C, w_dcomm)
+            best = (residual, C, k, w_dcomm)
     assert best is not None
-    _, C, w_dcomm = best
-    if final > select:  # only the better start goes on
+    _, C, k_fit, w_dcomm = best
+    if final > select:  # only the best start goes on
         logger.info("match: ZoomOut %d -> %d", select, final)
-        report("ZoomOut", 0.4)
+        report("ZoomOut", 0.6)
         C = zoomout_refine(
             C, u1, u2, k_final=final, subsample=zoomout_subsample, samples=zoom_samples
         )
