@@ -46,8 +46,7 @@ def test_remeshed_pair_needs_the_wider_fit():
     names = ("tr_reg_002", "tr_reg_007")
     (V1, F1), (V2, F2) = (load_shared_mesh(f"faust_remeshed/{n}.off") for n in names)
     corres = [
-        np.loadtxt(shared_path(f"faust_remeshed/corres/{n}.vts"), dtype=np.int64) - 1
-        for n in names
+        np.loadtxt(shared_path(f"faust_remeshed/corres/{n}.vts"), dtype=np.int64) - 1 for n in names
     ]
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
     corr = match_eigenbases(e1, e2)

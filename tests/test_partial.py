@@ -9,10 +9,21 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.core.partial import boundary_length, curvature_descriptors, rescaled, slant
+from o3d_ofp.core.correspondence import nearest_neighbors
+from o3d_ofp.core.partial import (
+    boundary_length,
+    curvature_descriptors,
+    rescaled,
+    slant,
+)
 from o3d_ofp.core.shapes import blob, icosphere
 from o3d_ofp.workflows.matching import Correspondence, map_quality
-from o3d_ofp.workflows.partial import match_partial_eigenbases
+from o3d_ofp.workflows.partial import (
+    MAX_JUMP,
+    _keep_geodesic_at_jumps,
+    _refine,
+    match_partial_eigenbases,
+)
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -83,6 +94,32 @@ def test_cut_of_a_bent_copy_maps_accurately_with_its_overlap(whole, cut, partial
     # A restriction map: (k2+1, k1+1) with more source functions than target ones (slant).
     rows, cols = corr.fmap_12.shape
     assert cols > rows
+
+
+def test_refinement_repairs_a_torn_map(whole, cut):
+    V, _, e1 = whole
+    Vc, _, truth, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    # The true map with the top 30 % of the part sent to the opposite side of the source.
+    torn = truth.copy()
+    region = Vc[:, 1] > np.quantile(Vc[:, 1], 0.7)
+    torn[region] = nearest_neighbors(V, 2 * V.mean(axis=0) - V[truth[region]])
+    k2_final = 40
+    C, p2p = _refine(torn, u1, u2, k2_fit=15, k2_final=k2_final, subsample=None)
+    assert C.shape == (k2_final + 1, slant(u1.evals, u2.evals, k2_final) + 1)
+    # Measured: torn 0.18, refined 0.015. 0.05 is two vertex spacings (as for the full match).
+    assert _error(V, torn, truth, e1.area) > 0.15
+    assert _error(V, p2p, truth, e1.area) < 0.05
+
+
+def test_geodesic_map_is_kept_where_the_spectral_map_jumps():
+    line = np.zeros((5, 3))
+    line[:, 0] = [0.0, 0.1, 0.2, 0.5, 1.0]  # source vertices (unit-area units) on a line
+    geodesic = np.array([0, 1, 2, 3])
+    spectral = np.array([1, 4, 2, 0])  # jumps of 0.1, 0.9, 0, 0.5
+    assert 0.1 < MAX_JUMP < 0.5
+    kept = _keep_geodesic_at_jumps(spectral, geodesic, line)
+    np.testing.assert_array_equal(kept, [1, 1, 2, 3])
 
 
 def test_full_shape_map_of_a_part_is_flagged_with_the_fix(whole, cut):

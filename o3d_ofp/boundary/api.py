@@ -276,7 +276,8 @@ def match(
         The target is a part of the source (a one-sided scan, a cut), **in the same units**:
         partial functional maps (Rodolà et al. 2017: a slanted restriction map from the area
         ratio, fitted to local descriptors (diffused curvatures, WKS at common energies) with
-        the orientation term, then a partial ZoomOut; see
+        the orientation term, then a partial ZoomOut, a refinement by geodesic distances to
+        the anchors the map keeps right and a second partial ZoomOut; see
         :func:`o3d_ofp.workflows.partial.match_partial_eigenbases`). ``quality.overlap``
         gives the estimated fraction of the source covered; ``method="partial"`` in the
         result. Without it, a target that looks like a part of the source is flagged suspect.
