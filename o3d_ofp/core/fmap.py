@@ -42,6 +42,15 @@ logger = logging.getLogger(__name__)
 #: vertices. Smaller pools change the samples of mid-sized shapes enough to move their maps
 #: (measured, ZoomOut on FAUST x4 = 27.5k vertices: pool 4x 0.0273, 8x 0.0291, exact 0.0255).
 FPS_POOL = 32
+#: The commutativity and orientation terms use every OPERATOR_STEP-th descriptor (pyFM's
+#: documented ``subsample_step=5``: 20 of 100 wave-kernel energies); the descriptor term uses
+#: all of them. Measured on the 6 ground-truth pairs of ../shared/data (scripts/eval_matching.py
+#: pairs, fits of 29 and 39, ZoomOut to 99): step 1 (all 100) 0.0166 / 0.1868 / 0.0149 /
+#: 0.0133 / 0.0212 / 0.324, step 5 0.0143 / 0.1868 / 0.0149 / 0.0133 / 0.0212 / 0.494 (both
+#: SHREC'19 maps are wrong), step 10 loses the centaurs (0.0194); the operators, their Hessians
+#: and the solves take about a third of the time with step 5 (the match: 14.3 s against 21.2
+#: s over the six pairs).
+OPERATOR_STEP = 5
 
 
 def unit_area(eig: EigenBasis) -> EigenBasis:
@@ -283,6 +292,7 @@ class _FitTerms:
         landmarks: tuple[np.ndarray | None, np.ndarray | None],
         dcomm: bool,
         orient: bool,
+        operator_step: int,
     ) -> None:
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
         lm1, lm2 = landmarks
@@ -290,12 +300,14 @@ class _FitTerms:
         D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
         self.A, self.B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
         self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
+        operator_step = check_int(operator_step, name="operator_step", minimum=1)
+        O1, O2 = D1[:, ::operator_step], D2[:, ::operator_step]  # the operators' descriptors
         self.dcomm = (
-            (_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2)) if dcomm else None
+            (_descriptor_ops(eig_1, k1, O1), _descriptor_ops(eig_2, k2, O2)) if dcomm else None
         )
         self.orient = None
         if orient and eig_1.faces is not None and eig_2.faces is not None:
-            self.orient = (_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
+            self.orient = (_orientation_ops(eig_1, k1, O1), _orientation_ops(eig_2, k2, O2))
         elif orient:
             logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
 
@@ -388,6 +400,7 @@ def estimate_fmap(
     w_lap: float = 1e-2,
     w_dcomm: float | tuple[float, ...] = 1e-1,
     w_orient: float = 1.0,
+    operator_step: int = OPERATOR_STEP,
     refine: str | None = "zoomout",
     zoomout_to: int | None = None,
     icp_iterations: int = 10,
@@ -437,6 +450,9 @@ def estimate_fmap(
         Weight of the orientation term relative to the others (it is rescaled so that, at
         the identity map, it equals ``w_orient`` times the other terms). Ignored for point
         clouds (no faces).
+    operator_step : int, default OPERATOR_STEP (5)
+        The commutativity and orientation terms use every ``operator_step``-th descriptor
+        (pyFM's ``subsample_step``); the descriptor term uses all of them.
     refine : {"zoomout", "icp", None}, default "zoomout"
         Refinement after the optimization.
     zoomout_to : int, optional
@@ -492,6 +508,7 @@ def estimate_fmap(
         landmarks=(lm1, lm2),
         dcomm=max(np.atleast_1d(w_dcomm)) > 0,
         orient=w_orient > 0,
+        operator_step=operator_step,
     )
     fits = [
         terms.fit(
@@ -532,6 +549,7 @@ def estimate_fmaps(
     w_descr: float = 1.0,
     w_lap: float = 1e-2,
     w_orient: float = 1.0,
+    operator_step: int = OPERATOR_STEP,
 ) -> list[tuple[int, float, np.ndarray]]:
     """Square descriptor fits of several sizes and commutativity weights, the terms built once.
 
@@ -548,7 +566,7 @@ def estimate_fmaps(
         Non-constant eigenfunctions of each fitted map (k1 = k2 = k).
     w_dcomm : sequence of float, default (0.1,)
         Weights of the descriptor-commutativity term.
-    descriptors, n_descriptors, k_descriptors, landmarks, w_descr, w_lap, w_orient
+    descriptors, n_descriptors, k_descriptors, landmarks, w_descr, w_lap, w_orient, operator_step
         As in :func:`estimate_fmap`.
 
     Returns
@@ -579,6 +597,7 @@ def estimate_fmaps(
         landmarks=_landmark_pairs(landmarks),
         dcomm=max(weights) > 0,
         orient=w_orient > 0,
+        operator_step=operator_step,
     )
     return [
         (size, wc, scale * terms.fit(size, size, weights=(w_descr, w_lap, wc, w_orient)))

@@ -4,7 +4,7 @@ The direct match of two 110k-vertex meshes spends most of its time on the 100
 full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertices).
 :func:`match_dense` never computes them:
 
-1. each shape is reduced to a coarse mesh of about :data:`COARSE_VERTICES` (15000) vertices, the
+1. each shape is reduced to a coarse mesh of about :data:`COARSE_VERTICES` (20000) vertices, the
    dual of its geodesic Voronoi cells (:func:`o3d_ofp.core.multiscale.coarse_mesh`, O(n log n));
 2. the whole estimation (``estimate``: :func:`o3d_ofp.workflows.matching.match_eigenbases`,
    descriptor fit, ZoomOut to 100, quality report) runs between the coarse meshes;
@@ -41,10 +41,13 @@ logger = logging.getLogger(__name__)
 #: path gains little time there) and keeps the exact full-resolution spectral map.
 DENSE_VERTICES = 50_000
 #: Vertices of each coarse mesh. Measured (FAUST 093 -> 087 subdivided to 110k vertices, map
-#: error / sqrt(area); the direct match of the original 6890-vertex pair: 0.026, of the 110k
-#: pair: 0.031): 7000 coarse vertices 0.034-0.09 depending on the sampling, 10000 0.033-0.036,
-#: 15000 0.0285 (coarse meshes, eigenpairs, estimation and extension: 30 s at load 5.5).
-COARSE_VERTICES = 15_000
+#: error / sqrt(area) with the estimation's chosen start; the direct match of the original
+#: 6890-vertex pair: 0.0166): 15000 coarse vertices 0.0235, 17500 0.0189, 20000 0.0184,
+#: 22500 0.0185, 27000 0.0213 (the coarse meshes' sampling moves the error by ±0.003 around a
+#: floor near 0.018); at 440k, 15000 0.0201 and 20000 0.0176. Coarse meshes and their
+#: eigenpairs take 2.3 s at 15000, 3.7 s at 20000 (110k); earlier, 7000 gave 0.034-0.09 and
+#: 10000 0.033-0.036.
+COARSE_VERTICES = 20_000
 
 
 def match_dense(

@@ -91,17 +91,18 @@ DCOMM_WEIGHTS = (0.1, 0.0)
 #: Size of the second descriptor fit of :func:`match_eigenbases` (beside ``k_fit``, the
 #: paper's 29). Measured on the 6 ground-truth pairs of ../shared/data (eigenbases of 99
 #: functions, fits of 20, 29, 39 and 49, each weight, ZoomOut to 99): the fit of 39 gives the
-#: better map on FAUST 093 -> 087 (0.0166 against 0.0257) and FAUST remeshed 002 -> 007
-#: (0.0212 against 0.0386; pyFM 0.0229), 29 on the centaurs (0.0149 against 0.088) and no
-#: size is best everywhere, so both are starts. A third fit of 49, compared at 99, was kept
-#: only on 093 -> 087 (0.0163).
+#: better map on FAUST 093 -> 087 (0.0143 against 0.0253 from the fits of 29 alone, operators
+#: of 20 descriptors) and FAUST remeshed 002 -> 007 (0.0212 against 0.0317; pyFM 0.0229), 29
+#: on the centaurs (0.0149 against 0.088) and no size is best everywhere, so both are starts.
+#: A third fit of 49, compared at 99, was kept only on 093 -> 087 (by 0.0003).
 WIDE_FIT_K = 39
 #: The starts (each fit size with each weight) are compared by :func:`alignment_residual`
 #: after ZoomOut to this size, and only the best one is refined further. Measured on the 6
 #: pairs above, comparing after ZoomOut to 39 (where the fit of 39 is not refined yet) keeps
-#: the fit of 29 on every pair (093 -> 087 0.0257, 002 -> 007 0.0386); after ZoomOut to 49
-#: and to 99 the same starts win except on the SHREC'19 pair (0.324 at 49, 0.524 at 99: both
-#: wrong maps), and comparing at 49 takes 2.0-3.1 s per 5-10k pair against 4.3-5.5 s at 99.
+#: the fit of 29 on every pair (093 -> 087 0.0253, 002 -> 007 0.0317); after ZoomOut to 49
+#: and to 99 the same starts win except on the SHREC'19 pair (0.324 at 49, 0.524 at 99 with
+#: operators of 100 descriptors: both wrong maps), and comparing at 49 took 2.0-3.1 s per
+#: 5-10k pair against 4.3-5.5 s at 99.
 SELECT_K = 49
 
 
