@@ -6,14 +6,15 @@ For each cut (a plane keeping 55-80 % of the target's area): the map error (mean
 between the matched and the true source vertex, divided by sqrt(source area)) of
 ``ofp.match(..., partial=True)``, of the full-shape map of the uncut pair and of
 ``partial=False`` on the cut; the verdict of each; the estimated overlap against the kept
-area fraction; the geodesic distortion of the final map (the suspect flag reads that of the
-start the refinement began from, against ``MAX_DISTORTION``); the
-seconds of the partial match (given the eigenbases; the eigensolves are shared and timed
-apart) and the load average. Then targets that are NOT a part of the source (a cut of another
-kind of body, scaled to a plausible 70 % of the source's area): their maps must be suspect.
+area fraction; the geodesic distortion and the stretch of the final map (the suspect flag
+reads both, against ``MAX_DISTORTION`` and ``MAX_STRETCH``); the seconds of the partial match
+(given the eigenbases; the eigensolves are shared and timed apart) and the load average. Then
+targets that are NOT a part of the source (a cut of another kind of body, scaled to a plausible
+70 % of the source's area): their maps must be suspect.
 With ``--remeshed``, also cuts of independently remeshed FAUST bodies (~5k vertices, other
 connectivity than the source's; truth from ``faust_remeshed/corres``, measured on the listed
-vertices the cut keeps): the constants of the partial match were measured on the cuts above.
+vertices the cut keeps). ``--only`` selects among all three lists by name (a remeshed cut is
+named like ``tr_reg_007 -> tr_reg_000``).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 
 import o3d_ofp as ofp
 from o3d_ofp.boundary.convert import geometry_to_arrays
-from o3d_ofp.core.partial import geodesic_distortion
+from o3d_ofp.core.partial import geodesic_distortion, map_stretch
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -123,9 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
     print(
         "| cut | kept area | overlap | error partial | full pair | partial=False on cut | "
-        "verdict partial / False | distortion (final map) | s |"
+        "verdict partial / False | distortion (final map) | stretch | s |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     cache: dict[str, tuple] = {}
     notes = []
     for name, a, b, axis, side, fraction in cuts:
@@ -150,14 +151,15 @@ def main(argv: list[str] | None = None) -> int:
             f"{error(V1, part.p2p_21, orig, e1.area):.4f} | {full_error:.4f} | "
             f"{error(V1, whole.p2p_21, orig, e1.area):.4f} | "
             f"{'suspect' if qp.suspect else 'ok'} / {'suspect' if qw.suspect else 'ok'} | "
-            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | {seconds:.1f} |",
+            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
+            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} | {seconds:.1f} |",
             flush=True,
         )
         notes += [f"{name}, partial=True: {r}" for r in qp.reasons]
         notes += [f"{name}, partial=False: {r}" for r in qw.reasons[:1]]
     others = [c for c in NOT_PARTS if not args.only or any(o in c[0] for o in args.only)]
     if others:
-        print("\n| not a part | verdict partial | distortion |\n|---|---|---|")
+        print("\n| not a part | verdict partial | distortion | stretch |\n|---|---|---|---|")
     for name, a, b, axis, side, fraction in others:
         V1, F1 = load(a)
         e1 = ofp.eigenbasis(V1, F1, k=99)
@@ -168,13 +170,22 @@ def main(argv: list[str] | None = None) -> int:
         part = ofp.match((V1, F1), (Vc, Fc), partial=True, eigenbases=(e1, ec))
         print(
             f"| {name} | {'suspect' if part.quality.suspect else 'ok'} | "
-            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} |",
+            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
+            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} |",
             flush=True,
         )
         notes += [f"{name}, partial=True: {r}" for r in part.quality.reasons[:1]]
-    if args.remeshed:
-        print("\n| remeshed cut | kept area | error partial | verdict | s |\n|---|---|---|---|---|")
-    for a, b, axis, side, fraction in REMESHED if args.remeshed else []:
+    remeshed = [
+        c
+        for c in (REMESHED if args.remeshed else [])
+        if not args.only or any(o in f"{c[0]} -> {c[1]}" for o in args.only)
+    ]
+    if remeshed:
+        print(
+            "\n| remeshed cut | kept area | error partial | verdict | distortion | stretch | s |"
+            "\n|---|---|---|---|---|---|---|"
+        )
+    for a, b, axis, side, fraction in remeshed:
         V1, F1 = load(f"faust_remeshed/{a}.off")
         V2, F2 = load(f"faust_remeshed/{b}.off")
         corres = [
@@ -193,9 +204,12 @@ def main(argv: list[str] | None = None) -> int:
         err = error(V1, part.p2p_21[index[corres[1][rows]]], corres[0][rows], e1.area)
         print(
             f"| {a} -> {b} ({'+-'[side < 0]}{'xyz'[axis]} kept) | {kept:.2f} | {err:.4f} | "
-            f"{'suspect' if part.quality.suspect else 'ok'} | {seconds:.1f} |",
+            f"{'suspect' if part.quality.suspect else 'ok'} | "
+            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
+            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} | {seconds:.1f} |",
             flush=True,
         )
+        notes += [f"{a} -> {b}: {r}" for r in part.quality.reasons[:1]]
     for line in notes:
         print(line)
     print(f"load average {os.getloadavg()[0]:.1f} (end)")
