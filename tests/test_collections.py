@@ -255,11 +255,23 @@ def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_
         return real(V, F, k=k, **options)
 
     monkeypatch.setattr(tasks, "eigenbasis", spy)
+    from o3d_ofp.workflows import dense
+
+    coarse_sizes: list[int] = []
+    real_coarse = dense.eigenbasis
+
+    def coarse_spy(V, F, *, k, **options):
+        coarse_sizes.append(V.shape[0])
+        return real_coarse(V, F, k=k, **options)
+
+    monkeypatch.setattr(dense, "eigenbasis", coarse_spy)
     results = transfer_many(
         paths["src"], [paths["t0"], paths["t1"]], workers=0, output_dir=tmp_path, k1=12, k2=12
     )
     assert [r.status for r in results] == ["ok", "ok"]
     assert sizes == [12, 12, 12]  # the source once, each target: the OFP bases' size only
+    # coarse eigenbases: the source's once (shared), then each target's
+    assert len(coarse_sizes) == 3, coarse_sizes
     # each target's colors are those of the two-shape pipeline through the dense-path map
     corr = matching.match_arrays(V, F, _bent(V, 0.1), F)
     assert corr.options["dense"] is True

@@ -209,6 +209,19 @@ def test_dense_path_has_no_quadratic_memory():
     assert _error(corr.p2p_21, V, F, np.arange(V.shape[0])) < 0.06
 
 
+def test_a_given_coarse_source_gives_the_same_map(twisted_pair, direct_and_dense):
+    from o3d_ofp.workflows.dense import coarse_shape
+
+    V1, F1, V2, F2 = twisted_pair
+    _, ref = direct_and_dense
+    coarse = coarse_shape(V1, F1, k=99, coarse_vertices=3000)
+    given = match_arrays(V1, F1, V2, F2, dense_above=0, coarse_vertices=3000, coarse_source=coarse)
+    # The same coarse mesh and eigenbasis as the pair's own: the same map, to the vertex.
+    np.testing.assert_array_equal(given.p2p_21, ref.p2p_21)
+    with pytest.raises(ValueError, match="coarse_1 was built for a shape of"):
+        match_dense(V1[:-1], F1, V2, F2, estimate=match_eigenbases, k=99, coarse_1=coarse)
+
+
 def test_dense_path_rejects_bad_input(twisted_pair):
     V1, F1, V2, F2 = twisted_pair
     with pytest.raises(ValueError, match="landmarks"):

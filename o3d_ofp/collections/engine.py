@@ -37,6 +37,8 @@ from ..boundary.convert import (
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import mesh_texture, texture_colors
 from ..core.orthogonalize import resolve_tol
+from ..workflows import matching as _matching
+from ..workflows.dense import coarse_shape
 from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT
 from ..workflows.detail import MODES as DETAIL_MODES
 from ..workflows.matching import ESTIMATION_K, uses_dense_path
@@ -487,7 +489,24 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
         "with every target",
         name, V.shape[0], eig.k, " (cached)" if cached else "", B.size, time.perf_counter() - t0,
     )  # fmt: skip
-    return SharedSource(name, V, F, eig, B, signal, job, texture)
+    coarse = None
+    if dense:  # every mesh target's map is estimated on coarse copies: the source's, once
+        t0 = time.perf_counter()
+        coarse = coarse_shape(
+            V,
+            F,
+            k=ESTIMATION_K,
+            coarse_vertices=_matching.COARSE_VERTICES,  # what match_arrays uses for the target
+            components=job.components,
+        )
+        logger.info(
+            "source %s: coarse copy of %d vertices and its eigenbasis (%.1f s); shared with "
+            "every target",
+            name,
+            coarse.vertices.shape[0],
+            time.perf_counter() - t0,
+        )
+    return SharedSource(name, V, F, eig, B, signal, job, texture, coarse)
 
 
 def _source_colors(geometry: Any, name: str, signal: str, *, quiet: bool = False) -> Any:

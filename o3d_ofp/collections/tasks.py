@@ -24,6 +24,7 @@ from ..boundary.texture import MeshTexture
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
+from ..workflows.dense import CoarseShape
 from ..workflows.detail import DETAIL_BAND, ROTATION_K
 from ..workflows.matching import (
     ESTIMATION_K,
@@ -150,6 +151,9 @@ class SharedSource:
         The options.
     texture : MeshTexture or None
         The source's UVs and images (kind "texture").
+    coarse : CoarseShape or None
+        The source's coarse copy and its eigenbasis, for a source on the dense path (its maps
+        to mesh targets are estimated on coarse copies): reduced once, not per target.
     """
 
     name: str
@@ -160,6 +164,7 @@ class SharedSource:
     signal: np.ndarray | None
     job: TransferJob
     texture: MeshTexture | None = None
+    coarse: CoarseShape | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -283,8 +288,15 @@ def _correspondence(
     source: SharedSource, eig_2: EigenBasis, V2: np.ndarray, F2: np.ndarray | None
 ) -> Correspondence:
     job = source.job
-    if _dense_pair(source, V2, F2):  # the coarse bases are the pair's own: made here
-        return match_arrays(source.vertices, source.faces, V2, F2, components=job.components)
+    if _dense_pair(source, V2, F2):  # the target's coarse basis is made here
+        return match_arrays(
+            source.vertices,
+            source.faces,
+            V2,
+            F2,
+            components=job.components,
+            coarse_source=source.coarse,
+        )
     if job.map == "estimate":
         eig_1 = source.eig
         need = required_k(eig_1.n_vertices, ESTIMATION_K)

@@ -29,9 +29,9 @@ import numpy as np
 
 from ..core._validation import check_int
 from ..core.multiscale import coarse_mesh, extend_p2p
-from ..core.spectrum import eigenbasis
+from ..core.spectrum import EigenBasis, eigenbasis
 
-__all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "match_dense"]
+__all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_shape", "match_dense"]
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +50,67 @@ DENSE_VERTICES = 50_000
 COARSE_VERTICES = 20_000
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class CoarseShape:
+    """A shape's coarse copy and its eigenbasis, as :func:`match_dense` estimates on them.
+
+    Attributes
+    ----------
+    vertices : (s, 3) ndarray of float64
+        Coarse vertices (a subset of the shape's).
+    faces : (f, 3) ndarray of int64
+        Coarse triangles.
+    samples : (s,) ndarray of int64
+        Index of every coarse vertex in the shape.
+    cell : (n,) ndarray of int64
+        Coarse vertex (cell) of every vertex of the shape.
+    eig : EigenBasis
+        Eigenbasis of the coarse mesh.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    samples: np.ndarray
+    cell: np.ndarray
+    eig: EigenBasis
+
+
+def coarse_shape(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    k: int,
+    coarse_vertices: int = COARSE_VERTICES,
+    components: str = "auto",
+) -> CoarseShape:
+    """Build a shape's coarse copy and its eigenbasis (what :func:`match_dense` needs of it).
+
+    A source matched onto several dense targets needs this once: pass it to
+    :func:`match_dense` as ``coarse_1``.
+
+    Parameters
+    ----------
+    vertices, faces : (n, 3) ndarray of float, (m, 3) ndarray of int
+        The mesh.
+    k : int
+        Non-constant eigenfunctions of the coarse basis (fewer when the coarse mesh is small).
+    coarse_vertices : int, default :data:`COARSE_VERTICES`
+        Vertices of the coarse mesh (± 10 %; capped by the shape).
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components of the coarse mesh.
+
+    Returns
+    -------
+    CoarseShape
+    """
+    V = np.ascontiguousarray(vertices, dtype=np.float64)
+    coarse_vertices = check_int(coarse_vertices, name="coarse_vertices", minimum=200)
+    k = check_int(k, name="k", minimum=1)
+    Vc, Fc, samples, cell = coarse_mesh(V, faces, min(coarse_vertices, V.shape[0]))
+    eig = eigenbasis(Vc, Fc, k=max(1, min(k, Vc.shape[0] - 1)), clamp_k=True, components=components)
+    return CoarseShape(Vc, Fc, samples, cell, eig)
+
+
 def match_dense(
     vertices_1: np.ndarray,
     faces_1: np.ndarray,
@@ -62,6 +123,7 @@ def match_dense(
     components: str = "auto",
     landmarks: np.ndarray | None = None,
     progress: Callable[[str, float], None] | None = None,
+    coarse_1: CoarseShape | None = None,
     **options: Any,
 ) -> Any:
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
@@ -88,6 +150,10 @@ def match_dense(
         carried to the coarse vertices of their cells.
     progress : callable, optional
         Called as ``progress(stage, fraction_done)``.
+    coarse_1 : CoarseShape, optional
+        The source's coarse copy and eigenbasis, when the caller has them
+        (:func:`coarse_shape` with the same ``k`` and ``coarse_vertices``): a source matched
+        onto several targets is then reduced once.
     **options
         Passed to ``estimate``.
 
@@ -118,30 +184,32 @@ def match_dense(
             raise ValueError(
                 f"landmarks must be (source, target) vertex pairs within [0, {n1}) x [0, {n2})"
             )
+    if coarse_1 is not None and coarse_1.cell.shape[0] != n1:
+        raise ValueError(
+            f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; the source "
+            f"has {n1}"
+        )
     report = progress or (lambda stage, done: None)
     t0 = time.perf_counter()
-    logger.info("match (dense): coarse meshes of ~%d vertices (0%%)", coarse_vertices)
-    report("coarse meshes", 0.0)
-    coarse = [
-        coarse_mesh(V, F, min(coarse_vertices, V.shape[0]))
-        for V, F in ((V1, faces_1), (V2, faces_2))
-    ]
-    logger.info(
-        "match (dense): eigenbases of the coarse meshes (%d and %d vertices, %.1fs) (5%%)",
-        coarse[0][0].shape[0],
-        coarse[1][0].shape[0],
-        time.perf_counter() - t0,
-    )
-    report("coarse eigenbases", 0.05)
-    eigs = [
-        eigenbasis(Vc, Fc, k=max(1, min(k, Vc.shape[0] - 1)), clamp_k=True, components=components)
-        for Vc, Fc, _, _ in coarse
-    ]
+    coarse: list[CoarseShape | None] = [coarse_1, None]
+    for i, (name, V, F) in enumerate((("source", V1, faces_1), ("target", V2, faces_2))):
+        if coarse[i] is not None:
+            logger.info("match (dense): the source's coarse copy is given")
+            continue
+        logger.info(
+            "match (dense): coarse copy of the %s (~%d vertices) and its eigenbasis (%d%%)",
+            name,
+            coarse_vertices,
+            7 * i,
+        )
+        report(f"coarse {name}", 0.07 * i)
+        coarse[i] = coarse_shape(V, F, k=k, coarse_vertices=coarse_vertices, components=components)
+    c1, c2 = coarse
+    assert c1 is not None and c2 is not None
+    eigs = [c1.eig, c2.eig]
     coarse_landmarks = None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
-        coarse_landmarks = np.stack(
-            [coarse[0][3][landmarks[:, 0]], coarse[1][3][landmarks[:, 1]]], axis=1
-        )
+        coarse_landmarks = np.stack([c1.cell[landmarks[:, 0]], c2.cell[landmarks[:, 1]]], axis=1)
     logger.info(
         "match (dense): estimation between the coarse meshes (%.1fs) (15%%)",
         time.perf_counter() - t0,
@@ -176,7 +244,7 @@ def match_dense(
             **corr.options,
             "landmarks": None if landmarks is None else landmarks.tolist(),
             "dense": True,
-            "coarse_vertices": [int(coarse[0][0].shape[0]), int(coarse[1][0].shape[0])],
+            "coarse_vertices": [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])],
         },
         quality=quality,
     )

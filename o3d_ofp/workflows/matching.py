@@ -756,7 +756,10 @@ def match_arrays(
         Vertex count above which two meshes take the dense path (default
         :data:`o3d_ofp.workflows.dense.DENSE_VERTICES`, 50000; 0 always, a huge value never).
         ``coarse_vertices=`` (in ``options``) sets the coarse meshes' size there (default
-        :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`).
+        :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`), and ``coarse_source=`` (a
+        :class:`o3d_ofp.workflows.dense.CoarseShape` of the source, from
+        :func:`o3d_ofp.workflows.dense.coarse_shape`) spares the source's reduction when a
+        source is matched onto several targets.
     **options
         Keyword options of :func:`match_eigenbases` (``landmarks``, ``k_fit``, ``zoomout_to``,
         ...).
@@ -769,6 +772,7 @@ def match_arrays(
         options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
     )  # before any eigensolve
     coarse_vertices = options.pop("coarse_vertices", COARSE_VERTICES)
+    coarse_source = options.pop("coarse_source", None)
     n_max = max(vertices_1.shape[0], vertices_2.shape[0])
     meshes = faces_1 is not None and faces_2 is not None
     if uses_dense_path(vertices_1.shape[0], vertices_2.shape[0], meshes, dense_above):
@@ -782,6 +786,7 @@ def match_arrays(
             k=options.get("zoomout_to", ESTIMATION_K),
             coarse_vertices=coarse_vertices,
             components=components,
+            coarse_1=coarse_source,
             **{**options, "landmarks": landmarks},
         )
     zoomout_to = options.get("zoomout_to", ESTIMATION_K)
