@@ -125,6 +125,10 @@ def test_transfer_detail_refuses_bad_options_before_any_eigensolve(blob_pair, no
         ({"amount": float("inf")}, ValueError, "amount must be in [0, 10]"),
         ({"amount": "1"}, TypeError, "amount must be a number"),
     ]
+    identity = np.arange(len(target))
+    two_maps = {"p2p_21": identity, "fmap_12": np.eye(21)}
+    for mode in ("add", "coordinates"):  # every mode: not one map silently preferred
+        cases.append(({**two_maps, "mode": mode}, ValueError, "give at most one of"))
     for kw, exc, message in cases:
         with pytest.raises(exc, match=message.replace("[", r"\[").replace("]", r"\]")):
             ofp.transfer_detail(mesh_1, mesh_2, **kw)

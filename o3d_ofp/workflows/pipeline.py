@@ -178,7 +178,10 @@ def prepare_transfer(
     correspondence : Correspondence or None
         The given or estimated map; None when ``fmap_12`` or ``p2p_21`` is given.
     """
-    known = correspondence is not None or fmap_12 is not None or p2p_21 is not None
+    given = sum(x is not None for x in (correspondence, p2p_21, fmap_12))
+    if given > 1:  # before any eigensolve
+        raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
+    known = given == 1
     if not known and eigenbases is None and bases is None:
         return estimate_for_transfer(V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks)
     eig_1, eig_2 = _eigenbases(
