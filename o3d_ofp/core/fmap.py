@@ -294,6 +294,8 @@ class _FitTerms:
         orient: bool,
         operator_step: int,
     ) -> None:
+        if descriptors not in ("wks", "hks"):
+            raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
         lm1, lm2 = landmarks
         D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
@@ -486,8 +488,6 @@ def estimate_fmap(
     check_eigenbasis(eig_2, "eig_2")
     k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
     k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
-    if descriptors not in ("wks", "hks"):
-        raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
     if solver not in ("direct", "lbfgs"):
         raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
     if refine not in ("zoomout", "icp", None):
@@ -576,8 +576,6 @@ def estimate_fmaps(
     """
     check_eigenbasis(eig_1, "eig_1")
     check_eigenbasis(eig_2, "eig_2")
-    if descriptors not in ("wks", "hks"):
-        raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
     top = min(eig_1.k, eig_2.k)
     sizes = [check_int(k, name="sizes", minimum=1, maximum=top) for k in sizes]
     weights = [float(w) for w in w_dcomm]

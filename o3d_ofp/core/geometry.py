@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["face_areas_normals", "face_gradient_operator", "vertex_normals"]
+__all__ = ["edge_graph", "face_areas_normals", "face_gradient_operator", "vertex_normals"]
 
 
 def face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,3 +98,20 @@ def face_gradient_operator(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.
     return tuple(
         sp.csr_matrix((grads[:, :, d].reshape(-1), (rows, cols)), shape=(m, n)) for d in range(3)
     )
+
+
+def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """(n, n) symmetric sparse matrix of the mesh's edge lengths (shortest paths run on it).
+
+    Each edge once, whatever the faces' orientation; a zero-length edge (welded-but-distinct
+    vertices) is kept with a tiny positive length, so that it does not read as "no edge".
+    """
+    n = vertices.shape[0]
+    F = np.asarray(faces, dtype=np.int64)
+    E = np.unique(
+        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
+    )
+    length = np.linalg.norm(vertices[E[:, 0]] - vertices[E[:, 1]], axis=1)
+    length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1e-300))
+    i, j = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
+    return sp.coo_matrix((np.concatenate([length, length]), (i, j)), shape=(n, n)).tocsr()

@@ -31,6 +31,7 @@ from ._threads import blas_threads
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p
 from .fmap import farthest_points, grid_samples
+from .geometry import edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
 __all__ = ["coarse_eigenbasis", "coarse_mesh", "extend_fmap", "extend_p2p", "local_p2p_from_fmap"]
@@ -757,18 +758,6 @@ def extend_fmap(
     return fmap_from_p2p(p2p, eig_1, eig_2, k1=k1, k2=k2), p2p
 
 
-def _edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
-    """(n, n) symmetric sparse matrix of the mesh's edge lengths."""
-    n = vertices.shape[0]
-    i = faces[:, [0, 1, 2]].ravel()
-    j = faces[:, [1, 2, 0]].ravel()
-    length = np.linalg.norm(vertices[i] - vertices[j], axis=1)
-    # A zero length would read as "no edge": keep welded-but-distinct vertices connected.
-    length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1e-300))
-    G = sp.coo_matrix((length, (i, j)), shape=(n, n)).tocsr()
-    return G.maximum(G.T).tocsr()
-
-
 def coarse_mesh(
     vertices: Any, faces: Any, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -815,7 +804,7 @@ def coarse_mesh(
     samples = grid_samples(V, count)
     count = samples.shape[0]
     _, _, source = dijkstra(
-        _edge_graph(V, F),
+        edge_graph(V, F),
         directed=False,
         indices=samples,
         min_only=True,

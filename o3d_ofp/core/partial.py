@@ -77,6 +77,7 @@ from .fmap import (
     _projection,
     farthest_points,
 )
+from .geometry import edge_graph
 from .spectrum import EigenBasis
 
 __all__ = [
@@ -212,18 +213,6 @@ def map_stretch(
     return float(mapped / length) if length > 0 else math.nan
 
 
-def _edge_graph(vertices: np.ndarray, faces: np.ndarray) -> Any:
-    import scipy.sparse as sp
-
-    F = np.asarray(faces, dtype=np.int64)
-    E = np.unique(
-        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
-    )
-    w = np.linalg.norm(vertices[E[:, 0]] - vertices[E[:, 1]], axis=1)
-    n = vertices.shape[0]
-    return sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
-
-
 def geodesic_distortion(
     p2p_21: np.ndarray,
     vertices_1: np.ndarray,
@@ -263,9 +252,9 @@ def geodesic_distortion(
     V2 = np.asarray(vertices_2, dtype=np.float64)
     p2p = np.asarray(p2p_21, dtype=np.int64)
     s2 = farthest_points(V2, min(samples, V2.shape[0]))
-    d2 = csgraph.dijkstra(_edge_graph(V2, faces_2), directed=False, indices=s2)[:, s2]
+    d2 = csgraph.dijkstra(edge_graph(V2, faces_2), directed=False, indices=s2)[:, s2]
     s1 = p2p[s2]
-    d1 = csgraph.dijkstra(_edge_graph(V1, faces_1), directed=False, indices=s1)[:, s1]
+    d1 = csgraph.dijkstra(edge_graph(V1, faces_1), directed=False, indices=s1)[:, s1]
     ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
     scale = d2[ok].mean() if ok.any() else 0.0
     if not scale > 0:
@@ -342,8 +331,8 @@ def geodesic_refine(
     p2p = np.array(p2p_21, dtype=np.int64)
     n_anchors = check_int(anchors, name="anchors", minimum=2)
     s2 = farthest_points(V2, min(n_anchors, V2.shape[0]))
-    d2 = csgraph.dijkstra(_edge_graph(V2, faces_2), directed=False, indices=s2)
-    graph_1 = _edge_graph(V1, faces_1)
+    d2 = csgraph.dijkstra(edge_graph(V2, faces_2), directed=False, indices=s2)
+    graph_1 = edge_graph(V1, faces_1)
     # Unreachable pieces (islands): a distance far beyond the shape's, the same on both sides.
     far = 10.0 * float(np.max(d2[np.isfinite(d2)], initial=1.0))
     for _ in range(iterations):

@@ -191,21 +191,22 @@ def match_dense(
         )
     report = progress or (lambda stage, done: None)
     t0 = time.perf_counter()
-    coarse: list[CoarseShape | None] = [coarse_1, None]
-    for i, (name, V, F) in enumerate((("source", V1, faces_1), ("target", V2, faces_2))):
-        if coarse[i] is not None:
-            logger.info("match (dense): the source's coarse copy is given")
-            continue
+    c1 = coarse_1
+    if c1 is None:
         logger.info(
-            "match (dense): coarse copy of the %s (~%d vertices) and its eigenbasis (%d%%)",
-            name,
+            "match (dense): coarse copy of the source (~%d vertices) and its eigenbasis (0%%)",
             coarse_vertices,
-            7 * i,
         )
-        report(f"coarse {name}", 0.07 * i)
-        coarse[i] = coarse_shape(V, F, k=k, coarse_vertices=coarse_vertices, components=components)
-    c1, c2 = coarse
-    assert c1 is not None and c2 is not None
+        report("coarse source", 0.0)
+        c1 = coarse_shape(V1, faces_1, k=k, coarse_vertices=coarse_vertices, components=components)
+    else:
+        logger.info("match (dense): the source's coarse copy is given")
+    logger.info(
+        "match (dense): coarse copy of the target (~%d vertices) and its eigenbasis (7%%)",
+        coarse_vertices,
+    )
+    report("coarse target", 0.07)
+    c2 = coarse_shape(V2, faces_2, k=k, coarse_vertices=coarse_vertices, components=components)
     eigs = [c1.eig, c2.eig]
     coarse_landmarks = None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
