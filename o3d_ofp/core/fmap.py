@@ -10,6 +10,7 @@ import dataclasses
 import logging
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -297,21 +298,30 @@ class _FitTerms:
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
-        lm1, lm2 = landmarks
-        D1 = _descriptors(eig_1, descriptors, n_descriptors, lm1, min(k_descriptors, eig_1.k))
-        D2 = _descriptors(eig_2, descriptors, n_descriptors, lm2, min(k_descriptors, eig_2.k))
-        self.A, self.B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
-        self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
         operator_step = check_int(operator_step, name="operator_step", minimum=1)
-        O1, O2 = D1[:, ::operator_step], D2[:, ::operator_step]  # the operators' descriptors
-        self.dcomm = (
-            (_descriptor_ops(eig_1, k1, O1), _descriptor_ops(eig_2, k2, O2)) if dcomm else None
-        )
-        self.orient = None
-        if orient and eig_1.faces is not None and eig_2.faces is not None:
-            self.orient = (_orientation_ops(eig_1, k1, O1), _orientation_ops(eig_2, k2, O2))
-        elif orient:
+        faces = eig_1.faces is not None and eig_2.faces is not None
+        if orient and not faces:
             logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
+
+        def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
+            D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
+            Dop = D[:, ::operator_step]  # the operators' descriptors
+            return (
+                _projection(eig, k) @ D,
+                _descriptor_ops(eig, k, Dop) if dcomm else None,
+                _orientation_ops(eig, k, Dop) if orient else None,
+            )
+
+        orient = orient and faces
+        # The two shapes' terms are independent: one thread each (their BLAS on one thread).
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            lm1, lm2 = landmarks
+            job = pool.submit(terms, eig_2, k2, lm2)
+            self.A, dcomm_1, orient_1 = terms(eig_1, k1, lm1)
+            self.B, dcomm_2, orient_2 = job.result()
+        self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
+        self.dcomm = (dcomm_1, dcomm_2) if dcomm else None
+        self.orient = (orient_1, orient_2) if orient else None
 
     def fit(
         self,
@@ -597,11 +607,12 @@ def estimate_fmaps(
         orient=w_orient > 0,
         operator_step=operator_step,
     )
-    return [
-        (size, wc, scale * terms.fit(size, size, weights=(w_descr, w_lap, wc, w_orient)))
-        for size in sizes
-        for wc in weights
-    ]
+    fits = [(size, wc) for size in sizes for wc in weights]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        maps = pool.map(
+            lambda f: terms.fit(f[0], f[0], weights=(w_descr, w_lap, f[1], w_orient)), fits
+        )
+        return [(size, wc, scale * C) for (size, wc), C in zip(fits, maps, strict=True)]
 
 
 @one_blas_thread

@@ -16,6 +16,7 @@ import logging
 import math
 import os
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import Any
 
 import numpy as np
@@ -649,16 +650,27 @@ def match_eigenbases(
         and zoomout_subsample < min(eig_1.n_vertices, eig_2.n_vertices)
         else None
     )
-    best: tuple[float, np.ndarray, int, float] | None = None
-    for i, (k, w_dcomm, C) in enumerate(starts):
+
+    def refine(i: int, k: int, C: np.ndarray) -> tuple[np.ndarray, float]:
         if select > k:
             logger.info("match: ZoomOut %d -> %d (start %d)", k, select, i + 1)
-            report(f"ZoomOut {i + 1}", 0.1 + 0.5 * i / len(starts))
             C = zoomout_refine(
                 C, u1, u2, k_final=select, subsample=zoomout_subsample, samples=zoom_samples
             )
         residual = alignment_residual(C, u1, u2, sample_indices=samples)
         logger.info("match: start %d alignment residual %.4g", i + 1, residual)
+        return C, residual
+
+    # The starts are independent and their ZoomOut runs its BLAS on one thread: two at a time,
+    # one per core (FAUST 27.5k vertices: the match 2.1 s instead of 2.7 s, with the
+    # threads of estimate_fmaps).
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = [pool.submit(refine, i, k, C) for i, (k, _, C) in enumerate(starts)]
+        for done, _ in enumerate(as_completed(jobs)):
+            report(f"ZoomOut {done + 1}/{len(jobs)}", 0.1 + 0.5 * done / len(jobs))
+        refined = [job.result() for job in jobs]
+    best: tuple[float, np.ndarray, int, float] | None = None
+    for (C, residual), (k, w_dcomm, _) in zip(refined, starts, strict=True):
         if best is None or residual < best[0]:
             best = (residual, C, k, w_dcomm)
     assert best is not None

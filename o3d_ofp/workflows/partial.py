@@ -13,6 +13,7 @@ import dataclasses
 import logging
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import Any
 
 import numpy as np
@@ -429,21 +430,28 @@ def match_partial_eigenbases(
     # on the 8 cuts of scripts/eval_partial.py: over the 6 L-BFGS starts, this ranking and the
     # former one by spectral residual (partial_residual) choose the same start on every cut;
     # the distortion of the final map is also one of the measures of its check.
-    best: tuple[tuple[bool, float], np.ndarray, np.ndarray, float] | None = None
-    for i, (C, w_dcomm) in enumerate(starts):
-        report(f"ZoomOut {i + 1}", 0.2 + 0.5 * i / len(starts))
+    def refine(i: int, C: np.ndarray) -> tuple[tuple[bool, float], np.ndarray, np.ndarray]:
         if k2_final > C.shape[0] - 1:
             C = partial_zoomout(C, u1, u2, k2_final=k2_final, subsample=zoomout_subsample)
         p2p = partial_p2p(C, u1, u2)
         turned = map_quality(p2p, eig_1, eig_2, None, partial=True).reversed_fraction
         distortion = geodesic_distortion(p2p, u1.vertices, u1.faces, u2.vertices, u2.faces)
-        key = (bool(turned > MAX_REVERSED), distortion)
         logger.info(
             "partial match: start %d geodesic distortion %.3f, reversed triangles %.3f",
             i + 1,
             distortion,
             turned,
         )
+        return (bool(turned > MAX_REVERSED), distortion), C, p2p
+
+    # Independent starts, their BLAS on one thread: two at a time, one per core.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = [pool.submit(refine, i, C) for i, (C, _) in enumerate(starts)]
+        for done, _ in enumerate(as_completed(jobs)):
+            report(f"ZoomOut {done + 1}/{len(jobs)}", 0.2 + 0.5 * done / len(jobs))
+        refined = [job.result() for job in jobs]
+    best: tuple[tuple[bool, float], np.ndarray, np.ndarray, float] | None = None
+    for (key, C, p2p), (_, w_dcomm) in zip(refined, starts, strict=True):
         if best is None or key < best[0]:
             best = (key, C, p2p, w_dcomm)
     assert best is not None

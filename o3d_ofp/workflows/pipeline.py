@@ -10,10 +10,12 @@ K = 30 / 40, for humans); order 3 with k ≈ 11-14 suits other shapes (Tables 2,
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
+from ..core._threads import PARALLEL_ROWS
 from ..core._validation import as_signal, check_int
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
@@ -50,10 +52,16 @@ def _bases(
 ) -> tuple[OFPBasis, OFPBasis]:
     k1 = check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
     k2 = check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
-    return (
-        ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1),
-        ofp_basis(eig_2, order=order, tol=tol, preset=preset, k=k2),
-    )
+    if max(eig_1.n_vertices, eig_2.n_vertices) >= PARALLEL_ROWS:  # BLAS on both cores already
+        return (
+            ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1),
+            ofp_basis(eig_2, order=order, tol=tol, preset=preset, k=k2),
+        )
+    # Smaller bases run their BLAS on one thread: one basis per core (27.5k vertices: 1.5 s
+    # instead of 1.8 s for k1 = 29, k2 = 39).
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        job = pool.submit(ofp_basis, eig_2, order=order, tol=tol, preset=preset, k=k2)
+        return ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1), job.result()
 
 
 def transfer_function(
