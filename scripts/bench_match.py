@@ -18,9 +18,13 @@ pair of ../shared/data, ours and pyFM.
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
 Columns: map error, seconds until the map exists (its eigenbases included) and end to end
 (match + color transfer), peak memory (the process's resident set, sampled every 5 ms during
-the call, psutil), the 1-minute load average when the row ended, and the speed-up over pyFM.
-A warning is printed when the load exceeded half the cores: ratios are evidence only on a
-quiet machine (pyFM slows down under load far more than ours, which inflates them).
+the call, psutil), the share of the machine's CPU other processes used during the row (steal
+time included; this process's own threads are not counted, unlike in a load average), and
+the speed-up over pyFM.
+Both pipelines are first run once, untimed, on another pair (see ``warm_up``).
+A row is flagged "busy" and a warning printed when that share exceeded 10 %: ratios are
+evidence only on a quiet machine (pyFM slows down under load far more than ours, which
+inflates them).
 """
 
 from __future__ import annotations
@@ -42,12 +46,30 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 
+def _busy_seconds() -> float:
+    """CPU seconds the whole machine spent busy (every core), steal time included."""
+    t = psutil.cpu_times()
+    return sum(t) - t.idle - getattr(t, "iowait", 0.0)
+
+
+def _own_seconds(proc: psutil.Process) -> float:
+    t = proc.cpu_times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 class Peak:
-    """Seconds and peak resident memory (bytes) of the block."""
+    """Seconds, peak resident memory (bytes) and other processes' CPU share of the block.
+
+    ``others``: the CPU time the machine spent busy outside this process (steal time
+    included) over the block's wall time × cores, in [0, 1]. Unlike the load average it does
+    not count this process's own threads, so a pipeline that uses both cores is not taken for
+    a busy machine.
+    """
 
     def __enter__(self) -> Peak:
         self._proc = psutil.Process()
         self.peak = self._proc.memory_info().rss
+        self._busy0, self._own0 = _busy_seconds(), _own_seconds(self._proc)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, daemon=True)
         self._thread.start()
@@ -63,6 +85,10 @@ class Peak:
         self._stop.set()
         self._thread.join()
         self.peak = max(self.peak, self._proc.memory_info().rss)
+        busy = _busy_seconds() - self._busy0
+        own = _own_seconds(self._proc) - self._own0
+        cores = psutil.cpu_count() or 1
+        self.others = min(1.0, max(0.0, busy - own) / max(self.seconds * cores, 1e-9))
 
 
 def faust_pair(level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -78,14 +104,33 @@ def faust_pair(level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return V1, F1, V2, F2
 
 
+def warm_up(with_pyfm: bool) -> None:
+    """Run ours (and pyFM) once, untimed, on another FAUST pair (019 -> 094).
+
+    The first call of each pipeline in a process pays one-time costs that are not the
+    method's (lazy imports, first touches of the BLAS and of the allocator): measured 0.2-0.5 s
+    for ours. Warming both on other shapes makes every row a steady-state call; nothing is
+    cached between calls by either library.
+    """
+    import open3d as o3d
+
+    pair = []
+    for name in ("tr_reg_019", "tr_reg_094"):
+        mesh = o3d.io.read_triangle_mesh(str(DATA / "faust" / f"{name}.ply"))
+        pair.extend(geometry_to_arrays(mesh))
+    ours(*pair)
+    if with_pyfm:
+        pyfm(*pair)
+
+
 def colors_of(V: np.ndarray) -> np.ndarray:
     return 0.5 + 0.5 * np.sin(4.0 * V / np.ptp(V, axis=0).max() * np.pi)
 
 
 def ours(
     V1, F1, V2, F2, *, dense_above=None, transfer=True
-) -> tuple[np.ndarray, float, float, float]:
-    """p2p_21, seconds of the match, seconds and peak bytes of match + color transfer.
+) -> tuple[np.ndarray, float, float, float, float]:
+    """p2p_21, seconds of the match, seconds, peak bytes and others' CPU of match + transfer.
 
     With the transfer: what ``ofp.transfer_colors(source, target)`` runs on arrays (the
     eigenbases the transfer and the estimation share, the map, the OFP bases, the transfer);
@@ -110,10 +155,10 @@ def ours(
                 t_match = time.perf_counter() - t0
     finally:
         matching.DENSE_VERTICES = saved
-    return corr.p2p_21, t_match, m.seconds, m.peak
+    return corr.p2p_21, t_match, m.seconds, m.peak, m.others
 
 
-def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float, float]:
+def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float, float, float]:
     from pyFM.functional import FunctionalMapping
     from pyFM.mesh import TriMesh
 
@@ -125,7 +170,7 @@ def pyfm(V1, F1, V2, F2) -> tuple[np.ndarray, float, float, float]:
         p2p = model.get_p2p(FM=FM)
         t_match = time.perf_counter() - m._t0
         _ = colors_of(V1)[p2p]  # pyFM's transfer: the pull-back through the point map
-    return p2p, t_match, m.seconds, m.peak
+    return p2p, t_match, m.seconds, m.peak, m.others
 
 
 def error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, target_idx, source_idx) -> float:
@@ -135,7 +180,8 @@ def error(p2p: np.ndarray, V1: np.ndarray, F1: np.ndarray, target_idx, source_id
     )
 
 
-BUSY = 0.5  # load average per core above which timings are flagged
+#: Share of the machine's CPU used by other processes above which a row's seconds are flagged.
+BUSY = 0.1
 
 
 def row(
@@ -147,14 +193,14 @@ def row(
     peak: float,
     who: str,
     ratio: str,
+    others: float,
 ) -> tuple[str, float]:
-    load = os.getloadavg()[0]
-    flag = " (busy)" if load > BUSY * (os.cpu_count() or 1) else ""
+    flag = " (busy)" if others > BUSY else ""
     total = "-" if seconds is None else f"{seconds:.1f}"
     return (
         f"| {name} | {n} | {who} | {err:.4f} | {t_match:.1f} | {total} | "
-        f"{peak / 1e9:.2f} | {load:.1f}{flag} | {ratio} |",
-        load,
+        f"{peak / 1e9:.2f} | {100 * others:.0f} %{flag} | {ratio} |",
+        others,
     )
 
 
@@ -178,29 +224,30 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{cores} cores; load average {os.getloadavg()[0]:.1f} at the start")
     print(
         "| pair | vertices | method | map error | match s | match + transfer s | peak GB | "
-        "load | pyFM / ours |"
+        "others' CPU | pyFM / ours |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
-    loads = [os.getloadavg()[0]]
+    warm_up(with_pyfm=bool(args.pairs or set(args.pyfm_levels) & set(levels)))
+    busy = []
     for level in levels:
         V1, F1, V2, F2 = faust_pair(level)
         every = np.arange(len(V2))
         name = f"FAUST 093->087 x{4**level}"
-        p2p, t_match, seconds, peak = ours(
+        p2p, t_match, seconds, peak, others = ours(
             V1, F1, V2, F2, dense_above=dense_above, transfer=not args.match_only
         )
         err = error(p2p, V1, F1, every, every)
         total = None if args.match_only else seconds
-        line, load = row(name, len(V1), err, t_match, total, peak, "ours", "")
+        line, others = row(name, len(V1), err, t_match, total, peak, "ours", "", others)
         print(line, flush=True)
-        loads.append(load)
+        busy.append(others)
         if level in args.pyfm_levels:
-            p2p, t_match, t_pyfm, peak = pyfm(V1, F1, V2, F2)
+            p2p, t_match, t_pyfm, peak, others = pyfm(V1, F1, V2, F2)
             err = error(p2p, V1, F1, every, every)
             ratio = f"{t_pyfm / seconds:.1f}x"
-            line, load = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM", ratio)
+            line, others = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM", ratio, others)
             print(line, flush=True)
-            loads.append(load)
+            busy.append(others)
     if args.pairs:
         from eval_matching import PAIRS, load, truth
 
@@ -209,22 +256,21 @@ def main(argv: list[str] | None = None) -> int:
             V2, F2 = load(b)
             t, s = truth(a, b, kind, len(V2))
             name = f"{Path(a).stem}->{Path(b).stem}"
-            p2p, t_match, t_ours, peak = ours(V1, F1, V2, F2)
-            line, ld = row(
-                name, len(V1), error(p2p, V1, F1, t, s), t_match, t_ours, peak, "ours", ""
-            )
+            p2p, t_match, t_ours, peak, others = ours(V1, F1, V2, F2)
+            err = error(p2p, V1, F1, t, s)
+            line, o1 = row(name, len(V1), err, t_match, t_ours, peak, "ours", "", others)
             print(line, flush=True)
-            p2p, t_match, t_pyfm, peak = pyfm(V1, F1, V2, F2)
+            p2p, t_match, t_pyfm, peak, others = pyfm(V1, F1, V2, F2)
             ratio = f"{t_pyfm / t_ours:.1f}x"
-            line, ld2 = row(
-                name, len(V1), error(p2p, V1, F1, t, s), t_match, t_pyfm, peak, "pyFM", ratio
-            )
+            err = error(p2p, V1, F1, t, s)
+            line, o2 = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM", ratio, others)
             print(line, flush=True)
-            loads += [ld, ld2]
-    if max(loads) > BUSY * cores:
+            busy += [o1, o2]
+    if busy and max(busy) > BUSY:
         print(
-            f"WARNING: the machine was busy (load average up to {max(loads):.1f} on {cores} "
-            "cores): the seconds and the ratios are not evidence; rerun on a quiet machine."
+            f"WARNING: the machine was busy (other processes used up to {100 * max(busy):.0f} % "
+            "of its CPU during a row): the seconds and the ratios are not evidence; rerun on a "
+            "quiet machine."
         )
     return 0
 
