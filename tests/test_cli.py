@@ -566,6 +566,53 @@ def test_output_equal_to_an_input_leaves_it_untouched(files, capsys, tmp_path, n
     _one_line_error(capsys, "is a directory")
 
 
+def test_a_file_written_beside_the_output_may_not_replace_an_input(
+    files, capsys, tmp_path, no_eigensolve
+):
+    import shutil
+
+    # --signal sig.npy -o sig.ply writes the transferred values to sig.npy, beside sig.ply.
+    sig = tmp_path / "sig.npy"
+    shutil.copy(files["dir"] / "scalar.npy", sig)
+    before = sig.read_bytes()
+    args = ["transfer", files["src"], files["tgt"], "--map", "identity", "--signal", str(sig)]
+    assert main([*args, "-o", str(tmp_path / "sig.ply")]) == 2
+    _one_line_error(capsys, "sig.npy", "an input of this command")
+    assert sig.read_bytes() == before and not (tmp_path / "sig.ply").exists()
+    args = ["approximate", files["src"], "--signal", str(sig)]
+    assert main([*args, "-o", str(tmp_path / "sig.obj")]) == 2
+    _one_line_error(capsys, "sig.npy", "an input of this command")
+    # An OBJ writes <stem>.mtl and <stem>_<i>.png beside it: an input image of that name.
+    image = tmp_path / "x_0.png"
+    image.write_bytes(b"not replaced")
+    args = ["transfer", files["src"], files["tgt"], "--map", "identity", "--signal", "texture"]
+    assert main([*args, "--texture", str(image), "-o", str(tmp_path / "x.obj")]) == 2
+    _one_line_error(capsys, "x_0.png", "an input of this command")
+    assert image.read_bytes() == b"not replaced" and not (tmp_path / "x.obj").exists()
+
+
+def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    mesh = triangle_mesh_from_arrays(files["V"], files["F"])
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(np.zeros((3 * len(files["F"]), 2)))
+    mesh.textures = [o3d.geometry.Image(np.full((4, 4, 3), 200, dtype=np.uint8))]
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(files["F"]), dtype=np.int32))
+    write_geometry(tmp_path / "a.obj", mesh)  # writes a.obj, a.mtl and a texture image
+    beside = sorted(p.name for p in tmp_path.iterdir() if p.name != "a.obj")
+    image = next(p for p in tmp_path.iterdir() if p.suffix == ".png")
+    image.write_bytes(b"an input")
+    other = tmp_path / "b.ply"
+    other.write_bytes(b"unrelated")
+    with pytest.raises(ValueError, match=r"would replace .*an input: nothing was written"):
+        write_geometry(tmp_path / "a.obj", mesh, protect=[str(other), str(image), None])
+    assert image.read_bytes() == b"an input"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*beside, "a.obj", "b.ply"])
+    write_geometry(tmp_path / "a.obj", mesh, protect=[str(other)])  # nothing protected is hit
+    assert image.read_bytes() != b"an input"
+
+
 def test_unknown_method_or_mode_in_python_is_refused(files):
     import o3d_ofp as ofp
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays

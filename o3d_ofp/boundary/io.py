@@ -13,6 +13,7 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -218,7 +219,19 @@ def _check_gltf(path: str, shown: str, n_vertices: int, textured: bool, o3d: Any
         )
 
 
-def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # either does not exist
+        return False
+
+
+def write_geometry(
+    path: str | os.PathLike[str],
+    geometry: Any,
+    *,
+    protect: Sequence[str | os.PathLike[str] | None] = (),
+) -> None:
     """Write an Open3D mesh or point cloud atomically.
 
     Everything Open3D writes (for an OBJ with a texture: the OBJ, its ``.mtl`` and the
@@ -238,11 +251,16 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
         Destination; the extension picks the format.
     geometry : Open3D TriangleMesh or PointCloud (legacy or tensor)
         What to write.
+    protect : sequence of paths, optional
+        Files that must not be replaced (e.g. the inputs of a command): when the geometry
+        file or a file written beside it (an OBJ's ``.mtl`` or texture images) would replace
+        one of them, nothing is written. Entries that are not existing files are ignored.
 
     Raises
     ------
     ValueError
-        For glTF, a mesh that uses several texture images (write an OBJ instead).
+        For glTF, a mesh that uses several texture images (write an OBJ instead); a write
+        that would replace a file of ``protect``.
     OSError
         If Open3D fails to write, or writes a glTF it cannot read back (or without the
         texture); nothing is left at ``path`` or beside it.
@@ -277,6 +295,14 @@ def write_geometry(path: str | os.PathLike[str], geometry: Any) -> None:
             _check_gltf(tmp, path, geometry.vertex.positions.shape[0], textured, o3d)
         mode = default_file_mode()
         extras = sorted(f for f in os.listdir(tmpdir) if f != name)
+        kept = [os.fspath(p) for p in protect if p is not None]
+        for f in [*extras, name]:
+            dest = os.path.join(folder, f)
+            if any(_same_file(dest, p) for p in kept):
+                raise ValueError(
+                    f"{path}: writing it would replace {dest}, an input: nothing was written; "
+                    "choose another output name"
+                )
         for f in [*extras, name]:  # the geometry file last: it refers to the others
             os.chmod(os.path.join(tmpdir, f), mode)
             os.replace(os.path.join(tmpdir, f), os.path.join(folder, f))

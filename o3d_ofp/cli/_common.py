@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import glob
 import logging
 import os
 import sys
@@ -122,14 +123,36 @@ def eig_options(args: argparse.Namespace) -> dict[str, Any]:
     return {"components": args.components}
 
 
+def written_beside(path: str) -> list[str]:
+    """Existing files that writing ``path`` may replace besides it.
+
+    An OBJ's ``.mtl`` and texture images (Open3D names them ``<stem>_<i>.<ext>``), a glTF's
+    ``.bin``. The writer refuses them too (``write_geometry(protect=...)``); naming them here
+    lets a command refuse before any work.
+    """
+    stem, ext = os.path.splitext(path)
+    ext = ext.lower()
+    if ext == ".obj":
+        return [stem + ".mtl", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
+    if ext == ".gltf":
+        return [stem + ".bin", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
+    return []
+
+
 def check_output(
-    path: str, allowed: Sequence[str], *, inputs: Sequence[str | None] = (), flag: str = "-o"
+    path: str,
+    allowed: Sequence[str],
+    *,
+    inputs: Sequence[str | None] = (),
+    flag: str = "-o",
+    side: Sequence[str] = (),
 ) -> None:
     """Refuse a bad output path before any work.
 
     Wrong extension, missing folder, a directory, or one of the inputs (which would be
-    overwritten). ``inputs`` may hold flag values that are not files (``None``, ``"colors"``):
-    only existing files are compared.
+    overwritten), also through a file written beside it (``side``, and those of
+    :func:`written_beside`). ``inputs`` may hold flag values that are not files (``None``,
+    ``"colors"``): only existing files are compared.
     """
     ext = os.path.splitext(path)[1].lower()
     if os.path.isdir(path):
@@ -140,13 +163,16 @@ def check_output(
     if not os.path.isdir(folder):
         raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
-        if (
-            isinstance(source, str)
-            and os.path.exists(path)
-            and os.path.exists(source)
-            and os.path.samefile(path, source)
-        ):
+        if not (isinstance(source, str) and os.path.exists(source)):
+            continue
+        if os.path.exists(path) and os.path.samefile(path, source):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
+        for other in (*side, *written_beside(path)):
+            if os.path.exists(other) and os.path.samefile(other, source):
+                raise UsageError(
+                    f"{flag} {path}: writing it would also write {other}, an input of this "
+                    "command; choose another output name"
+                )
 
 
 def check_cache_dir(path: str | None) -> None:

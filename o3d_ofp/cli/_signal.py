@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from ._common import UsageError, load_npy
+from ._common import UsageError, check_output, load_npy
 
-__all__ = ["read_signal", "write_result"]
+__all__ = ["read_signal", "side_outputs", "signal_sides", "write_result"]
 
 
 def read_signal(
@@ -58,12 +59,32 @@ def _save_npy(path: str, values: np.ndarray) -> None:
         np.save(tmp, values)
 
 
-def write_result(path: str, like: Any, values: np.ndarray, kind: str) -> list[str]:
+def side_outputs(path: str, kind: str) -> list[str]:
+    """Files besides ``path`` that :func:`write_result` writes for a signal of ``kind``."""
+    if kind == "array" and not path.lower().endswith(".npy"):
+        return [os.path.splitext(path)[0] + ".npy"]
+    return []
+
+
+def signal_sides(args: Any) -> list[str]:
+    """Side files of ``-o`` known from the flags: the ``.npy`` of a ``--signal FILE.npy``."""
+    signal = getattr(args, "signal", None)
+    if isinstance(signal, str) and signal.lower().endswith(".npy"):
+        return side_outputs(args.output, "array")
+    return []
+
+
+def write_result(
+    path: str, like: Any, values: np.ndarray, kind: str, *, protect: Sequence[str | None] = ()
+) -> list[str]:
     """Write ``values`` on a copy of the geometry ``like``: colored, moved, or a ``.npy``.
 
     Returns the files written. A general signal goes to a ``.npy`` beside the geometry, which
-    shows its first channel through a colormap.
+    shows its first channel through a colormap. Nothing is written when a file would replace
+    one of ``protect`` (the command's inputs).
     """
+    for side in side_outputs(path, kind):
+        check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
     from ..boundary.convert import like_target
     from ..boundary.io import write_geometry
     from ..render.panel import colormap
@@ -78,9 +99,8 @@ def write_result(path: str, like: Any, values: np.ndarray, kind: str) -> list[st
         out = like_target(like, colors=np.clip(values, 0.0, 1.0))
     else:
         out = like_target(like, colors=colormap(values if values.ndim == 1 else values[:, 0]))
-    if kind == "array":
-        npy = os.path.splitext(path)[0] + ".npy"
+    for npy in side_outputs(path, kind):
         _save_npy(npy, values)
         written.append(npy)
-    write_geometry(path, out)
+    write_geometry(path, out, protect=protect)
     return [path, *written]

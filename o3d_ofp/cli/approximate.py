@@ -15,7 +15,7 @@ from ._common import (
     read_shape,
     report,
 )
-from ._signal import read_signal, write_result
+from ._signal import read_signal, signal_sides, write_result
 
 __all__ = ["add_parser", "run"]
 
@@ -38,18 +38,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
-    check_output(
-        args.output,
-        (*MESH_OUT, *CLOUD_OUT, ".npy"),
-        inputs=(args.mesh, args.signal, args.texture, args.basis),
-    )
+    inputs = (args.mesh, args.signal, args.texture, args.basis)
+    outputs = (*MESH_OUT, *CLOUD_OUT, ".npy")
+    check_output(args.output, outputs, inputs=inputs, side=signal_sides(args))
     check_cache_dir(args.cache)
     geometry, V, F = read_shape(args.mesh)
     f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture)
     B, _ = basis_for(V, F, args.mesh, args, k=args.k, file=args.basis)
     approx = B.approximate(f)
     err = B.approximation_error(f)
-    written = write_result(args.output, geometry, approx, kind)
+    written = write_result(args.output, geometry, approx, kind, protect=inputs)
     report(
         [
             f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "

@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             keep_volume=args.keep_size == "volume",
             basis=B.eig if hasattr(B, "eig") else B,
         )
-    write_geometry(args.output, out)
+    write_geometry(args.output, out, protect=(args.mesh,))
     if args.sharpen is None:
         what = f"smooth {args.smooth:g} (radius {args.smooth:g} sqrt(area))"
     else:

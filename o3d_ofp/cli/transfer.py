@@ -20,7 +20,7 @@ from ._pair import (
     estimate_or_use_map,
     read_pair,
 )
-from ._signal import read_signal, write_result
+from ._signal import read_signal, signal_sides, write_result
 from ._types import positive_int
 
 __all__ = ["add_parser", "run"]
@@ -59,6 +59,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
+    """Return the files this command reads (flag values that are not files are skipped)."""
+    return (args.source, args.target, args.signal, args.texture, *args.map.split(","),
+            args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     """Read, match (or read the map), transfer, write (for each target)."""
     from ..workflows.pipeline import transfer_function
@@ -74,9 +80,10 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas bakes the source's texture into a new atlas: it needs an "
             ".obj/.glb/.gltf output (-o) and no --signal"
         )
-    inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
-              args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs)
+    inputs = _inputs(args)
+    check_output(
+        args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs, side=signal_sides(args)
+    )
     pair = read_pair(args)
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
         return _bake(args, pair)
@@ -94,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             given.save(args.save_map)
         with stage("pull-back through the surface map"):
             g = pull_back(f, given, pair.F1)
-        written = write_result(args.output, pair.target, g, kind)
+        written = write_result(args.output, pair.target, g, kind, protect=inputs)
         report([f"{args.source} -> {args.target}: exact pull-back, map {given.method}",
                 "wrote " + ", ".join(written)])  # fmt: skip
         return 0
@@ -104,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("the map does not belong to these shapes")
     with stage("transfer"):
         g = transfer_function(f, eig_1, eig_2, p2p_21=corr.p2p_21, bases=(B1, B2))
-    written = write_result(args.output, pair.target, g, kind)
+    written = write_result(args.output, pair.target, g, kind, protect=inputs)
     report(
         [
             f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map "
@@ -183,7 +190,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
             )
         except (FileNotFoundError, TypeError) as exc:
             raise UsageError(str(exc)) from exc
-    write_geometry(args.output, out)
+    write_geometry(args.output, out, protect=_inputs(args))
     report(
         [
             f"{args.source} -> {args.target}: texture baked in the target's UV layout "
