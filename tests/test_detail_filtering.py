@@ -184,3 +184,41 @@ def test_smooth_point_cloud_keeps_its_spread(noisy_sphere):
     w = eig.mass / eig.area
     rms = lambda P: np.sqrt(w @ ((P - w @ P) ** 2).sum(1))  # noqa: E731
     assert rms(X) == pytest.approx(rms(sub), rel=1e-9)
+
+
+def test_vertices_left_out_of_the_surface_are_not_filtered():
+    """A dropped component and an unreferenced vertex keep their input values, in every filter.
+
+    They used to take the filtered value of their stand-in (the nearest kept vertex): the
+    dropped parts of a mesh filtered with components="largest" collapsed onto the body.
+    """
+    from o3d_ofp.core.filtering import lowpass, sharpen_coordinates, smooth_coordinates
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(3)
+    rng = np.random.default_rng(0)
+    V = V * (1.0 + 0.02 * rng.standard_normal((len(V), 1)))  # something to smooth
+    small = 0.3 * V[:42] + [3.0, 0.0, 0.0]  # a second, smaller piece (an icosphere(1))
+    _, F_small = icosphere(1)
+    V2 = np.concatenate([V, small, [[5.0, 5.0, 5.0]]])  # and one unreferenced vertex
+    F2 = np.concatenate([F, F_small + len(V)])
+    outside = np.arange(len(V), len(V2))
+    eig = ofp.eigenbasis(V2, F2, k=12, components="largest")
+    assert np.all(eig.mass[outside] == 0)
+    B = ofp.ofp_basis(eig, order=2)
+    colors = 0.5 + 0.3 * np.sin(4 * V2)
+    results = {
+        "lowpass": (lowpass(eig, colors, smooth=0.05), colors),
+        "smooth": (smooth_coordinates(eig, V2, smooth=0.05), V2),
+        "sharpen": (sharpen_coordinates(eig, V2, sharpen=1.0, smooth=0.05), V2),
+        "spectral": (spectral_filter(B, V2, smooth_gains()), V2),
+        "in span": (spectral_filter(B, colors, smooth_gains(), keep_residual=False), colors),
+        "edit": (edit_coefficient(B, V2, 3, [0.1, 0.0, 0.0]), V2),
+    }
+    for name, (out, x) in results.items():
+        np.testing.assert_array_equal(out[outside], x[outside], err_msg=name)
+        assert np.abs(out[: len(V)] - x[: len(V)]).max() > 1e-3, name  # the surface is filtered
+    # Through the Open3D front end (what the CLI's filter runs).
+    mesh = adapters.triangle_mesh_from_arrays(V2, F2)
+    out = ofp.filter_geometry(mesh, smooth=0.05)  # "auto": the small piece is left out
+    np.testing.assert_array_equal(np.asarray(out.vertices)[outside], V2[outside])

@@ -23,6 +23,11 @@ under scaling and under uniform refinement. Measured (``scripts/eval_detail.py``
 0.5 % of the diagonal along the normals): with the lumped (true) vertex areas as mass the best
 results were 10-25 % farther from the clean meshes, behind Open3D's Taubin smoothing; with the
 same mass at every vertex they are closer than Taubin's best on every mesh tried.
+
+Vertices the eigenbasis left out of the surface (the smaller components with
+``components="largest"``, unreferenced vertices: see :mod:`o3d_ofp.core.cleaning`) are not
+filtered: every function here returns their input values unchanged, and they take no part in
+restoring the volume.
 """
 
 from __future__ import annotations
@@ -155,9 +160,8 @@ def spectral_filter(B: OFPBasis, f: Any, gains: Any, *, keep_residual: bool = Tr
     g = _gains_per_function(B, gains)
     c = B.project(x)
     scaled = c * (g[:, None] if c.ndim == 2 else g)
-    if keep_residual:
-        return x + B.reconstruct(scaled - c)
-    return B.reconstruct(scaled)
+    out = x + B.reconstruct(scaled - c) if keep_residual else B.reconstruct(scaled)
+    return _unchanged_outside(B.eig, x, out)
 
 
 def edit_coefficient(B: OFPBasis, f: Any, rank: int, delta: Any) -> np.ndarray:
@@ -185,9 +189,10 @@ def edit_coefficient(B: OFPBasis, f: Any, rank: int, delta: Any) -> np.ndarray:
     d = np.asarray(delta, dtype=np.float64)
     if x.ndim == 2 and d.ndim == 1 and d.shape[0] != x.shape[1]:
         raise ValueError(f"delta must be a scalar or have {x.shape[1]} values; got {d.shape}")
-    return x + (
+    out = x + (
         np.outer(q, d) if x.ndim == 2 and d.ndim == 1 else q[:, None] * d if x.ndim == 2 else q * d
     )
+    return _unchanged_outside(B.eig, x, out)
 
 
 def check_amount(value: Any, name: str, maximum: float) -> float:
@@ -213,6 +218,23 @@ def _eigenbasis_of(B: Any) -> EigenBasis:
     if not isinstance(eig, EigenBasis):
         raise TypeError(f"B must be an OFPBasis or an EigenBasis; got {type(B).__name__}")
     return eig
+
+
+def _outside(eig: EigenBasis) -> np.ndarray | None:
+    """Mask (n,) of the vertices the cleaning left out of the surface; None if there are none."""
+    c = eig.cleaning
+    if c is None or bool(np.all(c.kept)):
+        return None
+    return ~np.asarray(c.kept, dtype=bool)
+
+
+def _unchanged_outside(eig: EigenBasis, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` with the input values ``x`` on the vertices left out of the surface."""
+    outside = _outside(eig)
+    if outside is not None:
+        out = out.copy()
+        out[outside] = x[outside]
+    return out
 
 
 def _uniform_mass(eig: EigenBasis) -> np.ndarray:
@@ -275,10 +297,7 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
             options={"SymmetricMode": True},
         )
         out += 2.0 * np.real((-r / _ORDER) * lu.solve(rhs.astype(np.complex128)))
-    if np.any(empty):  # vertices removed by the cleaning: the value of their stand-in
-        c = eig.cleaning
-        stand_in = c.representative[c.index]
-        out[empty] = out[stand_in[empty]]
+    out[empty] = X[empty]  # vertices left out of the surface: not filtered
     return out.reshape(x.shape)
 
 
@@ -302,7 +321,7 @@ def _keep_size(eig: EigenBasis, reference: np.ndarray, X: np.ndarray) -> np.ndar
         r_ref = math.sqrt(w @ ((reference - w @ reference) ** 2).sum(1))
         r_out = math.sqrt(w @ ((X - centre) ** 2).sum(1))
         s = r_ref / r_out if r_out > 0 else 1.0
-    return centre + s * (X - centre)
+    return _unchanged_outside(eig, X, centre + s * (X - centre))
 
 
 def smooth_coordinates(
