@@ -613,6 +613,45 @@ def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
     assert image.read_bytes() != b"an input"
 
 
+def test_point_and_stl_formats_are_written(files, capsys, tmp_path):
+    """STL gets triangle normals; point formats get the vertices (both failed after the work)."""
+    base = ["transfer", files["src"], files["tgt"], "--map", "identity"]
+    for ext in (".stl", ".xyz", ".pcd", ".xyzrgb"):
+        out = tmp_path / f"x{ext}"
+        assert main([*base, "-o", str(out)]) == 0, capsys.readouterr().err
+        if ext == ".stl":
+            mesh = o3d.io.read_triangle_mesh(str(out))
+            assert len(mesh.triangles) == len(files["F"])
+        else:
+            cloud = o3d.io.read_point_cloud(str(out))
+            assert len(cloud.points) == len(files["V"])
+            if ext != ".xyz":
+                colors = np.asarray(cloud.colors)
+                assert colors.shape == (len(files["V"]), 3) and np.ptp(colors) > 0.1
+
+
+def test_point_cloud_to_a_mesh_format_is_refused_before_the_work(
+    files, capsys, tmp_path, no_eigensolve
+):
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import point_cloud_from_arrays, triangle_mesh_from_arrays
+
+    cloud = tmp_path / "cloud.ply"
+    write_geometry(cloud, point_cloud_from_arrays(files["bent"]))
+    for ext in (".obj", ".stl", ".off"):
+        out = tmp_path / f"x{ext}"
+        assert main(["transfer", files["src"], str(cloud), "-o", str(out)]) == 2
+        _one_line_error(capsys, f"x{ext}", "point cloud (no faces)")
+        assert not out.exists()
+    with pytest.raises(ValueError, match=r"a point cloud has no faces"):
+        write_geometry(tmp_path / "y.obj", point_cloud_from_arrays(files["bent"]))
+    mesh = triangle_mesh_from_arrays(files["V"], files["F"])
+    mesh.triangle_normals = o3d.utility.Vector3dVector(np.zeros((0, 3)))
+    write_geometry(tmp_path / "y.stl", mesh)
+    assert not mesh.has_triangle_normals()  # computed on a copy
+    assert len(o3d.io.read_triangle_mesh(str(tmp_path / "y.stl")).triangles) == len(files["F"])
+
+
 def test_unknown_method_or_mode_in_python_is_refused(files):
     import o3d_ofp as ofp
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays

@@ -149,6 +149,41 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
 
 
 GLTF = (".gltf", ".glb")
+#: Formats Open3D writes point clouds to but not meshes: a mesh is written as its vertices.
+CLOUD_ONLY = (".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+#: Formats that need faces: a point cloud cannot be written to them.
+MESH_ONLY = (".obj", ".off", ".stl", ".glb", ".gltf")
+
+
+def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
+    """Return the geometry in a form Open3D can write to ``path`` (a copy if it must change).
+
+    A mesh written to a point-cloud format becomes the cloud of its vertices (colors and
+    normals kept); STL needs triangle normals, computed on a copy; a point cloud cannot be
+    written to a mesh format (ValueError).
+    """
+    ext = os.path.splitext(path)[1].lower()
+    meshes = (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)
+    if isinstance(geometry, meshes) and ext in (*CLOUD_ONLY, ".stl"):
+        tensor = isinstance(geometry, o3d.t.geometry.TriangleMesh)
+        mesh = geometry.to_legacy() if tensor else geometry
+        if ext == ".stl":
+            mesh = o3d.geometry.TriangleMesh(mesh)  # a copy: the caller's mesh is not changed
+            mesh.compute_triangle_normals()
+            return mesh
+        logger.info("%s: the format holds points only: writing the mesh's vertices", path)
+        cloud = o3d.geometry.PointCloud(mesh.vertices)
+        if mesh.has_vertex_colors():
+            cloud.colors = mesh.vertex_colors
+        if mesh.has_vertex_normals():
+            cloud.normals = mesh.vertex_normals
+        return cloud
+    if not isinstance(geometry, meshes) and ext in MESH_ONLY:
+        raise ValueError(
+            f"{path}: a point cloud has no faces and cannot be written as {ext}; write "
+            f"{', '.join(('.ply', *CLOUD_ONLY))}"
+        )
+    return geometry
 
 
 def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
@@ -238,6 +273,9 @@ def write_geometry(
     texture images, named after the destination) goes to a temporary folder beside the
     destination first, then each file is moved into place, the geometry file last.
 
+    A mesh written to a point-cloud format (.pcd, .xyz, .xyzn, .xyzrgb, .pts) is written as
+    its vertices (with their colors and normals); STL gets the triangle normals it needs.
+
     glTF (``.gltf`` with its ``.bin`` and image files beside it, or one ``.glb``) is written
     with Open3D's tensor writer, since the legacy one writes ``.glb`` files nobody can read
     and drops UVs and textures: positions (float32, the glTF type), normals, vertex colors,
@@ -259,8 +297,9 @@ def write_geometry(
     Raises
     ------
     ValueError
-        For glTF, a mesh that uses several texture images (write an OBJ instead); a write
-        that would replace a file of ``protect``.
+        For glTF, a mesh that uses several texture images (write an OBJ instead); a point
+        cloud to a mesh format (.obj, .off, .stl, .glb, .gltf); a write that would replace a
+        file of ``protect``.
     OSError
         If Open3D fails to write, or writes a glTF it cannot read back (or without the
         texture); nothing is left at ``path`` or beside it.
@@ -269,6 +308,7 @@ def write_geometry(
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     name = os.path.basename(path)
+    geometry = _as_writable(path, geometry, o3d)
     tmpdir = tempfile.mkdtemp(prefix=f".{name}.", dir=folder)
     try:
         tmp = os.path.join(tmpdir, name)

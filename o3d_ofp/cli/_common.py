@@ -158,7 +158,9 @@ def check_output(
     if os.path.isdir(path):
         raise UsageError(f"{flag} {path}: is a directory; give a file name")
     if ext not in allowed:
-        raise UsageError(f"{flag} {path}: the output must end with one of {', '.join(allowed)}")
+        raise UsageError(
+            f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"
+        )
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
@@ -173,6 +175,21 @@ def check_output(
                     f"{flag} {path}: writing it would also write {other}, an input of this "
                     "command; choose another output name"
                 )
+
+
+def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
+    """Refuse, once the input is read and before any work, a point cloud to a mesh format.
+
+    ``faces`` are those of the geometry the output copies (None for a point cloud).
+    """
+    from ..boundary.io import CLOUD_ONLY, MESH_ONLY
+
+    ext = os.path.splitext(path)[1].lower()
+    if faces is None and ext in MESH_ONLY:
+        raise UsageError(
+            f"{flag} {path}: the result is a point cloud (no faces) and cannot be written as "
+            f"{ext}; use {', '.join(('.ply', *CLOUD_ONLY))}"
+        )
 
 
 def check_cache_dir(path: str | None) -> None:

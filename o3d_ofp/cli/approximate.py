@@ -12,6 +12,7 @@ from ._common import (
     basis_for,
     check_cache_dir,
     check_output,
+    check_output_kind,
     read_shape,
     report,
 )
@@ -43,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output, outputs, inputs=inputs, side=signal_sides(args))
     check_cache_dir(args.cache)
     geometry, V, F = read_shape(args.mesh)
+    if not args.output.lower().endswith(".npy"):
+        check_output_kind(args.output, F)
     f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture)
     B, _ = basis_for(V, F, args.mesh, args, k=args.k, file=args.basis)
     approx = B.approximate(f)

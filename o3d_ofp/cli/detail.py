@@ -16,6 +16,7 @@ from ._common import (
     MESH_OUT,
     UsageError,
     check_output,
+    check_output_kind,
     eig_options,
     report,
     stage,
@@ -160,7 +161,9 @@ def detail_one(args: argparse.Namespace, target_path: str, output_path: str) -> 
 
     check_output(output_path, (*MESH_OUT, *CLOUD_OUT), inputs=(args.source, target_path))
     one = argparse.Namespace(**{**vars(args), "target": target_path})
-    pair = estimate_dense_first(one, read_pair(one))
+    pair = read_pair(one)
+    check_output_kind(output_path, pair.F2)
+    pair = estimate_dense_first(one, pair)
     if args.mode == "coordinates":
         B1, B2, eig_1, eig_2 = bases_for_pair(one, pair)
         ofp_options = dict(k1=B1.k, k2=B2.k, order=args.order, bases=(B1, B2), **tol_options(args))

@@ -16,6 +16,7 @@ from ._common import (
     basis_for,
     check_job_memory,
     check_output,
+    check_output_kind,
     eig_options,
     read_shape,
     report,
@@ -75,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     if args.smooth is None and args.sharpen is None:
         raise UsageError("give --smooth RADIUS and/or --sharpen GAIN")
     geometry, V, F = read_shape(args.mesh)
+    check_output_kind(args.output, F)
     if args.basis:
         B, _ = basis_for(V, F, args.mesh, args, k=None, file=args.basis)
     else:

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, check_output, report, stage
+from ._common import (
+    CLOUD_OUT,
+    MESH_OUT,
+    UsageError,
+    check_output,
+    check_output_kind,
+    report,
+    stage,
+)
 from ._many import (
     PAIR_ONLY,
     add_collection_options,
@@ -85,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs, side=signal_sides(args)
     )
     pair = read_pair(args)
+    check_output_kind(args.output, pair.F2)
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
         return _bake(args, pair)
     if args.uv_atlas:
