@@ -321,10 +321,15 @@ def test_cache_dir_reuses_the_basis(files, tmp_path, capsys):
 
 def test_quiet_prints_nothing_but_writes(files, tmp_path, capsys):
     out = tmp_path / "q.ply"
-    assert main(["-q", "approximate", files["src"], "-k", "6", "-o", str(out)]) == 0
-    captured = capsys.readouterr()
-    assert captured.out == "" and captured.err == ""
-    assert out.exists()
+    # -q before or after the command (after it was "unrecognized arguments")
+    for argv in (["-q", "approximate"], ["approximate", "-q"]):
+        assert main([*argv, files["src"], "-k", "6", "-o", str(out)]) == 0
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err == ""
+        assert out.exists()
+        out.unlink()
+    assert main(["approximate", files["src"], "-k", "6", "-o", str(out), "-v"]) == 0
+    assert "eigenbasis" in capsys.readouterr().err
 
 
 def test_save_map_then_reuse_it_and_strict(files, capsys, tmp_path):
