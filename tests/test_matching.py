@@ -50,7 +50,10 @@ def _rotation(seed):
     return q * np.sign(np.linalg.det(q))  # a proper rotation
 
 
-@pytest.mark.parametrize("change", ["scale_1e-3", "scale_1e3", "rotate_translate", "permute"])
+@pytest.mark.parametrize(
+    "change",
+    ["scale_1e-3", "scale_1e3", "rotate_translate", "permute", "target_inward", "source_inward"],
+)
 def test_map_does_not_change_with_units_pose_or_vertex_order(pair, reference, change):
     (V1, F1), (V2, F2) = pair
     expected = reference.p2p_21
@@ -58,6 +61,11 @@ def test_map_does_not_change_with_units_pose_or_vertex_order(pair, reference, ch
     if change.startswith("scale"):
         s = float(change.split("_")[1])
         corr = ofp.match((V1, F1), (V2 * s, F2))
+    elif change.endswith("inward"):  # faces wound inwards: the orientation term must not care
+        if change == "target_inward":
+            corr = ofp.match((V1, F1), (V2, F2[:, ::-1]))
+        else:
+            corr = ofp.match((V1, F1[:, ::-1]), (V2, F2))
     elif change == "rotate_translate":
         corr = ofp.match((V1 @ _rotation(1).T + 5.0, F1), (V2 @ _rotation(2).T - 1e3, F2))
     else:

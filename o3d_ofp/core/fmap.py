@@ -22,7 +22,7 @@ from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import face_areas_normals, hat_gradients
+from .geometry import face_areas_normals, hat_gradients, outward_sign
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
 
@@ -129,6 +129,10 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     """
     V, F = eig.vertices, eig.faces
     areas, normals = face_areas_normals(V, F)
+    # Outward normals whatever the winding: a shape whose faces are wound inwards would
+    # otherwise make the orientation-preserving term prefer the mirror map (measured: FAUST
+    # 093 -> 087 with the target's faces reversed, 0.068 instead of 0.014).
+    normals = normals * outward_sign(V, F)
     hats = hat_gradients(V, F)  # (m, 3 corners, 3 coords)
     phi = eig.evecs[:, : k + 1]
     a, p = k + 1, D.shape[1]

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["edge_graph", "face_areas_normals", "face_gradient_operator", "vertex_normals"]
+__all__ = [
+    "edge_graph",
+    "face_areas_normals",
+    "face_gradient_operator",
+    "outward_sign",
+    "vertex_normals",
+]
 
 
 def face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -115,3 +121,17 @@ def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1e-300))
     i, j = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
     return sp.coo_matrix((np.concatenate([length, length]), (i, j)), shape=(n, n)).tocsr()
+
+
+def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """-1.0 when the faces are wound inwards (they enclose a negative volume), else +1.0.
+
+    The signed volume of the cones from the centroid to the triangles: a closed surface
+    wound inwards encloses minus its volume; so does, about as clearly, an open scan of one
+    side. Below 1e-3 of the bounding box's cube (a flat patch, an undecided surface) the
+    faces are taken as they are (+1).
+    """
+    a, b, c = (vertices[faces[:, i]] - vertices.mean(axis=0) for i in range(3))
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    scale = np.ptp(vertices, axis=0).max() ** 3
+    return -1.0 if volume < -1e-3 * scale else 1.0

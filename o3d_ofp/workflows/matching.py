@@ -24,7 +24,7 @@ import numpy as np
 from ..core._atomic import atomic_path
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refine
-from ..core.geometry import vertex_normals
+from ..core.geometry import outward_sign, vertex_normals
 from ..core.multiscale import local_p2p_from_fmap
 from ..core.partial import boundary_length
 from ..core.spectrum import EigenBasis, check_eigenbasis, eigenbasis
@@ -343,14 +343,6 @@ def _area_reasons(
     ]
 
 
-def _outward(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """+1 when the faces enclose a positive volume (or the surface is open), -1 when negative."""
-    a, b, c = (vertices[faces[:, i]] - vertices.mean(axis=0) for i in range(3))
-    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
-    scale = np.ptp(vertices, axis=0).max() ** 3
-    return -1.0 if volume < -1e-3 * scale else 1.0
-
-
 def _reversed_fraction(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> float:
     """Fraction of target triangles whose image (through the vertex map) is turned over."""
     if eig_1.faces is None or eig_2.faces is None:
@@ -372,7 +364,7 @@ def _reversed_fraction(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis)
     # Meshes whose faces are oriented inwards (negative enclosed volume) count as turned over
     # as a whole: compare each shape's orientation with its own outward direction.
     side = np.sign(np.einsum("ij,ij->i", tri_normal, surface))
-    side *= _outward(eig_1.vertices, eig_1.faces) * _outward(eig_2.vertices, F)
+    side *= outward_sign(eig_1.vertices, eig_1.faces) * outward_sign(eig_2.vertices, F)
     counted = side != 0
     return float(np.mean(side[counted] < 0)) if np.any(counted) else math.nan
 
