@@ -657,6 +657,34 @@ def test_point_cloud_to_a_mesh_format_is_refused_before_the_work(
     assert len(o3d.io.read_triangle_mesh(str(tmp_path / "y.stl")).triangles) == len(files["F"])
 
 
+def test_a_map_file_that_collapses_is_said_and_strict_refuses_it(files, capsys, tmp_path):
+    zero = tmp_path / "zero.npy"
+    np.save(zero, np.zeros(len(files["V"]), dtype=np.int64))  # every target vertex -> vertex 0
+    out = tmp_path / "z.ply"
+    args = ["transfer", files["src"], files["tgt"], "--map", str(zero), "--k1", "6", "--k2", "6"]
+    assert main([*args, "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "map quality SUSPECT" in captured.out and "collapses: only 1 distinct" in captured.out
+    assert "collapses" in captured.err  # logged as a warning too
+    out.unlink()
+    assert main([*args, "--strict", "-o", str(out)]) == 3
+    assert "the map is suspect (--strict)" in capsys.readouterr().err
+    assert not out.exists()
+    # a map file that does not collapse passes --strict
+    np.save(zero, np.arange(len(files["V"])))
+    assert main([*args, "--strict", "-o", str(out)]) == 0
+    assert "SUSPECT" not in capsys.readouterr().out
+
+
+def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eigensolve):
+    other = tmp_path / "other.npy"
+    np.save(other, np.zeros(5, dtype=np.int64))  # the wrong length: not what is reported
+    code = main(["transfer", files["src"], files["tgt"], "--partial", "--map", str(other),
+                 "-o", str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    _one_line_error(capsys, "--partial applies to --map estimate")
+
+
 def test_unknown_method_or_mode_in_python_is_refused(files):
     import o3d_ofp as ofp
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays

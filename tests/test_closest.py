@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from o3d_ofp.boundary.closest import MAX_MEAN_DISTANCE, closest_correspondence, closest_points
+from o3d_ofp.boundary.closest import MIN_COVERAGE as CLOSEST_MIN_COVERAGE
 from o3d_ofp.core.shapes import blob, icosphere, torus
 from o3d_ofp.workflows.matching import Correspondence
 from tests.conftest import load_shared_mesh
@@ -355,6 +356,30 @@ def test_unaligned_shapes_are_suspect(big_source, case):
     assert q.suspect and len(q.reasons) == 1
     reason = q.reasons[0]
     assert "not aligned" in reason and "align=True" in reason and "spectral" in reason
+
+
+@pytest.mark.parametrize("case", ["other_pose", "turned_45"])
+def test_crowded_closest_map_is_suspect(case):
+    """Shapes in the same place but not the same pose: close on average, the map is wrong.
+
+    The mean distance stays under MAX_MEAN_DISTANCE (measured 0.032 and 0.028 of the
+    diagonal), but the target's vertices crowd onto few source vertices (coverage 0.18 and
+    0.33 of the smaller shape; 1.0 for a decimated copy, 0.70 for FAUST turned by 5°).
+    """
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    if case == "other_pose":
+        V2, F2 = load_shared_mesh("faust/tr_reg_087.ply")
+    else:
+        centre = 0.5 * (V1.min(0) + V1.max(0))
+        V2, F2 = (V1 - centre) @ rotation([0, 1, 0], 45).T + centre, F1
+    corr = closest_correspondence(V1, F1, V2, faces_2=F2)
+    q = corr.quality
+    assert corr.options["mean_distance_rel"] < MAX_MEAN_DISTANCE
+    assert q.suspect and q.coverage_ratio < CLOSEST_MIN_COVERAGE
+    assert "crowd onto" in q.reasons[0] and "--map estimate" in q.reasons[0]
+    assert "nan" not in q.summary()
+    V3, F3 = decimate(V1, F1, 2000)  # an aligned copy stays ok
+    assert not closest_correspondence(V1, F1, V3, faces_2=F3).quality.suspect
 
 
 def test_correspondence_round_trip(tmp_path, source, remeshed):

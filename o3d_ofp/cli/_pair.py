@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import os
 from typing import Any
 
@@ -20,12 +21,15 @@ __all__ = [
     "read_pair",
 ]
 
+
+logger = logging.getLogger(__name__)
+
 #: Exit code of a suspect map under --strict (nothing is written).
 SUSPECT_EXIT = 3
 
 
 class SuspectMap(Exception):
-    """The estimated map is suspect and ``--strict`` was given."""
+    """The map is suspect and ``--strict`` was given."""
 
 
 @dataclasses.dataclass
@@ -79,7 +83,8 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     p.add_argument(
         "--strict",
         action="store_true",
-        help="a suspect estimated map is an error (exit 3, nothing written)",
+        help="a suspect map (estimated, closest, or a map file that collapses) is an error "
+        "(exit 3, nothing written)",
     )
     p.add_argument(
         "--landmarks",
@@ -237,13 +242,15 @@ def read_pair(args: argparse.Namespace) -> Pair:
             raise UsageError(f"--save-map {args.save_map}: must end with .npz")
         if not os.path.isdir(os.path.dirname(os.path.abspath(args.save_map))):
             raise UsageError(f"--save-map {args.save_map}: the folder does not exist")
-    source, V1, F1 = read_shape(args.source)
-    target, V2, F2 = read_shape(args.target)
-    corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
     if args.align and args.map != "closest":
         raise UsageError("--align applies to --map closest")
     if getattr(args, "partial", False) and args.map != "estimate":
         raise UsageError("--partial applies to --map estimate")
+    source, V1, F1 = read_shape(args.source)
+    target, V2, F2 = read_shape(args.target)
+    corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
+    if corr is not None and args.map != "closest":
+        _check_given_map(args, corr, V1.shape[0], V2.shape[0])
     if getattr(args, "partial", False):
         for F, path in ((F1, args.source), (F2, args.target)):
             if F is None:
@@ -269,8 +276,6 @@ def read_pair(args: argparse.Namespace) -> Pair:
                 raise SuspectMap("; ".join(corr.quality.reasons))
     if args.landmarks and corr is not None:
         raise UsageError("--landmarks only apply with --map estimate")
-    if args.strict and corr is not None and args.map != "closest":
-        raise UsageError("--strict applies to an estimated map (--map estimate or closest)")
     if corr is None and args.map == "estimate" and not _dense(args, V1, F1, V2, F2):
         # the eigenbases of the estimation must fit (the dense path computes none of them)
         from ..workflows.matching import ESTIMATION_K, required_k
@@ -347,6 +352,29 @@ def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool
 
     meshes = F1 is not None and F2 is not None
     return not getattr(args, "partial", False) and uses_dense_path(V1.shape[0], V2.shape[0], meshes)
+
+
+def _check_given_map(args: argparse.Namespace, corr: Any, n1: int, n2: int) -> None:
+    """Say when a map read from a file collapses; ``--strict`` makes that an error.
+
+    A map file of the right length and range can still be garbage (another pair's map, a
+    broken export): when fewer distinct source vertices than ``MIN_COVERAGE`` of the smaller
+    shape are hit, the result would be a few flat colors.
+    """
+    from ..workflows.matching import MIN_COVERAGE
+    from ._common import report
+
+    hit = int(np.unique(corr.p2p_21).size)
+    if hit >= MIN_COVERAGE * min(n1, n2):
+        return
+    reason = (
+        f"the map from --map {args.map} collapses: only {hit} distinct source vertices for "
+        f"{n2} target vertices (a map of other shapes, or a broken file?)"
+    )
+    if args.strict:
+        raise SuspectMap(reason)
+    logger.warning("%s", reason)
+    report([f"map quality SUSPECT: {reason}"])
 
 
 def _report_quality(args: argparse.Namespace, corr: Any) -> None:

@@ -128,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
         except SuspectMap as exc:
             sys.stderr.write(
-                f"{prog}: error: the estimated map is suspect (--strict): {_in_flags(str(exc))}; "
+                f"{prog}: error: the map is suspect (--strict): {_in_flags(str(exc))}; "
                 "nothing written\n"
             )
             return SUSPECT_EXIT

@@ -214,13 +214,19 @@ class MapQuality:
     def summary(self) -> str:
         """One line: the measures and the verdict."""
         verdict = "SUSPECT" if self.suspect else "ok"
-        return (
-            f"map quality {verdict}: coverage {self.coverage:.3f} ({self.coverage_ratio:.2f} of "
-            f"the smaller shape), orthogonality {self.orthogonality:.3f}, inconsistency "
-            f"{self.inconsistency:.3f}, reversed triangles {self.reversed_fraction:.3f}, area "
-            f"ratio {self.area_ratio:.3g}"
-            + (f", overlap {self.overlap:.2f}" if self.overlap is not None else "")
-        )
+        parts = [f"coverage {self.coverage:.3f} ({self.coverage_ratio:.2f} of the smaller shape)"]
+        for name, value in (
+            ("orthogonality", self.orthogonality),
+            ("inconsistency", self.inconsistency),
+            ("reversed triangles", self.reversed_fraction),
+        ):
+            if not math.isnan(value):  # measures a map of this kind does not have are left out
+                parts.append(f"{name} {value:.3f}")
+        if not math.isnan(self.area_ratio):
+            parts.append(f"area ratio {self.area_ratio:.3g}")
+        if self.overlap is not None:
+            parts.append(f"overlap {self.overlap:.2f}")
+        return f"map quality {verdict}: " + ", ".join(parts)
 
 
 def map_quality(
