@@ -194,3 +194,27 @@ def test_faust_pose_pair_beats_doing_nothing_and_the_baseline():
     assert dist(ours) < 0.75 * dist(smooth) and angle(ours) < 0.65 * angle(smooth)
     assert dist(ours) < 0.9 * dist(base) and angle(ours) < 0.7 * angle(base)
     assert area(ours, F) == pytest.approx(area(V2, F), rel=0.05)
+
+
+def test_add_mode_warns_when_the_target_already_has_detail(caplog):
+    """'add' on a detailed target doubles the detail (new-user trial): it is said, with the fix."""
+    import logging
+
+    from o3d_ofp.workflows.detail import DETAILED_TARGET, lowpass_coordinates
+
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    V2, F2 = load_shared_mesh("faust/tr_reg_087.ply")  # detailed: 0.93 of the source's detail
+    e1, e2 = ofp.eigenbasis(V1, F1, k=30), ofp.eigenbasis(V2, F2, k=30)
+    smooth = lowpass_coordinates(e2, 30)  # the same target smoothed: 0.59
+    e3 = ofp.eigenbasis(smooth, F2, k=30)
+    identity = np.arange(len(V2))
+    name = "o3d_ofp.workflows.detail"
+    for eig, mode, warned in ((e2, "add", True), (e2, "replace-detail", False), (e3, "add", False)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger=name):
+            transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode)
+        said = [r.getMessage() for r in caplog.records if r.name == name]
+        assert bool(said) == warned, (mode, said)
+        if warned:
+            assert "already has detail" in said[0] and "replace-detail" in said[0]
+    assert 0.72 < DETAILED_TARGET < 0.93  # between the measured smooth and detailed targets
