@@ -685,6 +685,26 @@ def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eig
     _one_line_error(capsys, "--partial applies to --map estimate")
 
 
+def test_textured_source_onto_a_target_without_uvs_gives_vertex_colors(files, capsys, tmp_path):
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    V, F = files["V"], files["F"]
+    mesh = triangle_mesh_from_arrays(V, F)  # no vertex colors
+    uv = 0.5 + 0.45 * V[:, :2] / np.abs(V[:, :2]).max()
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(uv[F.ravel()])
+    ramp = np.linspace(0, 255, 64).astype(np.uint8)
+    image = np.stack(np.broadcast_arrays(ramp[None, :], ramp[:, None], 128), axis=2)
+    mesh.textures = [o3d.geometry.Image(np.ascontiguousarray(image, dtype=np.uint8))]
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(F), dtype=np.int32))
+    src = tmp_path / "textured.obj"
+    write_geometry(src, mesh)
+    out = tmp_path / "colored.ply"
+    assert main(["transfer", str(src), files["tgt"], "--map", "identity", "-o", str(out)]) == 0
+    colors = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
+    assert colors.shape == (len(V), 3) and np.ptp(colors[:, 0]) > 0.5  # the ramp, not one color
+
+
 def test_unknown_method_or_mode_in_python_is_refused(files):
     import o3d_ofp as ofp
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays

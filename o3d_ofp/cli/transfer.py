@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import logging
+from typing import Any
 
 from ._common import (
     CLOUD_OUT,
@@ -32,6 +34,8 @@ from ._signal import read_signal, signal_sides, write_result
 from ._types import positive_int
 
 __all__ = ["add_parser", "run"]
+
+logger = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -100,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
         )
-    f, kind = read_signal(pair.source, pair.V1, args.source, args.signal or "colors", args.texture)
+    spec = args.signal or _default_signal(pair.source)
+    f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture)
     pair = estimate_dense_first(args, pair)
     given = pair.correspondence
     if given is not None and given.barycentric_21 is not None:  # a surface map: exact pull-back
@@ -167,6 +172,21 @@ def _bakeable(pair, output: str, *, atlas: bool = False) -> bool:
         and (atlas or has_uvs(pair.target))
         and output.lower().endswith((".obj", ".glb", ".gltf"))
     )
+
+
+def _default_signal(source: Any) -> str:
+    """``colors``, or ``texture`` for a textured source without vertex colors.
+
+    The texture is then carried as vertex colors (a target without UVs, or an output that
+    cannot hold a texture), as the README promises.
+    """
+    from ..boundary.bake import has_uvs
+    from ..boundary.convert import vertex_colors
+
+    if vertex_colors(source) is None and has_uvs(source):
+        logger.info("the source has a texture and no vertex colors: its colors are transferred")
+        return "texture"
+    return "colors"
 
 
 def _bake(args: argparse.Namespace, pair) -> int:
