@@ -295,6 +295,13 @@ def map_quality(
     reasons.extend(_area_reasons(eig_1, eig_2, area_ratio, partial))
     suspect = bool(reasons)
     notes = []
+    if eig_1.faces is None or eig_2.faces is None:
+        notes.append(
+            "a point cloud has no faces: the map's orientation is not checked, so a left/right "
+            "flip would not be flagged (measured on FAUST 093 -> 087 as points: error 0.100 "
+            "against 0.014 for the meshes); mesh the cloud (e.g. Open3D's Poisson "
+            "reconstruction) or give a few landmarks, and check the result"
+        )
     if not partial and not (1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE):
         notes.append(
             f"the target's area is {area_ratio:.3g} times the source's (different units? a "
