@@ -220,6 +220,11 @@ BAD = [
     (["transfer", "{src}", "{tgt}", "--map", "nope.vts", "-o", "{tmp}/x.ply"], "no such map"),
     (["transfer", "{src}", "{tgt}", "--landmarks", "1:2:3", "-o", "{tmp}/x.ply"], "landmarks"),
     (["transfer", "{src}", "{tgt}", "--landmarks", "0:99999", "-o", "{tmp}/x.ply"], "[0, 642)"),
+    (["transfer", "{src}", "{tgt}", "--landmarks", "lm.txt", "-o", "{tmp}/x.ply"], "no such file"),
+    (
+        ["transfer", "{src}", "{tgt}", "--landmarks", "5:5,5:6", "-o", "{tmp}/x.ply"],
+        "source vertex 5 is paired with several target vertices (5, 6)",
+    ),
     (["filter", "{src}", "-o", "{tmp}/x.ply"], "give --smooth"),
     (["filter", "{src}", "--smooth", "-1", "-o", "{tmp}/x.ply"], "--smooth: expected a number"),
     (["filter", "{src}", "--sharpen", "1e308", "-o", "{tmp}/x.ply"], "--sharpen: expected a"),

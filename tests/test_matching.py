@@ -142,5 +142,7 @@ def test_bad_configurations_are_errors_not_downgrades(pair):
         ofp.match((V1, F1), (V2, F2), landmarks=[[0, 10**6]])
     with pytest.raises(ValueError, match="landmarks must be a"):
         ofp.match((V1, F1), (V2, F2), landmarks=[0.5, 1.5])
+    with pytest.raises(ValueError, match=r"target vertex 7 is paired with several .*\(3, 4\)"):
+        ofp.match((V1, F1), (V2, F2), landmarks=[[3, 7], [4, 7]])
     with pytest.raises(ValueError, match="p2p_21 values must be source vertex indices"):
         Correspondence(p2p_21=np.array([0, 5]), n_source=3)

@@ -88,8 +88,9 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     )
     p.add_argument(
         "--landmarks",
-        help="known pairs for the estimation: 12:40,500:611, a 2-column file, or 'pick' (pick "
-        "them on both shapes in Open3D's vertex-selection window; needs a display)",
+        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611, "
+        "a 2-column file, or 'pick' (pick them on both shapes in Open3D's vertex-selection "
+        "window; needs a display)",
     )
     p.add_argument(
         "--save-landmarks",
@@ -110,6 +111,8 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         except ValueError as exc:
             raise UsageError(f"--landmarks {spec}: not two integer columns: {exc}") from exc
     else:
+        if ":" not in spec or os.sep in spec:
+            raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
         try:
             pairs = np.array(
                 [[float(x) for x in item.split(":")] for item in spec.split(",")], dtype=float
@@ -128,8 +131,13 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
-            raise UsageError(f"--landmarks: {name} indices must lie in [0, {n})")
-    return pairs
+            raise UsageError(f"--landmarks: {name} indices must lie in [0, {n}) (0-based)")
+    from ..workflows.matching import check_landmarks
+
+    try:
+        return check_landmarks(pairs, n1, n2)
+    except ValueError as exc:
+        raise UsageError(f"--landmarks {spec}: {exc}") from exc
 
 
 def _check_landmark_flags(args: argparse.Namespace) -> None:

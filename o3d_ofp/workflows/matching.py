@@ -532,7 +532,8 @@ def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray 
     Raises
     ------
     ValueError
-        When they are not (source, target) integer pairs within both shapes' vertices.
+        When they are not (source, target) integer pairs within both shapes' vertices, or
+        contradict each other (one vertex paired with two different vertices).
     """
     if landmarks is None:
         return None
@@ -552,6 +553,16 @@ def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray 
             raise ValueError(
                 f"landmarks: {side} vertex indices must lie in [0, {n}); got "
                 f"[{lm[:, col].min()}, {lm[:, col].max()}]"
+            )
+    pairs = np.unique(lm.astype(np.int64), axis=0)  # a pair given twice is harmless
+    for col, side, other in ((0, "source", "target"), (1, "target", "source")):
+        values, counts = np.unique(pairs[:, col], return_counts=True)
+        if np.any(counts > 1):
+            v = int(values[np.argmax(counts > 1)])
+            partners = sorted(int(x) for x in pairs[pairs[:, col] == v, 1 - col])
+            raise ValueError(
+                f"landmarks: {side} vertex {v} is paired with several {other} vertices "
+                f"({', '.join(map(str, partners))}): give one pair per vertex"
             )
     return lm.astype(np.int64)
 
