@@ -346,6 +346,7 @@ def test_save_map_then_reuse_it_and_strict(files, capsys, tmp_path):
     first = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     out2 = tmp_path / "t2.ply"
     assert main([*args, "--map", str(saved), "-o", str(out2)]) == 0
+    assert f"map {saved} (estimate)" in capsys.readouterr().out  # names the file it read
     np.testing.assert_array_equal(
         np.asarray(o3d.io.read_triangle_mesh(str(out2)).vertex_colors), first
     )

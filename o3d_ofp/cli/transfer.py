@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         with stage("pull-back through the surface map"):
             g = pull_back(f, given, pair.F1)
         written = write_result(args.output, pair.target, g, kind, protect=inputs)
-        report([f"{args.source} -> {args.target}: exact pull-back, map {given.method}",
+        report([f"{args.source} -> {args.target}: exact pull-back, map {_map_name(args, given)}",
                 "wrote " + ", ".join(written)])  # fmt: skip
         return 0
     B1, B2, eig_1, eig_2 = bases_for_pair(args, pair)
@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     report(
         [
             f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map "
-            f"{corr.method}",
+            f"{_map_name(args, corr)}",
             "wrote " + ", ".join(written),
         ]
     )
@@ -172,6 +172,13 @@ def _bakeable(pair, output: str, *, atlas: bool = False) -> bool:
         and (atlas or has_uvs(pair.target))
         and output.lower().endswith((".obj", ".glb", ".gltf"))
     )
+
+
+def _map_name(args: argparse.Namespace, corr: Any) -> str:
+    """How the map was made, and from which file when it was read (``ab.npz (estimate)``)."""
+    if args.map in ("estimate", "closest", "identity") or corr.method == args.map:
+        return str(corr.method)
+    return f"{args.map} ({corr.method})"
 
 
 def _default_signal(source: Any) -> str:
@@ -223,7 +230,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
     report(
         [
             f"{args.source} -> {args.target}: texture baked in the target's UV layout "
-            f"({args.texture_size} px), map {corr.method}",
+            f"({args.texture_size} px), map {_map_name(args, corr)}",
             f"wrote {args.output} (with its material and texture image)",
         ]
     )
