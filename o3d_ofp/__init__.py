@@ -32,6 +32,7 @@ from .boundary.io import read_geometry, write_geometry
 from .boundary.pick import pick_landmarks
 from .boundary.texture import texture_colors
 from .collections import TargetResult, bases_many, transfer_many, write_summary
+from .core._warnings import OFPWarning
 from .core.basis import OFPBasis, approximation_error, ofp_basis
 from .core.cleaning import CleaningReport, clean_shape
 from .core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap, p2p_from_template
@@ -57,6 +58,7 @@ __all__ = [
     "GramSchmidt",
     "MapQuality",
     "OFPBasis",
+    "OFPWarning",
     "TargetResult",
     "__version__",
     "approximation_error",

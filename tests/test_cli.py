@@ -54,6 +54,12 @@ def files(tmp_path_factory):
     }
 
 
+def ofp_warning():
+    from o3d_ofp import OFPWarning
+
+    return OFPWarning
+
+
 def _err(capsys):
     return capsys.readouterr().err
 
@@ -362,10 +368,16 @@ def test_save_map_then_reuse_it_and_strict(files, capsys, tmp_path):
     assert "belongs to other shapes" in capsys.readouterr().err
     # --strict: an unrelated target gives a suspect map: exit 3, nothing written.
     strict_out = tmp_path / "strict.ply"
-    code = main(["transfer", files["src"], str(other), "--k1", "12", "--k2", "12", "--strict",
-                 "-o", str(strict_out)])  # fmt: skip
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main(["transfer", files["src"], str(other), "--k1", "12", "--k2", "12", "--strict",
+                     "-o", str(strict_out)])  # fmt: skip
     assert code == 3
     assert "suspect" in capsys.readouterr().err and not strict_out.exists()
+    # the log says it once: no Python warning repeats it on the command line
+    assert not [w for w in caught if issubclass(w.category, ofp_warning())]
 
 
 def test_basis_file_conflicting_with_k_is_refused(files, capsys, tmp_path):

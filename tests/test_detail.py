@@ -199,6 +199,7 @@ def test_faust_pose_pair_beats_doing_nothing_and_the_baseline():
 def test_add_mode_warns_when_the_target_already_has_detail(caplog):
     """'add' on a detailed target doubles the detail (new-user trial): it is said, with the fix."""
     import logging
+    import warnings
 
     from o3d_ofp.workflows.detail import DETAILED_TARGET, lowpass_coordinates
 
@@ -211,8 +212,11 @@ def test_add_mode_warns_when_the_target_already_has_detail(caplog):
     name = "o3d_ofp.workflows.detail"
     for eig, mode, warned in ((e2, "add", True), (e2, "replace-detail", False), (e3, "add", False)):
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger=name):
-            transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode)
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            with caplog.at_level(logging.WARNING, logger=name):
+                transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode)
+        assert [x.category for x in w] == ([ofp.OFPWarning] if warned else [])
         said = [r.getMessage() for r in caplog.records if r.name == name]
         assert bool(said) == warned, (mode, said)
         if warned:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..core._validation import as_faces, as_vertices
+from ..core._warnings import warn
 from ..core.geometry import face_areas_normals
 from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality
 from .convert import require_open3d
@@ -741,7 +742,7 @@ def closest_correspondence(
         mean_rel,
     )
     if reasons:
-        logger.warning("%s", reasons[0])
+        warn(logger, reasons[0])
     return Correspondence(
         p2p_21=p2p,
         n_source=n1,

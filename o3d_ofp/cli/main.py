@@ -12,9 +12,11 @@ import argparse
 import contextlib
 import logging
 import sys
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from ..core._warnings import OFPWarning
 from . import approximate, basis, demo, detail, filter, render, transfer
 from ._common import OUT, UsageError
 from ._pair import SUSPECT_EXIT, SuspectMap
@@ -123,7 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     prog = f"o3d-ofp {args.command}"
     OUT.quiet = bool(args.quiet)
     ENABLED.on = not args.quiet
-    with _logging_to_stderr(level):
+    # OFPWarnings repeat what the log already prints (or what -q silences).
+    with _logging_to_stderr(level), warnings.catch_warnings():
+        warnings.simplefilter("ignore", OFPWarning)
         try:
             return args.func(args)
         except SuspectMap as exc:

@@ -43,6 +43,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ._validation import as_faces, as_signal, as_vertices, check_int
+from ._warnings import warn
 from .geometry import face_areas_normals
 from .laplacian import count_components, laplacian
 
@@ -501,7 +502,7 @@ def clean_shape(
         **counts,
     )
     if report.dropped_vertices:
-        logger.warning("%s", report)
+        warn(logger, str(report))
     elif report.changed:
         logger.info("%s", report)
     cleaning = Cleaning(

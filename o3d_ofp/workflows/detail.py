@@ -58,6 +58,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from ..core._validation import check_int
+from ..core._warnings import warn
 from ..core.basis import OFPBasis
 from ..core.correspondence import check_p2p
 from ..core.geometry import face_areas_normals, vertex_normals
@@ -453,12 +454,12 @@ def transfer_detail_frames(
         own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_1))
         theirs = _detail_rms(eig_1, low_1)
         if theirs > 0 and own > DETAILED_TARGET * theirs:
-            logger.warning(
-                "the target already has detail above band %d (%.2f of the source's): mode "
-                "'add' keeps it and adds the source's on top, which exaggerates it; "
-                "mode='replace-detail' (--mode replace-detail) replaces it instead",
-                band_1,
-                own / theirs,
+            warn(
+                logger,
+                f"the target already has detail above band {band_1} ({own / theirs:.2f} of the "
+                "source's): mode 'add' keeps it and adds the source's on top, which "
+                "exaggerates it; mode='replace-detail' (--mode replace-detail) replaces it "
+                "instead",
             )
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]

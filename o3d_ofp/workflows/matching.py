@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..core._atomic import atomic_path
+from ..core._warnings import warn
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refine
 from ..core.geometry import outward_sign, vertex_normals
@@ -708,7 +709,7 @@ def match_eigenbases(
     quality = map_quality(p2p, eig_1, eig_2, fmap_12)
     logger.info("match: %s", quality.summary())
     if quality.suspect:
-        logger.warning("the estimated map is suspect: %s", "; ".join(quality.reasons))
+        warn(logger, "the estimated map is suspect: " + "; ".join(quality.reasons))
     for note in quality.notes:
         logger.info("match: %s", note)
     report("done", 1.0)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
 from ..core.partial import (
     fit_partial_fmap,
@@ -480,7 +481,7 @@ def match_partial_eigenbases(
     quality = partial_quality(p2p, eig_1, eig_2, C, overlap=overlap, refinement_turned=rejected)
     logger.info("partial match: %s", quality.summary())
     if quality.suspect:
-        logger.warning("the partial map is suspect: %s", "; ".join(quality.reasons))
+        warn(logger, "the partial map is suspect: " + "; ".join(quality.reasons))
     report("done", 1.0)
     options = {
         "partial": True,

@@ -1,0 +1,28 @@
+"""Warnings a caller can act on, shown in scripts and notebooks without any logging set-up.
+
+The package logs through :mod:`logging` (a ``NullHandler`` by default: nothing is printed
+unless the application configures logging). A doubtful result the caller should act on (a
+suspect map, detail added on top of detail, parts of a shape left out) is also issued as an
+:class:`OFPWarning` with :func:`warnings.warn`, which Python shows by default (once per call
+site); the command line, which prints the log, silences these duplicates.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+
+__all__ = ["OFPWarning", "warn"]
+
+
+class OFPWarning(UserWarning):
+    """A doubtful result of o3d_ofp that the caller can act on (the message names the fix)."""
+
+
+def warn(logger: logging.Logger, message: str, *, stacklevel: int = 3) -> None:
+    """Log ``message`` at WARNING on ``logger`` and issue it as an :class:`OFPWarning`.
+
+    ``stacklevel`` 3 attributes the warning to the caller of the function that calls this.
+    """
+    logger.warning("%s", message)
+    warnings.warn(message, OFPWarning, stacklevel=stacklevel)
