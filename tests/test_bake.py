@@ -20,7 +20,7 @@ from o3d_ofp.boundary.bake import (  # noqa: E402
     texture_pullback,
     transfer_texture,
 )
-from o3d_ofp.boundary.texture import corner_uvs, mesh_texture  # noqa: E402
+from o3d_ofp.boundary.texture import corner_uvs, mesh_texture, texture_colors  # noqa: E402
 from o3d_ofp.workflows.matching import Correspondence  # noqa: E402
 
 
@@ -237,9 +237,19 @@ def test_tensor_meshes_are_accepted(spot, decimated):
     corr = _closest_map(source_legacy, decimated)
     baked = transfer_texture(source, target, correspondence=corr, size=256)
     reference = transfer_texture(source_legacy, decimated, correspondence=corr, size=256)
-    assert isinstance(baked, o3d.geometry.TriangleMesh)
-    np.testing.assert_array_equal(np.asarray(baked.textures[0]), np.asarray(reference.textures[0]))
+    # The caller's kind comes back: a tensor mesh, the image as its albedo map (top-down rows,
+    # the legacy textures' bottom-up ones flipped), read the same as the legacy result.
+    assert isinstance(baked, o3d.t.geometry.TriangleMesh)
+    albedo = baked.material.texture_maps["albedo"].as_tensor().numpy()
+    np.testing.assert_array_equal(albedo, np.asarray(reference.textures[0])[::-1])
     assert mesh_texture(baked).images[0].shape == (256, 256, 3)
+    # Tensor meshes keep UVs in float32: a bilinear sample moves by ~1e-5 (measured 1.1e-5);
+    # a flipped image would be off by up to 1.
+    np.testing.assert_allclose(texture_colors(baked), texture_colors(reference), atol=1e-4)
+    pulled = texture_pullback(source, target, correspondence=corr)
+    pulled_ref = texture_pullback(source_legacy, decimated, correspondence=corr)
+    assert isinstance(pulled, o3d.t.geometry.TriangleMesh)
+    np.testing.assert_allclose(texture_colors(pulled), texture_colors(pulled_ref), atol=1e-4)
 
 
 def test_bad_arguments(spot, decimated):

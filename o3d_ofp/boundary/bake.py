@@ -124,6 +124,34 @@ class _Surface:
         return tri, bary
 
 
+def _callers_kind(out: Any, target: Any) -> Any:
+    """``out`` (a new legacy textured mesh) as a tensor mesh when ``target`` was one.
+
+    ``TriangleMesh.from_legacy`` drops the textures: the one image goes to the material's
+    ``albedo`` map, turned to the tensor meshes' top-down row order (see
+    :mod:`o3d_ofp.boundary.texture`). A result with several images (a pull-back from a source
+    with several materials) stays legacy: a tensor mesh holds one albedo map.
+    """
+    if geometry_kind(target) != "tensor_mesh":
+        return out
+    o3d = require_open3d()
+    images = [np.asarray(t) for t in out.textures if np.asarray(t).size]
+    if len(images) > 1:
+        logger.warning(
+            "the result uses %d texture images; a tensor mesh holds one (its albedo map): "
+            "returned as a legacy mesh",
+            len(images),
+        )
+        return out
+    result = o3d.t.geometry.TriangleMesh.from_legacy(out)
+    if images:
+        result.material.set_default_properties()
+        result.material.texture_maps["albedo"] = o3d.t.geometry.Image(
+            o3d.core.Tensor(np.ascontiguousarray(images[0][::-1]))
+        )
+    return result
+
+
 def _legacy_copy(target: Any) -> Any:
     """Copy ``target`` into a new legacy mesh, every attribute kept (tensor meshes converted)."""
     o3d = require_open3d()
@@ -393,12 +421,13 @@ def transfer_texture(
 
     Returns
     -------
-    open3d.geometry.TriangleMesh
-        A new legacy mesh: a copy of the target (every attribute kept, ``triangle_uvs``
-        unchanged) with ``textures`` = [the baked image] and all ``triangle_material_ids`` 0.
-        The image is stored bottom-up like every legacy Open3D texture (see
-        :mod:`o3d_ofp.boundary.texture`), so ``open3d.io.write_triangle_mesh`` writes it the
-        right way up.
+    open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        A new mesh of the target's kind: a copy of the target (every attribute kept,
+        ``triangle_uvs`` unchanged) with ``textures`` = [the baked image] and all
+        ``triangle_material_ids`` 0 (legacy; the image stored bottom-up like every legacy
+        Open3D texture, see :mod:`o3d_ofp.boundary.texture`, so
+        ``open3d.io.write_triangle_mesh`` writes it the right way up), or the image as the
+        material's ``albedo`` map (tensor).
 
     Raises
     ------
@@ -453,7 +482,7 @@ def transfer_texture(
     out = _legacy_copy(target)
     out.textures = [legacy_texture_image(baked)]
     out.triangle_material_ids = o3d.utility.IntVector(np.zeros(F2.shape[0], dtype=np.int32))
-    return out
+    return _callers_kind(out, target)
 
 
 def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -520,10 +549,12 @@ def texture_pullback(
 
     Returns
     -------
-    open3d.geometry.TriangleMesh
-        A new legacy mesh: a copy of the target with ``triangle_uvs`` in the source's layout,
-        the source's images as ``textures`` (bottom-up, as legacy meshes keep them) and each
-        triangle's material id that of the source triangle under its centre.
+    open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        A new mesh of the target's kind: a copy of the target with ``triangle_uvs`` in the
+        source's layout, the source's images as ``textures`` (bottom-up, as legacy meshes
+        keep them) and each triangle's material id that of the source triangle under its
+        centre; for a tensor target, the image as the material's ``albedo`` map (a source with
+        several images gives a legacy mesh, with a warning).
     """
     o3d = require_open3d()
     src = mesh_texture(source, texture)
@@ -562,7 +593,7 @@ def texture_pullback(
     out.textures = [legacy_texture_image(_as_uint8(src.images[i])) for i in loaded]
     material = renumber[np.maximum(src.material[ref_tri], 0)]
     out.triangle_material_ids = o3d.utility.IntVector(material)
-    return out
+    return _callers_kind(out, target)
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:
