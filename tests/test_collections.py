@@ -590,3 +590,17 @@ def test_a_killed_worker_is_a_failed_record(client):
     by_index = {r.index: r for r in records}
     assert by_index[0].status == "ok"
     assert by_index[1].status == "failed" and by_index[1].error.startswith("KilledWorker")
+
+
+def test_a_local_cluster_that_does_not_start_names_the_script_guard(monkeypatch):
+    """Without `if __name__ == "__main__":` the workers re-run a script: say so (trial)."""
+    distributed = pytest.importorskip("distributed")
+    from o3d_ofp.collections.engine import open_client
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("Nanny failed to start.")
+
+    monkeypatch.setattr(distributed, "LocalCluster", fail)
+    with pytest.raises(RuntimeError, match=r'Nanny failed.*__name__ == "__main__".*workers=0'):
+        with open_client(workers=1):
+            pass

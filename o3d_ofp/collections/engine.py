@@ -197,14 +197,22 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
 
     with _worker_environment() as pre_spawn:
         with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
-            cluster = distributed.LocalCluster(  # the nannies read the config here
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
+            try:
+                cluster = distributed.LocalCluster(  # the nannies read the config here
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            except RuntimeError as exc:
+                raise RuntimeError(
+                    f"the local Dask cluster did not start ({exc}). From a script, call this "
+                    "under `if __name__ == \"__main__\":` (the worker processes start by "
+                    "importing the script, which must not start a cluster again); or pass "
+                    "workers=0 to run in this process, or client= an existing cluster"
+                ) from exc
         with cluster, distributed.Client(cluster) as c:
             yield c
 
