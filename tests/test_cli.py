@@ -736,6 +736,38 @@ def test_unknown_method_or_mode_in_python_is_refused(files):
         ofp.transfer_detail(mesh, mesh, mode="zzz")
 
 
+def test_python_mistakes_name_the_keyword_before_any_eigensolve(files, no_eigensolve):
+    """Second new-user trial: these were an AttributeError and messages about "k"."""
+    import o3d_ofp as ofp
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    mesh = triangle_mesh_from_arrays(files["V"], files["F"], colors=files["colors"])
+    n = len(files["V"])
+    with pytest.raises(TypeError, match=r"correspondence must be an o3d_ofp Correspondence.*p2p"):
+        ofp.transfer_colors(mesh, mesh, correspondence=np.arange(n))
+    with pytest.raises(TypeError, match=r"correspondence must be an o3d_ofp Correspondence"):
+        ofp.transfer_detail(mesh, mesh, correspondence=np.arange(n))
+    with pytest.raises(ValueError, match=r"k1 must be >= 1"):
+        ofp.transfer_colors(mesh, mesh, k1=-1, p2p_21=np.arange(n))
+    with pytest.raises(ValueError, match=rf"k2 must be >= 1 and <= {n - 2}; got 7000"):
+        ofp.transfer_colors(mesh, mesh, k2=7000, p2p_21=np.arange(n))
+    with pytest.raises(ValueError, match=rf"band must be >= 1 and <= {n - 2}; got 10000"):
+        ofp.transfer_detail(mesh, mesh, band=10000, p2p_21=np.arange(n))
+    with pytest.raises(ValueError, match=r"source: .*nope\.ply: no such file"):
+        ofp.match("nope.ply", mesh)
+
+
+def test_python_functions_take_file_paths(files):
+    import o3d_ofp as ofp
+
+    corr = ofp.match(files["src"], files["tgt"], method="closest")
+    assert corr.p2p_21.shape == (len(files["V"]),)
+    colored = ofp.transfer_colors(files["src"], files["tgt"], p2p_21=np.arange(len(files["V"])))
+    assert np.asarray(colored.vertex_colors).shape == (len(files["V"]), 3)
+    smoothed = ofp.filter_geometry(files["tgt"], smooth=0.02)
+    assert len(smoothed.vertices) == len(files["V"])
+
+
 # --------------------------------------------------------------------------- landmarks
 
 

@@ -8,6 +8,7 @@ target's own kind.
 from __future__ import annotations
 
 import logging
+import os
 import warnings
 from typing import Any
 
@@ -38,6 +39,7 @@ from ..workflows.matching import (
     ESTIMATION_K,
     FIT_K,
     Correspondence,
+    check_correspondence,
     match_arrays,
     match_eigenbases,
 )
@@ -69,13 +71,26 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
+def _read_if_path(shape: Any, name: str) -> Any:
+    """Return the geometry read from ``shape`` if it is a file path (str or PathLike), else it."""
+    if isinstance(shape, (str, os.PathLike)):
+        from .io import read_geometry
+
+        try:
+            return read_geometry(shape)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{name}: {exc}") from exc
+    return shape
+
+
 def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[Any, Any]:
     """(vertices, faces) of an Open3D geometry, a ``(vertices, faces)`` tuple, or arrays.
 
     Parameters
     ----------
-    shape : Open3D TriangleMesh / PointCloud (legacy or tensor), (vertices, faces) tuple, or
-        (n, 3) array_like of vertex positions
+    shape : Open3D TriangleMesh / PointCloud (legacy or tensor), (vertices, faces) tuple,
+        (n, 3) array_like of vertex positions, or a file path (read with
+        :func:`o3d_ofp.read_geometry`)
         The shape.
     faces : (m, 3) array_like of int, optional
         Triangles when ``shape`` is an array of vertices (``None``: a point cloud).
@@ -87,6 +102,7 @@ def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[An
     vertices : (n, 3) ndarray of float64 (a copy)
     faces : (m, 3) ndarray of int64 or None
     """
+    shape = _read_if_path(shape, name)
     if is_open3d_geometry(shape):
         if faces is not None:
             raise ValueError(f"faces must be None when {name} is an Open3D geometry")
@@ -317,6 +333,7 @@ def match(
         raise ValueError(f"method must be 'estimate' or 'closest'; got {method!r}")
     if not isinstance(partial, bool):
         raise TypeError(f"partial must be True or False; got {partial!r}")
+    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
     if partial and method != "estimate":
         raise ValueError("partial=True applies to method='estimate' (closest points need none)")
     if partial:
@@ -437,6 +454,7 @@ def transfer_colors(
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
     """
+    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     f = vertex_colors(source) if is_open3d_geometry(source) else None
@@ -446,7 +464,8 @@ def transfer_colors(
             "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
             "o3d_ofp.transfer_function)"
         )
-    exact = correspondence is not None and correspondence.barycentric_21 is not None
+    exact = check_correspondence(correspondence) is not None
+    exact = exact and correspondence.barycentric_21 is not None
     if via_basis is False or (via_basis is None and exact):
         if correspondence is None:
             if p2p_21 is None:
@@ -565,8 +584,16 @@ def transfer_detail(
     mode, band, amount = check_detail_options(
         mode=mode, band=band, amount=amount, names={"band": "band" if k_low is None else "k_low"}
     )
+    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
+    if mode != "coordinates":  # the band is a count of eigenfunctions of both shapes
+        check_int(
+            band,
+            name="band" if k_low is None else "k_low",
+            minimum=1,
+            maximum=max(1, min(V1.shape[0], V2.shape[0]) - 2),
+        )
     if mode == "coordinates":
         for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
             check_int(value, name=name, minimum=1)
@@ -713,6 +740,7 @@ def filter_geometry(
         smooth = check_amount(DEFAULT_SMOOTH if smooth is None else smooth, "smooth", MAX_SMOOTH)
         if sharpen is not None:
             sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
+    geometry = _read_if_path(geometry, "geometry")
     V, F = geometry_to_arrays(geometry)
     if basis is not None and basis.n_vertices != V.shape[0]:
         raise ValueError(

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.correspondence import check_p2p
-from ..workflows.matching import Correspondence, match_arrays
+from ..workflows.matching import Correspondence, check_correspondence, match_arrays
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .texture import MeshTexture, corner_uvs, legacy_texture_image, mesh_texture
 
@@ -247,12 +247,7 @@ def _mapped_points(
         raise ValueError("give either correspondence or p2p_21, not both")
     if correspondence is None and p2p_21 is None:
         correspondence = _estimate(V1, F1, V2, F2)
-    if correspondence is not None:
-        if not isinstance(correspondence, Correspondence):
-            raise TypeError(
-                f"correspondence must be an o3d_ofp Correspondence; got "
-                f"{type(correspondence).__name__} (a vertex map goes in p2p_21=)"
-            )
+    if check_correspondence(correspondence) is not None:
         correspondence.check(n1, n2)
         if correspondence.faces_21 is not None:
             tri = np.asarray(correspondence.faces_21, dtype=np.int64)

@@ -63,7 +63,7 @@ from ..core.basis import OFPBasis
 from ..core.correspondence import check_p2p
 from ..core.geometry import face_areas_normals, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
-from .matching import Correspondence
+from .matching import Correspondence, check_correspondence
 from .pipeline import transfer_function
 
 __all__ = [
@@ -430,7 +430,7 @@ def transfer_detail_frames(
     check_eigenbasis(eig_2, "eig_2")
     if (p2p_21 is None) == (correspondence is None):
         raise ValueError("give exactly one of p2p_21 and correspondence")
-    if correspondence is not None:
+    if check_correspondence(correspondence) is not None:
         correspondence.check(eig_1.n_vertices, eig_2.n_vertices)
         p2p = np.asarray(correspondence.p2p_21)
     else:

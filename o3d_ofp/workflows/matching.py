@@ -527,6 +527,20 @@ class Correspondence:
                 raise ValueError(f"{name}: damaged correspondence file ({exc})") from exc
 
 
+def check_correspondence(obj: Any, name: str = "correspondence") -> Correspondence | None:
+    """Return ``obj`` if it is a :class:`Correspondence` or None; else raise a TypeError.
+
+    A bare array passed as ``correspondence=`` is the usual mistake: the message says where a
+    vertex map goes instead.
+    """
+    if obj is not None and not isinstance(obj, Correspondence):
+        raise TypeError(
+            f"{name} must be an o3d_ofp Correspondence (from ofp.match or "
+            f"ofp.Correspondence.load); got {type(obj).__name__} (a vertex map goes in p2p_21=)"
+        )
+    return obj
+
+
 def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray | None:
     """Return landmarks as a (p, 2) int64 array after checking their shape and range.
 

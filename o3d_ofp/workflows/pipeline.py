@@ -24,6 +24,7 @@ from ..core.transfer import transfer_matrix, transfer_signal
 from .matching import (
     ESTIMATION_K,
     Correspondence,
+    check_correspondence,
     check_landmarks,
     match_arrays,
     match_eigenbases,
@@ -121,7 +122,7 @@ def transfer_function(
     B_1, B_2 = bases if bases is not None else _bases(eig_1, eig_2, k1, k2, order, tol, preset)
     if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:
         raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
-    if correspondence is not None:
+    if check_correspondence(correspondence) is not None:
         correspondence.check(eig_1.n_vertices, eig_2.n_vertices)
         p2p = correspondence.p2p_21
     elif p2p_21 is not None:
@@ -189,6 +190,10 @@ def prepare_transfer(
     given = sum(x is not None for x in (correspondence, p2p_21, fmap_12))
     if given > 1:  # before any eigensolve
         raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
+    check_correspondence(correspondence)
+    if bases is None:  # the OFP bases' sizes, named as the caller gave them
+        k1 = check_int(k1, name="k1", minimum=1, maximum=max(1, V1.shape[0] - 2))
+        k2 = check_int(k2, name="k2", minimum=1, maximum=max(1, V2.shape[0] - 2))
     known = given == 1
     if not known and eigenbases is None and bases is None:
         return estimate_for_transfer(V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks)
@@ -322,6 +327,9 @@ def pull_back(f_1: Any, correspondence: Correspondence, faces_1: Any = None) -> 
     -------
     (n2,) or (n2, d) ndarray
     """
+    correspondence = check_correspondence(correspondence)
+    if correspondence is None:
+        raise TypeError("pull_back needs a correspondence")
     f = as_signal(f_1, correspondence.n_source, name="f_1")
     if correspondence.barycentric_21 is None:
         return f[correspondence.p2p_21]
