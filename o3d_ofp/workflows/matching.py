@@ -28,7 +28,7 @@ from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refi
 from ..core.geometry import outward_sign, vertex_normals
 from ..core.multiscale import local_p2p_from_fmap
 from ..core.partial import boundary_length
-from ..core.spectrum import EigenBasis, check_eigenbasis, eigenbasis
+from ..core.spectrum import EigenBasis, check_eigenbasis, eigenbasis, on_cleaned_vertices
 from .dense import COARSE_VERTICES, DENSE_VERTICES, match_dense
 
 __all__ = [
@@ -638,6 +638,13 @@ def match_eigenbases(
         ``p2p_21``, the functional map, the options and the quality report. A suspect map is
         logged as a warning that names the likely causes and the fix.
 
+    Notes
+    -----
+    The estimation runs on each shape's cleaned surface (:func:`on_cleaned_vertices`: one
+    vertex per welded group, e.g. the copies of an OBJ's vertices along its UV seams) and the
+    point map is carried back to the input vertices; the quality report's counts (coverage)
+    are those of the surfaces.
+
     References
     ----------
     .. [1] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
@@ -648,9 +655,62 @@ def match_eigenbases(
     check_eigenbasis(eig_1, "eig_1")
     check_eigenbasis(eig_2, "eig_2")
     _check_sizes(eig_1, eig_2, k_fit, zoomout_to)
+    landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
+    s1, rep_1 = on_cleaned_vertices(eig_1)
+    s2, rep_2 = on_cleaned_vertices(eig_2)
+    options = dict(
+        k_fit=k_fit,
+        zoomout_to=zoomout_to,
+        zoomout_subsample=zoomout_subsample,
+        descriptors=descriptors,
+        w_orient=w_orient,
+        progress=progress,
+    )
+    if rep_1 is None and rep_2 is None:
+        return _match_surfaces(eig_1, eig_2, landmarks=landmarks, **options)
+    on_surface = landmarks
+    if landmarks is not None:  # each input vertex stands for its surface vertex
+        on_surface = landmarks.copy()
+        for col, eig, rep in ((0, eig_1, rep_1), (1, eig_2, rep_2)):
+            if rep is not None:
+                on_surface[:, col] = eig.cleaning.index[landmarks[:, col]]
+    logger.info(
+        "match: on the cleaned surfaces (%d and %d of %d and %d vertices)",
+        s1.n_vertices,
+        s2.n_vertices,
+        eig_1.n_vertices,
+        eig_2.n_vertices,
+    )
+    corr = _match_surfaces(s1, s2, landmarks=on_surface, **options)
+    p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
+    if rep_2 is not None:
+        p2p = p2p[eig_2.cleaning.index]
+    return dataclasses.replace(
+        corr,
+        p2p_21=p2p,
+        n_source=eig_1.n_vertices,
+        options={
+            **corr.options,
+            "landmarks": None if landmarks is None else landmarks.tolist(),
+        },
+    )
+
+
+def _match_surfaces(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    landmarks: np.ndarray | None,
+    k_fit: int,
+    zoomout_to: int,
+    zoomout_subsample: int | None,
+    descriptors: str,
+    w_orient: float,
+    progress: Callable[[str, float], None] | None,
+) -> Correspondence:
+    """:func:`match_eigenbases` on two bases without copies of vertices (checked inputs)."""
     k_fit = min(k_fit, eig_1.k, eig_2.k)
     final = min(zoomout_to, eig_1.k, eig_2.k)
-    landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
     report = progress or (lambda stage, done: None)
     u1, u2 = unit_area(eig_1), unit_area(eig_2)
     # Four starts: the descriptor-commutativity term helps on some pairs (FAUST: 0.026 with it,
