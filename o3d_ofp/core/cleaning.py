@@ -152,10 +152,8 @@ class CleaningReport:
             )
         if self.jittered:
             parts.append("jittered the points (degenerate neighbourhoods)")
-        return (
-            f"{'; '.join(parts)}: {self.input_vertices} -> {self.vertices} vertices, "
-            f"{self.input_faces} -> {self.faces} faces"
-        )
+        faces = f", {self.input_faces} -> {self.faces} faces" if self.input_faces else ""
+        return f"{'; '.join(parts)}: {self.input_vertices} -> {self.vertices} vertices{faces}"
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
