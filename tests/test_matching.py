@@ -179,3 +179,22 @@ def test_copies_of_vertices_change_neither_the_map_nor_its_counts(pair):
     np.testing.assert_array_equal(orig_1[corr.p2p_21], ref.p2p_21[orig_2])
     assert corr.quality.coverage == pytest.approx(ref.quality.coverage)
     assert corr.options["landmarks"] == seamed
+
+
+def test_a_map_used_on_other_shapes_is_warned_about(pair, reference, tmp_path):
+    """Same vertex counts, other shapes (arguments swapped): warned, not silent (trial)."""
+    import warnings
+
+    (V1, F1), (V2, F2) = pair
+    e1, e2 = ofp.eigenbasis(V1, F1, k=12), ofp.eigenbasis(V2, F2, k=12)
+    moved = ofp.eigenbasis(3.0 * V1 @ _rotation(4).T + 7.0, F1, k=12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ofp.OFPWarning)  # the right shapes, even moved: silent
+        for source in (e1, moved):
+            ofp.transfer_function(V1[:, 0], source, e2, correspondence=reference, k1=6, k2=6)
+    with pytest.warns(ofp.OFPWarning, match="another source .* swapped"):
+        ofp.transfer_function(V2[:, 0], e2, e1, correspondence=reference, k1=6, k2=6)
+    reference.save(tmp_path / "m.npz")
+    back = Correspondence.load(tmp_path / "m.npz")
+    for a, b in zip(back.signatures, reference.signatures, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -471,7 +471,7 @@ def transfer_colors(
             if p2p_21 is None:
                 raise ValueError("via_basis=False needs a correspondence or p2p_21")
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
-        correspondence.check(V1.shape[0], V2.shape[0])
+        correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
         return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
     eig_1, eig_2, correspondence = prepare_transfer(

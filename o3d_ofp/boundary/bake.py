@@ -248,7 +248,7 @@ def _mapped_points(
     if correspondence is None and p2p_21 is None:
         correspondence = _estimate(V1, F1, V2, F2)
     if check_correspondence(correspondence) is not None:
-        correspondence.check(n1, n2)
+        correspondence.check(n1, n2, source=V1, target=V2)
         if correspondence.faces_21 is not None:
             tri = np.asarray(correspondence.faces_21, dtype=np.int64)
             if tri.min() < 0 or tri.max() >= F1.shape[0]:

@@ -26,7 +26,7 @@ import numpy as np
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
 from ..core.geometry import face_areas_normals
-from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality
+from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality, shape_signature
 from .convert import require_open3d
 
 __all__ = [
@@ -751,4 +751,5 @@ def closest_correspondence(
         quality=quality,
         faces_21=faces_21,
         barycentric_21=bary,
+        signatures=(shape_signature(vertices_1), shape_signature(vertices_2)),
     )

@@ -178,12 +178,13 @@ def _pick(source: Any, target: Any) -> np.ndarray:
         raise UsageError(f"--landmarks pick: {exc}") from exc
 
 
-def _read_map(spec: str, n1: int, n2: int, V2: np.ndarray) -> Any:
+def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     """Read the Correspondence named by ``--map`` (None: estimate), checked for both shapes."""
     from ..core.correspondence import p2p_from_template
     from ..core.io import read_vts
     from ..workflows.matching import Correspondence
 
+    n1, n2 = V1.shape[0], V2.shape[0]
     if spec in ("estimate", "closest"):
         return None
     if spec == "identity":
@@ -212,7 +213,7 @@ def _read_map(spec: str, n1: int, n2: int, V2: np.ndarray) -> Any:
     if path.endswith(".npz"):
         try:
             corr = Correspondence.load(path)
-            corr.check(n1, n2, name=f"--map {path}")
+            corr.check(n1, n2, name=f"--map {path}", source=V1, target=V2)
         except (ValueError, TypeError) as exc:
             raise UsageError(f"--map {exc}" if str(exc).startswith(path) else str(exc)) from exc
         return corr
@@ -256,7 +257,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
         raise UsageError("--partial applies to --map estimate")
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
-    corr = _read_map(args.map, V1.shape[0], V2.shape[0], V2)
+    corr = _read_map(args.map, V1, V2)
     if corr is not None and args.map != "closest":
         _check_given_map(args, corr, V1.shape[0], V2.shape[0])
     if getattr(args, "partial", False):

@@ -431,7 +431,9 @@ def transfer_detail_frames(
     if (p2p_21 is None) == (correspondence is None):
         raise ValueError("give exactly one of p2p_21 and correspondence")
     if check_correspondence(correspondence) is not None:
-        correspondence.check(eig_1.n_vertices, eig_2.n_vertices)
+        correspondence.check(
+            eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
+        )
         p2p = np.asarray(correspondence.p2p_21)
     else:
         p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)

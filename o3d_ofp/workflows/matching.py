@@ -408,6 +408,10 @@ class Correspondence:
         For a precise (surface) map: the source triangle each target vertex maps into.
     barycentric_21 : (n2, 3) ndarray of float64 or None
         Its barycentric coordinates in that triangle (rows sum to 1).
+    signatures : ((s,), (s,)) ndarrays or None
+        :func:`shape_signature` of the source and the target the map was made for (set by
+        the estimation and the closest-point map): :meth:`check` warns when it is used on
+        other shapes with the same vertex counts.
     """
 
     p2p_21: np.ndarray
@@ -418,6 +422,7 @@ class Correspondence:
     quality: MapQuality | None = None
     faces_21: np.ndarray | None = None
     barycentric_21: np.ndarray | None = None
+    signatures: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         p2p = check_p2p(self.p2p_21, np.shape(self.p2p_21)[0], self.n_source)
@@ -443,20 +448,61 @@ class Correspondence:
             for arr, name in ((faces, "faces_21"), (bary, "barycentric_21")):
                 arr.setflags(write=False)
                 object.__setattr__(self, name, arr)
+        if self.signatures is not None:
+            pair = tuple(np.array(s, dtype=np.float64).ravel() for s in self.signatures)
+            if len(pair) != 2:
+                raise ValueError("signatures must be (source signature, target signature)")
+            for s in pair:
+                s.setflags(write=False)
+            object.__setattr__(self, "signatures", pair)
 
     @property
     def n_target(self) -> int:
         """Number of target vertices."""
         return self.p2p_21.shape[0]
 
-    def check(self, n_source: int, n_target: int, *, name: str = "correspondence") -> None:
-        """Raise ``ValueError`` unless the map goes from ``n_source`` to ``n_target`` vertices."""
+    def check(
+        self,
+        n_source: int,
+        n_target: int,
+        *,
+        name: str = "correspondence",
+        source: Any = None,
+        target: Any = None,
+    ) -> None:
+        """Raise ``ValueError`` unless the map goes from ``n_source`` to ``n_target`` vertices.
+
+        With the shapes' vertices (``source``, ``target``: (n, 3) arrays) and
+        :attr:`signatures`, also warn (:class:`~o3d_ofp.OFPWarning`) when they are not the
+        shapes the map was made for, up to a move, a rotation and a uniform scaling: source
+        and target swapped, or another pair with the same vertex counts (all FAUST shapes
+        have 6890 vertices).
+        """
         if (self.n_source, self.n_target) != (n_source, n_target):
             raise ValueError(
                 f"{name} maps {self.n_target} target vertices to {self.n_source} source "
                 f"vertices, but the shapes have {n_target} and {n_source}: it belongs to "
                 "other shapes"
             )
+        if self.signatures is None:
+            return
+        for shape, signature, side in zip(
+            (source, target), self.signatures, ("source", "target"), strict=True
+        ):
+            if shape is None:
+                continue
+            mine = shape_signature(shape)
+            if mine.shape != signature.shape or not np.allclose(
+                mine, signature, rtol=SIGNATURE_RTOL, atol=SIGNATURE_RTOL
+            ):
+                warn(
+                    logger,
+                    f"{name} was made for another {side} with {shape.shape[0]} vertices (its "
+                    "vertices are not where they were, even up to a move, a rotation or a "
+                    "scaling): source and target swapped, another pair, or a changed shape? "
+                    "The map is used as it is",
+                )
+                return
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the correspondence to a ``.npz`` file (atomically).
@@ -481,6 +527,8 @@ class Correspondence:
         if self.faces_21 is not None:
             payload["faces_21"] = self.faces_21
             payload["barycentric_21"] = self.barycentric_21
+        if self.signatures is not None:
+            payload["signature_1"], payload["signature_2"] = self.signatures
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
@@ -522,9 +570,40 @@ class Correspondence:
                     quality=quality,
                     faces_21=data["faces_21"] if "faces_21" in data else None,
                     barycentric_21=data["barycentric_21"] if "barycentric_21" in data else None,
+                    signatures=(data["signature_1"], data["signature_2"])
+                    if "signature_1" in data
+                    else None,
                 )
             except (TypeError, ValueError, KeyError) as exc:
                 raise ValueError(f"{name}: damaged correspondence file ({exc})") from exc
+
+
+#: Vertices (evenly spaced in the vertex order) whose distances to the centroid make a shape's
+#: signature.
+SIGNATURE_POINTS = 32
+#: Relative tolerance of a signature comparison: float32 copies of the vertices (tensor
+#: meshes) differ by ~1e-7; a moved, turned or scaled copy by round-off.
+SIGNATURE_RTOL = 1e-5
+
+
+def shape_signature(vertices: Any) -> np.ndarray:
+    """Distances of a few vertices to the centroid, over the RMS radius: (SIGNATURE_POINTS,).
+
+    The same for a moved, rotated or uniformly scaled copy with the same vertex order; other
+    shapes (another pose, source and target swapped) differ.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    centred = V - V.mean(axis=0)
+    rms = math.sqrt(float(np.mean(np.einsum("ij,ij->i", centred, centred))))
+    picks = np.linspace(0, V.shape[0] - 1, min(SIGNATURE_POINTS, V.shape[0])).astype(np.int64)
+    return np.linalg.norm(centred[picks], axis=1) / max(rms, np.finfo(float).tiny)
+
+
+def with_signatures(corr: Correspondence, source: Any, target: Any) -> Correspondence:
+    """``corr`` with the :func:`shape_signature` of the shapes it was made for."""
+    return dataclasses.replace(
+        corr, signatures=(shape_signature(source), shape_signature(target))
+    )
 
 
 def check_correspondence(obj: Any, name: str = "correspondence") -> Correspondence | None:
@@ -667,7 +746,8 @@ def match_eigenbases(
         progress=progress,
     )
     if rep_1 is None and rep_2 is None:
-        return _match_surfaces(eig_1, eig_2, landmarks=landmarks, **options)
+        corr = _match_surfaces(eig_1, eig_2, landmarks=landmarks, **options)
+        return with_signatures(corr, eig_1.vertices, eig_2.vertices)
     on_surface = landmarks
     if landmarks is not None:  # each input vertex stands for its surface vertex
         on_surface = landmarks.copy()
@@ -685,7 +765,7 @@ def match_eigenbases(
     p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
     if rep_2 is not None:
         p2p = p2p[eig_2.cleaning.index]
-    return dataclasses.replace(
+    corr = dataclasses.replace(
         corr,
         p2p_21=p2p,
         n_source=eig_1.n_vertices,
@@ -694,6 +774,7 @@ def match_eigenbases(
             "landmarks": None if landmarks is None else landmarks.tolist(),
         },
     )
+    return with_signatures(corr, eig_1.vertices, eig_2.vertices)
 
 
 def _match_surfaces(
@@ -880,7 +961,7 @@ def match_arrays(
     meshes = faces_1 is not None and faces_2 is not None
     if uses_dense_path(vertices_1.shape[0], vertices_2.shape[0], meshes, dense_above):
         logger.info("match: %d vertices: dense path (coarse meshes)", n_max)
-        return match_dense(
+        corr = match_dense(
             vertices_1,
             faces_1,
             vertices_2,
@@ -892,6 +973,7 @@ def match_arrays(
             coarse_1=coarse_source,
             **{**options, "landmarks": landmarks},
         )
+        return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
     zoomout_to = options.get("zoomout_to", ESTIMATION_K)
     eigs = [
         eigenbasis(V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components)

@@ -44,6 +44,7 @@ from .matching import (
     check_landmarks,
     map_quality,
     required_k,
+    shape_signature,
 )
 
 __all__ = [
@@ -501,4 +502,5 @@ def match_partial_eigenbases(
         method="partial",
         options=options,
         quality=quality,
+        signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
     )

@@ -123,7 +123,9 @@ def transfer_function(
     if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:
         raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
     if check_correspondence(correspondence) is not None:
-        correspondence.check(eig_1.n_vertices, eig_2.n_vertices)
+        correspondence.check(
+            eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
+        )
         p2p = correspondence.p2p_21
     elif p2p_21 is not None:
         p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
