@@ -634,6 +634,18 @@ def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*beside, "a.obj", "b.ply"])
     write_geometry(tmp_path / "a.obj", mesh, protect=[str(other)])  # nothing protected is hit
     assert image.read_bytes() != b"an input"
+    # A folder where a file written beside it must go (third trial: the .mtl was left behind).
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    write_geometry(blocked / "a.obj", mesh)
+    names = sorted(p.name for p in blocked.iterdir())
+    for p in blocked.iterdir():
+        p.unlink()
+    png = next(n for n in names if n.endswith(".png"))
+    (blocked / png).mkdir()
+    with pytest.raises(IsADirectoryError, match="is a folder: nothing was written"):
+        write_geometry(blocked / "a.obj", mesh)
+    assert sorted(p.name for p in blocked.iterdir()) == [png]
 
 
 def test_point_and_stl_formats_are_written(files, capsys, tmp_path):

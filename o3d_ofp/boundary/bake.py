@@ -27,6 +27,7 @@ from scipy import ndimage
 
 from ..core.correspondence import check_p2p
 from ..workflows.matching import Correspondence, check_correspondence, match_arrays
+from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .texture import MeshTexture, corner_uvs, legacy_texture_image, mesh_texture
 
@@ -210,7 +211,8 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
     t = mesh.clone() if kind == "tensor_mesh" else o3d.t.geometry.TriangleMesh.from_legacy(mesh)
     n = t.vertex.positions.shape[0]
     logger.info("texture transfer: computing a UV atlas for the target (%d vertices)", n)
-    t.compute_uvatlas(size=int(size))
+    with open3d_errors_only():  # it prints "[Open3D INFO] actual parallel_partitions ..."
+        t.compute_uvatlas(size=int(size))
     out = t.to_legacy()
     if len(out.vertices) != n or not out.has_triangle_uvs():
         raise ValueError("Open3D's compute_uvatlas changed the mesh's vertices or gave no UVs")

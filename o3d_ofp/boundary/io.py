@@ -9,6 +9,7 @@ texture files get their final names and a failure leaves nothing behind.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
@@ -343,8 +344,23 @@ def write_geometry(
                     f"{path}: writing it would replace {dest}, an input: nothing was written; "
                     "choose another output name"
                 )
-        for f in [*extras, name]:  # the geometry file last: it refers to the others
-            os.chmod(os.path.join(tmpdir, f), mode)
-            os.replace(os.path.join(tmpdir, f), os.path.join(folder, f))
+            if os.path.isdir(dest):
+                raise IsADirectoryError(
+                    f"{path}: {dest}, written with it, is a folder: nothing was written"
+                )
+        created: list[str] = []  # files that did not exist: removed again if a move fails
+        try:
+            for f in [*extras, name]:  # the geometry file last: it refers to the others
+                dest = os.path.join(folder, f)
+                new = not os.path.lexists(dest)
+                os.chmod(os.path.join(tmpdir, f), mode)
+                os.replace(os.path.join(tmpdir, f), dest)
+                if new:
+                    created.append(dest)
+        except OSError:
+            for dest in created:
+                with contextlib.suppress(OSError):
+                    os.remove(dest)
+            raise
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
