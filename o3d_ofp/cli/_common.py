@@ -300,6 +300,11 @@ def basis_for(
             )
         return B, B.eig
     k = default_k if k is None else k
+    if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
+        raise UsageError(
+            f"{k_flag} {k}: must be smaller than the number of vertices of {path} minus one "
+            f"({V.shape[0]} vertices: at most {V.shape[0] - 2})"
+        )
     tol = tol_options(args)
     cached = getattr(args, "cache", None) and eig_k is None
     if not (cached and _in_cache(V, F, k, args)):  # a cache hit only reads its file
