@@ -735,6 +735,8 @@ def match_eigenbases(
     check_eigenbasis(eig_2, "eig_2")
     _check_sizes(eig_1, eig_2, k_fit, zoomout_to)
     landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
+    s1, rep_1 = on_cleaned_vertices(eig_1)
+    s2, rep_2 = on_cleaned_vertices(eig_2)
     options = dict(
         k_fit=k_fit,
         zoomout_to=zoomout_to,
@@ -743,39 +745,9 @@ def match_eigenbases(
         w_orient=w_orient,
         progress=progress,
     )
-    return on_surfaces(
-        eig_1, eig_2, landmarks, lambda a, b, lm: _match_surfaces(a, b, landmarks=lm, **options)
-    )
-
-
-def on_surfaces(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    landmarks: np.ndarray | None,
-    run: Callable[[EigenBasis, EigenBasis, np.ndarray | None], Correspondence],
-) -> Correspondence:
-    """Run an estimation on the two cleaned surfaces, then carry its map to the input vertices.
-
-    Parameters
-    ----------
-    eig_1, eig_2 : EigenBasis
-        Source and target eigenbases (checked).
-    landmarks : (p, 2) ndarray of int64 or None
-        Checked landmarks in the input numbering.
-    run : callable
-        ``run(surface_1, surface_2, landmarks_on_surfaces)`` returning a Correspondence
-        between the surfaces (:func:`o3d_ofp.core.spectrum.on_cleaned_vertices`).
-
-    Returns
-    -------
-    Correspondence
-        In the input numbering (``landmarks`` recorded as given), with the shapes'
-        signatures.
-    """
-    s1, rep_1 = on_cleaned_vertices(eig_1)
-    s2, rep_2 = on_cleaned_vertices(eig_2)
     if rep_1 is None and rep_2 is None:
-        return with_signatures(run(eig_1, eig_2, landmarks), eig_1.vertices, eig_2.vertices)
+        corr = _match_surfaces(eig_1, eig_2, landmarks=landmarks, **options)
+        return with_signatures(corr, eig_1.vertices, eig_2.vertices)
     on_surface = landmarks
     if landmarks is not None:  # each input vertex stands for its surface vertex
         on_surface = landmarks.copy()
@@ -789,7 +761,7 @@ def on_surfaces(
         eig_1.n_vertices,
         eig_2.n_vertices,
     )
-    corr = run(s1, s2, on_surface)
+    corr = _match_surfaces(s1, s2, landmarks=on_surface, **options)
     p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
     if rep_2 is not None:
         p2p = p2p[eig_2.cleaning.index]

@@ -43,8 +43,8 @@ from .matching import (
     MapQuality,
     check_landmarks,
     map_quality,
-    on_surfaces,
     required_k,
+    shape_signature,
 )
 
 __all__ = [
@@ -384,32 +384,6 @@ def match_partial_eigenbases(
                 "Open3D's create_from_point_cloud_poisson) or match without partial=True"
             )
     landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
-    options = dict(
-        k_fit=k_fit,
-        zoomout_to=zoomout_to,
-        zoomout_subsample=zoomout_subsample,
-        descriptors=descriptors,
-        w_orient=w_orient,
-        progress=progress,
-    )
-    return on_surfaces(
-        eig_1, eig_2, landmarks, lambda a, b, lm: _partial_surfaces(a, b, landmarks=lm, **options)
-    )
-
-
-def _partial_surfaces(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    landmarks: np.ndarray | None,
-    k_fit: int,
-    zoomout_to: int,
-    zoomout_subsample: int | None,
-    descriptors: str,
-    w_orient: float,
-    progress: Callable[[str, float], None] | None,
-) -> Correspondence:
-    """:func:`match_partial_eigenbases` on two bases without copies of vertices (checked)."""
     report = progress or (lambda stage, done: None)
     area = eig_1.area
     u1, u2 = rescaled(eig_1, area), rescaled(eig_2, area)
@@ -528,4 +502,5 @@ def _partial_surfaces(
         method="partial",
         options=options,
         quality=quality,
+        signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
     )
