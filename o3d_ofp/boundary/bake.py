@@ -29,7 +29,7 @@ from ..core.correspondence import check_p2p
 from ..workflows.matching import Correspondence, check_correspondence, match_arrays
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
-from .texture import MeshTexture, corner_uvs, legacy_texture_image, mesh_texture
+from .texture import MeshTexture, as_uint8, corner_uvs, legacy_texture_image, mesh_texture
 
 __all__ = [
     "has_uvs",
@@ -128,15 +128,15 @@ class _Surface:
 def _callers_kind(out: Any, target: Any) -> Any:
     """``out`` (a new legacy textured mesh) as a tensor mesh when ``target`` was one.
 
-    ``TriangleMesh.from_legacy`` drops the textures: the one image goes to the material's
-    ``albedo`` map, turned to the tensor meshes' top-down row order (see
-    :mod:`o3d_ofp.boundary.texture`). A result with several images (a pull-back from a source
+    ``TriangleMesh.from_legacy`` drops the textures: the one image the triangles use goes to
+    the material's ``albedo`` map, in the top-down row order :func:`mesh_texture` reads and
+    tensor meshes keep. A result with several images (a pull-back from a source
     with several materials) stays legacy: a tensor mesh holds one albedo map.
     """
     if geometry_kind(target) != "tensor_mesh":
         return out
     o3d = require_open3d()
-    images = [np.asarray(t) for t in out.textures if np.asarray(t).size]
+    images = mesh_texture(out).used_images() if out.has_triangle_uvs() else []
     if len(images) > 1:
         logger.warning(
             "the result uses %d texture images; a tensor mesh holds one (its albedo map): "
@@ -148,7 +148,7 @@ def _callers_kind(out: Any, target: Any) -> Any:
     if images:
         result.material.set_default_properties()
         result.material.texture_maps["albedo"] = o3d.t.geometry.Image(
-            o3d.core.Tensor(np.ascontiguousarray(images[0][::-1]))
+            o3d.core.Tensor(np.ascontiguousarray(as_uint8(images[0])))
         )
     return result
 
@@ -587,18 +587,10 @@ def texture_pullback(
     loaded = [i for i, img in enumerate(src.images) if img.size > 0]
     renumber = np.zeros(len(src.images), dtype=np.int32)
     renumber[loaded] = np.arange(len(loaded), dtype=np.int32)
-    out.textures = [legacy_texture_image(_as_uint8(src.images[i])) for i in loaded]
+    out.textures = [legacy_texture_image(as_uint8(src.images[i])) for i in loaded]
     material = renumber[np.maximum(src.material[ref_tri], 0)]
     out.triangle_material_ids = o3d.utility.IntVector(material)
     return _callers_kind(out, target)
-
-
-def _as_uint8(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image
-    if np.issubdtype(image.dtype, np.integer):
-        return np.round(image.astype(np.float64) / np.iinfo(image.dtype).max * 255).astype(np.uint8)
-    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.ndarray:

@@ -199,7 +199,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         has_image = mesh.has_valid_material() and "albedo" in mesh.material.texture_maps
         return mesh, bool(has_image and "texture_uvs" in mesh.triangle)
     from .convert import geometry_to_arrays
-    from .texture import mesh_texture
+    from .texture import as_uint8, mesh_texture
 
     V, F = geometry_to_arrays(mesh)
     out = o3d.t.geometry.TriangleMesh()
@@ -219,8 +219,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
             out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs))
         return out, False
     out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(tex.uvs, dtype=np.float32))
-    used = np.unique(tex.material[tex.material >= 0])
-    used = [int(i) for i in used if tex.images[i].size]
+    used = tex.used_images()
     if len(used) > 1:
         raise ValueError(
             f"this mesh uses {len(used)} texture images; Open3D writes one image per mesh to "
@@ -228,9 +227,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         )
     if not used:
         return out, False
-    image = tex.images[used[0]]
-    if image.dtype != np.uint8:
-        image = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    image = as_uint8(used[0])
     out.material.set_default_properties()
     out.material.texture_maps["albedo"] = o3d.t.geometry.Image(
         o3d.core.Tensor(np.ascontiguousarray(image))

@@ -31,7 +31,14 @@ from ..core.texture import corner_colors_to_vertices, sample_texture
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d
 
-__all__ = ["MeshTexture", "corner_uvs", "legacy_texture_image", "mesh_texture", "texture_colors"]
+__all__ = [
+    "MeshTexture",
+    "as_uint8",
+    "corner_uvs",
+    "legacy_texture_image",
+    "mesh_texture",
+    "texture_colors",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -88,6 +95,15 @@ def legacy_texture_image(image: Any) -> Any:
     return o3d.geometry.Image(np.ascontiguousarray(arr[::-1]))
 
 
+def as_uint8(image: np.ndarray) -> np.ndarray:
+    """Return an image as 8-bit: integer images rescaled from their range, floats from [0, 1]."""
+    if image.dtype == np.uint8:
+        return image
+    if np.issubdtype(image.dtype, np.integer):
+        return np.round(image.astype(np.float64) / np.iinfo(image.dtype).max * 255).astype(np.uint8)
+    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class MeshTexture:
     """A textured mesh as arrays: geometry, per-corner UVs, top-down images, image per triangle.
@@ -111,6 +127,11 @@ class MeshTexture:
     uvs: np.ndarray
     images: tuple[np.ndarray, ...]
     material: np.ndarray
+
+    def used_images(self) -> list[np.ndarray]:
+        """Return the loaded images some triangle uses, in index order (top-down rows)."""
+        used = np.unique(self.material[self.material >= 0])
+        return [self.images[int(i)] for i in used if self.images[int(i)].size]
 
     def uv_at(self, triangles: Any, barycentric: Any) -> np.ndarray:
         """Texture coordinates of surface points.
