@@ -10,7 +10,9 @@ position of the shapes (the scene itself works in float32, on centred, unit-diag
 For shapes that are only *almost* aligned, ``align=True`` first registers the target onto the
 source with a rigid point-to-plane ICP. Shapes that are not aligned at all need the spectral
 estimate instead (:func:`o3d_ofp.workflows.matching.match_eigenbases`); the quality report says
-so when the closest points are far away.
+so when the closest points are far away. Without ``align``, the report also says when a rigid
+motion would bring the target much closer (a turned or moved copy: closest points slide along
+the surface), and names ``align=True``.
 """
 
 from __future__ import annotations
@@ -61,6 +63,24 @@ MAX_DISTANCE_NOTE = 0.1
 #: 0.44, 45° 0.33 (mean distance 0.028 of the diagonal, under MAX_MEAN_DISTANCE); onto FAUST 087
 #: (another pose, same place) 0.18.
 MIN_COVERAGE = 0.35
+#: Without ``align``, a rigid motion is fitted to the closest points (point-to-plane, from the
+#: identity, against the exact surface: :func:`_misalignment`). The map is suspect when that
+#: motion brings the target closer to the source by more than :data:`MISALIGNED_DISTANCE` of
+#: the diagonal (mean distance) and to less than :data:`MISALIGNED_RATIO` of the distance before:
+#: the shapes are the same surface, slightly turned or moved, and closest points slide along it.
+#: Measured (mean distance before -> after, fractions of the diagonal): rigid copies of FAUST
+#: 093, the bunny and the teddy turned by 1-45° or moved by 0.5-2 % of the diagonal, 8e-4..3e-2
+#: -> below 1e-16; aligned shapes keep their distance: decimated or subdivided copies (ratio
+#: 0.996-1.11, gain below 1e-5), FAUST 093 with 0.3 % noise (0.999), the paper's detail pair
+#: (donuts, 0.998 both ways), FAUST 093 onto 087 (another pose in the same place: 0.032 ->
+#: 0.026, ratio 0.83).
+MISALIGNED_RATIO = 0.5
+#: See :data:`MISALIGNED_RATIO`: 0.002 of the diagonal is FAUST turned by 2.5° or moved by 0.35 %
+#: of the diagonal. A smaller gain (above 0.0005: a 0.6° turn) only adds a note.
+MISALIGNED_DISTANCE = 0.002
+MISALIGNED_NOTE = 0.0005
+#: The misalignment probe fits the motion to at most this many target vertices (seeded sample).
+MISALIGNMENT_SAMPLES = 20_000
 #: Default ICP correspondence distance, as a fraction of the source's bounding-box diagonal.
 ICP_DISTANCE = 0.05
 #: ICP (Open3D) aligns onto points sampled uniformly (seeded) on the source surface, with their
@@ -462,6 +482,41 @@ def _refine_on_surface(
     return T
 
 
+def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, float, float]:
+    """How much a rigid motion would bring the target closer to the source surface.
+
+    Point-to-plane iterations against the exact closest points (:func:`_refine_on_surface`,
+    from the identity, correspondences up to 3x :data:`ICP_DISTANCE`) on at most
+    :data:`MISALIGNMENT_SAMPLES` target vertices.
+
+    Parameters
+    ----------
+    surface : _Surface
+        The source mesh.
+    V2 : (n2, 3) ndarray
+        Target vertices (shapes' units).
+
+    Returns
+    -------
+    before, after : float
+        Mean closest-point distance of the sampled vertices without and with the motion
+        (fractions of the source's diagonal).
+    degrees : float
+        The motion's rotation angle.
+    shift : float
+        Its translation (fraction of the diagonal) at the source's bounding-box centre.
+    """
+    Pn = surface.normalize(V2)
+    if Pn.shape[0] > MISALIGNMENT_SAMPLES:
+        rng = np.random.default_rng(0)
+        Pn = Pn[np.sort(rng.choice(Pn.shape[0], MISALIGNMENT_SAMPLES, replace=False))]
+    before = float(surface.query(Pn, canonical=False)[3].mean())
+    T = _refine_on_surface(surface, Pn, np.eye(4), 3.0 * ICP_DISTANCE)
+    after = float(surface.query(Pn @ T[:3, :3].T + T[:3, 3], canonical=False)[3].mean())
+    degrees = math.degrees(math.acos(float(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    return before, after, degrees, float(np.linalg.norm(T[:3, 3]))
+
+
 def _icp(
     V1: np.ndarray,
     F1: np.ndarray | None,
@@ -606,10 +661,16 @@ def closest_correspondence(
         taking the target into the source's frame: the query points are
         ``V2 @ T[:3, :3].T + T[:3, 3]``), ``fitness`` and ``inlier_rmse`` (shapes' units) after
         alignment, ``fitness_identity`` before it, ``max_correspondence_distance`` (shapes'
-        units), ``rotation_degrees`` and ``translation``. The quality report is suspect when the
-        mean distance exceeds :data:`MAX_MEAN_DISTANCE` of the source's diagonal; orthogonality,
-        inconsistency and reversed_fraction are NaN (no functional map), area_ratio too unless
-        ``faces_2`` is given.
+        units), ``rotation_degrees`` and ``translation``; without ``align`` and with a mesh
+        source, ``misalignment``: the mean distance before (``mean_distance_rel``) and after
+        (``mean_distance_rel_moved``) the rigid motion fitted to the closest points, its
+        ``rotation_degrees`` and ``translation_rel``. The quality report is suspect when the
+        mean distance exceeds :data:`MAX_MEAN_DISTANCE` of the source's diagonal, when that
+        rigid motion would bring the target much closer (:data:`MISALIGNED_RATIO`,
+        :data:`MISALIGNED_DISTANCE`: a turned or moved copy; the fix is ``align=True``) or
+        when the target's vertices crowd onto few source vertices (:data:`MIN_COVERAGE`);
+        orthogonality, inconsistency and reversed_fraction are NaN (no functional map),
+        area_ratio too unless ``faces_2`` is given.
 
     Raises
     ------
@@ -688,6 +749,35 @@ def closest_correspondence(
             f"(--map closest) is only for shapes in the same place: {retry}otherwise use the "
             "spectral estimate (--map estimate)"
         )
+    if surface is not None and not align:
+        before, after, degrees, shift = _misalignment(surface, V2)
+        options["misalignment"] = {
+            "mean_distance_rel": before,
+            "mean_distance_rel_moved": after,
+            "rotation_degrees": degrees,
+            "translation_rel": shift,
+        }
+        logger.info(
+            "closest map: a rigid motion (%.3g°, shift %.3g of the diagonal) takes the mean "
+            "distance from %.3g to %.3g of the diagonal",
+            degrees,
+            shift,
+            before,
+            after,
+        )
+        gain = before - after
+        if after < MISALIGNED_RATIO * before and gain > MISALIGNED_NOTE:
+            said = (
+                f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the "
+                f"diagonal) brings the target from {before:.3g} to {after:.3g} of the "
+                "source's diagonal on average: the shapes are not quite aligned, and closest "
+                "points slide along the surface; pass align=True (--align) to register them "
+                "first"
+            )
+            if gain > MISALIGNED_DISTANCE and not reasons:
+                reasons.append(said)
+            else:
+                notes.append(said)
     hit = np.unique(p2p).size
     if hit < MIN_COVERAGE * min(n1, n2) and not reasons:
         reasons.append(
