@@ -79,8 +79,15 @@ MISALIGNED_RATIO = 0.5
 #: of the diagonal. A smaller gain (above 0.0005: a 0.6° turn) only adds a note.
 MISALIGNED_DISTANCE = 0.002
 MISALIGNED_NOTE = 0.0005
-#: The misalignment probe fits the motion to at most this many target vertices (seeded sample).
+#: The misalignment probe fits the motion to at most this many target vertices (seeded sample),
+#: in at most :data:`MISALIGNMENT_ITERATIONS` steps, stopping after a step below
+#: :data:`MISALIGNMENT_STEP` (fractions of the diagonal; the verdict only needs the distance to
+#: a few digits). Measured: turned 1-45° or moved copies converge in 3-8 steps to below 1e-11
+#: of the diagonal; shapes that are not rigid copies stop after 3-8 steps where 20 steps of
+#: 1e-8 leave them (ratios equal to 3 digits); 0.2 s instead of 0.4-1.4 s on 7k-100k vertices.
 MISALIGNMENT_SAMPLES = 20_000
+MISALIGNMENT_ITERATIONS = 8
+MISALIGNMENT_STEP = 1e-5
 #: Default ICP correspondence distance, as a fraction of the source's bounding-box diagonal.
 ICP_DISTANCE = 0.05
 #: ICP (Open3D) aligns onto points sampled uniformly (seeded) on the source surface, with their
@@ -442,7 +449,13 @@ def _fit(
 
 
 def _refine_on_surface(
-    surface: _Surface, Pn: np.ndarray, T: np.ndarray, distance: float
+    surface: _Surface,
+    Pn: np.ndarray,
+    T: np.ndarray,
+    distance: float,
+    *,
+    iterations: int = REFINE_ITERATIONS,
+    tolerance: float = REFINE_STEP,
 ) -> np.ndarray:
     """Point-to-plane ICP against the exact closest points on the source's triangles.
 
@@ -459,6 +472,10 @@ def _refine_on_surface(
         Starting transform (normalized frame).
     distance : float
         Correspondence distance (fraction of the diagonal).
+    iterations : int, default REFINE_ITERATIONS
+        At most this many steps.
+    tolerance : float, default REFINE_STEP
+        Stop after a step smaller than this (rotation vector and translation).
 
     Returns
     -------
@@ -466,7 +483,7 @@ def _refine_on_surface(
         The refined transform.
     """
     T = T.copy()
-    for _ in range(REFINE_ITERATIONS):
+    for _ in range(iterations):
         _, _, X, Q, n = _fit(surface, Pn, T, distance)
         inlier = np.linalg.norm(X - Q, axis=1) < distance
         if inlier.sum() < 6:
@@ -477,7 +494,7 @@ def _refine_on_surface(
         dR = _rotation(step[:3])
         T[:3, :3] = dR @ T[:3, :3]
         T[:3, 3] = dR @ T[:3, 3] + step[3:]
-        if np.linalg.norm(step) < REFINE_STEP:
+        if np.linalg.norm(step) < tolerance:
             break
     return T
 
@@ -487,7 +504,7 @@ def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, floa
 
     Point-to-plane iterations against the exact closest points (:func:`_refine_on_surface`,
     from the identity, correspondences up to 3x :data:`ICP_DISTANCE`) on at most
-    :data:`MISALIGNMENT_SAMPLES` target vertices.
+    :data:`MISALIGNMENT_SAMPLES` target vertices, :data:`MISALIGNMENT_ITERATIONS` steps.
 
     Parameters
     ----------
@@ -511,7 +528,14 @@ def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, floa
         rng = np.random.default_rng(0)
         Pn = Pn[np.sort(rng.choice(Pn.shape[0], MISALIGNMENT_SAMPLES, replace=False))]
     before = float(surface.query(Pn, canonical=False)[3].mean())
-    T = _refine_on_surface(surface, Pn, np.eye(4), 3.0 * ICP_DISTANCE)
+    T = _refine_on_surface(
+        surface,
+        Pn,
+        np.eye(4),
+        3.0 * ICP_DISTANCE,
+        iterations=MISALIGNMENT_ITERATIONS,
+        tolerance=MISALIGNMENT_STEP,
+    )
     after = float(surface.query(Pn @ T[:3, :3].T + T[:3, 3], canonical=False)[3].mean())
     degrees = math.degrees(math.acos(float(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0))))
     return before, after, degrees, float(np.linalg.norm(T[:3, 3]))
