@@ -22,7 +22,13 @@ from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import face_areas_normals, hat_gradients, outward_sign
+from .geometry import (
+    face_areas_normals,
+    hat_gradients,
+    outward_sign,
+    point_gradient_operator,
+    point_normals,
+)
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
 
@@ -128,6 +134,8 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     vertices by area, then projected with Φᵀ M): one GEMM per chunk of faces.
     """
     V, F = eig.vertices, eig.faces
+    if F is None:
+        return _point_orientation_ops(eig, k, D)
     areas, normals = face_areas_normals(V, F)
     # Outward normals whatever the winding: a shape whose faces are wound inwards would
     # otherwise make the orientation-preserving term prefer the mirror map (measured: FAUST
@@ -160,6 +168,29 @@ def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
         W = (areas[sl] / 3.0)[:, None] * phi_c.sum(axis=1)  # area-weighted corner sums
         H = np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i) per face
         T += W.T @ H.reshape(H.shape[0], a * p)
+    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+
+
+def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
+    """:func:`_orientation_ops` of a point cloud: the same integral, sampled at the points.
+
+    ``O_i[b, a] = Σ_x m_x φ_b(x) ∇φ_a(x) · (n_x × ∇d_i(x))`` with the outward normals and the
+    tangent-plane gradients of :mod:`o3d_ofp.core.geometry` (:func:`point_normals`,
+    :func:`point_gradient_operator`). In the frame ``(t₁, t₂, n)``, ``n × (g₁t₁ + g₂t₂) =
+    g₁t₂ − g₂t₁``, so ``∇φ · (n × ∇d) = ∇₂φ ∇₁d − ∇₁φ ∇₂d``.
+    """
+    V = eig.vertices
+    g1, g2, _, _ = point_gradient_operator(V, point_normals(V, eig.mass))
+    phi = eig.evecs[:, : k + 1]
+    a, p = k + 1, D.shape[1]
+    p1, p2, d1, d2 = g1 @ phi, g2 @ phi, g1 @ D, g2 @ D  # (n, a), (n, a), (n, p), (n, p)
+    W = eig.mass[:, None] * phi
+    T = np.zeros((a, a * p))
+    step = 2048
+    for s in range(0, V.shape[0], step):
+        sl = slice(s, s + step)
+        H = p2[sl, :, None] * d1[sl, None, :] - p1[sl, :, None] * d2[sl, None, :]  # (c, a, p)
+        T += W[sl].T @ H.reshape(H.shape[0], a * p)
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
 
 
@@ -303,9 +334,6 @@ class _FitTerms:
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
         operator_step = check_int(operator_step, name="operator_step", minimum=1)
-        faces = eig_1.faces is not None and eig_2.faces is not None
-        if orient and not faces:
-            logger.info("estimate_fmap: no orientation term (a point cloud has no faces)")
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
             D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
@@ -316,7 +344,6 @@ class _FitTerms:
                 _orientation_ops(eig, k, Dop) if orient else None,
             )
 
-        orient = orient and faces
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
             lm1, lm2 = landmarks
@@ -464,8 +491,9 @@ def estimate_fmap(
         descriptors and operators being built once.
     w_orient : float, default 1.0
         Weight of the orientation term relative to the others (it is rescaled so that, at
-        the identity map, it equals ``w_orient`` times the other terms). Ignored for point
-        clouds (no faces).
+        the identity map, it equals ``w_orient`` times the other terms). On a point cloud
+        (no faces) it is built from estimated normals and tangent-plane gradients
+        (:func:`o3d_ofp.core.geometry.point_normals`, ``point_gradient_operator``).
     operator_step : int, default OPERATOR_STEP (5)
         The commutativity and orientation terms use every ``operator_step``-th descriptor
         (pyFM's ``subsample_step``); the descriptor term uses all of them.

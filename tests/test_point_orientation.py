@@ -1,0 +1,95 @@
+"""The orientation term on point clouds: normals, tangent-plane gradients, operators, maps.
+
+A point cloud has no triangles, so the orientation-preserving term of the functional map fit
+(Ren et al. 2018) is built from estimated normals (:func:`point_normals`) and least-squares
+tangent-plane gradients (:func:`point_gradient_operator`). Each piece is checked against the
+triangle-mesh truth of the same surface.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import o3d_ofp as ofp
+from o3d_ofp.core import fmap
+from o3d_ofp.core.geometry import (
+    outward_sign,
+    point_gradient_operator,
+    point_normals,
+    vertex_normals,
+)
+from o3d_ofp.core.shapes import blob, icosphere, torus
+from tests.conftest import load_shared_mesh
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus", "blob"])
+def test_point_normals_are_the_outward_normals(shape):
+    V, F = {"sphere": icosphere(4), "torus": torus(64, 32), "blob": blob(4)}[shape]
+    truth = vertex_normals(V, F) * outward_sign(V, F)
+    rng = np.random.default_rng(1)
+    order = rng.permutation(len(V))  # the point order must not matter
+    n = np.empty_like(V)
+    n[order] = point_normals(V[order])
+    cos = np.einsum("ij,ij->i", n, truth)
+    # Every sign right on these smooth closed shapes (the torus has a hole: the outward test
+    # is the enclosed volume, not the direction from the centre); the directions differ from
+    # the area-weighted vertex normals by the plane fit's error only (measured: cos >= 0.997).
+    assert cos.min() > 0.98, cos.min()
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    # the sign of the whole field follows the shape, not the input: a reflected copy too
+    mirrored = V * np.array([-1.0, 1.0, 1.0])
+    m_truth = vertex_normals(mirrored, F) * outward_sign(mirrored, F)
+    assert np.einsum("ij,ij->i", point_normals(mirrored), m_truth).min() > 0.98
+
+
+def test_point_gradients_against_the_analytic_gradient():
+    # A plane: linear functions have exact gradients.
+    g = np.linspace(-1.0, 1.0, 30)
+    X, Y = np.meshgrid(g, g)
+    P = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    g1, g2, t1, t2 = point_gradient_operator(P, N)
+    f = 2.0 * P[:, 0] - 3.0 * P[:, 1] + 5.0
+    grad = (g1 @ f)[:, None] * t1 + (g2 @ f)[:, None] * t2
+    np.testing.assert_allclose(grad, np.tile([2.0, -3.0, 0.0], (len(P), 1)), atol=1e-10)
+    np.testing.assert_allclose(np.asarray((g1 + g2).sum(axis=1)).ravel(), 0.0, atol=1e-10)
+    np.testing.assert_allclose(np.cross(N, t1), t2, atol=1e-15)  # right-handed frames
+    # The unit sphere: f = z has the tangential gradient e_z - (e_z·n) n. The fitted plane
+    # ignores the curvature, an O(h) error: measured max 0.023 at 2562 points (spacing 0.08).
+    V, _ = icosphere(4)
+    n = V / np.linalg.norm(V, axis=1, keepdims=True)
+    g1, g2, t1, t2 = point_gradient_operator(V, n)
+    grad = (g1 @ V[:, 2])[:, None] * t1 + (g2 @ V[:, 2])[:, None] * t2
+    truth = np.array([0.0, 0.0, 1.0]) - n[:, 2:3] * n
+    assert np.abs(grad - truth).max() < 0.05
+
+
+def test_point_orientation_operators_agree_with_the_mesh_ones():
+    """The same integral ∫ φ_b ∇φ_a·(n × ∇d), sampled at the points or summed over faces."""
+    V, F = load_shared_mesh("faust/tr_reg_093.ply")
+    eig = fmap.unit_area(ofp.eigenbasis(V, F, k=40))
+    D = fmap._descriptors(eig, "wks", 100, None, 40)[:, ::10]
+    mesh = fmap._orientation_ops(eig, 30, D)
+    points = fmap._orientation_ops(ofp.EigenBasis(**{**eig.__dict__, "faces": None}), 30, D)
+    cos = np.einsum("pij,pij->p", mesh, points) / (
+        np.linalg.norm(mesh, axis=(1, 2)) * np.linalg.norm(points, axis=(1, 2))
+    )
+    # measured 0.92-0.998 (the point normals and gradients are estimates, with wrong signs at
+    # 3.6 % of the points); a mirrored term (n -> -n) would give -1, a missing one 0
+    assert cos.min() > 0.85, cos
+
+
+def test_estimated_map_onto_a_point_cloud_uses_the_orientation_term():
+    """FAUST 093 -> 087 with the target as points: measured 0.058 (0.101 without the term)."""
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    V2, _ = load_shared_mesh("faust/tr_reg_087.ply")
+    area = ofp.laplacian(V1, F1)[1].sum()
+    e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, None, k=99)
+
+    def error(**options):
+        corr = ofp.match((V1, F1), (V2, None), eigenbases=(e1, e2), **options)
+        return np.linalg.norm(V1[corr.p2p_21] - V1, axis=1).mean() / np.sqrt(area)
+
+    with_term, without = error(), error(w_orient=0.0)
+    assert with_term < 0.075 < without, (with_term, without)
