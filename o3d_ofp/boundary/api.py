@@ -349,6 +349,11 @@ def match(
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     if method == "closest":
+        if landmarks is not None:
+            raise ValueError(
+                "landmarks apply to method='estimate': a closest-point map has no use for them "
+                "(align=True registers almost aligned shapes)"
+            )
         return closest_correspondence(V1, F1, V2, faces_2=F2, align=align)
     if align:
         raise ValueError("align=True applies to method='closest' (the spectral map needs none)")
@@ -435,8 +440,9 @@ def transfer_colors(
         Transfer matrix computation (see :func:`o3d_ofp.transfer_matrix`).
     via_basis : bool, optional
         Transfer through the OFP bases (the paper's transfer, robust to a noisy map) or pull
-        the colors back exactly through the map. Default: exact pull-back for a surface map
-        (``match(method="closest")``), the bases otherwise.
+        the colors back exactly through the map. Default: exact pull-back for a closest-point
+        map (``match(method="closest")``: at each target vertex's point on the source surface,
+        or its nearest point of a point-cloud source), the bases otherwise.
     eigenbases : (EigenBasis, EigenBasis), optional
         Precomputed eigenbases of source and target (e.g. from cached bases); with an
         estimated map they should hold ~100 eigenfunctions for ZoomOut.
@@ -465,7 +471,7 @@ def transfer_colors(
             "o3d_ofp.transfer_function)"
         )
     exact = check_correspondence(correspondence) is not None
-    exact = exact and correspondence.barycentric_21 is not None
+    exact = exact and correspondence.method == "closest"
     if via_basis is False or (via_basis is None and exact):
         if correspondence is None:
             if p2p_21 is None:

@@ -162,8 +162,7 @@ def check_output(
             f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"
         )
     folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
+    check_writable_folder(folder, path, flag=flag)
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):
             continue
@@ -175,6 +174,19 @@ def check_output(
                     f"{flag} {path}: writing it would also write {other}, an input of this "
                     "command; choose another output name"
                 )
+
+
+def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
+    """Refuse, before any work, an output whose folder is missing or cannot be written."""
+    if not os.path.isdir(folder):
+        raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
+    # os.access sees a read-only file system even for root (EROFS); a root process ignores
+    # permission bits, so only the write itself can tell then (it still fails cleanly).
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(
+            f"{flag} {path}: the folder {folder} cannot be written (read-only or no "
+            "permission); choose another output folder"
+        )
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:

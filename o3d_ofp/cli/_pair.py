@@ -197,7 +197,8 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     for f in files:
         if not os.path.isfile(f):
             raise UsageError(
-                f"--map {f}: no such map file (--map estimate|identity|MAP.npz|FILE[,FILE])"
+                f"--map {f}: no such map file (--map estimate|closest|identity|MAP.npz|"
+                "FILE[,FILE])"
             )
     if len(files) == 2:  # correspondences of both shapes to a common template
         try:
@@ -213,7 +214,7 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     if path.endswith(".npz"):
         try:
             corr = Correspondence.load(path)
-            corr.check(n1, n2, name=f"--map {path}", source=V1, target=V2)
+            corr.check(n1, n2, name=f"--map {path}")  # the shapes: _check_given_map
         except (ValueError, TypeError) as exc:
             raise UsageError(f"--map {exc}" if str(exc).startswith(path) else str(exc)) from exc
         return corr
@@ -242,15 +243,22 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
 
 def read_pair(args: argparse.Namespace) -> Pair:
     """Read both shapes, the map and the landmarks: everything that can fail fast."""
-    from ._common import check_cache_dir, read_shape
+    from ._common import check_cache_dir, check_writable_folder, read_shape
 
     check_cache_dir(getattr(args, "cache", None))
     _check_landmark_flags(args)
     if args.save_map:
         if not args.save_map.endswith(".npz"):
             raise UsageError(f"--save-map {args.save_map}: must end with .npz")
-        if not os.path.isdir(os.path.dirname(os.path.abspath(args.save_map))):
-            raise UsageError(f"--save-map {args.save_map}: the folder does not exist")
+        given = [f for f in args.map.split(",") if os.path.exists(f)]
+        if any(os.path.samefile(args.save_map, f) for f in given if os.path.exists(args.save_map)):
+            raise UsageError(
+                f"--save-map {args.save_map} is the --map file read: the map would replace "
+                "itself; give --save-map another name"
+            )
+        check_writable_folder(
+            os.path.dirname(os.path.abspath(args.save_map)), args.save_map, flag="--save-map"
+        )
     if args.align and args.map != "closest":
         raise UsageError("--align applies to --map closest")
     if getattr(args, "partial", False) and args.map != "estimate":
@@ -259,7 +267,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
     target, V2, F2 = read_shape(args.target)
     corr = _read_map(args.map, V1, V2)
     if corr is not None and args.map != "closest":
-        _check_given_map(args, corr, V1.shape[0], V2.shape[0])
+        _check_given_map(args, corr, V1, V2)
     if getattr(args, "partial", False):
         for F, path in ((F1, args.source), (F2, args.target)):
             if F is None:
@@ -370,26 +378,44 @@ def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool
 GIVEN_MAP_COLLAPSE = 0.02
 
 
-def _check_given_map(args: argparse.Namespace, corr: Any, n1: int, n2: int) -> None:
-    """Say when a map read from a file collapses; ``--strict`` makes that an error.
+def _check_given_map(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray) -> None:
+    """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
 
     A map file of the right length and range can still be garbage (another pair's map, a
     broken export): when fewer distinct source vertices than :data:`GIVEN_MAP_COLLAPSE` of
-    the smaller shape are hit, the result would be a few flat colors.
+    the smaller shape are hit, the result would be a few flat colors. A map saved by
+    ``--save-map`` (.npz) also carries its quality, printed here, and the signatures of the
+    shapes it was made for: a map saved suspect, or made for other shapes (source and target
+    swapped, another pair with the same vertex counts), is doubtful too.
     """
     from ._common import report
 
+    n1, n2 = V1.shape[0], V2.shape[0]
+    reasons = []
     hit = int(np.unique(corr.p2p_21).size)
-    if hit >= GIVEN_MAP_COLLAPSE * min(n1, n2):
+    if hit < GIVEN_MAP_COLLAPSE * min(n1, n2):
+        reasons.append(
+            f"the map from --map {args.map} collapses: only {hit} distinct source vertices for "
+            f"{n2} target vertices (a map of other shapes, or a broken file?)"
+        )
+    if args.map.endswith(".npz"):
+        other = corr.mismatch(V1, V2, name=f"--map {args.map}")
+        if other is not None:
+            reasons.append(other)
+        if corr.quality is not None:
+            report([f"stored with --map {args.map}: {corr.quality.summary()}"])
+            if corr.quality.suspect:
+                reasons.append(
+                    f"--map {args.map} was saved with a suspect quality: "
+                    + "; ".join(corr.quality.reasons)
+                )
+    if not reasons:
         return
-    reason = (
-        f"the map from --map {args.map} collapses: only {hit} distinct source vertices for "
-        f"{n2} target vertices (a map of other shapes, or a broken file?)"
-    )
     if args.strict:
-        raise SuspectMap(reason)
-    logger.warning("%s", reason)
-    report([f"map quality SUSPECT: {reason}"])
+        raise SuspectMap("; ".join(reasons))
+    for reason in reasons:
+        logger.warning("%s", reason)
+    report([f"map quality SUSPECT: {reason}" for reason in reasons])
 
 
 def _report_quality(args: argparse.Namespace, corr: Any) -> None:

@@ -150,6 +150,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ImportError as exc:
             sys.stderr.write(f"{prog}: error: {exc}\n")
             return 1
+        except OSError as exc:  # a full disk, a file system gone read-only during the run
+            where = f" ({exc.filename})" if exc.filename else ""
+            sys.stderr.write(f"{prog}: error: cannot read or write{where}: {exc.strerror or exc}\n")
+            return 1
         except KeyboardInterrupt:
             sys.stderr.write(f"{prog}: interrupted\n")
             return 130

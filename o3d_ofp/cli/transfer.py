@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture)
     pair = estimate_dense_first(args, pair)
     given = pair.correspondence
-    if given is not None and given.barycentric_21 is not None:  # a surface map: exact pull-back
+    if given is not None and given.method == "closest":  # exact pull-back, no basis
         from ..workflows.pipeline import pull_back
 
         if args.save_map:

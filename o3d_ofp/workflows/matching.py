@@ -485,8 +485,30 @@ class Correspondence:
                 f"vertices, but the shapes have {n_target} and {n_source}: it belongs to "
                 "other shapes"
             )
+        said = self.mismatch(source, target, name=name)
+        if said is not None:
+            warn(logger, said + ". The map is used as it is")
+
+    def mismatch(
+        self, source: Any = None, target: Any = None, *, name: str = "correspondence"
+    ) -> str | None:
+        """Say why the map was made for other shapes than these, or None when it was not.
+
+        Parameters
+        ----------
+        source, target : (n, 3) array_like, optional
+            The shapes' vertices, compared with :attr:`signatures` up to a move, a rotation
+            and a uniform scaling (a shape left out, or a map without signatures, is not
+            compared).
+        name : str
+            How the message names the map.
+
+        Returns
+        -------
+        str or None
+        """
         if self.signatures is None:
-            return
+            return None
         for shape, signature, side in zip(
             (source, target), self.signatures, ("source", "target"), strict=True
         ):
@@ -496,14 +518,12 @@ class Correspondence:
             if mine.shape != signature.shape or not np.allclose(
                 mine, signature, rtol=SIGNATURE_RTOL, atol=SIGNATURE_RTOL
             ):
-                warn(
-                    logger,
-                    f"{name} was made for another {side} with {shape.shape[0]} vertices (its "
-                    "vertices are not where they were, even up to a move, a rotation or a "
-                    "scaling): source and target swapped, another pair, or a changed shape? "
-                    "The map is used as it is",
+                return (
+                    f"{name} was made for another {side} with {np.shape(shape)[0]} vertices "
+                    "(its vertices are not where they were, even up to a move, a rotation or "
+                    "a scaling): source and target swapped, another pair, or a changed shape?"
                 )
-                return
+        return None
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the correspondence to a ``.npz`` file (atomically).
@@ -545,8 +565,14 @@ class Correspondence:
         ValueError
             If the file cannot be read or is not a correspondence file (the message names it).
         """
+        import zipfile
+
         name = os.fspath(path)
         try:
+            if not zipfile.is_zipfile(name):  # np.load would speak of pickles
+                raise ValueError(
+                    "not an .npz archive (maps are written by Correspondence.save or --save-map)"
+                )
             data = np.load(name, allow_pickle=False)
         except (OSError, ValueError) as exc:
             raise ValueError(f"{name}: cannot read a correspondence file ({exc})") from exc

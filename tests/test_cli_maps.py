@@ -1,0 +1,143 @@
+"""The CLI with map files and closest-point maps: what a reused map says, and refusals.
+
+Found by a new-user trial: a reused --map MAP.npz saved suspect, or made for other shapes,
+passed --strict; --save-map could overwrite the --map it read; a read-only output folder
+failed after the work; a point-cloud source went through the bases with --map closest.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import o3d_ofp as ofp
+from o3d_ofp.cli import main
+from o3d_ofp.core.shapes import blob
+
+o3d = pytest.importorskip("open3d", reason="the CLI reads and writes with Open3D")
+
+
+def _turned(V: np.ndarray, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    centre = 0.5 * (V.min(0) + V.max(0))
+    return (V - centre) @ R.T + centre
+
+
+@pytest.fixture(scope="module")
+def shapes(tmp_path_factory):
+    from o3d_ofp.boundary.convert import point_cloud_from_arrays, triangle_mesh_from_arrays
+
+    d = tmp_path_factory.mktemp("maps")
+    V, F = blob(3)
+    colors = 0.5 + 0.5 * np.sin(3 * V)
+    paths = {name: str(d / f"{name}.ply") for name in ("src", "same", "turned", "cloud")}
+    ofp.write_geometry(paths["src"], triangle_mesh_from_arrays(V, F, colors=colors))
+    ofp.write_geometry(paths["same"], triangle_mesh_from_arrays(V, F))
+    ofp.write_geometry(paths["turned"], triangle_mesh_from_arrays(_turned(V, 6.0), F))
+    ofp.write_geometry(paths["cloud"], point_cloud_from_arrays(V, colors=colors))
+    return d, paths, V, F, colors
+
+
+def _err(capsys) -> str:
+    return capsys.readouterr().err
+
+
+def test_a_map_saved_suspect_is_said_and_refused_under_strict(shapes, tmp_path, capsys):
+    _d, p, *_ = shapes
+    saved = str(tmp_path / "turned.npz")
+    # the 6° turned copy without --align: suspect (the closest points slide), saved anyway
+    argv = ["transfer", p["src"], p["turned"], "--map", "closest", "--save-map", saved]
+    assert main([*argv, "-o", str(tmp_path / "a.ply")]) == 0
+    assert os.path.exists(saved)
+    capsys.readouterr()
+    reuse = ["transfer", p["src"], p["turned"], "--map", saved]
+    assert main([*reuse, "-o", str(tmp_path / "b.ply")]) == 0
+    out = capsys.readouterr()
+    assert f"stored with --map {saved}: map quality SUSPECT" in out.out + out.err
+    assert "was saved with a suspect quality" in out.out + out.err
+    assert main([*reuse, "--strict", "-o", str(tmp_path / "c.ply")]) == 3
+    assert "was saved with a suspect quality" in _err(capsys)
+    assert not os.path.exists(tmp_path / "c.ply")
+
+
+def test_a_map_of_other_shapes_is_refused_under_strict(shapes, tmp_path, capsys):
+    _d, p, V, F, _colors = shapes
+    saved = str(tmp_path / "pair.npz")
+    assert main(["transfer", p["src"], p["turned"], "--map", "closest", "--align",
+                 "--save-map", saved, "-o", str(tmp_path / "a.ply")]) == 0  # fmt: skip
+    capsys.readouterr()
+    # the same vertex counts, other shapes: the target is the untouched copy, not the turned
+    other = str(tmp_path / "other.ply")
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    bent = V.copy()
+    bent[:, 1] += 0.3 * bent[:, 0] ** 2
+    ofp.write_geometry(other, triangle_mesh_from_arrays(bent, F))
+    argv = ["transfer", p["src"], other, "--map", saved, "--strict", "-o", str(tmp_path / "b.ply")]
+    assert main(argv) == 3
+    assert "was made for another target" in _err(capsys)
+    assert not os.path.exists(tmp_path / "b.ply")
+
+
+def test_save_map_may_not_replace_the_map_read(shapes, tmp_path, capsys):
+    _d, p, *_ = shapes
+    saved = str(tmp_path / "m.npz")
+    assert main(["transfer", p["src"], p["same"], "--map", "closest", "--save-map", saved,
+                 "-o", str(tmp_path / "a.ply")]) == 0  # fmt: skip
+    before = os.stat(saved).st_mtime_ns
+    capsys.readouterr()
+    argv = ["transfer", p["src"], p["same"], "--map", saved, "--save-map", saved]
+    assert main([*argv, "-o", str(tmp_path / "b.ply")]) == 2
+    assert "is the --map file read" in _err(capsys)
+    assert os.stat(saved).st_mtime_ns == before and not os.path.exists(tmp_path / "b.ply")
+
+
+def test_map_file_messages(shapes, tmp_path, capsys):
+    _d, p, *_ = shapes
+    junk = tmp_path / "junk.npz"
+    junk.write_text("not an archive")
+    out = ["-o", str(tmp_path / "a.ply")]
+    assert main(["transfer", p["src"], p["same"], "--map", str(junk), *out]) == 2
+    err = _err(capsys)
+    assert "not an .npz archive" in err and "pickle" not in err
+    assert main(["transfer", p["src"], p["same"], "--map", "nope.npz", *out]) == 2
+    assert "estimate|closest|identity" in _err(capsys)
+
+
+def test_read_only_output_folder_is_refused_before_the_work(shapes, tmp_path, capsys, monkeypatch):
+    _d, p, *_ = shapes
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
+        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
+    ))  # fmt: skip
+    assert main(["transfer", p["src"], p["same"], "-o", str(folder / "a.ply")]) == 2
+    assert "cannot be written" in _err(capsys)
+    argv = ["transfer", p["src"], p["same"], "--save-map", str(folder / "m.npz")]
+    assert main([*argv, "-o", str(tmp_path / "a.ply")]) == 2
+    assert "--save-map" in _err(capsys) and not os.path.exists(tmp_path / "a.ply")
+
+
+def test_cloud_source_with_the_closest_map_copies_the_colors(shapes, tmp_path, capsys):
+    _d, p, V, F, colors = shapes
+    out = tmp_path / "a.ply"
+    assert main(["transfer", p["cloud"], p["same"], "--map", "closest", "-o", str(out)]) == 0
+    assert "exact pull-back" in capsys.readouterr().out
+    got = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
+    np.testing.assert_allclose(got, colors, atol=1 / 255)  # the same points: the same colors
+    # and from Python: transfer_colors pulls back through a closest map of a cloud source
+    corr = ofp.match(ofp.read_geometry(p["cloud"]), (V, F), method="closest")
+    assert corr.barycentric_21 is None
+    target = ofp.transfer_colors(ofp.read_geometry(p["cloud"]), ofp.read_geometry(p["same"]),
+                                 correspondence=corr)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(target.vertex_colors), colors, atol=1 / 255)
+
+
+def test_python_closest_map_refuses_landmarks(shapes):
+    _d, _p, V, F, _ = shapes
+    with pytest.raises(ValueError, match="landmarks apply to method='estimate'"):
+        ofp.match((V, F), (V, F), method="closest", landmarks=[[0, 0]])
