@@ -649,11 +649,21 @@ def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
 
 
 def test_point_and_stl_formats_are_written(files, capsys, tmp_path):
-    """STL gets triangle normals; point formats get the vertices (both failed after the work)."""
+    """STL gets triangle normals; point formats get the vertices (both failed after the work).
+
+    Colors bound for a format without them (STL, XYZ) are refused before the work (they were
+    dropped without a word); moved vertices (--signal xyz) go to any format.
+    """
     base = ["transfer", files["src"], files["tgt"], "--map", "identity"]
+    for ext in (".stl", ".xyz"):
+        out = tmp_path / f"c{ext}"
+        assert main([*base, "-o", str(out)]) == 2
+        _one_line_error(capsys, f"c{ext}", "holds no vertex colors, so the colors would be lost")
+        assert not out.exists()
     for ext in (".stl", ".xyz", ".pcd", ".xyzrgb"):
         out = tmp_path / f"x{ext}"
-        assert main([*base, "-o", str(out)]) == 0, capsys.readouterr().err
+        signal = ["--signal", "xyz"] if ext in (".stl", ".xyz") else []
+        assert main([*base, *signal, "-o", str(out)]) == 0, capsys.readouterr().err
         if ext == ".stl":
             mesh = o3d.io.read_triangle_mesh(str(out))
             assert len(mesh.triangles) == len(files["F"])

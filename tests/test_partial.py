@@ -224,6 +224,27 @@ def test_bad_keywords_are_refused_before_any_eigensolve(no_eigensolve, kwargs, e
         ofp.match((V, F), (V, F), **kwargs)
 
 
+def test_a_part_larger_than_the_whole_is_refused_before_any_eigensolve(
+    no_eigensolve, tmp_path, capsys
+):
+    """Source and target swapped (the whole given as the part): said at once, with the fix."""
+    V, F = icosphere(2)
+    half = F[(V[F].mean(axis=1)[:, 2] > 0)]
+    with pytest.raises(ValueError, match="Swap source and target"):
+        ofp.match((V, half), (V, F), partial=True)  # the cut as source: 2x smaller
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.cli import main
+
+    paths = [str(tmp_path / "part.ply"), str(tmp_path / "whole.ply")]
+    ofp.write_geometry(paths[0], triangle_mesh_from_arrays(V, half))
+    ofp.write_geometry(paths[1], triangle_mesh_from_arrays(V, F))
+    argv = ["transfer", *paths, "--partial", "--signal", "xyz", "-o", str(tmp_path / "o.ply")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "whole.ply has" in err and "times the area of" in err and "Swap" in err
+    assert not (tmp_path / "o.ply").exists()
+
+
 def test_match_partial_eigenbases_checks_its_inputs(whole):
     V, F, e1 = whole
     with pytest.raises(TypeError, match="eig_2 must be an EigenBasis"):

@@ -372,6 +372,9 @@ def match(
                     f"partial=True needs triangle meshes: the {name} is a point cloud (no "
                     "faces); mesh it first or match without partial=True"
                 )
+        from ..workflows.partial import check_partial_areas
+
+        check_partial_areas(V1, F1, V2, F2)
     if eigenbases is None and partial:
         from ..workflows.matching import check_landmarks, required_k
 

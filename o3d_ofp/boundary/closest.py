@@ -753,8 +753,10 @@ def closest_correspondence(
         if fitness < ICP_MIN_FITNESS:
             notes.append(
                 f"ICP fitness {fitness:.2f}: only that fraction of the target lies within "
-                f"{max_distance:.3g} of the source after alignment (a partial target, or a "
-                "pose too far from the source's for ICP)"
+                f"{max_distance:.3g} (the shapes' units, {max_distance / diag:.2g} of the "
+                "source's bounding-box diagonal) of the source after alignment: a partial "
+                "target, a pose too far from the source's for ICP, or shapes in other units "
+                "(ICP does not scale: rescale the target first)"
             )
 
     if F1 is None:

@@ -154,6 +154,8 @@ GLTF = (".gltf", ".glb")
 CLOUD_ONLY = (".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 #: Formats that need faces: a point cloud cannot be written to them.
 MESH_ONLY = (".obj", ".off", ".stl", ".glb", ".gltf")
+#: Formats Open3D writes without vertex colors (checked by writing and reading back).
+NO_COLORS = (".stl", ".xyz", ".xyzn")
 
 
 def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:

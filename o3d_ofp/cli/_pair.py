@@ -275,6 +275,12 @@ def read_pair(args: argparse.Namespace) -> Pair:
                     f"--partial needs triangle meshes: {path} is a point cloud (no faces); "
                     "mesh it first or match without --partial"
                 )
+        from ..workflows.partial import check_partial_areas
+
+        try:
+            check_partial_areas(V1, F1, V2, F2, names=(args.source, args.target))
+        except ValueError as exc:
+            raise UsageError(str(exc)) from exc
     if args.map == "closest":
         from ..boundary.closest import closest_correspondence
 

@@ -14,9 +14,34 @@ __all__ = ["read_signal", "side_outputs", "signal_sides", "write_result"]
 
 
 def read_signal(
+    geometry: Any,
+    V: np.ndarray,
+    path: str,
+    spec: str,
+    texture: str | None,
+    *,
+    output: str | None = None,
+) -> tuple[np.ndarray, str]:
+    """(values (n,) or (n, d), kind) of ``--signal`` on the geometry read from ``path``.
+
+    With ``output`` (the ``-o`` path), colors bound for a format that holds none (STL, XYZ)
+    are refused here, before any work: they would be dropped without a word.
+    """
+    values, kind = _read_signal(geometry, V, path, spec, texture)
+    from ..boundary.io import NO_COLORS
+
+    ext = os.path.splitext(output or "")[1].lower()
+    if kind == "colors" and ext in NO_COLORS:
+        raise UsageError(
+            f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; write "
+            ".ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts (points)"
+        )
+    return values, kind
+
+
+def _read_signal(
     geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None
 ) -> tuple[np.ndarray, str]:
-    """(values (n,) or (n, d), kind) of ``--signal`` on the geometry read from ``path``."""
     from ..boundary.convert import vertex_colors
     from ..boundary.texture import texture_colors
 

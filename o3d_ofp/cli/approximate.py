@@ -46,7 +46,9 @@ def run(args: argparse.Namespace) -> int:
     geometry, V, F = read_shape(args.mesh)
     if not args.output.lower().endswith(".npy"):
         check_output_kind(args.output, F)
-    f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture)
+    f, kind = read_signal(
+        geometry, V, args.mesh, args.signal, args.texture, output=args.output
+    )
     B, _ = basis_for(V, F, args.mesh, args, k=args.k, file=args.basis)
     approx = B.approximate(f)
     err = B.approximation_error(f)

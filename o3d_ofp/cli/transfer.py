@@ -105,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
         )
     spec = args.signal or _default_signal(pair.source)
-    f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture)
+    f, kind = read_signal(
+        pair.source, pair.V1, args.source, spec, args.texture, output=args.output
+    )
     pair = estimate_dense_first(args, pair)
     given = pair.correspondence
     if given is not None and given.method == "closest":  # exact pull-back, no basis

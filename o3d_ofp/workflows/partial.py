@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
+from ..core.geometry import face_areas_normals
 from ..core.partial import (
     fit_partial_fmap,
     geodesic_distortion,
@@ -39,6 +40,7 @@ from .matching import (
     MAX_INCONSISTENCY,
     MAX_ORTHOGONALITY,
     MAX_REVERSED,
+    PARTIAL_MAX_AREA_RATIO,
     Correspondence,
     MapQuality,
     check_landmarks,
@@ -50,6 +52,7 @@ from .matching import (
 __all__ = [
     "MAX_DISTORTION",
     "MAX_STRETCH",
+    "check_partial_areas",
     "check_partial_options",
     "match_partial_eigenbases",
     "partial_quality",
@@ -250,6 +253,32 @@ def partial_quality(
         suspect=bool(all_reasons),
         reasons=all_reasons,
     )
+
+
+def check_partial_areas(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+    *,
+    names: tuple[str, str] = ("the source", "the target"),
+) -> None:
+    """Refuse, before any eigensolve, a "part" larger than the whole (same units).
+
+    Raises ``ValueError`` when the target's surface area exceeds
+    :data:`o3d_ofp.workflows.matching.PARTIAL_MAX_AREA_RATIO` times the source's: the shapes
+    are swapped, or in other units. ``names`` name the two shapes in the message (file names
+    from the CLI).
+    """
+    a1 = float(face_areas_normals(vertices_1, faces_1)[0].sum())
+    a2 = float(face_areas_normals(vertices_2, faces_2)[0].sum())
+    if a1 > 0 and a2 > PARTIAL_MAX_AREA_RATIO * a1:
+        raise ValueError(
+            f"partial=True (--partial) matches a part (the target) onto the whole shape (the "
+            f"source), in the same units; but {names[1]} has {a2 / a1:.3g} times the area of "
+            f"{names[0]}: it cannot be a part of it. Swap source and target, or rescale the "
+            "target to the source's units"
+        )
 
 
 def check_partial_options(
