@@ -246,12 +246,18 @@ def partial_quality(
             "or rescale the target to the source's units"
         )
     all_reasons = tuple(reasons) + base.reasons  # map_quality's advice, if any, stays last
+    measured = (
+        f"geodesic distortion {distortion:.3f} (a part matched right: at most "
+        f"{MAX_DISTORTION}), stretch {stretch:.2f} (at most {MAX_STRETCH}), inconsistency "
+        f"{incons:.2f} (at most {MAX_INCONSISTENCY})"
+    )
     return dataclasses.replace(
         base,
         orthogonality=ortho,
         inconsistency=incons,
         suspect=bool(all_reasons),
         reasons=all_reasons,
+        notes=(measured, *base.notes),
     )
 
 
