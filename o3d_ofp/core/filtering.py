@@ -42,6 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from ._threads import one_blas_thread
 from ._validation import as_signal, as_vertices, check_int
 from .basis import OFPBasis
 from .spectrum import EigenBasis
@@ -187,6 +188,8 @@ def edit_coefficient(B: OFPBasis, f: Any, rank: int, delta: Any) -> np.ndarray:
     rank = check_int(rank, name="rank", minimum=0, maximum=B.size - 1)
     q = B.Q[:, B.energy_order[rank]]
     d = np.asarray(delta, dtype=np.float64)
+    if not np.all(np.isfinite(d)):
+        raise ValueError(f"delta must be finite; got {delta!r}")
     if x.ndim == 2 and d.ndim == 1 and d.shape[0] != x.shape[1]:
         raise ValueError(f"delta must be a scalar or have {x.shape[1]} values; got {d.shape}")
     out = x + (
@@ -246,6 +249,7 @@ def _uniform_mass(eig: EigenBasis) -> np.ndarray:
     return np.where(c.kept, eig.area / c.n_vertices / np.maximum(mult, 1.0), 0.0)
 
 
+@one_blas_thread  # SuperLU's supernodal updates call the BLAS: threads only spin here
 def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     """Butterworth low-pass of a per-vertex signal over the whole spectrum of the Laplacian.
 
@@ -278,6 +282,11 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     t = smooth * smooth * eig.area
     rhs = mu[:, None] * X
     out = np.zeros_like(X)
+    logger.info(
+        "low-pass (smooth %.3g): two complex sparse factorizations of %d vertices",
+        smooth,
+        eig.n_vertices,
+    )
     # 1/(1 + x⁴) = Σ_k (−r_k/4) / (x − r_k) over the roots r_k of 1 + x⁴ (conjugate pairs:
     # the two with positive imaginary part, doubled, real part taken). x ↦ t λ becomes the
     # operator (t L − r M)⁻¹ M.

@@ -57,6 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from ..core._threads import blas_threads
 from ..core._validation import check_int
 from ..core._warnings import warn
 from ..core.basis import OFPBasis
@@ -159,7 +160,10 @@ def _heat_operator(eig: EigenBasis, k: int) -> Any:
     empty = mass <= 0
     diag = np.where(empty, 1.0, mass)
     A = (sp.diags(diag) + eig.stiffness / lam).tocsc()
-    solve = sla.factorized(A)
+    # SuperLU's supernodal updates call the BLAS, whose threads only spin on this size of
+    # problem (measured with another process busy: 14-20x slower with them)
+    with blas_threads(1):
+        solve = sla.factorized(A)
     stand_in = None
     if np.any(empty):
         c = eig.cleaning
@@ -170,7 +174,8 @@ def _heat_operator(eig: EigenBasis, k: int) -> Any:
     def apply(f: np.ndarray) -> np.ndarray:
         flat = np.asarray(f, dtype=np.float64).reshape(f.shape[0], -1)
         rhs = mass[:, None] * flat
-        out = np.column_stack([solve(rhs[:, j]) for j in range(flat.shape[1])])
+        with blas_threads(1):
+            out = np.column_stack([solve(rhs[:, j]) for j in range(flat.shape[1])])
         if stand_in is not None:
             out[empty] = out[stand_in[empty]]
         return out.reshape(f.shape)

@@ -626,6 +626,17 @@ def shape_signature(vertices: Any) -> np.ndarray:
     return np.linalg.norm(centred[picks], axis=1) / max(rms, np.finfo(float).tiny)
 
 
+def same_shape(vertices_a: Any, vertices_b: Any) -> bool:
+    """Whether two vertex arrays are one shape up to a move, a rotation and a scaling.
+
+    Compares their :func:`shape_signature` (same vertex counts needed); a basis computed on
+    one shape and used on another with the same vertex count (source and target swapped,
+    another FAUST pose) is told apart this way.
+    """
+    a, b = shape_signature(vertices_a), shape_signature(vertices_b)
+    return a.shape == b.shape and bool(np.allclose(a, b, rtol=SIGNATURE_RTOL, atol=SIGNATURE_RTOL))
+
+
 def with_signatures(corr: Correspondence, source: Any, target: Any) -> Correspondence:
     """``corr`` with the :func:`shape_signature` of the shapes it was made for."""
     return dataclasses.replace(

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core._threads import PARALLEL_ROWS
 from ..core._validation import as_signal, check_int
+from ..core._warnings import warn
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
 from ..core.spectrum import EigenBasis, eigenbasis
@@ -29,6 +30,7 @@ from .matching import (
     match_arrays,
     match_eigenbases,
     required_k,
+    same_shape,
     uses_dense_path,
 )
 
@@ -37,6 +39,7 @@ __all__ = [
     "prepare_transfer",
     "pull_back",
     "transfer_function",
+    "warn_other_shape",
 ]
 
 logger = logging.getLogger(__name__)
@@ -158,6 +161,7 @@ def prepare_transfer(
     landmarks: Any = None,
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
+    components: str = "auto",
 ) -> tuple[EigenBasis, EigenBasis, Correspondence | None]:
     """Decide the eigenbases and the map of a transfer (the one place that does).
 
@@ -198,9 +202,11 @@ def prepare_transfer(
         k2 = check_int(k2, name="k2", minimum=1, maximum=max(1, V2.shape[0] - 2))
     known = given == 1
     if not known and eigenbases is None and bases is None:
-        return estimate_for_transfer(V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks)
+        return estimate_for_transfer(
+            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks, components=components
+        )
     eig_1, eig_2 = _eigenbases(
-        V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence
+        V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence, components
     )
     if not known:
         correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
@@ -219,6 +225,7 @@ def _eigenbases(
     eigenbases: tuple[Any, Any] | None,
     bases: tuple[Any, Any] | None,
     correspondence: Correspondence | None = None,
+    components: str = "auto",
 ) -> tuple[Any, Any]:
     """Eigenbases for a transfer: given ones (checked), else those of the bases, else computed.
 
@@ -236,8 +243,8 @@ def _eigenbases(
             rows, cols = np.shape(fmap_12)
             k1, k2 = max(k1, cols - 1), max(k2, rows - 1)
         return (
-            eigenbasis(V1, F1, k=k1, clamp_k=estimate),
-            eigenbasis(V2, F2, k=k2, clamp_k=estimate),
+            eigenbasis(V1, F1, k=k1, clamp_k=estimate, components=components),
+            eigenbasis(V2, F2, k=k2, clamp_k=estimate, components=components),
         )
     for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
         if eig.n_vertices != V.shape[0]:
@@ -245,7 +252,23 @@ def _eigenbases(
                 f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
                 f"{V.shape[0]}: it belongs to another shape"
             )
+        warn_other_shape(eig, V, f"the {name} eigenbasis", f"the {name}")
     return eigenbases
+
+
+def warn_other_shape(eig: EigenBasis, vertices: np.ndarray, what: str, shape: str) -> None:
+    """Warn (OFPWarning) when ``eig`` was computed on another shape than ``vertices``.
+
+    Same vertex count, other positions even up to a move, a rotation and a scaling: source
+    and target swapped, or another pose of a shape with one triangulation (FAUST).
+    """
+    if not same_shape(eig.vertices, vertices):
+        warn(
+            logger,
+            f"{what} was computed on another shape than {shape} (same vertex count, other "
+            "positions even up to a move, a rotation or a scaling): source and target "
+            "swapped, or another shape? It is used as it is",
+        )
 
 
 def estimate_for_transfer(
