@@ -496,6 +496,18 @@ _ATTEMPTS = ((0.01, 0, 0), (0.1, 4, 1), (1.0, 6, 2))
 _DENSE_FALLBACK_MAX = 4000
 
 
+#: Above this share of the vertices, eigenpairs are computed densely (LAPACK) when the shape
+#: has at most :data:`_DENSE_LARGE_K_MAX` vertices: Lanczos then needs nearly n vectors and
+#: restarts (a new-user trial's k = 5001 on 6890 vertices ran over 14 minutes before it was
+#: stopped; the dense solve of k = 3001 there takes 96 s).
+_DENSE_K_SHARE = 0.25
+_DENSE_LARGE_K_MAX = 12_000
+
+
+def _dense_for_large_k(n: int, k: int) -> bool:
+    return n <= _DENSE_LARGE_K_MAX and (k + 1) > _DENSE_K_SHARE * n
+
+
 def _solve(
     stiffness: sp.csr_matrix,
     mass: np.ndarray,
@@ -509,6 +521,14 @@ def _solve(
     n = mass.shape[0]
     plans: list[tuple[str, dict[str, Any]]] = []
     if n <= DENSE_MAX_VERTICES or k + 2 >= n:  # ARPACK needs k + 1 < n - 1 eigenpairs
+        plans.append(("dense", {}))
+    elif _dense_for_large_k(n, k):
+        logger.info(
+            "eigenbasis: %d eigenpairs of %d vertices, a large share: dense LAPACK (about "
+            "n³ work; a 6890-vertex shape takes ~1.5 min on 2 cores)",
+            k + 1,
+            n,
+        )
         plans.append(("dense", {}))
     else:
         for shift, ncv_factor, seed in _ATTEMPTS:
@@ -804,7 +824,9 @@ def eigenbasis(
         )
     ncv = min(n, max(2 * (k + 1) + 1, 20))
     check_memory(
-        8.0 * n * (ncv + 3 * (k + 1)) + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0),
+        8.0 * n * (ncv + 3 * (k + 1))
+        + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
+        + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
         f"the eigensolver (n={n}, k={k})",
     )
     with blas_threads(1):  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
