@@ -26,8 +26,7 @@ from .geometry import (
     face_areas_normals,
     hat_gradients,
     outward_sign,
-    point_gradient_operator,
-    point_normals,
+    point_frames,
 )
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
@@ -175,12 +174,13 @@ def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray
     """:func:`_orientation_ops` of a point cloud: the same integral, sampled at the points.
 
     ``O_i[b, a] = Σ_x m_x φ_b(x) ∇φ_a(x) · (n_x × ∇d_i(x))`` with the outward normals and the
-    tangent-plane gradients of :mod:`o3d_ofp.core.geometry` (:func:`point_normals`,
-    :func:`point_gradient_operator`). In the frame ``(t₁, t₂, n)``, ``n × (g₁t₁ + g₂t₂) =
+    tangent-plane gradients of :mod:`o3d_ofp.core.geometry` (:func:`point_frames`: the
+    gradients of :func:`point_gradient_operator` with the normals of :func:`point_normals`,
+    from one neighbour search). In the frame ``(t₁, t₂, n)``, ``n × (g₁t₁ + g₂t₂) =
     g₁t₂ − g₂t₁``, so ``∇φ · (n × ∇d) = ∇₂φ ∇₁d − ∇₁φ ∇₂d``.
     """
     V = eig.vertices
-    g1, g2, _, _ = point_gradient_operator(V, point_normals(V, eig.mass))
+    g1, g2 = point_frames(V, eig.mass)
     phi = eig.evecs[:, : k + 1]
     a, p = k + 1, D.shape[1]
     p1, p2, d1, d2 = g1 @ phi, g2 @ phi, g1 @ D, g2 @ D  # (n, a), (n, a), (n, p), (n, p)

@@ -11,6 +11,7 @@ __all__ = [
     "face_areas_normals",
     "face_gradient_operator",
     "outward_sign",
+    "point_frames",
     "point_gradient_operator",
     "point_normals",
     "vertex_normals",
@@ -147,6 +148,20 @@ def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:
 POINT_NEIGHBOURS = 12
 
 
+def point_frames(
+    points: np.ndarray, mass: np.ndarray | None = None, *, neighbours: int = POINT_NEIGHBOURS
+) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """Tangent gradients of a point cloud along its outward normals' frames, in one search.
+
+    :func:`point_gradient_operator` with the normals of :func:`point_normals`, the neighbour
+    search done once for both. Returns ``g1, g2`` ((n, n) sparse each).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    nb = _neighbours(P, neighbours)
+    g1, g2, _, _ = _gradients_of(P, _normals_of(P, nb, mass), nb)
+    return g1, g2
+
+
 def _neighbours(points: np.ndarray, count: int) -> np.ndarray:
     """(n, q) indices of each point's ``q = min(count, n)`` nearest points (itself first)."""
     from scipy.spatial import cKDTree
@@ -187,22 +202,26 @@ def point_normals(
         Unit normals. Known limit: where sheets are closer than the neighbourhoods' size (a
         finger sampled by a few points across, touching limbs) some signs come out wrong.
     """
+    P = np.asarray(points, dtype=np.float64)
+    return _normals_of(P, _neighbours(P, neighbours), mass)
+
+
+def _normals_of(P: np.ndarray, nb: np.ndarray, mass: np.ndarray | None) -> np.ndarray:
+    """:func:`point_normals` of ``P`` (n, 3) with its neighbour indices ``nb`` (n, q)."""
     import scipy.sparse.csgraph as csgraph
     import scipy.sparse.linalg as sla
 
-    P = np.asarray(points, dtype=np.float64)
     n = P.shape[0]
-    nb = _neighbours(P, neighbours)
     local = P[nb] - P[nb].mean(axis=1, keepdims=True)  # (n, q, 3)
     cov = np.einsum("nqi,nqj->nij", local, local)
     normals = np.ascontiguousarray(np.linalg.eigh(cov)[1][:, :, 0])  # least spread first
     rows = np.repeat(np.arange(n), nb.shape[1] - 1)
     cols = nb[:, 1:].reshape(-1)
-    # Signs s maximizing Σ wᵢⱼ sᵢ sⱼ (nᵢ·nⱼ) over neighbour pairs: relaxed to the leading
-    # eigenvector of the signed matrix (sign synchronization), every path between two points
-    # votes, so a few bad neighbourhoods do not flip a whole limb as a spanning-tree walk does.
-    # A pair between two sheets (a hand against a thigh) is parallel too but its step leaves
-    # the tangent planes: weighted down by how far.
+    # Signs s minimizing Σ wᵢⱼ (sᵢ − σᵢⱼ sⱼ)² over neighbour pairs, σᵢⱼ = nᵢ·nⱼ: relaxed to the
+    # lowest eigenvector of the signed Laplacian (sign synchronization), every path between
+    # two points votes, so a few bad neighbourhoods do not flip a whole limb as a spanning-tree
+    # walk does. A pair between two sheets (a hand against a thigh) is parallel too but its
+    # step leaves the tangent planes: weighted down by how far.
     step = P[cols] - P[rows]
     step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-300)
     along = (1.0 - np.abs(np.einsum("ij,ij->i", step, normals[rows]))) * (
@@ -211,6 +230,7 @@ def point_normals(
     agree = np.einsum("ij,ij->i", normals[rows], normals[cols])
     A = sp.coo_matrix((along**2 * agree, (rows, cols)), shape=(n, n)).tocsr()
     A = 0.5 * (A + A.T)
+    m = np.ones(n) if mass is None else np.asarray(mass, dtype=np.float64)
     n_parts, labels = csgraph.connected_components(A, directed=False)
     for part in range(n_parts):
         idx = np.flatnonzero(labels == part)
@@ -224,7 +244,6 @@ def point_normals(
         else:
             vec = sla.eigsh(lap, k=1, sigma=0.0, which="LM", v0=np.ones(idx.size))[1][:, 0]
         normals[idx] *= np.where(vec < 0, -1.0, 1.0)[:, None]
-    m = np.ones(n) if mass is None else np.asarray(mass, dtype=np.float64)
     if np.einsum("i,ij,ij->", m, normals, P - P.mean(axis=0)) < 0:
         normals = -normals
     return normals
@@ -255,9 +274,15 @@ def point_gradient_operator(
         The tangent frames.
     """
     P = np.asarray(points, dtype=np.float64)
-    N = np.asarray(normals, dtype=np.float64)
+    return _gradients_of(P, np.asarray(normals, dtype=np.float64), _neighbours(P, neighbours))
+
+
+def _gradients_of(
+    P: np.ndarray, N: np.ndarray, neighbours: np.ndarray
+) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray, np.ndarray]:
+    """:func:`point_gradient_operator` with the neighbour indices (n, q), each point first."""
     n = P.shape[0]
-    nb = _neighbours(P, neighbours)[:, 1:]  # (n, q-1), without the point itself
+    nb = neighbours[:, 1:]  # (n, q-1), without the point itself
     # t1: the coordinate axis least aligned with the normal, projected on the tangent plane.
     axis = np.eye(3)[np.argmin(np.abs(N), axis=1)]
     t1 = axis - np.einsum("ij,ij->i", axis, N)[:, None] * N
