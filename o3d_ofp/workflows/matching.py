@@ -300,7 +300,7 @@ def map_quality(
         notes.append(
             "a point cloud has no faces: the map's orientation is not checked, so a left/right "
             "flip would not be flagged, and its Laplacian can join parts that touch (measured "
-            "on FAUST 093 -> 087: error 0.058 with the target as points, 0.142 with both, "
+            "on FAUST 093 -> 087: error 0.063 with the target as points, 0.121 with both, "
             "against 0.014 for the meshes); mesh the cloud (e.g. Open3D's Poisson "
             "reconstruction) or give a few landmarks, and check the result"
         )
