@@ -514,10 +514,7 @@ class Correspondence:
         ):
             if shape is None:
                 continue
-            mine = shape_signature(shape)
-            if mine.shape != signature.shape or not np.allclose(
-                mine, signature, rtol=SIGNATURE_RTOL, atol=SIGNATURE_RTOL
-            ):
+            if not _same_signature(shape_signature(shape), signature):
                 return (
                     f"{name} was made for another {side} with {np.shape(shape)[0]} vertices "
                     "(its vertices are not where they were, even up to a move, a rotation or "
@@ -633,7 +630,11 @@ def same_shape(vertices_a: Any, vertices_b: Any) -> bool:
     one shape and used on another with the same vertex count (source and target swapped,
     another FAUST pose) is told apart this way.
     """
-    a, b = shape_signature(vertices_a), shape_signature(vertices_b)
+    return _same_signature(shape_signature(vertices_a), shape_signature(vertices_b))
+
+
+def _same_signature(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two :func:`shape_signature` values are one shape's (to :data:`SIGNATURE_RTOL`)."""
     return a.shape == b.shape and bool(np.allclose(a, b, rtol=SIGNATURE_RTOL, atol=SIGNATURE_RTOL))
 
 
