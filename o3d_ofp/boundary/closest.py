@@ -509,7 +509,14 @@ def _refine_on_surface(
     return T
 
 
-def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, float, float]:
+def _rotation_degrees(R: np.ndarray) -> float:
+    """Angle of the rotation matrix ``R`` (3, 3), in degrees."""
+    return math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+
+
+def _misalignment(
+    surface: _Surface, V2: np.ndarray, distances: np.ndarray
+) -> tuple[float, float, float, float]:
     """How much a rigid motion would bring the target closer to the source surface.
 
     Point-to-plane iterations against the exact closest points (:func:`_refine_on_surface`,
@@ -522,6 +529,8 @@ def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, floa
         The source mesh.
     V2 : (n2, 3) ndarray
         Target vertices (shapes' units).
+    distances : (n2,) ndarray
+        Their closest-point distances, as fractions of the diagonal (already computed).
 
     Returns
     -------
@@ -533,11 +542,12 @@ def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, floa
     shift : float
         Its translation (fraction of the diagonal) at the source's bounding-box centre.
     """
-    Pn = surface.normalize(V2)
-    if Pn.shape[0] > MISALIGNMENT_SAMPLES:
+    sample = np.arange(V2.shape[0])
+    if sample.size > MISALIGNMENT_SAMPLES:
         rng = np.random.default_rng(0)
-        Pn = Pn[np.sort(rng.choice(Pn.shape[0], MISALIGNMENT_SAMPLES, replace=False))]
-    before = float(surface.query(Pn, canonical=False)[3].mean())
+        sample = np.sort(rng.choice(sample.size, MISALIGNMENT_SAMPLES, replace=False))
+    Pn = surface.normalize(V2[sample])
+    before = float(distances[sample].mean())
     T = _refine_on_surface(
         surface,
         Pn,
@@ -547,8 +557,7 @@ def _misalignment(surface: _Surface, V2: np.ndarray) -> tuple[float, float, floa
         tolerance=MISALIGNMENT_STEP,
     )
     after = float(surface.query(Pn @ T[:3, :3].T + T[:3, 3], canonical=False)[3].mean())
-    degrees = math.degrees(math.acos(float(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0))))
-    return before, after, degrees, float(np.linalg.norm(T[:3, 3]))
+    return before, after, _rotation_degrees(T[:3, :3]), float(np.linalg.norm(T[:3, 3]))
 
 
 def _icp(
@@ -734,9 +743,7 @@ def closest_correspondence(
         max_distance = ICP_DISTANCE * diag if max_icp_distance is None else max_icp_distance
         transform, fitness, rmse, fitness_0 = _icp(V1, F1, surface, V2, centre, diag, max_distance)
         query = V2 @ transform[:3, :3].T + transform[:3, 3]
-        angle = math.degrees(
-            math.acos(float(np.clip((np.trace(transform[:3, :3]) - 1) / 2, -1.0, 1.0)))
-        )
+        angle = _rotation_degrees(transform[:3, :3])
         options["icp"] = {
             "transformation": transform.tolist(),
             "fitness": fitness,
@@ -787,7 +794,7 @@ def closest_correspondence(
         )
     misaligned: list[str] = []
     if surface is not None and not align:
-        before, after, degrees, shift = _misalignment(surface, V2)
+        before, after, degrees, shift = _misalignment(surface, V2, distances / diag)
         options["misalignment"] = {
             "mean_distance_rel": before,
             "mean_distance_rel_moved": after,
@@ -804,18 +811,18 @@ def closest_correspondence(
         )
         gain = before - after
         explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
+        motion = (
+            f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
+        )
         if explained and gain > MISALIGNED_GAIN:
             misaligned.append(
-                f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the "
-                f"diagonal) brings the target from {before:.3g} to {after:.3g} of the "
-                "source's diagonal on average: the shapes are not quite aligned, and closest "
-                "points slide along the surface; pass align=True (--align) to register them "
-                "first"
+                f"{motion} brings the target from {before:.3g} to {after:.3g} of the source's "
+                "diagonal on average: the shapes are not quite aligned, and closest points "
+                "slide along the surface; pass align=True (--align) to register them first"
             )
         elif explained and gain > MISALIGNED_NOTE:
             notes.append(
-                f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the "
-                f"diagonal) would bring the target from {before:.3g} to {after:.3g} of the "
+                f"{motion} would bring the target from {before:.3g} to {after:.3g} of the "
                 "source's diagonal: align=True (--align) registers them exactly"
             )
     # Coverage counts distinct positions: a mesh read with its UVs has copies of the vertices
