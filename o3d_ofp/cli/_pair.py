@@ -251,7 +251,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
         if not args.save_map.endswith(".npz"):
             raise UsageError(f"--save-map {args.save_map}: must end with .npz")
         given = [f for f in args.map.split(",") if os.path.exists(f)]
-        if any(os.path.samefile(args.save_map, f) for f in given if os.path.exists(args.save_map)):
+        if os.path.exists(args.save_map) and any(os.path.samefile(args.save_map, f) for f in given):
             raise UsageError(
                 f"--save-map {args.save_map} is the --map file read: the map would replace "
                 "itself; give --save-map another name"
