@@ -29,7 +29,14 @@ from ..core.correspondence import check_p2p
 from ..workflows.matching import Correspondence, check_correspondence, match_arrays
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
-from .texture import MeshTexture, as_uint8, corner_uvs, legacy_texture_image, mesh_texture
+from .texture import (
+    MeshTexture,
+    as_uint8,
+    corner_uvs,
+    legacy_texture_image,
+    mesh_texture,
+    set_albedo,
+)
 
 __all__ = [
     "has_uvs",
@@ -146,10 +153,7 @@ def _callers_kind(out: Any, target: Any) -> Any:
         return out
     result = o3d.t.geometry.TriangleMesh.from_legacy(out)
     if images:
-        result.material.set_default_properties()
-        result.material.texture_maps["albedo"] = o3d.t.geometry.Image(
-            o3d.core.Tensor(np.ascontiguousarray(as_uint8(images[0])))
-        )
+        set_albedo(result, images[0])
     return result
 
 

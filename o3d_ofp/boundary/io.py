@@ -201,7 +201,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         has_image = mesh.has_valid_material() and "albedo" in mesh.material.texture_maps
         return mesh, bool(has_image and "texture_uvs" in mesh.triangle)
     from .convert import geometry_to_arrays
-    from .texture import as_uint8, mesh_texture
+    from .texture import mesh_texture, set_albedo
 
     V, F = geometry_to_arrays(mesh)
     out = o3d.t.geometry.TriangleMesh()
@@ -229,11 +229,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         )
     if not used:
         return out, False
-    image = as_uint8(used[0])
-    out.material.set_default_properties()
-    out.material.texture_maps["albedo"] = o3d.t.geometry.Image(
-        o3d.core.Tensor(np.ascontiguousarray(image))
-    )
+    set_albedo(out, used[0])
     return out, True
 
 

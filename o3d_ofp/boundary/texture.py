@@ -37,6 +37,7 @@ __all__ = [
     "corner_uvs",
     "legacy_texture_image",
     "mesh_texture",
+    "set_albedo",
     "texture_colors",
 ]
 
@@ -93,6 +94,18 @@ def legacy_texture_image(image: Any) -> Any:
         arr = np.round(np.clip(arr, 0.0, 1.0) * 255.0)
     arr = arr.astype(np.uint8)
     return o3d.geometry.Image(np.ascontiguousarray(arr[::-1]))
+
+
+def set_albedo(mesh: Any, image: np.ndarray) -> None:
+    """Give a tensor mesh's material ``image`` (top-down rows, any dtype) as its albedo map.
+
+    The image is stored 8-bit (:func:`as_uint8`), as Open3D's glTF writer expects.
+    """
+    o3d = require_open3d()
+    mesh.material.set_default_properties()
+    mesh.material.texture_maps["albedo"] = o3d.t.geometry.Image(
+        o3d.core.Tensor(np.ascontiguousarray(as_uint8(image)))
+    )
 
 
 def as_uint8(image: np.ndarray) -> np.ndarray:
