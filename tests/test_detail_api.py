@@ -370,6 +370,11 @@ def test_coordinates_from_a_wrong_map_are_said():
     wrong = rng.integers(0, len(V1), len(V2))  # a map with no structure
     with pytest.warns(ofp.OFPWarning, match="times the source's area"):
         ofp.transfer_detail((V1, F), (V2, F), mode="coordinates", p2p_21=wrong)
+    from o3d_ofp.workflows.detail import transfer_detail_frames
+
+    eigs = ofp.eigenbasis(V1, F, k=39), ofp.eigenbasis(V2, F, k=39)
+    with pytest.warns(ofp.OFPWarning, match="times the source's area"):  # the workflow too
+        transfer_detail_frames(*eigs, mode="coordinates", p2p_21=wrong)
     import warnings
 
     with warnings.catch_warnings():

@@ -8,7 +8,6 @@ target's own kind.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import warnings
 from typing import Any
@@ -17,7 +16,6 @@ import numpy as np
 
 from ..core import spectrum
 from ..core._validation import check_int
-from ..core._warnings import warn
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import p2p_from_fmap
 from ..core.filtering import (
@@ -29,12 +27,12 @@ from ..core.filtering import (
     smooth_coordinates,
     spectral_filter,
 )
-from ..core.geometry import face_areas_normals
 from ..core.spectrum import EigenBasis
 from ..workflows import cache
 from ..workflows.detail import (
     DETAIL_BAND,
     ROTATION_K,
+    check_coordinates_area,
     check_detail_options,
     transfer_detail_frames,
 )
@@ -524,31 +522,6 @@ def transfer_colors(
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
 
-#: Mode "coordinates" gives the target the source's shape (smoothed by the bases): a result
-#: whose area differs from the source's by more than this factor (either way) comes from a
-#: wrong map. Measured (area of the result over the source's): FAUST 093 -> 087 0.949 (true
-#: map), 0.946 (estimated); onto 087's 30-eigenfunction low-pass 0.77 (true map) and 6.5 with
-#: an estimated map that failed there (error 0.49) but stayed under every bound of its
-#: quality report; the bunny onto itself 0.97.
-COORDINATES_AREA_RATIO = 2.0
-
-
-def _check_coordinates(V1: np.ndarray, F1: Any, moved: np.ndarray, F2: Any) -> None:
-    """Warn (OFPWarning) when transferred coordinates do not have the source's area."""
-    if F1 is None or F2 is None:
-        return
-    a1 = float(face_areas_normals(V1, F1)[0].sum())
-    a2 = float(face_areas_normals(moved, F2)[0].sum())
-    ratio = a2 / a1 if a1 > 0 else math.inf
-    if not 1 / COORDINATES_AREA_RATIO <= ratio <= COORDINATES_AREA_RATIO:
-        warn(
-            logger,
-            f"the transferred coordinates give the target {ratio:.3g} times the source's area "
-            "(the source's shape should come back): the map is wrong in places; check "
-            "correspondence.quality, give landmarks (landmarks= / --landmarks), or a known map",
-        )
-
-
 def _large_enough(
     eigenbases: tuple[Any, Any],
     vertices: tuple[np.ndarray, np.ndarray],
@@ -698,7 +671,7 @@ def transfer_detail(
             p2p_21=p2p_21,
             bases=bases,
         )
-        _check_coordinates(V1, F1, moved, F2)
+        check_coordinates_area(V1, F1, moved, F2)
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)
     if eigenbases is not None:  # too small for the band: computed again, larger
