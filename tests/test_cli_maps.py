@@ -141,3 +141,22 @@ def test_python_closest_map_refuses_landmarks(shapes):
     _d, _p, V, F, _ = shapes
     with pytest.raises(ValueError, match="landmarks apply to method='estimate'"):
         ofp.match((V, F), (V, F), method="closest", landmarks=[[0, 0]])
+
+
+def test_closest_map_waits_for_the_signal_and_says_its_reasons_once(shapes, tmp_path, capsys):
+    """A colorless source is refused before the closest map; a reason is said once.
+
+    Found by a trial: ``--map closest`` with a colorless source computed the map before
+    refusing the missing colors, and printed a suspect map's reason twice (log and report).
+    """
+    _d, p, _V, _F, _ = shapes
+    out = tmp_path / "a.ply"
+    assert main(["transfer", p["same"], p["src"], "--map", "closest", "-o", str(out)]) == 2
+    err = _err(capsys)
+    assert "has no vertex colors" in err and "closest points" not in err  # before the map
+    assert main(["transfer", p["src"], p["turned"], "--map", "closest", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "map quality SUSPECT" in captured.out
+    said = (captured.out + captured.err).count("slide along the surface")
+    assert said == 1, captured  # the warning once, not again in the report
+    assert "(--align)" in captured.err

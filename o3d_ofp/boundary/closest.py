@@ -783,9 +783,9 @@ def closest_correspondence(
     options["mean_distance_rel"] = mean_rel
     options["max_distance_rel"] = max_rel
     reasons: list[str] = []
-    retry = "" if align else "pass align=True if they are almost aligned; "
+    retry = "" if align else "pass align=True (--align) if they are almost aligned; "
     if mean_rel > MAX_MEAN_DISTANCE:
-        after = " even after ICP (align=True)" if align else ""
+        after = " even after ICP (align=True, --align)" if align else ""
         reasons.append(
             f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} of "
             f"the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point map "
@@ -811,9 +811,7 @@ def closest_correspondence(
         )
         gain = before - after
         explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
-        motion = (
-            f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
-        )
+        motion = f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
         if explained and gain > MISALIGNED_GAIN:
             misaligned.append(
                 f"{motion} brings the target from {before:.3g} to {after:.3g} of the source's "

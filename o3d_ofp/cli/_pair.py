@@ -16,8 +16,8 @@ from ._types import positive_int
 __all__ = [
     "Pair",
     "add_pair_options",
-    "estimate_dense_first",
     "estimate_or_use_map",
+    "map_first",
     "read_pair",
 ]
 
@@ -197,8 +197,7 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     for f in files:
         if not os.path.isfile(f):
             raise UsageError(
-                f"--map {f}: no such map file (--map estimate|closest|identity|MAP.npz|"
-                "FILE[,FILE])"
+                f"--map {f}: no such map file (--map estimate|closest|identity|MAP.npz|FILE[,FILE])"
             )
     if len(files) == 2:  # correspondences of both shapes to a common template
         try:
@@ -281,22 +280,8 @@ def read_pair(args: argparse.Namespace) -> Pair:
             check_partial_areas(V1, F1, V2, F2, names=(args.source, args.target))
         except ValueError as exc:
             raise UsageError(str(exc)) from exc
-    if args.map == "closest":
-        from ..boundary.closest import closest_correspondence
-
-        if args.landmarks:
-            raise UsageError("--landmarks apply to --map estimate, not --map closest")
-        with stage("closest points on the source surface"):
-            try:
-                corr = closest_correspondence(V1, F1, V2, faces_2=F2, align=args.align)
-            except ValueError as exc:
-                raise UsageError(f"--map closest: {exc}") from exc
-        if corr.quality is not None:
-            from ._common import report
-
-            report([corr.quality.summary(), *corr.quality.reasons, *corr.quality.notes])
-            if corr.quality.suspect and args.strict:
-                raise SuspectMap("; ".join(corr.quality.reasons))
+    if args.map == "closest" and args.landmarks:
+        raise UsageError("--landmarks apply to --map estimate, not --map closest")
     if args.landmarks and corr is not None:
         raise UsageError("--landmarks only apply with --map estimate")
     if corr is None and args.map == "estimate" and not _dense(args, V1, F1, V2, F2):
@@ -433,12 +418,32 @@ def _report_quality(args: argparse.Namespace, corr: Any) -> None:
         raise SuspectMap("; ".join(corr.quality.reasons))
 
 
-def estimate_dense_first(args: argparse.Namespace, pair: Pair) -> Pair:
-    """Two large meshes: estimate their map now, on coarse copies (no full-size eigenbasis).
+def _closest_map(args: argparse.Namespace, pair: Pair) -> Pair:
+    """Return the pair with its closest-point map (``--map closest``), its quality printed."""
+    from ..boundary.closest import closest_correspondence
 
-    Returns the pair with its map when it took the dense path, the pair unchanged otherwise
-    (the map is then estimated from the eigenbases the bases are built from).
+    with stage("closest points on the source surface"):
+        try:
+            corr = closest_correspondence(
+                pair.V1, pair.F1, pair.V2, faces_2=pair.F2, align=args.align
+            )
+        except ValueError as exc:
+            raise UsageError(f"--map closest: {exc}") from exc
+    _report_quality(args, corr)
+    return dataclasses.replace(pair, correspondence=corr)
+
+
+def map_first(args: argparse.Namespace, pair: Pair) -> Pair:
+    """Compute the maps that need no basis: closest points, or the dense path's estimate.
+
+    Called once the inputs (and the signal) have been read and checked, so that a bad input
+    is refused before this work. Returns the pair with its map for ``--map closest`` and for
+    two large meshes (estimated on coarse copies, no full-size eigenbasis), the pair
+    unchanged otherwise (the map is then estimated from the eigenbases the bases are built
+    from).
     """
+    if pair.correspondence is None and args.map == "closest":
+        return _closest_map(args, pair)
     if pair.correspondence is not None or args.map != "estimate":
         return pair
     if not _dense(args, pair.V1, pair.F1, pair.V2, pair.F2):

@@ -33,8 +33,8 @@ from ._many import (
 from ._pair import (
     add_pair_options,
     bases_for_pair,
-    estimate_dense_first,
     estimate_or_use_map,
+    map_first,
     read_pair,
 )
 from ._types import bounded_float, positive_int
@@ -163,7 +163,7 @@ def detail_one(args: argparse.Namespace, target_path: str, output_path: str) -> 
     one = argparse.Namespace(**{**vars(args), "target": target_path})
     pair = read_pair(one)
     check_output_kind(output_path, pair.F2)
-    pair = estimate_dense_first(one, pair)
+    pair = map_first(one, pair)
     if args.mode == "coordinates":
         B1, B2, eig_1, eig_2 = bases_for_pair(one, pair)
         ofp_options = dict(k1=B1.k, k2=B2.k, order=args.order, bases=(B1, B2), **tol_options(args))

@@ -26,8 +26,8 @@ from ._many import (
 from ._pair import (
     add_pair_options,
     bases_for_pair,
-    estimate_dense_first,
     estimate_or_use_map,
+    map_first,
     read_pair,
 )
 from ._signal import read_signal, signal_sides, write_result
@@ -105,10 +105,8 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
         )
     spec = args.signal or _default_signal(pair.source)
-    f, kind = read_signal(
-        pair.source, pair.V1, args.source, spec, args.texture, output=args.output
-    )
-    pair = estimate_dense_first(args, pair)
+    f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
+    pair = map_first(args, pair)
     given = pair.correspondence
     if given is not None and given.method == "closest":  # exact pull-back, no basis
         from ..workflows.pipeline import pull_back
@@ -206,7 +204,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eig_options
 
-    pair = estimate_dense_first(args, pair)
+    pair = map_first(args, pair)
     eigs = (None, None)
     if pair.correspondence is None:
         with stage("eigenbases for map estimation"):
