@@ -20,9 +20,11 @@ for the point-cloud Laplacian's ``n_neighbors`` in ``--neighbors`` (default 10, 
 ``--estimate``: the estimated map instead (``ofp.match``, defaults) with either or both shapes
 as the cloud of its vertices, and with the target as a cloud sampled uniformly on its surface
 (as many points as it has vertices; the truth of a point is the same barycentric point on
-the source) (the orientation term from estimated normals and tangent-plane gradients; no
-flip check), map error = mean distance between the matched source vertex and the true source
-point / √(source area), and whether the quality report calls it suspect.
+the source) (the orientation term from estimated normals and tangent-plane gradients), map
+error = mean distance between the matched source vertex and the true source point /
+√(source area), the reversed fraction (the cloud's flip check: target neighbourhoods
+where the map is a reflection), and whether the quality report calls it suspect; then that
+fraction for the true map onto the target's cloud and onto its mirror image.
 
 Usage::
 
@@ -140,7 +142,13 @@ def run(neighbors: list[int], seed: int) -> None:
 
 
 def estimate(seed: int) -> None:
-    print("| pair | source | target | map error | suspect |\n|---|---|---|---|---|")
+    from o3d_ofp.workflows.matching import map_quality
+
+    print(
+        "| pair | source | target | map error | reversed | suspect |\n"
+        "|---|---|---|---|---|---|"
+    )
+    checks = []
     for name, (src, tgt) in PAIRS.items():
         V1, F1 = load(src)
         V2, F2 = load(tgt)
@@ -150,14 +158,36 @@ def estimate(seed: int) -> None:
             t = (V2, F2 if kinds[1] == "mesh" else None)
             corr = ofp.match(s, t)
             err = np.linalg.norm(V1[corr.p2p_21] - V1, axis=1).mean() / math.sqrt(area)
-            print(f"| {name} | {kinds[0]} | {kinds[1]} | {err:.4f} | {corr.quality.suspect} |")
+            q = corr.quality
+            print(
+                f"| {name} | {kinds[0]} | {kinds[1]} | {err:.4f} | {q.reversed_fraction:.3f} | "
+                f"{q.suspect} |"
+            )
         # A cloud sampled on the target's surface (not its vertices): each point's truth is
         # the same barycentric point on the source's triangle, compared at its nearest corner.
         f, w = sample(V2, F2, len(V2), seed)
         corr = ofp.match((V1, F1), (at(V2, F2, f, w), None))
         truth = at(V1, F1, f, w)
         err = np.linalg.norm(V1[corr.p2p_21] - truth, axis=1).mean() / math.sqrt(area)
-        print(f"| {name} | mesh | points sampled on it | {err:.4f} | {corr.quality.suspect} |")
+        q = corr.quality
+        print(
+            f"| {name} | mesh | points sampled on it | {err:.4f} | {q.reversed_fraction:.3f} | "
+            f"{q.suspect} |"
+        )
+        # The flip check of clouds on known maps: the true map onto the target's cloud, and
+        # the same map onto the cloud's mirror image (a reflection everywhere).
+        e1 = ofp.eigenbasis(V1, F1, k=10)
+        mirror = V2 * np.array([-1.0, 1.0, 1.0])
+        truth = np.arange(len(V2))
+        fractions = [
+            map_quality(truth, e1, ofp.eigenbasis(P, None, k=10)).reversed_fraction
+            for P in (V2, mirror)
+        ]
+        checks.append(f"{name}: {fractions[0]:.3f} / {fractions[1]:.3f}")
+    print(
+        "reversed neighbourhoods of the true map onto the target's cloud / onto its mirror "
+        "image: " + ", ".join(checks)
+    )
 
 
 def main() -> None:

@@ -14,6 +14,7 @@ __all__ = [
     "point_frames",
     "point_gradient_operator",
     "point_normals",
+    "tangent_frames",
     "vertex_normals",
 ]
 
@@ -282,17 +283,35 @@ def point_gradient_operator(
     return _gradients_of(P, np.asarray(normals, dtype=np.float64), _neighbours(P, neighbours))
 
 
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Right-handed tangent frames ``(t₁, t₂, n)`` of unit normals (``t₂ = n × t₁``).
+
+    ``t₁`` is the coordinate axis least aligned with the normal, projected on the tangent
+    plane and normalized.
+
+    Parameters
+    ----------
+    normals : (n, 3) ndarray of float
+        Unit normals.
+
+    Returns
+    -------
+    t1, t2 : (n, 3) ndarray of float
+    """
+    N = np.asarray(normals, dtype=np.float64)
+    axis = np.eye(3)[np.argmin(np.abs(N), axis=1)]
+    t1 = axis - np.einsum("ij,ij->i", axis, N)[:, None] * N
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(N, t1)
+
+
 def _gradients_of(
     P: np.ndarray, N: np.ndarray, neighbours: np.ndarray
 ) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray, np.ndarray]:
     """:func:`point_gradient_operator` with the neighbour indices (n, q), each point first."""
     n = P.shape[0]
     nb = neighbours[:, 1:]  # (n, q-1), without the point itself
-    # t1: the coordinate axis least aligned with the normal, projected on the tangent plane.
-    axis = np.eye(3)[np.argmin(np.abs(N), axis=1)]
-    t1 = axis - np.einsum("ij,ij->i", axis, N)[:, None] * N
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(N, t1)
+    t1, t2 = tangent_frames(N)
     d = P[nb] - P[:, None, :]  # (n, q-1, 3)
     U = np.stack([np.einsum("nqi,ni->nq", d, t1), np.einsum("nqi,ni->nq", d, t2)], axis=2)
     UtU = np.einsum("nqa,nqb->nab", U, U)
