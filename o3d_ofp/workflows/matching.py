@@ -311,7 +311,8 @@ def map_quality(
     notes = []
     if clouds:
         # No advice to mesh the cloud: Open3D's Poisson reconstruction of FAUST 087's and
-        # centaur4's clouds (depth 7-8) gave maps of 0.12-0.20 and 0.025-0.46 (merged parts).
+        # centaur4's clouds (depth 7-8) gave maps of 0.11-0.20 and 0.025-0.46
+        # (``python scripts/eval_cloud.py --poisson``).
         notes.append(
             "a point cloud has no faces: its normals are estimated (the flip check is less "
             "sure than on meshes) and its Laplacian can join parts that touch (measured on "
