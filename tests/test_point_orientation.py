@@ -132,6 +132,7 @@ def test_a_mirror_image_map_onto_or_from_a_cloud_is_flagged(clouds):
     assert same.reversed_fraction < 0.02 and not same.suspect, same
     assert flipped.reversed_fraction > 0.98 and flipped.suspect, flipped
     assert "neighbourhoods over" in flipped.reasons[0] and "mirror" in flipped.reasons[0]
+    assert "reversed neighbourhoods 1.000" in flipped.summary()
 
 
 def test_the_cloud_flip_check_on_faust():

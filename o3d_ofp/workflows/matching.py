@@ -210,6 +210,9 @@ class MapQuality:
     overlap : float or None
         For a partial map: estimated fraction of the source's area the target covers; None
         otherwise.
+    reversed_of : {"triangles", "neighbourhoods"}
+        What ``reversed_fraction`` counts: the target's triangles, or its points'
+        neighbourhoods when either shape is a point cloud.
     """
 
     coverage: float
@@ -222,6 +225,7 @@ class MapQuality:
     reasons: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     overlap: float | None = None
+    reversed_of: str = "triangles"
 
     def summary(self) -> str:
         """One line: the measures and the verdict."""
@@ -230,7 +234,7 @@ class MapQuality:
         for name, value in (
             ("orthogonality", self.orthogonality),
             ("inconsistency", self.inconsistency),
-            ("reversed triangles", self.reversed_fraction),
+            (f"reversed {self.reversed_of}", self.reversed_fraction),
         ):
             if not math.isnan(value):  # measures a map of this kind does not have are left out
                 parts.append(f"{name} {value:.3f}")
@@ -342,6 +346,7 @@ def map_quality(
         reasons=tuple(reasons),
         notes=tuple(notes),
         overlap=None if overlap is None else float(overlap),
+        reversed_of="neighbourhoods" if clouds else "triangles",
     )
 
 
