@@ -233,15 +233,34 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
     return out, True
 
 
-def _check_gltf(path: str, shown: str, n_vertices: int, textured: bool, o3d: Any) -> None:
+def _gltf_vertex_counts(mesh: Any) -> set[int]:
+    """Vertex counts a glTF file of this tensor mesh may hold when read back.
+
+    glTF has one UV per vertex: a vertex whose corners have different UVs (a seam of the
+    texture atlas) is written once per UV, so the file may hold one vertex per distinct
+    (vertex, UV) pair; a mesh without UVs, or without seams, keeps its count.
+    """
+    n = int(mesh.vertex.positions.shape[0])
+    if "texture_uvs" not in mesh.triangle:
+        return {n}
+    corners = mesh.triangle.indices.numpy().reshape(-1)
+    uvs = mesh.triangle.texture_uvs.numpy().reshape(-1, 2).astype(np.float32)
+    keys = np.column_stack([corners.astype(np.float64), uvs.astype(np.float64)])
+    split = int(np.unique(keys, axis=0).shape[0])
+    unused = n - int(np.unique(corners).size)  # vertices in no triangle: written as they are
+    return {n, split + unused}
+
+
+def _check_gltf(path: str, shown: str, counts: set[int], textured: bool, o3d: Any) -> None:
     """Read a written glTF back: Open3D has written unreadable or untextured files before."""
     with open3d_errors_only():
         back = o3d.t.io.read_triangle_mesh(path)
     n = back.vertex.positions.shape[0] if "positions" in back.vertex else 0
-    if n != n_vertices:
+    if n not in counts:
+        expected = " or ".join(str(c) for c in sorted(counts))
         raise OSError(
-            f"{shown}: Open3D wrote a glTF file it cannot read back ({n} of {n_vertices} "
-            "vertices); write .ply or .obj instead"
+            f"{shown}: Open3D wrote a glTF file it cannot read back ({n} vertices read, "
+            f"{expected} written); write .obj instead (OBJ + MTL + PNG keeps a texture)"
         )
     if textured and not (back.has_valid_material() and "albedo" in back.material.texture_maps):
         raise OSError(
@@ -328,7 +347,7 @@ def write_geometry(
         if not ok or not os.path.isfile(tmp):
             raise OSError(f"{path}: Open3D failed to write the file")
         if gltf:
-            _check_gltf(tmp, path, geometry.vertex.positions.shape[0], textured, o3d)
+            _check_gltf(tmp, path, _gltf_vertex_counts(geometry), textured, o3d)
         mode = default_file_mode()
         extras = sorted(f for f in os.listdir(tmpdir) if f != name)
         kept = [os.fspath(p) for p in protect if p is not None]
