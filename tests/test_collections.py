@@ -604,3 +604,21 @@ def test_a_local_cluster_that_does_not_start_names_the_script_guard(monkeypatch)
     with pytest.raises(RuntimeError, match=r'Nanny failed.*__name__ == "__main__".*workers=0'):
         with open_client(workers=1):
             pass
+
+
+def test_bases_larger_than_the_estimation_are_kept_or_refused(shapes, tmp_path, caplog):
+    """--k1 / --k2 above the estimation's 99 are honoured; a shape too small is refused.
+
+    Found by a trial: a collection capped k1 = k2 = 150 at 99 silently (the pair command
+    honours them), and took k1 = 7000 on a 6890-vertex source without a word.
+    """
+    paths, _, _, _ = shapes
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.basis"):
+        results = transfer_many(
+            paths["src"], [paths["t0"]], workers=0, output_dir=tmp_path, k1=110, k2=120
+        )
+    assert [r.status for r in results] == ["ok"]
+    sizes = [int(m.split("k=")[1].split()[0]) for m in caplog.messages if "ofp_basis" in m]
+    assert sorted(sizes) == [110, 120], caplog.messages
+    with pytest.raises(ValueError, match=r"k1 = 700: the source has 642 vertices, too few"):
+        transfer_many(paths["src"], [paths["t1"]], workers=0, output_dir=tmp_path, k1=700)

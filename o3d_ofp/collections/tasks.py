@@ -107,11 +107,15 @@ class TransferJob:
         ``dense``: the map of this shape is estimated on coarse copies (the dense path), so
         its own eigenbasis serves the transfer only.
         """
-        if self.map == "estimate" and not dense:
-            return required_k(n_vertices, ESTIMATION_K), True
         k = self.k1 if side == 1 else self.k2
         if self.kind == "detail" and self.mode != "coordinates":
             k = max(k, self.band, ROTATION_K)  # the detail band and the local frames
+        if self.map == "estimate" and not dense:
+            estimation = required_k(n_vertices, ESTIMATION_K)
+            if k <= estimation:  # the estimation's size holds the transfer's too
+                return estimation, True
+        # Exactly k (more than the estimation needs, e.g. --k1 150): a shape too small for
+        # it is refused by the eigensolver, as for a pair (it was capped at 99 silently).
         return k, False
 
 
@@ -263,18 +267,37 @@ def shape_bases(
     """
     k_eig, clamp = job.eig_k(V.shape[0], side, dense=dense)
     k_basis = job.k1 if side == 1 else job.k2
+    if not clamp and k_eig >= V.shape[0]:  # before any work: the shape cannot hold them
+        flag, name = ("k1", "source") if side == 1 else ("k2", "target")
+        band = f", band = {job.band}" if job.kind == "detail" and k_eig > k_basis else ""
+        raise ValueError(
+            f"{flag} = {k_basis}{band}: the {name} has {V.shape[0]} vertices, too few for "
+            f"{k_eig} eigenfunctions; give a smaller {flag} (--{flag})"
+        )
     if job.cache_dir is not None:
         eig, cached = fetch_eigenbasis(
             V, F, k=k_eig, clamp_k=clamp, cache_dir=job.cache_dir, components=job.components
         )
+        _check_basis_size(eig, k_basis, side)
         B, _ = fetch_basis(
-            V, F, k=min(k_basis, eig.k), order=job.order, tol=job.tol, preset=job.preset,
+            V, F, k=k_basis, order=job.order, tol=job.tol, preset=job.preset,
             cache_dir=job.cache_dir, eig=eig, components=job.components,
         )  # fmt: skip
         return eig, B, cached
     eig = eigenbasis(V, F, k=k_eig, clamp_k=clamp, components=job.components)
-    B = ofp_basis(eig, order=job.order, tol=job.tol, preset=job.preset, k=min(k_basis, eig.k))
+    _check_basis_size(eig, k_basis, side)
+    B = ofp_basis(eig, order=job.order, tol=job.tol, preset=job.preset, k=k_basis)
     return eig, B, False
+
+
+def _check_basis_size(eig: EigenBasis, k_basis: int, side: int) -> None:
+    """Refuse a basis larger than the shape's eigenbasis (a shape too small for k1 / k2)."""
+    if k_basis > eig.k:
+        flag, name = ("k1", "source") if side == 1 else ("k2", "target")
+        raise ValueError(
+            f"{flag} = {k_basis}: the {name} has only {eig.k} non-constant eigenfunctions "
+            f"({eig.n_vertices} vertices); give a smaller {flag}"
+        )
 
 
 def _dense_pair(source: SharedSource, V2: np.ndarray, F2: np.ndarray | None) -> bool:
