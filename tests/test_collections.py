@@ -622,3 +622,36 @@ def test_bases_larger_than_the_estimation_are_kept_or_refused(shapes, tmp_path, 
     assert sorted(sizes) == [110, 120], caplog.messages
     with pytest.raises(ValueError, match=r"k1 = 700: the source has 642 vertices, too few"):
         transfer_many(paths["src"], [paths["t1"]], workers=0, output_dir=tmp_path, k1=700)
+
+
+def test_read_only_output_folder_is_refused_first_and_no_empty_folder_is_left(
+    shapes, tmp_path, capsys, monkeypatch
+):
+    """A read-only -o folder is refused first; a run refused at once leaves no folder.
+
+    Found by a trial: a read-only -o folder failed at each target's write, after the
+    source's eigensolve, and the summary was lost; a run that failed at once (bad source,
+    too large k1) left an empty output folder.
+    """
+    from o3d_ofp.cli import main
+
+    paths, _, _, _ = shapes
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
+        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
+    ))  # fmt: skip
+    before = COUNTERS["source_bases"]
+    with pytest.raises(PermissionError, match="cannot be written"):
+        transfer_many(paths["src"], [paths["t0"]], workers=0, output_dir=folder)
+    assert COUNTERS["source_bases"] == before  # refused before the source's bases
+    argv = ["transfer", paths["src"], paths["t0"], paths["t1"], "--workers", "0"]
+    assert main([*argv, "-o", str(folder)]) == 2
+    assert "cannot be written" in capsys.readouterr().err
+    assert main([*argv, "-o", str(folder / "new")]) == 2  # made inside a read-only folder
+    # a run refused after the folder was made removes it again (only when it is empty)
+    new = tmp_path / "new"
+    with pytest.raises(ValueError, match="k1 = 700"):
+        transfer_many(paths["src"], [paths["t0"]], workers=0, output_dir=new, k1=700)
+    assert not new.exists()

@@ -92,11 +92,17 @@ def refuse_flags(args: argparse.Namespace, flags: Mapping[str, str]) -> None:
 
 
 def _check_output_dir(path: str) -> None:
+    from ._common import check_writable_folder
+
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
+    if os.path.isdir(path):  # written into: it must be writable
+        check_writable_folder(path, path)
+        return
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise UsageError(f"-o {path}: the folder {parent} does not exist")
+    check_writable_folder(parent, path)  # the output folder is made in it
 
 
 def report_records(records: Sequence[Any]) -> int:

@@ -612,41 +612,68 @@ def transfer_many(
     if not items:
         raise ValueError("no targets (empty list, or directories without mesh files)")
     out_dir = None if output_dir is None else os.fspath(output_dir)
-    if out_dir is not None:
-        os.makedirs(out_dir, exist_ok=True)
-    names, outputs = _outputs(items, out_dir, kind)
-    source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
-    if source_path is not None and not os.path.isfile(source_path):
-        raise FileNotFoundError(f"{source_path}: no such source file")
-    records: dict[int, TargetResult] = {}
-    todo: list[int] = []
-    for i, item in enumerate(items):
-        path = item if isinstance(item, str) else None
-        if skip_existing and path is not None and _up_to_date(outputs[i], (source_path, path)):
-            logger.info("%s: skipped: %s is newer than the source and the target", names[i],
-                        outputs[i])  # fmt: skip
-            records[i] = TargetResult(
-                index=i, name=names[i], path=path, status="skipped", output=outputs[i], kind=kind
-            )
-        else:
-            todo.append(i)
-    if todo:
-        shared = _source(source, job)
-        specs = [_spec(i, items[i], names[i], outputs[i], kind) for i in todo]
-        ready = [s for s in specs if isinstance(s, ShapeSpec)]
-        for s in specs:
-            if isinstance(s, TargetResult):
-                records[s.index] = s
-        for r in _run(
-            transfer_task, shared, ready, kind=kind, client=client, workers=workers,
-            progress=progress,
-        ):  # fmt: skip
-            records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
-            COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+    with _output_folder(out_dir):
+        names, outputs = _outputs(items, out_dir, kind)
+        source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
+        if source_path is not None and not os.path.isfile(source_path):
+            raise FileNotFoundError(f"{source_path}: no such source file")
+        records: dict[int, TargetResult] = {}
+        todo: list[int] = []
+        for i, item in enumerate(items):
+            path = item if isinstance(item, str) else None
+            current = path is not None and _up_to_date(outputs[i], (source_path, path))
+            if skip_existing and current:
+                logger.info("%s: skipped: %s is newer than the source and the target", names[i],
+                            outputs[i])  # fmt: skip
+                records[i] = TargetResult(
+                    index=i, name=names[i], path=path, status="skipped", output=outputs[i],
+                    kind=kind,
+                )  # fmt: skip
+            else:
+                todo.append(i)
+        if todo:
+            shared = _source(source, job)
+            specs = [_spec(i, items[i], names[i], outputs[i], kind) for i in todo]
+            ready = [s for s in specs if isinstance(s, ShapeSpec)]
+            for s in specs:
+                if isinstance(s, TargetResult):
+                    records[s.index] = s
+            for r in _run(
+                transfer_task, shared, ready, kind=kind, client=client, workers=workers,
+                progress=progress,
+            ):  # fmt: skip
+                records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
+                COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
     results = [records[i] for i in range(len(items))]
     counts = Counter(r.status for r in results)
     logger.info("transfer_many (%s): %s", kind, dict(counts))
     return results
+
+
+@contextlib.contextmanager
+def _output_folder(out_dir: str | None) -> Iterator[None]:
+    """Create the output folder (checked writable); removed again, if empty, on a failure.
+
+    A read-only folder is refused before any work (it was found by the first target's write,
+    after the source's eigensolve, and the summary could not be written either).
+    """
+    if out_dir is None:
+        yield
+        return
+    created = not os.path.isdir(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    try:
+        if not os.access(out_dir, os.W_OK | os.X_OK):
+            raise PermissionError(
+                f"{out_dir}: the output folder cannot be written (read-only or no permission); "
+                "choose another output folder"
+            )
+        yield
+    except BaseException:
+        if created:  # a run that failed before writing anything leaves no empty folder
+            with contextlib.suppress(OSError):
+                os.rmdir(out_dir)
+        raise
 
 
 def _spec(i: int, item: Any, name: str, output: str | None, kind: str) -> ShapeSpec | TargetResult:
