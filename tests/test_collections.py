@@ -655,3 +655,31 @@ def test_read_only_output_folder_is_refused_first_and_no_empty_folder_is_left(
     with pytest.raises(ValueError, match="k1 = 700"):
         transfer_many(paths["src"], [paths["t0"]], workers=0, output_dir=new, k1=700)
     assert not new.exists()
+
+
+def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
+    client, shapes, tmp_path, capsys
+):
+    """A suspect map's reasons are in its record; -q still names the failed targets.
+
+    Found by a trial: a suspect map's reasons were printed only by the worker process (a
+    raw Python warning), the record said ``suspect: true`` alone, the fix named landmarks a
+    collection refuses; with -q the failed targets were not named at all.
+    """
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.core.shapes import icosphere
+
+    paths, _, _, _ = shapes
+    sphere = tmp_path / "sphere.ply"
+    write_geometry(sphere, triangle_mesh_from_arrays(*icosphere(3)))
+    out = tmp_path / "out"
+    [r] = transfer_many(paths["src"], [str(sphere)], client=client, output_dir=out)
+    assert r.status == "ok" and r.suspect and r.warnings
+    assert "suspect" in r.warnings[0] and "transfer this target alone" in r.warnings[0]
+    _, json_path = write_summary([r], out)
+    assert json.loads(Path(json_path).read_text())["results"][0]["warnings"] == list(r.warnings)
+    # -q: the failures are still named (on stderr), nothing else is printed
+    argv = ["-q", "transfer", paths["src"], paths["bad"], paths["t0"], "--workers", "0"]
+    assert main([*argv, "-o", str(tmp_path / "q")]) == 1
+    captured = capsys.readouterr()
+    assert "failed   bad.ply: ValueError" in captured.err and captured.out == ""

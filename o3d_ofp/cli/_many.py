@@ -106,16 +106,26 @@ def _check_output_dir(path: str) -> None:
 
 
 def report_records(records: Sequence[Any]) -> int:
-    """Print one line per shape and a count; return 1 when any failed, else 0."""
+    """Print one line per shape and a count; return 1 when any failed, else 0.
+
+    With ``-q`` only the failures are printed (on stderr): the exit code 1 alone would not
+    say which shapes failed, nor why.
+    """
+    import sys
+
+    from ._common import OUT
+
     lines = []
     for r in records:
         if r.status == "failed":
             lines.append(f"failed   {r.name}: {r.error}")
+            if OUT.quiet:
+                sys.stderr.write(lines[-1] + "\n")
         elif r.status == "skipped":
             lines.append(f"skipped  {r.name}: up to date ({r.output})")
         else:
             cov = "" if r.coverage != r.coverage else f", map coverage {r.coverage:.2f}"
-            sus = " (SUSPECT map)" if r.suspect else ""
+            sus = " (SUSPECT map: see the warning above and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}

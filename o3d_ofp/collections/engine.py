@@ -273,8 +273,13 @@ def _log_record(r: TargetResult) -> None:
     else:
         extra = "" if math.isnan(r.coverage) else f", map coverage {r.coverage:.2f}"
         logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, extra)
-        if r.suspect:
+        if r.suspect and not r.warnings:
             logger.warning("%s: the map is suspect (see its record)", r.name)
+    # A worker process's log is not shown here: its warnings are said again, named. In this
+    # process (workers=0) the log already said them.
+    if r.status != "failed" and r.worker != "local":
+        for message in r.warnings:
+            logger.warning("%s: %s", r.name, message)
 
 
 def _run(

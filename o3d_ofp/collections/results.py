@@ -60,6 +60,9 @@ class TargetResult:
         Whether its eigenbasis came from the cache.
     worker : str
         Address of the Dask worker that ran it (``"local"`` in the calling process).
+    warnings : tuple of str
+        What was said about the shape's result (:class:`~o3d_ofp.OFPWarning` messages: a
+        suspect map with its reasons and fix, parts left out, ...); empty when nothing was.
     values : (n, 3) ndarray or None
         The transferred colors (kind "colors") or the new vertex positions ("detail"), kept
         only when no ``output_dir`` was given; not part of the summary files.
@@ -78,6 +81,7 @@ class TargetResult:
     n_vertices: int = 0
     cached: bool = False
     worker: str = ""
+    warnings: tuple[str, ...] = ()
     values: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -96,6 +100,7 @@ class TargetResult:
         if isinstance(out["coverage"], float) and math.isnan(out["coverage"]):
             out["coverage"] = None
         out["seconds"] = round(float(out["seconds"]), 3)
+        out["warnings"] = list(out["warnings"])
         return out
 
 
@@ -133,7 +138,9 @@ def write_summary(
     writer = csv.DictWriter(buf, fieldnames=SUMMARY_FIELDS, lineterminator="\n")
     writer.writeheader()
     for r in rows:
-        writer.writerow({k: "" if v is None else v for k, v in r.items()})
+        cells = {k: "" if v is None else v for k, v in r.items()}
+        cells["warnings"] = " | ".join(r["warnings"])
+        writer.writerow(cells)
     csv_path = os.path.join(folder, "summary.csv")
     json_path = os.path.join(folder, "summary.json")
     for path, text in (

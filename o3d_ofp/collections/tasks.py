@@ -12,6 +12,7 @@ import dataclasses
 import logging
 import math
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..boundary.bake import has_uvs, transfer_texture
 from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import MeshTexture
+from ..core._warnings import OFPWarning
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
@@ -337,7 +339,36 @@ def _correspondence(
     return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
 
 
+#: Appended to a suspect map's fix in a collection, which takes no landmarks.
+ALONE_WITH_LANDMARKS = (
+    "a collection takes no landmarks: transfer this target alone (o3d-ofp transfer SOURCE "
+    "TARGET --landmarks ..., or ofp.transfer_colors(..., landmarks=...))"
+)
+
+
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
+    """Run :func:`_transfer_task`, its :class:`~o3d_ofp.OFPWarning` messages kept in the record.
+
+    On a worker, a warning would be printed by that process (Python's default), away from
+    the run's log and summary; here each becomes part of the target's record, which the
+    caller logs with the target's name.
+    """
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", OFPWarning)
+        result = _transfer_task(source, spec)
+    messages = tuple(
+        dict.fromkeys(
+            _for_collections(str(w.message)) for w in said if issubclass(w.category, OFPWarning)
+        )
+    )
+    return dataclasses.replace(result, warnings=messages) if messages else result
+
+
+def _for_collections(message: str) -> str:
+    return f"{message} ({ALONE_WITH_LANDMARKS})" if "landmarks" in message else message
+
+
+def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     """Transfer the source's colors or detail onto one target; never raises for the target.
 
     Parameters
@@ -365,7 +396,8 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         else:
             coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
         if suspect and job.strict:
-            raise ValueError("suspect map (strict): " + "; ".join(corr.quality.reasons))
+            reasons = "; ".join(corr.quality.reasons)
+            raise ValueError(f"suspect map (strict): {_for_collections(reasons)}")
         bases = (source.basis, B2)
         if (
             job.kind == "texture"
