@@ -431,6 +431,41 @@ def test_textured_source_onto_a_target_with_uvs_bakes_a_texture(tmp_path, capsys
     assert colors[north, 0].mean() > 0.8 and colors[south, 2].mean() > 0.8
 
 
+def test_texture_flags_and_a_missing_image_are_refused_before_the_work(tmp_path, capsys):
+    """Bad texture flags and a missing texture image are refused first, named.
+
+    Found by a trial: --texture-size 100000 failed after the map without naming the flag
+    (and was ignored silently for a .ply); a source whose material names a missing image
+    failed after the eigensolves, blaming a missing material file.
+    """
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(2)
+    (tmp_path / "src.mtl").write_text("newmtl m\nmap_Kd gone.png\n")
+    lines = ["mtllib src.mtl", "usemtl m", *(f"v {a} {b} {c}" for a, b, c in V)]
+    lines += [f"vt {0.5 + 0.4 * a} {0.5 + 0.4 * b}" for a, b, _ in V]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in F + 1]
+    (tmp_path / "src.obj").write_text("\n".join(lines) + "\n")
+    src = str(tmp_path / "src.obj")
+    out = ["-o", str(tmp_path / "out.obj")]
+    assert main(["transfer", src, src, "--texture-size", "100000", *out]) == 2
+    assert "--texture-size: expected an integer in [1, 8192]" in capsys.readouterr().err
+    for target_out in (out, ["-o", str(tmp_path / "out.ply")]):  # bake, and vertex colors
+        assert main(["transfer", src, src, "--map", "identity", *target_out]) == 2
+        err = capsys.readouterr().err
+        assert "gone.png (named by its material) not found" in err, err
+        assert "eigenbas" not in err and "map estimation" not in err  # before any work
+    colored = tmp_path / "c.ply"
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.boundary.io import write_geometry
+
+    write_geometry(colored, triangle_mesh_from_arrays(V, F, colors=0.5 + 0.5 * V))
+    code = main(["transfer", str(colored), str(colored), "--map", "identity",
+                 "--texture-size", "256", "-o", str(tmp_path / "c2.ply")])  # fmt: skip
+    assert code == 2 and "--texture-size applies to a bake" in capsys.readouterr().err
+    assert list(tmp_path.glob("out*")) == [] and not (tmp_path / "c2.ply").exists()
+
+
 def test_messages_name_the_flags_not_the_keywords(tmp_path, capsys):
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
     from o3d_ofp.boundary.io import write_geometry

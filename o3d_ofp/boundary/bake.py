@@ -26,6 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.correspondence import check_p2p
+from ..core.texture import MAX_TEXTURE_SIZE
 from ..workflows.matching import Correspondence, check_correspondence, match_arrays
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
@@ -438,8 +439,8 @@ def transfer_texture(
     """
     if not isinstance(atlas, bool):
         raise TypeError(f"atlas must be True or False; got {atlas!r}")
-    if int(size) != size or not 1 <= int(size) <= 8192:
-        raise ValueError(f"size must be an integer in [1, 8192]; got {size!r}")
+    if int(size) != size or not 1 <= int(size) <= MAX_TEXTURE_SIZE:
+        raise ValueError(f"size must be an integer in [1, {MAX_TEXTURE_SIZE}]; got {size!r}")
     if int(dilate) != dilate or dilate < 0:
         raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
     size, dilate = int(size), int(dilate)

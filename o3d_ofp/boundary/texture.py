@@ -37,6 +37,8 @@ __all__ = [
     "corner_uvs",
     "legacy_texture_image",
     "mesh_texture",
+    "missing_texture_files",
+    "no_texture_message",
     "set_albedo",
     "texture_colors",
 ]
@@ -207,6 +209,17 @@ def _no_uvs(n_uvs: int, n_faces: int) -> ValueError:
     )
 
 
+def no_texture_message(path: str, exc: Exception) -> str:
+    """``path: <why>``, naming the material or image files the OBJ names and lacks."""
+    missing = missing_texture_files(path)
+    if not missing:
+        return f"{path}: {exc}"
+    return (
+        f"{path}: {', '.join(missing)} (named by its material) not found: put the files "
+        "beside it, or pass the image (--texture FILE / texture=...)"
+    )
+
+
 def _no_image() -> ValueError:
     return ValueError(
         "the mesh has UVs but no texture image was loaded (no material file next to it?): pass "
@@ -245,6 +258,50 @@ def _tensor_parts(mesh: Any, faces: np.ndarray) -> tuple[np.ndarray, list[np.nda
         albedo = mesh.material.texture_maps["albedo"]
         images.append(np.array(albedo.as_tensor().cpu().numpy(), copy=True))
     return uv, images, np.zeros(n_faces, dtype=np.int64)
+
+
+def missing_texture_files(path: str | os.PathLike[str]) -> list[str]:
+    """Material files and texture images an OBJ names that are not there.
+
+    An OBJ read without its ``.mtl`` or its images comes back with UVs and no texture, and
+    Open3D says nothing: this names what is missing, for the messages that refuse such a
+    source. Only ``mtllib`` lines before the first face and ``map_Kd`` lines are read.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.obj`` file (other formats: an empty list).
+
+    Returns
+    -------
+    list of str
+        The missing files, as paths relative to the OBJ's folder when they were given so.
+    """
+    path = os.fspath(path)
+    if not path.lower().endswith(".obj") or not os.path.isfile(path):
+        return []
+    folder = os.path.dirname(os.path.abspath(path))
+    libraries: list[str] = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            if line.startswith("f "):
+                break
+            if line.startswith("mtllib "):
+                libraries.append(line[len("mtllib "):].strip())
+    missing: list[str] = []
+    for lib in libraries:
+        lib_path = os.path.join(folder, lib)
+        if not os.path.isfile(lib_path):
+            missing.append(lib)
+            continue
+        with open(lib_path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                words = line.split()
+                if words and words[0] == "map_Kd" and len(words) > 1:
+                    image = words[-1]  # options (-s, -o ...) come before the file name
+                    if not os.path.isfile(os.path.join(os.path.dirname(lib_path), image)):
+                        missing.append(image)
+    return list(dict.fromkeys(missing))
 
 
 def corner_uvs(mesh: Any) -> np.ndarray:

@@ -43,7 +43,7 @@ def _read_signal(
     geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None
 ) -> tuple[np.ndarray, str]:
     from ..boundary.convert import vertex_colors
-    from ..boundary.texture import texture_colors
+    from ..boundary.texture import no_texture_message, texture_colors
 
     if texture is not None and spec != "texture":
         raise UsageError("--texture applies to --signal texture")
@@ -61,7 +61,10 @@ def _read_signal(
         try:
             return texture_colors(geometry, texture), "colors"
         except (ValueError, TypeError, FileNotFoundError) as exc:
-            raise UsageError(f"{path}: {exc}") from exc
+            if texture is not None:  # the given image, not the source, is at fault
+                text = str(exc).removeprefix(f"{texture}: ")
+                raise UsageError(f"--texture {texture}: {text}") from exc
+            raise UsageError(no_texture_message(path, exc)) from exc
     if spec == "xyz":
         return V, "xyz"
     if spec.endswith(".npy"):

@@ -9,6 +9,7 @@ from typing import Any
 
 __all__ = [
     "bounded_float",
+    "bounded_int",
     "nonnegative_float",
     "nonnegative_int",
     "positive_int",
@@ -36,6 +37,11 @@ positive_int = _number(int, lambda v: v >= 1, "a positive integer")
 nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
 unit_float = _number(float, lambda v: 0.0 < v < 1.0, "a number in (0, 1)")
 nonnegative_float = _number(float, lambda v: math.isfinite(v) and v >= 0.0, "a number >= 0")
+
+
+def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
+    """Make an argparse type: an integer in ``[lo, hi]``."""
+    return _number(int, lambda v: lo <= v <= hi, f"an integer in [{lo}, {hi}]")
 
 
 def bounded_float(lo: float, hi: float) -> Callable[[str], float]:

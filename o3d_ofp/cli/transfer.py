@@ -6,6 +6,7 @@ import argparse
 import logging
 from typing import Any
 
+from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ._common import (
     CLOUD_OUT,
     MESH_OUT,
@@ -31,7 +32,7 @@ from ._pair import (
     read_pair,
 )
 from ._signal import read_signal, signal_sides, write_result
-from ._types import positive_int
+from ._types import bounded_int
 
 __all__ = ["add_parser", "run"]
 
@@ -57,9 +58,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--texture-size",
-        type=positive_int,
-        default=1024,
-        help="size of the baked texture image in pixels (1024)",
+        type=bounded_int(1, MAX_TEXTURE_SIZE),
+        default=None,
+        help=f"size of the baked texture image in pixels ({TEXTURE_SIZE}; at most "
+        f"{MAX_TEXTURE_SIZE}); "
+        "for a bake only (a textured source onto a target with UVs, or --uv-atlas)",
     )
     p.add_argument(
         "-o",
@@ -100,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     check_output_kind(args.output, pair.F2)
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
         return _bake(args, pair)
+    if args.texture_size is not None:
+        raise UsageError(
+            "--texture-size applies to a bake (a textured source onto a mesh target with UVs, "
+            "or --uv-atlas, written as .obj/.glb/.gltf); here the colors go to the vertices"
+        )
     if args.uv_atlas:
         raise UsageError(
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
@@ -153,11 +161,16 @@ def _run_many(args: argparse.Namespace) -> int:
             kind = "texture"
         except (TypeError, ValueError, FileNotFoundError):
             pass
+    if kind != "texture" and args.texture_size is not None:
+        raise UsageError(
+            "--texture-size applies to a bake: the source has no readable texture (its colors "
+            "go to the targets' vertices)"
+        )
     return run_transfers(
         args,
         kind=kind,
         options={"k1": args.k1, "k2": args.k2, "signal": signal,
-                 "texture_size": args.texture_size, "atlas": args.uv_atlas},
+                 "texture_size": args.texture_size or TEXTURE_SIZE, "atlas": args.uv_atlas},
     )  # fmt: skip
 
 
@@ -196,6 +209,19 @@ def _default_signal(source: Any) -> str:
     return "colors"
 
 
+def _check_texture(args: argparse.Namespace, source: Any) -> None:
+    """Refuse, before any work, a bake whose texture cannot be read (named: file or flag)."""
+    from ..boundary.texture import mesh_texture, no_texture_message
+
+    try:
+        mesh_texture(source, args.texture)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        if args.texture is not None:
+            text = str(exc).removeprefix(f"{args.texture}: ")
+            raise UsageError(f"--texture {args.texture}: {text}") from exc
+        raise UsageError(no_texture_message(args.source, exc)) from exc
+
+
 def _bake(args: argparse.Namespace, pair) -> int:
     """Bake the source's texture into the target's UV layout and write OBJ + MTL + PNG."""
     from ..boundary.bake import transfer_texture
@@ -204,6 +230,8 @@ def _bake(args: argparse.Namespace, pair) -> int:
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eig_options
 
+    _check_texture(args, pair.source)
+    size = args.texture_size or TEXTURE_SIZE
     pair = map_first(args, pair)
     eigs = (None, None)
     if pair.correspondence is None:
@@ -214,13 +242,13 @@ def _bake(args: argparse.Namespace, pair) -> int:
                 for V, F in ((pair.V1, pair.F1), (pair.V2, pair.F2))
             )  # fmt: skip
     corr = estimate_or_use_map(args, pair, *eigs)
-    with stage(f"texture bake ({args.texture_size} x {args.texture_size})"):
+    with stage(f"texture bake ({size} x {size})"):
         try:
             out = transfer_texture(
                 pair.source,
                 pair.target,
                 correspondence=corr,
-                size=args.texture_size,
+                size=size,
                 texture=args.texture,
                 atlas=args.uv_atlas,
             )
@@ -230,7 +258,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
     report(
         [
             f"{args.source} -> {args.target}: texture baked in the target's UV layout "
-            f"({args.texture_size} px), map {_map_name(args, corr)}",
+            f"({size} px), map {_map_name(args, corr)}",
             f"wrote {args.output} (with its material and texture image)",
         ]
     )

@@ -9,7 +9,12 @@ import numpy as np
 
 from ._validation import as_faces
 
-__all__ = ["corner_colors_to_vertices", "sample_texture"]
+__all__ = ["MAX_TEXTURE_SIZE", "TEXTURE_SIZE", "corner_colors_to_vertices", "sample_texture"]
+
+#: Side of a baked texture image by default, in pixels.
+TEXTURE_SIZE = 1024
+#: Largest side of a baked texture image, in pixels (8192² RGB: 200 MB in float64 while baking).
+MAX_TEXTURE_SIZE = 8192
 
 logger = logging.getLogger(__name__)
 
