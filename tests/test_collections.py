@@ -457,8 +457,8 @@ def test_cli_several_targets_on_a_scheduler_summary_rerun_and_force(client, shap
     text = capsys.readouterr().out
     assert "failed   bad.ply: ValueError" in text and "ok       t0.ply" in text
     assert "2 ok, 1 failed, 0 skipped" in text
-    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "summary.json", "t0.ply",
-                                                     "t1.ply"]  # fmt: skip
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [".o3d_ofp_outputs.json", "summary.csv", "summary.json", "t0.ply", "t1.ply"]
     for name in ("t0.ply", "t1.ply"):
         assert np.abs(_colors(out / name) - colors).mean() < 0.05
     summary = json.loads((out / "summary.json").read_text())
@@ -467,6 +467,14 @@ def test_cli_several_targets_on_a_scheduler_summary_rerun_and_force(client, shap
     assert _cli(*args) == 1
     text = capsys.readouterr().out
     assert "skipped  t0.ply: up to date" in text and "0 ok, 1 failed, 2 skipped" in text
+    # Other options make other outputs: redone, not skipped (found by a trial: a rerun with
+    # --k1 20, or `detail` over color transfers, kept the old outputs as "up to date").
+    assert _cli(*args, "--k1", "20") == 1
+    captured = capsys.readouterr()
+    assert "2 ok, 1 failed, 0 skipped" in captured.out
+    assert "made with other options: k1 29 -> 20" in captured.err
+    assert _cli(*args, "--k1", "20") == 1
+    assert "0 ok, 1 failed, 2 skipped" in capsys.readouterr().out
     # All good targets: exit 0; --force redoes finished work.
     good = [a for a in args if a != paths["bad"]]
     assert _cli(*good, "--force") == 0

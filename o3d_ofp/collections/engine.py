@@ -4,7 +4,8 @@
 estimation and its OFP basis), broadcasts it to every worker, and runs one task per target:
 read, eigenbasis (from the cache when there is one), map, transfer, atomic write. A target's
 failure (unreadable file, refused shape, a worker killed for memory) is that target's record;
-the others go on. A rerun skips targets whose output is newer than both inputs.
+the others go on. A rerun skips targets whose output is newer than both inputs and was made
+with the same options (:data:`OUTPUTS_RECORD`).
 
 Without a ``client`` a :class:`distributed.LocalCluster` sized to the machine is started for
 the call (one single-threaded worker process per core, BLAS limited to one thread per worker
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import logging
 import math
 import os
@@ -36,6 +38,7 @@ from ..boundary.convert import (
 )
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import mesh_texture, texture_colors
+from ..core._atomic import atomic_path
 from ..core.orthogonalize import resolve_tol
 from ..workflows import matching as _matching
 from ..workflows.dense import coarse_shape
@@ -406,6 +409,65 @@ def _outputs(
     return names, outs
 
 
+#: File of an output folder that records the options each output was made with, so that a
+#: rerun with other options (or another command) redoes it instead of skipping it.
+OUTPUTS_RECORD = ".o3d_ofp_outputs.json"
+
+
+class _OutputsRecord:
+    """The options each output of a folder was made with (:data:`OUTPUTS_RECORD`).
+
+    A rerun skips an output newer than its inputs only when it was made with the same
+    options: found by a trial, a rerun with ``--k1 20`` (or ``detail`` over a folder of color
+    transfers) reported every target "up to date" and kept the old results. Outputs of a
+    folder without the record (made before it existed) are judged by their times alone.
+    """
+
+    def __init__(self, out_dir: str | None, job: TransferJob) -> None:
+        self.path = None if out_dir is None else os.path.join(out_dir, OUTPUTS_RECORD)
+        options = dataclasses.asdict(job)
+        for key in ("cache_dir", "strict"):  # where the bases come from; no effect on outputs
+            options.pop(key)
+        self.options = options
+        self.outputs: dict[str, dict[str, Any]] | None = None
+        if self.path is not None and os.path.isfile(self.path):
+            try:
+                with open(self.path, encoding="utf-8") as fh:
+                    data = json.load(fh)
+                self.outputs = dict(data["outputs"])
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                logger.warning("%s: unreadable (%s): its outputs are redone", self.path, exc)
+                self.outputs = {}
+
+    def same_options(self, output: str | None, name: str) -> bool:
+        """Whether ``output`` was made with these options (True when nothing is recorded)."""
+        if self.outputs is None or output is None:
+            return True
+        before = self.outputs.get(os.path.basename(output))
+        if before == self.options:
+            return True
+        if before is None:
+            why = "not recorded as made by o3d_ofp"
+        else:
+            changed = [
+                f"{k} {before.get(k)!r} -> {v!r}" for k, v in self.options.items()
+                if before.get(k) != v
+            ]  # fmt: skip
+            why = "made with other options: " + ", ".join(changed)
+        logger.info("%s: %s is redone (%s)", name, output, why)
+        return False
+
+    def add(self, output: str | None) -> None:
+        """Record that ``output`` was just made with these options."""
+        if self.path is None or output is None:
+            return
+        if self.outputs is None:
+            self.outputs = {}
+        self.outputs[os.path.basename(output)] = self.options
+        with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            json.dump({"version": 1, "outputs": self.outputs}, fh, indent=1, sort_keys=True)
+
+
 def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
     """Whether ``output`` exists and is newer than every input (all of them files)."""
     if output is None or any(p is None for p in inputs):
@@ -585,7 +647,8 @@ def transfer_many(
         target); ``0`` runs in this process without Dask. Ignored with ``client``.
     skip_existing : bool, default True
         Skip (status ``"skipped"``) a target whose output is newer than both the source and
-        the target files (never for inputs given as geometries).
+        the target files and was made with the same options (recorded in the output folder's
+        :data:`OUTPUTS_RECORD`; never for inputs given as geometries).
     progress : bool, default True
         A progress bar over the targets on stderr when it is a terminal.
     **options
@@ -624,12 +687,15 @@ def transfer_many(
             raise FileNotFoundError(f"{source_path}: no such source file")
         records: dict[int, TargetResult] = {}
         todo: list[int] = []
+        made = _OutputsRecord(out_dir, job)
         for i, item in enumerate(items):
             path = item if isinstance(item, str) else None
             current = path is not None and _up_to_date(outputs[i], (source_path, path))
+            if skip_existing and current and not made.same_options(outputs[i], names[i]):
+                current = False
             if skip_existing and current:
-                logger.info("%s: skipped: %s is newer than the source and the target", names[i],
-                            outputs[i])  # fmt: skip
+                logger.info("%s: skipped: %s is newer than the source and the target and "
+                            "made with the same options", names[i], outputs[i])  # fmt: skip
                 records[i] = TargetResult(
                     index=i, name=names[i], path=path, status="skipped", output=outputs[i],
                     kind=kind,
@@ -649,6 +715,8 @@ def transfer_many(
             ):  # fmt: skip
                 records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
                 COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+                if r.status == "ok":
+                    made.add(outputs[r.index])
     results = [records[i] for i in range(len(items))]
     counts = Counter(r.status for r in results)
     logger.info("transfer_many (%s): %s", kind, dict(counts))
