@@ -532,11 +532,20 @@ def test_cli_bad_collection_usage_is_refused(shapes, tmp_path, capsys):
          "-o names the basis file of ONE shape"),
         (["basis", paths["t0"], paths["t1"]], "give -o FILE.npz (one shape) or --cache DIR"),
         (["basis", paths["t0"], paths["t1"], "--cache", a_file], "--cache"),
+        # found by a trial: a folder named x1.ply was made; a scheduler where nothing
+        # listens was found after the source's eigensolve, as "cannot read or write"
+        (["transfer", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "x1.ply"],
+         "x1.ply: with several targets -o names a folder"),
+        (["transfer", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "o",
+          "--scheduler", "tcp://127.0.0.1:9"], "--scheduler tcp://127.0.0.1:9: nothing answers"),
+        (["transfer", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "o",
+          "--scheduler", "localhost"], "expected tcp://HOST:PORT"),
     ]  # fmt: skip
     for argv, message in cases:
         assert _cli(*argv) == 2, argv
         assert message in capsys.readouterr().err, argv
     assert a_file.read_text() == "x"
+    assert not (tmp_path / "x1.ply").exists() and not (tmp_path / "o").exists()
 
 
 def _textured(V, F, image):
@@ -578,6 +587,28 @@ def test_cli_textured_source_bakes_every_target_like_the_two_shape_command(shape
     baked = np.asarray(Image.open(many[0]))
     np.testing.assert_array_equal(baked, np.asarray(Image.open(one[0])))
     assert baked.std() > 20
+
+
+def test_texture_run_records_what_each_target_got(shapes, tmp_path, capsys):
+    """A target without UVs gets vertex colors: its record says "colors", not "texture".
+
+    And the two-shape command says when a target's UVs are dropped for a .ply output.
+    """
+    _, V, F, _ = shapes
+    yy, xx = np.mgrid[0:32, 0:32]
+    image = np.stack([xx * 8, yy * 8, (xx + yy) % 2 * 255], axis=-1).astype(np.uint8)
+    write_geometry(tmp_path / "src.obj", _textured(V, F, image))
+    write_geometry(tmp_path / "uv.obj", _textured(_bent(V, 0.1), F, image))
+    write_geometry(tmp_path / "plain.ply", triangle_mesh_from_arrays(_bent(V, 0.2), F))
+    targets = [str(tmp_path / "uv.obj"), str(tmp_path / "plain.ply")]
+    results = transfer_many(
+        str(tmp_path / "src.obj"), targets, kind="texture", workers=0,
+        output_dir=tmp_path / "out", map="identity", texture_size=32,
+    )  # fmt: skip
+    assert [(r.status, r.kind) for r in results] == [("ok", "texture"), ("ok", "colors")]
+    code = _cli("transfer", tmp_path / "src.obj", tmp_path / "uv.obj", "--map", "identity",
+                "-o", tmp_path / "flat.ply")  # fmt: skip
+    assert code == 0 and "cannot hold a texture" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- last: kills a worker

@@ -91,11 +91,38 @@ def refuse_flags(args: argparse.Namespace, flags: Mapping[str, str]) -> None:
             raise UsageError(f"{flag} does not apply to several targets")
 
 
+def _check_scheduler(address: str) -> None:
+    """Refuse, before any work, a scheduler address where nothing listens."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
+        raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT")
+    try:
+        socket.create_connection((parts.hostname, port), timeout=5).close()
+    except OSError as exc:
+        raise UsageError(
+            f"--scheduler {address}: nothing answers there ({exc.strerror or exc}); start the "
+            "scheduler (dask scheduler) or leave --scheduler out for a local cluster"
+        ) from exc
+
+
 def _check_output_dir(path: str) -> None:
-    from ._common import check_writable_folder
+    from ._common import CLOUD_OUT, MESH_OUT, check_writable_folder
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
+    ext = os.path.splitext(path)[1].lower()
+    if not os.path.exists(path) and ext in (*MESH_OUT, *CLOUD_OUT, ".npy"):
+        raise UsageError(
+            f"-o {path}: with several targets -o names a folder (the results keep the targets' "
+            f"names); {ext} looks like one output file"
+        )
     if os.path.isdir(path):  # written into: it must be writable
         check_writable_folder(path, path)
         return
@@ -141,6 +168,8 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
 
     _check_output_dir(args.output)
     check_cache_dir(args.cache)
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
     if args.map not in ("estimate", "identity"):
         raise UsageError(
             f"--map {args.map}: with several targets the map is 'estimate' or 'identity'"

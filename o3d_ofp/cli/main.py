@@ -147,8 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ) as exc:
             sys.stderr.write(f"{prog}: error: {_in_flags(str(exc))}\n")
             return 2
-        except ImportError as exc:
-            sys.stderr.write(f"{prog}: error: {exc}\n")
+        except (ImportError, ConnectionError) as exc:
+            sys.stderr.write(f"{prog}: error: {_in_flags(str(exc))}\n")
             return 1
         except OSError as exc:  # a full disk, a file system gone read-only during the run
             where = f" ({exc.filename})" if exc.filename else ""

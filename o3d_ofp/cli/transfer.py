@@ -82,6 +82,7 @@ def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
 
 def run(args: argparse.Namespace) -> int:
     """Read, match (or read the map), transfer, write (for each target)."""
+    from ..boundary.bake import has_uvs
     from ..workflows.pipeline import transfer_function
 
     if is_collection(args.target):
@@ -102,7 +103,22 @@ def run(args: argparse.Namespace) -> int:
     pair = read_pair(args)
     check_output_kind(args.output, pair.F2)
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
+        if args.uv_atlas and has_uvs(pair.target):
+            logger.warning(
+                "%s has its own UVs: the texture is baked into them (--uv-atlas makes an atlas "
+                "for a target without UVs only)",
+                args.target,
+            )
         return _bake(args, pair)
+    if args.signal is None and pair.F2 is not None and has_uvs(pair.source):
+        if has_uvs(pair.target):
+            logger.warning(
+                "%s has UVs, but %s cannot hold a texture: the source's texture goes to the "
+                "target's vertex colors (blurrier) and the target's UVs are not written; write "
+                ".obj/.glb/.gltf to bake it into the target's UVs",
+                args.target,
+                args.output,
+            )
     if args.texture_size is not None:
         raise UsageError(
             "--texture-size applies to a bake (a textured source onto a mesh target with UVs, "

@@ -191,7 +191,14 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
         return
     if isinstance(client, str):
         logger.info("connecting to the Dask scheduler at %s", client)
-        with distributed.Client(client) as c:
+        try:
+            connected = distributed.Client(client)
+        except OSError as exc:  # a timeout, a refused connection
+            raise ConnectionError(
+                f"client {client}: cannot connect to the Dask scheduler ({exc}); check the "
+                "address (tcp://HOST:PORT) and that the scheduler is running"
+            ) from exc
+        with connected as c:
             yield c
         return
     n = local_workers() if workers is None else workers

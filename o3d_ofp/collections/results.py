@@ -52,8 +52,9 @@ class TargetResult:
         Whether the quality check found the map doubtful (``None``: no map).
     error : str
         Why the shape failed (exception type and message); empty otherwise.
-    kind : {"colors", "detail", "basis"}
-        What was done.
+    kind : {"colors", "texture", "detail", "basis"}
+        What was done ("texture": baked into the target's UVs; a target without UVs of a
+        texture run gets vertex colors: "colors").
     n_vertices : int
         Vertices of the shape (0 when it could not be read).
     cached : bool

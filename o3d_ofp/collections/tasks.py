@@ -386,6 +386,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     job = source.job
     t0 = time.perf_counter()
     n2, cached, coverage, suspect = 0, False, math.nan, None
+    made = job.kind
     try:
         target, V2, F2 = _read(spec)
         n2 = V2.shape[0]
@@ -411,6 +412,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
             )  # fmt: skip
             values = None
         elif job.kind in ("colors", "texture"):
+            made = "colors"  # a target without UVs (and no atlas): its vertices get the colors
             g = transfer_function(
                 source.signal, source.eig, eig_2, correspondence=corr, bases=bases
             )
@@ -445,7 +447,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         seconds=time.perf_counter() - t0,
         coverage=float(coverage),
         suspect=bool(suspect),
-        kind=job.kind,
+        kind=made,
         n_vertices=n2,
         cached=cached,
         worker=worker_name(),
