@@ -611,6 +611,36 @@ def test_texture_run_records_what_each_target_got(shapes, tmp_path, capsys):
     assert code == 0 and "cannot hold a texture" in capsys.readouterr().err
 
 
+def test_a_source_without_its_material_takes_texture_in_a_collection(shapes, tmp_path, capsys):
+    """--texture FILE gives a collection the image of a source read without its .mtl.
+
+    Found by a trial: the error advised --texture FILE, which collections refused.
+    """
+    from PIL import Image
+
+    _, V, F, _ = shapes
+    yy, xx = np.mgrid[0:32, 0:32]
+    image = np.stack([xx * 8, yy * 8, (xx // 4 + yy // 4) % 2 * 255], axis=-1).astype(np.uint8)
+    write_geometry(tmp_path / "src.obj", _textured(V, F, image))
+    for name in ("src.mtl", *(p.name for p in tmp_path.glob("src*.png"))):
+        (tmp_path / name).unlink()  # the OBJ alone: UVs, no image
+    Image.fromarray(image).save(tmp_path / "image.png")
+    for i, amount in enumerate((0.1, 0.2)):
+        write_geometry(tmp_path / f"t{i}.obj", _textured(_bent(V, amount), F, image))
+    argv = ["transfer", tmp_path / "src.obj", tmp_path / "t0.obj", tmp_path / "t1.obj",
+            "--map", "identity", "--workers", "0", "--texture-size", "32"]  # fmt: skip
+    assert _cli(*argv, "-o", tmp_path / "a") == 2
+    assert "--texture FILE" in capsys.readouterr().err
+    assert _cli(*argv, "-o", tmp_path / "b", "--texture", tmp_path / "nope.png") == 2
+    err = capsys.readouterr().err
+    assert "--texture" in err and "no such image file" in err
+    assert _cli(*argv, "-o", tmp_path / "c", "--texture", tmp_path / "image.png") == 0
+    results = json.loads((tmp_path / "c" / "summary.json").read_text())["results"]
+    assert [r["kind"] for r in results] == ["texture", "texture"]
+    baked = np.asarray(Image.open(next((tmp_path / "c").glob("t0*.png"))))
+    assert baked.std() > 20  # a picture, not a flat color
+
+
 # --------------------------------------------------------------------------- last: kills a worker
 
 

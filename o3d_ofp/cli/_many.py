@@ -35,7 +35,6 @@ PAIR_ONLY = {
     "basis_1": "--basis-1 (use --cache DIR)",
     "basis_2": "--basis-2 (use --cache DIR)",
     "align": "--align (--map closest is for one pair)",
-    "texture": "--texture (the source's own texture is used)",
     "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
     "partial": "--partial (for one pair of shapes)",
 }

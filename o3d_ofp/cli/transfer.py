@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from typing import Any
 
 from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
@@ -163,30 +164,33 @@ def run(args: argparse.Namespace) -> int:
 def _run_many(args: argparse.Namespace) -> int:
     """One source onto many targets: colors, or the texture baked into each target's UVs."""
     from ..boundary.io import read_geometry
-    from ..boundary.texture import mesh_texture
+    from ..boundary.texture import mesh_texture, no_texture_message
 
     refuse_flags(args, PAIR_ONLY)
+    if args.texture is not None and not os.path.isfile(args.texture):
+        raise UsageError(f"--texture {args.texture}: no such image file")
     if args.signal not in (None, "colors", "texture"):
         raise UsageError(
             f"--signal {args.signal}: with several targets the signal is colors or texture"
         )
     kind, signal = "colors", args.signal or "auto"
+    why = "it has no texture coordinates"
     if args.signal is None:
         try:  # a textured source: baked into the targets' own UV layouts, as for one target
-            mesh_texture(read_geometry(args.source))
+            mesh_texture(read_geometry(args.source), args.texture)
             kind = "texture"
-        except (TypeError, ValueError, FileNotFoundError):
-            pass
+        except (TypeError, ValueError, FileNotFoundError) as exc:
+            why = no_texture_message(args.source, exc)
     if kind != "texture" and args.texture_size is not None:
         raise UsageError(
-            "--texture-size applies to a bake: the source has no readable texture (its colors "
-            "go to the targets' vertices)"
+            f"--texture-size applies to a bake, and the source's texture cannot be baked: {why}"
         )
     return run_transfers(
         args,
         kind=kind,
         options={"k1": args.k1, "k2": args.k2, "signal": signal,
-                 "texture_size": args.texture_size or TEXTURE_SIZE, "atlas": args.uv_atlas},
+                 "texture_size": args.texture_size or TEXTURE_SIZE, "atlas": args.uv_atlas,
+                 "texture": args.texture},
     )  # fmt: skip
 
 

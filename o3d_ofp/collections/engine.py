@@ -37,9 +37,10 @@ from ..boundary.convert import (
     vertex_colors,
 )
 from ..boundary.io import read_geometry, write_geometry
-from ..boundary.texture import mesh_texture, texture_colors
+from ..boundary.texture import mesh_texture, no_texture_message, texture_colors
 from ..core._atomic import atomic_path
 from ..core.orthogonalize import resolve_tol
+from ..core.texture import MAX_TEXTURE_SIZE
 from ..workflows import matching as _matching
 from ..workflows.dense import coarse_shape
 from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT
@@ -110,6 +111,7 @@ _TRANSFER_OPTIONS = {
     "signal": "auto",
     "texture_size": 1024,
     "atlas": False,
+    "texture": None,
 }
 #: What each kind of transfer is.
 KINDS = ("colors", "texture", "detail")
@@ -530,8 +532,19 @@ def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> Transfe
             raise ValueError(f"{name} must be a positive integer; got {value!r}")
     if not isinstance(o["atlas"], bool):
         raise ValueError(f"atlas must be True or False; got {o['atlas']!r}")
-    if o["texture_size"] > 8192:
-        raise ValueError(f"texture_size must be at most 8192; got {o['texture_size']}")
+    if o["texture_size"] > MAX_TEXTURE_SIZE:
+        raise ValueError(
+            f"texture_size must be at most {MAX_TEXTURE_SIZE}; got {o['texture_size']}"
+        )
+    if o["texture"] is not None:
+        if not isinstance(o["texture"], (str, os.PathLike)):
+            kind_of = type(o["texture"]).__name__
+            raise TypeError(f"texture must be an image file path; got {kind_of}")
+        o["texture"] = os.path.abspath(os.fspath(o["texture"]))
+        if not os.path.isfile(o["texture"]):
+            raise FileNotFoundError(f"texture {o['texture']}: no such image file")
+        if kind == "detail" or o["signal"] == "colors":
+            raise ValueError("texture (the source's texture image) applies to its colors or bake")
     if o["preset"] is None and o["tol"] is None:
         o["preset"] = "ours*" if kind == "detail" else "ours"
     resolve_tol(o["tol"], o["preset"])  # refuse a bad tol / preset now
@@ -553,11 +566,15 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
     signal, texture = None, None
     if job.kind == "texture":
         try:
-            texture = mesh_texture(geometry)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name}: the source has no texture to bake: {exc}") from exc
+            texture = mesh_texture(geometry, job.texture)
+        except (TypeError, ValueError, FileNotFoundError) as exc:
+            own = path is not None and job.texture is None
+            why = no_texture_message(path, exc) if own else f"{name}: {exc}"
+            raise ValueError(f"the source has no texture to bake: {why}") from exc
     if job.kind in ("colors", "texture"):
-        signal = _source_colors(geometry, name, job.signal, quiet=job.kind == "texture")
+        signal = _source_colors(
+            geometry, name, job.signal, quiet=job.kind == "texture", texture=job.texture
+        )
     elif F is None:
         raise ValueError(f"{name}: the source of a detail transfer must be a triangle mesh")
     t0 = time.perf_counter()
@@ -591,15 +608,17 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
     return SharedSource(name, V, F, eig, B, signal, job, texture, coarse)
 
 
-def _source_colors(geometry: Any, name: str, signal: str, *, quiet: bool = False) -> Any:
+def _source_colors(
+    geometry: Any, name: str, signal: str, *, quiet: bool = False, texture: str | None = None
+) -> Any:
     """Return the source's colors per vertex: its vertex colors or its texture sampled there."""
-    colors = vertex_colors(geometry) if signal in ("auto", "colors") else None
+    colors = vertex_colors(geometry) if signal in ("auto", "colors") and texture is None else None
     if colors is not None or signal == "colors":
         if colors is None:
             raise ValueError(f"{name}: the source has no vertex colors to transfer")
         return colors
     try:
-        colors = texture_colors(geometry)
+        colors = texture_colors(geometry, texture)
     except (TypeError, ValueError, FileNotFoundError) as exc:
         raise ValueError(
             f"{name}: the source has no vertex colors and no usable texture ({exc})"
@@ -667,7 +686,8 @@ def transfer_many(
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
         vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture"), ``atlas``
         (False; kind "texture": a mesh target without UVs gets a new UV atlas and the baked
-        texture instead of vertex colors).
+        texture instead of vertex colors), ``texture`` (None: the source's own image; a path:
+        the source's texture image, for a source read without its material).
 
     Returns
     -------

@@ -78,6 +78,8 @@ class TransferJob:
         Side of the baked image (kind "texture").
     atlas : bool
         Kind "texture": a mesh target without UVs gets a new UV atlas to bake into.
+    texture : str or None
+        The source's texture image (absolute path), for a source read without its own.
     components : str
         Connected-component policy of the eigenbases.
     strict : bool
@@ -101,6 +103,7 @@ class TransferJob:
     signal: str = "auto"
     texture_size: int = 1024
     atlas: bool = False
+    texture: str | None = None
     cache_dir: str | None = None
 
     def eig_k(self, n_vertices: int, side: int, *, dense: bool = False) -> tuple[int, bool]:
