@@ -208,7 +208,8 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
     import dask
 
     with _worker_environment() as pre_spawn:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
+        config = {"distributed.nanny.pre-spawn-environ": pre_spawn}
+        with dask.config.set(config), _children_ignore_interrupts():  # the start only
             try:
                 cluster = distributed.LocalCluster(  # the nannies read the config here
                     n_workers=n,
@@ -227,6 +228,29 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
                 ) from exc
         with cluster, distributed.Client(cluster) as c:
             yield c
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Start processes that ignore Ctrl-C: this process stops them and says so itself.
+
+    A Ctrl-C in a terminal reaches every process of its group: each worker of a local cluster
+    printed its own KeyboardInterrupt traceback. A process started while SIGINT is ignored
+    keeps ignoring it (Python installs its Ctrl-C handler only over the default one), so the
+    workers leave it to this process, which closes the cluster. Only from the main thread
+    (elsewhere signals cannot be set, and nothing changes).
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
@@ -736,14 +760,24 @@ def transfer_many(
             for s in specs:
                 if isinstance(s, TargetResult):
                     records[s.index] = s
-            for r in _run(
-                transfer_task, shared, ready, kind=kind, client=client, workers=workers,
-                progress=progress,
-            ):  # fmt: skip
-                records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
-                COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
-                if r.status == "ok":
-                    made.add(outputs[r.index])
+            try:
+                for r in _run(
+                    transfer_task, shared, ready, kind=kind, client=client, workers=workers,
+                    progress=progress,
+                ):  # fmt: skip
+                    records[r.index] = _finish_in_memory(
+                        r, items[r.index], outputs[r.index], kind
+                    )
+                    COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+                    if r.status == "ok":
+                        made.add(outputs[r.index])
+            except KeyboardInterrupt:
+                done = sum(r.status == "ok" for r in records.values())
+                logger.warning(
+                    "interrupted: %d of %d targets done%s", done, len(items),
+                    "; a rerun skips them and does the others" if out_dir else "",
+                )  # fmt: skip
+                raise
     results = [records[i] for i in range(len(items))]
     counts = Counter(r.status for r in results)
     logger.info("transfer_many (%s): %s", kind, dict(counts))
