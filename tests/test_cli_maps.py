@@ -160,3 +160,43 @@ def test_closest_map_waits_for_the_signal_and_says_its_reasons_once(shapes, tmp_
     said = (captured.out + captured.err).count("slide along the surface")
     assert said == 1, captured  # the warning once, not again in the report
     assert "(--align)" in captured.err
+
+
+def test_side_outputs_may_not_replace_inputs_outputs_or_cache_entries(shapes, tmp_path, capsys):
+    """--save-landmarks / --save-map are refused where they would replace another file.
+
+    Found by a trial: --save-landmarks replaced the --signal file (then failed reading it)
+    or was replaced by -o; --save-map replaced a --basis-2 file or a cache entry.
+    """
+    _d, p, V, _F, _ = shapes
+    signal = tmp_path / "s.npy"
+    np.save(signal, np.arange(len(V), dtype=np.float64))
+    before = signal.read_bytes()
+    base = ["transfer", p["src"], p["same"], "--landmarks", "0:0,10:10,20:20"]
+    cases = [
+        ([*base, "--signal", str(signal), "--save-landmarks", str(signal),
+          "-o", str(tmp_path / "a.npy")], "--save-landmarks", "an input of this command"),
+        ([*base, "--signal", "xyz", "--save-landmarks", str(tmp_path / "b.ply"),
+          "-o", str(tmp_path / "b.ply")], "--save-landmarks", "the -o output"),
+        ([*base, "--save-landmarks", str(tmp_path / "m.npz"), "--save-map",
+          str(tmp_path / "m.npz"), "-o", str(tmp_path / "c.ply")], "--save-landmarks",
+         "the --save-map file"),
+    ]  # fmt: skip
+    assert main(["basis", p["same"], "-o", str(tmp_path / "b2.npz")]) == 0
+    basis = (tmp_path / "b2.npz").read_bytes()
+    cases.append((["transfer", p["src"], p["same"], "--map", "identity", "--basis-2",
+                   str(tmp_path / "b2.npz"), "--save-map", str(tmp_path / "b2.npz"),
+                   "-o", str(tmp_path / "d.ply")], "--save-map", "an input of this command"))
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    cases.append((["transfer", p["src"], p["same"], "--map", "identity", "--cache", str(cache),
+                   "--save-map", str(cache / "x.npz"), "-o", str(tmp_path / "e.ply")],
+                  "--save-map", "--cache folder"))  # fmt: skip
+    capsys.readouterr()
+    for argv, flag, what in cases:
+        assert main(argv) == 2, argv
+        err = _err(capsys)
+        assert flag in err and what in err, (argv, err)
+    assert signal.read_bytes() == before and (tmp_path / "b2.npz").read_bytes() == basis
+    assert not [f for f in tmp_path.iterdir() if f.suffix in (".ply", ".txt")]  # no result
+    assert list(cache.iterdir()) == []

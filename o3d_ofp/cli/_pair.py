@@ -140,6 +140,43 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         raise UsageError(f"--landmarks {spec}: {exc}") from exc
 
 
+def _same_place(a: str, b: str) -> bool:
+    """Whether two paths name one file (the same path, or links to one existing file)."""
+    if os.path.abspath(a) == os.path.abspath(b):
+        return True
+    return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
+
+
+def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
+    """Refuse a ``--save-map`` / ``--save-landmarks`` file that would replace another file.
+
+    That is an input of the command, the result, the other such file, or a cache entry.
+    Found by a trial: ``--save-landmarks`` replaced the ``--signal`` file it was about to read,
+    or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
+    """
+    from ._common import written_beside
+
+    inputs = [
+        ("an input of this command", getattr(args, name, None))
+        for name in ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
+    ]
+    inputs += [("the --map file read", f) for f in getattr(args, "map", "").split(",")]
+    output = getattr(args, "output", None)
+    outputs = [("the -o output", output)]
+    if output:
+        outputs += [("written with -o", f) for f in written_beside(output)]
+        stem = os.path.splitext(output)[0]
+        outputs.append(("written with -o", stem + ".npy"))  # an array signal's values
+    others = {"--save-map": "save_map", "--save-landmarks": "save_landmarks"}
+    outputs += [(f"the {o} file", getattr(args, n, None)) for o, n in others.items() if o != flag]
+    for what, other in (*inputs, *outputs):
+        if isinstance(other, str) and other and _same_place(path, other):
+            raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
+    cache = getattr(args, "cache", None)
+    if cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(cache):
+        raise UsageError(f"{flag} {path}: is in the --cache folder {cache}; choose another")
+
+
 def _check_landmark_flags(args: argparse.Namespace) -> None:
     """Refuse ``--landmarks pick`` without a display, and a bad ``--save-landmarks``, early."""
     save = getattr(args, "save_landmarks", None)
@@ -150,10 +187,7 @@ def _check_landmark_flags(args: argparse.Namespace) -> None:
             raise UsageError(f"--save-landmarks {save}: is a directory")
         if not os.path.isdir(os.path.dirname(os.path.abspath(save))):
             raise UsageError(f"--save-landmarks {save}: the folder does not exist")
-        for path in (args.source, args.target, args.landmarks):
-            if path and os.path.exists(path) and os.path.exists(save):
-                if os.path.samefile(path, save):
-                    raise UsageError(f"--save-landmarks {save}: is an input of this command")
+        _check_extra_output(args, save, "--save-landmarks")
     if args.landmarks != "pick":
         return
     from ..boundary.pick import has_display
@@ -249,12 +283,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
     if args.save_map:
         if not args.save_map.endswith(".npz"):
             raise UsageError(f"--save-map {args.save_map}: must end with .npz")
-        given = [f for f in args.map.split(",") if os.path.exists(f)]
-        if os.path.exists(args.save_map) and any(os.path.samefile(args.save_map, f) for f in given):
-            raise UsageError(
-                f"--save-map {args.save_map} is the --map file read: the map would replace "
-                "itself; give --save-map another name"
-            )
+        _check_extra_output(args, args.save_map, "--save-map")
         check_writable_folder(
             os.path.dirname(os.path.abspath(args.save_map)), args.save_map, flag="--save-map"
         )
