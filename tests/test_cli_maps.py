@@ -200,3 +200,25 @@ def test_side_outputs_may_not_replace_inputs_outputs_or_cache_entries(shapes, tm
     assert signal.read_bytes() == before and (tmp_path / "b2.npz").read_bytes() == basis
     assert not [f for f in tmp_path.iterdir() if f.suffix in (".ply", ".txt")]  # no result
     assert list(cache.iterdir()) == []
+
+
+def test_read_only_cache_folder_is_refused_before_the_work(shapes, tmp_path, capsys, monkeypatch):
+    """A read-only --cache folder is refused first, naming the flag.
+
+    Found by a trial: --cache into a read-only folder failed after the eigensolve (exit 1
+    for `basis`), naming a temporary file and not the flag.
+    """
+    _d, p, *_ = shapes
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
+        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
+    ))  # fmt: skip
+    for cache in (folder, folder / "sub" / "deeper"):
+        for argv in (["basis", p["src"]], ["approximate", p["src"], "-o", str(tmp_path / "a.ply")],
+                     ["transfer", p["src"], p["same"], "-o", str(tmp_path / "t.ply")]):  # fmt: skip
+            assert main([*argv, "--cache", str(cache)]) == 2, argv
+            err = _err(capsys)
+            assert f"--cache {cache}" in err and "cannot be written" in err, err
+    assert list(folder.iterdir()) == [] and not (tmp_path / "a.ply").exists()

@@ -205,9 +205,26 @@ def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
 
 
 def check_cache_dir(path: str | None) -> None:
-    """``--cache DIR`` must be a folder (created when missing), not a file."""
-    if path and os.path.exists(path) and not os.path.isdir(path):
+    """Refuse, before any work, a ``--cache DIR`` that is a file or cannot be written.
+
+    A missing folder is created later (its nearest existing parent must be writable). A
+    trial's read-only cache failed after the eigensolve, naming a temporary file.
+    """
+    if not path:
+        return
+    if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"--cache {path}: is a file, not a folder")
+    existing = os.path.abspath(path)
+    while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
+        parent = os.path.dirname(existing)
+        if parent == existing or (os.path.exists(existing) and not os.path.isdir(existing)):
+            raise UsageError(f"--cache {path}: {existing} is a file, not a folder")
+        existing = parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UsageError(
+            f"--cache {path}: the folder {existing} cannot be written (read-only or no "
+            "permission); choose another --cache folder"
+        )
 
 
 # --------------------------------------------------------------------------- bases
