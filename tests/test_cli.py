@@ -387,6 +387,15 @@ def test_basis_file_conflicting_with_k_is_refused(files, capsys, tmp_path):
     code = main(["approximate", files["src"], "--basis", str(out), "-k", "12", "-o",
                  str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2 and "holds a basis on k=8" in capsys.readouterr().err
+    # --order / --preset / --tol that disagree with the file are refused too (a trial's
+    # --order 3 ran with the file's order 2, silently); the file's own values are fine
+    approx = ["approximate", files["src"], "--basis", str(out), "-o", str(tmp_path / "x.ply")]
+    for extra, message in ((["--order", "3"], "holds a basis of order 2"),
+                           (["--preset", "ours*"], "threshold 0.01, but --preset ours*"),
+                           (["--tol", "1e-5"], "but --tol 1e-05")):  # fmt: skip
+        assert main([*approx, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
+    assert main([*approx, "--order", "2", "--preset", "ours"]) == 0
 
 
 @pytest.mark.parametrize("ext", [".obj", ".glb"])

@@ -10,6 +10,7 @@ import argparse
 import contextlib
 import glob
 import logging
+import math
 import os
 import sys
 import time
@@ -327,6 +328,7 @@ def basis_for(
                 f"{file_flag} {file}: holds a basis on k={B.k} eigenfunctions, but {k_flag} {k} "
                 f"was given; drop {k_flag} or recompute the basis"
             )
+        check_basis_file_options(args, B, file_flag, file)
         return B, B.eig
     k = default_k if k is None else k
     if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
@@ -354,6 +356,38 @@ def basis_for(
         return ofp_basis(eig, order=args.order, k=min(k, eig.k), **tol), eig
 
 
+class _Given(argparse.Action):
+    """Store the value and note that the flag was given (``args.given``: the flags' dests)."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
+        setattr(namespace, self.dest, values)
+        given = set(getattr(namespace, "given", ()) or ())
+        namespace.given = given | {self.dest}
+
+
+def check_basis_file_options(args: argparse.Namespace, B: Any, file_flag: str, file: str) -> None:
+    """Refuse --order / --preset / --tol that disagree with a basis read from a file.
+
+    Found by a trial: ``--basis FILE --order 3`` ran with the file's order 2, silently.
+    """
+    from ..core.orthogonalize import resolve_tol
+
+    given = getattr(args, "given", set()) or set()
+    if "order" in given and args.order != B.order:
+        raise UsageError(
+            f"{file_flag} {file}: holds a basis of order {B.order}, but --order {args.order} "
+            "was given; drop --order or recompute the basis"
+        )
+    if given & {"tol", "preset"}:
+        tol = resolve_tol(args.tol, None if args.tol is not None else args.preset)
+        if not math.isclose(tol, B.tol, rel_tol=1e-9):
+            flag = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
+            raise UsageError(
+                f"{file_flag} {file}: holds a basis orthogonalized with threshold {B.tol:g}, "
+                f"but {flag} (threshold {tol:g}) was given; drop it or recompute the basis"
+            )
+
+
 def add_basis_options(
     p: argparse.ArgumentParser,
     *,
@@ -366,14 +400,23 @@ def add_basis_options(
 
     if k is not None:
         p.add_argument("-k", "--k", type=positive_int, help=f"non-constant eigenfunctions ({k})")
-    p.add_argument("--order", type=positive_int, default=order, help=f"product order N ({order})")
+    p.add_argument(
+        "--order",
+        type=positive_int,
+        default=order,
+        action=_Given,
+        help=f"product order N ({order})",
+    )
     p.add_argument(
         "--preset",
         choices=("ours", "ours*"),
         default=preset,
+        action=_Given,
         help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})",
     )
-    p.add_argument("--tol", type=unit_float, help="explicit threshold in (0, 1) (over --preset)")
+    p.add_argument(
+        "--tol", type=unit_float, action=_Given, help="explicit threshold in (0, 1) (over --preset)"
+    )
     p.add_argument(
         "--components",
         choices=("auto", "largest", "error"),
