@@ -277,6 +277,44 @@ def test_bad_input_exits_2_with_one_line(files, capsys, tmp_path, argv, message)
     assert not any(p.name.startswith(("x.", ".")) for p in tmp_path.iterdir())
 
 
+def test_demo_flags_are_checked_before_the_work(tmp_path, capsys):
+    """Demo flags are checked, named, before any work; nothing is left for a refused demo.
+
+    Found by a trial: --subdivisions 0 was refused as "a positive integer" and 12 as
+    "subdivisions must be ..." (no flag); a too large -k failed inside the work; -o where no
+    folder can be made gave a raw errno after the work.
+    """
+    cases = [
+        (["--subdivisions", "1"], "--subdivisions: expected an integer in [2, 9]"),
+        (["--subdivisions", "12"], "--subdivisions: expected an integer in [2, 9]"),
+        (["--seed", "-5"], "--seed: expected an integer >= 0"),
+        (["--subdivisions", "2", "-k", "200"], "-k 200: the shape of --subdivisions 2 has 162"),
+        (["-o", str(tmp_path / "missing" / "demo")], "does not exist"),
+    ]
+    for extra, message in cases:
+        argv = ["demo", *extra] if "-o" in extra else ["demo", "-o", str(tmp_path / "d"), *extra]
+        assert main(argv) == 2, extra
+        assert message in capsys.readouterr().err, extra
+    assert list(tmp_path.iterdir()) == []  # no folder made for a refused demo
+
+
+def test_output_folder_is_removed_when_the_run_fails_before_writing(tmp_path):
+    from o3d_ofp.core._atomic import output_folder
+
+    with pytest.raises(KeyboardInterrupt), output_folder(tmp_path / "a" / "b"):
+        raise KeyboardInterrupt  # Ctrl-C during the work
+    assert not (tmp_path / "a" / "b").exists()
+    (tmp_path / "c").mkdir()
+    with pytest.raises(ValueError), output_folder(tmp_path / "c"):
+        raise ValueError  # a folder that was there stays
+    assert (tmp_path / "c").is_dir()
+    with pytest.raises(ValueError), output_folder(tmp_path / "d") as folder:
+        (tmp_path / "d" / "x.ply").write_text("written")
+        assert folder == str(tmp_path / "d")
+        raise ValueError  # not empty: kept with what was written
+    assert (tmp_path / "d" / "x.ply").exists()
+
+
 def test_demo_writes_meshes_a_png_and_prints_errors(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--subdivisions", "3", "-k", "12"]) == 0

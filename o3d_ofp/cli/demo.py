@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._common import report, stage
-from ._types import positive_int
+from ._common import UsageError, check_writable_folder, report, stage
+from ._types import bounded_int, nonnegative_int, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -25,26 +25,46 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--order", type=positive_int, default=2, help="product order N (2)")
     p.add_argument(
         "--subdivisions",
-        type=positive_int,
+        type=bounded_int(2, 9),
         default=5,
-        help="icosphere subdivisions of the shape (5: 10242 vertices)",
+        help="icosphere subdivisions of the shape, 2-9 (5: 10242 vertices; the map estimate "
+        "needs the 162 of 2)",
     )
-    p.add_argument("--seed", type=int, default=0, help="shape seed")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="shape seed (0)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo workflow, print its table, write its meshes and picture."""
-    from ..boundary.convert import require_open3d, triangle_mesh_from_arrays
-    from ..boundary.io import write_geometry
-    from ..render.panel import RenderError, render_panel
-    from ..workflows.demo import run_demo
+    from ..boundary.convert import require_open3d
+    from ..core._atomic import output_folder
 
     require_open3d()
     out = os.path.abspath(args.output)
     if os.path.exists(out) and not os.path.isdir(out):
         raise FileExistsError(f"-o {args.output}: is a file, not a folder")
-    os.makedirs(out, exist_ok=True)
+    check_writable_folder(out if os.path.isdir(out) else os.path.dirname(out), args.output)
+    n_vertices = 10 * 4**args.subdivisions + 2  # the icosphere the blob is made from
+    if args.k > n_vertices - 1:
+        raise UsageError(
+            f"-k {args.k}: the shape of --subdivisions {args.subdivisions} has {n_vertices} "
+            f"vertices: at most {n_vertices - 1}"
+        )
+    try:
+        with output_folder(out):  # a refused or interrupted demo leaves no empty folder
+            return _run(args, out)
+    except OSError as exc:
+        if exc.filename and os.path.abspath(exc.filename) == out:
+            raise UsageError(f"-o {args.output}: cannot make the folder ({exc.strerror})") from exc
+        raise
+
+
+def _run(args: argparse.Namespace, out: str) -> int:
+    from ..boundary.convert import triangle_mesh_from_arrays
+    from ..boundary.io import write_geometry
+    from ..render.panel import RenderError, render_panel
+    from ..workflows.demo import run_demo
+
     with stage("demo: bases, approximations and a transfer"):
         result = run_demo(
             subdivisions=args.subdivisions, seed=args.seed, k=args.k, order=args.order

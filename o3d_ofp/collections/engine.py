@@ -38,7 +38,7 @@ from ..boundary.convert import (
 )
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import mesh_texture, no_texture_message, texture_colors
-from ..core._atomic import atomic_path
+from ..core._atomic import atomic_path, output_folder
 from ..core.orthogonalize import resolve_tol
 from ..core.texture import MAX_TEXTURE_SIZE
 from ..workflows import matching as _matching
@@ -794,20 +794,13 @@ def _output_folder(out_dir: str | None) -> Iterator[None]:
     if out_dir is None:
         yield
         return
-    created = not os.path.isdir(out_dir)
-    os.makedirs(out_dir, exist_ok=True)
-    try:
+    with output_folder(out_dir):  # removed again if the run fails before writing anything
         if not os.access(out_dir, os.W_OK | os.X_OK):
             raise PermissionError(
                 f"{out_dir}: the output folder cannot be written (read-only or no permission); "
                 "choose another output folder"
             )
         yield
-    except BaseException:
-        if created:  # a run that failed before writing anything leaves no empty folder
-            with contextlib.suppress(OSError):
-                os.rmdir(out_dir)
-        raise
 
 
 def _spec(i: int, item: Any, name: str, output: str | None, kind: str) -> ShapeSpec | TargetResult:

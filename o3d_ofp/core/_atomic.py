@@ -7,7 +7,7 @@ import os
 import tempfile
 from collections.abc import Iterator
 
-__all__ = ["atomic_path", "current_umask", "default_file_mode"]
+__all__ = ["atomic_path", "current_umask", "default_file_mode", "output_folder"]
 
 
 def _umask_from_proc() -> int | None:
@@ -77,3 +77,22 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[s
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike[str]) -> Iterator[str]:
+    """Create the folder ``path`` (with its parents) for the outputs of a run.
+
+    On any exception, an interrupt included, a folder this call created is removed again
+    when it is still empty: a refused or interrupted run leaves no empty folder behind.
+    """
+    path = os.fspath(path)
+    created = not os.path.isdir(path)
+    os.makedirs(path, exist_ok=True)
+    try:
+        yield path
+    except BaseException:
+        if created:
+            with contextlib.suppress(OSError):
+                os.rmdir(path)
+        raise
