@@ -452,3 +452,28 @@ def test_picking_window_wiring_with_a_stand_in_visualizer(legacy_mesh, monkeypat
     StandIn.opens = False
     with pytest.raises(RuntimeError, match="could not open a window"):
         pick._pick_in_window(legacy_mesh, "source")
+
+
+def test_a_file_that_may_not_be_read_is_named_so(tmp_path, monkeypatch):
+    """A file this process may not read is refused as such.
+
+    Found by a trial: an unreadable file was "a file Open3D could not read any vertices
+    from" (RPly printed twice). Root reads every file: the open is made to fail here.
+    """
+    import builtins
+    import os
+
+    from o3d_ofp import read_geometry, write_geometry
+
+    path = tmp_path / "locked.ply"
+    write_geometry(path, adapters.triangle_mesh_from_arrays(*icosphere(1)))
+    real_open = builtins.open
+
+    def refuse(file, *args, **kwargs):
+        if os.fspath(file) == str(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", refuse)
+    with pytest.raises(PermissionError, match=r"locked\.ply: cannot be read \(permission denied\)"):
+        read_geometry(path)

@@ -997,3 +997,29 @@ def test_memory_estimate_does_not_refuse_a_cache_hit(files, capsys, tmp_path, mo
     capsys.readouterr()
     assert main([*argv, str(tmp_path / "c.ply")]) == 2
     _one_line_error(capsys, "needs about", "-k or --order")
+
+
+def test_messages_a_trial_found_unclear(files, tmp_path, capsys, no_eigensolve):
+    """Each names the flag or the command and says what is wrong, before any eigensolve."""
+    src, out = files["src"], str(tmp_path / "x.ply")
+    junk = tmp_path / "junk.npy"
+    junk.write_text("garbage")
+    cases = [
+        (["detail", src, files["tgt"], "--signal", "xyz", "-o", out],
+         "o3d-ofp detail: error: unrecognized arguments: --signal xyz (see o3d-ofp detail"),
+        (["approximate", src, "--signal", str(junk), "-o", out],
+         "does not start with the .npy header"),
+        (["transfer", src, files["tgt"], "--signal", "xyz", "--k1", "700", "-o", out],
+         "--k1 700: must be smaller than the number of vertices"),
+        (["render", src, "--width", "1", "-o", str(tmp_path / "r.png")],
+         "--width: expected an integer in [16, 8192]"),
+        (["render", src, "--front", "0,0,1", "--up", "0,0,2", "-o", str(tmp_path / "r.png")],
+         "--up 0,0,2 is parallel to --front 0,0,1"),
+        (["render", src, "--label", "error", "-o", str(tmp_path / "r.png")],
+         "--label names the color bar of --scalars"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = _err(capsys)
+        assert message in err and "pickle" not in err, (argv, err)
+    assert main(["--version"]) == 0 and capsys.readouterr().out.startswith("o3d-ofp 0.")

@@ -119,6 +119,8 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     ------
     FileNotFoundError
         If ``path`` does not exist.
+    PermissionError
+        If this process may not read it.
     ValueError
         If Open3D cannot read it, it holds no points, or it is cut short (checked against the
         PLY header, since Open3D only prints a warning and fills the rest with zeros).
@@ -129,6 +131,11 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         raise FileNotFoundError(f"{path}: no such file")
     if os.path.getsize(path) == 0:
         raise ValueError(f"{path}: the file is empty")
+    try:  # Open3D says only "could not read any vertices" when it may not open the file
+        with open(path, "rb"):
+            pass
+    except PermissionError as exc:
+        raise PermissionError(f"{path}: cannot be read (permission denied)") from exc
     # Open3D prints a warning for a file with points but no triangles: that case is handled.
     with open3d_errors_only():
         mesh = o3d.io.read_triangle_mesh(path)

@@ -101,6 +101,13 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     """Load a real-valued ``.npy`` array; one-line errors name the file and the flag."""
     if not os.path.isfile(path):
         raise UsageError(f"{flag} {path}: no such file")
+    with open(path, "rb") as fh:
+        magic = fh.read(6)
+    if magic != b"\x93NUMPY":  # NumPy's own message speaks of pickles for any other file
+        raise UsageError(
+            f"{flag} {path}: not a NumPy .npy file ({what}): it does not start with the .npy "
+            "header (write it with numpy.save)"
+        )
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

@@ -346,6 +346,13 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     from ._common import check_job_memory
 
     estimate = pair.correspondence is None
+    for side, path, V, k, file in ((1, args.source, pair.V1, args.k1, args.basis_1),
+                                   (2, args.target, pair.V2, args.k2, args.basis_2)):  # fmt: skip
+        if k is not None and not file and k > V.shape[0] - 2:  # before the memory estimate
+            raise UsageError(
+                f"--k{side} {k}: must be smaller than the number of vertices of {path} minus "
+                f"one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"
+            )
     jobs = [
         (path, V.shape[0], k or default, required_k(V.shape[0], ESTIMATION_K) if estimate else 0,
          args.order)

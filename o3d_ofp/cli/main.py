@@ -16,6 +16,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from .. import __version__
 from ..core._warnings import OFPWarning
 from . import approximate, basis, demo, detail, filter, render, transfer
 from ._common import OUT, UsageError
@@ -59,8 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
         "bases, approximation, filtering and transfer of signals between shapes.",
     )
     parser.add_argument(
-        "-v", "--verbose", action="count", default=0, help="details and tracebacks (repeatable)"
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more details (repeatable; with it an internal error shows its traceback)",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
         "-q", "--quiet", action="store_true", help="print nothing but errors (files are written)"
     )
@@ -113,7 +119,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # said by the command's parser: its name and its --help
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help
         return int(exc.code or 0)
     if args.quiet:

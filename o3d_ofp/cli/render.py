@@ -7,8 +7,9 @@ import os
 
 import numpy as np
 
+from ..render.panel import MAX_SIDE, MIN_SIDE
 from ._common import MESH_HELP, UsageError, check_output, load_npy, read_shape, report, stage
-from ._types import positive_int, unit_float, vector3
+from ._types import bounded_int, positive_int, unit_float, vector3
 
 __all__ = ["add_parser", "run"]
 
@@ -23,9 +24,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--colormap", default="viridis", help="matplotlib colormap (viridis)")
     p.add_argument("--label", help="label of the color bar (with --scalars)")
-    p.add_argument("--width", type=positive_int, help="tile width in pixels")
-    p.add_argument("--height", type=positive_int, help="tile height in pixels")
-    p.add_argument("--columns", type=positive_int, help="tiles per row (up to 6)")
+    side = bounded_int(MIN_SIDE, MAX_SIDE)
+    p.add_argument("--width", type=side, help=f"tile width in pixels ({MIN_SIDE}-{MAX_SIDE})")
+    p.add_argument("--height", type=side, help=f"tile height in pixels ({MIN_SIDE}-{MAX_SIDE})")
+    p.add_argument(
+        "--columns", type=positive_int, help="tiles per row (default: all, up to 6 per row)"
+    )
     p.add_argument("--front", type=vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
     p.add_argument("--up", type=vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
     p.add_argument("--zoom", type=unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
@@ -38,6 +42,14 @@ def run(args: argparse.Namespace) -> int:
     from ..render.panel import View, geometry_items, render_panel
 
     check_output(args.output, (".png",), inputs=args.mesh)
+    if args.label and not args.scalars:
+        raise UsageError("--label names the color bar of --scalars: give --scalars too")
+    view = View(front=args.front, up=args.up, zoom=args.zoom)
+    try:
+        view.check()
+    except ValueError as exc:
+        up, front = (",".join(f"{x:g}" for x in v) for v in (args.up, args.front))
+        raise UsageError(f"--up {up} is parallel to --front {front}; give another --up") from exc
     titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
     if len(titles) != len(args.mesh):
         raise UsageError(f"--titles has {len(titles)} entries for {len(args.mesh)} meshes")
@@ -63,7 +75,6 @@ def run(args: argparse.Namespace) -> int:
             colors, texture = values.astype(np.float64), None
         items.append((V, F, colors))
         textures.append(texture)
-    view = View(front=args.front, up=args.up, zoom=args.zoom)
     options = {k: v for k, v in (("width", args.width), ("height", args.height)) if v}
     if args.label:
         options["colorbar_label"] = args.label

@@ -243,6 +243,15 @@ class OFPBasis:
         # Our own handle, closed on every path: np.load leaks the one it opens itself when
         # the zip directory of a cut-short file cannot be read.
         with open(path, "rb") as fh:
+            head = fh.read(6)
+            fh.seek(0)
+            if head.startswith(b"\x93NUMPY"):  # one .npy array
+                raise _NotABasis(f"{path!r} is not an o3d_ofp basis file (.npz)")
+            if head and not head.startswith(b"PK"):  # np.load would speak of pickles
+                raise _NotABasis(
+                    f"{path!r} is not an .npz archive (bases are written by OFPBasis.save, "
+                    "o3d-ofp basis or --cache)"
+                )
             try:
                 data = np.load(fh, allow_pickle=False)
                 if not isinstance(data, np.lib.npyio.NpzFile):  # one .npy array

@@ -35,6 +35,8 @@ from ..core._atomic import atomic_path
 from ..core._validation import as_faces, as_signal, as_vertices
 
 __all__ = [
+    "MAX_SIDE",
+    "MIN_SIDE",
     "RenderError",
     "RenderUnavailable",
     "View",
@@ -51,7 +53,8 @@ logger = logging.getLogger(__name__)
 
 _WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_worker.py")
 _NO_CONTEXT, _NO_OPEN3D = 3, 4  # the worker's exit statuses
-_MAX_SIDE = 8192
+#: Tile sides accepted, in pixels.
+MIN_SIDE, MAX_SIDE = 16, 8192
 
 
 class RenderError(RuntimeError):
@@ -147,6 +150,10 @@ class View:
     up: tuple[float, float, float] = (0.0, 1.0, 0.0)
     zoom: float = 0.6
 
+    def check(self) -> None:
+        """Raise ValueError for a bad view (see the attributes) before any rendering."""
+        self._checked()
+
     def _checked(self) -> tuple[np.ndarray, np.ndarray, float]:
         front = np.asarray(self.front, dtype=np.float64).reshape(-1)
         up = np.asarray(self.up, dtype=np.float64).reshape(-1)
@@ -209,8 +216,8 @@ def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[s
 
 
 def _checked_size(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 16 <= value <= _MAX_SIDE:
-        raise ValueError(f"{name} must be an integer in [16, {_MAX_SIDE}]; got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not MIN_SIDE <= value <= MAX_SIDE:
+        raise ValueError(f"{name} must be an integer in [{MIN_SIDE}, {MAX_SIDE}]; got {value!r}")
     return value
 
 
