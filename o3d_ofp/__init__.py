@@ -32,6 +32,7 @@ from .boundary.io import read_geometry, write_geometry
 from .boundary.pick import pick_landmarks
 from .boundary.texture import texture_colors
 from .collections import TargetResult, bases_many, transfer_many, write_summary
+from .core._version import __version__
 from .core._warnings import OFPWarning
 from .core.basis import OFPBasis, approximation_error, ofp_basis
 from .core.cleaning import CleaningReport, clean_shape
@@ -46,8 +47,6 @@ from .core.transfer import transfer_matrix, transfer_signal
 from .render import render_panel, show
 from .workflows.matching import Correspondence, MapQuality, match_eigenbases
 from .workflows.pipeline import transfer_function
-
-__version__ = "0.1.0"
 
 __all__ = [
     "PRESETS",

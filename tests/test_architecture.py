@@ -212,3 +212,12 @@ def test_package_functions_have_real_signatures_and_docs(name):
     assert not any(p.kind in (p.VAR_POSITIONAL,) for p in params.values()), name
     assert fn.__doc__ and "Parameters" in fn.__doc__, name
     assert name in ofp.__all__
+
+
+def test_the_version_is_the_projects():
+    import tomllib
+
+    from o3d_ofp import __version__
+
+    with open(ROOT.parent / "pyproject.toml", "rb") as fh:
+        assert tomllib.load(fh)["project"]["version"] == __version__

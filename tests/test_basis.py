@@ -97,7 +97,7 @@ def test_save_load_round_trip(tmp_path, blob_mesh):
     assert (C.eig.stiffness != eig.stiffness).nnz == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["basis.npz"]  # no temp file left
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(ValueError, match=r"is not an \.npz archive") as info:  # no pickles
+    with pytest.raises(ValueError, match=r"not an \.npz archive") as info:  # no pickles
         ofp.OFPBasis.load(tmp_path / "junk.npz")
     assert "pickle" not in str(info.value)
     (tmp_path / "cut.npz").write_bytes((tmp_path / "basis.npz").read_bytes()[:100])

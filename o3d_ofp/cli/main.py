@@ -16,7 +16,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from .. import __version__
+from ..core._version import __version__
 from ..core._warnings import OFPWarning
 from . import approximate, basis, demo, detail, filter, render, transfer
 from ._common import OUT, UsageError

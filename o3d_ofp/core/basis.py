@@ -249,8 +249,8 @@ class OFPBasis:
                 raise _NotABasis(f"{path!r} is not an o3d_ofp basis file (.npz)")
             if head and not head.startswith(b"PK"):  # np.load would speak of pickles
                 raise _NotABasis(
-                    f"{path!r} is not an .npz archive (bases are written by OFPBasis.save, "
-                    "o3d-ofp basis or --cache)"
+                    f"{path!r} is not an o3d_ofp basis file: not an .npz archive (bases are "
+                    "written by OFPBasis.save, o3d-ofp basis or --cache)"
                 )
             try:
                 data = np.load(fh, allow_pickle=False)
