@@ -111,15 +111,6 @@ def run(args: argparse.Namespace) -> int:
                 args.target,
             )
         return _bake(args, pair)
-    if args.signal is None and pair.F2 is not None and has_uvs(pair.source):
-        if has_uvs(pair.target):
-            logger.warning(
-                "%s has UVs, but %s cannot hold a texture: the source's texture goes to the "
-                "target's vertex colors (blurrier) and the target's UVs are not written; write "
-                ".obj/.glb/.gltf to bake it into the target's UVs",
-                args.target,
-                args.output,
-            )
     if args.texture_size is not None:
         raise UsageError(
             "--texture-size applies to a bake (a textured source onto a mesh target with UVs, "
@@ -130,6 +121,14 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
         )
     spec = args.signal or _default_signal(pair.source)
+    if args.signal is None and spec == "texture" and pair.F2 is not None and has_uvs(pair.target):
+        logger.warning(
+            "%s has UVs, but %s cannot hold a texture: the source's texture goes to the "
+            "target's vertex colors (blurrier) and the target's UVs are not written; write "
+            ".obj/.glb/.gltf to bake it into the target's UVs",
+            args.target,
+            args.output,
+        )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
     pair = map_first(args, pair)
     given = pair.correspondence

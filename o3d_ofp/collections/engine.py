@@ -486,7 +486,11 @@ class _OutputsRecord:
                 f"{k} {before.get(k)!r} -> {v!r}" for k, v in self.options.items()
                 if before.get(k) != v
             ]  # fmt: skip
-            why = "made with other options: " + ", ".join(changed)
+            why = (
+                "made with other options: " + ", ".join(changed)
+                if changed
+                else "recorded by another version of o3d_ofp"
+            )
         logger.info("%s: %s is redone (%s)", name, output, why)
         return False
 
