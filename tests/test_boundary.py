@@ -477,3 +477,50 @@ def test_a_file_that_may_not_be_read_is_named_so(tmp_path, monkeypatch):
     monkeypatch.setattr(builtins, "open", refuse)
     with pytest.raises(PermissionError, match=r"locked\.ply: cannot be read \(permission denied\)"):
         read_geometry(path)
+
+
+def test_open3d_level_findings_of_a_python_trial():
+    """Findings of a Python API trial, each fixed.
+
+    Integer tensor colors keep their scale (uint16 came out as 0 or 1), RGBA sources give
+    their RGB, options are named, filter_geometry takes a (vertices, faces) tuple.
+    """
+    import o3d_ofp as ofp
+
+    V, F = icosphere(2)
+    n = len(V)
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = o3d.core.Tensor(V.astype(np.float32))
+    mesh.triangle.indices = o3d.core.Tensor(F.astype(np.int64))
+    rng = np.random.default_rng(0)
+    identity = np.arange(n)
+    for dtype in (np.uint8, np.uint16):
+        top = np.iinfo(dtype).max
+        src, tgt = mesh.clone(), mesh.clone()
+        src.vertex.colors = o3d.core.Tensor((rng.random((n, 3)) * top).astype(dtype))
+        tgt.vertex.colors = o3d.core.Tensor(np.zeros((n, 3), dtype))
+        out = ofp.transfer_colors(src, tgt, p2p_21=identity, via_basis=False)
+        got = out.vertex.colors.numpy()  # the target's dtype, on its full scale
+        assert got.dtype == dtype
+        assert np.abs(got.astype(float) - src.vertex.colors.numpy()).max() <= 1
+    rgba = mesh.clone()
+    rgba.vertex.colors = o3d.core.Tensor(rng.random((n, 4)).astype(np.float32))
+    out = ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, via_basis=False)
+    rgb = rgba.vertex.colors.numpy()[:, :3]
+    np.testing.assert_allclose(out.vertex.colors.numpy(), rgb, atol=1e-6)
+    two = mesh.clone()
+    two.vertex.colors = o3d.core.Tensor(rng.random((n, 2)).astype(np.float32))
+    with pytest.raises(ValueError, match=r"colors have shape \(162, 2\)"):
+        ofp.transfer_colors(two, mesh.clone(), p2p_21=identity)
+    with pytest.raises(TypeError, match="via_basis must be True, False or None"):
+        ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, via_basis="no")
+    with pytest.raises(TypeError, match="bases must be a pair"):
+        ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, bases=(None,))
+    with pytest.raises(TypeError, match="keep_volume must be True or False"):
+        ofp.filter_geometry(mesh, smooth=0.01, keep_volume="no")
+    smoothed = ofp.filter_geometry((V, F), smooth=0.01)  # the README's tuple input
+    assert np.asarray(smoothed.vertices).shape == V.shape
+    from o3d_ofp.boundary.bake import with_uv_atlas
+
+    with pytest.raises(ValueError, match=r"size=3: Open3D could not lay out a UV atlas"):
+        with_uv_atlas(mesh, size=3)  # was Open3D's RuntimeError, no word of the size

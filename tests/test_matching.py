@@ -198,3 +198,49 @@ def test_a_map_used_on_other_shapes_is_warned_about(pair, reference, tmp_path):
     back = Correspondence.load(tmp_path / "m.npz")
     for a, b in zip(back.signatures, reference.signatures, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_api_findings_of_a_python_trial(pair, tmp_path):
+    """What a notebook user met, each said or named (a Python API trial).
+
+    A repeated doubtful result said again, options named, eigenbases of another shape said,
+    a collapsed given map said, save/load messages.
+    """
+    import subprocess
+    import sys
+
+    (V1, F1), (V2, F2) = pair
+    # the same doubtful call twice in a plain script: two warnings (Python's default would
+    # show one per place in the library)
+    script = (
+        "import numpy as np, o3d_ofp as ofp\n"
+        "from o3d_ofp.core.shapes import blob\n"
+        "V, F = blob(2)\n"
+        "e = ofp.eigenbasis(V, F, k=10)\n"
+        "for _ in range(2):\n"
+        "    ofp.transfer_function(V, e, e, p2p_21=np.zeros(len(V), int), k1=5, k2=5)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.count("the map collapses") == 2, run.stderr
+    e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
+    # options of the estimation are named before any work
+    for options, message in (
+        ({"w_orient": "1"}, "w_orient must be a finite number"),
+        ({"w_orient": float("nan")}, "w_orient must be a finite number"),
+        ({"zoomout_subsample": -5}, "zoomout_subsample must be None or an integer >= 2"),
+        ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            ofp.match((V1, F1), (V2, F2), **options)
+    with pytest.raises(TypeError, match="eigenbases must be a pair"):
+        ofp.match((V1, F1), (V2, F2), eigenbases=e1)
+    # eigenbases swapped (same vertex count, other shapes): said
+    with pytest.warns(ofp.OFPWarning, match="eigenbasis"):
+        ofp.match((V1, F1), (V2, F2), eigenbases=(e2, e1))
+    # Correspondence files: a missing file, a missing folder, both named
+    with pytest.raises(FileNotFoundError, match="no such correspondence file"):
+        Correspondence.load(tmp_path / "nope.npz")
+    corr = Correspondence(p2p_21=np.arange(len(V2)), n_source=len(V1))
+    with pytest.raises(FileNotFoundError, match=r"the folder .*nodir does not exist"):
+        corr.save(tmp_path / "nodir" / "map.npz")

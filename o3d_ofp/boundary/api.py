@@ -348,6 +348,17 @@ def match(
             descriptors=descriptors,
             w_orient=w_orient,
         )
+    elif method == "estimate":
+        from ..workflows.matching import check_match_options
+
+        check_match_options(
+            k_fit=k_fit,
+            zoomout_to=zoomout_to,
+            zoomout_subsample=zoomout_subsample,
+            descriptors=descriptors,
+            w_orient=w_orient,
+        )
+    _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     if method == "closest":
@@ -396,11 +407,29 @@ def match(
                 f"the {name} eigenbasis has {eig.n_vertices} vertices but the {name} has "
                 f"{V.shape[0]}: it belongs to another shape"
             )
+        # the same count, another shape (swapped, another pose): said, as by the transfers
+        warn_other_shape(eig, V, f"the {name} eigenbasis", f"the {name}")
     if partial:
         from ..workflows.partial import match_partial_eigenbases
 
         return match_partial_eigenbases(eig_1, eig_2, **options)
     return match_eigenbases(eig_1, eig_2, **options)
+
+
+def _check_pair(value: Any, name: str, kind: type, made_by: str) -> None:
+    """Refuse a ``name=`` that is not a (source, target) pair of ``kind`` (None passes)."""
+    if value is None:
+        return
+    if not (
+        isinstance(value, tuple | list)
+        and len(value) == 2
+        and all(isinstance(v, kind) for v in value)
+    ):
+        raise TypeError(
+            f"{name} must be a pair (source, target) of {kind.__name__} from {made_by}; got "
+            f"{type(value).__name__}"
+            + (f" of {len(value)}" if isinstance(value, tuple | list) else "")
+        )
 
 
 def transfer_colors(
@@ -469,6 +498,10 @@ def transfer_colors(
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
     """
+    if via_basis is not None and not isinstance(via_basis, bool):
+        raise TypeError(f"via_basis must be True, False or None; got {via_basis!r}")
+    _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
+    _check_pair(bases, "bases", OFPBasis, "ofp.ofp_basis")
     source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
@@ -627,6 +660,8 @@ def transfer_detail(
     mode, band, amount = check_detail_options(
         mode=mode, band=band, amount=amount, names={"band": "band" if k_low is None else "k_low"}
     )
+    _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
+    _check_pair(bases, "bases", OFPBasis, "ofp.ofp_basis")
     source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
@@ -779,8 +814,10 @@ def filter_geometry(
         smooth = check_amount(DEFAULT_SMOOTH if smooth is None else smooth, "smooth", MAX_SMOOTH)
         if sharpen is not None:
             sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
+    if not isinstance(keep_volume, bool):
+        raise TypeError(f"keep_volume must be True or False; got {keep_volume!r}")
     geometry = _read_if_path(geometry, "geometry")
-    V, F = geometry_to_arrays(geometry)
+    V, F = as_arrays(geometry, name="geometry")  # a (vertices, faces) tuple too
     if basis is not None and basis.n_vertices != V.shape[0]:
         raise ValueError(
             f"basis has {basis.n_vertices} vertices but the geometry has {V.shape[0]}: it "

@@ -216,8 +216,14 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
     t = mesh.clone() if kind == "tensor_mesh" else o3d.t.geometry.TriangleMesh.from_legacy(mesh)
     n = t.vertex.positions.shape[0]
     logger.info("texture transfer: computing a UV atlas for the target (%d vertices)", n)
-    with open3d_errors_only():  # it prints "[Open3D INFO] actual parallel_partitions ..."
-        t.compute_uvatlas(size=int(size))
+    try:
+        with open3d_errors_only():  # it prints "[Open3D INFO] actual parallel_partitions ..."
+            t.compute_uvatlas(size=int(size))
+    except RuntimeError as exc:  # e.g. size 3: "[Open3D Error] ..." and nothing of the size
+        raise ValueError(
+            f"size={size}: Open3D could not lay out a UV atlas in {size} x {size} texels; give "
+            "a larger size (the default is 1024)"
+        ) from exc
     out = t.to_legacy()
     if len(out.vertices) != n or not out.has_triangle_uvs():
         raise ValueError("Open3D's compute_uvatlas changed the mesh's vertices or gave no UVs")

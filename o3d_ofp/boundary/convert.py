@@ -178,6 +178,14 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
             if np.issubdtype(colors.dtype, np.integer):  # uint8 colors in the tensor API
                 colors = colors.astype(np.float64) / np.iinfo(colors.dtype).max
             colors = colors.astype(np.float64)
+            if colors.ndim == 2 and colors.shape[1] == 4 and colors.size:  # RGBA: the RGB
+                logger.info("the geometry's colors are RGBA: their RGB channels are used")
+                colors = colors[:, :3]
+            elif colors.size and (colors.ndim != 2 or colors.shape[1] != 3):
+                raise ValueError(
+                    f"the geometry's colors have shape {colors.shape}: expected (n, 3) RGB "
+                    "(or (n, 4) RGBA) values"
+                )
     if colors is None or colors.size == 0:
         return None
     return colors.reshape(-1, 3)
@@ -382,9 +390,12 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
         if kind == "tensor_cloud" and "normals" in attrs:
             out.estimate_normals()
     if C is not None:
-        old = attrs["colors"].dtype if "colors" in attrs else o3d.core.float32
-        if old == o3d.core.uint8:
-            attrs["colors"] = o3d.core.Tensor(np.round(C * 255.0).astype(np.uint8))
+        old = attrs["colors"].numpy() if "colors" in attrs else np.empty((0, 3), np.float32)
+        if old.ndim != 2 or old.shape[1] != 3:  # e.g. RGBA: plain float RGB replaces them
+            old = np.empty((0, 3), np.float32)
+        if np.issubdtype(old.dtype, np.integer):  # the target's integer colors, full scale
+            top = np.iinfo(old.dtype).max
+            attrs["colors"] = o3d.core.Tensor(np.round(C * top).astype(old.dtype))
         else:
-            attrs["colors"] = o3d.core.Tensor(C).to(old)
+            attrs["colors"] = o3d.core.Tensor(C.astype(old.dtype))
     return out

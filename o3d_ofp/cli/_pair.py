@@ -398,33 +398,27 @@ def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool
     return not getattr(args, "partial", False) and uses_dense_path(V1.shape[0], V2.shape[0], meshes)
 
 
-#: A map read from a file is said to collapse when it hits fewer distinct source vertices than
-#: this fraction of the smaller shape's vertex count. Lower than the estimated maps' bound
-#: (``MIN_COVERAGE``, 0.2): a right map through a coarser template (scans of 50k vertices, a
-#: 6890-vertex template) hits at most the template's vertices, 0.13 of the shapes'.
-GIVEN_MAP_COLLAPSE = 0.02
 
 
 def _check_given_map(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray) -> None:
     """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
 
     A map file of the right length and range can still be garbage (another pair's map, a
-    broken export): when fewer distinct source vertices than :data:`GIVEN_MAP_COLLAPSE` of
-    the smaller shape are hit, the result would be a few flat colors. A map saved by
+    broken export): when fewer distinct source vertices than
+    :data:`o3d_ofp.workflows.matching.GIVEN_MAP_COLLAPSE` of the smaller shape are hit, the
+    result would be a few flat colors. A map saved by
     ``--save-map`` (.npz) also carries its quality, printed here, and the signatures of the
     shapes it was made for: a map saved suspect, or made for other shapes (source and target
     swapped, another pair with the same vertex counts), is doubtful too.
     """
+    from ..workflows.matching import given_map_collapse
     from ._common import report
 
     n1, n2 = V1.shape[0], V2.shape[0]
     reasons = []
-    hit = int(np.unique(corr.p2p_21).size)
-    if hit < GIVEN_MAP_COLLAPSE * min(n1, n2):
-        reasons.append(
-            f"the map from --map {args.map} collapses: only {hit} distinct source vertices for "
-            f"{n2} target vertices (a map of other shapes, or a broken file?)"
-        )
+    collapse = given_map_collapse(corr.p2p_21, n1, n2)
+    if collapse is not None:
+        reasons.append(f"--map {args.map}: {collapse}")
     if args.map.endswith(".npz"):
         other = corr.mismatch(V1, V2, name=f"--map {args.map}")
         if other is not None:

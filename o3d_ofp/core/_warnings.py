@@ -3,8 +3,8 @@
 The package logs through :mod:`logging` (a ``NullHandler`` by default: nothing is printed
 unless the application configures logging). A doubtful result the caller should act on (a
 suspect map, detail added on top of detail, parts of a shape left out) is also issued as an
-:class:`OFPWarning` with :func:`warnings.warn`, which Python shows by default (once per call
-site); the command line, which prints the log, silences these duplicates.
+:class:`OFPWarning` with :func:`warnings.warn`, which Python shows by default (at every
+doubtful call); the command line, which prints the log, silences these duplicates.
 """
 
 from __future__ import annotations
@@ -17,6 +17,12 @@ __all__ = ["OFPWarning", "warn"]
 
 class OFPWarning(UserWarning):
     """A doubtful result of o3d_ofp that the caller can act on (the message names the fix)."""
+
+
+# Shown at every doubtful call, not once per line of the library: a notebook cell run again
+# on the same mistake must say it again (Python's default shows a warning once per place).
+# Appended: the caller's own filters (e.g. "ignore", or pytest's) still come first.
+warnings.filterwarnings("always", category=OFPWarning, append=True)
 
 
 def warn(logger: logging.Logger, message: str, *, stacklevel: int = 3) -> None:

@@ -40,10 +40,13 @@ from .dense import COARSE_VERTICES, DENSE_VERTICES, match_dense
 __all__ = [
     "ESTIMATION_K",
     "FIT_K",
+    "GIVEN_MAP_COLLAPSE",
     "Correspondence",
     "MapQuality",
     "alignment_residual",
     "check_landmarks",
+    "check_match_options",
+    "given_map_collapse",
     "map_quality",
     "match_arrays",
     "match_eigenbases",
@@ -63,6 +66,11 @@ FIT_K = 29
 #: shape's vertex count are hit. Measured on correct maps between the shared data's pairs:
 #: 0.45-0.65 (a nearest-neighbour map is never a bijection); a collapsed map: < 0.01.
 MIN_COVERAGE = 0.2
+#: A map given by the caller (a file, an array) is said to collapse when it hits fewer distinct
+#: source vertices than this fraction of the smaller shape's vertex count. Lower than the
+#: estimated maps' bound (``MIN_COVERAGE``): a right map through a coarser template (scans of
+#: 50k vertices, a 6890-vertex template) hits at most the template's vertices, 0.13 of them.
+GIVEN_MAP_COLLAPSE = 0.02
 #: ... or when the unit-area functional map is this far from orthogonal (‖CᵀC − I‖_F / √k).
 #: Measured: correct maps 0.1-0.3; failed ones above 0.6.
 MAX_ORTHOGONALITY = 0.5
@@ -596,6 +604,11 @@ class Correspondence:
         ----------
         path : str or os.PathLike
             Destination (``.npz`` is appended when missing).
+
+        Raises
+        ------
+        FileNotFoundError
+            If the destination's folder does not exist.
         """
         payload: dict[str, Any] = {
             "format_version": np.int64(_FORMAT_VERSION),
@@ -617,6 +630,9 @@ class Correspondence:
         path = os.fspath(path)
         if not path.endswith(".npz"):
             path += ".npz"
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder):  # said of the file asked for, not of a temporary one
+            raise FileNotFoundError(f"{path}: the folder {folder} does not exist")
         with atomic_path(path, suffix=".npz") as tmp:
             np.savez(tmp, **payload)
 
@@ -626,12 +642,16 @@ class Correspondence:
 
         Raises
         ------
+        FileNotFoundError
+            If there is no such file.
         ValueError
             If the file cannot be read or is not a correspondence file (the message names it).
         """
         import zipfile
 
         name = os.fspath(path)
+        if not os.path.isfile(name):
+            raise FileNotFoundError(f"{name}: no such correspondence file")
         try:
             if not zipfile.is_zipfile(name):  # np.load would speak of pickles
                 raise ValueError(
@@ -765,6 +785,56 @@ def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray 
                 f"({', '.join(map(str, partners))}): give one pair per vertex"
             )
     return lm.astype(np.int64)
+
+
+def given_map_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> str | None:
+    """Why a map given by the caller is doubtful: it collapses (:data:`GIVEN_MAP_COLLAPSE`)."""
+    hit = int(np.unique(p2p_21).size)
+    if hit >= GIVEN_MAP_COLLAPSE * min(n_source, n_target):
+        return None
+    return (
+        f"the map collapses: only {hit} distinct source vertices for {n_target} target "
+        "vertices (a map of other shapes, or a broken one?): the result is a few flat values"
+    )
+
+
+def check_match_options(
+    *,
+    k_fit: Any = FIT_K,
+    zoomout_to: Any = ESTIMATION_K,
+    zoomout_subsample: Any = None,
+    descriptors: Any = "wks",
+    w_orient: Any = 1.0,
+) -> None:
+    """Raise ValueError naming the keyword when an option of a map estimation is invalid.
+
+    Cheap: callers run it before any eigensolve (a trial's ``w_orient="1"`` failed deep in
+    NumPy, ``zoomout_subsample=-5`` with "math domain error").
+    """
+    for name, value in (("k_fit", k_fit), ("zoomout_to", zoomout_to)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+    if zoomout_to < k_fit:
+        raise ValueError(
+            f"zoomout_to ({zoomout_to}) must be >= k_fit ({k_fit}): ZoomOut refines the fitted "
+            "map to more eigenfunctions"
+        )
+    if zoomout_subsample is not None and (
+        isinstance(zoomout_subsample, bool)
+        or not isinstance(zoomout_subsample, int | np.integer)
+        or zoomout_subsample < 2
+    ):
+        raise ValueError(
+            f"zoomout_subsample must be None or an integer >= 2; got {zoomout_subsample!r}"
+        )
+    if descriptors not in ("wks", "hks"):
+        raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
+    if (
+        isinstance(w_orient, bool)
+        or not isinstance(w_orient, int | float | np.integer | np.floating)
+        or not (math.isfinite(w_orient) and w_orient >= 0)
+    ):
+        raise ValueError(f"w_orient must be a finite number >= 0; got {w_orient!r}")
 
 
 def _check_sizes(eig_1: EigenBasis, eig_2: EigenBasis, k_fit: int, zoomout_to: int) -> None:

@@ -44,6 +44,7 @@ from .matching import (
     Correspondence,
     MapQuality,
     check_landmarks,
+    check_match_options,
     map_quality,
     required_k,
     shape_signature,
@@ -301,23 +302,9 @@ def check_partial_options(
     """
     if descriptors != "wks":
         raise ValueError(f"descriptors must be 'wks' for a partial match; got {descriptors!r}")
-    for name, value in (("k_fit", k_fit), ("zoomout_to", zoomout_to)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
-    if zoomout_subsample is not None and (
-        isinstance(zoomout_subsample, bool)
-        or not isinstance(zoomout_subsample, int | np.integer)
-        or zoomout_subsample < 2
-    ):
-        raise ValueError(
-            f"zoomout_subsample must be None or an integer >= 2; got {zoomout_subsample!r}"
-        )
-    if (
-        isinstance(w_orient, bool)
-        or not isinstance(w_orient, int | float | np.floating)
-        or not (math.isfinite(w_orient) and w_orient >= 0)
-    ):
-        raise ValueError(f"w_orient must be a finite number >= 0; got {w_orient!r}")
+    check_match_options(
+        k_fit=k_fit, zoomout_to=zoomout_to, zoomout_subsample=zoomout_subsample, w_orient=w_orient
+    )
 
 
 def match_partial_eigenbases(

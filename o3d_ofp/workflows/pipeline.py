@@ -27,6 +27,7 @@ from .matching import (
     Correspondence,
     check_correspondence,
     check_landmarks,
+    given_map_collapse,
     match_arrays,
     match_eigenbases,
     required_k,
@@ -130,8 +131,11 @@ def transfer_function(
             eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
         )
         p2p = correspondence.p2p_21
+        if correspondence.quality is None:  # given, not estimated: nothing judged it yet
+            _warn_collapse(p2p, eig_1.n_vertices, eig_2.n_vertices)
     elif p2p_21 is not None:
         p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
+        _warn_collapse(p2p, eig_1.n_vertices, eig_2.n_vertices)
     elif fmap_12 is not None:
         C = np.asarray(fmap_12, dtype=np.float64)
         check_fmap(C, B_2.k + 1, B_1.k + 1)
@@ -145,6 +149,13 @@ def transfer_function(
     else:
         transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=p2p)
     return transfer_signal(f, B_1, B_2, transfer_12)
+
+
+def _warn_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> None:
+    """Warn when a map given by the caller collapses (a trial's all-zero map, unsaid)."""
+    why = given_map_collapse(p2p_21, n_source, n_target)
+    if why is not None:
+        warn(logger, f"the given map is doubtful: {why}", stacklevel=4)
 
 
 def prepare_transfer(
