@@ -793,3 +793,36 @@ def test_local_workers_leave_ctrl_c_to_this_process(monkeypatch):
     with open_client(workers=1):
         assert signal.getsignal(signal.SIGINT) is before
     assert seen == [signal.SIG_IGN]
+
+
+def test_an_interrupted_rerun_with_other_options_leaves_no_stale_record(shapes, tmp_path,
+                                                                        monkeypatch):  # fmt: skip
+    """An interrupted run records what it remade, and nothing it did not.
+
+    Found by a review: the options record was written after the whole run, so outputs
+    remade with other options by an interrupted run were later skipped as "the same".
+    """
+    from o3d_ofp.collections import engine
+
+    paths, _, _, _ = shapes
+    targets = [paths["t0"], paths["t1"], paths["t2"]]
+    out = tmp_path / "out"
+    run = {"workers": 0, "output_dir": out, "map": "identity"}
+    assert [r.status for r in transfer_many(paths["src"], targets, k1=29, **run)] == ["ok"] * 3
+    real = engine.transfer_task
+
+    def interrupted(shared, spec):
+        if spec.index == 2:
+            raise KeyboardInterrupt
+        return real(shared, spec)
+
+    monkeypatch.setattr(engine, "transfer_task", interrupted)
+    time.sleep(0.01)  # the remade outputs are newer than the first run's
+    with pytest.raises(KeyboardInterrupt):
+        transfer_many(paths["src"], targets, k1=20, **run)
+    monkeypatch.setattr(engine, "transfer_task", real)
+    record = json.loads((out / ".o3d_ofp_outputs.json").read_text())["outputs"]
+    assert record["t0.ply"]["k1"] == 20 and record["t1.ply"]["k1"] == 20
+    assert "t2.ply" not in record  # to be remade: no record until it is
+    again = transfer_many(paths["src"], targets, k1=29, **run)
+    assert [r.status for r in again] == ["ok", "ok", "ok"]  # none skipped as "the same"

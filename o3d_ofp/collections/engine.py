@@ -327,8 +327,13 @@ def _run(
     client: Any,
     workers: int | None,
     progress: bool,
+    on_record: Callable[[TargetResult], None] | None = None,
 ) -> list[TargetResult]:
-    """Run ``task(shared, spec)`` for every spec; exceptions of a task become its record."""
+    """Run ``task(shared, spec)`` for every spec; exceptions of a task become its record.
+
+    ``on_record`` is called with each record as it arrives (an interrupted run has handled
+    every record that arrived before the interrupt).
+    """
     if not specs:
         return []
     records: list[TargetResult] = []
@@ -338,6 +343,8 @@ def _run(
             for spec in specs:
                 r = task(shared, spec)
                 _log_record(r)
+                if on_record is not None:
+                    on_record(r)
                 records.append(r)
                 bar.update()
             return records
@@ -345,7 +352,7 @@ def _run(
         if client is None and n is None:
             n = min(local_workers(), len(specs))
         with open_client(client, workers=n) as c:
-            records = _run_on(c, task, shared, specs, kind=kind, bar=bar)
+            records = _run_on(c, task, shared, specs, kind=kind, bar=bar, on_record=on_record)
     return records
 
 
@@ -357,6 +364,7 @@ def _run_on(
     *,
     kind: str,
     bar: Any,
+    on_record: Callable[[TargetResult], None] | None = None,
 ) -> list[TargetResult]:
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
@@ -398,6 +406,8 @@ def _run_on(
                 )  # fmt: skip
             future.release()
             _log_record(r)
+            if on_record is not None:
+                on_record(r)
             records.append(r)
             bar.update()
     finally:
@@ -501,6 +511,21 @@ class _OutputsRecord:
         if self.outputs is None:
             self.outputs = {}
         self.outputs[os.path.basename(output)] = self.options
+        self._write()
+
+    def forget(self, outputs: Iterable[str | None]) -> None:
+        """Drop the records of outputs about to be made again (written at once)."""
+        if self.path is None:
+            return
+        if self.outputs is None:
+            self.outputs = {}
+        for output in outputs:
+            if output is not None:
+                self.outputs.pop(os.path.basename(output), None)
+        self._write()
+
+    def _write(self) -> None:
+        assert self.path is not None and self.outputs is not None
         with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump({"version": 1, "outputs": self.outputs}, fh, indent=1, sort_keys=True)
 
@@ -764,21 +789,27 @@ def transfer_many(
             for s in specs:
                 if isinstance(s, TargetResult):
                     records[s.index] = s
+            # The outputs about to be (re)made lose their record first: an interrupted run
+            # leaves none of them said to be made with these options.
+            made.forget(outputs[i] for i in todo)
+            arrived = 0
+
+            def on_record(r: TargetResult) -> None:
+                nonlocal arrived
+                records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
+                COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+                if records[r.index].status == "ok":
+                    made.add(outputs[r.index])
+                    arrived += 1
+
             try:
-                for r in _run(
+                _run(
                     transfer_task, shared, ready, kind=kind, client=client, workers=workers,
-                    progress=progress,
-                ):  # fmt: skip
-                    records[r.index] = _finish_in_memory(
-                        r, items[r.index], outputs[r.index], kind
-                    )
-                    COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
-                    if r.status == "ok":
-                        made.add(outputs[r.index])
+                    progress=progress, on_record=on_record,
+                )  # fmt: skip
             except KeyboardInterrupt:
-                done = sum(r.status == "ok" for r in records.values())
                 logger.warning(
-                    "interrupted: %d of %d targets done%s", done, len(items),
+                    "interrupted: %d of %d targets done%s", arrived, len(todo),
                     "; a rerun skips them and does the others" if out_dir else "",
                 )  # fmt: skip
                 raise
