@@ -289,13 +289,14 @@ def test_demo_flags_are_checked_before_the_work(tmp_path, capsys):
         (["--subdivisions", "12"], "--subdivisions: expected an integer in [2, 9]"),
         (["--seed", "-5"], "--seed: expected an integer >= 0"),
         (["--subdivisions", "2", "-k", "200"], "-k 200: the shape of --subdivisions 2 has 162"),
-        (["-o", str(tmp_path / "missing" / "demo")], "does not exist"),
+        (["-o", str(tmp_path / "a_file" / "demo")], "is a file, not a folder"),
     ]
+    (tmp_path / "a_file").write_text("x")
     for extra, message in cases:
         argv = ["demo", *extra] if "-o" in extra else ["demo", "-o", str(tmp_path / "d"), *extra]
         assert main(argv) == 2, extra
         assert message in capsys.readouterr().err, extra
-    assert list(tmp_path.iterdir()) == []  # no folder made for a refused demo
+    assert [p.name for p in tmp_path.iterdir()] == ["a_file"]  # no folder for a refused demo
 
 
 def test_output_folder_is_removed_when_the_run_fails_before_writing(tmp_path):
@@ -316,7 +317,7 @@ def test_output_folder_is_removed_when_the_run_fails_before_writing(tmp_path):
 
 
 def test_demo_writes_meshes_a_png_and_prints_errors(tmp_path, capsys):
-    out = tmp_path / "demo"
+    out = tmp_path / "new" / "demo"  # made with its parent
     assert main(["demo", "-o", str(out), "--subdivisions", "3", "-k", "12"]) == 0
     text = capsys.readouterr().out
     assert "K eigs" in text and "ours*" in text and "RGB error" in text

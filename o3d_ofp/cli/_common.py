@@ -27,6 +27,7 @@ __all__ = [
     "add_basis_options",
     "basis_for",
     "check_cache_dir",
+    "check_folder_to_make",
     "check_job_memory",
     "check_output",
     "eig_options",
@@ -220,18 +221,27 @@ def check_cache_dir(path: str | None) -> None:
     """
     if not path:
         return
+    check_folder_to_make(path, "--cache")
+
+
+def check_folder_to_make(path: str, flag: str) -> None:
+    """Refuse, before any work, an output folder that is a file or cannot be made or written.
+
+    Missing folders are made later, with their parents: the nearest one that exists is
+    written into and must be writable.
+    """
     if os.path.exists(path) and not os.path.isdir(path):
-        raise UsageError(f"--cache {path}: is a file, not a folder")
+        raise UsageError(f"{flag} {path}: is a file, not a folder")
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
         if parent == existing or (os.path.exists(existing) and not os.path.isdir(existing)):
-            raise UsageError(f"--cache {path}: {existing} is a file, not a folder")
+            raise UsageError(f"{flag} {path}: {existing} is a file, not a folder")
         existing = parent
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(
-            f"--cache {path}: the folder {existing} cannot be written (read-only or no "
-            "permission); choose another --cache folder"
+            f"{flag} {path}: the folder {existing} cannot be written (read-only or no "
+            f"permission); choose another {flag} folder"
         )
 
 

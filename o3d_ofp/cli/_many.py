@@ -100,8 +100,11 @@ def _check_scheduler(address: str) -> None:
         port = parts.port
     except ValueError:
         port = None
-    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
-        raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT")
+    schemes = ("tcp", "tls", "ws", "wss", "ucx")
+    if parts.scheme not in schemes or not parts.hostname or port is None:
+        raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT (or tls, ws, wss, ucx)")
+    if parts.scheme == "ucx":  # no plain socket to try: Dask will say
+        return
     try:
         socket.create_connection((parts.hostname, port), timeout=5).close()
     except OSError as exc:

@@ -164,9 +164,10 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     output = getattr(args, "output", None)
     outputs = [("the -o output", output)]
     if output:
+        from ._signal import signal_sides
+
         outputs += [("written with -o", f) for f in written_beside(output)]
-        stem = os.path.splitext(output)[0]
-        outputs.append(("written with -o", stem + ".npy"))  # an array signal's values
+        outputs += [("written with -o", f) for f in signal_sides(args)]  # a .npy signal's
     others = {"--save-map": "save_map", "--save-landmarks": "save_landmarks"}
     outputs += [(f"the {o} file", getattr(args, n, None)) for o, n in others.items() if o != flag]
     for what, other in (*inputs, *outputs):

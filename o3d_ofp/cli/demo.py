@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._common import UsageError, check_writable_folder, report, stage
+from ._common import UsageError, check_folder_to_make, report, stage
 from ._types import bounded_int, nonnegative_int, positive_int
 
 __all__ = ["add_parser", "run"]
@@ -41,9 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     require_open3d()
     out = os.path.abspath(args.output)
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise FileExistsError(f"-o {args.output}: is a file, not a folder")
-    check_writable_folder(out if os.path.isdir(out) else os.path.dirname(out), args.output)
+    check_folder_to_make(args.output, "-o")  # made with its parents after the checks
     n_vertices = 10 * 4**args.subdivisions + 2  # the icosphere the blob is made from
     if args.k > n_vertices - 1:
         raise UsageError(

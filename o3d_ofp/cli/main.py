@@ -120,7 +120,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)
-        if extra:  # said by the command's parser: its name and its --help
+        if extra:  # said by the parser they were given to: its name and its --help
+            words = list(sys.argv[1:] if argv is None else argv)
+            before = words[: words.index(args.command)] if args.command in words else []
+            if any(e in before for e in extra):
+                parser.error(f"unrecognized arguments: {' '.join(extra)}")
             sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
             sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
+from collections.abc import Iterator
 from typing import Any
 
 from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
@@ -148,7 +150,10 @@ def run(args: argparse.Namespace) -> int:
     if corr.n_source != pair.V1.shape[0]:
         raise UsageError("the map does not belong to these shapes")
     with stage("transfer"):
-        g = transfer_function(f, eig_1, eig_2, p2p_21=corr.p2p_21, bases=(B1, B2))
+        # an estimated map was judged by its quality, a map file by _check_given_map: the
+        # transfer's own word on a collapsing map would say it again
+        with _said_already("the given map is doubtful"):
+            g = transfer_function(f, eig_1, eig_2, p2p_21=corr.p2p_21, bases=(B1, B2))
     written = write_result(args.output, pair.target, g, kind, protect=inputs)
     report(
         [
@@ -158,6 +163,24 @@ def run(args: argparse.Namespace) -> int:
         ]
     )
     return 0
+
+
+@contextlib.contextmanager
+def _said_already(prefix: str) -> Iterator[None]:
+    """Drop the package's log records that start with ``prefix`` (said by the CLI before)."""
+
+    def keep(record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(prefix)
+
+    root = logging.getLogger("o3d_ofp")
+    handlers = list(root.handlers)
+    for handler in handlers:
+        handler.addFilter(keep)
+    try:
+        yield
+    finally:
+        for handler in handlers:
+            handler.removeFilter(keep)
 
 
 def _run_many(args: argparse.Namespace) -> int:
@@ -173,8 +196,10 @@ def _run_many(args: argparse.Namespace) -> int:
             f"--signal {args.signal}: with several targets the signal is colors or texture"
         )
     kind, signal = "colors", args.signal or "auto"
-    why = "it has no texture coordinates"
-    if args.signal is None:
+    why = "the source has no texture coordinates"
+    if args.signal is not None:
+        why = f"--signal {args.signal} sends the colors to the targets' vertices"
+    else:
         try:  # a textured source: baked into the targets' own UV layouts, as for one target
             mesh_texture(read_geometry(args.source), args.texture)
             kind = "texture"
@@ -182,7 +207,7 @@ def _run_many(args: argparse.Namespace) -> int:
             why = no_texture_message(args.source, exc)
     if kind != "texture" and args.texture_size is not None:
         raise UsageError(
-            f"--texture-size applies to a bake, and the source's texture cannot be baked: {why}"
+            f"--texture-size applies to a bake, and nothing is baked here: {why}"
         )
     return run_transfers(
         args,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 import warnings
 from typing import Any
@@ -350,21 +351,48 @@ ALONE_WITH_LANDMARKS = (
 
 
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
-    """Run :func:`_transfer_task`, its :class:`~o3d_ofp.OFPWarning` messages kept in the record.
+    """Run :func:`_transfer_task`; what the library said of the target is kept in its record.
 
-    On a worker, a warning would be printed by that process (Python's default), away from
-    the run's log and summary; here each becomes part of the target's record, which the
-    caller logs with the target's name.
+    The warnings (a suspect map with its reasons and fix, ...) are logged by the package at
+    WARNING: the records of this thread are collected (a handler on the ``o3d_ofp`` logger,
+    thread-safe, unlike swapping the warning filters). On a Dask worker the OFPWarnings
+    themselves are silenced: the process would print them away from the run's log and
+    summary; the caller logs each record's warnings with the target's name.
     """
-    with warnings.catch_warnings(record=True) as said:
-        warnings.simplefilter("always", OFPWarning)
+    if worker_name() != "local":
+        _silence_warnings_on_this_worker()
+    said = _ThreadRecords(threading.get_ident())
+    package = logging.getLogger("o3d_ofp")
+    package.addHandler(said)
+    try:
         result = _transfer_task(source, spec)
-    messages = tuple(
-        dict.fromkeys(
-            _for_collections(str(w.message)) for w in said if issubclass(w.category, OFPWarning)
-        )
-    )
+    finally:
+        package.removeHandler(said)
+    messages = tuple(dict.fromkeys(_for_collections(m) for m in said.messages))
     return dataclasses.replace(result, warnings=messages) if messages else result
+
+
+class _ThreadRecords(logging.Handler):
+    """Collect the messages of WARNING records logged by one thread."""
+
+    def __init__(self, thread: int) -> None:
+        super().__init__(level=logging.WARNING)
+        self.thread = thread
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.thread == self.thread:
+            self.messages.append(record.getMessage())
+
+
+_SILENCED = False
+
+
+def _silence_warnings_on_this_worker() -> None:
+    global _SILENCED
+    if not _SILENCED:
+        warnings.filterwarnings("ignore", category=OFPWarning)
+        _SILENCED = True
 
 
 def _for_collections(message: str) -> str:

@@ -79,8 +79,9 @@ MAX_SHARPEN = 2.0
 #: RMS distance to the centroid) by this factor at most. A strong low-pass thins limbs away
 #: while the extent stays: restoring the volume then blew a human up (smooth 0.1: 2.85 times,
 #: 4.9 m tall; 0.25: 9.7 times). Measured (FAUST 093, TOSCA centaur2, bunny): volume / extent
-#: scales 1.000-1.03 at smooth <= 0.02 (the measured range: unchanged), 1.18-1.25 at 0.05 on
-#: the thin-limbed shapes, 2.4-9.3 above.
+#: scales 1.000-1.03 at smooth <= 0.02 (the range of the smoothing evaluation: unchanged),
+#: 1.18-1.25 at 0.05 on the thin-limbed shapes, 2.4-9.3 above; a thin-walled part can reach
+#: the cap earlier (nasty/70-Crank at 0.02: 1.13, capped, said).
 KEEP_SIZE_EXTENT = 1.05
 #: Order of the Butterworth low-pass (4: flat pass band, so the shape itself barely shrinks;
 #: measured 3 and 4 alike, 2 and 1 shrink more and denoise less).

@@ -130,7 +130,7 @@ def run_demo(*, subdivisions: int = 5, seed: int = 0, k: int = 29, order: int = 
     eig_1 = eigenbasis(vertices, faces, k=max(k, ESTIMATION_K))
     eig_2 = eigenbasis(target, faces, k=max(k, ESTIMATION_K))
     corr = match_eigenbases(eig_1, eig_2)
-    g = transfer_function(colors, eig_1, eig_2, k1=k, k2=k, order=order, p2p_21=corr.p2p_21)
+    g = transfer_function(colors, eig_1, eig_2, k1=k, k2=k, order=order, correspondence=corr)
     t_transfer = time.perf_counter() - t0
     p2p = corr.p2p_21
     map_error = float(np.linalg.norm(vertices[p2p] - vertices, axis=1).mean() / np.sqrt(eig.area))
