@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import threading
 import time
 import warnings
 from typing import Any
@@ -23,7 +22,7 @@ from ..boundary.bake import has_uvs, transfer_texture
 from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import MeshTexture
-from ..core._warnings import OFPWarning
+from ..core._warnings import OFPWarning, collected_warnings
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
@@ -353,36 +352,18 @@ ALONE_WITH_LANDMARKS = (
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     """Run :func:`_transfer_task`; what the library said of the target is kept in its record.
 
-    The warnings (a suspect map with its reasons and fix, ...) are logged by the package at
-    WARNING: the records of this thread are collected (a handler on the ``o3d_ofp`` logger,
-    thread-safe, unlike swapping the warning filters). On a Dask worker the OFPWarnings
-    themselves are silenced: the process would print them away from the run's log and
-    summary; the caller logs each record's warnings with the target's name.
+    The warnings (a suspect map with its reasons and fix, ...) issued in this thread are
+    collected (:func:`~o3d_ofp.core._warnings.collected_warnings`: thread-safe, whatever the
+    logging levels, e.g. ``-q``). On a Dask worker the OFPWarnings themselves are silenced:
+    the process would print them away from the run's log and summary; the caller logs each
+    record's warnings with the target's name.
     """
     if worker_name() != "local":
         _silence_warnings_on_this_worker()
-    said = _ThreadRecords(threading.get_ident())
-    package = logging.getLogger("o3d_ofp")
-    package.addHandler(said)
-    try:
+    with collected_warnings() as said:
         result = _transfer_task(source, spec)
-    finally:
-        package.removeHandler(said)
-    messages = tuple(dict.fromkeys(_for_collections(m) for m in said.messages))
+    messages = tuple(dict.fromkeys(_for_collections(m) for m in said))
     return dataclasses.replace(result, warnings=messages) if messages else result
-
-
-class _ThreadRecords(logging.Handler):
-    """Collect the messages of WARNING records logged by one thread."""
-
-    def __init__(self, thread: int) -> None:
-        super().__init__(level=logging.WARNING)
-        self.thread = thread
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if record.thread == self.thread:
-            self.messages.append(record.getMessage())
 
 
 _SILENCED = False

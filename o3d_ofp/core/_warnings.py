@@ -9,10 +9,15 @@ doubtful call); the command line, which prints the log, silences these duplicate
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
 import warnings
+from collections.abc import Iterator
 
-__all__ = ["OFPWarning", "warn"]
+__all__ = ["OFPWarning", "collected_warnings", "warn"]
+
+_COLLECTING = threading.local()
 
 
 class OFPWarning(UserWarning):
@@ -31,4 +36,24 @@ def warn(logger: logging.Logger, message: str, *, stacklevel: int = 3) -> None:
     ``stacklevel`` 3 attributes the warning to the caller of the function that calls this.
     """
     logger.warning("%s", message)
+    for messages in getattr(_COLLECTING, "lists", ()):
+        messages.append(message)
     warnings.warn(message, OFPWarning, stacklevel=stacklevel)
+
+
+@contextlib.contextmanager
+def collected_warnings() -> Iterator[list[str]]:
+    """Collect the messages :func:`warn` issues in this thread while the block runs.
+
+    Independent of the logging levels and of the warning filters (process-wide state that
+    other threads may change): a collection's task keeps what was said of its target.
+    """
+    lists = getattr(_COLLECTING, "lists", None)
+    if lists is None:
+        lists = _COLLECTING.lists = []
+    messages: list[str] = []
+    lists.append(messages)
+    try:
+        yield messages
+    finally:
+        lists.remove(messages)
