@@ -93,6 +93,10 @@ def test_a_collapsed_or_flipped_map_is_flagged(pair, reference, caplog):
     mirror = ofp.nearest_neighbors(V1, V2 * [-1.0, 1.0, 1.0])
     q = map_quality(mirror, e1, e2)
     assert q.reversed_fraction > 0.9 and q.suspect and "mirror" in q.reasons[0]
+    # with landmarks given, the fix is to check them, not "give landmarks" (a trial's
+    # suspect map repeated the very pairs the user had passed)
+    q = map_quality(mirror, e1, e2, landmarks_given=True)
+    assert "check the landmarks given" in q.reasons[-1] and "12:40" not in q.reasons[-1]
     # Two unrelated shapes: the estimated map is flagged, loudly: logged, and a Python
     # warning (shown in a script or a notebook that configured no logging).
     with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
@@ -223,6 +227,8 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert run.stderr.count("the map collapses") == 2, run.stderr
+    # attributed to the caller's line (here the script's), not to the library's
+    assert run.stderr.count("<string>:6: OFPWarning") == 2, run.stderr
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
     # options of the estimation are named before any work
     for options, message in (

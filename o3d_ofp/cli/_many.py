@@ -170,6 +170,15 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
 
     _check_output_dir(args.output)
     check_cache_dir(args.cache)
+    if args.scheduler or args.workers != 0:  # a cluster: Dask must be there, said first
+        import importlib.util
+
+        if importlib.util.find_spec("distributed") is None:
+            raise UsageError(
+                "several targets run on a Dask cluster, and Dask is not installed: pip "
+                "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
+                "'.[dask]'), or give --workers 0 to run them one after the other here"
+            )
     if args.scheduler:
         _check_scheduler(args.scheduler)
     if args.map not in ("estimate", "identity"):

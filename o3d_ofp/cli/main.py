@@ -115,7 +115,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     -------
     int
         Exit code: 0 success, 2 bad usage or input, 3 suspect map under ``--strict``,
-        1 internal error.
+        1 a missing dependency, a failed write or connection during the run, or an
+        internal error.
     """
     parser = build_parser()
     try:

@@ -185,8 +185,9 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
         import distributed
     except ImportError as exc:
         raise ImportError(
-            "collections on a cluster need Dask: pip install 'dask[distributed]' (or "
-            "'o3d_ofp[dask]'); workers=0 runs in this process without it"
+            "collections on a cluster need Dask: pip install 'dask[distributed]' (from a "
+            "clone of o3d_ofp: pip install -e '.[dask]'); workers=0 runs in this process "
+            "without it"
         ) from exc
     if client is not None and not isinstance(client, str):
         yield client

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import sys
 import threading
 import warnings
 from collections.abc import Iterator
@@ -30,15 +32,31 @@ class OFPWarning(UserWarning):
 warnings.filterwarnings("always", category=OFPWarning, append=True)
 
 
-def warn(logger: logging.Logger, message: str, *, stacklevel: int = 3) -> None:
+def warn(logger: logging.Logger, message: str, *, stacklevel: int | None = None) -> None:
     """Log ``message`` at WARNING on ``logger`` and issue it as an :class:`OFPWarning`.
 
-    ``stacklevel`` 3 attributes the warning to the caller of the function that calls this.
+    The warning is attributed to the caller's own line: the first frame outside the package
+    (a trial's warning pointed at ``o3d_ofp/boundary/api.py``); ``stacklevel`` overrides it.
     """
     logger.warning("%s", message)
     for messages in getattr(_COLLECTING, "lists", ()):
         messages.append(message)
+    if stacklevel is None:
+        stacklevel = _outside_the_package()
     warnings.warn(message, OFPWarning, stacklevel=stacklevel)
+
+
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+
+
+def _outside_the_package() -> int:
+    """``stacklevel`` of the first frame (above warn's caller) whose code is not o3d_ofp's."""
+    frame = sys._getframe(2)  # the caller of warn
+    level = 2
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+        frame = frame.f_back
+        level += 1
+    return level
 
 
 @contextlib.contextmanager

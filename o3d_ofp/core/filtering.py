@@ -344,7 +344,6 @@ def _keep_size(eig: EigenBasis, reference: np.ndarray, X: np.ndarray) -> np.ndar
                 f"are thinned away): restoring the volume would enlarge it {s:.2f} times, so "
                 f"its size is kept by its extent instead (scale {KEEP_SIZE_EXTENT * extent:.3f});"
                 " a smaller smooth keeps the shape's form",
-                stacklevel=4,
             )
             s = KEEP_SIZE_EXTENT * extent
     else:

@@ -262,6 +262,7 @@ def map_quality(
     *,
     partial: bool = False,
     overlap: float | None = None,
+    landmarks_given: bool = False,
 ) -> MapQuality:
     """Judge a point map (and the functional map it came from) without ground truth.
 
@@ -280,6 +281,8 @@ def map_quality(
         of the other (smaller, with more boundary) makes the map suspect.
     overlap : float, optional
         Estimated fraction of the source covered (partial maps), kept in the report.
+    landmarks_given : bool, default False
+        The map was estimated with landmarks: a doubtful map then points at them first.
 
     Returns
     -------
@@ -338,7 +341,13 @@ def map_quality(
             f"the target's area is {area_ratio:.3g} times the source's (different units? a "
             "partial shape?); the estimated map does not depend on the units"
         )
-    if reasons:
+    if reasons and landmarks_given:
+        reasons.append(
+            "likely causes: a wrong landmark pair (a pair swapped or on the mirrored side "
+            "turns the map over), very different shapes, or a partial shape; fix: check the "
+            "landmarks given (landmarks= / --landmarks; pick them with --landmarks pick)"
+        )
+    elif reasons:
         reasons.append(
             "likely causes: very different shapes, a partial shape, a symmetry flip, or "
             "descriptors that cannot tell the parts apart; fix: give a few known vertex pairs "
@@ -1038,7 +1047,7 @@ def _match_surfaces(
         p2p = p2p_from_fmap(C, u1, u2)
     fmap_12 = C * math.sqrt(eig_2.area / eig_1.area)  # back to the shapes' own areas
     report("quality", 0.95)
-    quality = map_quality(p2p, eig_1, eig_2, fmap_12)
+    quality = map_quality(p2p, eig_1, eig_2, fmap_12, landmarks_given=landmarks is not None)
     logger.info("match: %s", quality.summary())
     if quality.suspect:
         warn(logger, "the estimated map is suspect: " + "; ".join(quality.reasons))

@@ -155,7 +155,7 @@ def _warn_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> None:
     """Warn when a map given by the caller collapses (a trial's all-zero map, unsaid)."""
     why = given_map_collapse(p2p_21, n_source, n_target)
     if why is not None:
-        warn(logger, f"the given map is doubtful: {why}", stacklevel=4)
+        warn(logger, f"the given map is doubtful: {why}")
 
 
 def prepare_transfer(
