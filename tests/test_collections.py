@@ -832,3 +832,28 @@ def test_an_interrupted_rerun_with_other_options_leaves_no_stale_record(shapes, 
     assert "t2.ply" not in record  # to be remade: no record until it is
     again = transfer_many(paths["src"], targets, k1=29, **run)
     assert [r.status for r in again] == ["ok", "ok", "ok"]  # none skipped as "the same"
+
+
+def test_a_collection_without_dask_is_refused_first(shapes, tmp_path, capsys, monkeypatch):
+    """Without Dask a collection is refused before any work, with a pip line that works.
+
+    Found by a fresh-install trial: without Dask the source's eigensolve ran first, then
+    exit 1 with a pip line for a package that is not on PyPI.
+    """
+    import importlib.util
+
+    from o3d_ofp.cli.main import main
+
+    paths, _, _, _ = shapes
+    real = importlib.util.find_spec
+
+    def find_spec(name, *args):
+        return None if name == "distributed" else real(name, *args)
+
+    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
+    before = COUNTERS["source_bases"]
+    argv = ["transfer", paths["src"], paths["t0"], paths["t1"], "-o", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Dask is not installed" in err and "--workers 0" in err and "-e '.[dask]'" in err
+    assert COUNTERS["source_bases"] == before and not (tmp_path / "o").exists()
