@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -54,3 +55,15 @@ def faust_mesh():
 @pytest.fixture(scope="session")
 def faust_eig(faust_mesh):
     return ofp.eigenbasis(*faust_mesh, k=29)
+
+
+@pytest.fixture
+def read_only_folder(tmp_path, monkeypatch):
+    """Return a folder ``os.access`` calls read-only (a root test process may write anywhere)."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
+        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
+    ))  # fmt: skip
+    return folder

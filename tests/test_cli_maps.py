@@ -107,14 +107,10 @@ def test_map_file_messages(shapes, tmp_path, capsys):
     assert "estimate|closest|identity" in _err(capsys)
 
 
-def test_read_only_output_folder_is_refused_before_the_work(shapes, tmp_path, capsys, monkeypatch):
+def test_read_only_output_folder_is_refused_before_the_work(shapes, tmp_path, capsys,
+                                                           read_only_folder):  # fmt: skip
     _d, p, *_ = shapes
-    folder = tmp_path / "ro"
-    folder.mkdir()
-    real = os.access
-    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
-        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
-    ))  # fmt: skip
+    folder = read_only_folder
     assert main(["transfer", p["src"], p["same"], "-o", str(folder / "a.ply")]) == 2
     assert "cannot be written" in _err(capsys)
     argv = ["transfer", p["src"], p["same"], "--save-map", str(folder / "m.npz")]
@@ -202,19 +198,15 @@ def test_side_outputs_may_not_replace_inputs_outputs_or_cache_entries(shapes, tm
     assert list(cache.iterdir()) == []
 
 
-def test_read_only_cache_folder_is_refused_before_the_work(shapes, tmp_path, capsys, monkeypatch):
+def test_read_only_cache_folder_is_refused_before_the_work(shapes, tmp_path, capsys,
+                                                          read_only_folder):  # fmt: skip
     """A read-only --cache folder is refused first, naming the flag.
 
     Found by a trial: --cache into a read-only folder failed after the eigensolve (exit 1
     for `basis`), naming a temporary file and not the flag.
     """
     _d, p, *_ = shapes
-    folder = tmp_path / "ro"
-    folder.mkdir()
-    real = os.access
-    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
-        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
-    ))  # fmt: skip
+    folder = read_only_folder
     for cache in (folder, folder / "sub" / "deeper"):
         for argv in (["basis", p["src"]], ["approximate", p["src"], "-o", str(tmp_path / "a.ply")],
                      ["transfer", p["src"], p["same"], "-o", str(tmp_path / "t.ply")]):  # fmt: skip

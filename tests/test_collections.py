@@ -694,7 +694,7 @@ def test_bases_larger_than_the_estimation_are_kept_or_refused(shapes, tmp_path, 
 
 
 def test_read_only_output_folder_is_refused_first_and_no_empty_folder_is_left(
-    shapes, tmp_path, capsys, monkeypatch
+    shapes, tmp_path, capsys, read_only_folder
 ):
     """A read-only -o folder is refused first; a run refused at once leaves no folder.
 
@@ -705,12 +705,7 @@ def test_read_only_output_folder_is_refused_first_and_no_empty_folder_is_left(
     from o3d_ofp.cli import main
 
     paths, _, _, _ = shapes
-    folder = tmp_path / "ro"
-    folder.mkdir()
-    real = os.access
-    monkeypatch.setattr(os, "access", lambda path, mode, **kw: (
-        False if os.path.abspath(path) == str(folder) else real(path, mode, **kw)
-    ))  # fmt: skip
+    folder = read_only_folder
     before = COUNTERS["source_bases"]
     with pytest.raises(PermissionError, match="cannot be written"):
         transfer_many(paths["src"], [paths["t0"]], workers=0, output_dir=folder)
