@@ -39,11 +39,23 @@ def read_signal(
     return values, kind
 
 
+def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
+    """Return the error of a texture that cannot be read (``--texture FILE``, or the source's).
+
+    The source's own names the files its material lacks.
+    """
+    from ..boundary.texture import no_texture_message
+
+    if texture is not None:  # the given image, not the source, is at fault
+        return UsageError(f"--texture {texture}: {str(exc).removeprefix(f'{texture}: ')}")
+    return UsageError(no_texture_message(path, exc))
+
+
 def _read_signal(
     geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None
 ) -> tuple[np.ndarray, str]:
     from ..boundary.convert import vertex_colors
-    from ..boundary.texture import no_texture_message, texture_colors
+    from ..boundary.texture import texture_colors
 
     if texture is not None and spec != "texture":
         raise UsageError("--texture applies to --signal texture")
@@ -61,10 +73,7 @@ def _read_signal(
         try:
             return texture_colors(geometry, texture), "colors"
         except (ValueError, TypeError, FileNotFoundError) as exc:
-            if texture is not None:  # the given image, not the source, is at fault
-                text = str(exc).removeprefix(f"{texture}: ")
-                raise UsageError(f"--texture {texture}: {text}") from exc
-            raise UsageError(no_texture_message(path, exc)) from exc
+            raise texture_error(path, texture, exc) from exc
     if spec == "xyz":
         return V, "xyz"
     if spec.endswith(".npy"):

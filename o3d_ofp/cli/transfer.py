@@ -34,7 +34,7 @@ from ._pair import (
     map_first,
     read_pair,
 )
-from ._signal import read_signal, signal_sides, write_result
+from ._signal import read_signal, signal_sides, texture_error, write_result
 from ._types import bounded_int
 
 __all__ = ["add_parser", "run"]
@@ -255,15 +255,12 @@ def _default_signal(source: Any) -> str:
 
 def _check_texture(args: argparse.Namespace, source: Any) -> None:
     """Refuse, before any work, a bake whose texture cannot be read (named: file or flag)."""
-    from ..boundary.texture import mesh_texture, no_texture_message
+    from ..boundary.texture import mesh_texture
 
     try:
         mesh_texture(source, args.texture)
     except (ValueError, TypeError, FileNotFoundError) as exc:
-        if args.texture is not None:
-            text = str(exc).removeprefix(f"{args.texture}: ")
-            raise UsageError(f"--texture {args.texture}: {text}") from exc
-        raise UsageError(no_texture_message(args.source, exc)) from exc
+        raise texture_error(args.source, args.texture, exc) from exc
 
 
 def _bake(args: argparse.Namespace, pair) -> int:
