@@ -13,6 +13,7 @@ __all__ = [
     "outward_sign",
     "point_frames",
     "point_gradient_operator",
+    "point_neighbours",
     "point_normals",
     "tangent_frames",
     "vertex_normals",
@@ -158,13 +159,25 @@ def point_frames(
     search done once for both. Returns ``g1, g2`` ((n, n) sparse each).
     """
     P = np.asarray(points, dtype=np.float64)
-    nb = _neighbours(P, neighbours)
+    nb = point_neighbours(P, neighbours)
     g1, g2, _, _ = _gradients_of(P, _normals_of(P, nb, mass), nb)
     return g1, g2
 
 
-def _neighbours(points: np.ndarray, count: int) -> np.ndarray:
-    """(n, q) indices of each point's ``q = min(count, n)`` nearest points (itself first)."""
+def point_neighbours(points: np.ndarray, count: int) -> np.ndarray:
+    """Find each point's nearest points (k-d tree), itself first.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray of float
+    count : int
+        Points per neighbourhood, the point itself included.
+
+    Returns
+    -------
+    (n, q) ndarray of int
+        Indices of the ``q = min(count, n)`` nearest points of each point.
+    """
     from scipy.spatial import cKDTree
 
     q = min(count, points.shape[0])
@@ -205,7 +218,7 @@ def point_normals(
         finger sampled by a few points across, touching limbs) some signs come out wrong.
     """
     P = np.asarray(points, dtype=np.float64)
-    return _normals_of(P, _neighbours(P, neighbours), mass)
+    return _normals_of(P, point_neighbours(P, neighbours), mass)
 
 
 def _normals_of(P: np.ndarray, nb: np.ndarray, mass: np.ndarray | None) -> np.ndarray:
@@ -280,7 +293,7 @@ def point_gradient_operator(
         The tangent frames.
     """
     P = np.asarray(points, dtype=np.float64)
-    return _gradients_of(P, np.asarray(normals, dtype=np.float64), _neighbours(P, neighbours))
+    return _gradients_of(P, np.asarray(normals, dtype=np.float64), point_neighbours(P, neighbours))
 
 
 def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

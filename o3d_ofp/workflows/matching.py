@@ -28,6 +28,7 @@ from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refi
 from ..core.geometry import (
     POINT_NEIGHBOURS,
     outward_sign,
+    point_neighbours,
     point_normals,
     tangent_frames,
     vertex_normals,
@@ -450,9 +451,7 @@ def _reversed_neighbourhoods(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: Eigen
     q = min(POINT_NEIGHBOURS + 1, V2.shape[0])
     if q < 4:
         return math.nan
-    from scipy.spatial import cKDTree
-
-    nb = cKDTree(V2).query(V2, k=q)[1][:, 1:]  # (n2, q-1) without the point itself
+    nb = point_neighbours(V2, q)[:, 1:]  # (n2, q-1) without the point itself
     s1, s2 = tangent_frames(n2)
     d = V2[nb] - V2[:, None, :]
     U = np.stack([np.einsum("nqi,ni->nq", d, s1), np.einsum("nqi,ni->nq", d, s2)], axis=2)
