@@ -17,9 +17,11 @@ pair of ../shared/data, ours and pyFM.
 
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
 Columns: map error, seconds until the map exists (its eigenbases included) and end to end
-(match + color transfer), peak memory (the process's resident set, sampled every 5 ms during
-the call, psutil), the share of the machine's CPU other processes used during the row (steal
-time included; this process's own threads are not counted, unlike in a load average), and
+(match + color transfer), peak memory (the resident sets of the process and of its children,
+the forked processes of the side-by-side eigensolves, summed: pages they share are counted
+twice; sampled every 5 ms during the call, psutil), the share of the machine's CPU other
+processes used during the row (steal time included; this process's own threads and reaped
+children are not counted, unlike in a load average), and
 the speed-up over pyFM.
 Both pipelines are first run once, untimed, on another pair (see ``warm_up``).
 A row is flagged "busy" and a warning printed when that share exceeded 10 %: ratios are
@@ -76,15 +78,29 @@ class Peak:
         self._t0 = time.perf_counter()
         return self
 
+    def _resident(self) -> int:
+        """Resident bytes of this process and its children (the side-by-side eigensolves).
+
+        A forked child shares its parent's pages until either writes them; both resident
+        sets count them: the sum is an upper bound.
+        """
+        total = self._proc.memory_info().rss
+        for child in self._proc.children(recursive=True):
+            try:
+                total += child.memory_info().rss
+            except psutil.Error:  # ended in between
+                pass
+        return total
+
     def _watch(self) -> None:
         while not self._stop.wait(0.005):
-            self.peak = max(self.peak, self._proc.memory_info().rss)
+            self.peak = max(self.peak, self._resident())
 
     def __exit__(self, *exc: object) -> None:
         self.seconds = time.perf_counter() - self._t0
         self._stop.set()
         self._thread.join()
-        self.peak = max(self.peak, self._proc.memory_info().rss)
+        self.peak = max(self.peak, self._resident())
         busy = _busy_seconds() - self._busy0
         own = _own_seconds(self._proc) - self._own0
         cores = psutil.cpu_count() or 1

@@ -262,6 +262,8 @@ def small_threshold(monkeypatch):
 
 
 def _spy_eigenbasis(monkeypatch, module) -> list[int]:
+    # One process: a spy called in a side-by-side child would record there.
+    monkeypatch.setenv("O3D_OFP_PROCESSES", "1")
     sizes: list[int] = []
     real = module.eigenbasis
 
@@ -276,10 +278,10 @@ def _spy_eigenbasis(monkeypatch, module) -> list[int]:
 def test_transfer_of_a_dense_pair_computes_no_full_size_estimation_basis(
     monkeypatch, small_threshold, twisted_pair
 ):
-    from o3d_ofp.workflows import pipeline
+    from o3d_ofp.workflows import eigenbases, pipeline
 
     V1, F1, V2, F2 = twisted_pair
-    sizes = _spy_eigenbasis(monkeypatch, pipeline)
+    sizes = _spy_eigenbasis(monkeypatch, eigenbases)
     e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
     assert corr.options["dense"] is True
     assert sizes == [29, 39]  # at full resolution only what the OFP bases need
@@ -295,10 +297,10 @@ def test_transfer_of_a_dense_pair_computes_no_full_size_estimation_basis(
 
 
 def test_transfer_below_the_threshold_shares_one_eigensolve(monkeypatch, twisted_pair):
-    from o3d_ofp.workflows import pipeline
+    from o3d_ofp.workflows import eigenbases, pipeline
 
     V1, F1, V2, F2 = twisted_pair
-    sizes = _spy_eigenbasis(monkeypatch, pipeline)
+    sizes = _spy_eigenbasis(monkeypatch, eigenbases)
     e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
     assert corr.options.get("dense") is None
     assert sizes == [99, 99]  # one basis per shape serves the estimation and the transfer

@@ -389,14 +389,16 @@ def match(
 
         check_partial_areas(V1, F1, V2, F2)
     if eigenbases is None and partial:
+        from ..workflows.eigenbases import eigenbases as eigenbases_of
         from ..workflows.matching import check_landmarks, required_k
 
         check_landmarks(landmarks, V1.shape[0], V2.shape[0])  # before any eigensolve
         eigenbases = tuple(
-            spectrum.eigenbasis(
-                V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components
+            eigenbases_of(
+                [(V, F, required_k(V.shape[0], zoomout_to)) for V, F in ((V1, F1), (V2, F2))],
+                clamp_k=True,
+                components=components,
             )
-            for V, F in ((V1, F1), (V2, F2))
         )
     if eigenbases is None:
         return match_arrays(V1, F1, V2, F2, components=components, **options)

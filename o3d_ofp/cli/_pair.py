@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import logging
 import os
 from typing import Any
@@ -343,6 +344,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
 def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any, Any]:
     """(B1, B2, eig_1, eig_2): the OFP bases and the eigenbases the map needs."""
     from ..core.spectrum import eigenbasis
+    from ..workflows.eigenbases import run_per_shape
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import check_job_memory
 
@@ -366,8 +368,7 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     check_job_memory(
         jobs, advice="lower --k1/--k2 or --order, or use simplified meshes (fewer vertices)"
     )
-    out = []
-    for side, k, default, file in ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2)):
+    def side_job(side: int, k: Any, default: int, file: Any) -> tuple[Any, Any]:
         V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
         path = args.source if side == 1 else args.target
         want = required_k(V.shape[0], ESTIMATION_K) if estimate else None
@@ -386,7 +387,17 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
         if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
             with stage(f"eigenbasis of {path} for map estimation (k={want})"):
                 eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
-        out.append((B, eig))
+        return B, eig
+
+    sides = ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2))
+    # Both sides at once, one per core, when both are computed (a basis file is only read).
+    sizes = [
+        (0 if file else V.shape[0], max(k or default, required_k(V.shape[0], ESTIMATION_K)))
+        for (_, k, default, file), V in zip(sides, (pair.V1, pair.V2), strict=True)
+    ]
+    out = run_per_shape(
+        [functools.partial(side_job, *side) for side in sides], sizes, what="bases of both shapes"
+    )
     (B1, e1), (B2, e2) = out
     return B1, B2, e1, e2
 

@@ -115,7 +115,7 @@ def check_options(args: argparse.Namespace) -> None:
 
 def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
     """Eigenbases for the detail modes: --band (and the map estimation) decide their size."""
-    from ..core.spectrum import eigenbasis
+    from ..workflows.eigenbases import eigenbases
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import check_job_memory
 
@@ -141,13 +141,19 @@ def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
     eigs = []
     if args.basis_1 or args.basis_2:  # cached bases: their eigenbases, when large enough
         eigs = list(bases_for_pair(args, pair)[2:])
-    out = []
-    for i, ((path, V, F, _, _), want) in enumerate(zip(sides, wants, strict=True)):
-        if eigs and eigs[i].k >= want:
-            out.append(eigs[i])
-            continue
-        with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={want})"):
-            out.append(eigenbasis(V, F, k=want, clamp_k=estimate, **eig_options(args)))
+    out = [eigs[i] if eigs and eigs[i].k >= want else None for i, want in enumerate(wants)]
+    todo = [i for i, eig in enumerate(out) if eig is None]
+    if todo:
+        names = " and ".join(f"{sides[i][0]} ({sides[i][1].shape[0]} vertices, k={wants[i]})"
+                             for i in todo)  # fmt: skip
+        with stage(f"eigenbases of {names}" if len(todo) > 1 else f"eigenbasis of {names}"):
+            computed = eigenbases(
+                [(sides[i][1], sides[i][2], wants[i]) for i in todo],
+                clamp_k=estimate,
+                **eig_options(args),
+            )
+        for i, eig in zip(todo, computed, strict=True):
+            out[i] = eig
     return out[0], out[1]
 
 

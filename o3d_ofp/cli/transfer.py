@@ -267,7 +267,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
     """Bake the source's texture into the target's UV layout and write OBJ + MTL + PNG."""
     from ..boundary.bake import transfer_texture
     from ..boundary.io import write_geometry
-    from ..core.spectrum import eigenbasis
+    from ..workflows.eigenbases import eigenbases
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eig_options
 
@@ -278,10 +278,15 @@ def _bake(args: argparse.Namespace, pair) -> int:
     if pair.correspondence is None:
         with stage("eigenbases for map estimation"):
             eigs = tuple(
-                eigenbasis(V, F, k=required_k(V.shape[0], ESTIMATION_K), clamp_k=True,
-                           **eig_options(args))
-                for V, F in ((pair.V1, pair.F1), (pair.V2, pair.F2))
-            )  # fmt: skip
+                eigenbases(
+                    [
+                        (V, F, required_k(V.shape[0], ESTIMATION_K))
+                        for V, F in ((pair.V1, pair.F1), (pair.V2, pair.F2))
+                    ],
+                    clamp_k=True,
+                    **eig_options(args),
+                )
+            )
     corr = estimate_or_use_map(args, pair, *eigs)
     with stage(f"texture bake ({size} x {size})"):
         try:

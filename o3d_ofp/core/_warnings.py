@@ -17,7 +17,7 @@ import threading
 import warnings
 from collections.abc import Iterator
 
-__all__ = ["OFPWarning", "collected_warnings", "warn"]
+__all__ = ["OFPWarning", "collected_warnings", "reissue", "warn"]
 
 _COLLECTING = threading.local()
 
@@ -75,3 +75,15 @@ def collected_warnings() -> Iterator[list[str]]:
         yield messages
     finally:
         lists.remove(messages)
+
+
+def reissue(message: str, category: type[Warning]) -> None:
+    """Issue here a warning another process issued (its log record was forwarded already).
+
+    An :class:`OFPWarning` is also collected (:func:`collected_warnings`) as :func:`warn`
+    does; the warning points at the caller's own line.
+    """
+    if issubclass(category, OFPWarning):
+        for messages in getattr(_COLLECTING, "lists", ()):
+            messages.append(message)
+    warnings.warn(message, category, stacklevel=_outside_the_package())

@@ -20,6 +20,7 @@ representation (a coarse remeshing instead of their reduced functional space).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -30,6 +31,7 @@ import numpy as np
 from ..core._validation import check_int
 from ..core.multiscale import coarse_mesh, extend_p2p
 from ..core.spectrum import EigenBasis, eigenbasis
+from .eigenbases import run_per_shape
 
 __all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_shape", "match_dense"]
 
@@ -191,22 +193,29 @@ def match_dense(
         )
     report = progress or (lambda stage, done: None)
     t0 = time.perf_counter()
+    coarse = functools.partial(
+        coarse_shape, k=k, coarse_vertices=coarse_vertices, components=components
+    )
     c1 = coarse_1
     if c1 is None:
         logger.info(
-            "match (dense): coarse copy of the source (~%d vertices) and its eigenbasis (0%%)",
+            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases (0%%)",
             coarse_vertices,
         )
-        report("coarse source", 0.0)
-        c1 = coarse_shape(V1, faces_1, k=k, coarse_vertices=coarse_vertices, components=components)
+        report("coarse copies", 0.0)
+        c1, c2 = run_per_shape(
+            [functools.partial(coarse, V1, faces_1), functools.partial(coarse, V2, faces_2)],
+            [(min(n1, coarse_vertices), k), (min(n2, coarse_vertices), k)],
+            what="coarse copies",
+        )
     else:
-        logger.info("match (dense): the source's coarse copy is given")
-    logger.info(
-        "match (dense): coarse copy of the target (~%d vertices) and its eigenbasis (7%%)",
-        coarse_vertices,
-    )
-    report("coarse target", 0.07)
-    c2 = coarse_shape(V2, faces_2, k=k, coarse_vertices=coarse_vertices, components=components)
+        logger.info(
+            "match (dense): the source's coarse copy is given; coarse copy of the target "
+            "(~%d vertices) and its eigenbasis (0%%)",
+            coarse_vertices,
+        )
+        report("coarse target", 0.0)
+        c2 = coarse(V2, faces_2)
     eigs = [c1.eig, c2.eig]
     coarse_landmarks = None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell

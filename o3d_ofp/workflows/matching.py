@@ -35,8 +35,9 @@ from ..core.geometry import (
 )
 from ..core.multiscale import local_p2p_from_fmap
 from ..core.partial import boundary_length
-from ..core.spectrum import EigenBasis, check_eigenbasis, eigenbasis, on_cleaned_vertices
+from ..core.spectrum import EigenBasis, check_eigenbasis, on_cleaned_vertices
 from .dense import COARSE_VERTICES, DENSE_VERTICES, match_dense
+from .eigenbases import eigenbases as eigenbases_of
 
 __all__ = [
     "ESTIMATION_K",
@@ -1160,8 +1161,12 @@ def match_arrays(
         )
         return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
     zoomout_to = options.get("zoomout_to", ESTIMATION_K)
-    eigs = [
-        eigenbasis(V, F, k=required_k(V.shape[0], zoomout_to), clamp_k=True, components=components)
-        for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))
-    ]
+    eigs = eigenbases_of(
+        [
+            (V, F, required_k(V.shape[0], zoomout_to))
+            for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))
+        ],
+        clamp_k=True,
+        components=components,
+    )
     return match_eigenbases(eigs[0], eigs[1], **{**options, "landmarks": landmarks})

@@ -20,8 +20,9 @@ from ..core._validation import as_signal, check_int
 from ..core._warnings import warn
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
-from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.spectrum import EigenBasis
 from ..core.transfer import transfer_matrix, transfer_signal
+from .eigenbases import eigenbases as eigenbases_of
 from .matching import (
     ESTIMATION_K,
     Correspondence,
@@ -253,10 +254,10 @@ def _eigenbases(
         elif fmap_12 is not None:
             rows, cols = np.shape(fmap_12)
             k1, k2 = max(k1, cols - 1), max(k2, rows - 1)
-        return (
-            eigenbasis(V1, F1, k=k1, clamp_k=estimate, components=components),
-            eigenbasis(V2, F2, k=k2, clamp_k=estimate, components=components),
+        eig_1, eig_2 = eigenbases_of(
+            ((V1, F1, k1), (V2, F2, k2)), clamp_k=estimate, components=components
         )
+        return eig_1, eig_2
     for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
         if eig.n_vertices != V.shape[0]:
             raise ValueError(
@@ -332,12 +333,12 @@ def estimate_for_transfer(
         corr = match_arrays(
             V1, F1, V2, F2, landmarks=landmarks, components=components, progress=progress
         )
-        eig_1 = eigenbasis(V1, F1, k=k1, components=components)
-        eig_2 = eigenbasis(V2, F2, k=k2, components=components)
+        eig_1, eig_2 = eigenbases_of(((V1, F1, k1), (V2, F2, k2)), components=components)
         return eig_1, eig_2, corr
-    eig_1, eig_2 = (
-        eigenbasis(V, F, k=max(k, required_k(V.shape[0])), clamp_k=True, components=components)
-        for V, F, k in ((V1, F1, k1), (V2, F2, k2))
+    eig_1, eig_2 = eigenbases_of(
+        [(V, F, max(k, required_k(V.shape[0]))) for V, F, k in ((V1, F1, k1), (V2, F2, k2))],
+        clamp_k=True,
+        components=components,
     )
     corr = match_eigenbases(eig_1, eig_2, landmarks=landmarks, progress=progress)
     return eig_1, eig_2, corr

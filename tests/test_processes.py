@@ -1,0 +1,148 @@
+"""Jobs side by side in forked processes (o3d_ofp.core._processes) and the eigenbases on them."""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import signal
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+from o3d_ofp.core import _processes
+from o3d_ofp.core._processes import ENVIRONMENT, processes_available, side_by_side
+from o3d_ofp.core._warnings import OFPWarning, collected_warnings, warn
+from o3d_ofp.workflows import eigenbases as eigenbases_module
+
+needs_two = pytest.mark.skipif(
+    processes_available() < 2, reason="one core, not Linux, or O3D_OFP_PROCESSES=1: no children"
+)
+logger = logging.getLogger("o3d_ofp.tests.processes")
+
+
+@pytest.fixture(autouse=True)
+def _free_environment(monkeypatch):
+    monkeypatch.delenv(ENVIRONMENT, raising=False)
+
+
+@needs_two
+def test_the_second_job_runs_in_another_process_and_values_keep_their_order():
+    values = side_by_side([os.getpid, os.getpid], what="pids")
+    assert values[0] == os.getpid()
+    assert values[1] != os.getpid()  # a child: the job did not run here
+
+
+def test_one_allowed_process_runs_every_job_here(monkeypatch):
+    monkeypatch.setenv(ENVIRONMENT, "1")
+    assert processes_available() == 1
+    assert side_by_side([os.getpid, os.getpid, os.getpid], what="pids") == [os.getpid()] * 3
+
+
+def test_a_setting_that_is_not_a_number_is_said_and_ignored(monkeypatch, caplog):
+    monkeypatch.setenv(ENVIRONMENT, "two")
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        processes_available()
+    assert f"{ENVIRONMENT}='two' is not a whole number" in caplog.text
+
+
+@needs_two
+def test_more_jobs_than_cores_all_run_in_order():
+    jobs = [lambda i=i: i * i for i in range(5)]
+    assert side_by_side(jobs, what="squares") == [0, 1, 4, 9, 16]
+
+
+def _fail() -> None:
+    raise ValueError("the child's own message")
+
+
+@needs_two
+def test_a_child_exception_is_raised_here_with_its_type_and_message():
+    with pytest.raises(ValueError, match="the child's own message"):
+        side_by_side([lambda: 1, _fail], what="failing")
+
+
+class _Unpicklable(Exception):
+    def __init__(self, a, b):
+        super().__init__(f"{a} and {b}")
+
+
+def _fail_unpicklable() -> None:
+    raise _Unpicklable(1, 2)  # rebuilt with one argument by pickle: fails
+
+
+@needs_two
+def test_an_exception_that_cannot_travel_comes_as_text():
+    with pytest.raises(RuntimeError, match="_Unpicklable: 1 and 2"):
+        side_by_side([lambda: 1, _fail_unpicklable], what="failing")
+
+
+def _warn_and_log() -> int:
+    logger.info("from the child %d", 7)
+    warn(logging.getLogger("o3d_ofp.tests.processes"), "a doubtful child result")
+    warnings.warn("a plain warning", RuntimeWarning, stacklevel=1)
+    return 3
+
+
+@needs_two
+def test_a_child_warnings_and_log_records_reach_this_process(caplog):
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"), collected_warnings() as said:
+        with pytest.warns(OFPWarning, match="a doubtful child result"):
+            with pytest.warns(RuntimeWarning, match="a plain warning"):
+                assert side_by_side([lambda: 1, _warn_and_log], what="warning") == [1, 3]
+    assert said == ["a doubtful child result"]
+    records = [r for r in caplog.records if r.name == "o3d_ofp.tests.processes"]
+    assert [r.getMessage() for r in records][:1] == ["from the child 7"]
+    assert any(r.levelno == logging.WARNING for r in records)
+
+
+@needs_two
+def test_a_child_that_dies_is_said_and_its_job_is_run_here(caplog):
+    parent = os.getpid()
+
+    def dies_in_a_child() -> str:
+        if os.getpid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)  # as the kernel's out-of-memory killer does
+        return "here"
+
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        assert side_by_side([lambda: 1, dies_in_a_child], what="dying") == [1, "here"]
+    assert "ended without an answer (exit code -9" in caplog.text
+
+
+@needs_two
+def test_an_error_here_ends_the_children_at_once():
+    def slow() -> None:
+        time.sleep(60)
+
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match="the child's own message"):
+        side_by_side([_fail, slow], what="ending")
+    assert time.perf_counter() - t0 < 20  # not the child's 60 s
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("o3d_ofp")]
+
+
+@needs_two
+def test_short_memory_runs_the_jobs_here(monkeypatch, caplog):
+    monkeypatch.setattr(_processes, "available_memory", lambda: 1_000_000)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        pids = side_by_side([os.getpid, os.getpid], what="pids", memory_each=900_000)
+    assert pids == [os.getpid()] * 2
+    assert "1 at once" in caplog.text
+
+
+@needs_two
+def test_eigenbases_side_by_side_equal_those_one_after_the_other(monkeypatch, blob_mesh):
+    V, F = blob_mesh  # above the side-by-side threshold
+    assert V.shape[0] >= eigenbases_module.SIDE_BY_SIDE_VERTICES
+    V2 = V * 2.0 + 1.0
+    shapes = [(V, F, 12), (V2, F, 9)]
+    together = eigenbases_module.eigenbases(shapes)
+    monkeypatch.setenv(ENVIRONMENT, "1")
+    apart = eigenbases_module.eigenbases(shapes)
+    for a, b in zip(together, apart, strict=True):
+        assert a.k == b.k
+        np.testing.assert_array_equal(a.evals, b.evals)  # the same computation, bit for bit
+        np.testing.assert_array_equal(a.evecs, b.evecs)
