@@ -11,6 +11,8 @@ import o3d_ofp as ofp
 from o3d_ofp.core.shapes import blob, icosphere
 from o3d_ofp.workflows.matching import Correspondence, map_quality
 
+from .conftest import load_shared_mesh
+
 
 @pytest.fixture(scope="module")
 def pair():
@@ -104,6 +106,39 @@ def test_a_collapsed_or_flipped_map_is_flagged(pair, reference, caplog):
             corr = ofp.match((V1, F1), icosphere(3))
     assert corr.quality.suspect
     assert "suspect" in caplog.text and "landmarks" in caplog.text
+
+
+def test_a_functional_map_far_from_an_isometry_is_flagged(pair):
+    from o3d_ofp.workflows.matching import MAX_ORTHOGONALITY
+
+    (V1, F1), (V2, F2) = pair
+    e1, e2 = ofp.eigenbasis(V1, F1, k=20), ofp.eigenbasis(V2, F2, k=20)
+    p2p = ofp.nearest_neighbors(V1, V2)  # a right point map: only the functional map varies
+    scale = np.sqrt(e2.area / e1.area)  # map_quality measures it between unit-area bases
+    # ‖s²I − I‖_F / √(k+1) = |s² − 1|: just below and just above the bound
+    for s2, flagged in ((1 - 0.9 * MAX_ORTHOGONALITY, False), (1 - 1.1 * MAX_ORTHOGONALITY, True)):
+        C = np.sqrt(s2) * np.eye(21) * scale
+        q = map_quality(p2p, e1, e2, C)
+        assert q.orthogonality == pytest.approx(abs(s2 - 1.0), rel=1e-9)
+        said = any("far from an isometry" in r for r in q.reasons)
+        assert said == flagged, q.reasons
+    assert "not near-isometric" in next(r for r in q.reasons if "isometry" in r)
+
+
+@pytest.mark.parametrize("other", ["models/bunny.off", "models/teddy.obj", "nasty/dog.off"])
+def test_a_shape_of_another_kind_is_flagged(other):
+    """A human matched onto a bunny, a teddy or a dog: no right map exists; it must be said.
+
+    Measured (``python scripts/eval_matching.py --unrelated``): orthogonality 0.43-0.45 (the
+    bound is 0.4; right maps between humans 0.11-0.29); before the bound was lowered from 0.5,
+    the bunny and the teddy maps passed as "ok".
+    """
+    human = load_shared_mesh("faust/tr_reg_093.ply")
+    target = load_shared_mesh(other)
+    with pytest.warns(ofp.OFPWarning, match="suspect"):
+        corr = ofp.match(human, target)
+    assert corr.quality.suspect
+    assert any("not near-isometric" in r for r in corr.quality.reasons), corr.quality.reasons
 
 
 def test_save_load_round_trip(reference, tmp_path):
