@@ -17,9 +17,9 @@ pair of ../shared/data, ours and pyFM.
 
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
 Columns: map error, seconds until the map exists (its eigenbases included) and end to end
-(match + color transfer), peak memory (the resident sets of the process and of its children,
-the forked processes of the side-by-side eigensolves, summed: pages they share are counted
-twice; sampled every 5 ms during the call, psutil), the share of the machine's CPU other
+(match + color transfer), peak memory (the process's resident set, sampled every 5 ms during
+the call, plus the memory of its children of their own, USS, sampled every 50 ms: the forked
+processes of the side-by-side eigensolves; psutil), the share of the machine's CPU other
 processes used during the row (steal time included; this process's own threads and reaped
 children are not counted, unlike in a load average), and
 the speed-up over pyFM.
@@ -71,6 +71,7 @@ class Peak:
     def __enter__(self) -> Peak:
         self._proc = psutil.Process()
         self.peak = self._proc.memory_info().rss
+        self._children = 0
         self._busy0, self._own0 = _busy_seconds(), _own_seconds(self._proc)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, daemon=True)
@@ -79,21 +80,28 @@ class Peak:
         return self
 
     def _resident(self) -> int:
-        """Resident bytes of this process and its children (the side-by-side eigensolves).
+        """Resident bytes of this process plus the unique bytes of its children.
 
-        A forked child shares its parent's pages until either writes them; both resident
-        sets count them: the sum is an upper bound.
+        The children are the forked processes of the side-by-side eigensolves: they share
+        this process's pages until either writes them, so only their own (USS) is added.
         """
-        total = self._proc.memory_info().rss
+        return self._proc.memory_info().rss + self._children
+
+    def _children_unique(self) -> int:
+        total = 0
         for child in self._proc.children(recursive=True):
             try:
-                total += child.memory_info().rss
+                total += child.memory_full_info().uss
             except psutil.Error:  # ended in between
                 pass
         return total
 
     def _watch(self) -> None:
+        ticks = 0
         while not self._stop.wait(0.005):
+            if ticks % 10 == 0:  # USS reads /proc/PID/smaps: every 50 ms
+                self._children = self._children_unique()
+            ticks += 1
             self.peak = max(self.peak, self._resident())
 
     def __exit__(self, *exc: object) -> None:
@@ -267,6 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.pairs:
         from eval_matching import PAIRS, load, truth
 
+        sums = {"ours": [], "pyFM": []}  # (error, seconds) of each pair
         for a, b, kind in PAIRS:
             V1, F1 = load(a)
             V2, F2 = load(b)
@@ -274,14 +283,26 @@ def main(argv: list[str] | None = None) -> int:
             name = f"{Path(a).stem}->{Path(b).stem}"
             p2p, t_match, t_ours, peak, others = ours(V1, F1, V2, F2)
             err = error(p2p, V1, F1, t, s)
+            sums["ours"].append((err, t_ours))
             line, o1 = row(name, len(V1), err, t_match, t_ours, peak, "ours", "", others)
             print(line, flush=True)
             p2p, t_match, t_pyfm, peak, others = pyfm(V1, F1, V2, F2)
             ratio = f"{t_pyfm / t_ours:.1f}x"
             err = error(p2p, V1, F1, t, s)
+            sums["pyFM"].append((err, t_pyfm))
             line, o2 = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM", ratio, others)
             print(line, flush=True)
             busy += [o1, o2]
+        ours_e, ours_s = np.array(sums["ours"]).T
+        pyfm_e, pyfm_s = np.array(sums["pyFM"]).T
+        worst = int(np.argmax(ours_e / pyfm_e))
+        print(
+            f"pairs: mean error {ours_e.mean():.3f} (ours) against {pyfm_e.mean():.3f} (pyFM); "
+            f"{ours_s.sum():.1f} s against {pyfm_s.sum():.1f} s in total "
+            f"({pyfm_s.sum() / ours_s.sum():.1f}x, ours with the color transfer); ours at most "
+            f"{ours_e[worst] / pyfm_e[worst]:.2f}x pyFM's error "
+            f"({Path(PAIRS[worst][0]).stem}->{Path(PAIRS[worst][1]).stem})"
+        )
     if busy and max(busy) > BUSY:
         print(
             f"WARNING: the machine was busy (other processes used up to {100 * max(busy):.0f} % "

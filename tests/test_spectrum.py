@@ -285,3 +285,18 @@ def test_a_large_share_of_the_spectrum_is_solved_densely(caplog):
     scaled = big.evals[1:16] * big.area / (4 * np.pi)
     np.testing.assert_allclose(scaled[:3], 2.0, rtol=5e-3)
     np.testing.assert_allclose(scaled[3:8], 6.0, rtol=5e-3)
+
+
+def test_a_long_lanczos_run_says_how_far_it_is(monkeypatch, caplog, blob_mesh):
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        ofp.eigenbasis(*blob_mesh, k=20)  # ~0.1 s: quiet
+    assert "Lanczos step" not in caplog.text
+    caplog.clear()
+    monkeypatch.setattr(spectrum, "PROGRESS_SECONDS", 0.0)  # every step is "long" now
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        ofp.eigenbasis(*blob_mesh, k=20)
+    steps = [r.getMessage() for r in caplog.records if "Lanczos step" in r.getMessage()]
+    assert len(steps) > 21  # at least one solve per wanted pair
+    assert steps[0].startswith("eigenbasis: n=2562 k=20: Lanczos step 1 of about 63 (1%")
+    percents = [int(m.split("(")[1].split("%")[0]) for m in steps]
+    assert percents == sorted(percents) and max(percents) <= 99
