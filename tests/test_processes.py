@@ -99,6 +99,43 @@ def test_a_child_warnings_and_log_records_reach_this_process(caplog):
 
 
 @needs_two
+def test_a_child_record_reaches_each_handler_once_as_the_command_line_sets_them(monkeypatch):
+    """The CLI's handler sits on "o3d_ofp", which does not propagate; a caller's on the root."""
+    seen: dict[str, list[str]] = {"package": [], "root": []}
+
+    class Keep(logging.Handler):
+        def __init__(self, where: str):
+            super().__init__(logging.DEBUG)
+            self.where = where
+
+        def emit(self, record: logging.LogRecord) -> None:
+            seen[self.where].append(record.getMessage())
+
+    package, root = logging.getLogger("o3d_ofp"), logging.getLogger()
+    on_package, on_root = Keep("package"), Keep("root")
+    monkeypatch.setattr(package, "level", logging.INFO)
+    for propagate, expected_root in ((False, []), (True, ["from the child 7"])):
+        seen["package"].clear()
+        seen["root"].clear()
+        monkeypatch.setattr(package, "propagate", propagate)
+        package.addHandler(on_package)
+        root.addHandler(on_root)
+        try:
+            side_by_side([lambda: 1, _log_only], what="logging")
+        finally:
+            package.removeHandler(on_package)
+            root.removeHandler(on_root)
+        from_child = [m for m in seen["package"] if m.startswith("from the child")]
+        assert from_child == ["from the child 7"]  # once, not lost
+        assert [m for m in seen["root"] if m.startswith("from the child")] == expected_root
+
+
+def _log_only() -> int:
+    logger.info("from the child %d", 7)
+    return 2
+
+
+@needs_two
 def test_a_child_that_dies_is_said_and_its_job_is_run_here(caplog):
     parent = os.getpid()
 

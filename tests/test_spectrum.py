@@ -292,7 +292,9 @@ def test_a_long_lanczos_run_says_how_far_it_is(monkeypatch, caplog, blob_mesh):
         ofp.eigenbasis(*blob_mesh, k=20)  # ~0.1 s: quiet
     assert "Lanczos step" not in caplog.text
     caplog.clear()
-    monkeypatch.setattr(spectrum, "PROGRESS_SECONDS", 0.0)  # every step is "long" now
+    from o3d_ofp.core import _progress
+
+    monkeypatch.setattr(_progress, "PROGRESS_SECONDS", 0.0)  # every step is "long" now
     with caplog.at_level(logging.INFO, logger="o3d_ofp"):
         ofp.eigenbasis(*blob_mesh, k=20)
     steps = [r.getMessage() for r in caplog.records if "Lanczos step" in r.getMessage()]
@@ -300,3 +302,19 @@ def test_a_long_lanczos_run_says_how_far_it_is(monkeypatch, caplog, blob_mesh):
     assert steps[0].startswith("eigenbasis: n=2562 k=20: Lanczos step 1 of about 63 (1%")
     percents = [int(m.split("(")[1].split("%")[0]) for m in steps]
     assert percents == sorted(percents) and max(percents) <= 99
+
+
+def test_a_long_orthogonalization_says_how_far_it_is(monkeypatch, caplog, blob_mesh):
+    from o3d_ofp.core import _progress
+
+    eig = ofp.eigenbasis(*blob_mesh, k=20)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        ofp.ofp_basis(eig, order=2, block_size=32)  # short: quiet
+    assert "orthogonalization" not in caplog.text
+    monkeypatch.setattr(_progress, "PROGRESS_SECONDS", 0.0)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        ofp.ofp_basis(eig, order=2, block_size=32)
+    said = [r.getMessage() for r in caplog.records if "orthogonalization" in r.getMessage()]
+    total = 1 + 20 + 20 * 21 // 2  # the constant, the 20 functions, their products
+    assert said[0] == f"orthogonalization (n=2562): candidate 0 of {total} (0%, 0 s)"
+    assert said[-1].startswith(f"orthogonalization (n=2562): candidate {total - total % 32}")

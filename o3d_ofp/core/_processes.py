@@ -88,11 +88,13 @@ class _Dispatch(logging.Handler):
 def _child(job: Callable[[], Any], conn: Any, log_queue: Any) -> None:
     """Run ``job`` in the forked child; send back (status, value, warnings) as one pickle."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent takes Ctrl-C and ends us
-    root = logging.getLogger()
-    for other in list(logging.Logger.manager.loggerDict.values()):
-        if isinstance(other, logging.Logger):
-            other.handlers = []
-    root.handlers = [logging.handlers.QueueHandler(log_queue)]
+    # Every record leaves at the logger it was made on, before any handler here sees it: the
+    # parent hands it to its logger of that name, whose handlers, propagation and filters
+    # (the command line's handler on "o3d_ofp", which does not propagate; a caller's on the
+    # root) then treat it exactly as a record made there. Patched on the class: this process
+    # is the child's alone and ends with the job.
+    sender = logging.handlers.QueueHandler(log_queue)
+    logging.Logger.callHandlers = lambda self, record: sender.handle(record)  # type: ignore
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")  # the parent's filters decide when it issues them
         try:

@@ -56,6 +56,7 @@ import numpy as np
 import scipy.linalg
 from scipy.linalg.blas import dgemm, dnrm2, dtrsm
 
+from ._progress import Progress
 from ._validation import as_signal, check_int, check_tol
 
 __all__ = ["PRESETS", "GramSchmidt", "gram_schmidt", "gram_schmidt_blocks", "resolve_tol"]
@@ -469,7 +470,9 @@ def gram_schmidt_blocks(
     kept: list[int] = []
     r_blocks: list[tuple[int, np.ndarray]] = []
     expected = 0
+    progress = Progress(logger, f"orthogonalization (n={n}): candidate", n_candidates)
     for start, raw in _recut(blocks, block_size):
+        progress(start)
         if start != expected:
             raise ValueError(
                 f"candidate blocks must be consecutive; expected column {expected}, got {start}"

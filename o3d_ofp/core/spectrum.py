@@ -25,7 +25,6 @@ import dataclasses
 import hashlib
 import logging
 import math
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -35,6 +34,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from ._memory import check_memory
+from ._progress import Progress
 from ._threads import blas_threads
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleaningReport, CleanShape, clean_shape
@@ -324,46 +324,31 @@ def _factorize(A: sp.csc_matrix, sigma: float, factorization: str) -> tuple[Any,
         ) from exc
 
 
-#: A Lanczos run longer than this many seconds logs its progress at INFO, then every as many.
-PROGRESS_SECONDS = 5.0
 #: Solves of shift-invert Lanczos per wanted eigenpair, for the progress estimate: measured
 #: 2.5-3.8 (FAUST at 6.9k and 27.5k vertices, a torus, a blob; k = 29, 39 and 99; the same
 #: count at both FAUST sizes: it follows the spectrum, not the vertex count).
 _SOLVES_PER_PAIR = 3.0
 
 
-class _LanczosProgress:
-    """Count the solves of a Lanczos run and log, every :data:`PROGRESS_SECONDS`, how far it is.
+def _counted(solve: Any, n: int, k: int) -> Any:
+    """Wrap ``solve`` to report Lanczos' progress.
 
-    ARPACK reports nothing until it ends (20-40 s for a 440k-vertex shape): the count of
-    ``(L - σM)⁻¹`` solves against the usual count for ``k`` pairs is the only progress there
-    is (an estimate, capped at 99 %).
+    ARPACK says nothing until it ends (20-40 s on a 440k-vertex shape): the count of solves
+    against the usual count is the only measure there is.
     """
+    progress = Progress(
+        logger, f"eigenbasis: n={n} k={k}: Lanczos step", round(_SOLVES_PER_PAIR * (k + 1)),
+        about=True,
+    )  # fmt: skip
+    count = 0
 
-    def __init__(self, n: int, k: int) -> None:
-        self.n, self.k = n, k
-        self.expected = max(1, round(_SOLVES_PER_PAIR * (k + 1)))
-        self.count = 0
-        self.start = self.last = time.perf_counter()
+    def counted(b: np.ndarray) -> np.ndarray:
+        nonlocal count
+        count += 1
+        progress(count)
+        return solve(b)
 
-    def wrap(self, solve: Any) -> Any:
-        def counted(b: np.ndarray) -> np.ndarray:
-            self.count += 1
-            now = time.perf_counter()
-            if now - self.last >= PROGRESS_SECONDS:
-                self.last = now
-                logger.info(
-                    "eigenbasis: n=%d k=%d: Lanczos step %d of about %d (%d%%, %.0f s)",
-                    self.n,
-                    self.k,
-                    self.count,
-                    self.expected,
-                    min(99, 100 * self.count // self.expected),
-                    now - self.start,
-                )
-            return solve(b)
-
-        return counted
+    return counted
 
 
 def _shift_invert_eigs(
@@ -387,7 +372,7 @@ def _shift_invert_eigs(
     shifted = (stiffness - sigma * M).tocsc()
     op, backend = _factorize(shifted, sigma, factorization)
     logger.debug("shift-invert: sigma=%.3g, factorization %s", sigma, backend)
-    op = sla.LinearOperator(op.shape, matvec=_LanczosProgress(n, k).wrap(op.matvec), dtype=op.dtype)
+    op = sla.LinearOperator(op.shape, matvec=_counted(op.matvec, n, k), dtype=op.dtype)
     v0 = np.random.default_rng(seed).standard_normal(n)  # fixed start: reproducible runs
     try:
         evals, evecs = sla.eigsh(
