@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import multiprocessing.context
 import os
 import signal
+import subprocess
+import sys
+import textwrap
 import time
 import warnings
 
@@ -60,8 +64,11 @@ def _fail() -> None:
 
 @needs_two
 def test_a_child_exception_is_raised_here_with_its_type_and_message():
-    with pytest.raises(ValueError, match="the child's own message"):
+    with pytest.raises(ValueError, match="the child's own message") as raised:
         side_by_side([lambda: 1, _fail], what="failing")
+    notes = "".join(getattr(raised.value, "__notes__", []))
+    if sys.version_info >= (3, 11):  # its traceback there comes along as a note
+        assert "in the side process computing failing" in notes and "in _fail" in notes
 
 
 class _Unpicklable(Exception):
@@ -82,8 +89,14 @@ def test_an_exception_that_cannot_travel_comes_as_text():
 def _warn_and_log() -> int:
     logger.info("from the child %d", 7)
     warn(logging.getLogger("o3d_ofp.tests.processes"), "a doubtful child result")
-    warnings.warn("a plain warning", RuntimeWarning, stacklevel=1)
+    warnings.warn("a plain warning", RuntimeWarning, stacklevel=1)  # _PLAIN_LINE
     return 3
+
+
+with open(__file__, encoding="utf-8") as _source:
+    _PLAIN_LINE = next(
+        i for i, line in enumerate(_source, 1) if "# _PLAIN_LINE" in line and "warn(" in line
+    )
 
 
 @needs_two
@@ -94,6 +107,12 @@ def test_a_child_warnings_and_log_records_reach_this_process(caplog):
                 assert side_by_side([lambda: 1, _warn_and_log], what="warning") == [1, 3]
     assert said == ["a doubtful child result"]
     records = [r for r in caplog.records if r.name == "o3d_ofp.tests.processes"]
+    # a plain warning keeps the place it was raised in the child (the filters by module apply)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        side_by_side([lambda: 1, _warn_and_log], what="warning")
+    plain = next(w for w in caught if w.category is RuntimeWarning)
+    assert (plain.filename, plain.lineno) == (__file__, _PLAIN_LINE)
     assert [r.getMessage() for r in records][:1] == ["from the child 7"]
     assert any(r.levelno == logging.WARNING for r in records)
 
@@ -171,15 +190,130 @@ def test_short_memory_runs_the_jobs_here(monkeypatch, caplog):
 
 
 @needs_two
-def test_eigenbases_side_by_side_equal_those_one_after_the_other(monkeypatch, blob_mesh):
+def test_eigenbases_side_by_side_equal_those_one_after_the_other(monkeypatch, caplog, blob_mesh):
     V, F = blob_mesh  # above the side-by-side threshold
     assert V.shape[0] >= eigenbases_module.SIDE_BY_SIDE_VERTICES
     V2 = V * 2.0 + 1.0
     shapes = [(V, F, 12), (V2, F, 9)]
-    together = eigenbases_module.eigenbases(shapes)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        together = eigenbases_module.eigenbases(shapes)
+    assert "eigenbases: 2 at once (1 in forked processes)" in caplog.text
     monkeypatch.setenv(ENVIRONMENT, "1")
     apart = eigenbases_module.eigenbases(shapes)
     for a, b in zip(together, apart, strict=True):
         assert a.k == b.k
         np.testing.assert_array_equal(a.evals, b.evals)  # the same computation, bit for bit
         np.testing.assert_array_equal(a.evecs, b.evecs)
+
+
+@needs_two
+def test_an_error_here_while_a_child_logs_fast_ends_at_once(caplog):
+    """A child ended while it wrote a record must not block this process (no shared lock)."""
+
+    def chatty() -> None:
+        while True:
+            logger.debug("a record from the child")
+
+    def fail_soon() -> None:
+        time.sleep(0.3)
+        raise ValueError("stop here")
+
+    t0 = time.perf_counter()
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp"):
+        for _ in range(3):
+            with pytest.raises(ValueError, match="stop here"):
+                side_by_side([fail_soon, chatty], what="chatty")
+    assert time.perf_counter() - t0 < 30
+    assert "a record from the child" in caplog.text
+
+
+@needs_two
+def test_a_process_that_cannot_start_leaves_the_job_here(monkeypatch, caplog):
+    def refuse(self) -> None:
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(multiprocessing.context.ForkProcess, "start", refuse)
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        assert side_by_side([os.getpid, os.getpid], what="pids") == [os.getpid()] * 2
+    assert "a side process could not start" in caplog.text
+
+
+def _run_script(code: str, tmp_path, timeout: float = 120) -> subprocess.CompletedProcess:
+    script = tmp_path / "script.py"
+    script.write_text(textwrap.dedent(code))
+    return subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=timeout,
+        cwd=tmp_path,
+    )  # fmt: skip
+
+
+def _gone(pid: int, seconds: float) -> bool:
+    import psutil
+
+    end = time.time() + seconds
+    while time.time() < end:
+        try:
+            if psutil.Process(pid).status() == psutil.STATUS_ZOMBIE:
+                return True
+        except psutil.NoSuchProcess:
+            return True
+        time.sleep(0.1)
+    return False
+
+
+@needs_two
+def test_a_child_dies_with_its_parent(tmp_path):
+    """A parent killed without its clean-up (SIGKILL, a batch scheduler) leaves no child."""
+    result = _run_script(
+        """
+        import os, time
+        from o3d_ofp.core._processes import side_by_side
+
+        def child():
+            with open("child.pid", "w") as f:
+                f.write(str(os.getpid()))
+            time.sleep(60)
+            return b"x" * 10_000_000  # more than a pipe holds
+
+        def parent():
+            while not os.path.exists("child.pid"):
+                time.sleep(0.05)
+            os._exit(0)  # no finally, no terminate: as if killed
+
+        side_by_side([parent, child], what="orphan")
+        """,
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    pid = int((tmp_path / "child.pid").read_text())
+    assert _gone(pid, 10), f"child {pid} outlived its parent"
+
+
+@needs_two
+def test_a_fork_while_another_thread_holds_the_blas_lock_does_not_hang(tmp_path):
+    """o3d_ofp.core._threads' lock held by another thread at the fork (a concurrent call)."""
+    result = _run_script(
+        """
+        import threading, time
+        from o3d_ofp.core import _threads
+        from o3d_ofp.core.shapes import blob
+        from o3d_ofp.workflows.eigenbases import eigenbases
+
+        V, F = blob(4)
+        held = threading.Event()
+
+        def hold():
+            with _threads._LOCK:
+                held.set()
+                time.sleep(1.0)
+
+        threading.Thread(target=hold).start()
+        held.wait()
+        out = eigenbases([(V, F, 8), (V * 2.0, F, 8)])
+        print("done", [e.k for e in out])
+        """,
+        tmp_path,
+        timeout=90,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "done [8, 8]" in result.stdout

@@ -343,8 +343,10 @@ def read_pair(args: argparse.Namespace) -> Pair:
 
 def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any, Any]:
     """(B1, B2, eig_1, eig_2): the OFP bases and the eigenbases the map needs."""
+    from ..core._memory import basis_job_bytes
+    from ..core.products import n_eigenproducts
     from ..core.spectrum import eigenbasis
-    from ..workflows.eigenbases import run_per_shape
+    from ..workflows.eigenbases import answer_bytes, run_per_shape
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import check_job_memory
 
@@ -391,12 +393,21 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
 
     sides = ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2))
     # Both sides at once, one per core, when both are computed (a basis file is only read).
-    sizes = [
-        (0 if file else V.shape[0], max(k or default, required_k(V.shape[0], ESTIMATION_K)))
-        for (_, k, default, file), V in zip(sides, (pair.V1, pair.V2), strict=True)
-    ]
+    vertices, memory = [], []
+    for (_, k, default, file), V in zip(sides, (pair.V1, pair.V2), strict=True):
+        n, k = V.shape[0], k or default
+        eig_k = max(k, required_k(n, ESTIMATION_K)) if estimate else k
+        vertices.append(0 if file else n)
+        kept = min(n_eigenproducts(min(k, n - 1), args.order), n)  # at most, "ours" keeps fewer
+        memory.append(
+            basis_job_bytes(n, k=k, order=args.order, eig_k=eig_k)
+            + answer_bytes(n, eig_k + 1 + kept)
+        )
     out = run_per_shape(
-        [functools.partial(side_job, *side) for side in sides], sizes, what="bases of both shapes"
+        [functools.partial(side_job, *side) for side in sides],
+        vertices,
+        memory,
+        what="bases of both shapes",
     )
     (B1, e1), (B2, e2) = out
     return B1, B2, e1, e2

@@ -11,17 +11,22 @@ starts in a few milliseconds from the parent's memory, and the job needs no pick
 ``spawn`` and ``forkserver`` re-import the caller's ``__main__`` (a script without the
 ``if __name__ == "__main__":`` guard then fails) and pay the imports again (0.5-1 s); where
 ``fork`` is not available, or in a daemonic process (a Dask worker cannot have children), or
-on one core, or when memory is short, the jobs run one after the other here, as before.
-``O3D_OFP_PROCESSES=1`` in the environment does the same (the number of jobs at once).
+on one core, or when memory is short, or when a process cannot be started, the jobs run one
+after the other here. ``O3D_OFP_PROCESSES=1`` in the environment does the same (the number
+of jobs at once).
 
-A child's log records are sent to this process's loggers as they happen, its warnings are
-issued here when it ends, and its exception is raised here. A child that dies without an
-answer (killed for memory, say) is said and its job is run here instead. An interrupt or an
-error here ends the children.
+Each child has one pipe to this process, read by a thread here as it is written: the
+child's log records, handed to this process's logger of the same name as they happen, then
+its answer (its value or its exception, and the warnings it issued, issued here again). No
+lock is shared between the processes, so a child ended at any moment cannot block this one.
+A child that ends without an answer (killed for memory, say) is said and its job is run
+here; an error or an interrupt here ends the children, and a child dies with its parent
+(``PR_SET_PDEATHSIG``) instead of computing on for nobody.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import logging.handlers
 import multiprocessing
@@ -29,13 +34,14 @@ import os
 import pickle
 import signal
 import sys
+import threading
 import traceback
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from ._memory import available_memory, format_bytes
-from ._warnings import reissue
+from ._warnings import OFPWarning, reissue
 
 __all__ = ["ENVIRONMENT", "processes_available", "side_by_side"]
 
@@ -72,46 +78,130 @@ def processes_available() -> int:
     return limit
 
 
-class _Dispatch(logging.Handler):
-    """Hand a child's record to this process's logger of the same name."""
+class _Pipe:
+    """The ``put_nowait`` a :class:`logging.handlers.QueueHandler` needs, over the child's pipe."""
 
-    def handle(self, record: logging.LogRecord) -> bool:  # type: ignore[override]
-        target = logging.getLogger(record.name)
-        if target.isEnabledFor(record.levelno):
-            target.handle(record)
-        return True
+    def __init__(self, conn: Any) -> None:
+        self.conn = conn
+        self.lock = threading.Lock()  # a job may log from several threads of the child
 
-    def emit(self, record: logging.LogRecord) -> None:  # pragma: no cover - handle() does it
+    def send(self, message: tuple[Any, ...]) -> None:
+        data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        with self.lock:
+            self.conn.send_bytes(data)
+
+    def put_nowait(self, record: logging.LogRecord) -> None:
+        self.send(("log", record))
+
+
+def _die_with_parent(parent: int) -> None:
+    """Have the kernel end this child when the process that forked it ends (Linux)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - no prctl: the pipe still breaks
         pass
+    if os.getppid() != parent:  # it ended before the call above
+        os._exit(1)
 
 
-def _child(job: Callable[[], Any], conn: Any, log_queue: Any) -> None:
-    """Run ``job`` in the forked child; send back (status, value, warnings) as one pickle."""
+def _child(job: Callable[[], Any], conn: Any, unused: Any, parent: int) -> None:
+    """Run ``job`` in the forked child; send its records, then its answer, through ``conn``."""
+    unused.close()  # our copy of the reading end: the parent's death must break the pipe
+    _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent takes Ctrl-C and ends us
+    pipe = _Pipe(conn)
     # Every record leaves at the logger it was made on, before any handler here sees it: the
     # parent hands it to its logger of that name, whose handlers, propagation and filters
     # (the command line's handler on "o3d_ofp", which does not propagate; a caller's on the
     # root) then treat it exactly as a record made there. Patched on the class: this process
     # is the child's alone and ends with the job.
-    sender = logging.handlers.QueueHandler(log_queue)
+    sender = logging.handlers.QueueHandler(pipe)  # type: ignore[arg-type]
     logging.Logger.callHandlers = lambda self, record: sender.handle(record)  # type: ignore
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")  # the parent's filters decide when it issues them
+    with warnings.catch_warnings(record=True) as caught:  # the filters inherited decide
         try:
-            outcome: tuple[str, Any] = ("ok", job())
-        except BaseException as exc:
-            outcome = ("error", exc)
-    said = [(str(w.message), w.category) for w in caught]
+            outcome: tuple[Any, ...] = ("ok", job())
+        except BaseException as exc:  # every failure is the parent's to raise
+            outcome = ("error", exc, "".join(traceback.format_exception(exc)))
+    said = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
     try:
-        data = pickle.dumps((outcome, said), protocol=pickle.HIGHEST_PROTOCOL)
+        data = pickle.dumps(("answer", outcome, said), protocol=pickle.HIGHEST_PROTOCOL)
         if outcome[0] == "error":
             pickle.loads(data)  # an exception that cannot be rebuilt there is sent as text
     except Exception:
-        text = "".join(traceback.format_exception(outcome[1])) if outcome[0] == "error" else ""
+        text = outcome[2] if outcome[0] == "error" else traceback.format_exc()
         failure = RuntimeError(f"a side process failed and its answer could not be sent:\n{text}")
-        data = pickle.dumps((("error", failure), said))
-    conn.send_bytes(data)
+        data = pickle.dumps(("answer", ("error", failure, text), said))
+    with pipe.lock:
+        conn.send_bytes(data)
     conn.close()
+
+
+def _dispatch(record: logging.LogRecord) -> None:
+    target = logging.getLogger(record.name)
+    if target.isEnabledFor(record.levelno):
+        target.handle(record)
+
+
+class _Reader(threading.Thread):
+    """Read one child's pipe here: log records as they come, then the answer (or the end)."""
+
+    def __init__(self, receive: Any, what: str) -> None:
+        super().__init__(name=f"o3d_ofp {what} reader", daemon=True)
+        self.receive = receive
+        self.answer: tuple[Any, ...] | None = None
+
+    def run(self) -> None:
+        while True:
+            try:
+                message = pickle.loads(self.receive.recv_bytes())
+            except (EOFError, OSError):  # the child ended (without an answer if none came)
+                return
+            except Exception as exc:  # a record cut short by a killed child
+                logger.debug("a message from a side process could not be read: %s", exc)
+                return
+            if message[0] == "log":
+                _dispatch(message[1])
+            else:
+                self.answer = message[1:]
+                return
+
+
+def _issue(said: list[tuple[str, type[Warning], str, int]]) -> None:
+    """Issue here the warnings a child issued: ours at the caller's line, others at theirs."""
+    for message, category, filename, lineno in said:
+        if issubclass(category, OFPWarning):
+            reissue(message, category)
+        else:  # where it was raised: the filters here (by module, by category) apply as there
+            warnings.warn_explicit(message, category, filename, lineno)
+
+
+def _start(
+    ctx: Any, job: Callable[[], Any], what: str, index: int
+) -> tuple[Any, _Reader] | None:
+    """Fork a child for ``job`` and its reader; None (said) when a process cannot be made."""
+    try:
+        receive, send = ctx.Pipe(duplex=False)
+    except OSError as exc:
+        logger.warning("%s: no pipe for a side process (%s); running here", what, exc)
+        return None
+    process = ctx.Process(
+        target=_child,
+        args=(job, send, receive, os.getpid()),
+        name=f"o3d_ofp {what} {index}",
+        daemon=True,
+    )
+    try:
+        process.start()
+    except OSError as exc:
+        receive.close()
+        send.close()
+        logger.warning("%s: a side process could not start (%s); running here", what, exc)
+        return None
+    send.close()  # ours closed: the child's end without an answer is an EOF here
+    reader = _Reader(receive, what)
+    reader.start()
+    return process, reader
 
 
 def side_by_side(
@@ -130,8 +220,8 @@ def side_by_side(
     what : str
         What the jobs compute, for the log (e.g. ``"eigenbases"``).
     memory_each : float, optional
-        Estimated peak bytes of one job: no more jobs run at once than the available memory
-        holds (each beyond the first needs its own).
+        Estimated peak bytes of one job, its answer's copies included: no more jobs run at
+        once than the available memory holds that many times.
 
     Returns
     -------
@@ -141,7 +231,8 @@ def side_by_side(
     Raises
     ------
     BaseException
-        The first job's exception, in the order of ``jobs``, raised here.
+        The first job's exception, in the order of ``jobs``, raised here (a child's carries
+        its traceback there as a note).
     """
     jobs = list(jobs)
     at_once = min(len(jobs), processes_available())
@@ -162,34 +253,20 @@ def side_by_side(
         return [job() for job in jobs]
     logger.info("%s: %d at once (%d in forked processes)", what, at_once, at_once - 1)
     ctx = multiprocessing.get_context("fork")
-    log_queue = ctx.Queue()
-    listener = logging.handlers.QueueListener(log_queue, _Dispatch())
-    children: list[tuple[int, Any, Any]] = []  # (job index, process, receiving end)
+    children: dict[int, tuple[Any, _Reader]] = {}
     results: dict[int, T] = {}
-    answered: set[int] = set()
-    listening = False
     try:
         for index in range(1, at_once):
-            receive, send = ctx.Pipe(duplex=False)
-            process = ctx.Process(
-                target=_child,
-                args=(jobs[index], send, log_queue),
-                name=f"o3d_ofp {what} {index}",
-                daemon=True,
-            )
-            process.start()
-            send.close()  # ours closed: the child's exit without an answer is an EOF here
-            children.append((index, process, receive))
-        listener.start()
-        listening = True
-        results[0] = jobs[0]()
-        for index in range(at_once, len(jobs)):
-            results[index] = jobs[index]()
-        for index, process, receive in children:
-            try:
-                outcome, said = pickle.loads(receive.recv_bytes())
-                answered.add(index)
-            except EOFError:
+            started = _start(ctx, jobs[index], what, index)
+            if started is None:
+                break
+            children[index] = started
+        for index in range(len(jobs)):
+            if index not in children:
+                results[index] = jobs[index]()
+        for index, (process, reader) in children.items():
+            reader.join()
+            if reader.answer is None:
                 process.join()
                 logger.warning(
                     "%s: the process of job %d ended without an answer (exit code %s: out of "
@@ -200,19 +277,19 @@ def side_by_side(
                 )
                 results[index] = jobs[index]()
                 continue
-            for message, category in said:
-                reissue(message, category)
+            outcome, said = reader.answer
+            _issue(said)
             if outcome[0] == "error":
-                raise outcome[1]
+                exc = outcome[1]
+                if hasattr(exc, "add_note"):  # Python 3.11+
+                    exc.add_note(f"in the side process computing {what}:\n{outcome[2]}")
+                raise exc
             results[index] = outcome[1]
     finally:
-        for index, process, receive in children:
-            if index not in answered:  # an interrupt or an error here: the child's work is moot
+        for process, reader in children.values():
+            if reader.answer is None:  # an error or an interrupt here: its work is moot
                 process.terminate()
             process.join()
-            receive.close()
-        if listening:
-            listener.stop()
-        log_queue.close()
-        log_queue.join_thread()
+            reader.join()  # at the child's end, its pipe gives EOF
+            reader.receive.close()
     return [results[i] for i in range(len(jobs))]

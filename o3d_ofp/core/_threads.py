@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import os
 import threading
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
@@ -33,6 +34,13 @@ PARALLEL_ROWS = 100_000
 #: interleaved calls (threads of a Dask worker) neither lift each other's limit nor leave it
 #: behind. The strictest active limit applies; the last call out restores what the first found.
 _LOCK = threading.Lock()
+# A process forked while another thread holds the lock (it does for ~1.6 ms at each limit
+# change) would inherit it held, and its first limit would wait forever: a fork waits for
+# the lock, and the child starts with it free (o3d_ofp.core._processes forks).
+if hasattr(os, "register_at_fork"):  # POSIX
+    os.register_at_fork(
+        before=_LOCK.acquire, after_in_parent=_LOCK.release, after_in_child=_LOCK.release
+    )
 _ACTIVE: list[int] = []
 _ORIGINAL: list[Any] = []  # the threadpoolctl object of the first entrant (0 or 1 element)
 

@@ -31,7 +31,7 @@ import numpy as np
 from ..core._validation import check_int
 from ..core.multiscale import coarse_mesh, extend_p2p
 from ..core.spectrum import EigenBasis, eigenbasis
-from .eigenbases import run_per_shape
+from .eigenbases import eigenbasis_bytes, run_per_shape
 
 __all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_shape", "match_dense"]
 
@@ -205,7 +205,8 @@ def match_dense(
         report("coarse copies", 0.0)
         c1, c2 = run_per_shape(
             [functools.partial(coarse, V1, faces_1), functools.partial(coarse, V2, faces_2)],
-            [(min(n1, coarse_vertices), k), (min(n2, coarse_vertices), k)],
+            [n1, n2],
+            [eigenbasis_bytes(min(n, coarse_vertices), k) for n in (n1, n2)],
             what="coarse copies",
         )
     else:

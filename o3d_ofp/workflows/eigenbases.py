@@ -17,7 +17,13 @@ from ..core._memory import basis_job_bytes
 from ..core._processes import side_by_side
 from ..core.spectrum import EigenBasis, eigenbasis
 
-__all__ = ["SIDE_BY_SIDE_VERTICES", "eigenbases", "run_per_shape"]
+__all__ = [
+    "SIDE_BY_SIDE_VERTICES",
+    "answer_bytes",
+    "eigenbases",
+    "eigenbasis_bytes",
+    "run_per_shape",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -29,8 +35,27 @@ T = TypeVar("T")
 SIDE_BY_SIDE_VERTICES = 2000
 
 
+def answer_bytes(n: int, columns: int) -> float:
+    """Bytes of the copies of a child's answer of ``columns`` dense columns on ``n`` vertices.
+
+    The child holds its value and its pickle; this process the bytes received and the value
+    rebuilt from them: about two copies on each side, four in all (the sparse matrices are
+    small beside the columns).
+    """
+    return 4 * 8.0 * n * columns
+
+
+def eigenbasis_bytes(n: int, k: int) -> float:
+    """Estimated peak bytes of one :func:`o3d_ofp.eigenbasis` job side by side (answer included)."""
+    return basis_job_bytes(n, k=1, order=1, eig_k=k) + answer_bytes(n, k + 1)
+
+
 def run_per_shape(
-    jobs: Sequence[Callable[[], T]], sizes: Sequence[tuple[int, int]], *, what: str
+    jobs: Sequence[Callable[[], T]],
+    vertices: Sequence[int],
+    memory: Sequence[float],
+    *,
+    what: str,
 ) -> list[T]:
     """Run one job per shape, side by side when the shapes are large enough.
 
@@ -38,9 +63,10 @@ def run_per_shape(
     ----------
     jobs : sequence of callables without arguments
         One per shape, independent (see :func:`o3d_ofp.core._processes.side_by_side`).
-    sizes : sequence of (int, int)
-        (vertices, eigenfunctions) of each job's eigensolve, for the threshold and the
-        memory estimate.
+    vertices : sequence of int
+        Vertices each job works on (0: a job that only reads a file), for the threshold.
+    memory : sequence of float
+        Estimated peak bytes of each job, its answer's copies included.
     what : str
         What the jobs compute, for the log.
 
@@ -49,10 +75,9 @@ def run_per_shape(
     list
         The jobs' values, in order.
     """
-    if len(jobs) < 2 or min(n for n, _ in sizes) < SIDE_BY_SIDE_VERTICES:
+    if len(jobs) < 2 or min(vertices) < SIDE_BY_SIDE_VERTICES:
         return [job() for job in jobs]
-    memory = max(basis_job_bytes(n, k=1, order=1, eig_k=k) for n, k in sizes)
-    return side_by_side(jobs, what=what, memory_each=memory)
+    return side_by_side(jobs, what=what, memory_each=max(memory))
 
 
 def eigenbases(
@@ -78,4 +103,9 @@ def eigenbases(
         sizes = [(int(np.shape(V)[0]), int(k)) for V, _, k in shapes]
     except (TypeError, ValueError, IndexError):  # eigenbasis names what is wrong
         return [job() for job in jobs]
-    return run_per_shape(jobs, sizes, what="eigenbases")
+    return run_per_shape(
+        jobs,
+        [n for n, _ in sizes],
+        [eigenbasis_bytes(n, k) for n, k in sizes],
+        what="eigenbases",
+    )
