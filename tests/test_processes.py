@@ -307,7 +307,7 @@ def test_a_fork_while_another_thread_holds_the_blas_lock_does_not_hang(tmp_path)
                 held.set()
                 time.sleep(1.0)
 
-        threading.Thread(target=hold).start()
+        threading.Thread(target=hold, daemon=True).start()  # a daemon: the fork goes ahead
         held.wait()
         out = eigenbases([(V, F, 8), (V * 2.0, F, 8)])
         print("done", [e.k for e in out])
@@ -317,3 +317,31 @@ def test_a_fork_while_another_thread_holds_the_blas_lock_does_not_hang(tmp_path)
     )
     assert result.returncode == 0, result.stderr
     assert "done [8, 8]" in result.stdout
+
+
+@needs_two
+def test_no_fork_while_other_threads_run_or_from_another_thread():
+    """A fork can catch another thread inside OpenBLAS, whose fork handler then hangs."""
+    import threading
+
+    stop = threading.Event()
+    busy = threading.Thread(target=stop.wait)  # any non-daemon thread of the caller
+    busy.start()
+    try:
+        assert processes_available() == 1
+        assert side_by_side([os.getpid, os.getpid], what="pids") == [os.getpid()] * 2
+    finally:
+        stop.set()
+        busy.join()
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:  # called from a thread: one process
+        assert pool.submit(processes_available).result() == 1
+    assert processes_available() > 1  # and from the main thread alone again
+
+
+def test_a_setting_below_one_is_said(monkeypatch, caplog):
+    monkeypatch.setenv(ENVIRONMENT, "0")
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        assert processes_available() == 1
+    assert f"{ENVIRONMENT}=0: taken as 1" in caplog.text

@@ -11,9 +11,10 @@ starts in a few milliseconds from the parent's memory, and the job needs no pick
 ``spawn`` and ``forkserver`` re-import the caller's ``__main__`` (a script without the
 ``if __name__ == "__main__":`` guard then fails) and pay the imports again (0.5-1 s); where
 ``fork`` is not available, or in a daemonic process (a Dask worker cannot have children), or
-on one core, or when memory is short, or when a process cannot be started, the jobs run one
-after the other here. ``O3D_OFP_PROCESSES=1`` in the environment does the same (the number
-of jobs at once).
+from a thread other than the main one or while other (non-daemon) threads run (a fork can
+catch them inside OpenBLAS, whose fork handler then waits forever), or on one core, or when
+memory is short, or when a process cannot be started, the jobs run one after the other here.
+``O3D_OFP_PROCESSES=1`` in the environment does the same (the number of jobs at once).
 
 Each child has one pipe to this process, read by a thread here as it is written: the
 child's log records, handed to this process's logger of the same name as they happen, then
@@ -68,14 +69,35 @@ def processes_available() -> int:
         return 1
     if multiprocessing.current_process().daemon:  # a daemonic process cannot have children
         return 1
+    if _other_threads_at_work():
+        return 1
     limit = _cores()
     setting = os.environ.get(ENVIRONMENT, "").strip()
     if setting:
         try:
-            limit = min(limit, max(1, int(setting)))
+            value = int(setting)
         except ValueError:
             logger.warning("%s=%r is not a whole number: ignored", ENVIRONMENT, setting)
+        else:
+            if value < 1:
+                logger.warning("%s=%s: taken as 1 (one job at a time)", ENVIRONMENT, value)
+            limit = min(limit, max(1, value))
     return limit
+
+
+def _other_threads_at_work() -> bool:
+    """Whether a fork could catch another thread inside a library: then none is made.
+
+    OpenBLAS's fork handler waits for its threads to stop, forever when another thread of
+    the process is inside a BLAS call (a new-user trial: ``ofp.match`` from three threads at
+    once hung in 2 of 4 runs). Forks are made from the main thread while every other thread
+    is a daemon (a notebook kernel's, a progress bar's); a caller that runs its own threads
+    has its cores busy already.
+    """
+    here = threading.current_thread()
+    if here is not threading.main_thread():
+        return True
+    return any(t is not here and not t.daemon and t.is_alive() for t in threading.enumerate())
 
 
 class _Pipe:

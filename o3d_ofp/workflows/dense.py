@@ -244,6 +244,14 @@ def match_dense(
     quality = corr.quality
     if quality is not None:
         quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
+        # The report logged above is the coarse map's; the result's coverage is the full one.
+        logger.info(
+            "match (dense): the quality above is the coarse meshes'; at full resolution the "
+            "map hits %d source vertices: coverage %.3f (%.2f of the smaller shape)",
+            hit,
+            quality.coverage,
+            quality.coverage_ratio,
+        )
     logger.info("match (dense): done in %.1fs (100%%)", time.perf_counter() - t0)
     report("done", 1.0)
     return dataclasses.replace(

@@ -317,18 +317,20 @@ def map_quality(
     reversed_fraction = _reversed_fraction(p2p_21, eig_1, eig_2)
     clouds = eig_1.faces is None or eig_2.faces is None
     reasons = []
+    far = ortho > MAX_ORTHOGONALITY  # no near-isometric map: no "right map" to be mirrored
     if reversed_fraction > MAX_REVERSED:
         turned = "of the target's neighbourhoods" if clouds else "of the triangles"
-        reasons.append(
-            f"the map turns {100 * reversed_fraction:.0f} % {turned} over: a mirror "
-            "image of the right map (left/right symmetry flip)"
+        why = (
+            "" if far else ": a mirror image of the right map (left/right symmetry flip), or a "
+            "map too rough to keep the triangles' orientation (a very coarse or noisy shape)"
         )
+        reasons.append(f"the map turns {100 * reversed_fraction:.0f} % {turned} over{why}")
     if ratio < MIN_COVERAGE:
         reasons.append(
             f"the map collapses: only {hit} distinct source vertices are hit by {n2} target "
             "vertices"
         )
-    if ortho > MAX_ORTHOGONALITY:
+    if far:
         reasons.append(
             f"the functional map is far from an isometry (orthogonality {ortho:.2f} > "
             f"{MAX_ORTHOGONALITY:g}): the shapes are not near-isometric (shapes of other kinds, "
@@ -357,7 +359,14 @@ def map_quality(
             f"the target's area is {area_ratio:.3g} times the source's (different units? a "
             "partial shape?); the estimated map does not depend on the units"
         )
-    if reasons and landmarks_given:
+    if far:
+        reasons.append(
+            "likely causes: shapes of other kinds (a spectral map needs near-isometric shapes, "
+            "and landmarks do not make them so: check the result by eye), a noisy scan, or a "
+            "part of the other shape (partial=True / --partial); aligned copies of one shape "
+            "match by closest points (method='closest' / --map closest)"
+        )
+    elif reasons and landmarks_given:
         reasons.append(
             "likely causes: a wrong landmark pair (a pair swapped or on the mirrored side "
             "turns the map over), very different shapes, or a partial shape; fix: check the "
