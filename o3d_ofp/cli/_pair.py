@@ -374,21 +374,24 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
         V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
         path = args.source if side == 1 else args.target
         want = required_k(V.shape[0], ESTIMATION_K) if estimate else None
-        B, eig = basis_for(
-            V,
-            F,
-            path,
-            args,
-            k=k,
-            default_k=default,
-            k_flag=f"--k{side}",
-            eig_k=want,
-            file=file,
-            file_flag=f"--basis-{side}",
-        )
-        if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
-            with stage(f"eigenbasis of {path} for map estimation (k={want})"):
-                eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
+        try:
+            B, eig = basis_for(
+                V,
+                F,
+                path,
+                args,
+                k=k,
+                default_k=default,
+                k_flag=f"--k{side}",
+                eig_k=want,
+                file=file,
+                file_flag=f"--basis-{side}",
+            )
+            if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
+                with stage(f"eigenbasis of {path} for map estimation (k={want})"):
+                    eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
+        except ValueError as exc:  # about this shape (its components, its size): name it
+            raise UsageError(f"{path}: {exc}") from exc
         return B, eig
 
     sides = ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2))
