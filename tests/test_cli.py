@@ -1026,7 +1026,8 @@ def test_messages_a_trial_found_unclear(files, tmp_path, capsys, no_eigensolve):
     assert main(["--version"]) == 0 and capsys.readouterr().out.startswith("o3d-ofp 0.")
 
 
-def test_a_shape_the_components_policy_refuses_is_named(files, capsys):
+@pytest.mark.parametrize("command", ["transfer", "detail"])
+def test_a_shape_the_components_policy_refuses_is_named(files, capsys, command):
     """The refusal names the file (it said only "the shape has 2 connected components")."""
     from o3d_ofp import write_geometry
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
@@ -1035,8 +1036,8 @@ def test_a_shape_the_components_policy_refuses_is_named(files, capsys):
     two = files["dir"] / "two_parts.ply"
     V2 = np.vstack([files["bent"], files["bent"] + [5.0, 0.0, 0.0]])
     write_geometry(two, triangle_mesh_from_arrays(V2, np.vstack([F, F + len(V)])))
-    out = files["dir"] / "two_out.ply"
-    code = main(["transfer", files["src"], str(two), "--components", "error", "-o", str(out)])
+    out = files["dir"] / f"two_out_{command}.ply"
+    code = main([command, files["src"], str(two), "--components", "error", "-o", str(out)])
     err = capsys.readouterr().err
     assert code == 2
     assert f"error: {two}: the shape has 2 connected components" in err

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import glob
 import logging
 import math
@@ -130,6 +131,27 @@ def tol_options(args: argparse.Namespace) -> dict[str, Any]:
 def eig_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keywords of the eigenbasis that the flags set."""
     return {"components": args.components}
+
+
+def eigenbases_of(
+    args: argparse.Namespace, shapes: Sequence[tuple[str, Any, Any, int]], *, clamp_k: bool
+) -> list[Any]:
+    """Eigenbases of ``(path, V, F, k)`` shapes, side by side; a refusal names its file."""
+    from ..core.spectrum import eigenbasis
+    from ..workflows.eigenbases import eigenbasis_bytes, run_per_shape
+
+    def job(path: str, V: Any, F: Any, k: int) -> Any:
+        try:
+            return eigenbasis(V, F, k=k, clamp_k=clamp_k, **eig_options(args))
+        except ValueError as exc:  # about this shape (its components, its size): name it
+            raise UsageError(f"{path}: {exc}") from exc
+
+    return run_per_shape(
+        [functools.partial(job, *shape) for shape in shapes],
+        [V.shape[0] for _, V, _, _ in shapes],
+        [eigenbasis_bytes(V.shape[0], k) for _, V, _, k in shapes],
+        what="eigenbases",
+    )
 
 
 def written_beside(path: str) -> list[str]:

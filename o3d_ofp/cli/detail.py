@@ -17,7 +17,6 @@ from ._common import (
     UsageError,
     check_output,
     check_output_kind,
-    eig_options,
     report,
     stage,
     tol_options,
@@ -115,9 +114,8 @@ def check_options(args: argparse.Namespace) -> None:
 
 def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
     """Eigenbases for the detail modes: --band (and the map estimation) decide their size."""
-    from ..workflows.eigenbases import eigenbases
     from ..workflows.matching import ESTIMATION_K, required_k
-    from ._common import check_job_memory
+    from ._common import check_job_memory, eigenbases_of
 
     estimate = pair.correspondence is None
     sides = [(args.source, pair.V1, pair.F1, args.k1, args.basis_1)]
@@ -147,10 +145,8 @@ def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
         names = " and ".join(f"{sides[i][0]} ({sides[i][1].shape[0]} vertices, k={wants[i]})"
                              for i in todo)  # fmt: skip
         with stage(f"eigenbases of {names}" if len(todo) > 1 else f"eigenbasis of {names}"):
-            computed = eigenbases(
-                [(sides[i][1], sides[i][2], wants[i]) for i in todo],
-                clamp_k=estimate,
-                **eig_options(args),
+            computed = eigenbases_of(
+                args, [(*sides[i][:3], wants[i]) for i in todo], clamp_k=estimate
             )
         for i, eig in zip(todo, computed, strict=True):
             out[i] = eig

@@ -267,9 +267,8 @@ def _bake(args: argparse.Namespace, pair) -> int:
     """Bake the source's texture into the target's UV layout and write OBJ + MTL + PNG."""
     from ..boundary.bake import transfer_texture
     from ..boundary.io import write_geometry
-    from ..workflows.eigenbases import eigenbases
     from ..workflows.matching import ESTIMATION_K, required_k
-    from ._common import eig_options
+    from ._common import eigenbases_of
 
     _check_texture(args, pair.source)
     size = args.texture_size or TEXTURE_SIZE
@@ -278,13 +277,16 @@ def _bake(args: argparse.Namespace, pair) -> int:
     if pair.correspondence is None:
         with stage("eigenbases for map estimation"):
             eigs = tuple(
-                eigenbases(
+                eigenbases_of(
+                    args,
                     [
-                        (V, F, required_k(V.shape[0], ESTIMATION_K))
-                        for V, F in ((pair.V1, pair.F1), (pair.V2, pair.F2))
+                        (path, V, F, required_k(V.shape[0], ESTIMATION_K))
+                        for path, V, F in (
+                            (args.source, pair.V1, pair.F1),
+                            (args.target, pair.V2, pair.F2),
+                        )
                     ],
                     clamp_k=True,
-                    **eig_options(args),
                 )
             )
     corr = estimate_or_use_map(args, pair, *eigs)
