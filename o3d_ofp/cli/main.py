@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--verbose",
         action="count",
         default=0,
-        help="more details (repeatable; with it an internal error shows its traceback)",
+        help="-v: an internal error shows its traceback; -vv: the debug log too (every step's "
+        "details; the long stages are logged without -v)",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
