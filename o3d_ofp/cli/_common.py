@@ -25,6 +25,7 @@ __all__ = [
     "MESH_HELP",
     "MESH_OUT",
     "UsageError",
+    "about",
     "add_basis_options",
     "basis_for",
     "check_cache_dir",
@@ -32,9 +33,11 @@ __all__ = [
     "check_job_memory",
     "check_output",
     "eig_options",
+    "eigenbases_of",
     "load_npy",
     "read_shape",
     "report",
+    "same_file",
     "stage",
     "tol_options",
 ]
@@ -141,10 +144,8 @@ def eigenbases_of(
     from ..workflows.eigenbases import eigenbasis_bytes, run_per_shape
 
     def job(path: str, V: Any, F: Any, k: int) -> Any:
-        try:
+        with about(path):
             return eigenbasis(V, F, k=k, clamp_k=clamp_k, **eig_options(args))
-        except ValueError as exc:  # about this shape (its components, its size): name it
-            raise UsageError(f"{path}: {exc}") from exc
 
     return run_per_shape(
         [functools.partial(job, *shape) for shape in shapes],
@@ -197,14 +198,30 @@ def check_output(
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):
             continue
-        if os.path.exists(path) and os.path.samefile(path, source):
+        if same_file(path, source):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
         for other in (*side, *written_beside(path)):
-            if os.path.exists(other) and os.path.samefile(other, source):
+            if same_file(other, source):
                 raise UsageError(
                     f"{flag} {path}: writing it would also write {other}, an input of this "
                     "command; choose another output name"
                 )
+
+
+def same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file (the same path, or links to one existing file)."""
+    if os.path.abspath(a) == os.path.abspath(b):
+        return True
+    return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
+
+
+@contextlib.contextmanager
+def about(path: str) -> Iterator[None]:
+    """Name ``path`` in a ValueError raised inside: a refusal of that shape (size, parts)."""
+    try:
+        yield
+    except ValueError as exc:
+        raise UsageError(f"{path}: {exc}") from exc
 
 
 def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
@@ -216,7 +233,7 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(
             f"{flag} {path}: the folder {folder} cannot be written (read-only or no "
-            "permission); choose another output folder"
+            f"permission); choose another folder for {flag}"
         )
 
 
@@ -260,11 +277,7 @@ def check_folder_to_make(path: str, flag: str) -> None:
         if parent == existing or (os.path.exists(existing) and not os.path.isdir(existing)):
             raise UsageError(f"{flag} {path}: {existing} is a file, not a folder")
         existing = parent
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise UsageError(
-            f"{flag} {path}: the folder {existing} cannot be written (read-only or no "
-            f"permission); choose another {flag} folder"
-        )
+    check_writable_folder(existing, path, flag=flag)
 
 
 # --------------------------------------------------------------------------- bases

@@ -128,10 +128,7 @@ def _check_output_dir(path: str) -> None:
     if os.path.isdir(path):  # written into: it must be writable
         check_writable_folder(path, path)
         return
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise UsageError(f"-o {path}: the folder {parent} does not exist")
-    check_writable_folder(parent, path)  # the output folder is made in it
+    check_writable_folder(os.path.dirname(os.path.abspath(path)), path)  # it is made there
 
 
 def report_records(records: Sequence[Any]) -> int:

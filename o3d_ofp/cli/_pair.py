@@ -11,7 +11,16 @@ from typing import Any
 
 import numpy as np
 
-from ._common import MESH_HELP, UsageError, add_basis_options, basis_for, eig_options, stage
+from ._common import (
+    MESH_HELP,
+    UsageError,
+    about,
+    add_basis_options,
+    basis_for,
+    eig_options,
+    same_file,
+    stage,
+)
 from ._types import positive_int
 
 __all__ = [
@@ -141,13 +150,6 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         raise UsageError(f"--landmarks {spec}: {exc}") from exc
 
 
-def _same_place(a: str, b: str) -> bool:
-    """Whether two paths name one file (the same path, or links to one existing file)."""
-    if os.path.abspath(a) == os.path.abspath(b):
-        return True
-    return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
-
-
 def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     """Refuse a ``--save-map`` / ``--save-landmarks`` file that would replace another file.
 
@@ -172,7 +174,7 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     others = {"--save-map": "save_map", "--save-landmarks": "save_landmarks"}
     outputs += [(f"the {o} file", getattr(args, n, None)) for o, n in others.items() if o != flag]
     for what, other in (*inputs, *outputs):
-        if isinstance(other, str) and other and _same_place(path, other):
+        if isinstance(other, str) and other and same_file(path, other):
             raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
     cache = getattr(args, "cache", None)
     if cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(cache):
@@ -370,11 +372,12 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     check_job_memory(
         jobs, advice="lower --k1/--k2 or --order, or use simplified meshes (fewer vertices)"
     )
+
     def side_job(side: int, k: Any, default: int, file: Any) -> tuple[Any, Any]:
         V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
         path = args.source if side == 1 else args.target
         want = required_k(V.shape[0], ESTIMATION_K) if estimate else None
-        try:
+        with about(path):
             B, eig = basis_for(
                 V,
                 F,
@@ -390,8 +393,6 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
             if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
                 with stage(f"eigenbasis of {path} for map estimation (k={want})"):
                     eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
-        except ValueError as exc:  # about this shape (its components, its size): name it
-            raise UsageError(f"{path}: {exc}") from exc
         return B, eig
 
     sides = ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2))

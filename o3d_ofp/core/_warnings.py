@@ -39,8 +39,7 @@ def warn(logger: logging.Logger, message: str, *, stacklevel: int | None = None)
     (a trial's warning pointed at ``o3d_ofp/boundary/api.py``); ``stacklevel`` overrides it.
     """
     logger.warning("%s", message)
-    for messages in getattr(_COLLECTING, "lists", ()):
-        messages.append(message)
+    _collect(message)
     if stacklevel is None:
         stacklevel = _outside_the_package()
     warnings.warn(message, OFPWarning, stacklevel=stacklevel)
@@ -57,6 +56,12 @@ def _outside_the_package() -> int:
         frame = frame.f_back
         level += 1
     return level
+
+
+def _collect(message: str) -> None:
+    """Add ``message`` to every :func:`collected_warnings` block open in this thread."""
+    for messages in getattr(_COLLECTING, "lists", ()):
+        messages.append(message)
 
 
 @contextlib.contextmanager
@@ -84,6 +89,5 @@ def reissue(message: str, category: type[Warning]) -> None:
     does; the warning points at the caller's own line.
     """
     if issubclass(category, OFPWarning):
-        for messages in getattr(_COLLECTING, "lists", ()):
-            messages.append(message)
+        _collect(message)
     warnings.warn(message, category, stacklevel=_outside_the_package())
