@@ -99,6 +99,8 @@ def test_small_mesh_dense_path_k_max():
 
 def test_nonconvergence_is_retried_then_raised(monkeypatch, caplog):
     V, F = blob(4)  # 2562 vertices: sparse path
+    # ARPACK alone (block Lanczos, the first attempt for 50 pairs or more, has no restarts).
+    monkeypatch.setattr(spectrum, "_block_fits", lambda n, k: False)
     # One Lanczos restart is not enough with the default Krylov space; the documented retry
     # (larger space, further shift) recovers, says so, and the result passes the residual check.
     with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.spectrum"):
@@ -318,3 +320,103 @@ def test_a_long_orthogonalization_says_how_far_it_is(monkeypatch, caplog, blob_m
     total = 1 + 20 + 20 * 21 // 2  # the constant, the 20 functions, their products
     assert said[0] == f"orthogonalization (n=2562): candidate 0 of {total} (0%, 0 s)"
     assert said[-1].startswith(f"orthogonalization (n=2562): candidate {total - total % 32}")
+
+
+def _arpack_only(monkeypatch):
+    monkeypatch.setattr(spectrum, "_block_fits", lambda n, k: False)
+
+
+def _block_on_small_shapes(monkeypatch):
+    monkeypatch.setattr(spectrum, "MIN_VERTICES", 0)  # the tests' shapes have 2562 vertices
+
+
+def test_block_lanczos_is_the_first_attempt_for_many_pairs_on_large_shapes(caplog, sphere_mesh):
+    from o3d_ofp.core import _lanczos
+
+    assert sphere_mesh[0].shape[0] >= _lanczos.MIN_VERTICES
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+        ofp.eigenbasis(*sphere_mesh, k=_lanczos.MIN_PAIRS - 1)
+        ofp.eigenbasis(*sphere_mesh, k=_lanczos.MIN_PAIRS - 2)
+        ofp.eigenbasis(*blob(4), k=_lanczos.MIN_PAIRS + 10)  # 2562 vertices
+    methods = [r.getMessage().split(" via ")[1].split(",")[0] for r in caplog.records
+               if " via " in r.getMessage()]  # fmt: skip
+    assert methods == ["block Lanczos", "shift-invert Lanczos", "shift-invert Lanczos"]
+
+
+def test_block_lanczos_gives_arpacks_eigenpairs(monkeypatch, caplog, blob_mesh):
+    """Block Lanczos (the first attempt from MIN_PAIRS eigenpairs) against ARPACK."""
+    from o3d_ofp.core import _lanczos
+
+    _block_on_small_shapes(monkeypatch)
+    k = _lanczos.MIN_PAIRS + 10
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+        block = ofp.eigenbasis(*blob_mesh, k=k)
+    assert "via block Lanczos" in caplog.text
+    caplog.clear()
+    _arpack_only(monkeypatch)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+        arpack = ofp.eigenbasis(*blob_mesh, k=k)
+    assert "via shift-invert Lanczos" in caplog.text
+    # Both converge to ~1e-10 residuals; eigenvalues then agree to ~1e-14 relative (measured
+    # 5e-15) and, the blob's spectrum being simple, the sign-fixed vectors to ~1e-9.
+    np.testing.assert_allclose(block.evals, arpack.evals, rtol=1e-10, atol=1e-12)
+    overlap = np.abs(block.evecs.T @ (block.mass[:, None] * arpack.evecs))
+    np.testing.assert_allclose(overlap, np.eye(k + 1), atol=1e-7)
+    res = spectrum._relative_residuals(block.stiffness, block.mass, block.evals, block.evecs)
+    assert res.max() < 1e-8  # measured ~1e-9: the run stops at residual 1e-12 θ
+    again = ofp.eigenbasis(*blob_mesh, k=k, factorization="superlu")  # block solves by SuperLU
+    np.testing.assert_allclose(again.evals, arpack.evals, rtol=1e-10, atol=1e-12)
+
+
+def test_block_lanczos_finds_every_copy_of_the_spheres_repeated_eigenvalues(monkeypatch, caplog):
+    """Degrees 0..9 on the icosphere: 100 eigenpairs, clusters of up to 19 (> the block of 8).
+
+    The discrete clusters split by ~1e-3 relative (the icosahedral symmetry keeps exact
+    multiplicities of at most 5); a missed copy would shift every later eigenvalue by a whole
+    degree. Dense LAPACK is the reference.
+    """
+    _block_on_small_shapes(monkeypatch)
+    V, F = icosphere(4)  # 2562 vertices: sparse path
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+        eig = ofp.eigenbasis(V, F, k=99)
+    assert "via block Lanczos" in caplog.text
+    dense = spectrum._dense_eigs(*ofp.laplacian(V, F), 99)[0]
+    np.testing.assert_allclose(eig.evals[1:], dense[1:], rtol=1e-9)
+    scaled = eig.evals * eig.area / (4 * np.pi)
+    degree = np.repeat(np.arange(10), 2 * np.arange(10) + 1)
+    # discretization error at 2562 vertices: measured up to 3.4 % (l = 7); degrees are 22 %
+    # or more apart up to l = 9, so 7 % tells every degree from the next
+    np.testing.assert_allclose(scaled, degree * (degree + 1), rtol=7e-2, atol=1e-9)
+
+
+def test_block_lanczos_hands_over_to_arpack_when_its_space_is_full(monkeypatch, caplog, blob_mesh):
+    from o3d_ofp.core import _lanczos
+
+    _block_on_small_shapes(monkeypatch)
+    k = _lanczos.MIN_PAIRS + 10
+    ref = ofp.eigenbasis(*blob_mesh, k=k)
+    monkeypatch.setattr(_lanczos, "krylov_dim", lambda n, count: count + 2 * _lanczos.BLOCK)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+        eig = ofp.eigenbasis(*blob_mesh, k=k)
+    assert "ARPACK takes over" in caplog.text and "converged in" in caplog.text
+    assert "via shift-invert Lanczos" in caplog.text
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]  # nothing to fix
+    np.testing.assert_allclose(eig.evals, ref.evals, rtol=1e-10, atol=1e-12)
+
+
+def test_block_lanczos_on_a_known_spectrum():
+    """The routine alone: a diagonal operator, eigenvalues known, one repeated 6 times."""
+    from o3d_ofp.core._lanczos import LanczosNoConvergence, block_lanczos
+
+    n, count = 3000, 40
+    values = 1.0 / (1.0 + np.arange(n, dtype=float)) ** 0.5
+    values[10:16] = values[10]  # a 6-fold eigenvalue inside the wanted range
+    perm = np.random.default_rng(5).permutation(n)
+    diag = values[perm]
+    theta, Y = block_lanczos(lambda X: diag[:, None] * X, n, count)
+    np.testing.assert_allclose(theta, values[:count], rtol=1e-12)
+    np.testing.assert_allclose(Y.T @ Y, np.eye(count), atol=1e-12)
+    residual = np.linalg.norm(diag[:, None] * Y - Y * theta, axis=0)
+    assert np.all(residual <= 1e-11 * theta)  # the stopping test, with the estimate's slack
+    with pytest.raises(LanczosNoConvergence, match="pairs converged in"):
+        block_lanczos(lambda X: diag[:, None] * X, n, count, max_dim=count + 16)
