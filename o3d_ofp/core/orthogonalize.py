@@ -71,6 +71,14 @@ PRESETS: dict[str, float] = {"ours": 1e-2, "ours*": 1e-9}
 #: ~ε·norm, so its relative size stays below ~1e3·ε).
 _DEEP_CANCELLATION = 1e-3
 
+#: A candidate whose residual after one projection on the older functions is below
+#: ``(tol − _SETTLED_MARGIN)`` times its norm is dropped without the second projection. That
+#: residual differs from the exact one by the projection's round-off (~1e-14 of the norm) and
+#: the older functions' loss of orthonormality (<= 1e-12, see ``_REORTH_TOL``): the margin is
+#: 100 times the larger, and further projections only lower a residual. Measured on FAUST at
+#: 27.5k vertices, k = 39, order 2: 60 % of the candidates settled so, the basis 25 % faster.
+_SETTLED_MARGIN = 1e-10
+
 #: Thresholds at least this large try the Gram-matrix selection inside a block (accepted only
 #: where its error bound certifies every decision: see `_select_by_gram`); smaller ones use the
 #: recursive projections directly (at tol < 1e-4 the bound would rarely certify anything).
@@ -183,12 +191,15 @@ def _column_norms(W: np.ndarray) -> np.ndarray:
     return np.array([dnrm2(W[:, j]) for j in range(W.shape[1])])
 
 
-def _project_out(Q: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _project_out(
+    Q: np.ndarray, W: np.ndarray, settled: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Remove from W (in place) its components along orthonormal Q.
 
     Two BLAS-3 passes of classical Gram-Schmidt; a third, on the columns where the second
     still removed more than half of the norm (Kahan / Parlett: the previous pass was not yet
-    accurate there).
+    accurate there). Columns whose norm after the first pass is below ``settled`` (per
+    column) skip the others: the caller drops them whatever the further passes would give.
 
     Returns
     -------
@@ -202,9 +213,27 @@ def _project_out(Q: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     coefficients = _inner(Q, W)
     _subtract_product(W, Q, coefficients)
     before = _column_norms(W)
-    c2 = _inner(Q, W)
-    _subtract_product(W, Q, c2)
+    if settled is not None:
+        rest = np.flatnonzero(before >= settled)
+        if rest.size < W.shape[1]:
+            if rest.size:
+                sub = np.asfortranarray(W[:, rest])
+                norms, c2 = _project_out_again(Q, sub, before[rest])
+                W[:, rest] = sub
+                coefficients[:, rest] += c2
+                before[rest] = norms
+            return before, coefficients
+    norms, c2 = _project_out_again(Q, W, before)
     coefficients += c2
+    return norms, coefficients
+
+
+def _project_out_again(
+    Q: np.ndarray, W: np.ndarray, before: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run the second pass of :func:`_project_out` (and its third where needed)."""
+    coefficients = _inner(Q, W)
+    _subtract_product(W, Q, coefficients)
     norms = _column_norms(W)
     again = np.flatnonzero(norms < 0.5 * before)
     if again.size:
@@ -485,20 +514,28 @@ def gram_schmidt_blocks(
         np.multiply(raw, sqrt_m[:, None], out=W)
         norm0 = _column_norms(W)
         q_before = basis.size
-        n1, coeff_old = _project_out(basis.view, W)
+        settled = (tol - _SETTLED_MARGIN) * norm0 if tol > _SETTLED_MARGIN else None
+        n1, coeff_old = _project_out(basis.view, W, settled)
         projected = projected_buf[:, :b]  # W minus its old-basis part, for the in-block rows of R
         projected[...] = W
-        new_cols = new_buf[:, :b]
-        t = -1
-        if tol >= _GRAM_MIN_TOL:
+        # Candidates already below the threshold against the older functions are dropped, as
+        # they would be against those and the block's; the selection sees the others only.
+        live = np.arange(b) if settled is None else np.flatnonzero(n1 >= settled)
+        if live.size < b:
+            W = np.asfortranarray(W[:, live])
+        new_cols = new_buf[:, : live.size]
+        chosen: list[int] = []
+        t = 0 if live.size == 0 else -1  # every candidate of the block settled
+        if t < 0 and tol >= _GRAM_MIN_TOL:
             try:
-                t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
+                t = _select_by_gram(W, new_cols, norm0[live], tol, 0, chosen)
             except np.linalg.LinAlgError:  # Cholesky-QR broke down: an ill-conditioned block
                 t = -1
             if t < 0:
                 logger.debug("block at %d: Gram selection not certified; recursive path", start)
         if t < 0:
-            t = _select_in_block(W, new_cols, norm0, n1, basis.view, tol, start, kept)
+            t = _select_in_block(W, new_cols, norm0[live], n1[live], basis.view, tol, 0, chosen)
+        kept.extend(start + int(live[j]) for j in chosen)
         _reorthogonalize(basis.view, new_cols[:, :t], seed=start)
         # Eq. (17): R[i, j] = <q_i, b_j>. Older rows are the projection coefficients; rows of
         # the functions kept in this block are their products with the projected block (the
