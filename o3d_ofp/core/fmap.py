@@ -112,17 +112,29 @@ _CHUNK = 2048
 
 
 def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
-    """Stack (p, k+1, k+1) of the multiplication operators Φᵀ M diag(dᵢ) Φ (chunked GEMMs)."""
+    """Stack (p, k+1, k+1) of the multiplication operators Φᵀ M diag(dᵢ) Φ (chunked GEMMs).
+
+    The operators are symmetric: only the pairs a <= b of eigenfunctions are multiplied and
+    summed (half the products of all pairs), then mirrored.
+    """
     phi = eig.evecs[:, : k + 1]
     a = k + 1
+    rows, cols = np.triu_indices(a)
     MD = eig.mass[:, None] * D
-    T = np.zeros((a * a, D.shape[1]))
-    P_buf = np.empty((min(_CHUNK, phi.shape[0]), a, a))  # reused: no fresh pages per chunk
+    T = np.zeros((rows.size, D.shape[1]))
+    P_buf = np.empty((min(_CHUNK, phi.shape[0]), rows.size))  # reused: no fresh pages per chunk
     for s in range(0, phi.shape[0], _CHUNK):
         ph = phi[s : s + _CHUNK]
-        P = np.multiply(ph[:, :, None], ph[:, None, :], out=P_buf[: ph.shape[0]])
-        T += P.reshape(ph.shape[0], a * a).T @ MD[s : s + _CHUNK]
-    return np.ascontiguousarray(T.reshape(a, a, -1).transpose(2, 0, 1))
+        P = P_buf[: ph.shape[0]]
+        start = 0
+        for i in range(a):  # row i of the upper triangle: φ_i φ_j for j >= i
+            np.multiply(ph[:, i : i + 1], ph[:, i:], out=P[:, start : start + a - i])
+            start += a - i
+        T += P.T @ MD[s : s + _CHUNK]
+    ops = np.empty((D.shape[1], a, a))
+    ops[:, rows, cols] = T.T
+    ops[:, cols, rows] = T.T
+    return ops
 
 
 def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
