@@ -860,6 +860,19 @@ def test_python_mistakes_name_the_keyword_before_any_eigensolve(files, no_eigens
         ofp.transfer_detail(mesh, mesh, band=10000, p2p_21=np.arange(n))
     with pytest.raises(ValueError, match=r"source: .*nope\.ply: no such file"):
         ofp.match("nope.ply", mesh)
+    # The basis options of an estimated transfer: refused before its eigensolves and map (they
+    # were refused by the basis, after both)
+    for options, message in (
+        ({"method": "zzz"}, "method must be 'p2p' or 'analytic'"),
+        ({"order": 0}, "order must be >= 1"),
+        ({"preset": "foo"}, "preset must be one of"),
+        ({"tol": 2.0}, "tol must lie strictly between 0 and 1"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            ofp.transfer_colors(mesh, mesh, **options)
+        if "method" not in options:
+            with pytest.raises(ValueError, match=message):
+                ofp.transfer_detail(mesh, mesh, mode="coordinates", **options)
 
 
 def test_python_functions_take_file_paths(files):

@@ -287,3 +287,57 @@ def test_batched_operators_equal_the_per_descriptor_loops(blob_mesh):
         )
     finally:
         fmap._CHUNK = saved
+
+
+def _colored_pair(blob_mesh):
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    V, F = blob_mesh
+    colors = 0.5 + 0.5 * np.sin(3.0 * V)
+    bent = V + 0.1 * np.sin(2.0 * V[:, [1, 2, 0]])
+    return triangle_mesh_from_arrays(V, F, colors=colors), triangle_mesh_from_arrays(bent, F)
+
+
+def test_the_targets_basis_is_built_while_the_map_is_estimated(monkeypatch, blob_mesh):
+    """The target's OFP basis starts before the map is estimated (pipeline.BasesAhead).
+
+    And transfer_colors gives what the steps one after the other give.
+    """
+    import threading
+
+    pytest.importorskip("open3d")
+    from o3d_ofp.workflows import pipeline
+
+    source, target = _colored_pair(blob_mesh)
+    building = []
+    real_match = pipeline.match_eigenbases
+
+    def match(*args, **kwargs):
+        building.append(any(t.name.startswith("o3d_ofp-basis") for t in threading.enumerate()))
+        return real_match(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "match_eigenbases", match)
+    out = np.asarray(ofp.transfer_colors(source, target).vertex_colors)
+    assert building == [True]
+    V1, F1 = blob_mesh
+    V2 = np.asarray(target.vertices)
+    e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F1, k1=29, k2=39)
+    g = pipeline.transfer_function(np.asarray(source.vertex_colors), e1, e2, correspondence=corr)
+    np.testing.assert_array_equal(out, np.clip(g, 0.0, 1.0))
+
+
+def test_an_error_in_the_targets_basis_reaches_the_caller(monkeypatch, blob_mesh):
+    pytest.importorskip("open3d")
+    from o3d_ofp.workflows import pipeline
+
+    source, target = _colored_pair(blob_mesh)
+    real = pipeline.ofp_basis
+
+    def failing(eig, **options):
+        if options["k"] == 39:
+            raise MemoryError("no room for the target's basis (forced)")
+        return real(eig, **options)
+
+    monkeypatch.setattr(pipeline, "ofp_basis", failing)
+    with pytest.raises(MemoryError, match="forced"):
+        ofp.transfer_colors(source, target)

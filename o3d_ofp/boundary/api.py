@@ -45,6 +45,8 @@ from ..workflows.matching import (
     match_eigenbases,
 )
 from ..workflows.pipeline import (
+    BasesAhead,
+    check_method,
     prepare_transfer,
     pull_back,
     transfer_function,
@@ -502,6 +504,7 @@ def transfer_colors(
     """
     if via_basis is not None and not isinstance(via_basis, bool):
         raise TypeError(f"via_basis must be True, False or None; got {via_basis!r}")
+    check_method(method)
     _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
     _check_pair(bases, "bases", OFPBasis, "ofp.ofp_basis")
     source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
@@ -524,36 +527,33 @@ def transfer_colors(
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
         return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
-    eig_1, eig_2, correspondence = prepare_transfer(
-        V1,
-        F1,
-        V2,
-        F2,
-        k1=k1,
-        k2=k2,
-        correspondence=correspondence,
-        fmap_12=fmap_12,
-        p2p_21=p2p_21,
-        landmarks=landmarks,
-        eigenbases=eigenbases,
-        bases=bases,
-        components=components,
-    )
-    g = transfer_function(
-        f,
-        eig_1,
-        eig_2,
-        k1=k1,
-        k2=k2,
-        order=order,
-        preset=preset,
-        tol=tol,
-        correspondence=correspondence,
-        fmap_12=fmap_12,
-        p2p_21=p2p_21,
-        method=method,
-        bases=bases,
-    )
+    with BasesAhead(k1, k2, order=order, tol=tol, preset=preset, given=bases) as ahead:
+        eig_1, eig_2, correspondence = prepare_transfer(
+            V1,
+            F1,
+            V2,
+            F2,
+            k1=k1,
+            k2=k2,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            landmarks=landmarks,
+            eigenbases=eigenbases,
+            bases=bases,
+            components=components,
+            ready=ahead.start,
+        )
+        g = transfer_function(
+            f,
+            eig_1,
+            eig_2,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            method=method,
+            bases=ahead.result(eig_1, eig_2),
+        )
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
 
@@ -677,37 +677,35 @@ def transfer_detail(
     if mode == "coordinates":
         for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
             check_int(value, name=name, minimum=1)
+        ahead = BasesAhead(k1, k2, order=order, tol=tol, preset=preset, given=bases)
         if eigenbases is not None and bases is None:
             eigenbases = _large_enough(eigenbases, (V1, V2), (F1, F2), (k1, k2), components)
-        eig_1, eig_2, correspondence = prepare_transfer(
-            V1,
-            F1,
-            V2,
-            F2,
-            k1=k1,
-            k2=k2,
-            correspondence=correspondence,
-            fmap_12=fmap_12,
-            p2p_21=p2p_21,
-            landmarks=landmarks,
-            eigenbases=eigenbases,
-            bases=bases,
-            components=components,
-        )
-        moved = transfer_function(
-            eig_1.vertices,
-            eig_1,
-            eig_2,
-            k1=k1,
-            k2=k2,
-            order=order,
-            preset=preset,
-            tol=tol,
-            correspondence=correspondence,
-            fmap_12=fmap_12,
-            p2p_21=p2p_21,
-            bases=bases,
-        )
+        with ahead:
+            eig_1, eig_2, correspondence = prepare_transfer(
+                V1,
+                F1,
+                V2,
+                F2,
+                k1=k1,
+                k2=k2,
+                correspondence=correspondence,
+                fmap_12=fmap_12,
+                p2p_21=p2p_21,
+                landmarks=landmarks,
+                eigenbases=eigenbases,
+                bases=bases,
+                components=components,
+                ready=ahead.start,
+            )
+            moved = transfer_function(
+                eig_1.vertices,
+                eig_1,
+                eig_2,
+                correspondence=correspondence,
+                fmap_12=fmap_12,
+                p2p_21=p2p_21,
+                bases=ahead.result(eig_1, eig_2),
+            )
         check_coordinates_area(V1, F1, moved, F2)
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)

@@ -10,7 +10,8 @@ K = 30 / 40, for humans); order 3 with k ≈ 11-14 suits other shapes (Tables 2,
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from ..core._validation import as_signal, check_int
 from ..core._warnings import warn
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
+from ..core.orthogonalize import resolve_tol
 from ..core.spectrum import EigenBasis
 from ..core.transfer import transfer_matrix, transfer_signal
 from .eigenbases import eigenbases as eigenbases_of
@@ -37,6 +39,9 @@ from .matching import (
 )
 
 __all__ = [
+    "BasesAhead",
+    "check_basis_options",
+    "check_method",
     "estimate_for_transfer",
     "prepare_transfer",
     "pull_back",
@@ -68,6 +73,82 @@ def _bases(
     with ThreadPoolExecutor(max_workers=2) as pool:
         job = pool.submit(ofp_basis, eig_2, order=order, tol=tol, preset=preset, k=k2)
         return ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1), job.result()
+
+
+def check_basis_options(order: Any, tol: Any, preset: Any) -> None:
+    """Refuse bad OFP basis options (as :func:`o3d_ofp.ofp_basis` would) before any eigensolve."""
+    check_int(order, name="order", minimum=1)
+    resolve_tol(tol, preset)
+
+
+def check_method(method: Any) -> None:
+    """Refuse an unknown transfer-matrix method (see :func:`transfer_function`)."""
+    if method not in ("p2p", "analytic"):
+        raise ValueError(f"method must be 'p2p' or 'analytic'; got {method!r}")
+
+
+class BasesAhead:
+    """The OFP bases of a transfer, the target's built while the map is estimated.
+
+    The estimation on the eigenbases leaves a core idle in its single-threaded stages (ZoomOut
+    to ~100 eigenfunctions, the full-resolution point map). Given to
+    :func:`prepare_transfer` as ``ready``, :meth:`start` begins the target's basis (the larger:
+    k2 >= k1 by default) in a thread as soon as the eigenbases exist; :meth:`result` builds the
+    source's here beside the end of it. Without a call to :meth:`start` (a given map, the
+    dense path, shapes of :data:`~o3d_ofp.core._threads.PARALLEL_ROWS` vertices whose bases use
+    both cores already) :meth:`result` builds both as :func:`transfer_function` does. The
+    options are checked on construction, before any eigensolve.
+
+    Use as a context manager: on an error the thread's basis is abandoned (its thread ends
+    with it). With ``given`` bases nothing is checked or built: :meth:`result` returns them.
+    """
+
+    def __init__(
+        self,
+        k1: int,
+        k2: int,
+        *,
+        order: int,
+        tol: float | None,
+        preset: str | None,
+        given: tuple[OFPBasis, OFPBasis] | None = None,
+    ) -> None:
+        if given is None:
+            check_basis_options(order, tol, preset)
+        self._given = given
+        self._k = (k1, k2)
+        self._options: dict[str, Any] = {"order": order, "tol": tol, "preset": preset}
+        self._pool: ThreadPoolExecutor | None = None
+        self._target: Future[OFPBasis] | None = None
+
+    def __enter__(self) -> BasesAhead:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)
+
+    def start(self, eig_1: EigenBasis, eig_2: EigenBasis) -> None:
+        """Check the sizes against the eigenbases and start the target's basis."""
+        if self._given is not None:
+            return
+        check_int(self._k[0], name="k1", minimum=1, maximum=eig_1.k)
+        k2 = check_int(self._k[1], name="k2", minimum=1, maximum=eig_2.k)
+        if max(eig_1.n_vertices, eig_2.n_vertices) >= PARALLEL_ROWS or self._pool is not None:
+            return
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="o3d_ofp-basis")
+        self._target = self._pool.submit(ofp_basis, eig_2, k=k2, **self._options)
+
+    def result(self, eig_1: EigenBasis, eig_2: EigenBasis) -> tuple[OFPBasis, OFPBasis]:
+        """Return the bases (B_1, B_2) of ``eig_1`` and ``eig_2`` (those given to ``start``)."""
+        if self._given is not None:
+            return self._given
+        k1, k2 = self._k
+        if self._target is None:
+            opts = self._options
+            return _bases(eig_1, eig_2, k1, k2, opts["order"], opts["tol"], opts["preset"])
+        B_1 = ofp_basis(eig_1, k=k1, **self._options)
+        return B_1, self._target.result()
 
 
 def transfer_function(
@@ -121,8 +202,7 @@ def transfer_function(
     (n2,) or (n2, d) ndarray
         The transferred signal.
     """
-    if method not in ("p2p", "analytic"):
-        raise ValueError(f"method must be 'p2p' or 'analytic'; got {method!r}")
+    check_method(method)
     f = as_signal(f_1, eig_1.n_vertices, name="f_1")
     B_1, B_2 = bases if bases is not None else _bases(eig_1, eig_2, k1, k2, order, tol, preset)
     if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:
@@ -174,6 +254,7 @@ def prepare_transfer(
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
+    ready: Callable[[EigenBasis, EigenBasis], None] | None = None,
 ) -> tuple[EigenBasis, EigenBasis, Correspondence | None]:
     """Decide the eigenbases and the map of a transfer (the one place that does).
 
@@ -198,6 +279,9 @@ def prepare_transfer(
         Precomputed eigenbases (checked against the shapes).
     bases : (OFPBasis, OFPBasis), optional
         Precomputed OFP bases (their eigenbases are used when a map is given).
+    ready : callable, optional
+        ``ready(eig_1, eig_2)``, called when a map is estimated on full-resolution eigenbases,
+        before the estimation (e.g. :meth:`BasesAhead.start`).
 
     Returns
     -------
@@ -215,12 +299,14 @@ def prepare_transfer(
     known = given == 1
     if not known and eigenbases is None and bases is None:
         return estimate_for_transfer(
-            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks, components=components
+            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks, components=components, ready=ready
         )
     eig_1, eig_2 = _eigenbases(
         V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence, components
     )
     if not known:
+        if ready is not None:
+            ready(eig_1, eig_2)
         correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
     return eig_1, eig_2, correspondence
 
@@ -294,6 +380,7 @@ def estimate_for_transfer(
     landmarks: Any = None,
     components: str = "auto",
     progress: Any = None,
+    ready: Callable[[EigenBasis, EigenBasis], None] | None = None,
 ) -> tuple[EigenBasis, EigenBasis, Correspondence]:
     """Compute the eigenbases of a transfer and estimate its map, by the cheaper route.
 
@@ -317,6 +404,10 @@ def estimate_for_transfer(
         Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
     progress : callable, optional
         ``progress(stage, fraction_done)`` of the map estimation.
+    ready : callable, optional
+        ``ready(eig_1, eig_2)``, called on the direct route with the eigenbases, before the map
+        is estimated on them (e.g. :meth:`BasesAhead.start`); not on the dense one, whose
+        full-resolution eigenbases come last.
 
     Returns
     -------
@@ -340,6 +431,8 @@ def estimate_for_transfer(
         clamp_k=True,
         components=components,
     )
+    if ready is not None:
+        ready(eig_1, eig_2)
     corr = match_eigenbases(eig_1, eig_2, landmarks=landmarks, progress=progress)
     return eig_1, eig_2, corr
 
