@@ -157,12 +157,12 @@ def ours(
     """p2p_21, seconds of the match, seconds, peak bytes and others' CPU of match + transfer.
 
     With the transfer: what ``ofp.transfer_colors(source, target)`` runs on arrays (the
-    eigenbases the transfer and the estimation share, the map, the OFP bases, the transfer);
-    "match" is then the time until the map exists (its eigenbases included). Without it:
-    ``ofp.match`` alone.
+    eigenbases the transfer and the estimation share, the map with the target's OFP basis
+    built meanwhile, the source's basis, the transfer); "match" is then the time until the map
+    exists (its eigenbases included). Without it: ``ofp.match`` alone.
     """
     from o3d_ofp.workflows import matching
-    from o3d_ofp.workflows.pipeline import estimate_for_transfer
+    from o3d_ofp.workflows.pipeline import BasesAhead, estimate_for_transfer
 
     saved = matching.DENSE_VERTICES
     if dense_above is not None:
@@ -171,9 +171,14 @@ def ours(
         with Peak() as m:
             t0 = time.perf_counter()
             if transfer:
-                e1, e2, corr = estimate_for_transfer(V1, F1, V2, F2, k1=29, k2=39)
-                t_match = time.perf_counter() - t0
-                ofp.transfer_function(colors_of(V1), e1, e2, correspondence=corr)
+                with BasesAhead(29, 39, order=2, tol=None, preset="ours") as ahead:
+                    e1, e2, corr = estimate_for_transfer(
+                        V1, F1, V2, F2, k1=29, k2=39, ready=ahead.start
+                    )
+                    t_match = time.perf_counter() - t0
+                    ofp.transfer_function(
+                        colors_of(V1), e1, e2, correspondence=corr, bases=ahead.result(e1, e2)
+                    )
             else:
                 corr = ofp.match((V1, F1), (V2, F2))
                 t_match = time.perf_counter() - t0

@@ -341,6 +341,10 @@ def test_block_lanczos_is_the_first_attempt_for_many_pairs_on_large_shapes(caplo
     methods = [r.getMessage().split(" via ")[1].split(",")[0] for r in caplog.records
                if " via " in r.getMessage()]  # fmt: skip
     assert methods == ["block Lanczos", "shift-invert Lanczos", "shift-invert Lanczos"]
+    # not when the Krylov space would be a large share of the shape (a review's 3100 pairs on
+    # 12100 vertices: 9600 vectors, 9600² projected eigensolves)
+    assert spectrum._block_fits(27554, 99) and spectrum._block_fits(20000, 599)
+    assert not spectrum._block_fits(12100, 3100)
 
 
 def test_block_lanczos_gives_arpacks_eigenpairs(monkeypatch, caplog, blob_mesh):

@@ -17,7 +17,11 @@ than 1 − 1/√2 of its norm in it: Daniel, Gragg, Kaufman & Stewart's criterio
 ``W = Q_{j+1} B_j`` (QR). The projected matrix ``T`` is block tridiagonal; its leading
 eigenpairs ``(θ, s)`` give Ritz pairs ``(θ, V s)`` whose residual norm ‖A V s − θ V s‖ is
 ‖B_j s_last‖ (the last block of rows of s), known without touching ``A``. The run stops when
-every wanted pair has ‖B_j s_last‖ <= ``tol`` θ.
+every wanted pair has ‖B_j s_last‖ <= ``tol`` θ. Back in ``L φ = λ M φ`` that residual is
+multiplied by up to ‖M^-½ L M^-½‖ / λ, large on fine or flattened meshes: ``tol = 1e-14`` gives
+relative residuals ‖Lφ − λMφ‖_{M⁻¹} / λ_k of 4e-11 on FAUST at 27.5k vertices (ARPACK at machine
+precision: ~3e-12) and 1e-8 on an icosphere flattened 1000-fold (1.6e-10), for 6 % more vectors
+than 1e-12 (which gave 9e-10 and 5e-7).
 
 Repeated eigenvalues: a block of b vectors holds up to b copies of an eigenvalue from the
 start, and the rounding errors bring in the others as the run goes on, as in ARPACK (measured
@@ -42,6 +46,8 @@ __all__ = [
     "MIN_VERTICES",
     "LanczosNoConvergence",
     "block_lanczos",
+    "dense_bytes",
+    "fits",
     "krylov_dim",
 ]
 
@@ -49,8 +55,9 @@ logger = logging.getLogger(__name__)
 
 #: Vectors per block. Measured at 27.5k vertices, 100 eigenpairs (Krylov dimension, seconds):
 #: b = 8: 384, 1.06 s; 12: 456, 1.31 s; 16: 512, 1.53 s; 24: 528, 1.52 s. Larger blocks make
-#: faster BLAS and solves per vector but need larger spaces. 8 also covers the multiplicities of
-#: a symmetric mesh's Laplacian (at most 5 for an icosahedral one) without relying on rounding.
+#: faster BLAS and solves per vector but need larger spaces. 8 also holds every copy of the
+#: exact multiplicities of symmetric meshes seen (5 for an icosphere, 8 for a square flat torus)
+#: from the start; larger ones (a review: 48 on a periodic 3D grid) were found through rounding.
 BLOCK = 8
 
 #: Block Lanczos is the first attempt from this many eigenpairs on shapes of at least
@@ -71,12 +78,31 @@ class LanczosNoConvergence(RuntimeError):
     """The Krylov space reached its largest allowed size before every pair converged."""
 
 
+def fits(n: int, count: int) -> bool:
+    """Whether the Krylov space of ``count`` pairs is small beside ``n`` (a quarter at most).
+
+    Beyond, the projected problem's eigensolves (``krylov_dim``³ each) outgrow the work
+    Lanczos saves (a review: 3100 pairs on 12100 vertices would make 9600² ones).
+    """
+    return 4 * krylov_dim(n, count) <= n
+
+
+def dense_bytes(n: int, count: int) -> float:
+    """Peak bytes of :func:`block_lanczos` for ``count`` pairs of an operator of size ``n``.
+
+    The Krylov space (n × krylov_dim), the returned vectors, the projected matrix T and the
+    copies and workspace of its eigensolves (about three T's).
+    """
+    m = krylov_dim(n, count)
+    return 8.0 * (n * (m + count) + 4 * m * m)
+
+
 def krylov_dim(n: int, k: int) -> int:
     """Largest Krylov space :func:`block_lanczos` builds for ``k`` eigenpairs of size ``n``.
 
-    Measured needs at ``tol = 1e-12`` (b = 8): 240 for 40 pairs (110k vertices), 384-400 for
-    100 (6.9k and 27.5k vertices), 400-512 for 100-131 on the icosphere: about 2k + 200. The
-    bound leaves half as much again.
+    Measured needs (b = 8): 240 for 40 pairs (110k vertices), 384-408 for 100 (6.9k and 27.5k
+    vertices), 400-512 for 100-131 on the icosphere: about 2k + 200. The bound leaves half as
+    much again.
     """
     return min(n, 3 * k + 300)
 
@@ -86,7 +112,7 @@ def block_lanczos(
     n: int,
     count: int,
     *,
-    tol: float = 1e-12,
+    tol: float = 1e-14,
     max_dim: int | None = None,
     block: int = BLOCK,
     seed: int = 0,
@@ -102,7 +128,7 @@ def block_lanczos(
         Size of the operator.
     count : int
         Eigenpairs wanted.
-    tol : float, default 1e-12
+    tol : float, default 1e-14
         A pair has converged when its residual norm is at most ``tol θ``.
     max_dim : int, optional
         Largest Krylov space; default :func:`krylov_dim` (n, count).

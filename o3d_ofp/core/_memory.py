@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import math
 
-from ._lanczos import MIN_PAIRS, MIN_VERTICES, krylov_dim
+from ._lanczos import MIN_PAIRS, MIN_VERTICES, dense_bytes, fits
 
 __all__ = ["available_memory", "basis_job_bytes", "check_memory", "format_bytes"]
 
@@ -104,11 +104,12 @@ def basis_job_bytes(
     total = n_eigenproducts(min(k, kk), order)
     q_max = min(total, n)
     ncv = min(n, max(2 * (kk + 1) + 1, 20))
-    if kk + 1 >= MIN_PAIRS and n >= MIN_VERTICES:  # block Lanczos' larger space (see _solve)
-        ncv = max(ncv, krylov_dim(n, kk + 1))
     matrices = _LAPLACIAN_ROW * n
     factor = FACTOR_FILL * n * math.log2(max(n, 2)) * _BYTES_PER_NONZERO
     eigensolve = matrices + factor + 8.0 * n * (ncv + 3 * (kk + 1))
+    if kk + 1 >= MIN_PAIRS and n >= MIN_VERTICES and fits(n, kk + 1):  # block Lanczos (_solve)
+        block = matrices + factor + dense_bytes(n, kk + 1) + 16.0 * n * (kk + 1)
+        eigensolve = max(eigensolve, block)
     products = matrices + 8.0 * (n * (kk + 1) + 2 * n * q_max + 2 * q_max * total)
     products += 8.0 * 4 * n * block_size
     return 8.0 * 3 * n + max(eigensolve, products)

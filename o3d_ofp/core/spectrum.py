@@ -33,7 +33,14 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from ._lanczos import MIN_PAIRS, MIN_VERTICES, LanczosNoConvergence, block_lanczos, krylov_dim
+from ._lanczos import (
+    MIN_PAIRS,
+    MIN_VERTICES,
+    LanczosNoConvergence,
+    block_lanczos,
+    dense_bytes,
+)
+from ._lanczos import fits as lanczos_fits
 from ._memory import available_memory, check_memory
 from ._progress import Progress
 from ._threads import blas_threads
@@ -562,13 +569,15 @@ _DENSE_LARGE_K_MAX = 12_000
 
 
 def _block_fits(n: int, k: int) -> bool:
-    """Whether block Lanczos' Krylov space (and its copies) fits in the available memory.
+    """Whether block Lanczos suits ``k + 1`` pairs of ``n`` vertices and fits in memory.
 
-    It keeps up to ``krylov_dim`` vectors where ARPACK keeps ``ncv`` (about 1.5 (k+1)); when
-    they do not fit, ARPACK runs alone.
+    It keeps up to ``krylov_dim`` vectors where ARPACK keeps ``ncv`` (about 1.5 (k+1)), and
+    its space must stay small beside n (``_lanczos.fits``); otherwise ARPACK runs alone.
     """
+    if not lanczos_fits(n, k + 1):
+        return False
     available = available_memory()
-    return available is None or 8.0 * n * (krylov_dim(n, k + 1) + 2 * (k + 1)) < 0.5 * available
+    return available is None or dense_bytes(n, k + 1) < 0.5 * available
 
 
 def _dense_for_large_k(n: int, k: int) -> bool:
