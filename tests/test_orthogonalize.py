@@ -277,3 +277,20 @@ def test_candidates_settled_by_the_older_functions(tol, monkeypatch):
     unsettled_2 = 3 if tol > 1e-7 else 4  # 1.001 tol, 0.3, 2 tol (+ 0.999 tol at 1e-9)
     unsettled_3 = 0 if tol > 1e-7 else 1  # 0.95 tol at 1e-9
     assert calls == [unsettled_2] + ([unsettled_3] if unsettled_3 else [])
+
+
+def test_two_orthogonalizations_in_two_threads_keep_their_own_scratch(real_candidates):
+    """Each thread's products go through its own scratch buffer (released afterwards)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    _, B, mass = real_candidates
+    jobs = [(B, 1e-2), (B[:, ::-1].copy(), 1e-3)]  # different candidates, different selections
+    alone = [gram_schmidt(b, mass, tol=t, block_size=32) for b, t in jobs]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        together = list(
+            pool.map(lambda job: gram_schmidt(job[0], mass, tol=job[1], block_size=32), jobs)
+        )
+    for a, b in zip(alone, together, strict=True):
+        np.testing.assert_array_equal(a.kept, b.kept)
+        np.testing.assert_array_equal(a.Q, b.Q)
+    assert not hasattr(orthogonalize._SCRATCH, "buf")

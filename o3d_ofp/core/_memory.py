@@ -111,5 +111,5 @@ def basis_job_bytes(
         block = matrices + factor + dense_bytes(n, kk + 1) + 16.0 * n * (kk + 1)
         eigensolve = max(eigensolve, block)
     products = matrices + 8.0 * (n * (kk + 1) + 2 * n * q_max + 2 * q_max * total)
-    products += 8.0 * 4 * n * block_size
+    products += 8.0 * 5 * n * block_size  # the candidates, three block buffers, the scratch
     return 8.0 * 3 * n + max(eigensolve, products)

@@ -350,7 +350,7 @@ def ofp_basis(
     # Kept basis (resizable storage: up to 2x while growing), R (q, P) and its blocks, and the
     # candidate block with its work buffers; the full (n, P) candidate matrix is never formed.
     check_memory(
-        8.0 * (2 * n * q_max + 2 * q_max * total + 4 * n * block_size),
+        8.0 * (2 * n * q_max + 2 * q_max * total + 5 * n * block_size),
         f"the product basis (n={n}, k={k}, order={order}: {total} candidates)",
     )
     evecs, mass = eig.evecs, eig.mass
