@@ -55,9 +55,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
-from scipy.linalg.blas import dnrm2, dtrsm
+from scipy.linalg.blas import dgemm, dnrm2, dtrsm
 
 from ._progress import Progress
+from ._threads import PARALLEL_ROWS
 from ._validation import as_signal, check_int, check_tol
 
 __all__ = ["PRESETS", "GramSchmidt", "gram_schmidt", "gram_schmidt_blocks", "resolve_tol"]
@@ -71,14 +72,6 @@ PRESETS: dict[str, float] = {"ours": 1e-2, "ours*": 1e-9}
 #: norm before it gets one more sweep against the older basis (round-off left along it is
 #: ~ε·norm, so its relative size stays below ~1e3·ε).
 _DEEP_CANCELLATION = 1e-3
-
-#: A candidate whose residual after one projection on the older functions is below
-#: ``(tol − _SETTLED_MARGIN)`` times its norm is dropped without the second projection. That
-#: residual differs from the exact one by the projection's round-off (~1e-14 of the norm) and
-#: the older functions' loss of orthonormality (<= 1e-12, see ``_REORTH_TOL``): the margin is
-#: 100 times the larger, and further projections only lower a residual. Measured on FAUST at
-#: 27.5k vertices, k = 39, order 2: 60 % of the candidates settled so, the basis 25 % faster.
-_SETTLED_MARGIN = 1e-10
 
 #: Thresholds at least this large try the Gram-matrix selection inside a block (accepted only
 #: where its error bound certifies every decision: see `_select_by_gram`); smaller ones use the
@@ -175,21 +168,31 @@ class _GrowingColumns:
         return self._rows.T
 
 
-#: The products go through NumPy's matmul, which releases the GIL during BLAS, where SciPy's
-#: ``dgemm`` wrapper holds it: two bases built in two threads (a transfer's source and target)
-#: then run at once (FAUST 27.5k, k = 39: 2.0-2.3 s each side by side with dgemm, as long as one
-#: after the other; the same speed alone, 45-53 ms per product). ``W -= Q C`` writes Q C to a
+#: Below :data:`~o3d_ofp.core._threads.PARALLEL_ROWS` rows the products go through NumPy's
+#: matmul, which releases the GIL during BLAS, where SciPy's ``dgemm`` wrapper holds it: two
+#: bases built in two threads (a transfer's source and target, one BLAS thread each) then run
+#: at once (FAUST 27.5k, k = 39: 2.0-2.3 s each side by side with dgemm, as long as one after
+#: the other; the same speed alone, 45-53 ms per product). ``W -= Q C`` then writes Q C to a
 #: scratch buffer first: the one :func:`gram_schmidt_blocks` keeps per thread for its run.
+#: From that size on, bases are built one after the other with BLAS on every core, and
+#: ``dgemm`` in place is faster (110k, k = 39: 3.5-4.6 s against 5.0-5.9 s).
 _SCRATCH = threading.local()
 
 
 def _inner(Q: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """Qᵀ W (BLAS, the GIL released)."""
+    """Qᵀ W."""
+    if Q.shape[0] >= PARALLEL_ROWS:
+        return dgemm(1.0, Q, W, trans_a=True)
     return Q.T @ W
 
 
 def _subtract_product(W: np.ndarray, Q: np.ndarray, C: np.ndarray) -> None:
-    """W -= Q C in place (BLAS into the thread's scratch buffer, the GIL released)."""
+    """W -= Q C in place."""
+    if W.shape[0] >= PARALLEL_ROWS:
+        out = dgemm(-1.0, Q, C, 1.0, W, overwrite_c=True)
+        if not np.shares_memory(out, W):  # W was not Fortran-contiguous: BLAS worked on a copy
+            W[...] = out
+        return
     buf = getattr(_SCRATCH, "buf", None)
     size = W.shape[0] * W.shape[1]
     if buf is None or buf.size < size:
@@ -206,15 +209,12 @@ def _column_norms(W: np.ndarray) -> np.ndarray:
     return np.array([dnrm2(W[:, j]) for j in range(W.shape[1])])
 
 
-def _project_out(
-    Q: np.ndarray, W: np.ndarray, settled: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def _project_out(Q: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Remove from W (in place) its components along orthonormal Q.
 
     Two BLAS-3 passes of classical Gram-Schmidt; a third, on the columns where the second
     still removed more than half of the norm (Kahan / Parlett: the previous pass was not yet
-    accurate there). Columns whose norm after the first pass is below ``settled`` (per
-    column) skip the others: the caller drops them whatever the further passes would give.
+    accurate there).
 
     Returns
     -------
@@ -228,27 +228,9 @@ def _project_out(
     coefficients = _inner(Q, W)
     _subtract_product(W, Q, coefficients)
     before = _column_norms(W)
-    if settled is not None:
-        rest = np.flatnonzero(before >= settled)
-        if rest.size < W.shape[1]:
-            if rest.size:
-                sub = np.asfortranarray(W[:, rest])
-                norms, c2 = _project_out_again(Q, sub, before[rest])
-                W[:, rest] = sub
-                coefficients[:, rest] += c2
-                before[rest] = norms
-            return before, coefficients
-    norms, c2 = _project_out_again(Q, W, before)
+    c2 = _inner(Q, W)
+    _subtract_product(W, Q, c2)
     coefficients += c2
-    return norms, coefficients
-
-
-def _project_out_again(
-    Q: np.ndarray, W: np.ndarray, before: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Run the second pass of :func:`_project_out` (and its third where needed)."""
-    coefficients = _inner(Q, W)
-    _subtract_product(W, Q, coefficients)
     norms = _column_norms(W)
     again = np.flatnonzero(norms < 0.5 * before)
     if again.size:
@@ -511,7 +493,7 @@ def gram_schmidt_blocks(
     W_buf = np.empty((n, block_size), order="F")
     new_buf = np.empty((n, block_size), order="F")
     projected_buf = np.empty((n, block_size), order="F")
-    _SCRATCH.buf = np.empty(n * block_size)
+    _SCRATCH.buf = np.empty(n * block_size) if n < PARALLEL_ROWS else None  # see _SCRATCH
     try:
         return _run_blocks(
             blocks, sqrt_m, n_candidates, tol, block_size, basis, W_buf, new_buf, projected_buf
@@ -551,28 +533,20 @@ def _run_blocks(
         np.multiply(raw, sqrt_m[:, None], out=W)
         norm0 = _column_norms(W)
         q_before = basis.size
-        settled = (tol - _SETTLED_MARGIN) * norm0 if tol > _SETTLED_MARGIN else None
-        n1, coeff_old = _project_out(basis.view, W, settled)
+        n1, coeff_old = _project_out(basis.view, W)
         projected = projected_buf[:, :b]  # W minus its old-basis part, for the in-block rows of R
         projected[...] = W
-        # Candidates already below the threshold against the older functions are dropped, as
-        # they would be against those and the block's; the selection sees the others only.
-        live = np.arange(b) if settled is None else np.flatnonzero(n1 >= settled)
-        if live.size < b:
-            W = np.asfortranarray(W[:, live])
-        new_cols = new_buf[:, : live.size]
-        chosen: list[int] = []
-        t = 0 if live.size == 0 else -1  # every candidate of the block settled
-        if t < 0 and tol >= _GRAM_MIN_TOL:
+        new_cols = new_buf[:, :b]
+        t = -1
+        if tol >= _GRAM_MIN_TOL:
             try:
-                t = _select_by_gram(W, new_cols, norm0[live], tol, 0, chosen)
+                t = _select_by_gram(W, new_cols, norm0, tol, start, kept)
             except np.linalg.LinAlgError:  # Cholesky-QR broke down: an ill-conditioned block
                 t = -1
             if t < 0:
                 logger.debug("block at %d: Gram selection not certified; recursive path", start)
         if t < 0:
-            t = _select_in_block(W, new_cols, norm0[live], n1[live], basis.view, tol, 0, chosen)
-        kept.extend(start + int(live[j]) for j in chosen)
+            t = _select_in_block(W, new_cols, norm0, n1, basis.view, tol, start, kept)
         _reorthogonalize(basis.view, new_cols[:, :t], seed=start)
         # Eq. (17): R[i, j] = <q_i, b_j>. Older rows are the projection coefficients; rows of
         # the functions kept in this block are their products with the projected block (the
