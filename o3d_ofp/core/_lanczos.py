@@ -6,8 +6,9 @@ this routine finds those with a block Krylov space, fully re-orthogonalized, wit
 Against ARPACK's single-vector implicitly restarted Lanczos (``eigsh``), which spends most of
 its time re-orthogonalizing one vector at a time (BLAS-2, memory-bound) and solves with one
 right-hand side at a time, a block of ``BLOCK`` vectors makes both BLAS-3 and multi-right-hand
-side solves. Measured on FAUST subdivided to 27.5k vertices, 100 eigenpairs: 1.1-1.4 s against
-2.7 s (``scripts/bench_eigensolve.py`` prints both); eigenvalues equal to 5e-14 relative.
+side solves. Measured on FAUST subdivided to 27.5k vertices, 100 eigenpairs, the whole
+eigenbasis: 1.65 s against 2.49 s (``python scripts/bench_eigensolve.py``, which prints both);
+eigenvalues equal to 4e-15 relative.
 
 Algorithm (Golub & Underwood's block Lanczos, with full re-orthogonalization as in Grimes,
 Lewis & Simon 1994): ``Q₀`` random orthonormal (n, b); at step j, ``W = A Q_j`` minus the
@@ -65,9 +66,10 @@ BLOCK = 8
 #: its re-orthogonalization, which block Lanczos saves, grows with n and k, while block
 #: Lanczos' own overhead (the projected problem's eigensolves) does not grow with n. Measured
 #: (``python scripts/bench_eigensolve.py --levels 0 1``, whole eigenbasis, ARPACK / block
-#: seconds): 6890 vertices 0.71x for 30 pairs, 0.73x for 60, 0.96x for 100; 27.5k 0.95x for
-#: 30, 1.03x for 40, 1.22x for 60, 1.89x for 100; 110k 0.98x for 40, 1.8x for 100.
-MIN_PAIRS = 50
+#: seconds, tol 1e-14): 6890 vertices 0.77x for 30 pairs, 0.76x for 60, 0.84x for 100; 27.5k
+#: 0.77x for 30, 0.89x for 40, 0.96x for 60, 1.22x for 70, 1.34x for 80, 1.51x for 100 (at
+#: tol 1e-12: 110k 0.98x for 40, 1.8x for 100).
+MIN_PAIRS = 60
 MIN_VERTICES = 10_000
 
 #: Below this share of its norm left after the Gram-Schmidt pass, a column gets a second pass.
