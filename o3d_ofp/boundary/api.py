@@ -45,11 +45,11 @@ from ..workflows.matching import (
     match_eigenbases,
 )
 from ..workflows.pipeline import (
-    BasesAhead,
+    check_basis_options,
     check_method,
     prepare_transfer,
     pull_back,
-    transfer_function,
+    transfer_on_shapes,
     warn_other_shape,
 )
 from .closest import closest_correspondence
@@ -527,33 +527,26 @@ def transfer_colors(
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
         return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
-    with BasesAhead(k1, k2, order=order, tol=tol, preset=preset, given=bases) as ahead:
-        eig_1, eig_2, correspondence = prepare_transfer(
-            V1,
-            F1,
-            V2,
-            F2,
-            k1=k1,
-            k2=k2,
-            correspondence=correspondence,
-            fmap_12=fmap_12,
-            p2p_21=p2p_21,
-            landmarks=landmarks,
-            eigenbases=eigenbases,
-            bases=bases,
-            components=components,
-            ready=ahead.start,
-        )
-        g = transfer_function(
-            f,
-            eig_1,
-            eig_2,
-            correspondence=correspondence,
-            fmap_12=fmap_12,
-            p2p_21=p2p_21,
-            method=method,
-            bases=ahead.result(eig_1, eig_2),
-        )
+    g = transfer_on_shapes(
+        f,
+        V1,
+        F1,
+        V2,
+        F2,
+        k1=k1,
+        k2=k2,
+        order=order,
+        tol=tol,
+        preset=preset,
+        method=method,
+        correspondence=correspondence,
+        fmap_12=fmap_12,
+        p2p_21=p2p_21,
+        landmarks=landmarks,
+        eigenbases=eigenbases,
+        bases=bases,
+        components=components,
+    )
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
 
@@ -677,35 +670,29 @@ def transfer_detail(
     if mode == "coordinates":
         for value, name in ((k1, "k1"), (k2, "k2"), (order, "order")):
             check_int(value, name=name, minimum=1)
-        ahead = BasesAhead(k1, k2, order=order, tol=tol, preset=preset, given=bases)
+        if bases is None:
+            check_basis_options(order, tol, preset)  # before the eigenbases below
         if eigenbases is not None and bases is None:
             eigenbases = _large_enough(eigenbases, (V1, V2), (F1, F2), (k1, k2), components)
-        with ahead:
-            eig_1, eig_2, correspondence = prepare_transfer(
-                V1,
-                F1,
-                V2,
-                F2,
-                k1=k1,
-                k2=k2,
-                correspondence=correspondence,
-                fmap_12=fmap_12,
-                p2p_21=p2p_21,
-                landmarks=landmarks,
-                eigenbases=eigenbases,
-                bases=bases,
-                components=components,
-                ready=ahead.start,
-            )
-            moved = transfer_function(
-                eig_1.vertices,
-                eig_1,
-                eig_2,
-                correspondence=correspondence,
-                fmap_12=fmap_12,
-                p2p_21=p2p_21,
-                bases=ahead.result(eig_1, eig_2),
-            )
+        moved = transfer_on_shapes(
+            lambda eig_1: eig_1.vertices,
+            V1,
+            F1,
+            V2,
+            F2,
+            k1=k1,
+            k2=k2,
+            order=order,
+            tol=tol,
+            preset=preset,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            landmarks=landmarks,
+            eigenbases=eigenbases,
+            bases=bases,
+            components=components,
+        )
         check_coordinates_area(V1, F1, moved, F2)
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)

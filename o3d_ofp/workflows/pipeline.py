@@ -46,6 +46,7 @@ __all__ = [
     "prepare_transfer",
     "pull_back",
     "transfer_function",
+    "transfer_on_shapes",
     "warn_other_shape",
 ]
 
@@ -230,6 +231,64 @@ def transfer_function(
     else:
         transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=p2p)
     return transfer_signal(f, B_1, B_2, transfer_12)
+
+
+def transfer_on_shapes(
+    f_1: Any,
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    *,
+    k1: int,
+    k2: int,
+    order: int,
+    tol: float | None,
+    preset: str | None,
+    method: str = "p2p",
+    correspondence: Correspondence | None = None,
+    fmap_12: Any = None,
+    p2p_21: Any = None,
+    landmarks: Any = None,
+    eigenbases: tuple[Any, Any] | None = None,
+    bases: tuple[Any, Any] | None = None,
+    components: str = "auto",
+) -> np.ndarray:
+    """Prepare a transfer and carry ``f_1`` through it: the one-call route of the API.
+
+    :func:`prepare_transfer`, then :func:`transfer_function`, the target's basis built while
+    the map is estimated (see :class:`BasesAhead`). ``f_1`` is the (n1,) or (n1, d) source
+    signal, or a callable giving it from the source's eigenbasis; the other arguments are
+    those of the two functions. Returns the transferred (n2,) or (n2, d) signal.
+    """
+    check_method(method)
+    with BasesAhead(k1, k2, order=order, tol=tol, preset=preset, given=bases) as ahead:
+        eig_1, eig_2, correspondence = prepare_transfer(
+            V1,
+            F1,
+            V2,
+            F2,
+            k1=k1,
+            k2=k2,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            landmarks=landmarks,
+            eigenbases=eigenbases,
+            bases=bases,
+            components=components,
+            ready=ahead.start,
+        )
+        return transfer_function(
+            f_1(eig_1) if callable(f_1) else f_1,
+            eig_1,
+            eig_2,
+            correspondence=correspondence,
+            fmap_12=fmap_12,
+            p2p_21=p2p_21,
+            method=method,
+            bases=ahead.result(eig_1, eig_2),
+        )
 
 
 def _warn_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> None:
