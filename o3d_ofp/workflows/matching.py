@@ -1013,7 +1013,7 @@ def _match_surfaces(
     report("descriptor fit", 0.0)
     # The farthest-point samples of both shapes, drawn once for every ZoomOut below and the
     # comparison of the starts (they depend on the shapes only), while the fits run: the
-    # sampling is mostly Python steps, the fits mostly BLAS (27.5k vertices: 0.17 s hidden).
+    # sampling is mostly Python steps, the fits mostly BLAS (27.5k vertices: 0.17 s of sampling).
     n_samples = zoomout_subsample or 2000
     with ThreadPoolExecutor(max_workers=1) as sampler:
         sampled = sampler.submit(
