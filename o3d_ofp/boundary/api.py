@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core import spectrum
 from ..core._validation import check_int
-from ..core.basis import OFPBasis, ofp_basis
+from ..core.basis import OFPBasis, check_basis_options, ofp_basis
 from ..core.correspondence import p2p_from_fmap
 from ..core.filtering import (
     DEFAULT_SMOOTH,
@@ -45,7 +45,6 @@ from ..workflows.matching import (
     match_eigenbases,
 )
 from ..workflows.pipeline import (
-    check_basis_options,
     check_method,
     prepare_transfer,
     pull_back,

@@ -26,7 +26,7 @@ from .orthogonalize import PRESETS, gram_schmidt_blocks, resolve_tol
 from .products import eigenproduct_blocks, eigenproduct_indices, n_eigenproducts
 from .spectrum import EigenBasis, mass_weighted
 
-__all__ = ["OFPBasis", "approximation_error", "ofp_basis"]
+__all__ = ["OFPBasis", "approximation_error", "check_basis_options", "ofp_basis"]
 
 logger = logging.getLogger(__name__)
 
@@ -283,6 +283,15 @@ class OFPBasis:
         )
 
 
+def check_basis_options(order: Any, tol: Any, preset: Any) -> tuple[int, float]:
+    """Check :func:`ofp_basis`' ``order``, ``tol`` and ``preset``; return ``(order, tol)``.
+
+    Callers that build a basis after expensive work (the eigensolves of a transfer) call it
+    first, so that a bad option is refused before that work.
+    """
+    return check_int(order, name="order", minimum=1), resolve_tol(tol, preset)
+
+
 def ofp_basis(
     eig: EigenBasis,
     *,
@@ -336,8 +345,7 @@ def ofp_basis(
         raise TypeError(
             f"eig must be an EigenBasis (from o3d_ofp.eigenbasis); got {type(eig).__name__}"
         )
-    order = check_int(order, name="order", minimum=1)
-    tol = resolve_tol(tol, preset)
+    order, tol = check_basis_options(order, tol, preset)
     k = eig.k if k is None else check_int(k, name="k", minimum=1, maximum=eig.k)
     if k < eig.k:
         eig = eig.truncate(k)

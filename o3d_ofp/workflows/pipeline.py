@@ -19,9 +19,8 @@ import numpy as np
 from ..core._threads import PARALLEL_ROWS
 from ..core._validation import as_signal, check_int
 from ..core._warnings import warn
-from ..core.basis import OFPBasis, ofp_basis
+from ..core.basis import OFPBasis, check_basis_options, ofp_basis
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
-from ..core.orthogonalize import resolve_tol
 from ..core.spectrum import EigenBasis
 from ..core.transfer import transfer_matrix, transfer_signal
 from .eigenbases import eigenbases as eigenbases_of
@@ -40,7 +39,6 @@ from .matching import (
 
 __all__ = [
     "BasesAhead",
-    "check_basis_options",
     "check_method",
     "estimate_for_transfer",
     "prepare_transfer",
@@ -74,12 +72,6 @@ def _bases(
     with ThreadPoolExecutor(max_workers=2) as pool:
         job = pool.submit(ofp_basis, eig_2, order=order, tol=tol, preset=preset, k=k2)
         return ofp_basis(eig_1, order=order, tol=tol, preset=preset, k=k1), job.result()
-
-
-def check_basis_options(order: Any, tol: Any, preset: Any) -> None:
-    """Refuse bad OFP basis options (as :func:`o3d_ofp.ofp_basis` would) before any eigensolve."""
-    check_int(order, name="order", minimum=1)
-    resolve_tol(tol, preset)
 
 
 def check_method(method: Any) -> None:
