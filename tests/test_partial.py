@@ -13,6 +13,8 @@ from o3d_ofp.core.correspondence import nearest_neighbors
 from o3d_ofp.core.partial import (
     boundary_length,
     curvature_descriptors,
+    fit_partial_fmap,
+    partial_descriptors,
     rescaled,
     slant,
 )
@@ -252,6 +254,28 @@ def test_match_partial_eigenbases_checks_its_inputs(whole):
     small = ofp.eigenbasis(V, F, k=10)
     with pytest.raises(ValueError, match="source eigenbasis has 10 eigenfunctions"):
         match_partial_eigenbases(small, e1)
+
+
+def test_fits_sharing_the_descriptors_equal_the_fits_computing_them(whole, cut):
+    _, _, e1 = whole
+    _, _, _, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    shared = partial_descriptors(u1, u2)
+    for solver in ("lbfgs", "direct"):
+        alone = fit_partial_fmap(u1, u2, k2=8, solver=solver)
+        given = fit_partial_fmap(u1, u2, k2=8, solver=solver, descriptors=shared)
+        # the same computation on one BLAS thread: equal to the last bit
+        for a, b in zip(alone, given, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # the given descriptors are the ones used: scaled ones weigh the data term differently
+    scaled = fit_partial_fmap(
+        u1, u2, k2=8, solver="direct", descriptors=tuple(2 * D for D in shared)
+    )
+    assert not np.allclose(scaled[0], given[0])
+    other = partial_descriptors(u1, u2, landmarks=np.array([[0, 0], [5, 7]]))
+    assert other[0].shape[1] > shared[0].shape[1]  # the landmarks' columns: not the same set
+    with pytest.raises(ValueError, match="descriptors must be"):
+        fit_partial_fmap(u1, u2, k2=8, descriptors=(shared[1], shared[0]))  # swapped
 
 
 def test_slant_follows_the_area_ratio(whole, cut):

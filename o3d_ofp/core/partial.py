@@ -87,6 +87,7 @@ __all__ = [
     "geodesic_refine",
     "map_stretch",
     "membership",
+    "partial_descriptors",
     "partial_p2p",
     "partial_residual",
     "partial_zoomout",
@@ -476,6 +477,43 @@ def _slanted_identity(evals_1: np.ndarray, evals_2: np.ndarray, k2: int, k1: int
 
 
 @one_blas_thread
+def partial_descriptors(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    landmarks: Any = None,
+    n_descriptors: int = 100,
+    k_descriptors: int = 100,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Descriptors of :func:`fit_partial_fmap`, for several fits between the same two shapes.
+
+    They do not depend on the map's size: a caller fitting maps of several sizes computes
+    them once and passes them as ``descriptors=``. Measured (FAUST 093 -> 087 with the legs
+    cut, the 10 fits of a partial match): computed per fit they took 1.1 s of the fits' 5.8 s
+    (the diffused curvatures' sparse factorizations); once, 0.23 s.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source (whole) and target (part) eigenbases in the same units (:func:`rescaled`).
+    landmarks, n_descriptors, k_descriptors
+        As in :func:`fit_partial_fmap`.
+
+    Returns
+    -------
+    D1, D2 : (n1, p), (n2, p) ndarray
+        Curvature descriptors and wave kernels at common energies, one scale per column.
+    """
+    return _common_wks(
+        eig_1,
+        eig_2,
+        n_energies=check_int(n_descriptors, name="n_descriptors", minimum=1),
+        k_descriptors=check_int(k_descriptors, name="k_descriptors", minimum=2),
+        landmarks=landmarks,
+    )
+
+
+@one_blas_thread
 def fit_partial_fmap(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
@@ -491,6 +529,7 @@ def fit_partial_fmap(
     w_rows: float = 1.0,
     solver: str = "lbfgs",
     maxiter: int = 15000,
+    descriptors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[np.ndarray]:
     """Fit restriction maps (source full, target a part) to common-energy descriptors.
 
@@ -526,6 +565,10 @@ def fit_partial_fmap(
         starts, not the same minimizer.
     maxiter : int
         Bound on L-BFGS-B iterations.
+    descriptors : tuple of two ndarray, optional
+        ``(D1, D2)`` of :func:`partial_descriptors` for these shapes (with the same
+        ``landmarks``, ``n_descriptors`` and ``k_descriptors``), when several fits share them;
+        computed here otherwise.
 
     Returns
     -------
@@ -540,13 +583,25 @@ def fit_partial_fmap(
     if solver not in ("lbfgs", "direct"):
         raise ValueError(f"solver must be 'lbfgs' or 'direct'; got {solver!r}")
     k1 = slant(eig_1.evals, eig_2.evals, k2)
-    D1, D2 = _common_wks(
-        eig_1,
-        eig_2,
-        n_energies=check_int(n_descriptors, name="n_descriptors", minimum=1),
-        k_descriptors=check_int(k_descriptors, name="k_descriptors", minimum=2),
-        landmarks=landmarks,
-    )
+    if descriptors is None:
+        descriptors = partial_descriptors(
+            eig_1,
+            eig_2,
+            landmarks=landmarks,
+            n_descriptors=n_descriptors,
+            k_descriptors=k_descriptors,
+        )
+    D1, D2 = (np.asarray(D, dtype=np.float64) for D in descriptors)
+    if (
+        D1.ndim != 2
+        or D2.ndim != 2
+        or D1.shape[1] != D2.shape[1]
+        or (D1.shape[0], D2.shape[0]) != (eig_1.n_vertices, eig_2.n_vertices)
+    ):
+        raise ValueError(
+            f"descriptors must be (n1, p) and (n2, p) arrays for shapes of {eig_1.n_vertices} "
+            f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
+        )
     A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
     ops = (
         _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))

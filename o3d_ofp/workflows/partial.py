@@ -27,6 +27,7 @@ from ..core.partial import (
     geodesic_refine,
     map_stretch,
     membership,
+    partial_descriptors,
     partial_p2p,
     partial_zoomout,
     rescaled,
@@ -425,27 +426,21 @@ def match_partial_eigenbases(
     )
     report("descriptor fit", 0.0)
     sizes = sorted({min(k, k2_fit) for k in (*FIT_SIZES, k2_fit)})
+    fit_options = {
+        "landmarks": landmarks,
+        "w_dcomm": DCOMM_WEIGHTS,
+        "w_orient": w_orient,
+        "descriptors": partial_descriptors(u1, u2, landmarks=landmarks),  # one set for all
+    }
     starts = [
         (C, w)
         for k in sizes
         for C, w in zip(
-            fit_partial_fmap(
-                u1, u2, k2=k, landmarks=landmarks, w_dcomm=DCOMM_WEIGHTS, w_orient=w_orient
-            ),
-            DCOMM_WEIGHTS,
-            strict=True,
+            fit_partial_fmap(u1, u2, k2=k, **fit_options), DCOMM_WEIGHTS, strict=True
         )
     ]
     for k in sorted({min(k, k2_fit) for k in DIRECT_FIT_SIZES} - set(sizes)):
-        fits = fit_partial_fmap(
-            u1,
-            u2,
-            k2=k,
-            landmarks=landmarks,
-            w_dcomm=DCOMM_WEIGHTS,
-            w_orient=w_orient,
-            solver="direct",
-        )
+        fits = fit_partial_fmap(u1, u2, k2=k, solver="direct", **fit_options)
         starts += list(zip(fits, DCOMM_WEIGHTS, strict=True))
     # Each start is refined, then ranked: orientation-preserving maps first (a mirror image
     # can align the spectral embeddings as well as the right map: measured on a FAUST cut,
