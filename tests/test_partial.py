@@ -15,6 +15,7 @@ from o3d_ofp.core.partial import (
     curvature_descriptors,
     fit_partial_fmap,
     partial_descriptors,
+    partial_p2p,
     rescaled,
     slant,
 )
@@ -302,6 +303,82 @@ def test_boundary_length_and_curvature_of_a_sphere():
     for col in (0, 1):
         assert np.median(D[:, col]) == pytest.approx(1.0, rel=0.01)
         assert np.abs(D[:, col] - 1).max() < 0.15
+
+
+def test_dense_path_extends_the_restriction_map_as_its_own_point_map(whole, cut):
+    from o3d_ofp.core.multiscale import extend_p2p
+    from o3d_ofp.workflows.partial import _coarse_partial
+
+    V, _, e1 = whole
+    Vc, _, _, ec = cut
+    given = _coarse_partial(e1, ec, k_fit=15)  # the map handed to the extension
+    C = given.fmap_12 * (e1.area / ec.area)  # the restriction map itself
+    expected = partial_p2p(C, rescaled(e1, e1.area), rescaled(ec, e1.area))
+    # coarse copies that are the shapes themselves: the extension is the point map
+    np.testing.assert_array_equal(extend_p2p(given.fmap_12, e1, ec, V, Vc), expected)
+    unscaled = extend_p2p(C, e1, ec, V, Vc)  # read as a map between own-unit bases: off
+    assert np.mean(unscaled != expected) > 0.02
+
+
+def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeypatch):
+    import o3d_ofp.workflows.matching as matching
+    import o3d_ofp.workflows.partial as workflow
+
+    V, F, e1 = whole
+    Vc, Fc, truth, _ = cut
+    # the 2562-vertex blob made "dense" (above 1000 vertices, coarse copies of 800)
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
+    monkeypatch.setattr(workflow, "COARSE_VERTICES", 800)
+    seen = []
+    real = workflow.match_partial_eigenbases
+
+    def spy(eig_1, eig_2, **options):
+        seen.append((eig_1.n_vertices, eig_2.n_vertices, options["landmarks"]))
+        return real(eig_1, eig_2, **options)
+
+    monkeypatch.setattr(workflow, "match_partial_eigenbases", spy)
+    # three known pairs: a near-spherical blob's part can be matched turned (a known limit
+    # of the check), landmarks fix the turn, so the error measures the dense path itself
+    rows = np.array([0, len(Vc) // 2, len(Vc) - 1])
+    landmarks = np.stack([truth[rows], rows], axis=1)
+    corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
+    assert len(seen) == 1 and seen[0][0] < len(V) and seen[0][1] < len(Vc)  # coarse only
+    assert 700 < seen[0][0] < 900
+    assert seen[0][2].shape == (3, 2)  # the landmarks, carried to the coarse cells
+    assert corr.method == "partial" and corr.options["dense"] is True
+    assert corr.fmap_12 is None and corr.p2p_21.shape == (len(Vc),)
+    assert corr.options["landmarks"] == landmarks.tolist()  # the caller's numbering
+    assert corr.mismatch(V, Vc) is None  # signatures of the full shapes
+    assert 0.3 < corr.quality.overlap < 1.0
+    # the direct match of this cut: 0.023 (test above); a coarse copy of 800 vertices is
+    # coarser than FAUST's coarse copies at 110k (20000 vertices), so twice the bound there
+    assert _error(V, corr.p2p_21, truth, e1.area) < 0.08
+
+
+def test_cli_partial_flag_on_a_dense_pair(tmp_path, capsys, monkeypatch):
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.workflows import matching
+    from o3d_ofp.workflows import partial as workflow
+
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
+    monkeypatch.setattr(workflow, "COARSE_VERTICES", 400)
+    V, F = blob(3)  # 642 vertices: "dense" above 500
+    Vc, Fc, _ = plane_cut(V, F, axis=0, fraction=0.7)
+    src, tgt = tmp_path / "src.ply", tmp_path / "part.ply"
+    mesh = triangle_mesh_from_arrays(V, F)
+    import open3d as o3d
+
+    mesh.vertex_colors = o3d.utility.Vector3dVector(0.5 + 0.5 * np.sin(3 * V))
+    write_geometry(src, mesh)
+    write_geometry(tgt, triangle_mesh_from_arrays(Vc, Fc))
+    saved = tmp_path / "map.npz"
+    args = ["transfer", str(src), str(tgt), "--k1", "12", "--k2", "12", "--partial"]
+    assert main([*args, "--save-map", str(saved), "-o", str(tmp_path / "out.ply")]) == 0
+    assert "dense path" in capsys.readouterr().err
+    corr = Correspondence.load(saved)
+    assert corr.method == "partial" and corr.options["dense"] is True
 
 
 def test_cli_partial_flag(tmp_path, capsys):

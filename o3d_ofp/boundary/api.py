@@ -299,7 +299,9 @@ def match(
         the anchors the map keeps right and a second partial ZoomOut; see
         :func:`o3d_ofp.workflows.partial.match_partial_eigenbases`). ``quality.overlap``
         gives the estimated fraction of the source covered; ``method="partial"`` in the
-        result. Without it, a target that looks like a part of the source is flagged suspect.
+        result. Meshes of more than 50 000 vertices are matched on coarse copies of about
+        20 000 and the map is extended to every vertex, as in the full-shape case. Without
+        it, a target that looks like a part of the source is flagged suspect.
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs.
@@ -390,17 +392,9 @@ def match(
 
         check_partial_areas(V1, F1, V2, F2)
     if eigenbases is None and partial:
-        from ..workflows.eigenbases import eigenbases as eigenbases_of
-        from ..workflows.matching import check_landmarks, required_k
+        from ..workflows.partial import match_partial_arrays
 
-        check_landmarks(landmarks, V1.shape[0], V2.shape[0])  # before any eigensolve
-        eigenbases = tuple(
-            eigenbases_of(
-                [(V, F, required_k(V.shape[0], zoomout_to)) for V, F in ((V1, F1), (V2, F2))],
-                clamp_k=True,
-                components=components,
-            )
-        )
+        return match_partial_arrays(V1, F1, V2, F2, components=components, **options)
     if eigenbases is None:
         return match_arrays(V1, F1, V2, F2, components=components, **options)
     eig_1, eig_2 = eigenbases

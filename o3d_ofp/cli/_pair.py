@@ -422,7 +422,7 @@ def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool
     from ..workflows.matching import uses_dense_path
 
     meshes = F1 is not None and F2 is not None
-    return not getattr(args, "partial", False) and uses_dense_path(V1.shape[0], V2.shape[0], meshes)
+    return uses_dense_path(V1.shape[0], V2.shape[0], meshes)
 
 
 
@@ -513,7 +513,10 @@ def map_first(args: argparse.Namespace, pair: Pair) -> Pair:
         stage(f"map estimation on coarse copies ({n} vertices: dense path)"),
         stage_progress("matching") as progress,
     ):
-        corr = match_arrays(
+        match = match_arrays
+        if getattr(args, "partial", False):
+            from ..workflows.partial import match_partial_arrays as match
+        corr = match(
             pair.V1,
             pair.F1,
             pair.V2,

@@ -4,7 +4,8 @@ The rules of a partial match live here: both eigenbases are expressed in the *so
 (the source scaled to unit area, the target by the same factor, so the area ratio is kept),
 the map is fitted, refined by a partial ZoomOut and checked; the overlap (fraction of the
 source the target covers) is reported in the quality. The algorithm is in
-:mod:`o3d_ofp.core.partial`.
+:mod:`o3d_ofp.core.partial`. Meshes above the dense threshold are matched on coarse copies,
+as full shapes are (:func:`match_partial_arrays`, :mod:`o3d_ofp.workflows.dense`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from ..core.partial import (
     slant,
 )
 from ..core.spectrum import EigenBasis, check_eigenbasis
+from .dense import COARSE_VERTICES, match_dense
+from .eigenbases import eigenbases as eigenbases_of
 from .matching import (
     DCOMM_WEIGHTS,
     ESTIMATION_K,
@@ -49,6 +52,8 @@ from .matching import (
     map_quality,
     required_k,
     shape_signature,
+    uses_dense_path,
+    with_signatures,
 )
 
 __all__ = [
@@ -56,6 +61,7 @@ __all__ = [
     "MAX_STRETCH",
     "check_partial_areas",
     "check_partial_options",
+    "match_partial_arrays",
     "match_partial_eigenbases",
     "partial_quality",
 ]
@@ -521,3 +527,99 @@ def match_partial_eigenbases(
         quality=quality,
         signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
     )
+
+
+def _coarse_partial(eig_1: EigenBasis, eig_2: EigenBasis, **options: Any) -> Correspondence:
+    """:func:`match_partial_eigenbases` between coarse copies, its map in ``extend_p2p``'s terms.
+
+    The restriction map compares ``Φ Cᵀ`` with ``Ψ`` (bases in the same units); the extension
+    to the full meshes (:func:`o3d_ofp.core.multiscale.extend_p2p`) compares ``(a1/a2) Φ Cᵀ``
+    with ``Ψ`` (this package's convention for maps between bases in their own units), so the
+    map it is given is ``C · a2/a1``: the full point map then reads the same embedding.
+    """
+    corr = match_partial_eigenbases(eig_1, eig_2, **options)
+    assert corr.fmap_12 is not None
+    return dataclasses.replace(corr, fmap_12=corr.fmap_12 * (eig_2.area / eig_1.area))
+
+
+def match_partial_arrays(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+    *,
+    components: str = "auto",
+    dense_above: int | None = None,
+    coarse_vertices: int | None = None,
+    **options: Any,
+) -> Correspondence:
+    """Match a part (the target) onto the whole (the source), both given as arrays.
+
+    As :func:`o3d_ofp.workflows.matching.match_arrays` for a full-shape map: below
+    ``dense_above`` vertices the eigenbases of both meshes and
+    :func:`match_partial_eigenbases`; above it (either shape) the partial match runs between
+    coarse copies of about ``coarse_vertices`` vertices and its map is extended to every
+    vertex (:func:`o3d_ofp.workflows.dense.match_dense`): no full-resolution eigenpair, and
+    no full-resolution point map per start (the direct match of a 110k-vertex source and a
+    90k-vertex part takes minutes; ``python scripts/eval_partial.py --dense`` measures both).
+
+    Parameters
+    ----------
+    vertices_1, faces_1 : (n1, 3) ndarray, (m1, 3) ndarray of int
+        Source mesh (the whole shape).
+    vertices_2, faces_2 : (n2, 3) ndarray, (m2, 3) ndarray of int
+        Target mesh (the part), in the source's units.
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    dense_above : int, optional
+        Vertex count above which the coarse copies are matched (default
+        :data:`o3d_ofp.workflows.dense.DENSE_VERTICES`).
+    coarse_vertices : int, optional
+        Vertices of each coarse copy there (default
+        :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`, 20000).
+    **options
+        Keyword options of :func:`match_partial_eigenbases`.
+
+    Returns
+    -------
+    Correspondence
+        ``method="partial"``; on the dense path ``fmap_12`` is ``None`` (the map lives between
+        the coarse bases) and the quality is the coarse map's, with the full map's coverage.
+    """
+    for name, F in (("source", faces_1), ("target", faces_2)):
+        if F is None:
+            raise ValueError(
+                f"partial=True needs triangle meshes: the {name} is a point cloud (no faces); "
+                "mesh it first or match without partial=True"
+            )
+    landmarks = check_landmarks(
+        options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
+    )  # before any eigensolve
+    options = {**options, "landmarks": landmarks}
+    if uses_dense_path(vertices_1.shape[0], vertices_2.shape[0], True, dense_above):
+        logger.info(
+            "partial match: %d vertices: dense path (coarse meshes)",
+            max(vertices_1.shape[0], vertices_2.shape[0]),
+        )
+        corr = match_dense(
+            vertices_1,
+            faces_1,
+            vertices_2,
+            faces_2,
+            estimate=_coarse_partial,
+            k=options.get("zoomout_to", ESTIMATION_K),
+            coarse_vertices=COARSE_VERTICES if coarse_vertices is None else coarse_vertices,
+            components=components,
+            **options,
+        )
+        return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
+    zoomout_to = options.get("zoomout_to", ESTIMATION_K)
+    eig_1, eig_2 = eigenbases_of(
+        [
+            (V, F, required_k(V.shape[0], zoomout_to))
+            for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))
+        ],
+        clamp_k=True,
+        components=components,
+    )
+    return match_partial_eigenbases(eig_1, eig_2, **options)
