@@ -328,7 +328,7 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
     Vc, Fc, truth, _ = cut
     # the 2562-vertex blob made "dense" (above 1000 vertices, coarse copies of 800)
     monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
-    monkeypatch.setattr(workflow, "COARSE_VERTICES", 800)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 800)
     seen = []
     real = workflow.match_partial_eigenbases
 
@@ -360,10 +360,9 @@ def test_cli_partial_flag_on_a_dense_pair(tmp_path, capsys, monkeypatch):
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
     from o3d_ofp.cli.main import main
     from o3d_ofp.workflows import matching
-    from o3d_ofp.workflows import partial as workflow
 
     monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
-    monkeypatch.setattr(workflow, "COARSE_VERTICES", 400)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
     V, F = blob(3)  # 642 vertices: "dense" above 500
     Vc, Fc, _ = plane_cut(V, F, axis=0, fraction=0.7)
     src, tgt = tmp_path / "src.ply", tmp_path / "part.ply"

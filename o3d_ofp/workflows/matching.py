@@ -1134,6 +1134,8 @@ def match_arrays(
     *,
     components: str = "auto",
     dense_above: int | None = None,
+    estimate: Callable[..., Correspondence] | None = None,
+    coarse_estimate: Callable[..., Correspondence] | None = None,
     **options: Any,
 ) -> Correspondence:
     """Estimate a map between two shapes given as arrays: eigenbases, then :func:`match_eigenbases`.
@@ -1158,9 +1160,14 @@ def match_arrays(
         :class:`o3d_ofp.workflows.dense.CoarseShape` of the source, from
         :func:`o3d_ofp.workflows.dense.coarse_shape`) spares the source's reduction when a
         source is matched onto several targets.
+    estimate : callable, optional
+        ``estimate(eig_1, eig_2, **options)`` returning the Correspondence between the
+        eigenbases (default :func:`match_eigenbases`; the partial match passes its own).
+    coarse_estimate : callable, optional
+        The same between the coarse copies of the dense path, its ``fmap_12`` in the terms
+        :func:`o3d_ofp.core.multiscale.extend_p2p` reads (default ``estimate``).
     **options
-        Keyword options of :func:`match_eigenbases` (``landmarks``, ``k_fit``, ``zoomout_to``,
-        ...).
+        Keyword options of ``estimate`` (``landmarks``, ``k_fit``, ``zoomout_to``, ...).
 
     Returns
     -------
@@ -1169,6 +1176,7 @@ def match_arrays(
     landmarks = check_landmarks(
         options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
     )  # before any eigensolve
+    estimate = match_eigenbases if estimate is None else estimate
     coarse_vertices = options.pop("coarse_vertices", COARSE_VERTICES)
     coarse_source = options.pop("coarse_source", None)
     n_max = max(vertices_1.shape[0], vertices_2.shape[0])
@@ -1180,7 +1188,7 @@ def match_arrays(
             faces_1,
             vertices_2,
             faces_2,
-            estimate=match_eigenbases,
+            estimate=estimate if coarse_estimate is None else coarse_estimate,
             k=options.get("zoomout_to", ESTIMATION_K),
             coarse_vertices=coarse_vertices,
             components=components,
@@ -1197,4 +1205,4 @@ def match_arrays(
         clamp_k=True,
         components=components,
     )
-    return match_eigenbases(eigs[0], eigs[1], **{**options, "landmarks": landmarks})
+    return estimate(eigs[0], eigs[1], **{**options, "landmarks": landmarks})

@@ -35,8 +35,6 @@ from ..core.partial import (
     slant,
 )
 from ..core.spectrum import EigenBasis, check_eigenbasis
-from .dense import COARSE_VERTICES, match_dense
-from .eigenbases import eigenbases as eigenbases_of
 from .matching import (
     DCOMM_WEIGHTS,
     ESTIMATION_K,
@@ -50,10 +48,9 @@ from .matching import (
     check_landmarks,
     check_match_options,
     map_quality,
+    match_arrays,
     required_k,
     shape_signature,
-    uses_dense_path,
-    with_signatures,
 )
 
 __all__ = [
@@ -113,7 +110,10 @@ COVERED_LEVEL = 0.5
 #: check. The returned 007 -> 000 and 001 -> 007 maps are their unrefined starts: the
 #: refinement turned 56 % and 48 % of their triangles over (right maps' refinements: 8-22 %),
 #: which makes a map suspect too (``refinement_turned`` of partial_quality); refined, 007 -> 000
-#: would be 0.272 with distortion 0.105 and stretch 1.27, below both bounds.
+#: would be 0.272 with distortion 0.105 and stretch 1.27, below both bounds. That catch is
+#: fragile: with the fits' operators built once at the largest size and sliced (equal up to
+#: round-off; tried, not kept), the refinement of 007 -> 000 kept the orientation and the wrong
+#: map (0.28, distortion 0.095, stretch 1.21) passed every bound.
 MAX_DISTORTION = 0.115
 #: A partial map whose stretch (:func:`o3d_ofp.core.partial.map_stretch`: mapped target edge
 #: lengths over their lengths, both shapes in the same units) exceeds this is suspect: a map
@@ -547,21 +547,17 @@ def match_partial_arrays(
     faces_1: np.ndarray,
     vertices_2: np.ndarray,
     faces_2: np.ndarray,
-    *,
-    components: str = "auto",
-    dense_above: int | None = None,
-    coarse_vertices: int | None = None,
     **options: Any,
 ) -> Correspondence:
     """Match a part (the target) onto the whole (the source), both given as arrays.
 
-    As :func:`o3d_ofp.workflows.matching.match_arrays` for a full-shape map: below
-    ``dense_above`` vertices the eigenbases of both meshes and
-    :func:`match_partial_eigenbases`; above it (either shape) the partial match runs between
-    coarse copies of about ``coarse_vertices`` vertices and its map is extended to every
-    vertex (:func:`o3d_ofp.workflows.dense.match_dense`): no full-resolution eigenpair, and
-    no full-resolution point map per start (the direct match of a 110k-vertex source and a
-    90k-vertex part takes minutes; ``python scripts/eval_partial.py --dense`` measures both).
+    :func:`o3d_ofp.workflows.matching.match_arrays` with the partial match: below its dense
+    threshold the eigenbases of both meshes and :func:`match_partial_eigenbases`; above it
+    (either shape, default 50 000 vertices) the partial match runs between coarse copies and
+    its map is extended to every vertex (:func:`o3d_ofp.workflows.dense.match_dense`): no
+    full-resolution eigenpair, and no full-resolution point map per start (the direct match
+    of a 110k-vertex source and a 90k-vertex part takes minutes; ``python
+    scripts/eval_partial.py --dense 2 --direct`` measures both).
 
     Parameters
     ----------
@@ -569,16 +565,9 @@ def match_partial_arrays(
         Source mesh (the whole shape).
     vertices_2, faces_2 : (n2, 3) ndarray, (m2, 3) ndarray of int
         Target mesh (the part), in the source's units.
-    components : {"auto", "largest", "error"}, default "auto"
-        Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
-    dense_above : int, optional
-        Vertex count above which the coarse copies are matched (default
-        :data:`o3d_ofp.workflows.dense.DENSE_VERTICES`).
-    coarse_vertices : int, optional
-        Vertices of each coarse copy there (default
-        :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`, 20000).
     **options
-        Keyword options of :func:`match_partial_eigenbases`.
+        ``components``, ``dense_above``, ``coarse_vertices`` as in ``match_arrays``, and the
+        keyword options of :func:`match_partial_eigenbases`.
 
     Returns
     -------
@@ -592,34 +581,12 @@ def match_partial_arrays(
                 f"partial=True needs triangle meshes: the {name} is a point cloud (no faces); "
                 "mesh it first or match without partial=True"
             )
-    landmarks = check_landmarks(
-        options.get("landmarks"), vertices_1.shape[0], vertices_2.shape[0]
-    )  # before any eigensolve
-    options = {**options, "landmarks": landmarks}
-    if uses_dense_path(vertices_1.shape[0], vertices_2.shape[0], True, dense_above):
-        logger.info(
-            "partial match: %d vertices: dense path (coarse meshes)",
-            max(vertices_1.shape[0], vertices_2.shape[0]),
-        )
-        corr = match_dense(
-            vertices_1,
-            faces_1,
-            vertices_2,
-            faces_2,
-            estimate=_coarse_partial,
-            k=options.get("zoomout_to", ESTIMATION_K),
-            coarse_vertices=COARSE_VERTICES if coarse_vertices is None else coarse_vertices,
-            components=components,
-            **options,
-        )
-        return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
-    zoomout_to = options.get("zoomout_to", ESTIMATION_K)
-    eig_1, eig_2 = eigenbases_of(
-        [
-            (V, F, required_k(V.shape[0], zoomout_to))
-            for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))
-        ],
-        clamp_k=True,
-        components=components,
+    return match_arrays(
+        vertices_1,
+        faces_1,
+        vertices_2,
+        faces_2,
+        estimate=match_partial_eigenbases,
+        coarse_estimate=_coarse_partial,
+        **options,
     )
-    return match_partial_eigenbases(eig_1, eig_2, **options)
