@@ -248,6 +248,14 @@ def test_a_part_larger_than_the_whole_is_refused_before_any_eigensolve(
     assert not (tmp_path / "o.ply").exists()
 
 
+def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(whole, cut):
+    e1 = whole[2]
+    Vc, Fc, _, _ = cut
+    tiny = ofp.eigenbasis(Vc / 1000, Fc, k=99)  # millimetres read as metres, say
+    with pytest.raises(ValueError, match=r"spectra do not overlap.*6\.\d+e-07 times.*rescale"):
+        match_partial_eigenbases(e1, tiny)
+
+
 def test_match_partial_eigenbases_checks_its_inputs(whole):
     V, F, e1 = whole
     with pytest.raises(TypeError, match="eig_2 must be an EigenBasis"):

@@ -370,9 +370,11 @@ def _common_wks(
     lo = math.log(max(ev1[0], ev2[0]))
     hi = math.log(min(ev1[-1], ev2[-1]))
     if not hi > lo:
+        ratio = eig_2.area / eig_1.area
         raise ValueError(
             "the two spectra do not overlap: the target cannot be a part of the source in the "
-            "same units"
+            f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
+            "the target to the source's units"
         )
     sigma = 7.0 * (hi - lo) / n_energies
     energies = np.linspace(lo + 2 * sigma, hi - 2 * sigma, n_energies)
@@ -628,7 +630,7 @@ def fit_partial_fmap(
             weights = (w_descr, w_lap, float(wc), w_orient * native / max(o_energy, 1e-300))
         if solver == "direct":
             fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
-            logger.info("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
+            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
             continue
 
         def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
@@ -644,7 +646,7 @@ def fit_partial_fmap(
         res = scipy.optimize.minimize(
             fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
         )
-        logger.info(
+        logger.debug(
             "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
             k2 + 1,
             k1 + 1,
