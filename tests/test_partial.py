@@ -363,23 +363,30 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
     assert _error(V, corr.p2p_21, truth, e1.area) < 0.08
 
 
-def test_cli_partial_flag_on_a_dense_pair(tmp_path, capsys, monkeypatch):
-    from o3d_ofp import write_geometry
-    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
-    from o3d_ofp.cli.main import main
-    from o3d_ofp.workflows import matching
-
-    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
-    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
-    V, F = blob(3)  # 642 vertices: "dense" above 500
-    Vc, Fc, _ = plane_cut(V, F, axis=0, fraction=0.7)
-    src, tgt = tmp_path / "src.ply", tmp_path / "part.ply"
-    mesh = triangle_mesh_from_arrays(V, F)
+def _colored_blob_and_part(folder: Path) -> tuple[Path, Path]:
+    """Write a colored 642-vertex blob and its 70 % cut as PLY files: (source, target)."""
     import open3d as o3d
 
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    V, F = blob(3)
+    Vc, Fc, _ = plane_cut(V, F, axis=0, fraction=0.7)
+    src, tgt = folder / "src.ply", folder / "part.ply"
+    mesh = triangle_mesh_from_arrays(V, F)
     mesh.vertex_colors = o3d.utility.Vector3dVector(0.5 + 0.5 * np.sin(3 * V))
     write_geometry(src, mesh)
     write_geometry(tgt, triangle_mesh_from_arrays(Vc, Fc))
+    return src, tgt
+
+
+def test_cli_partial_flag_on_a_dense_pair(tmp_path, capsys, monkeypatch):
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.workflows import matching
+
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)  # the 642-vertex blob is "dense"
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
+    src, tgt = _colored_blob_and_part(tmp_path)
     saved = tmp_path / "map.npz"
     args = ["transfer", str(src), str(tgt), "--k1", "12", "--k2", "12", "--partial"]
     assert main([*args, "--save-map", str(saved), "-o", str(tmp_path / "out.ply")]) == 0
@@ -389,19 +396,9 @@ def test_cli_partial_flag_on_a_dense_pair(tmp_path, capsys, monkeypatch):
 
 
 def test_cli_partial_flag(tmp_path, capsys):
-    from o3d_ofp import write_geometry
-    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
     from o3d_ofp.cli.main import main
 
-    V, F = blob(3)  # 642 vertices: fast
-    Vc, Fc, _ = plane_cut(V, F, axis=0, fraction=0.7)
-    src, tgt = tmp_path / "src.ply", tmp_path / "part.ply"
-    mesh = triangle_mesh_from_arrays(V, F)
-    import open3d as o3d
-
-    mesh.vertex_colors = o3d.utility.Vector3dVector(0.5 + 0.5 * np.sin(3 * V))
-    write_geometry(src, mesh)
-    write_geometry(tgt, triangle_mesh_from_arrays(Vc, Fc))
+    src, tgt = _colored_blob_and_part(tmp_path)  # 642 vertices: fast
     out, saved = tmp_path / "out.ply", tmp_path / "map.npz"
     args = ["transfer", str(src), str(tgt), "--k1", "12", "--k2", "12"]
     assert main([*args, "--partial", "--save-map", str(saved), "-o", str(out)]) == 0
