@@ -9,7 +9,7 @@ import pytest
 
 import o3d_ofp as ofp
 from o3d_ofp.core import _memory
-from o3d_ofp.core.cleaning import AUTO_KEEP_FRACTION, clean_shape
+from o3d_ofp.core.cleaning import AUTO_KEEP_FRACTION, check_shape, clean_shape
 from o3d_ofp.core.laplacian import laplacian
 from o3d_ofp.core.shapes import blob, icosphere
 from o3d_ofp.workflows.pipeline import transfer_function
@@ -124,6 +124,51 @@ def test_comparable_components_need_an_explicit_choice():
     ref = ofp.eigenbasis(V, F, k=5)
     np.testing.assert_allclose(eig.evals, ref.evals, rtol=1e-9)
     assert eig.cleaning.report.dropped_fraction == pytest.approx(0.2, rel=1e-9)
+
+
+def test_check_shape_refuses_what_the_cleaning_refuses_without_a_laplacian(monkeypatch):
+    """check_shape gives clean_shape's refusals (components, faces) and builds no Laplacian."""
+    import o3d_ofp.core.cleaning as cleaning
+
+    V, F = icosphere(2)
+    small = 0.5 * V + [4.0, 0, 0]
+    V2, F2 = np.concatenate([V, small]), np.concatenate([F, F + len(V)])
+    messages = []
+    for options in ({}, {"components": "error"}):
+        with pytest.raises(ValueError) as full:
+            clean_shape(V2, F2, **options)
+        messages.append(str(full.value))
+    monkeypatch.setattr(cleaning, "laplacian", lambda *a, **k: pytest.fail("Laplacian built"))
+    for options, message in zip(({}, {"components": "error"}), messages, strict=True):
+        with pytest.raises(ValueError) as cheap:
+            check_shape(V2, F2, **options)
+        assert str(cheap.value) == message and "2 connected components" in message
+    with pytest.raises(ValueError, match="all 1 faces are degenerate"):
+        check_shape(V, [[0, 0, 1]])
+    check_shape(V2, F2, components="largest")  # accepted: nothing raised
+    check_shape(V, F)
+    check_shape(np.concatenate([V, V + 5.0]))  # a cloud's components are not checked here
+
+
+def test_a_pair_is_checked_before_either_shape_is_solved(monkeypatch):
+    """The second shape's components are refused before the first one's eigensolve."""
+    import o3d_ofp.workflows.eigenbases as eigenbases_module
+
+    V, F = icosphere(3)
+    V2 = np.concatenate([V, V + np.array([4.0, 0.0, 0.0])])
+    F2 = np.concatenate([F, F + len(V)])
+    solved = []
+    real = eigenbases_module.eigenbasis
+    monkeypatch.setattr(
+        eigenbases_module, "eigenbasis", lambda *a, **k: solved.append(1) or real(*a, **k)
+    )
+    with pytest.raises(ValueError, match=r"^the target: the shape has 2 connected components"):
+        ofp.match((V, F), (V2, F2), components="error")
+    with pytest.raises(ValueError, match=r"^the target: the shape has 2 connected components"):
+        ofp.match((V, F), (V2, F2))  # "auto": two equal pieces
+    assert solved == []
+    ofp.match((V, F), (V2, F2), components="largest")
+    assert len(solved) == 2  # the same path, accepted: both solved
 
 
 def test_non_manifold_edge_and_boundary_give_a_basis():

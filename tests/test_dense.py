@@ -236,6 +236,18 @@ def test_dense_path_rejects_bad_input(twisted_pair):
         match_arrays(V1, F1, V2, F2, dense_above=1.5)
 
 
+def test_dense_path_refuses_a_target_in_pieces_before_any_coarse_copy(twisted_pair, monkeypatch):
+    """Two comparable components are refused before either coarse copy is built and solved."""
+    import o3d_ofp.workflows.dense as dense
+
+    V1, F1, V2, F2 = twisted_pair
+    Vp = np.concatenate([V2, V2 + np.array([10.0, 0.0, 0.0])])
+    Fp = np.concatenate([F2, F2 + V2.shape[0]])
+    monkeypatch.setattr(dense, "coarse_shape", lambda *a, **k: pytest.fail("coarse copy built"))
+    with pytest.raises(ValueError, match=r"^the target: the shape has 2 connected components"):
+        match_arrays(V1, F1, Vp, Fp, dense_above=0)
+
+
 @pytest.mark.slow
 def test_dense_path_on_a_subdivided_human():
     # FAUST 093 -> 087 midpoint-subdivided (27554 vertices, one triangulation: the truth is

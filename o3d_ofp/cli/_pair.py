@@ -278,6 +278,30 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     return Correspondence(p2p_21=p2p, n_source=n1, method="given")
 
 
+def _check_components(
+    args: argparse.Namespace, V1: np.ndarray, F1: Any, V2: np.ndarray, F2: Any
+) -> None:
+    """Refuse a shape the eigensolves would refuse (``--components``) before either runs.
+
+    The shapes whose bases are computed (not read with ``--basis-1``/``--basis-2``), and not
+    with ``--map closest``, which builds no basis before its map.
+    """
+    from ..core.cleaning import check_shape
+
+    if args.map == "closest":
+        return
+    for path, V, F, file in (
+        (args.source, V1, F1, args.basis_1),
+        (args.target, V2, F2, args.basis_2),
+    ):
+        if file:
+            continue
+        try:
+            check_shape(V, F, components=getattr(args, "components", "auto"))
+        except ValueError as exc:
+            raise UsageError(f"{path}: {exc}") from exc
+
+
 def read_pair(args: argparse.Namespace) -> Pair:
     """Read both shapes, the map and the landmarks: everything that can fail fast."""
     from ._common import check_cache_dir, check_writable_folder, read_shape
@@ -313,6 +337,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
             check_partial_areas(V1, F1, V2, F2, names=(args.source, args.target))
         except ValueError as exc:
             raise UsageError(str(exc)) from exc
+    _check_components(args, V1, F1, V2, F2)
     if args.map == "closest" and args.landmarks:
         raise UsageError("--landmarks apply to --map estimate, not --map closest")
     if args.landmarks and corr is not None:

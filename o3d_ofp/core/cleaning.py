@@ -53,6 +53,7 @@ __all__ = [
     "CleanShape",
     "Cleaning",
     "CleaningReport",
+    "check_shape",
     "clean_shape",
 ]
 
@@ -322,43 +323,29 @@ def _check_spans_surface(vertices: np.ndarray, what: str) -> None:
         )
 
 
-def clean_shape(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    weld_tolerance: float | None = 1e-9,
-    components: str = "auto",
-    mollify_factor: float = 1e-5,
-    n_neighbors: int = 30,
-) -> CleanShape:
-    """Clean a mesh or point cloud and build the Laplacian of the surface that is left.
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Topology:
+    """What :func:`clean_shape` settles before the Laplacian (see :func:`_topology`)."""
 
-    Parameters
-    ----------
-    vertices : (n, 3) array_like of float
-        Vertex (point) positions.
-    faces : (m, 3) array_like of int, optional
-        Triangles; ``None`` for a point cloud.
-    weld_tolerance : float or None, default 1e-9
-        Vertices closer than this fraction of the bounding box's largest side are welded (0: only
-        exactly equal positions; ``None``: no welding).
-    components : {"auto", "largest", "error"}, default "auto"
-        What to do with several connected components (see the module's documentation).
-    mollify_factor : float, default 1e-5
-        Intrinsic mollification of :func:`o3d_ofp.laplacian.laplacian`.
-    n_neighbors : int, default 30
-        Neighbours per point for a point cloud's Laplacian.
+    V: np.ndarray  # (n_in, 3) the input positions
+    F_in: np.ndarray | None  # the input faces
+    group: np.ndarray  # (n_in,) welded vertex of each input vertex
+    first: np.ndarray  # (n_g,) input vertex of each welded vertex
+    counts: dict[str, Any]  # CleaningReport fields found so far
+    keep_v: np.ndarray | None = None  # (n_g,) kept welded vertices (meshes)
+    new_index: np.ndarray | None = None  # (n_g,) their cleaned index (meshes)
+    F: np.ndarray | None = None  # cleaned faces (meshes)
 
-    Returns
-    -------
-    CleanShape
-        The cleaned vertices and faces, their Laplacian and the map back to the input.
 
-    Raises
-    ------
-    TypeError, ValueError
-        On malformed arrays, or a shape that is no surface once cleaned (no face left,
-        collinear points, too few points, several comparable components under "auto").
+def _topology(
+    vertices: Any, faces: Any, *, weld_tolerance: Any, components: str, n_neighbors: int
+) -> _Topology:
+    """Validate, weld, drop degenerate and duplicated faces, apply the components policy.
+
+    Everything :func:`clean_shape` can refuse about a mesh before its Laplacian (the costly
+    step): a caller checks several shapes with this before computing any of them. For a point
+    cloud, all but the components policy (its components are those of the Laplacian's
+    neighbour graph).
     """
     V = as_vertices(vertices)
     n_in = V.shape[0]
@@ -435,15 +422,102 @@ def clean_shape(
         Vc = Vg[keep_v]
         if Vc.shape[0] < 3:
             raise ValueError(f"the cleaned mesh has only {Vc.shape[0]} vertices")
+        return _Topology(V, F_in, group, first, counts, keep_v, new_index, F)
+    if n_g < 4:
+        raise ValueError(f"a point cloud needs at least 4 distinct points; got {n_g}")
+    _check_spans_surface(Vg, what)
+    return _Topology(V, F_in, group, first, counts)
+
+
+def check_shape(
+    vertices: Any,
+    faces: Any = None,
+    *,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+) -> None:
+    """Refuse, cheaply, a shape :func:`clean_shape` would refuse, before any costly work.
+
+    Runs the welding, the face checks and (for a mesh) the components policy of
+    :func:`clean_shape` without building the Laplacian: a pair of shapes is checked before
+    either eigensolve, so that a second shape with several components (``components=
+    "error"``, or comparable ones under ``"auto"``) is refused before the first one is solved.
+    A point cloud's components are only known from its Laplacian: they are not checked here.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int, optional
+    weld_tolerance, components
+        As in :func:`clean_shape`.
+
+    Raises
+    ------
+    TypeError, ValueError
+        With the message :func:`clean_shape` would give.
+    """
+    _topology(vertices, faces, weld_tolerance=weld_tolerance, components=components, n_neighbors=3)
+
+
+def clean_shape(
+    vertices: Any,
+    faces: Any = None,
+    *,
+    weld_tolerance: float | None = 1e-9,
+    components: str = "auto",
+    mollify_factor: float = 1e-5,
+    n_neighbors: int = 30,
+) -> CleanShape:
+    """Clean a mesh or point cloud and build the Laplacian of the surface that is left.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        Vertex (point) positions.
+    faces : (m, 3) array_like of int, optional
+        Triangles; ``None`` for a point cloud.
+    weld_tolerance : float or None, default 1e-9
+        Vertices closer than this fraction of the bounding box's largest side are welded (0: only
+        exactly equal positions; ``None``: no welding).
+    components : {"auto", "largest", "error"}, default "auto"
+        What to do with several connected components (see the module's documentation).
+    mollify_factor : float, default 1e-5
+        Intrinsic mollification of :func:`o3d_ofp.laplacian.laplacian`.
+    n_neighbors : int, default 30
+        Neighbours per point for a point cloud's Laplacian.
+
+    Returns
+    -------
+    CleanShape
+        The cleaned vertices and faces, their Laplacian and the map back to the input.
+
+    Raises
+    ------
+    TypeError, ValueError
+        On malformed arrays, or a shape that is no surface once cleaned (no face left,
+        collinear points, too few points, several comparable components under "auto").
+    """
+    topo = _topology(
+        vertices,
+        faces,
+        weld_tolerance=weld_tolerance,
+        components=components,
+        n_neighbors=n_neighbors,
+    )
+    V, F_in, group, first = topo.V, topo.F_in, topo.group, topo.first
+    counts = dict(topo.counts)
+    n_in, Vg = V.shape[0], V[first]
+    n_g = first.shape[0]
+    if F_in is not None:
+        assert topo.keep_v is not None and topo.new_index is not None and topo.F is not None
+        keep_v, new_index, F = topo.keep_v, topo.new_index, topo.F
+        Vc = Vg[keep_v]
         try:
             stiffness, mass = laplacian(Vc, F, mollify_factor=mollify_factor)
         except RuntimeError as exc:  # geometry-central's assertions on impossible connectivity
             raise ValueError(f"robust-laplacian rejected the cleaned mesh: {exc}") from exc
         jittered = False
     else:
-        if n_g < 4:
-            raise ValueError(f"a point cloud needs at least 4 distinct points; got {n_g}")
-        _check_spans_surface(Vg, what)
         Vc, jittered = Vg, False
         try:
             stiffness, mass = laplacian(

@@ -31,7 +31,7 @@ import numpy as np
 from ..core._validation import check_int
 from ..core.multiscale import coarse_mesh, extend_p2p
 from ..core.spectrum import EigenBasis, eigenbasis
-from .eigenbases import eigenbasis_bytes, run_per_shape
+from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
 
 __all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_shape", "match_dense"]
 
@@ -191,6 +191,12 @@ def match_dense(
             f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; the source "
             f"has {n1}"
         )
+    # A shape the coarse copies' eigensolves would refuse is refused before either is built.
+    check_shapes(
+        [(V1, faces_1), (V2, faces_2)][0 if coarse_1 is None else 1 :],
+        names=("the source", "the target")[0 if coarse_1 is None else 1 :],
+        components=components,
+    )
     report = progress or (lambda stage, done: None)
     t0 = time.perf_counter()
     coarse = functools.partial(

@@ -16,11 +16,13 @@ import numpy as np
 
 from ..core._memory import basis_job_bytes
 from ..core._processes import side_by_side
+from ..core.cleaning import check_shape
 from ..core.spectrum import EigenBasis, eigenbasis
 
 __all__ = [
     "SIDE_BY_SIDE_VERTICES",
     "answer_bytes",
+    "check_shapes",
     "eigenbases",
     "eigenbasis_bytes",
     "run_per_shape",
@@ -81,15 +83,58 @@ def run_per_shape(
     return side_by_side(jobs, what=what, memory_each=max(memory))
 
 
+def check_shapes(
+    shapes: Sequence[tuple[Any, Any]],
+    *,
+    names: Sequence[str] | None = None,
+    components: str = "auto",
+    weld_tolerance: float | None = 1e-9,
+) -> None:
+    """Refuse, before any of them is solved, a shape its eigensolve would refuse.
+
+    :func:`o3d_ofp.core.cleaning.check_shape` on each (the cleaning's cheap steps: welding,
+    faces, a mesh's components policy; 0.6 s for 110k vertices, 2.8 s for 440k), so that
+    the second of two shapes with several components is refused before the first one's
+    eigensolve (side by side, the error waited for the other solve to end).
+
+    Parameters
+    ----------
+    shapes : sequence of ((n, 3) array_like, (m, 3) array_like or None)
+        Vertices and faces (None: a point cloud) of each shape.
+    names : sequence of str, optional
+        How the messages name each shape (default "shape 1 of 2", ...).
+    components, weld_tolerance
+        As in :func:`o3d_ofp.eigenbasis`.
+
+    Raises
+    ------
+    TypeError, ValueError
+        The cleaning's message, after the shape's name.
+    """
+    for i, (V, F) in enumerate(shapes):
+        try:
+            check_shape(V, F, components=components, weld_tolerance=weld_tolerance)
+        except (TypeError, ValueError) as exc:
+            name = names[i] if names is not None else f"shape {i + 1} of {len(shapes)}"
+            raise type(exc)(f"{name}: {exc}") from exc
+
+
 def eigenbases(
-    shapes: Sequence[tuple[np.ndarray, np.ndarray | None, int]], **options: Any
+    shapes: Sequence[tuple[np.ndarray, np.ndarray | None, int]],
+    *,
+    names: Sequence[str] | None = None,
+    **options: Any,
 ) -> list[EigenBasis]:
     """:func:`o3d_ofp.eigenbasis` of every ``(vertices, faces, k)``, side by side.
+
+    Every shape is checked (:func:`check_shapes`) before any is solved.
 
     Parameters
     ----------
     shapes : sequence of ((n, 3) ndarray, (m, 3) ndarray or None, int)
         Each shape and its ``k``.
+    names : sequence of str, optional
+        How error messages name each shape (default "shape 1 of 2", ...).
     **options
         Keyword options of :func:`o3d_ofp.eigenbasis` shared by all (``clamp_k``,
         ``components``, ...).
@@ -99,6 +144,13 @@ def eigenbases(
     list of EigenBasis
         In the order of ``shapes``.
     """
+    if len(shapes) > 1:
+        check_shapes(
+            [(V, F) for V, F, _ in shapes],
+            names=names,
+            components=options.get("components", "auto"),
+            weld_tolerance=options.get("weld_tolerance", 1e-9),
+        )
     jobs = [functools.partial(eigenbasis, V, F, k=k, **options) for V, F, k in shapes]
     try:
         sizes = [(int(np.shape(V)[0]), int(k)) for V, _, k in shapes]

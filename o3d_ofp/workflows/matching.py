@@ -1204,5 +1204,6 @@ def match_arrays(
         ],
         clamp_k=True,
         components=components,
+        names=("the source", "the target"),
     )
     return estimate(eigs[0], eigs[1], **{**options, "landmarks": landmarks})

@@ -392,7 +392,10 @@ def _eigenbases(
             rows, cols = np.shape(fmap_12)
             k1, k2 = max(k1, cols - 1), max(k2, rows - 1)
         eig_1, eig_2 = eigenbases_of(
-            ((V1, F1, k1), (V2, F2, k2)), clamp_k=estimate, components=components
+            ((V1, F1, k1), (V2, F2, k2)),
+            clamp_k=estimate,
+            components=components,
+            names=("the source", "the target"),
         )
         return eig_1, eig_2
     for eig, V, name in ((eigenbases[0], V1, "source"), (eigenbases[1], V2, "target")):
@@ -475,12 +478,15 @@ def estimate_for_transfer(
         corr = match_arrays(
             V1, F1, V2, F2, landmarks=landmarks, components=components, progress=progress
         )
-        eig_1, eig_2 = eigenbases_of(((V1, F1, k1), (V2, F2, k2)), components=components)
+        eig_1, eig_2 = eigenbases_of(
+            ((V1, F1, k1), (V2, F2, k2)), components=components, names=("the source", "the target")
+        )
         return eig_1, eig_2, corr
     eig_1, eig_2 = eigenbases_of(
         [(V, F, max(k, required_k(V.shape[0]))) for V, F, k in ((V1, F1, k1), (V2, F2, k2))],
         clamp_k=True,
         components=components,
+        names=("the source", "the target"),
     )
     if ready is not None:
         ready(eig_1, eig_2)
