@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 
 import numpy as np
@@ -1061,3 +1062,30 @@ def test_a_shape_the_components_policy_refuses_is_named(files, capsys, command):
     assert not out.exists()
     # Refused before the source's eigensolve (it was refused after it, the source solved).
     assert "eigenbasis of" not in err
+
+
+def test_stage_progress_is_logged_when_stderr_is_not_a_terminal(monkeypatch, caplog, capsys):
+    """A batch job's log gets the stage and percentage (it got nothing: the bar needs a TTY)."""
+    from o3d_ofp.cli import _progress as cli_progress
+    from o3d_ofp.core import _progress as core_progress
+
+    monkeypatch.setattr(cli_progress.ENABLED, "on", True)
+    monkeypatch.setattr(core_progress, "PROGRESS_SECONDS", 0.0)  # every call is "late" now
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.cli._progress"):
+        with cli_progress.stage_progress("matching") as progress:
+            progress("coarse ZoomOut 3/10", 0.355)
+            progress("extension", 0.8)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and lines[0].startswith("matching: coarse ZoomOut 3/10 (36%, ")
+    assert lines[1].startswith("matching: extension (80%, ")
+    assert capsys.readouterr().err == ""  # no bar's control characters
+    caplog.clear()
+    monkeypatch.setattr(core_progress, "PROGRESS_SECONDS", 3600.0)  # a short stage says nothing
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.cli._progress"):
+        with cli_progress.stage_progress("matching") as progress:
+            progress("extension", 0.8)
+        monkeypatch.setattr(core_progress, "PROGRESS_SECONDS", 0.0)
+        monkeypatch.setattr(cli_progress.ENABLED, "on", False)  # -q: nothing
+        with cli_progress.stage_progress("matching") as progress:
+            progress("extension", 0.8)
+    assert caplog.records == []
