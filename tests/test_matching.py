@@ -102,7 +102,7 @@ def test_a_collapsed_or_flipped_map_is_flagged(pair, reference, caplog):
     # Two unrelated shapes: the estimated map is flagged, loudly: logged, and a Python
     # warning (shown in a script or a notebook that configured no logging).
     with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
-        with pytest.warns(ofp.OFPWarning, match="suspect.*landmarks"):
+        with pytest.warns(ofp.OFPWarning, match=r"(?s)suspect:\n  - .*landmarks"):
             corr = ofp.match((V1, F1), icosphere(3))
     assert corr.quality.suspect
     assert "suspect" in caplog.text and "landmarks" in caplog.text

@@ -94,7 +94,12 @@ def test_cut_of_a_bent_copy_maps_accurately_with_its_overlap(whole, cut, partial
     # overlap read off the map must be within 0.1 of the true fraction of the source covered.
     covered = e1.mass[np.unique(truth)].sum() / e1.area
     assert abs(q.overlap - covered) < 0.1
-    assert "overlap" in q.summary()
+    # The report's three fractions each say of what (they read alike: "coverage 0.450 (0.80
+    # of the smaller shape)" beside "overlap 0.62").
+    summary = q.summary()
+    assert f"coverage {q.coverage:.3f} of the source's vertices (" in summary
+    assert f"{q.coverage_ratio:.2f} of the smaller shape's count)" in summary
+    assert f"overlap {q.overlap:.2f} of the source's area" in summary
     # A restriction map: (k2+1, k1+1) with more source functions than target ones (slant).
     rows, cols = corr.fmap_12.shape
     assert cols > rows
@@ -109,7 +114,11 @@ def test_verdict_is_that_of_the_final_map(whole, cut, partial_map):
     assert again == corr.quality
 
 
-def test_start_kept_when_the_refinement_turns_it_over_is_flagged(whole, cut, monkeypatch):
+def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
+    whole, cut, monkeypatch, caplog
+):
+    import logging
+
     import o3d_ofp.workflows.partial as workflow
 
     V, _, e1 = whole
@@ -122,7 +131,12 @@ def test_start_kept_when_the_refinement_turns_it_over_is_flagged(whole, cut, mon
         return C, nearest_neighbors(V, V[p2p] * np.array([-1.0, 1.0, 1.0]))
 
     monkeypatch.setattr(workflow, "_refine", mirrored)
-    corr = match_partial_eigenbases(e1, ec, k_fit=15)
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"):
+        corr = match_partial_eigenbases(e1, ec, k_fit=15)
+    # The warning gives each reason on its own line (it was one line of ~600 characters).
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    reasons = corr.quality.reasons
+    assert warning.split("\n") == ["the partial map is suspect:", *(f"  - {r}" for r in reasons)]
     np.testing.assert_array_equal(corr.p2p_21, seen["start"])  # the start, unrefined
     # Measured on scripts/eval_partial.py: the refinement turned 56 % and 48 % of the
     # triangles of the two wrong remeshed maps over, 8-22 % of the right ones'.

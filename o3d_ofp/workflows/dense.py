@@ -253,7 +253,8 @@ def match_dense(
         # The report logged above is the coarse map's; the result's coverage is the full one.
         logger.info(
             "match (dense): the quality above is the coarse meshes'; at full resolution the "
-            "map hits %d source vertices: coverage %.3f (%.2f of the smaller shape)",
+            "map hits %d source vertices: coverage %.3f of the source's vertices (%.2f of the "
+            "smaller shape's count)",
             hit,
             quality.coverage,
             quality.coverage_ratio,

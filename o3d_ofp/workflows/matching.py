@@ -251,7 +251,12 @@ class MapQuality:
     def summary(self) -> str:
         """One line: the measures and the verdict."""
         verdict = "SUSPECT" if self.suspect else "ok"
-        parts = [f"coverage {self.coverage:.3f} ({self.coverage_ratio:.2f} of the smaller shape)"]
+        # Each fraction says of what: the vertices hit, of the source's vertices and of the
+        # smaller shape's count; the overlap, of the source's area.
+        parts = [
+            f"coverage {self.coverage:.3f} of the source's vertices ({self.coverage_ratio:.2f} "
+            "of the smaller shape's count)"
+        ]
         for name, value in (
             ("orthogonality", self.orthogonality),
             ("inconsistency", self.inconsistency),
@@ -262,8 +267,12 @@ class MapQuality:
         if not math.isnan(self.area_ratio):
             parts.append(f"area ratio {self.area_ratio:.3g}")
         if self.overlap is not None:
-            parts.append(f"overlap {self.overlap:.2f}")
+            parts.append(f"overlap {self.overlap:.2f} of the source's area")
         return f"map quality {verdict}: " + ", ".join(parts)
+
+    def suspect_message(self, what: str) -> str:
+        """Return ``"<what> is suspect:"`` and each reason on its own indented line."""
+        return f"{what} is suspect:" + "".join(f"\n  - {reason}" for reason in self.reasons)
 
 
 def map_quality(
@@ -1078,7 +1087,7 @@ def _match_surfaces(
     quality = map_quality(p2p, eig_1, eig_2, fmap_12, landmarks_given=landmarks is not None)
     logger.info("match: %s", quality.summary())
     if quality.suspect:
-        warn(logger, "the estimated map is suspect: " + "; ".join(quality.reasons))
+        warn(logger, quality.suspect_message("the estimated map"))
     for note in quality.notes:
         logger.info("match: %s", note)
     report("done", 1.0)

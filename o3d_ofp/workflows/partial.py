@@ -505,7 +505,7 @@ def match_partial_eigenbases(
     quality = partial_quality(p2p, eig_1, eig_2, C, overlap=overlap, refinement_turned=rejected)
     logger.info("partial match: %s", quality.summary())
     if quality.suspect:
-        warn(logger, "the partial map is suspect: " + "; ".join(quality.reasons))
+        warn(logger, quality.suspect_message("the partial map"))
     report("done", 1.0)
     options = {
         "partial": True,
