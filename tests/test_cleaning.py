@@ -381,3 +381,29 @@ def test_cleaning_maps_values_between_input_and_cleaned_vertices():
     np.testing.assert_allclose(c.restrict(np.column_stack([f, -f]))[:, 1], -r)
     with pytest.raises(ValueError, match="the cleaned shape has 42"):
         c.extend(np.zeros(5))
+
+
+def test_the_cleaned_surface_basis_has_the_cleaned_faces():
+    """on_cleaned_vertices gives the surface's triangles as clean_shape made them.
+
+    The partial match reads its geodesic graph from them (the input's faces name only one
+    copy of each welded vertex, so a soup's other copies are isolated there).
+    """
+    from o3d_ofp.core.spectrum import on_cleaned_vertices
+
+    V, F = icosphere(2)
+    stray = np.array([[3.0, 0, 0], [3.01, 0, 0], [3.0, 0.01, 0]])
+    soup_V = np.concatenate([V[F.ravel()], stray])  # a soup, and a stray triangle dropped
+    soup_F = np.concatenate([np.arange(F.size).reshape(-1, 3), [[F.size, F.size + 1, F.size + 2]]])
+    soup_F = np.concatenate([soup_F, soup_F[:5]])  # five triangles given twice
+    eig = ofp.eigenbasis(soup_V, soup_F, k=5)
+    surface, rep = on_cleaned_vertices(eig)
+    cleaned = clean_shape(soup_V, soup_F)
+    np.testing.assert_array_equal(surface.faces, cleaned.faces)
+    np.testing.assert_array_equal(surface.vertices, soup_V[rep])
+    assert surface.faces.shape == F.shape and surface.n_vertices == len(V)
+    # the same triangles as the welded sphere's, renumbered
+    welded = {tuple(sorted(t)) for t in np.unique(np.sort(F, axis=1), axis=0)}
+    where = {tuple(p): i for i, p in enumerate(V)}
+    to_sphere = np.array([where[tuple(p)] for p in surface.vertices])
+    assert {tuple(sorted(t)) for t in to_sphere[surface.faces]} == welded

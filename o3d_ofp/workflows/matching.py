@@ -52,6 +52,7 @@ __all__ = [
     "map_quality",
     "match_arrays",
     "match_eigenbases",
+    "on_surfaces",
     "required_k",
     "uses_dense_path",
 ]
@@ -953,9 +954,11 @@ def match_eigenbases(
     check_eigenbasis(eig_2, "eig_2")
     _check_sizes(eig_1, eig_2, k_fit, zoomout_to)
     landmarks = check_landmarks(landmarks, eig_1.n_vertices, eig_2.n_vertices)
-    s1, rep_1 = on_cleaned_vertices(eig_1)
-    s2, rep_2 = on_cleaned_vertices(eig_2)
-    options = dict(
+    return on_surfaces(
+        eig_1,
+        eig_2,
+        _match_surfaces,
+        landmarks=landmarks,
         k_fit=k_fit,
         zoomout_to=zoomout_to,
         zoomout_subsample=zoomout_subsample,
@@ -963,8 +966,42 @@ def match_eigenbases(
         w_orient=w_orient,
         progress=progress,
     )
+
+
+def on_surfaces(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    match: Callable[..., Correspondence],
+    *,
+    landmarks: np.ndarray | None,
+    **options: Any,
+) -> Correspondence:
+    """Run an estimation on the shapes' cleaned surfaces; its map back on the input vertices.
+
+    ``match(s1, s2, landmarks=..., **options)`` runs between :func:`on_cleaned_vertices` of
+    both bases (one vertex per welded group: an OBJ's copies along its UV seams, an STL's
+    triangle soup), the landmarks carried to the surfaces' vertices; the point map is returned
+    on the input vertices, with the input's landmarks and signatures.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target bases (checked by the caller).
+    match : callable
+        The estimation between two bases.
+    landmarks : (p, 2) ndarray of int or None
+        Checked (source, target) pairs in the input numbering.
+    **options
+        Passed to ``match``.
+
+    Returns
+    -------
+    Correspondence
+    """
+    s1, rep_1 = on_cleaned_vertices(eig_1)
+    s2, rep_2 = on_cleaned_vertices(eig_2)
     if rep_1 is None and rep_2 is None:
-        corr = _match_surfaces(eig_1, eig_2, landmarks=landmarks, **options)
+        corr = match(eig_1, eig_2, landmarks=landmarks, **options)
         return with_signatures(corr, eig_1.vertices, eig_2.vertices)
     on_surface = landmarks
     if landmarks is not None:  # each input vertex stands for its surface vertex
@@ -979,7 +1016,7 @@ def match_eigenbases(
         eig_1.n_vertices,
         eig_2.n_vertices,
     )
-    corr = _match_surfaces(s1, s2, landmarks=on_surface, **options)
+    corr = match(s1, s2, landmarks=on_surface, **options)
     p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
     if rep_2 is not None:
         p2p = p2p[eig_2.cleaning.index]
