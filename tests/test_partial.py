@@ -284,12 +284,35 @@ def test_a_part_larger_than_the_whole_is_refused_before_any_eigensolve(
     assert not (tmp_path / "o.ply").exists()
 
 
-def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(whole, cut):
-    e1 = whole[2]
+def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(
+    whole, cut, tmp_path, capsys, monkeypatch
+):
+    V, F, e1 = whole
     Vc, Fc, _, _ = cut
     tiny = ofp.eigenbasis(Vc / 1000, Fc, k=99)  # millimetres read as metres, say
     with pytest.raises(ValueError, match=r"spectra do not overlap.*6\.\d+e-07 times.*rescale"):
         match_partial_eigenbases(e1, tiny)
+    # From the shapes, before any eigensolve (it came after both), and from the CLI with the
+    # file names.
+    import o3d_ofp.core.spectrum as spectrum
+    import o3d_ofp.workflows.eigenbases as eigenbases_module
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.cli import main
+    from o3d_ofp.workflows.partial import MIN_AREA_RATIO
+
+    assert 6.5e-7 < MIN_AREA_RATIO <= 0.05  # the cuts of eval_partial keep 0.55-0.8
+    for module in (spectrum, eigenbases_module):
+        monkeypatch.setattr(module, "eigenbasis", lambda *a, **k: pytest.fail("eigensolve"))
+    with pytest.raises(ValueError, match=r"6\.\d+e-07 times the area.*Rescale the target"):
+        ofp.match((V, F), (Vc / 1000, Fc), partial=True)
+    paths = [tmp_path / "whole.ply", tmp_path / "part_mm.ply"]
+    ofp.write_geometry(paths[0], triangle_mesh_from_arrays(V, F))
+    ofp.write_geometry(paths[1], triangle_mesh_from_arrays(Vc / 1000, Fc))
+    out = tmp_path / "o.ply"
+    argv = ["transfer", *map(str, paths), "--partial", "--signal", "xyz", "-o", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{paths[1]} has 6." in err and "Rescale the target" in err and not out.exists()
 
 
 def test_match_partial_eigenbases_checks_its_inputs(whole):
