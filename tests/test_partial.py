@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -409,9 +410,11 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
     rows = np.array([0, len(Vc) // 2, len(Vc) - 1])
     landmarks = np.stack([truth[rows], rows], axis=1)
     corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
-    assert len(seen) == 1 and seen[0][0] < len(V) and seen[0][1] < len(Vc)  # coarse only
-    assert 700 < seen[0][0] < 900
+    # coarse only: the match, then its second opinion on copies of 0.7 times the size
+    assert len(seen) == 2 and all(n1 < len(V) and n2 < len(Vc) for n1, n2, _ in seen)
+    assert 700 < seen[0][0] < 900 and 480 < seen[1][0] < 640
     assert seen[0][2].shape == (3, 2)  # the landmarks, carried to the coarse cells
+    assert seen[1][2].shape == (3, 2)
     assert corr.method == "partial" and corr.options["dense"] is True
     assert corr.fmap_12 is None and corr.p2p_21.shape == (len(Vc),)
     assert corr.options["landmarks"] == landmarks.tolist()  # the caller's numbering
@@ -420,6 +423,70 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
     # the direct match of this cut: 0.023 (test above); a coarse copy of 800 vertices is
     # coarser than FAUST's coarse copies at 110k (20000 vertices), so twice the bound there
     assert _error(V, corr.p2p_21, truth, e1.area) < 0.08
+
+
+def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
+    whole, cut, monkeypatch, caplog
+):
+    """The dense path's map is checked against the match on smaller coarse copies.
+
+    Measured at 110k vertices: a map wrong on a region (error 0.085) passed every check of
+    its own; the match on copies of 14 000 vertices (0.030) disagreed on 31 % of the target.
+    """
+    import logging
+
+    import o3d_ofp.workflows.matching as matching
+    import o3d_ofp.workflows.partial as workflow
+    from o3d_ofp.workflows.partial import MAX_DISAGREEMENT
+
+    V, F, _ = whole
+    Vc, Fc, truth, _ = cut
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 800)
+    calls = []
+    real = workflow.match_arrays
+
+    def contradicted(*args, **options):  # the second opinion sends the part across the source
+        corr = real(*args, **options)
+        calls.append(options.get("coarse_vertices"))
+        if len(calls) == 2:
+            far = nearest_neighbors(V, 2 * V.mean(axis=0) - V[corr.p2p_21])
+            corr = dataclasses.replace(corr, p2p_21=far)
+        return corr
+
+    monkeypatch.setattr(workflow, "match_arrays", contradicted)
+    rows = np.array([0, len(Vc) // 2, len(Vc) - 1])
+    landmarks = np.stack([truth[rows], rows], axis=1)
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"):
+        corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
+    assert calls == [None, 560]
+    q = corr.quality
+    assert q.suspect and "coarse copies of about 560 vertices sends 100 %" in q.reasons[0]
+    assert MAX_DISAGREEMENT < 1.0
+    # said once, with that reason (the second opinion's own run warns of nothing)
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warning.startswith("the partial map is suspect:\n  - the match on coarse copies")
+    # the map returned is the first one, whose error is that of the test above
+    assert _error(V, corr.p2p_21, truth, whole[2].area) < 0.08
+    # a map already suspect gets no second opinion (it could not make it less so); without
+    # second_opinion none is asked either
+    calls.clear()
+    monkeypatch.setattr(
+        workflow,
+        "match_arrays",
+        lambda *a, **o: calls.append(1)
+        or dataclasses.replace(
+            real(*a, **o), quality=dataclasses.replace(q, suspect=True, reasons=("x",))
+        ),
+    )
+    ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
+    assert calls == [1]
+    monkeypatch.setattr(workflow, "match_arrays", contradicted)
+    calls.clear()
+    plain = workflow.match_partial_arrays(V, F, Vc, Fc, landmarks=landmarks, second_opinion=False)
+    assert calls == [None] and not plain.quality.suspect
+    with pytest.raises(TypeError, match="second_opinion must be True or False"):
+        workflow.match_partial_arrays(V, F, Vc, Fc, second_opinion="yes")
 
 
 def _colored_blob_and_part(folder: Path) -> tuple[Path, Path]:
