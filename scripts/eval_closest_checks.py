@@ -8,8 +8,14 @@ and the same decimated and turned by 5°), another pose (087). Printed per row: 
 of the smaller shape (distinct source positions hit, ``closest.MIN_COVERAGE``), the mean
 closest-point distance before and after the rigid motion fitted by the misalignment check
 (fractions of the source's diagonal), their ratio (``closest.MISALIGNED_RATIO``), the
-verdict and the first reason. These are the measurements behind the constants of
-``o3d_ofp.boundary.closest``; needs ../shared/data.
+verdict and the first reason. With ``--align``, the same copies (and FAUST 093 onto 094,
+another pose) with ``align=True``: the ICP turn, its fitness, the mean closest-point distance
+after it, the coverage, the map error where the copy keeps the source's vertices (mean
+distance to vertex i's own position / sqrt(area)) and the verdict
+(``closest.ICP_DOUBTFUL_TURN``). These are the
+measurements behind the constants of ``o3d_ofp.boundary.closest``; needs ../shared/data.
+
+    python scripts/eval_closest_checks.py [--align]
 """
 
 from __future__ import annotations
@@ -57,7 +63,12 @@ def subdivided(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.asarray(mesh.subdivide_loop(1).vertices)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--align", action="store_true", help="the copies with align=True")
+    args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
         return 2
@@ -78,6 +89,8 @@ def main() -> int:
         ("093 low-pass, decimated, turned 5°", V, F, turned(decimated(low, F, 4000), 5)),
         ("093 onto 087 (another pose)", V, F, load("faust/tr_reg_087.ply")[0]),
     ]
+    if args.align:
+        rows.append(("093 onto 094 (another pose)", V, F, load("faust/tr_reg_094.ply")[0]))
     B, FB = load("models/bunny.off")
     Bd = decimated(B, FB, len(FB) // 10)
     bdiag = float(np.linalg.norm(np.ptp(B, axis=0)))
@@ -89,6 +102,29 @@ def main() -> int:
     A, FA = load("models/t0_donut.obj")
     C, FC = load("models/t1_donut.obj")
     rows += [("donut t1 -> t0 (detail pair)", A, FA, C), ("donut t0 -> t1", C, FC, A)]
+    if args.align:
+        print(
+            "| copy (align=True) | ICP turn | fitness | mean distance | coverage | error | "
+            "verdict |\n|---|---|---|---|---|---|---|"
+        )
+        for name, V1, F1, V2 in rows:
+            corr = closest_correspondence(V1, F1, V2, align=True)
+            icp, q = corr.options["icp"], corr.quality
+            verdict = "suspect: " + q.reasons[0][:60] if q.suspect else "ok"
+            error = "-"  # same vertex count (same template): vertex i is the truth of vertex i
+            if V2.shape == V1.shape:
+                area = 0.5 * np.linalg.norm(
+                    np.cross(V1[F1[:, 1]] - V1[F1[:, 0]], V1[F1[:, 2]] - V1[F1[:, 0]]), axis=1
+                ).sum()
+                gap = np.linalg.norm(V1[corr.p2p_21] - V1, axis=1).mean()
+                error = f"{gap / math.sqrt(area):.3f}"
+            print(
+                f"| {name} | {icp['rotation_degrees']:.1f}° | {icp['fitness']:.3f} | "
+                f"{corr.options['mean_distance_rel']:.4f} | {q.coverage_ratio:.2f} | {error} | "
+                f"{verdict} |",
+                flush=True,
+            )
+        return 0
     print("| copy | coverage | mean distance | after the rigid motion | ratio | verdict |")
     print("|---|---|---|---|---|---|")
     for name, V1, F1, V2 in rows:

@@ -443,6 +443,32 @@ def test_aligned_shapes_of_other_geometry_are_not_taken_for_misaligned():
     assert any("align=True" in n for n in turned.quality.notes)
 
 
+def test_align_between_two_poses_is_suspect():
+    """ICP turns a body onto another pose of it: the closest map is wrong, now said.
+
+    Measured (scripts/eval_closest_checks.py --align): FAUST 093 onto 087 with align=True was
+    ok (ICP 11°, fitness 0.80, coverage 0.26 just above MIN_COVERAGE; map error 0.14); it
+    still lies 0.028 of the diagonal from the source after the turn. A copy turned by 20°
+    ends at 0 and stays ok; the smoothed copy in place (turned 11° by ICP, 0.0075) too.
+    """
+    from o3d_ofp.boundary.closest import ICP_DOUBTFUL_TURN, MEAN_DISTANCE_NOTE
+    from o3d_ofp.workflows.detail import lowpass_coordinates
+
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    V2, F2 = load_shared_mesh("faust/tr_reg_087.ply")
+    corr = closest_correspondence(V1, F1, V2, faces_2=F2, align=True)
+    q, icp = corr.quality, corr.options["icp"]
+    assert icp["rotation_degrees"] > ICP_DOUBTFUL_TURN
+    assert corr.options["mean_distance_rel"] > MEAN_DISTANCE_NOTE
+    assert q.suspect and any(r.startswith("ICP turned the target by") for r in q.reasons)
+    assert any("--map estimate" in r for r in q.reasons)
+    centre = 0.5 * (V1.min(0) + V1.max(0))
+    turned = (V1 - centre) @ rotation([0, 1, 0], 20).T + centre
+    assert not closest_correspondence(V1, F1, turned, faces_2=F1, align=True).quality.suspect
+    smooth = lowpass_coordinates(ofp.eigenbasis(V1, F1, k=30), band=30)
+    assert not closest_correspondence(V1, F1, smooth, faces_2=F1, align=True).quality.suspect
+
+
 def test_smoothed_copy_in_place_is_not_suspect():
     """A low-pass copy shrinks into the source: its closest points crowd, but it is in place.
 

@@ -114,6 +114,16 @@ REFINE_STEP = 1e-8
 #: Below this fitness (fraction of target vertices within the ICP distance) the ICP result is
 #: doubtful and a note says so.
 ICP_MIN_FITNESS = 0.8
+#: With ``align``, a turn above this many degrees that leaves the target farther than
+#: :data:`MEAN_DISTANCE_NOTE` (of the diagonal) from the source makes the map suspect: ICP
+#: turned shapes that are not copies of one surface. Measured by ``python
+#: scripts/eval_closest_checks.py --align``: copies turned 0.3-45° or moved (``align``'s use) end
+#: at 0.0000 of the diagonal; smoothed or noisy copies at 0.0014-0.0086 (turned 0-11°: ok, a
+#: known limit, as the smoothed copy's 11° turn is spurious: its error is 0.043); FAUST
+#: 093 onto 087 and 094 (other poses, same place; errors 0.14 and 0.22, passed as ok) 11° at
+#: 0.028 and 8.5° at 0.042; the paper's aligned detail donuts t1 -> t0 turned 88-106° about
+#: their axis (three runs) at 0.030 (the bumps moved; flagged too), t0 -> t1 0.0° (ok).
+ICP_DOUBTFUL_TURN = 2.0
 #: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
 #: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
 #: returned: by the smallest face index.
@@ -837,6 +847,17 @@ def closest_correspondence(
             f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
             f"same place: {retry}otherwise use the spectral estimate (--map estimate)"
         )
+    if align and not reasons:
+        turn = float(options["icp"]["rotation_degrees"])
+        if turn > ICP_DOUBTFUL_TURN and mean_rel > MEAN_DISTANCE_NOTE:
+            reasons.append(
+                f"ICP turned the target by {turn:.3g}° and it still lies {mean_rel:.3g} of the "
+                f"source's bounding-box diagonal from the source on average (> "
+                f"{MEAN_DISTANCE_NOTE}): the shapes are not copies of one surface (another "
+                "pose, other geometry), so that turn, and the closest points, may be wrong. "
+                "If they were already aligned, match without align=True (--align); otherwise "
+                "use the spectral estimate (--map estimate)"
+            )
     if reasons:  # not aligned at all: that reason names the fixes
         notes.extend(misaligned)
     else:
