@@ -473,8 +473,8 @@ def add_basis_options(
         "--components",
         choices=("auto", "largest", "error"),
         default="auto",
-        help="several connected components: keep the largest if it holds >= 90%% of the area "
-        "(auto), always keep the largest, or refuse (auto)",
+        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
+        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
     )
     p.add_argument(
         "--cache",

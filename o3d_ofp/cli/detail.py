@@ -47,8 +47,8 @@ _MODE_HELP = (
     "(above --band eigenfunctions) in its local frames; replace-detail: the target's own "
     "detail is replaced by the source's; coordinates: the paper's Fig. 13, the source's "
     "coordinates transferred with OFP bases replace the target's (the target takes the "
-    "source's pose; uses --k1/--k2/--order/--preset); replace: deprecated name of coordinates "
-    "(add)"
+    "source's pose; uses --k1/--k2/--order/--preset); replace: deprecated name of "
+    "coordinates. Default: add"
 )
 
 

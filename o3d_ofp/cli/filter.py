@@ -57,8 +57,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--components",
         choices=("auto", "largest", "error"),
         default="auto",
-        help="several connected components: keep the largest if it holds >= 90%% of the area "
-        "(auto), always keep the largest, or refuse (auto)",
+        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
+        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
     )
     p.add_argument("--basis", help="cached basis of MESH (.npz; its Laplacian is used)")
     p.add_argument("-o", "--output", required=True, help="filtered mesh or cloud")
