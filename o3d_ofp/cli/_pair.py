@@ -286,20 +286,26 @@ def _check_components(
     The shapes whose bases are computed (not read with ``--basis-1``/``--basis-2``), and not
     with ``--map closest``, which builds no basis before its map.
     """
-    from ..core.cleaning import check_shape
+    from ..workflows.eigenbases import check_shapes
 
     if args.map == "closest":
         return
-    for path, V, F, file in (
-        (args.source, V1, F1, args.basis_1),
-        (args.target, V2, F2, args.basis_2),
-    ):
-        if file:
-            continue
-        try:
-            check_shape(V, F, components=getattr(args, "components", "auto"))
-        except ValueError as exc:
-            raise UsageError(f"{path}: {exc}") from exc
+    sides = [
+        (path, (V, F))
+        for path, V, F, file in (
+            (args.source, V1, F1, args.basis_1),
+            (args.target, V2, F2, args.basis_2),
+        )
+        if not file
+    ]
+    try:  # its messages begin with the name given: here the file's
+        check_shapes(
+            [shape for _, shape in sides],
+            names=[path for path, _ in sides],
+            components=getattr(args, "components", "auto"),
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
 
 
 def read_pair(args: argparse.Namespace) -> Pair:
