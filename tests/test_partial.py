@@ -388,15 +388,32 @@ def test_dense_path_extends_the_restriction_map_as_its_own_point_map(whole, cut)
     assert np.mean(unscaled != expected) > 0.02
 
 
-def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeypatch):
+@pytest.fixture
+def blob_made_dense(monkeypatch):
+    """Make the 2562-vertex blob "dense" (above 1000 vertices, coarse copies of 800)."""
     import o3d_ofp.workflows.matching as matching
+
+    monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
+    monkeypatch.setattr(matching, "COARSE_VERTICES", 800)
+
+
+def _three_landmarks(truth: np.ndarray) -> np.ndarray:
+    """Three known (source, target) pairs of the cut: first, middle and last target vertex.
+
+    A near-spherical blob's part can be matched turned (a known limit of the check);
+    landmarks fix the turn, so the error measures the dense path itself.
+    """
+    rows = np.array([0, len(truth) // 2, len(truth) - 1])
+    return np.stack([truth[rows], rows], axis=1)
+
+
+def test_large_shapes_are_matched_partially_on_coarse_copies(
+    whole, cut, monkeypatch, blob_made_dense
+):
     import o3d_ofp.workflows.partial as workflow
 
     V, F, e1 = whole
     Vc, Fc, truth, _ = cut
-    # the 2562-vertex blob made "dense" (above 1000 vertices, coarse copies of 800)
-    monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
-    monkeypatch.setattr(matching, "COARSE_VERTICES", 800)
     seen = []
     real = workflow.match_partial_eigenbases
 
@@ -405,10 +422,7 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
         return real(eig_1, eig_2, **options)
 
     monkeypatch.setattr(workflow, "match_partial_eigenbases", spy)
-    # three known pairs: a near-spherical blob's part can be matched turned (a known limit
-    # of the check), landmarks fix the turn, so the error measures the dense path itself
-    rows = np.array([0, len(Vc) // 2, len(Vc) - 1])
-    landmarks = np.stack([truth[rows], rows], axis=1)
+    landmarks = _three_landmarks(truth)
     corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
     # coarse only: the match, then its second opinion on copies of 0.7 times the size
     assert len(seen) == 2 and all(n1 < len(V) and n2 < len(Vc) for n1, n2, _ in seen)
@@ -426,7 +440,7 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(whole, cut, monkeyp
 
 
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
-    whole, cut, monkeypatch, caplog
+    whole, cut, monkeypatch, caplog, blob_made_dense
 ):
     """The dense path's map is checked against the match on smaller coarse copies.
 
@@ -435,13 +449,10 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
     """
     import logging
 
-    import o3d_ofp.workflows.matching as matching
     import o3d_ofp.workflows.partial as workflow
 
     V, F, _ = whole
     Vc, Fc, truth, _ = cut
-    monkeypatch.setattr(matching, "DENSE_VERTICES", 1000)
-    monkeypatch.setattr(matching, "COARSE_VERTICES", 800)
     calls = []
     real = workflow.match_arrays
 
@@ -454,8 +465,7 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
         return corr
 
     monkeypatch.setattr(workflow, "match_arrays", contradicted)
-    rows = np.array([0, len(Vc) // 2, len(Vc) - 1])
-    landmarks = np.stack([truth[rows], rows], axis=1)
+    landmarks = _three_landmarks(truth)
     with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"):
         corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
     assert calls == [None, 560]
