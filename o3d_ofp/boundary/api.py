@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core import spectrum
 from ..core._validation import check_int
+from ..core._warnings import warn
 from ..core.basis import OFPBasis, check_basis_options, ofp_basis
 from ..core.correspondence import p2p_from_fmap
 from ..core.filtering import (
@@ -59,6 +60,7 @@ from .convert import (
     point_normals,
     vertex_colors,
 )
+from .texture import mesh_texture
 
 __all__ = [
     "as_arrays",
@@ -510,6 +512,14 @@ def transfer_colors(
             "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
             "o3d_ofp.transfer_function)"
         )
+    if _has_texture(target):
+        warn(
+            logger,
+            "transfer_colors: the target has a texture: the result keeps it "
+            "beside the new vertex colors, and viewers and files (Open3D's OBJ and glTF "
+            "writers) may show either; to bake the colors into its UV layout use "
+            "o3d_ofp.transfer_texture(source, target, correspondence=...)",
+        )
     exact = check_correspondence(correspondence) is not None
     exact = exact and correspondence.method == "closest"
     if via_basis is False or (via_basis is None and exact):
@@ -541,6 +551,17 @@ def transfer_colors(
         components=components,
     )
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
+
+
+def _has_texture(geometry: Any) -> bool:
+    """Tell whether an Open3D geometry is a mesh with UVs and a loaded texture image."""
+    if not is_open3d_geometry(geometry):
+        return False
+    try:
+        mesh_texture(geometry)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _large_enough(

@@ -2,8 +2,9 @@
 
 :func:`transfer_texture` bakes a new image in the target's UV layout: every texel covered by a
 target UV triangle is a target surface point; the map carries it to a source surface point and
-the source texture is sampled there. Per-vertex colors can only vary linearly over a target
-triangle; a baked texture keeps the source's detail inside the triangles.
+the source texture (or, for a source without UVs, its vertex colors) is sampled there.
+Per-vertex colors can only vary linearly over a target triangle; a baked texture keeps the
+source's detail inside the triangles, and a textured target keeps its own texture layout.
 
 :func:`texture_pullback` is the cheap alternative (pyFM's texture export): the target borrows
 the source's image and gets, at each triangle corner, the source UV of the mapped point.
@@ -32,11 +33,14 @@ from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .texture import (
     MeshTexture,
+    VertexColorSurface,
     as_uint8,
     corner_uvs,
+    has_uvs,
     legacy_texture_image,
     mesh_texture,
     set_albedo,
+    surface_colors,
 )
 
 __all__ = [
@@ -167,26 +171,6 @@ def _legacy_copy(target: Any) -> Any:
     if kind != "legacy_mesh":
         raise TypeError("target must be an Open3D TriangleMesh with texture coordinates")
     return o3d.geometry.TriangleMesh(target)
-
-
-def has_uvs(mesh: Any) -> bool:
-    """Tell whether an Open3D mesh has per-corner texture coordinates for every triangle.
-
-    Parameters
-    ----------
-    mesh : Open3D geometry
-        Any geometry (a point cloud has none).
-
-    Returns
-    -------
-    bool
-    """
-    kind = geometry_kind(mesh)
-    if kind == "legacy_mesh":
-        return bool(mesh.has_triangle_uvs())
-    if kind == "tensor_mesh":
-        return "texture_uvs" in mesh.triangle or "texture_uvs" in mesh.vertex
-    return False
 
 
 def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
@@ -390,23 +374,26 @@ def transfer_texture(
     dilate: int = 8,
     atlas: bool = False,
 ) -> Any:
-    """Bake the source's texture into a new image in the target's own UV layout.
+    """Bake the source's texture (or vertex colors) into a new image in the target's UV layout.
 
     Every texel covered by a target UV triangle is the target surface point at its centre; it
     is carried to the source surface through the map (the mapped points of the triangle's
     corners interpolated with the texel's barycentric weights, then projected onto the source
     with Open3D's ``RaycastingScene.compute_closest_points``) and the source texture is
-    sampled there (bilinear). Texels whose centre lies outside every triangle but within √2
-    texels of one (they are read by bilinear sampling at the triangle's edges) take the
-    nearest point of the nearest triangle; the baked region is then grown ``dilate`` texels
-    outward with the nearest baked texel's color, so seams do not turn black.
+    sampled there (bilinear); a source without UVs has its vertex colors interpolated there
+    instead, so a textured target keeps its own layout and a coarse target keeps the colors
+    of a finer source inside its triangles. Texels whose centre lies outside every triangle
+    but within √2 texels of one (they are read by bilinear sampling at the triangle's edges)
+    take the nearest point of the nearest triangle; the baked region is then grown ``dilate``
+    texels outward with the nearest baked texel's color, so seams do not turn black.
 
     Parameters
     ----------
-    source : open3d.geometry.TriangleMesh, open3d.t.geometry.TriangleMesh or MeshTexture
-        The textured source (per-corner UVs and an image, see :func:`mesh_texture`), or its
-        arrays already read by :func:`mesh_texture` (picklable: what a collection run sends
-        to its workers); not modified.
+    source : Open3D TriangleMesh (legacy or tensor), MeshTexture or VertexColorSurface
+        The source: textured (per-corner UVs and an image, see :func:`mesh_texture`), or
+        without UVs and with vertex colors; or its arrays already read by
+        :func:`surface_colors` (picklable: what a collection run sends to its workers); not
+        modified.
     target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
         The target, with its own per-corner UVs (``triangle_uvs``); not modified.
     correspondence : Correspondence, optional
@@ -419,7 +406,8 @@ def transfer_texture(
     size : int, default 1024
         Side of the baked (size × size) image.
     texture : str, os.PathLike, ndarray or Open3D image, optional
-        The source's texture, rows top-down as in a file; default the source's own images.
+        The source's texture, rows top-down as in a file; default the source's own images
+        (the source then needs UVs: its vertex colors are not used).
     dilate : int, default 8
         Texels the baked region is grown by; texels beyond get the mean baked color.
     atlas : bool, default False
@@ -440,8 +428,8 @@ def transfer_texture(
     Raises
     ------
     ValueError
-        If the target has no UVs (and not ``atlas``), the source no texture, or the map does
-        not fit the shapes.
+        If the target has no UVs (and not ``atlas``), the source neither a texture nor
+        vertex colors (or UVs without an image), or the map does not fit the shapes.
     """
     if not isinstance(atlas, bool):
         raise TypeError(f"atlas must be True or False; got {atlas!r}")
@@ -450,12 +438,17 @@ def transfer_texture(
     if int(dilate) != dilate or dilate < 0:
         raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
     size, dilate = int(size), int(dilate)
-    if isinstance(source, MeshTexture):
+    src: MeshTexture | VertexColorSurface
+    if isinstance(source, (MeshTexture, VertexColorSurface)):
         if texture is not None:
-            raise ValueError("texture= applies to a source mesh; a MeshTexture has its images")
+            raise ValueError(
+                f"texture= applies to a source mesh; a {type(source).__name__} has its colors"
+            )
         src = source
     else:
-        src = mesh_texture(source, texture)
+        src = surface_colors(source, texture)
+        if isinstance(src, VertexColorSurface):
+            logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
     if not has_uvs(target):
         if not atlas:
             raise ValueError(
@@ -605,12 +598,13 @@ def texture_pullback(
 
 
 def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.ndarray:
-    """Sample the source's texture at the source surface points nearest to ``points``.
+    """Sample the source's colors at the source surface points nearest to ``points``.
 
     Parameters
     ----------
     source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
-        The textured source; not modified.
+        The source, textured or (without UVs) colored per vertex (see
+        :func:`~o3d_ofp.boundary.texture.surface_colors`); not modified.
     points : (p, 3) array_like of float
         Query points (e.g. the target's vertices, for shapes in the same pose).
     texture : str, os.PathLike, ndarray or Open3D image, optional
@@ -621,7 +615,7 @@ def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.nda
     (p, 3) ndarray of float64
         Colors in [0, 1].
     """
-    src = mesh_texture(source, texture)
+    src = surface_colors(source, texture)
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or not np.all(np.isfinite(P)):
         raise ValueError(f"points must be a finite (p, 3) array; got shape {P.shape}")
@@ -659,7 +653,7 @@ def texture_error(
     mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
         The colored target, e.g. a result of :func:`transfer_texture`; not modified.
     source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
-        The textured source; not modified.
+        The source, textured or (without UVs) colored per vertex; not modified.
     colors : {"auto", "texture", "vertex"}, default "auto"
         What colors the target: its UV texture (sampled bilinearly), or its vertex colors
         (interpolated linearly over the triangles). "auto": the texture when the mesh has
@@ -696,6 +690,6 @@ def texture_error(
         C = vertex_colors(mesh)
         if C is None:
             raise ValueError("the mesh has neither a texture nor vertex colors")
-        got = np.einsum("pk,pkd->pd", bary, C[F[tri]])
+        got = VertexColorSurface(vertices=V, faces=F, colors=C).sample(tri, bary)
     truth = source_colors_at(source, np.einsum("pk,pkd->pd", bary, V[F[tri]]), texture=texture)
     return float(np.abs(got - truth).mean())

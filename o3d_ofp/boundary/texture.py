@@ -14,7 +14,9 @@ Orientation conventions (measured on Open3D 0.20, see ``tests/test_texture.py``)
 
 :class:`MeshTexture` reads any of these into one form (top-down images, per-corner UVs, one
 image index per triangle); :func:`legacy_texture_image` makes an image for
-``TriangleMesh.textures`` out of a top-down array.
+``TriangleMesh.textures`` out of a top-down array. :func:`surface_colors` reads the colors of a
+mesh's surface for a bake: its texture, or for a mesh without UVs its vertex colors
+(:class:`VertexColorSurface`, sampled like a texture).
 """
 
 from __future__ import annotations
@@ -29,17 +31,20 @@ import numpy as np
 
 from ..core.texture import corner_colors_to_vertices, sample_texture
 from ._verbosity import open3d_errors_only
-from .convert import geometry_kind, geometry_to_arrays, require_open3d
+from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 
 __all__ = [
     "MeshTexture",
+    "VertexColorSurface",
     "as_uint8",
     "corner_uvs",
+    "has_uvs",
     "legacy_texture_image",
     "mesh_texture",
     "missing_texture_files",
     "no_texture_message",
     "set_albedo",
+    "surface_colors",
     "texture_colors",
 ]
 
@@ -200,6 +205,108 @@ class MeshTexture:
     def corner_colors(self) -> np.ndarray:
         """(3m, 3) colors sampled at the triangle corners, in the order ``faces.reshape(-1)``."""
         return self._sample_uv(self.uvs.reshape(-1, 2), np.repeat(self.material, 3))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class VertexColorSurface:
+    """A mesh colored per vertex, sampled like a texture (colors linear over each triangle).
+
+    What a bake reads from a source without a texture (:func:`surface_colors`): a surface point
+    in triangle (a, b, c) with barycentric weights (wa, wb, wc) has the color
+    wa C(a) + wb C(b) + wc C(c).
+
+    Attributes
+    ----------
+    vertices : (n, 3) ndarray of float64
+        Vertex positions.
+    faces : (m, 3) ndarray of int64
+        Triangles.
+    colors : (n, 3) ndarray of float64
+        Vertex colors in [0, 1].
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray
+
+    def sample(self, triangles: Any, barycentric: Any) -> np.ndarray:
+        """RGB colors at surface points, interpolated from the triangle's corners.
+
+        Parameters
+        ----------
+        triangles : (p,) array_like of int
+            Triangle of each point.
+        barycentric : (p, 3) array_like of float
+            Its barycentric coordinates (weights of the triangle's corners 0, 1, 2).
+
+        Returns
+        -------
+        (p, 3) ndarray of float64
+            Colors in [0, 1].
+        """
+        t = np.asarray(triangles, dtype=np.int64)
+        w = np.asarray(barycentric, dtype=np.float64)
+        return np.clip(np.einsum("pk,pkd->pd", w, self.colors[self.faces[t]]), 0.0, 1.0)
+
+
+def surface_colors(mesh: Any, texture: Any = None) -> MeshTexture | VertexColorSurface:
+    """Read the colors of a mesh's surface for a bake: its texture, else its vertex colors.
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+        The mesh; not modified.
+    texture : str, os.PathLike, ndarray or Open3D image, optional
+        A texture image for the mesh's UVs (see :func:`mesh_texture`); with it the mesh's
+        vertex colors are never used.
+
+    Returns
+    -------
+    MeshTexture or VertexColorSurface
+        The texture when the mesh has per-corner UVs (its image missing is an error, not a
+        reason to fall back on vertex colors), else its vertex colors.
+
+    Raises
+    ------
+    ValueError
+        If the mesh has UVs without a loaded image, or neither UVs nor vertex colors.
+    TypeError
+        If ``mesh`` is not an Open3D triangle mesh.
+    """
+    try:
+        return mesh_texture(mesh, texture)
+    except ValueError as exc:
+        V, F = geometry_to_arrays(mesh)
+        assert F is not None  # mesh_texture refuses anything but a triangle mesh
+        if texture is not None or has_uvs(mesh):
+            raise
+        colors = vertex_colors(mesh)
+        if colors is None:
+            raise ValueError(
+                "the mesh has neither texture coordinates nor vertex colors: there are no "
+                "colors to bake"
+            ) from exc
+    return VertexColorSurface(vertices=V, faces=F, colors=np.clip(colors, 0.0, 1.0))
+
+
+def has_uvs(mesh: Any) -> bool:
+    """Tell whether an Open3D mesh has per-corner texture coordinates for every triangle.
+
+    Parameters
+    ----------
+    mesh : Open3D geometry
+        Any geometry (a point cloud has none).
+
+    Returns
+    -------
+    bool
+    """
+    kind = geometry_kind(mesh)
+    if kind == "legacy_mesh":
+        return bool(mesh.has_triangle_uvs())
+    if kind == "tensor_mesh":
+        return "texture_uvs" in mesh.triangle or "texture_uvs" in mesh.vertex
+    return False
 
 
 def _no_uvs(n_uvs: int, n_faces: int) -> ValueError:

@@ -49,15 +49,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--signal",
         help="colors, texture (as vertex colors), xyz or FILE.npy of the source; default: the "
-        "source's texture baked into the target's own UV layout when the source is textured "
-        "and the target has UVs, else its vertex colors",
+        "source's texture (or, for a source without UVs, its vertex colors) baked into the "
+        "target's own UV layout when the target has UVs and the output is .obj/.glb/.gltf, "
+        "else its colors on the target's vertices",
     )
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
     p.add_argument(
         "--uv-atlas",
         action="store_true",
-        help="a textured source onto a mesh target WITHOUT UVs: give the target a new UV "
-        "atlas (Open3D's compute_uvatlas) and bake the texture into it (output .obj/.glb/.gltf)",
+        help="a textured or vertex-colored source onto a mesh target WITHOUT UVs: give the "
+        "target a new UV atlas (Open3D's compute_uvatlas) and bake the colors into it (output "
+        ".obj/.glb/.gltf)",
     )
     p.add_argument(
         "--texture-size",
@@ -65,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help=f"size of the baked texture image in pixels ({TEXTURE_SIZE}; at most "
         f"{MAX_TEXTURE_SIZE}); "
-        "for a bake only (a textured source onto a target with UVs, or --uv-atlas)",
+        "for a bake only (a source mesh onto a target with UVs, or --uv-atlas)",
     )
     p.add_argument(
         "-o",
@@ -115,21 +117,34 @@ def run(args: argparse.Namespace) -> int:
         return _bake(args, pair)
     if args.texture_size is not None:
         raise UsageError(
-            "--texture-size applies to a bake (a textured source onto a mesh target with UVs, "
-            "or --uv-atlas, written as .obj/.glb/.gltf); here the colors go to the vertices"
+            "--texture-size applies to a bake (a textured or vertex-colored source mesh onto a "
+            "mesh target with UVs, or --uv-atlas, written as .obj/.glb/.gltf); here the colors "
+            "go to the vertices"
         )
     if args.uv_atlas:
         raise UsageError(
-            "--uv-atlas needs a textured source, a mesh target and an .obj/.glb/.gltf output"
+            "--uv-atlas needs a source mesh with a texture or vertex colors, a mesh target and "
+            "an .obj/.glb/.gltf output"
         )
     spec = args.signal or _default_signal(pair.source)
-    if args.signal is None and spec == "texture" and pair.F2 is not None and has_uvs(pair.target):
+    textured_target = pair.F1 is not None and pair.F2 is not None and has_uvs(pair.target)
+    if textured_target and args.signal in ("colors", "texture"):
         logger.warning(
-            "%s has UVs, but %s cannot hold a texture: the source's texture goes to the "
+            "%s has UVs: --signal %s puts the source's colors on its vertices (blurrier) and "
+            "the file written has no texture; leave out --signal to bake them into its UV "
+            "layout (output .obj/.glb/.gltf)",
+            args.target,
+            args.signal,
+        )
+    elif textured_target and args.signal is None and spec in ("colors", "texture"):
+        what = "texture goes" if spec == "texture" else "vertex colors go"
+        logger.warning(
+            "%s has UVs, but %s cannot hold a texture: the source's %s to the "
             "target's vertex colors (blurrier) and the target's UVs are not written; write "
-            ".obj/.glb/.gltf to bake it into the target's UVs",
+            ".obj/.glb/.gltf to bake them into the target's UVs",
             args.target,
             args.output,
+            what,
         )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
     pair = map_first(args, pair)
@@ -219,13 +234,18 @@ def _run_many(args: argparse.Namespace) -> int:
 
 
 def _bakeable(pair, output: str, *, atlas: bool = False) -> bool:
-    """Tell whether to bake: textured source, target with UVs (or an atlas), OBJ/glTF out."""
+    """Tell whether to bake into the target's UVs.
+
+    Yes for a source mesh with a texture or (without UVs) vertex colors, a target with UVs (or
+    an atlas), and an OBJ/glTF output.
+    """
     from ..boundary.bake import has_uvs
+    from ..boundary.convert import vertex_colors
 
     return bool(
         pair.F1 is not None
         and pair.F2 is not None
-        and has_uvs(pair.source)
+        and (has_uvs(pair.source) or vertex_colors(pair.source) is not None)
         and (atlas or has_uvs(pair.target))
         and output.lower().endswith((".obj", ".glb", ".gltf"))
     )
@@ -254,18 +274,18 @@ def _default_signal(source: Any) -> str:
 
 
 def _check_texture(args: argparse.Namespace, source: Any) -> None:
-    """Refuse, before any work, a bake whose texture cannot be read (named: file or flag)."""
-    from ..boundary.texture import mesh_texture
+    """Refuse, before any work, a bake whose colors cannot be read (named: file or flag)."""
+    from ..boundary.texture import surface_colors
 
     try:
-        mesh_texture(source, args.texture)
+        surface_colors(source, args.texture)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         raise texture_error(args.source, args.texture, exc) from exc
 
 
 def _bake(args: argparse.Namespace, pair) -> int:
-    """Bake the source's texture into the target's UV layout and write OBJ + MTL + PNG."""
-    from ..boundary.bake import transfer_texture
+    """Bake the source's texture (or vertex colors) into the target's UV layout and write it."""
+    from ..boundary.bake import has_uvs, transfer_texture
     from ..boundary.io import write_geometry
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eigenbases_of
@@ -305,7 +325,9 @@ def _bake(args: argparse.Namespace, pair) -> int:
     write_geometry(args.output, out, protect=_inputs(args))
     report(
         [
-            f"{args.source} -> {args.target}: texture baked in the target's UV layout "
+            f"{args.source} -> {args.target}: "
+            f"{'texture' if has_uvs(pair.source) else 'vertex colors'} baked in the target's "
+            f"{'new UV atlas' if args.uv_atlas and not has_uvs(pair.target) else 'UV layout'} "
             f"({size} px), map {_map_name(args, corr)}",
             f"wrote {args.output} (with its material and texture image)",
         ]
