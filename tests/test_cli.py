@@ -1089,3 +1089,33 @@ def test_stage_progress_is_logged_when_stderr_is_not_a_terminal(monkeypatch, cap
         with cli_progress.stage_progress("matching") as progress:
             progress("extension", 0.8)
     assert caplog.records == []
+
+
+def test_closest_map_goes_through_the_bases_only_with_via_basis(files, tmp_path, capsys):
+    """--k1 etc. were accepted and ignored with --map closest (a trial); now refused, named."""
+    src, out = files["src"], tmp_path / "pulled.ply"
+    pair = ["transfer", src, src, "--map", "closest"]
+    for extra, said in ((["--k1", "12"], "--k1 does not apply here"),
+                        (["--order", "3", "--tol", "0.1"], "--order/--tol does not apply here"),
+                        (["--basis-1", src], "--basis-1 does not apply here")):  # fmt: skip
+        assert main([*pair, *extra, "-o", str(out)]) == 2, extra
+        _one_line_error(capsys, said, "add --via-basis")
+        assert not out.exists()
+    assert main([*pair, "-o", str(out)]) == 0
+    assert "exact pull-back" in capsys.readouterr().out
+    exact = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
+    np.testing.assert_allclose(exact, files["colors"], atol=0.5 / 255 + 1e-9)  # itself, 8 bits
+    smooth = tmp_path / "smooth.ply"
+    assert main([*pair, "--via-basis", "--k1", "12", "--k2", "12", "-o", str(smooth)]) == 0
+    assert "basis functions, map closest" in capsys.readouterr().out
+    through = np.asarray(o3d.io.read_triangle_mesh(str(smooth)).vertex_colors)
+    # The OFP bases of 12 eigenfunctions approximate sin(3 V) closely but not exactly:
+    # measured mean difference 0.0043; the exact pull-back's is the files' 8-bit rounding,
+    # 0.0010 (at most 0.002), so the bound tells the two transfers apart.
+    diff = np.abs(through - files["colors"]).mean()
+    assert 0.002 < diff < 0.03
+    assert main(["transfer", src, files["tgt"], "--via-basis", "-o", str(out)]) == 2
+    _one_line_error(capsys, "--via-basis applies to a closest map")
+    assert main(["transfer", src, files["tgt"], files["src"], "--via-basis", "--map", "closest",
+                 "-o", str(tmp_path / "many")]) == 2  # fmt: skip
+    _one_line_error(capsys, "--via-basis (for one pair of shapes) does not apply")

@@ -37,6 +37,7 @@ PAIR_ONLY = {
     "align": "--align (--map closest is for one pair)",
     "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
     "partial": "--partial (for one pair of shapes)",
+    "via_basis": "--via-basis (for one pair of shapes)",
 }
 
 

@@ -55,6 +55,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
     p.add_argument(
+        "--via-basis",
+        action="store_true",
+        help="with a closest map (--map closest, or its saved map): transfer through the OFP "
+        "bases (the paper's transfer: smoother where the map is noisy) instead of the exact "
+        "pull-back; then --k1/--k2/--order/--preset/--tol apply",
+    )
+    p.add_argument(
         "--uv-atlas",
         action="store_true",
         help="a textured or vertex-colored source onto a mesh target WITHOUT UVs: give the "
@@ -146,10 +153,24 @@ def run(args: argparse.Namespace) -> int:
             args.output,
             what,
         )
+    closest = _closest(args, pair)
+    if args.via_basis and not closest:
+        raise UsageError(
+            "--via-basis applies to a closest map (--map closest or its saved map): other maps "
+            "go through the OFP bases already"
+        )
+    if closest and not args.via_basis:
+        _refuse_basis_flags(
+            args,
+            "the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
+            "add --via-basis to transfer through the bases",
+            files=True,
+        )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
     pair = map_first(args, pair)
     given = pair.correspondence
-    if given is not None and given.method == "closest":  # exact pull-back, no basis
+    if closest and not args.via_basis:  # exact pull-back, no basis
+        assert given is not None
         from ..workflows.pipeline import pull_back
 
         if args.save_map:
@@ -273,6 +294,35 @@ def _default_signal(source: Any) -> str:
     return "colors"
 
 
+#: The flags of the OFP bases (argparse dest, flag): unused by a bake or an exact pull-back.
+_BASIS_FLAGS = (("k1", "--k1"), ("k2", "--k2"), ("order", "--order"), ("preset", "--preset"),
+                ("tol", "--tol"))  # fmt: skip
+
+
+def _closest(args: argparse.Namespace, pair: Any) -> bool:
+    """Tell whether the map is a closest-point map (``--map closest`` or its saved map)."""
+    corr = pair.correspondence
+    return args.map == "closest" or (corr is not None and corr.method == "closest")
+
+
+def _refuse_basis_flags(args: argparse.Namespace, why: str, *, files: bool = False) -> None:
+    """Refuse the OFP basis flags given for a transfer that builds no OFP basis (``why``).
+
+    With ``files``, also the basis files (``--basis-1``/``--basis-2``): no eigenbasis is used.
+    """
+    given = getattr(args, "given", set()) or set()
+    named = [
+        flag
+        for dest, flag in _BASIS_FLAGS
+        if (getattr(args, dest) is not None if dest in ("k1", "k2") else dest in given)
+    ]
+    if files:
+        named += [flag for dest, flag in (("basis_1", "--basis-1"), ("basis_2", "--basis-2"))
+                  if getattr(args, dest)]  # fmt: skip
+    if named:
+        raise UsageError(f"{'/'.join(named)} does not apply here: {why}")
+
+
 def _check_texture(args: argparse.Namespace, source: Any) -> None:
     """Refuse, before any work, a bake whose colors cannot be read (named: file or flag)."""
     from ..boundary.texture import surface_colors
@@ -290,6 +340,17 @@ def _bake(args: argparse.Namespace, pair) -> int:
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import eigenbases_of
 
+    if args.via_basis:
+        raise UsageError(
+            "--via-basis sends colors through the OFP bases to the target's vertices; a bake "
+            "reads the source through the map: add --signal colors, or drop --via-basis"
+        )
+    _refuse_basis_flags(
+        args,
+        "a bake reads the source's colors through the map, with no OFP basis; drop it, or add "
+        f"--signal colors{' --via-basis' if _closest(args, pair) else ''} to transfer the "
+        "colors to the target's vertices through the bases",
+    )
     _check_texture(args, pair.source)
     size = args.texture_size or TEXTURE_SIZE
     pair = map_first(args, pair)
