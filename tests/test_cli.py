@@ -1119,3 +1119,32 @@ def test_closest_map_goes_through_the_bases_only_with_via_basis(files, tmp_path,
     assert main(["transfer", src, files["tgt"], files["src"], "--via-basis", "--map", "closest",
                  "-o", str(tmp_path / "many")]) == 2  # fmt: skip
     _one_line_error(capsys, "--via-basis (for one pair of shapes) does not apply")
+
+
+@pytest.mark.parametrize(
+    ("library", "command_line"),
+    [
+        ("pass align=True (--align) if they are almost aligned; otherwise",
+         "pass --align if they are almost aligned; otherwise"),
+        ("match without align=True (--align); otherwise", "match without --align; otherwise"),
+        ("of the other shape (partial=True / --partial); aligned copies match by closest "
+         "points (method='closest' / --map closest)",
+         "of the other shape (--partial); aligned copies match by closest points "
+         "(--map closest)"),
+        ("give landmarks (landmarks= / --landmarks), or", "give landmarks (--landmarks), or"),
+        ("(landmarks=[[source, target], ...] / --landmarks 12:40,500:611)",
+         "(--landmarks 12:40,500:611)"),
+        ("it; mode='replace-detail' (--mode replace-detail) replaces it",
+         "it; --mode replace-detail replaces it"),
+        ("pass the image (--texture FILE / texture=...)", "pass the image (--texture FILE)"),
+        ("the image explicitly (texture=... / --texture FILE)",
+         "the image explicitly (--texture FILE)"),
+        ("use o3d_ofp.transfer_texture(source, target, correspondence=...)",
+         "use o3d_ofp.transfer_texture(source, target, correspondence=...)"),  # no flag: kept
+    ],
+)  # fmt: skip
+def test_library_messages_name_only_the_flag_on_the_command_line(library, command_line):
+    """A trial: the CLI printed 'align=True (--align)', Python's syntax beside its own."""
+    from o3d_ofp.cli._common import in_flags
+
+    assert in_flags(library) == command_line

@@ -155,7 +155,7 @@ def test_closest_map_waits_for_the_signal_and_says_its_reasons_once(shapes, tmp_
     assert "map quality SUSPECT" in captured.out
     said = (captured.out + captured.err).count("slide along the surface")
     assert said == 1, captured  # the warning once, not again in the report
-    assert "(--align)" in captured.err
+    assert "pass --align" in captured.err and "align=True" not in captured.err
 
 
 def test_side_outputs_may_not_replace_inputs_outputs_or_cache_entries(shapes, tmp_path, capsys):

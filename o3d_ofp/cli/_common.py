@@ -13,6 +13,7 @@ import glob
 import logging
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -34,6 +35,7 @@ __all__ = [
     "check_output",
     "eig_options",
     "eigenbases_of",
+    "in_flags",
     "load_npy",
     "read_shape",
     "report",
@@ -66,10 +68,35 @@ class _Output:
 OUT = _Output()
 
 
+#: Library keywords that error messages mention, and the flags that set them.
+KEYWORD_FLAGS = {
+    "components='largest'": "--components largest",
+    "components='auto'": "--components auto",
+    "components='error'": "--components error",
+    "landmarks=[[source, target], ...] / ": "",
+}
+
+
+#: Library messages name a keyword and its flag together, "align=True (--align)" or
+#: "partial=True / --partial" (either order): the command line says the flag alone.
+_KEYWORD_THEN_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/]|\(\))* \((--[a-z][^)]*)\)")
+_KEYWORD_OR_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/,;]|\(\))* / (?=--[a-z])")
+_FLAG_OR_KEYWORD = re.compile(r"(--[a-z][a-z-]*(?: [A-Z]+)?) / [a-z_]+=(?:\.\.\.|[^\s),;]*)")
+
+
+def in_flags(message: str) -> str:
+    """Say the command line's flags where a library message names its keywords."""
+    for keyword, flag in KEYWORD_FLAGS.items():
+        message = message.replace(keyword, flag)
+    message = _KEYWORD_THEN_FLAG.sub(lambda m: m.group(1), message)
+    message = _KEYWORD_OR_FLAG.sub("", message)
+    return _FLAG_OR_KEYWORD.sub(lambda m: m.group(1), message)
+
+
 def report(lines: Sequence[str]) -> None:
-    """Print result lines (silenced by ``-q``)."""
+    """Print result lines (silenced by ``-q``), with the flags the library's messages name."""
     for line in lines:
-        OUT.write(line + "\n")
+        OUT.write(in_flags(line) + "\n")
 
 
 @contextlib.contextmanager

@@ -19,7 +19,7 @@ from typing import Any
 from ..core._version import __version__
 from ..core._warnings import OFPWarning
 from . import approximate, basis, demo, detail, filter, render, transfer
-from ._common import OUT, UsageError
+from ._common import OUT, UsageError, in_flags
 from ._pair import SUSPECT_EXIT, SuspectMap
 from ._progress import ENABLED
 
@@ -29,20 +29,11 @@ logger = logging.getLogger(__name__)
 
 COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
 
-#: Library keywords that error messages mention, and the flags that set them.
-KEYWORD_FLAGS = {
-    "components='largest'": "--components largest",
-    "components='auto'": "--components auto",
-    "components='error'": "--components error",
-    "landmarks=[[source, target], ...] / ": "",
-}
+class _FlagsFormatter(logging.Formatter):
+    """Log lines with the flags where the library's messages name its keywords."""
 
-
-def _in_flags(message: str) -> str:
-    """Say the command line's flags where a library message names its keywords."""
-    for keyword, flag in KEYWORD_FLAGS.items():
-        message = message.replace(keyword, flag)
-    return message
+    def format(self, record: logging.LogRecord) -> str:
+        return in_flags(super().format(record))
 
 
 class _Parser(argparse.ArgumentParser):
@@ -91,7 +82,7 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
     """Send the package's log records to the current stderr for the duration of a command."""
     root = logging.getLogger("o3d_ofp")
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("o3d-ofp: %(message)s"))
+    handler.setFormatter(_FlagsFormatter("o3d-ofp: %(message)s"))
     saved = (root.level, root.propagate)
     root.addHandler(handler)
     root.setLevel(level)
@@ -147,7 +138,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
         except SuspectMap as exc:
             sys.stderr.write(
-                f"{prog}: error: the map is suspect (--strict): {_in_flags(str(exc))}; "
+                f"{prog}: error: the map is suspect (--strict): {in_flags(str(exc))}; "
                 "nothing written\n"
             )
             return SUSPECT_EXIT
@@ -160,10 +151,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             IsADirectoryError,
             PermissionError,
         ) as exc:
-            sys.stderr.write(f"{prog}: error: {_in_flags(str(exc))}\n")
+            sys.stderr.write(f"{prog}: error: {in_flags(str(exc))}\n")
             return 2
         except (ImportError, ConnectionError) as exc:
-            sys.stderr.write(f"{prog}: error: {_in_flags(str(exc))}\n")
+            sys.stderr.write(f"{prog}: error: {in_flags(str(exc))}\n")
             return 1
         except OSError as exc:  # a full disk, a file system gone read-only during the run
             where = f" ({exc.filename})" if exc.filename else ""
