@@ -284,7 +284,7 @@ def test_cli_uv_atlas_bakes_into_a_target_without_uvs(spot, decimated, tmp_path,
     out = o3d.io.read_triangle_mesh(str(tmp_path / "out.obj"))
     assert out.has_triangle_uvs() and any(not t.is_empty() for t in out.textures)
     assert main([*argv, "-o", str(tmp_path / "out.ply"), "--uv-atlas"]) == 2
-    assert "--uv-atlas bakes the source's texture into a new atlas" in capsys.readouterr().err
+    assert "--uv-atlas bakes the source's colors into a new atlas" in capsys.readouterr().err
     assert not (tmp_path / "out.ply").exists()
 
 
@@ -392,3 +392,86 @@ def test_cli_bakes_a_vertex_colored_source_into_a_textured_target(
     ):
         assert main([*argv, *extra, "-o", str(tmp_path / out)]) == 0
         assert said in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def spot_colors_ply(spot, tmp_path_factory):
+    """Spot's vertices (seam copies included, as Open3D reads the OBJ) colored, no UVs."""
+    mesh = spot[0]
+    plain = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)
+    plain.vertex_colors = o3d.utility.Vector3dVector(
+        source_colors_at(mesh, np.asarray(mesh.vertices))
+    )
+    path = tmp_path_factory.mktemp("spot_colors") / "spot_colors.ply"
+    o3d.io.write_triangle_mesh(str(path), plain)
+    return path
+
+
+def test_cli_colors_onto_a_textured_target_write_no_stale_texture(spot, spot_colors_ply,
+                                                                  tmp_path, capsys):
+    """--signal colors into a glTF kept the target's old image under the new colors (trial)."""
+    from o3d_ofp.cli.main import main
+
+    argv = ["transfer", str(spot_colors_ply), str(spot[2]), "--map", "identity"]
+    assert main([*argv, "--signal", "colors", "-o", str(tmp_path / "c.glb")]) == 0
+    assert "the file written has no texture" in capsys.readouterr().err
+    back = o3d.t.io.read_triangle_mesh(str(tmp_path / "c.glb"))
+    assert "colors" in back.vertex
+    assert not (back.has_valid_material() and "albedo" in back.material.texture_maps)
+    # a point-cloud source cannot be baked: said, and no stale texture either
+    cloud = o3d.geometry.PointCloud(o3d.io.read_triangle_mesh(str(spot_colors_ply)).vertices)
+    cloud.colors = o3d.io.read_triangle_mesh(str(spot_colors_ply)).vertex_colors
+    o3d.io.write_point_cloud(str(tmp_path / "cloud.ply"), cloud)
+    argv[1] = str(tmp_path / "cloud.ply")
+    assert main([*argv, "-o", str(tmp_path / "p.obj")]) == 0
+    assert "is a point cloud: its colors go to the vertices" in capsys.readouterr().err
+    assert "map_Kd" not in (tmp_path / "p.mtl").read_text()
+    with pytest.raises(TypeError, match="a point cloud has no surface to bake from"):
+        transfer_texture(cloud, spot[0], p2p_21=np.arange(len(spot[0].vertices)))
+
+
+def test_cli_via_basis_refusals_do_not_send_the_user_in_circles(spot, spot_colors_ply,
+                                                                tmp_path, capsys):
+    from o3d_ofp.cli.main import main
+
+    src, tgt, out = str(spot_colors_ply), str(spot[2]), str(tmp_path / "o.obj")
+    # onto a target with UVs the first word is the map's, not the bake's (a trial was told to
+    # add --signal colors, then that --via-basis needs a closest map)
+    assert main(["transfer", src, tgt, "--map", "identity", "--via-basis", "-o", out]) == 2
+    assert "--via-basis applies to a closest map" in capsys.readouterr().err
+    assert main(["transfer", src, tgt, "--map", "closest", "--via-basis", "--uv-atlas",
+                 "-o", out]) == 2  # fmt: skip
+    assert "give one of them" in capsys.readouterr().err
+    assert main(["transfer", src, tgt, "--map", "closest", "--uv-atlas", "--k1", "20",
+                 "-o", out]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "--k1 does not apply here" in err and "--signal colors" not in err
+
+
+def test_cli_collection_bakes_vertex_colors_when_asked_and_says_a_dropped_texture(
+    spot, spot_colors_ply, tmp_path, capsys
+):
+    """A trial's collection wrote vertex colors and dropped every target's texture silently."""
+    import json
+
+    from o3d_ofp.cli.main import main
+
+    targets = tmp_path / "targets"
+    targets.mkdir()
+    for name in ("a", "b"):
+        for suffix in (".obj", ".mtl"):
+            text = spot[2].with_suffix(suffix).read_text().replace("spot.mtl", f"{name}.mtl")
+            (targets / f"{name}{suffix}").write_text(text)
+    shutil.copy(spot[2].parent / "spot_texture.png", targets / "spot_texture.png")
+    run = ["transfer", str(spot_colors_ply), str(targets), "--map", "identity",
+           "--workers", "0"]  # fmt: skip
+    assert main([*run, "--texture-size", "128", "-o", str(tmp_path / "baked")]) == 0
+    for name in ("a", "b"):
+        assert "map_Kd" in (tmp_path / "baked" / f"{name}.mtl").read_text()
+    capsys.readouterr()
+    assert main([*run, "-o", str(tmp_path / "colored")]) == 0
+    records = json.loads((tmp_path / "colored" / "summary.json").read_text())
+    records = records["results"]
+    said = [w for r in records for w in r["warnings"]]
+    assert len(said) == 2 and all("texture image is not written" in w for w in said), said
+    assert all("--texture-size N" in w and "kind=" not in w for w in said), said

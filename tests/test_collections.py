@@ -335,8 +335,8 @@ def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
         transfer_many(paths["src"], [paths["t0"]], workers=0, k3=4)
     with pytest.raises(ValueError, match="kind"):
         transfer_many(paths["src"], [paths["t0"]], kind="zzz", workers=0)
-    with pytest.raises(ValueError, match="no texture to bake"):
-        transfer_many(paths["src"], [paths["t0"]], kind="texture", workers=0)
+    with pytest.raises(ValueError, match="no texture or vertex colors to bake"):
+        transfer_many(paths["t1"], [paths["t0"]], kind="texture", workers=0)  # colorless
     with pytest.raises(ValueError, match="signal"):
         transfer_many(paths["src"], [paths["t0"]], signal="xyz", workers=0)
     with pytest.raises(ValueError, match="texture_size"):

@@ -46,6 +46,7 @@ __all__ = [
     "set_albedo",
     "surface_colors",
     "texture_colors",
+    "without_texture",
 ]
 
 logger = logging.getLogger(__name__)
@@ -275,6 +276,12 @@ def surface_colors(mesh: Any, texture: Any = None) -> MeshTexture | VertexColorS
     """
     try:
         return mesh_texture(mesh, texture)
+    except TypeError as exc:
+        raise TypeError(
+            "the source must be an Open3D TriangleMesh with a texture or vertex colors (a point "
+            "cloud has no surface to bake from: transfer its colors to the target's vertices "
+            f"with o3d_ofp.transfer_colors); got {type(mesh).__name__}"
+        ) from exc
     except ValueError as exc:
         V, F = geometry_to_arrays(mesh)
         assert F is not None  # mesh_texture refuses anything but a triangle mesh
@@ -287,6 +294,30 @@ def surface_colors(mesh: Any, texture: Any = None) -> MeshTexture | VertexColorS
                 "colors to bake"
             ) from exc
     return VertexColorSurface(vertices=V, faces=F, colors=np.clip(colors, 0.0, 1.0))
+
+
+def without_texture(geometry: Any) -> Any:
+    """Return the geometry without its texture images (UVs kept), for per-vertex colors.
+
+    A mesh given new vertex colors keeps its old texture otherwise, and what a viewer shows
+    then depends on the format (Open3D's OBJ writer drops the image, its glTF writer keeps it
+    and viewers multiply the two). Anything without a texture comes back as it is; the input
+    is not modified.
+    """
+    o3d = require_open3d()
+    kind = geometry_kind(geometry)
+    # (has_textures() is False while the OBJ reader's empty default image comes first)
+    if kind == "legacy_mesh" and any(not image.is_empty() for image in geometry.textures):
+        out = type(geometry)(geometry)
+        out.textures = []
+        out.triangle_material_ids = o3d.utility.IntVector()
+        return out
+    if kind == "tensor_mesh" and geometry.has_valid_material():
+        if len(geometry.material.texture_maps):
+            out = geometry.clone()
+            out.material = o3d.visualization.Material("defaultLit")
+            return out
+    return geometry
 
 
 def has_uvs(mesh: Any) -> bool:

@@ -74,6 +74,7 @@ KEYWORD_FLAGS = {
     "components='auto'": "--components auto",
     "components='error'": "--components error",
     "landmarks=[[source, target], ...] / ": "",
+    ", or ofp.transfer_colors(..., landmarks=...))": ")",
 }
 
 

@@ -11,6 +11,7 @@ and ``DIR/summary.json``; the exit code is 1 when any target failed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -164,7 +165,7 @@ def report_records(records: Sequence[Any]) -> int:
 def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:
     """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``."""
     from ..collections import transfer_many, write_summary
-    from ._common import check_cache_dir
+    from ._common import check_cache_dir, in_flags
 
     _check_output_dir(args.output)
     check_cache_dir(args.cache)
@@ -206,6 +207,15 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
         )
     except (ValueError, TypeError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from exc
+    # the records' messages in the command line's words (the flags, not the keywords)
+    records = [
+        dataclasses.replace(
+            r, warnings=tuple(in_flags(w) for w in r.warnings), error=in_flags(r.error)
+        )
+        if r.warnings or r.error
+        else r
+        for r in records
+    ]
     csv_path, json_path = write_summary(records, args.output)
     code = report_records(records)
     report([f"summary: {csv_path}, {json_path}"])

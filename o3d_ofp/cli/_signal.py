@@ -116,7 +116,8 @@ def write_result(
 ) -> list[str]:
     """Write ``values`` on a copy of the geometry ``like``: colored, moved, or a ``.npy``.
 
-    Returns the files written. A general signal goes to a ``.npy`` beside the geometry, which
+    A colored copy has no texture image (its UVs are kept): the colors replace it. Returns
+    the files written. A general signal goes to a ``.npy`` beside the geometry, which
     shows its first channel through a colormap. Nothing is written when a file would replace
     one of ``protect`` (the command's inputs).
     """
@@ -124,6 +125,7 @@ def write_result(
         check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
     from ..boundary.convert import like_target
     from ..boundary.io import write_geometry
+    from ..boundary.texture import without_texture
     from ..render.panel import colormap
 
     if path.lower().endswith(".npy"):
@@ -133,9 +135,10 @@ def write_result(
     if kind == "xyz":
         out = like_target(like, vertices=values)
     elif kind == "colors" or (values.ndim == 2 and values.shape[1] == 3):
-        out = like_target(like, colors=np.clip(values, 0.0, 1.0))
+        out = without_texture(like_target(like, colors=np.clip(values, 0.0, 1.0)))
     else:
-        out = like_target(like, colors=colormap(values if values.ndim == 1 else values[:, 0]))
+        colors = colormap(values if values.ndim == 1 else values[:, 0])
+        out = without_texture(like_target(like, colors=colors))
     for npy in side_outputs(path, kind):
         _save_npy(npy, values)
         written.append(npy)

@@ -53,7 +53,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "target's own UV layout when the target has UVs and the output is .obj/.glb/.gltf, "
         "else its colors on the target's vertices",
     )
-    p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
+    p.add_argument(
+        "--texture", help="the source's texture image, for a bake or --signal texture (default: "
+        "the one its material names)"
+    )
     p.add_argument(
         "--via-basis",
         action="store_true",
@@ -105,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         args.signal is not None or not args.output.lower().endswith((".obj", ".glb", ".gltf"))
     ):
         raise UsageError(
-            "--uv-atlas bakes the source's texture into a new atlas: it needs an "
+            "--uv-atlas bakes the source's colors into a new atlas: it needs an "
             ".obj/.glb/.gltf output (-o) and no --signal"
         )
     inputs = _inputs(args)
@@ -114,6 +117,17 @@ def run(args: argparse.Namespace) -> int:
     )
     pair = read_pair(args)
     check_output_kind(args.output, pair.F2)
+    closest = _closest(args, pair)
+    if args.via_basis and not closest:
+        raise UsageError(
+            "--via-basis applies to a closest map (--map closest or its saved map): other maps "
+            "go through the OFP bases already"
+        )
+    if args.via_basis and args.uv_atlas:
+        raise UsageError(
+            "--via-basis sends the colors to the target's vertices and --uv-atlas bakes them "
+            "into a new atlas: give one of them"
+        )
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
         if args.uv_atlas and has_uvs(pair.target):
             logger.warning(
@@ -136,12 +150,21 @@ def run(args: argparse.Namespace) -> int:
     spec = args.signal or _default_signal(pair.source)
     textured_target = pair.F1 is not None and pair.F2 is not None and has_uvs(pair.target)
     if textured_target and args.signal in ("colors", "texture"):
+        own = "the source's texture" if has_uvs(pair.source) else "them"
         logger.warning(
             "%s has UVs: --signal %s puts the source's colors on its vertices (blurrier) and "
-            "the file written has no texture; leave out --signal to bake them into its UV "
+            "the file written has no texture; leave out --signal to bake %s into its UV "
             "layout (output .obj/.glb/.gltf)",
             args.target,
             args.signal,
+            own,
+        )
+    elif pair.F1 is None and pair.F2 is not None and has_uvs(pair.target):
+        logger.warning(
+            "%s is a point cloud: its colors go to the vertices of %s (a cloud has no surface "
+            "to bake from) and the file written has no texture",
+            args.source,
+            args.target,
         )
     elif textured_target and args.signal is None and spec in ("colors", "texture"):
         what = "texture goes" if spec == "texture" else "vertex colors go"
@@ -152,12 +175,6 @@ def run(args: argparse.Namespace) -> int:
             args.target,
             args.output,
             what,
-        )
-    closest = _closest(args, pair)
-    if args.via_basis and not closest:
-        raise UsageError(
-            "--via-basis applies to a closest map (--map closest or its saved map): other maps "
-            "go through the OFP bases already"
         )
     if closest and not args.via_basis:
         _refuse_basis_flags(
@@ -220,9 +237,14 @@ def _said_already(prefix: str) -> Iterator[None]:
 
 
 def _run_many(args: argparse.Namespace) -> int:
-    """One source onto many targets: colors, or the texture baked into each target's UVs."""
+    """One source onto many targets: colors, or the texture baked into each target's UVs.
+
+    A source colored per vertex is baked when ``--texture-size`` or ``--uv-atlas`` asks for it;
+    otherwise its colors go to the targets' vertices, in the targets' own formats (a target's
+    texture image is then not written, with a warning in its record).
+    """
     from ..boundary.io import read_geometry
-    from ..boundary.texture import mesh_texture, no_texture_message
+    from ..boundary.texture import has_uvs, mesh_texture, no_texture_message, surface_colors
 
     refuse_flags(args, PAIR_ONLY)
     if args.texture is not None and not os.path.isfile(args.texture):
@@ -236,11 +258,19 @@ def _run_many(args: argparse.Namespace) -> int:
     if args.signal is not None:
         why = f"--signal {args.signal} sends the colors to the targets' vertices"
     else:
+        source = read_geometry(args.source)
         try:  # a textured source: baked into the targets' own UV layouts, as for one target
-            mesh_texture(read_geometry(args.source), args.texture)
+            mesh_texture(source, args.texture)
             kind = "texture"
         except (TypeError, ValueError, FileNotFoundError) as exc:
             why = no_texture_message(args.source, exc)
+            asked = args.texture_size is not None or args.uv_atlas
+            if asked and not has_uvs(source) and args.texture is None:
+                try:  # vertex colors, baked when asked (else the targets keep their formats)
+                    surface_colors(source)
+                    kind = "texture"
+                except (TypeError, ValueError) as colors_exc:
+                    why = f"{args.source}: {colors_exc}"
     if kind != "texture" and args.texture_size is not None:
         raise UsageError(
             f"--texture-size applies to a bake, and nothing is baked here: {why}"
@@ -345,11 +375,15 @@ def _bake(args: argparse.Namespace, pair) -> int:
             "--via-basis sends colors through the OFP bases to the target's vertices; a bake "
             "reads the source through the map: add --signal colors, or drop --via-basis"
         )
+    instead = (
+        ""
+        if args.uv_atlas
+        else f", or add --signal colors{' --via-basis' if _closest(args, pair) else ''} to "
+        "transfer the colors to the target's vertices through the bases"
+    )
     _refuse_basis_flags(
         args,
-        "a bake reads the source's colors through the map, with no OFP basis; drop it, or add "
-        f"--signal colors{' --via-basis' if _closest(args, pair) else ''} to transfer the "
-        "colors to the target's vertices through the bases",
+        f"a bake reads the source's colors through the map, with no OFP basis; drop it{instead}",
     )
     _check_texture(args, pair.source)
     size = args.texture_size or TEXTURE_SIZE

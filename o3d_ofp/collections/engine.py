@@ -37,7 +37,7 @@ from ..boundary.convert import (
     vertex_colors,
 )
 from ..boundary.io import read_geometry, write_geometry
-from ..boundary.texture import mesh_texture, no_texture_message, texture_colors
+from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
 from ..core.orthogonalize import resolve_tol
 from ..core.texture import MAX_TEXTURE_SIZE
@@ -620,11 +620,11 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
     signal, texture = None, None
     if job.kind == "texture":
         try:
-            texture = mesh_texture(geometry, job.texture)
+            texture = surface_colors(geometry, job.texture)
         except (TypeError, ValueError, FileNotFoundError) as exc:
             own = path is not None and job.texture is None
             why = no_texture_message(path, exc) if own else f"{name}: {exc}"
-            raise ValueError(f"the source has no texture to bake: {why}") from exc
+            raise ValueError(f"the source has no texture or vertex colors to bake: {why}") from exc
     if job.kind in ("colors", "texture"):
         signal = _source_colors(
             geometry, name, job.signal, quiet=job.kind == "texture", texture=job.texture
@@ -701,14 +701,15 @@ def transfer_many(
     ----------
     source : str, os.PathLike or Open3D geometry
         The source shape (with vertex colors or a texture for ``kind="colors"``, a texture
-        for ``"texture"``, a triangle mesh for ``"detail"``). Its eigenbasis and OFP basis
-        are computed once, here, and shared with every task (``COUNTERS["source_bases"]``
-        counts it).
+        or, without UVs, vertex colors for ``"texture"``, a triangle mesh for ``"detail"``).
+        Its eigenbasis and OFP basis are computed once, here, and shared with every task
+        (``COUNTERS["source_bases"]`` counts it).
     targets : iterable of str, os.PathLike or Open3D geometries
         Target files, directories (their mesh files, sorted) and geometries.
     kind : {"colors", "texture", "detail"}, default "colors"
-        Vertex colors (:func:`o3d_ofp.transfer_colors`); the source's texture baked into
-        each target's own UV layout (:func:`o3d_ofp.transfer_texture`, written as OBJ + MTL +
+        Vertex colors (:func:`o3d_ofp.transfer_colors`; a target's texture image is then not
+        written, with a warning); the source's texture (or vertex colors) baked into each
+        target's own UV layout (:func:`o3d_ofp.transfer_texture`, written as OBJ + MTL +
         PNG; a target without UVs gets vertex colors); or detail
         (:func:`o3d_ofp.transfer_detail`).
     client : distributed.Client or str, optional

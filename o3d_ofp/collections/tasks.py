@@ -21,8 +21,8 @@ from ..boundary.api import transfer_detail
 from ..boundary.bake import has_uvs, transfer_texture
 from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
-from ..boundary.texture import MeshTexture
-from ..core._warnings import OFPWarning, collected_warnings
+from ..boundary.texture import MeshTexture, VertexColorSurface, without_texture
+from ..core._warnings import OFPWarning, collected_warnings, warn
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
@@ -62,8 +62,8 @@ class TransferJob:
     ----------
     kind : {"colors", "texture", "detail"}
         What is transferred: vertex colors (the source's, or its texture sampled at its
-        vertices), the source's texture baked into each target's own UV layout (targets
-        without UVs get vertex colors), or geometric detail.
+        vertices), the source's texture (or vertex colors) baked into each target's own UV
+        layout (targets without UVs get vertex colors), or geometric detail.
     map : {"estimate", "identity"}
         How each target's map is made: estimated (descriptors, ZoomOut), or the identity
         (targets with the source's vertices, e.g. registrations of one template).
@@ -158,8 +158,8 @@ class SharedSource:
         Source vertex colors (kinds "colors" and "texture").
     job : TransferJob
         The options.
-    texture : MeshTexture or None
-        The source's UVs and images (kind "texture").
+    texture : MeshTexture, VertexColorSurface or None
+        The source's UVs and images, or its vertex colors (kind "texture").
     coarse : CoarseShape or None
         The source's coarse copy and its eigenbasis, for a source on the dense path (its maps
         to mesh targets are estimated on coarse copies): reduced once, not per target.
@@ -172,7 +172,7 @@ class SharedSource:
     basis: OFPBasis
     signal: np.ndarray | None
     job: TransferJob
-    texture: MeshTexture | None = None
+    texture: MeshTexture | VertexColorSurface | None = None
     coarse: CoarseShape | None = None
 
 
@@ -440,9 +440,17 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         if spec.output is None and result is not None and values is None:
             raise ValueError("a baked texture needs an output folder (output_dir)")
         if spec.output is not None:
-            write_geometry(
-                spec.output, like_target(target, colors=values) if result is None else result
-            )
+            if result is None:
+                colored = like_target(target, colors=values)
+                result = without_texture(colored)
+                if result is not colored:
+                    warn(
+                        logger,
+                        f"{spec.name}: its texture image is not written: the colors replace "
+                        "it on its vertices (kind='texture' / --texture-size N bakes them into "
+                        "its UV layout)",
+                    )
+            write_geometry(spec.output, result)
             values = None
     except Exception as exc:  # a target's failure is its record, never the run's
         logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
