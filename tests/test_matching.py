@@ -288,3 +288,30 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
     corr = Correspondence(p2p_21=np.arange(len(V2)), n_source=len(V1))
     with pytest.raises(FileNotFoundError, match=r"the folder .*nodir does not exist"):
         corr.save(tmp_path / "nodir" / "map.npz")
+
+
+def test_geodesic_repair_re_estimates_a_map_wrong_on_a_region():
+    """A map right everywhere but on one region is re-estimated; a right map is kept."""
+    from o3d_ofp.core.correspondence import nearest_neighbors
+    from o3d_ofp.core.fmap import unit_area
+    from o3d_ofp.workflows.matching import REPAIR_SHARE, geodesic_repair
+
+    V, F = blob(4)
+    eig = ofp.eigenbasis(V, F, k=40)
+    u = unit_area(eig)
+    right = np.arange(len(V))
+    C, disagreement = geodesic_repair(right, u, u, k_fit=20, k_final=40)
+    assert C is None and disagreement == 0.0  # the geodesic refinement agrees: kept as it is
+    region = V[:, 0] > np.quantile(V[:, 0], 0.85)  # one end of the blob ...
+    mirrored = V[region] * [-1.0, 1.0, 1.0]
+    wrong = right.copy()
+    wrong[region] = nearest_neighbors(V, mirrored)  # ... sent to the other end
+    share = float(eig.mass @ region) / float(eig.mass.sum())
+    assert share > REPAIR_SHARE and _error(wrong, V) > 0.05
+    C, disagreement = geodesic_repair(wrong, u, u, k_fit=20, k_final=40)
+    # the disagreement is that region (measured: exactly its 0.127 of the area), and the map
+    # re-estimated from the geodesic one is the identity again (measured error 0)
+    assert disagreement == pytest.approx(share, abs=0.02)
+    assert _error(ofp.p2p_from_fmap(C, u, u), V) < 0.01
+    C, _ = geodesic_repair(wrong, u, u, k_fit=20, k_final=40, share=0.5)
+    assert C is None  # under the share given: kept
