@@ -84,6 +84,7 @@ __all__ = [
     "boundary_length",
     "fit_partial_fmap",
     "geodesic_distortion",
+    "geodesic_features",
     "geodesic_refine",
     "map_stretch",
     "membership",
@@ -285,6 +286,7 @@ def geodesic_refine(
     anchors: int = GEODESIC_ANCHORS,
     keep: float = GEODESIC_KEEP,
     iterations: int = 3,
+    queries: np.ndarray | None = None,
 ) -> np.ndarray:
     """Re-map every target vertex by its geodesic distances to the anchors the map keeps right.
 
@@ -316,11 +318,42 @@ def geodesic_refine(
     keep : float, default GEODESIC_KEEP
         Fraction of the anchors trusted, in (0, 1].
     iterations : int, default 3
+    queries : (q,) ndarray of int, optional
+        Re-map only these target vertices (default: all). The iterations re-map the anchors
+        alone, so the result for a vertex does not depend on which others are queried.
 
     Returns
     -------
-    (n2,) ndarray of int64
-        The refined ``p2p_21``.
+    (n2,) or (q,) ndarray of int64
+        The refined ``p2p_21`` (of the ``queries``, when given).
+    """
+    f1, f2 = geodesic_features(
+        p2p_21, vertices_1, faces_1, vertices_2, faces_2, anchors=anchors, keep=keep,
+        iterations=iterations,
+    )  # fmt: skip
+    return nearest_neighbors(f1.T, (f2 if queries is None else f2[:, queries]).T)
+
+
+def geodesic_features(
+    p2p_21: np.ndarray,
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+    *,
+    anchors: int = GEODESIC_ANCHORS,
+    keep: float = GEODESIC_KEEP,
+    iterations: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Compute the distance features :func:`geodesic_refine` matches (same parameters).
+
+    Returns
+    -------
+    f1 : (t, n1) ndarray
+        Distances of every source vertex to the trusted anchors' images.
+    f2 : (t, n2) ndarray
+        Distances of every target vertex to the trusted anchors; a target vertex ``i`` goes to
+        the source vertex whose column of ``f1`` is nearest to column ``i`` of ``f2``.
     """
     import scipy.sparse.csgraph as csgraph
 
@@ -336,9 +369,15 @@ def geodesic_refine(
     graph_1 = edge_graph(V1, faces_1)
     # Unreachable pieces (islands): a distance far beyond the shape's, the same on both sides.
     far = 10.0 * float(np.max(d2[np.isfinite(d2)], initial=1.0))
-    for _ in range(iterations):
-        d1 = csgraph.dijkstra(graph_1, directed=False, indices=p2p[s2])
-        pair_1, pair_2 = d1[:, p2p[s2]], d2[:, s2]
+    images = p2p[s2]  # the map enters through the anchors' images only
+    rows: dict[int, np.ndarray] = {}  # distances from a source vertex: computed once
+    for i in range(iterations):
+        new = np.unique(images[[int(v) not in rows for v in images]])
+        if new.size:
+            found = csgraph.dijkstra(graph_1, directed=False, indices=new)
+            rows.update((int(v), row) for v, row in zip(new, found, strict=True))
+        d1 = np.stack([rows[int(v)] for v in images])
+        pair_1, pair_2 = d1[:, images], d2[:, s2]
         ok = np.isfinite(pair_1) & np.isfinite(pair_2)
         change = np.where(ok, np.abs(pair_1 - pair_2), 0.0).sum(axis=1)
         mean = np.where(ok, pair_2, 0.0).sum(axis=1)
@@ -346,8 +385,9 @@ def geodesic_refine(
         trusted = np.argsort(score, kind="stable")[: max(2, math.ceil(keep * s2.size))]
         f1 = np.where(np.isfinite(d1[trusted]), d1[trusted], far)
         f2 = np.where(np.isfinite(d2[trusted]), d2[trusted], far)
-        p2p = nearest_neighbors(f1.T, f2.T)
-    return p2p
+        if i < iterations - 1:  # the next iteration needs the anchors' new images only
+            images = nearest_neighbors(f1.T, f2[:, s2].T)
+    return f1, f2
 
 
 #: Weight of the curvature descriptors against the wave kernel's (each column has unit norm on
