@@ -147,6 +147,13 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a source mesh with a texture or vertex colors, a mesh target and "
             "an .obj/.glb/.gltf output"
         )
+    if closest and not args.via_basis:
+        _refuse_basis_flags(
+            args,
+            "the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
+            "add --via-basis to transfer through the bases",
+            files=True,
+        )
     spec = args.signal or _default_signal(pair.source)
     textured_target = pair.F1 is not None and pair.F2 is not None and has_uvs(pair.target)
     if textured_target and args.signal in ("colors", "texture"):
@@ -175,13 +182,6 @@ def run(args: argparse.Namespace) -> int:
             args.target,
             args.output,
             what,
-        )
-    if closest and not args.via_basis:
-        _refuse_basis_flags(
-            args,
-            "the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
-            "add --via-basis to transfer through the bases",
-            files=True,
         )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
     pair = map_first(args, pair)

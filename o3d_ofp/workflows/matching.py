@@ -186,23 +186,24 @@ REPAIR_JUMP = 0.15
 #: When they disagree on more than this share of the target's area, the map is replaced by the
 #: ZoomOut of the geodesic one (see :func:`geodesic_repair`). Measured on the 32 ordered FAUST
 #: and remeshed-FAUST pairs (``python scripts/eval_matching.py --all-pairs --repair``): the 25
-#: right maps (errors up to 0.028) disagree on at most 0.020, and re-estimating them would
+#: right maps (errors up to 0.028) disagree on at most 0.018, and re-estimating them would
 #: change their errors by -0.009 to +0.012; the 7 maps wrong on a region (errors 0.039-0.187,
-#: all passed as ok) disagree on 0.054-0.188, and their re-estimates have errors 0.014-0.025.
+#: all passed as ok) disagree on 0.047-0.184, and their re-estimates have errors 0.014-0.025.
 #: Low in the gap: a needless re-estimate costs little, a missed one leaves a wrong map.
 REPAIR_SHARE = 0.03
 #: Above this disagreement the map is wrong on most of the target, or the shapes are of other
 #: kinds: it is flagged, not re-estimated (the anchors it maps right are too few to trust the
-#: geodesic map). Measured: maps wrong on a region 0.054-0.188 (above); maps between shapes of
+#: geodesic map). Measured: maps wrong on a region 0.047-0.184 (above); maps between shapes of
 #: other kinds (``python scripts/eval_matching.py --repair --unrelated``) 0.50-0.84,
 #: among them a dog onto a centaur (0.552) that passed every other check.
 REPAIR_MAX_SHARE = 0.35
 #: Target samples (farthest points) the disagreement is measured on.
 REPAIR_SAMPLES = 2000
-#: The check runs when n1 · n2 is at most this (its nearest-neighbour search is quadratic):
-#: the dense path's coarse copies (20 000 vertices) are under it. Its geodesic refinement took
-#: 1.5 s at 6.9k vertices and 4.2 s at 27.5k (FAUST, subdivided once), against matches of about
-#: 2 s and 5 s.
+#: The check runs when n1 · n2 is at most this: the dense path's coarse copies (20 000
+#: vertices) are under it. Its cost is mostly its Dijkstra runs (100 on the target, 100-300 on
+#: the source): measured 0.3 s at 6.9k vertices and 1.8 s at 27.5k (FAUST 093, subdivided once;
+#: scipy's Dijkstra holds the GIL, so they run one after the other); a re-estimate adds a
+#: nearest-neighbour search over every target vertex, quadratic in the sizes.
 REPAIR_MAX_PAIRS = 1e9
 
 
