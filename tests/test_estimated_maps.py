@@ -107,7 +107,7 @@ def test_landmarks_resolve_an_ambiguous_pair():
 def test_a_map_between_shapes_of_other_kinds_disagreeing_with_its_geodesic_one_is_flagged():
     # A dog onto a centaur: the spectral map passes the quality report's other checks, and
     # disagrees with its geodesic refinement on 0.55 of the target's area (maps wrong on a
-    # region: at most 0.18; shapes of other kinds 0.50-0.84: scripts/eval_matching.py
+    # region: at most 0.18; shapes of other kinds 0.49-0.83: scripts/eval_matching.py
     # --repair --unrelated). Flagged, not re-estimated.
     from o3d_ofp.workflows.matching import REPAIR_MAX_SHARE
 

@@ -186,19 +186,25 @@ REPAIR_JUMP = 0.15
 #: When they disagree on more than this share of the target's area, the map is replaced by the
 #: ZoomOut of the geodesic one (see :func:`geodesic_repair`). Measured on the 32 ordered FAUST
 #: and remeshed-FAUST pairs (``python scripts/eval_matching.py --all-pairs --repair``): the 25
-#: right maps (errors up to 0.028) disagree on at most 0.018, and re-estimating them would
+#: right maps (errors up to 0.028) disagree on at most 0.017, and re-estimating them would
 #: change their errors by -0.009 to +0.012; the 7 maps wrong on a region (errors 0.039-0.187,
-#: all passed as ok) disagree on 0.047-0.184, and their re-estimates have errors 0.014-0.025.
+#: all passed as ok) disagree on 0.048-0.184, and their re-estimates have errors 0.014-0.025.
 #: Low in the gap: a needless re-estimate costs little, a missed one leaves a wrong map.
 REPAIR_SHARE = 0.03
 #: Above this disagreement the map is wrong on most of the target, or the shapes are of other
 #: kinds: it is flagged, not re-estimated (the anchors it maps right are too few to trust the
-#: geodesic map). Measured: maps wrong on a region 0.047-0.184 (above); maps between shapes of
-#: other kinds (``python scripts/eval_matching.py --repair --unrelated``) 0.50-0.84,
-#: among them a dog onto a centaur (0.552) that passed every other check.
+#: geodesic map). Measured: maps wrong on a region 0.048-0.184 (above); maps between shapes of
+#: other kinds (``python scripts/eval_matching.py --repair --unrelated``) 0.49-0.83,
+#: among them a dog onto a centaur (0.545) that passed every other check.
 REPAIR_MAX_SHARE = 0.35
 #: Target samples (farthest points) the disagreement is measured on.
 REPAIR_SAMPLES = 2000
+#: Anchors and iterations of the check's geodesic refinement (fewer than the partial match's
+#: 100 and 3: the check needs where the map jumps, not the refinement's last precision, and its
+#: Dijkstra runs are its cost; the same 32 pairs fall on the same sides). A re-estimate starts
+#: from the full refinement (with these, remeshed 007 -> 000 came out 0.042 instead of 0.025).
+REPAIR_ANCHORS = 50
+REPAIR_ITERATIONS = 2
 #: The check runs when n1 · n2 is at most this: the dense path's coarse copies (20 000
 #: vertices) are under it. Its cost is mostly its Dijkstra runs (100 on the target, 100-300 on
 #: the source): measured 0.3 s at 6.9k vertices and 1.8 s at 27.5k (FAUST 093, subdivided once;
@@ -224,10 +230,12 @@ def geodesic_repair(
     The geodesic refinement re-maps every target vertex by its distances to the anchors the
     map keeps best: a region sent to the wrong place (a limb onto the other, a piece turned
     over) is pulled back by the anchors mapped right, at the precision of the distances along
-    the edges (0.02-0.05 of sqrt(area)). Where the map is right everywhere the two agree; where
-    they disagree on more than ``share`` of the target's area (over :data:`REPAIR_JUMP` apart),
-    a functional map is fitted to the geodesic map on ``k_fit`` eigenfunctions and refined by
-    ZoomOut to ``k_final``, which restores the spectral precision.
+    the edges (0.02-0.05 of sqrt(area)). Where the map is right everywhere the two agree (the
+    check: :data:`REPAIR_ANCHORS` anchors, :data:`REPAIR_ITERATIONS` iterations); where they
+    disagree on more than ``share`` of the target's area (over :data:`REPAIR_JUMP` apart), a
+    functional map is fitted to the full geodesic refinement (:func:`geodesic_refine`'s
+    defaults) on ``k_fit`` eigenfunctions and refined by ZoomOut to ``k_final``, which restores
+    the spectral precision.
 
     Parameters
     ----------
@@ -254,8 +262,9 @@ def geodesic_repair(
         (the share of the samples ``checked``).
     """
     f1, f2 = geodesic_features(
-        p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
-    )
+        p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces,
+        anchors=REPAIR_ANCHORS, iterations=REPAIR_ITERATIONS,
+    )  # fmt: skip
     # The disagreement is measured on farthest-point samples of the target (about uniform in
     # area; 2000 samples: a share of 0.05 within about 0.005), the whole map only re-estimated.
     if checked is None:
@@ -265,6 +274,7 @@ def geodesic_repair(
     disagreement = float(np.mean(apart > REPAIR_JUMP))
     if disagreement <= share:
         return None, disagreement
+    f1, f2 = geodesic_features(p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces)
     geodesic = nearest_neighbors(f1.T, f2.T)
     C = fmap_from_p2p(geodesic, eig_1, eig_2, k1=k_fit, k2=k_fit)
     C = zoomout_refine(C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples)
