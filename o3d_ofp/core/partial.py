@@ -302,8 +302,11 @@ def geodesic_refine(
     :func:`geodesic_distortion`) and the isometry allow: measured 0.022-0.039 (map error over
     sqrt(source area)) from the true maps of the cuts of ``scripts/eval_partial.py``, so a
     spectral refinement follows it in :func:`o3d_ofp.workflows.partial.match_partial_eigenbases`.
-    Cost per iteration: ``anchors`` Dijkstra runs on the source and an ``anchors``-dimensional
-    nearest-neighbour search; memory ``anchors × n1`` floats (80 MB for a 100k-vertex source).
+    Cost: ``anchors`` Dijkstra runs on the target, and on the source at most ``anchors`` per
+    iteration (the distances from a source vertex are computed once); the iterations re-map
+    the anchors only, and one ``anchors``-dimensional nearest-neighbour search re-maps every
+    target vertex (or the ``queries``) at the end; memory ``anchors × n1`` floats per iteration
+    (80 MB for a 100k-vertex source).
 
     Parameters
     ----------
