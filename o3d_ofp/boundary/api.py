@@ -60,7 +60,7 @@ from .convert import (
     point_normals,
     vertex_colors,
 )
-from .texture import mesh_texture
+from .texture import has_texture_image, has_uvs
 
 __all__ = [
     "as_arrays",
@@ -555,13 +555,9 @@ def transfer_colors(
 
 def _has_texture(geometry: Any) -> bool:
     """Tell whether an Open3D geometry is a mesh with UVs and a loaded texture image."""
-    if not is_open3d_geometry(geometry):
-        return False
-    try:
-        mesh_texture(geometry)
-    except (TypeError, ValueError):
-        return False
-    return True
+    return (
+        is_open3d_geometry(geometry) and has_uvs(geometry) and has_texture_image(geometry)
+    )
 
 
 def _large_enough(

@@ -38,6 +38,7 @@ __all__ = [
     "VertexColorSurface",
     "as_uint8",
     "corner_uvs",
+    "has_texture_image",
     "has_uvs",
     "legacy_texture_image",
     "mesh_texture",
@@ -306,8 +307,7 @@ def without_texture(geometry: Any) -> Any:
     """
     o3d = require_open3d()
     kind = geometry_kind(geometry)
-    # (has_textures() is False while the OBJ reader's empty default image comes first)
-    if kind == "legacy_mesh" and any(not image.is_empty() for image in geometry.textures):
+    if kind == "legacy_mesh" and has_texture_image(geometry):
         out = type(geometry)(geometry)
         out.textures = []
         out.triangle_material_ids = o3d.utility.IntVector()
@@ -318,6 +318,20 @@ def without_texture(geometry: Any) -> Any:
             out.material = o3d.visualization.Material("defaultLit")
             return out
     return geometry
+
+
+def has_texture_image(geometry: Any) -> bool:
+    """Tell whether an Open3D mesh holds a texture image with pixels (legacy or albedo map).
+
+    Reads no pixels. A legacy mesh's ``has_textures()`` is False while the OBJ reader's empty
+    default image comes first, so the images are looked at one by one.
+    """
+    kind = geometry_kind(geometry)
+    if kind == "legacy_mesh":
+        return any(not _is_empty(image) for image in geometry.textures)
+    if kind == "tensor_mesh":
+        return bool(geometry.has_valid_material() and "albedo" in geometry.material.texture_maps)
+    return False
 
 
 def has_uvs(mesh: Any) -> bool:
