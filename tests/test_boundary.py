@@ -518,6 +518,33 @@ def test_open3d_level_findings_of_a_python_trial():
         ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, bases=(None,))
     with pytest.raises(TypeError, match="keep_volume must be True or False"):
         ofp.filter_geometry(mesh, smooth=0.01, keep_volume="no")
+
+
+def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
+    """A trial's transfer_colors(..., correspondence=closest, k1=20, order=3) was accepted and
+    its options ignored: they are refused by name, defaults and via_basis=True are not."""
+    import o3d_ofp as ofp
+
+    V, F = icosphere(2)
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F)
+    )
+    colors = np.random.default_rng(1).random((len(V), 3))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
+    target = o3d.geometry.TriangleMesh(mesh)
+    closest = ofp.match(mesh, target, method="closest")
+    with pytest.raises(ValueError, match=r"k1=20, order=3 do not apply to the exact pull-back "
+                       r".*closest-point map.*drop them, or pass via_basis=True"):  # fmt: skip
+        ofp.transfer_colors(mesh, target, correspondence=closest, k1=20, order=3)
+    with pytest.raises(ValueError, match=r"preset='ours\*' does not apply .*via_basis=False"):
+        ofp.transfer_colors(mesh, target, p2p_21=np.arange(len(V)), via_basis=False,
+                            preset="ours*")  # fmt: skip
+    # The defaults, given or not (numpy integers too), are the exact pull-back's.
+    for options in ({}, {"k1": 29, "order": np.int64(2), "preset": "ours"}):
+        out = ofp.transfer_colors(mesh, target, correspondence=closest, **options)
+        np.testing.assert_allclose(np.asarray(out.vertex_colors), colors, atol=1e-12)
+    out = ofp.transfer_colors(mesh, target, correspondence=closest, k1=20, via_basis=True)
+    assert np.abs(np.asarray(out.vertex_colors) - colors).mean() > 1e-3  # through the bases
     smoothed = ofp.filter_geometry((V, F), smooth=0.01)  # the README's tuple input
     assert np.asarray(smoothed.vertices).shape == V.shape
     from o3d_ofp.boundary.bake import with_uv_atlas

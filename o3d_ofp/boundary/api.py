@@ -512,6 +512,18 @@ def transfer_colors(
             "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
             "o3d_ofp.transfer_function)"
         )
+    closest = check_correspondence(correspondence) is not None
+    closest = closest and correspondence.method == "closest"
+    exact = via_basis is False or (via_basis is None and closest)
+    if exact:
+        _refuse_basis_options(
+            "transfer_colors",
+            "the exact pull-back (via_basis=False)" if via_basis is False
+            else "the exact pull-back (the default with a closest-point map)",
+            k1=k1, k2=k2, order=order, preset=preset, tol=tol, fmap_12=fmap_12,
+            landmarks=landmarks, method=method, eigenbases=eigenbases, bases=bases,
+            components=components,
+        )  # fmt: skip
     if _has_texture(target):
         warn(
             logger,
@@ -520,9 +532,7 @@ def transfer_colors(
             "writers) may show either; to bake the colors into its UV layout use "
             "o3d_ofp.transfer_texture(source, target, correspondence=...)",
         )
-    exact = check_correspondence(correspondence) is not None
-    exact = exact and correspondence.method == "closest"
-    if via_basis is False or (via_basis is None and exact):
+    if exact:
         if correspondence is None:
             if p2p_21 is None:
                 raise ValueError("via_basis=False needs a correspondence or p2p_21")
@@ -551,6 +561,32 @@ def transfer_colors(
         components=components,
     )
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
+
+
+def _refuse_basis_options(function: str, transfer: str, **given: Any) -> None:
+    """Refuse the options of ``function`` that a transfer without an OFP basis would ignore.
+
+    ``given`` maps keywords to the values passed; those that differ from ``function``'s
+    defaults are named in a ValueError (a trial's ``k1=20`` with a closest map was accepted and
+    ignored; the command line refuses the same flags).
+    """
+    import inspect
+
+    defaults = inspect.signature(globals()[function]).parameters
+    def default(name: str, value: Any) -> bool:
+        by_default = defaults[name].default
+        if by_default is None:
+            return value is None
+        return bool(np.isscalar(value) and value == by_default)
+
+    named = [f"{name}={value!r}" for name, value in given.items() if not default(name, value)]
+    if named:
+        raise ValueError(
+            f"{function}: {', '.join(named)} {'does' if len(named) == 1 else 'do'} not apply "
+            f"to {transfer}, which pulls the colors back through the map with no OFP basis; "
+            f"drop {'it' if len(named) == 1 else 'them'}, or pass via_basis=True to transfer "
+            "through the OFP bases"
+        )
 
 
 def _has_texture(geometry: Any) -> bool:
