@@ -383,6 +383,23 @@ def test_quiet_prints_nothing_but_writes(files, tmp_path, capsys):
     assert "eigenbasis" in capsys.readouterr().err
 
 
+def test_default_log_shows_stages_not_solver_details_and_the_quality_once(files, tmp_path, capsys):
+    """A trial's default log showed every solver line and the quality line twice (log and
+    report); -vv shows the details and the library's own quality record."""
+    args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]
+    assert main([*args, "-o", str(tmp_path / "a.ply")]) == 0
+    captured = capsys.readouterr()
+    both = captured.out + captured.err
+    assert both.count("map quality ok") == 1 and "map quality ok" in captured.out
+    assert "map estimation (descriptor fit, ZoomOut, point map): done in" in captured.err
+    for detail in ("estimate_fmap", "alignment residual", "λ_k", "candidates"):
+        assert detail not in captured.err, detail
+    assert main(["-vv", *args, "-o", str(tmp_path / "b.ply")]) == 0
+    err = capsys.readouterr().err
+    assert "estimate_fmap" in err and "alignment residual" in err
+    assert "o3d-ofp: match: map quality ok" in err
+
+
 def test_save_map_then_reuse_it_and_strict(files, capsys, tmp_path):
     out, saved = tmp_path / "t.ply", tmp_path / "map.npz"
     args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]

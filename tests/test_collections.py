@@ -682,7 +682,7 @@ def test_bases_larger_than_the_estimation_are_kept_or_refused(shapes, tmp_path, 
     honours them), and took k1 = 7000 on a 6890-vertex source without a word.
     """
     paths, _, _, _ = shapes
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.basis"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.basis"):
         results = transfer_many(
             paths["src"], [paths["t0"]], workers=0, output_dir=tmp_path, k1=110, k2=120
         )

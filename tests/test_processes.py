@@ -183,7 +183,7 @@ def test_an_error_here_ends_the_children_at_once():
 @needs_two
 def test_short_memory_runs_the_jobs_here(monkeypatch, caplog):
     monkeypatch.setattr(_processes, "available_memory", lambda: 1_000_000)
-    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp"):
         pids = side_by_side([os.getpid, os.getpid], what="pids", memory_each=900_000)
     assert pids == [os.getpid()] * 2
     assert "1 at once" in caplog.text
@@ -195,7 +195,7 @@ def test_eigenbases_side_by_side_equal_those_one_after_the_other(monkeypatch, ca
     assert V.shape[0] >= eigenbases_module.SIDE_BY_SIDE_VERTICES
     V2 = V * 2.0 + 1.0
     shapes = [(V, F, 12), (V2, F, 9)]
-    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp"):
         together = eigenbases_module.eigenbases(shapes)
     assert "eigenbases: 2 at once (1 in forked processes)" in caplog.text
     monkeypatch.setenv(ENVIRONMENT, "1")

@@ -185,7 +185,7 @@ def test_cholmod_and_superlu_agree_and_auto_falls_back(monkeypatch, caplog):
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_cholespy)
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         c = ofp.eigenbasis(V, F, k=20)
     assert "factorizing with SuperLU" in caplog.text
     np.testing.assert_allclose(c.evals, b.evals, rtol=1e-9, atol=1e-12)
@@ -278,7 +278,7 @@ def test_a_large_share_of_the_spectrum_is_solved_densely(caplog):
     where both apply (measured: the first 600 eigenvalues equal to 1.4e-15 relative).
     """
     V, F = icosphere(4)  # 2562 vertices
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         big = ofp.eigenbasis(V, F, k=700)
     assert "a large share: dense LAPACK" in caplog.text
     lanczos = ofp.eigenbasis(V, F, k=100)
@@ -334,7 +334,7 @@ def test_block_lanczos_is_the_first_attempt_for_many_pairs_on_large_shapes(caplo
     from o3d_ofp.core import _lanczos
 
     assert sphere_mesh[0].shape[0] >= _lanczos.MIN_VERTICES
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         ofp.eigenbasis(*sphere_mesh, k=_lanczos.MIN_PAIRS - 1)
         ofp.eigenbasis(*sphere_mesh, k=_lanczos.MIN_PAIRS - 2)
         ofp.eigenbasis(*blob(4), k=_lanczos.MIN_PAIRS + 10)  # 2562 vertices
@@ -353,12 +353,12 @@ def test_block_lanczos_gives_arpacks_eigenpairs(monkeypatch, caplog, blob_mesh):
 
     _block_on_small_shapes(monkeypatch)
     k = _lanczos.MIN_PAIRS + 10
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         block = ofp.eigenbasis(*blob_mesh, k=k)
     assert "via block Lanczos" in caplog.text
     caplog.clear()
     _arpack_only(monkeypatch)
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         arpack = ofp.eigenbasis(*blob_mesh, k=k)
     assert "via shift-invert Lanczos" in caplog.text
     # Both converge to ~1e-10 residuals; eigenvalues then agree to ~1e-14 relative (measured
@@ -381,7 +381,7 @@ def test_block_lanczos_finds_every_copy_of_the_spheres_repeated_eigenvalues(monk
     """
     _block_on_small_shapes(monkeypatch)
     V, F = icosphere(4)  # 2562 vertices: sparse path
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         eig = ofp.eigenbasis(V, F, k=99)
     assert "via block Lanczos" in caplog.text
     dense = spectrum._dense_eigs(*ofp.laplacian(V, F), 99)[0]
@@ -400,7 +400,7 @@ def test_block_lanczos_hands_over_to_arpack_when_its_space_is_full(monkeypatch, 
     k = _lanczos.MIN_PAIRS + 10
     ref = ofp.eigenbasis(*blob_mesh, k=k)
     monkeypatch.setattr(_lanczos, "krylov_dim", lambda n, count: count + 2 * _lanczos.BLOCK)
-    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.core.spectrum"):
         eig = ofp.eigenbasis(*blob_mesh, k=k)
     assert "ARPACK takes over" in caplog.text and "converged in" in caplog.text
     assert "via shift-invert Lanczos" in caplog.text

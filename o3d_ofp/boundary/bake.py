@@ -462,7 +462,7 @@ def transfer_texture(
     points, _, _ = _mapped_points(src.vertices, src.faces, V2, F2, correspondence, p2p_21)
 
     texels, tri2, bary2, inside = _rasterize(target_uv, size, band=math.sqrt(2.0) + 1e-6)
-    logger.info(
+    logger.debug(
         "texture transfer: %d texels inside %d target triangles, %d at their edges",
         int(np.count_nonzero(inside)),
         F2.shape[0],
@@ -580,7 +580,7 @@ def texture_pullback(
     )
     swap = np.isfinite(extended).all(axis=2) & (far | ~same_material)
     uv = np.where(swap[:, :, None], extended, own)
-    logger.info(
+    logger.debug(
         "texture pull-back: %d of %d corners moved into the chart of their triangle's centre",
         int(np.count_nonzero(swap)),
         swap.size,

@@ -36,6 +36,13 @@ class _FlagsFormatter(logging.Formatter):
         return in_flags(super().format(record))
 
 
+class _NoQualityRecords(logging.Filter):
+    """Leave out the library's log records of a map's quality report (the command prints it)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not getattr(record, "quality_report", False)
+
+
 class _Parser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line (and a pointer to --help)."""
 
@@ -79,10 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 @contextlib.contextmanager
 def _logging_to_stderr(level: int) -> Iterator[None]:
-    """Send the package's log records to the current stderr for the duration of a command."""
+    """Send the package's log records to the current stderr for the duration of a command.
+
+    Below DEBUG, the records of a map's quality report are left out: the commands print the
+    report (:data:`o3d_ofp.workflows.matching.QUALITY_RECORD`).
+    """
     root = logging.getLogger("o3d_ofp")
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(_FlagsFormatter("o3d-ofp: %(message)s"))
+    if level > logging.DEBUG:
+        handler.addFilter(_NoQualityRecords())
     saved = (root.level, root.propagate)
     root.addHandler(handler)
     root.setLevel(level)

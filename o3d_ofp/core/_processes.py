@@ -263,7 +263,7 @@ def side_by_side(
         if free is not None and free < at_once * memory_each:
             fits = max(1, int(free // max(memory_each, 1.0)))
             if fits < at_once:
-                logger.info(
+                logger.debug(
                     "%s: %s available, about %s each: %d at once",
                     what,
                     format_bytes(free),
@@ -273,7 +273,7 @@ def side_by_side(
                 at_once = fits
     if at_once <= 1:
         return [job() for job in jobs]
-    logger.info("%s: %d at once (%d in forked processes)", what, at_once, at_once - 1)
+    logger.debug("%s: %d at once (%d in forked processes)", what, at_once, at_once - 1)
     ctx = multiprocessing.get_context("fork")
     children: dict[int, tuple[Any, _Reader]] = {}
     results: dict[int, T] = {}

@@ -382,7 +382,7 @@ def ofp_basis(
     if np.dtype(dtype) == np.float32:
         gs = gs._replace(Q=gs.Q.astype(np.float32))
     name = next((p for p, t in PRESETS.items() if t == tol), f"tol={tol:g}")
-    logger.info(
+    logger.debug(
         "ofp_basis (%s): k=%d order=%d kept %d of %d candidates",
         name,
         k,

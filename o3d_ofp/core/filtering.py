@@ -292,7 +292,7 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     t = smooth * smooth * eig.area
     rhs = mu[:, None] * X
     out = np.zeros_like(X)
-    logger.info(
+    logger.debug(
         "low-pass (smooth %.3g): two complex sparse factorizations of %d vertices",
         smooth,
         eig.n_vertices,

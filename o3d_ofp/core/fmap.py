@@ -409,7 +409,7 @@ class _FitTerms:
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
         if solver == "direct":
             C = _minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights)
-            logger.info(
+            logger.debug(
                 "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
                 b,
                 a,
@@ -430,7 +430,7 @@ class _FitTerms:
             method="L-BFGS-B",
             options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
         )
-        logger.info(
+        logger.debug(
             "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
             res.message,
             res.nit,

@@ -529,7 +529,7 @@ def _local_search(
             cols,
             out,
         )
-    logger.info(
+    logger.debug(
         "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), coarse %.2fs (%.0f cells per "
         "query), "
         "%.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
@@ -709,7 +709,7 @@ def extend_p2p(
     t_interp = time.perf_counter() - t0
     with blas_threads(1):
         out = _local_search(phi, np.eye(rows), psi, math.sqrt(a2), V1, V2, min(n_samples, n1), 0)
-    logger.info("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
+    logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
     return out
 
 

@@ -919,7 +919,7 @@ def eigenbasis(
             factorization=factorization,
             vertices=shape.vertices,
         )
-    logger.info(
+    logger.debug(
         "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
         n,
         k,

@@ -43,6 +43,7 @@ __all__ = [
     "ESTIMATION_K",
     "FIT_K",
     "GIVEN_MAP_COLLAPSE",
+    "QUALITY_RECORD",
     "Correspondence",
     "MapQuality",
     "alignment_residual",
@@ -58,6 +59,10 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+#: ``extra=`` of the log records that give a map's quality report (its summary and notes): a
+#: front end that prints the report itself (the command line) leaves these records out.
+QUALITY_RECORD = {"quality_report": True}
 
 #: Non-constant eigenfunctions an estimated map is refined to by ZoomOut (pyFM's standard
 #: pipeline refines 30 -> 100 with the constant).
@@ -1157,7 +1162,7 @@ def _match_surfaces(
     # embeddings align best is kept.
     wide = min(WIDE_FIT_K, final)
     sizes = [k_fit, wide] if wide > k_fit else [k_fit]
-    logger.info("match: descriptor fits (sizes %s, commutativity weights %s)", sizes, DCOMM_WEIGHTS)
+    logger.debug("match: descriptor fits (sizes %s, commutativity weights %s)", sizes, DCOMM_WEIGHTS)
     report("descriptor fit", 0.0)
     # The farthest-point samples of both shapes, drawn once for every ZoomOut below and the
     # comparison of the starts (they depend on the shapes only), while the fits run: the
@@ -1187,12 +1192,12 @@ def _match_surfaces(
 
     def refine(i: int, k: int, C: np.ndarray) -> tuple[np.ndarray, float]:
         if select > k:
-            logger.info("match: ZoomOut %d -> %d (start %d)", k, select, i + 1)
+            logger.debug("match: ZoomOut %d -> %d (start %d)", k, select, i + 1)
             C = zoomout_refine(
                 C, u1, u2, k_final=select, subsample=zoomout_subsample, samples=zoom_samples
             )
         residual = alignment_residual(C, u1, u2, sample_indices=samples)
-        logger.info("match: start %d alignment residual %.4g", i + 1, residual)
+        logger.debug("match: start %d alignment residual %.4g", i + 1, residual)
         return C, residual
 
     # The starts are independent and their ZoomOut runs its BLAS on one thread: two at a time,
@@ -1210,12 +1215,12 @@ def _match_surfaces(
     assert best is not None
     _, C, k_fit, w_dcomm = best
     if final > select:  # only the best start goes on
-        logger.info("match: ZoomOut %d -> %d", select, final)
+        logger.debug("match: ZoomOut %d -> %d", select, final)
         report("ZoomOut", 0.6)
         C = zoomout_refine(
             C, u1, u2, k_final=final, subsample=zoomout_subsample, samples=zoom_samples
         )
-    logger.info("match: point map at full resolution (%d target vertices)", eig_2.n_vertices)
+    logger.debug("match: point map at full resolution (%d target vertices)", eig_2.n_vertices)
     report("point map", 0.7)
 
     def point_map(C: np.ndarray) -> np.ndarray:
@@ -1243,7 +1248,7 @@ def _match_surfaces(
                 samples=zoom_samples, share=REPAIR_SHARE, checked=samples[1],
             )  # fmt: skip
             redo = f" (> {REPAIR_SHARE:g}): re-estimated from the geodesic map"
-            logger.info(
+            logger.debug(
                 "match: the map and its geodesic refinement disagree on %.3f of the target's "
                 "area%s",
                 disagreement,
@@ -1276,11 +1281,11 @@ def _match_surfaces(
                 eig_1.n_vertices,
                 eig_2.n_vertices,
             )
-    logger.info("match: %s", quality.summary())
+    logger.info("match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect:
         warn(logger, quality.suspect_message("the estimated map"))
     for note in quality.notes:
-        logger.info("match: %s", note)
+        logger.info("match: %s", note, extra=QUALITY_RECORD)
     report("done", 1.0)
     options = {
         "landmarks": None if landmarks is None else np.asarray(landmarks).tolist(),

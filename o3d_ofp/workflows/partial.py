@@ -44,6 +44,7 @@ from .matching import (
     MAX_ORTHOGONALITY,
     MAX_REVERSED,
     PARTIAL_MAX_AREA_RATIO,
+    QUALITY_RECORD,
     Correspondence,
     MapQuality,
     check_landmarks,
@@ -167,7 +168,7 @@ def _keep_geodesic_at_jumps(
     ``vertices_1`` are the source's, scaled to unit area.
     """
     jump = np.linalg.norm(vertices_1[spectral] - vertices_1[geodesic], axis=1) > MAX_JUMP
-    logger.info("partial match: %.1f %% of the spectral refinement jumped", 100 * jump.mean())
+    logger.debug("partial match: %.1f %% of the spectral refinement jumped", 100 * jump.mean())
     return np.where(jump, geodesic, spectral)
 
 
@@ -485,7 +486,7 @@ def _match_partial_surfaces(
     k2_final = k2_fit
     while k2_final < eig_2.k and slant(u1.evals, u2.evals, k2_final + 1) < k1_max:
         k2_final += 1
-    logger.info(
+    logger.debug(
         "partial match: area ratio %.3g, fit %d target eigenfunctions, ZoomOut to %d (source %d)",
         ratio,
         k2_fit,
@@ -523,7 +524,7 @@ def _match_partial_surfaces(
         p2p = partial_p2p(C, u1, u2)
         turned = map_quality(p2p, eig_1, eig_2, None, partial=True).reversed_fraction
         distortion = geodesic_distortion(p2p, u1.vertices, u1.faces, u2.vertices, u2.faces)
-        logger.info(
+        logger.debug(
             "partial match: start %d geodesic distortion %.3f, reversed triangles %.3f",
             i + 1,
             distortion,
@@ -565,7 +566,7 @@ def _match_partial_surfaces(
     overlap = float(u1.mass @ (v > COVERED_LEVEL))  # the source has unit area here
     report("quality", 0.95)
     quality = partial_quality(p2p, eig_1, eig_2, C, overlap=overlap, refinement_turned=rejected)
-    logger.info("partial match: %s", quality.summary())
+    logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect and warn_suspect:
         warn(logger, quality.suspect_message("the partial map"))
     report("done", 1.0)
