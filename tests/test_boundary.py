@@ -521,8 +521,11 @@ def test_open3d_level_findings_of_a_python_trial():
 
 
 def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
-    """A trial's transfer_colors(..., correspondence=closest, k1=20, order=3) was accepted and
-    its options ignored: they are refused by name, defaults and via_basis=True are not."""
+    """Options an exact pull-back would ignore are refused by name.
+
+    A trial's transfer_colors(..., correspondence=closest, k1=20, order=3) was accepted and its
+    options ignored; the defaults (given or not) and via_basis=True are not refused.
+    """
     import o3d_ofp as ofp
 
     V, F = icosphere(2)

@@ -384,8 +384,10 @@ def test_quiet_prints_nothing_but_writes(files, tmp_path, capsys):
 
 
 def test_default_log_shows_stages_not_solver_details_and_the_quality_once(files, tmp_path, capsys):
-    """A trial's default log showed every solver line and the quality line twice (log and
-    report); -vv shows the details and the library's own quality record."""
+    """The default log shows the stages; -vv the details and the library's quality record.
+
+    A trial's default log showed every solver line and the quality line twice (log and report).
+    """
     args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]
     assert main([*args, "-o", str(tmp_path / "a.ply")]) == 0
     captured = capsys.readouterr()

@@ -1162,7 +1162,9 @@ def _match_surfaces(
     # embeddings align best is kept.
     wide = min(WIDE_FIT_K, final)
     sizes = [k_fit, wide] if wide > k_fit else [k_fit]
-    logger.debug("match: descriptor fits (sizes %s, commutativity weights %s)", sizes, DCOMM_WEIGHTS)
+    logger.debug(
+        "match: descriptor fits (sizes %s, commutativity weights %s)", sizes, DCOMM_WEIGHTS
+    )
     report("descriptor fit", 0.0)
     # The farthest-point samples of both shapes, drawn once for every ZoomOut below and the
     # comparison of the starts (they depend on the shapes only), while the fits run: the
