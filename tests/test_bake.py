@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import shutil
 
 import numpy as np
@@ -333,13 +334,19 @@ def test_vertex_colors_of_a_finer_source_are_baked_into_the_targets_layout(
     assert err <= 0.1 * per_vertex
 
 
-def test_surface_colors_take_the_texture_first_and_refuse_missing_colors(spot, decimated):
+def test_surface_colors_take_the_texture_first_and_refuse_missing_colors(
+    spot, decimated, caplog
+):
     from o3d_ofp.boundary.texture import MeshTexture, VertexColorSurface, surface_colors
 
-    assert isinstance(surface_colors(spot[0]), MeshTexture)
-    both = o3d.geometry.TriangleMesh(spot[0])  # a texture and vertex colors: the texture
-    both.vertex_colors = o3d.utility.Vector3dVector(np.zeros((len(both.vertices), 3)))
-    assert isinstance(surface_colors(both), MeshTexture)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.boundary.texture"):
+        assert isinstance(surface_colors(spot[0]), MeshTexture)
+        assert "both a texture and vertex colors" not in caplog.text
+        both = o3d.geometry.TriangleMesh(spot[0])  # a texture and vertex colors: the texture
+        both.vertex_colors = o3d.utility.Vector3dVector(np.zeros((len(both.vertices), 3)))
+        assert isinstance(surface_colors(both), MeshTexture)
+    # A trial found the vertex colors ignored silently: said
+    assert "both a texture and vertex colors: its texture is used" in caplog.text
     plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
     with pytest.raises(ValueError, match="neither texture coordinates nor vertex colors"):
         surface_colors(plain)

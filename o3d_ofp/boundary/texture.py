@@ -266,7 +266,8 @@ def surface_colors(mesh: Any, texture: Any = None) -> MeshTexture | VertexColorS
     -------
     MeshTexture or VertexColorSurface
         The texture when the mesh has per-corner UVs (its image missing is an error, not a
-        reason to fall back on vertex colors), else its vertex colors.
+        reason to fall back on vertex colors; a mesh with vertex colors too is said in the
+        log), else its vertex colors.
 
     Raises
     ------
@@ -276,7 +277,13 @@ def surface_colors(mesh: Any, texture: Any = None) -> MeshTexture | VertexColorS
         If ``mesh`` is not an Open3D triangle mesh.
     """
     try:
-        return mesh_texture(mesh, texture)
+        found = mesh_texture(mesh, texture)
+        if texture is None and vertex_colors(mesh) is not None:
+            logger.info(
+                "the mesh has both a texture and vertex colors: its texture is used (to use "
+                "its vertex colors instead, remove its triangle UVs from a copy)"
+            )
+        return found
     except TypeError as exc:
         raise TypeError(
             "the source must be an Open3D TriangleMesh with a texture or vertex colors (a point "
