@@ -116,6 +116,33 @@ def test_mismatched_basis_cache_is_refused(files, capsys, tmp_path):
     assert not (tmp_path / "x.ply").exists()
 
 
+def test_identity_between_other_vertex_counts_names_copies_and_the_closest_map(
+    files, capsys, tmp_path
+):
+    """A trial's --map identity onto a seam-split OBJ said "got 2930 and 3225" and no more."""
+    from o3d_ofp import write_geometry
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    V, F = files["V"], files["F"]
+    split = np.vstack([V, V[:7]])  # 7 copies, as an OBJ's along its seams
+    faces = F.copy()
+    faces[: 7, 0] = len(V) + np.arange(7)  # the copies are used by some triangles
+    faces[: 7, 1:] = F[:7, 1:]
+    copied = tmp_path / "split.ply"
+    write_geometry(copied, triangle_mesh_from_arrays(split, faces))
+    args = ["transfer", files["src"], str(copied), "--map", "identity", "-o"]
+    assert main([*args, str(tmp_path / "x.ply")]) == 2
+    err = capsys.readouterr().err
+    assert f"got {len(V)} and {len(V) + 7} (7 of the target's are copies" in err
+    assert "--map closest maps shapes in the same place" in err
+    other = tmp_path / "other.ply"  # no copies: no such clause
+    write_geometry(other, triangle_mesh_from_arrays(V[:-1], F[(F < len(V) - 1).all(axis=1)]))
+    assert main(["transfer", files["src"], str(other), "--map", "identity", "-o",
+                 str(tmp_path / "y.ply")]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "copies" not in err and "--map closest" in err
+
+
 def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     out = tmp_path / "t.ply"
     args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]

@@ -227,8 +227,16 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
         return None
     if spec == "identity":
         if n1 != n2:
+            copies = [
+                f"{extra} of the {name}'s are copies at the same position as another (e.g. an "
+                "OBJ's along its UV seams)"
+                for name, V in (("source", V1), ("target", V2))
+                if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])
+            ]
             raise UsageError(
                 f"--map identity needs shapes with the same vertices; got {n1} and {n2}"
+                + (f" ({'; '.join(copies)})" if copies else "")
+                + ": --map closest maps shapes in the same place whatever their vertices"
             )
         return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
     files = spec.split(",")
