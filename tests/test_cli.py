@@ -936,6 +936,38 @@ def test_python_functions_take_file_paths(files):
 # --------------------------------------------------------------------------- landmarks
 
 
+def test_landmarks_files_comma_separated_and_bad_ones(files, tmp_path, capsys, monkeypatch):
+    """A CSV of landmarks is read; bad landmark files and an empty --landmarks= are said.
+
+    A trial's 3-column file was said as "got 'lm3.txt'", a CSV gave numpy's own message and an
+    empty --landmarks= was ignored.
+    """
+    import o3d_ofp.cli._pair as pair_module
+
+    seen, real = [], pair_module._landmarks
+    monkeypatch.setattr(pair_module, "_landmarks", lambda *a: seen.append(real(*a)) or seen[-1])
+    csv = tmp_path / "lm.csv"
+    csv.write_text("# source,target\n3,5\n40,41\n")
+    argv = ["transfer", files["src"], files["tgt"], "--k1", "8", "--k2", "8", "-o"]
+    assert main([*argv, str(tmp_path / "a.ply"), "--landmarks", str(csv)]) == 0
+    np.testing.assert_array_equal(seen[-1], [[3, 5], [40, 41]])
+    capsys.readouterr()
+    for text, needle in (
+        ("1 2 3\n4 5 6\n", "3 columns; the file needs two (source vertex, target vertex"),
+        ("1\n2\n", "1 column; the file needs two"),
+        ("source target\n1 2\n", "not a text file of two integer columns"),
+        ("1.5 2\n", "the values must be integer vertex indices"),
+        ("# nothing\n", "no pairs in the file"),
+        ("0 99999\n", "target indices must lie in [0, 642)"),
+    ):
+        bad = tmp_path / "bad.txt"
+        bad.write_text(text)
+        assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", str(bad)]) == 2
+        _one_line_error(capsys, f"--landmarks {bad}", needle)
+    assert main([*argv, str(tmp_path / "b.ply"), "--landmarks="]) == 2
+    _one_line_error(capsys, "--landmarks is empty: give pairs like 12:40")
+
+
 def test_landmarks_pick_without_a_display_is_refused(
     files, capsys, tmp_path, monkeypatch, no_eigensolve
 ):

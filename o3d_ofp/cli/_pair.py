@@ -7,6 +7,7 @@ import dataclasses
 import functools
 import logging
 import os
+import warnings
 from typing import Any
 
 import numpy as np
@@ -99,8 +100,8 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     p.add_argument(
         "--landmarks",
         help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611, "
-        "a 2-column file, or 'pick' (pick them on both shapes in Open3D's vertex-selection "
-        "window; needs a display)",
+        "a 2-column file (spaces or commas apart), or 'pick' (pick them on both shapes in "
+        "Open3D's vertex-selection window; needs a display)",
     )
     p.add_argument(
         "--save-landmarks",
@@ -117,9 +118,23 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         return None
     if os.path.isfile(spec):
         try:
-            pairs = np.loadtxt(spec, dtype=np.float64, ndmin=2)
-        except ValueError as exc:
-            raise UsageError(f"--landmarks {spec}: not two integer columns: {exc}") from exc
+            with open(spec, encoding="utf-8") as fh, warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # "no data": said below
+                pairs = np.loadtxt(  # whitespace or commas (a CSV) apart
+                    (line.replace(",", " ") for line in fh), dtype=np.float64, ndmin=2
+                )
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise UsageError(
+                f"--landmarks {spec}: not a text file of two integer columns (source vertex, "
+                f"target vertex; '#' starts a comment): {exc}"
+            ) from exc
+        if pairs.size and pairs.shape[1] != 2:
+            raise UsageError(
+                f"--landmarks {spec}: {pairs.shape[1]} column{'s' * (pairs.shape[1] > 1)}; the "
+                "file needs two (source vertex, target vertex, 0-based) on each line"
+            )
+        if not pairs.size:
+            raise UsageError(f"--landmarks {spec}: no pairs in the file")
     else:
         if ":" not in spec or os.sep in spec:
             raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
@@ -137,11 +152,16 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         or not np.all(np.isfinite(pairs))
         or np.any(pairs != np.round(pairs))
     ):
-        raise UsageError(f"--landmarks must be integer (source, target) pairs; got {spec!r}")
+        raise UsageError(
+            f"--landmarks {spec}: the values must be integer vertex indices"
+            if os.path.isfile(spec)
+            else f"--landmarks must be integer (source, target) pairs; got {spec!r}"
+        )
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
-            raise UsageError(f"--landmarks: {name} indices must lie in [0, {n}) (0-based)")
+            where = f" {spec}" if os.path.isfile(spec) else ""
+            raise UsageError(f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)")
     from ..workflows.matching import check_landmarks
 
     try:
@@ -183,6 +203,10 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
 
 def _check_landmark_flags(args: argparse.Namespace) -> None:
     """Refuse ``--landmarks pick`` without a display, and a bad ``--save-landmarks``, early."""
+    if args.landmarks == "":
+        raise UsageError(
+            "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or 'pick'"
+        )
     save = getattr(args, "save_landmarks", None)
     if save:
         if not args.landmarks:
