@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -517,7 +518,7 @@ def transfer_colors(
     exact = via_basis is False or (via_basis is None and closest)
     if exact:
         _refuse_basis_options(
-            "transfer_colors",
+            transfer_colors,
             "the exact pull-back (via_basis=False)" if via_basis is False
             else "the exact pull-back (the default with a closest-point map)",
             k1=k1, k2=k2, order=order, preset=preset, tol=tol, fmap_12=fmap_12,
@@ -563,7 +564,7 @@ def transfer_colors(
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
 
-def _refuse_basis_options(function: str, transfer: str, **given: Any) -> None:
+def _refuse_basis_options(function: Callable[..., Any], transfer: str, **given: Any) -> None:
     """Refuse the options of ``function`` that a transfer without an OFP basis would ignore.
 
     ``given`` maps keywords to the values passed; those that differ from ``function``'s
@@ -572,7 +573,8 @@ def _refuse_basis_options(function: str, transfer: str, **given: Any) -> None:
     """
     import inspect
 
-    defaults = inspect.signature(globals()[function]).parameters
+    defaults = inspect.signature(function).parameters
+
     def default(name: str, value: Any) -> bool:
         by_default = defaults[name].default
         if by_default is None:
@@ -582,10 +584,10 @@ def _refuse_basis_options(function: str, transfer: str, **given: Any) -> None:
     named = [f"{name}={value!r}" for name, value in given.items() if not default(name, value)]
     if named:
         raise ValueError(
-            f"{function}: {', '.join(named)} {'does' if len(named) == 1 else 'do'} not apply "
-            f"to {transfer}, which pulls the colors back through the map with no OFP basis; "
-            f"drop {'it' if len(named) == 1 else 'them'}, or pass via_basis=True to transfer "
-            "through the OFP bases"
+            f"{function.__name__}: {', '.join(named)} {'does' if len(named) == 1 else 'do'} "
+            f"not apply to {transfer}, which pulls the colors back through the map with no "
+            f"OFP basis; drop {'it' if len(named) == 1 else 'them'}, or pass via_basis=True "
+            "to transfer through the OFP bases"
         )
 
 
