@@ -469,6 +469,50 @@ def test_align_between_two_poses_is_suspect():
     assert not closest_correspondence(V1, F1, smooth, faces_2=F1, align=True).quality.suspect
 
 
+def test_icp_stopped_in_a_wrong_place_is_suspect():
+    """ICP that leaves a turned part lying across the source surface: said by its normals.
+
+    A new-user trial's FAUST 093 with its legs cut, turned 62° about an oblique axis: ICP
+    turned it 72.8°, fitness 0.99, mean distance 0.016 of the diagonal (under the 0.02 of
+    ICP_DOUBTFUL_TURN's rule), coverage 0.27: passed as ok with error 0.22. Measured here (the
+    legs cut at the 35 % height quantile): ICP turns it 34°, 0.67 of its area faces more than
+    45° away; turned 30° it comes back exactly, 0.005. The measure against a plain loop.
+    """
+    from o3d_ofp.boundary.closest import MAX_FACING_AWAY
+
+    V, F = load_shared_mesh("faust/tr_reg_093.ply")
+    keep = V[:, 1] > np.quantile(V[:, 1], 0.35)
+    part = F[keep[F].all(axis=1)]
+    used = np.unique(part)
+    renumber = np.full(len(V), -1)
+    renumber[used] = np.arange(used.size)
+    P, PF = V[used], renumber[part]
+    centre = 0.5 * (P.min(0) + P.max(0))
+    verdicts = {}
+    for degrees in (30, 62):
+        turned = (P - centre) @ rotation([0.3, 1.0, 0.2], degrees).T + centre
+        verdicts[degrees] = closest_correspondence(V, F, turned, faces_2=PF, align=True)
+    assert not verdicts[30].quality.suspect and verdicts[30].options["facing_away"] < 0.05
+    wrong = verdicts[62]
+    assert wrong.options["facing_away"] > MAX_FACING_AWAY
+    assert wrong.quality.suspect and "ICP stopped in a wrong place" in wrong.quality.reasons[0]
+    # The measure, by a plain loop over the target's vertices (either way round, area-weighted)
+    T = np.array(wrong.options["icp"]["transformation"])
+    Q = turned @ T[:3, :3].T + T[:3, 3]  # the target as queried (turned 62°, then ICP)
+    n_faces = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    away = total = 0.0
+    for i in range(len(Q)):
+        around = np.nonzero((PF == i).any(axis=1))[0]
+        crosses = np.cross(Q[PF[around, 1]] - Q[PF[around, 0]], Q[PF[around, 2]] - Q[PF[around, 0]])
+        normal = crosses.sum(axis=0)
+        area = np.linalg.norm(crosses, axis=1).sum() / 6.0
+        m = n_faces[wrong.faces_21[i]]
+        cos = abs(normal @ m) / (np.linalg.norm(normal) * np.linalg.norm(m))
+        total += area
+        away += area * (cos < math.cos(math.radians(45)))
+    assert wrong.options["facing_away"] == pytest.approx(away / total, abs=1e-9)
+
+
 def test_smoothed_copy_in_place_is_not_suspect():
     """A low-pass copy shrinks into the source: its closest points crowd, but it is in place.
 

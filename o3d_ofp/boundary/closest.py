@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
-from ..core.geometry import face_areas_normals
+from ..core.geometry import face_areas_normals, vertex_normals
 from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality, shape_signature
 from .convert import require_open3d
 
@@ -35,6 +35,7 @@ __all__ = [
     "ICP_MAX_SAMPLES",
     "ICP_MIN_SAMPLES",
     "ICP_SAMPLES_PER_VERTEX",
+    "MAX_FACING_AWAY",
     "MAX_MEAN_DISTANCE",
     "closest_correspondence",
     "closest_points",
@@ -124,6 +125,19 @@ ICP_MIN_FITNESS = 0.8
 #: 0.028 and 8.5° at 0.042; the paper's aligned detail donuts t1 -> t0 turned 88-106° about
 #: their axis (three runs) at 0.030 (the bumps moved; flagged too), t0 -> t1 0.0° (ok).
 ICP_DOUBTFUL_TURN = 2.0
+#: With ``align``, a turn above :data:`ICP_DOUBTFUL_TURN` that leaves more than this share of the
+#: target's area facing more than 45° away from the source surface at its closest points (either
+#: way round: ``options["facing_away"]``) makes the map suspect: ICP stopped in a wrong place,
+#: on the surface but across it. Measured by ``python scripts/eval_closest_checks.py --align``:
+#: right registrations (copies turned up to 45°, a part turned 30°, decimated, subdivided, noisy)
+#: 0.000-0.032, smoothed copies 0.16 (turned 5-11° by ICP); FAUST 093 with its legs cut turned
+#: 62° and 90° about an oblique axis, which ICP turned by 34° and 47° only, 0.67 and 0.66, and a
+#: new-user trial's cut turned 62° (ICP: 72.8°, passed as ok with error 0.22) 0.51; other poses
+#: and the detail donuts (flagged by the distance) 0.36-0.49. Area-weighted: by vertex count the
+#: smoothed copies reach 0.40 (their dense regions: hands, face). Without ``align`` it is not a
+#: verdict: the aligned detail donuts, the detail transfer's own pair, face away on 0.35-0.40
+#: (their bumps).
+MAX_FACING_AWAY = 0.3
 #: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
 #: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
 #: returned: by the smallest face index.
@@ -380,6 +394,28 @@ class _Surface:
         face_ids, bary, _, _ = self.query(self.normalize(P))
         closest = np.einsum("qi,qij->qj", bary, self.V[self.F[face_ids]])
         return face_ids, bary, closest, np.linalg.norm(P - closest, axis=1)
+
+
+def _facing_away(
+    V1: np.ndarray, F1: np.ndarray, faces_21: np.ndarray, V2: np.ndarray, F2: np.ndarray
+) -> float:
+    """Share of the target's area whose normal is more than 45° off the source surface's.
+
+    At each target vertex, the angle between its normal (``V2`` as queried: after ICP) and
+    the normal of the source triangle its closest point lies in, either way round (a mesh
+    whose triangles are wound the other way is the same surface); weighted by the vertex's
+    share of the target's area.
+    """
+    _, n1 = face_areas_normals(V1, F1)
+    areas, _ = face_areas_normals(V2, F2)
+    weight = np.zeros(V2.shape[0])
+    for c in range(3):
+        np.add.at(weight, F2[:, c], areas / 3.0)
+    total = weight.sum()
+    if not total > 0:
+        return math.nan
+    cos = np.abs(np.einsum("ij,ij->i", vertex_normals(V2, F2), n1[faces_21]))
+    return float(weight[cos < math.sqrt(0.5)].sum() / total)
 
 
 def _check_options(align: Any, max_icp_distance: Any) -> tuple[bool, float | None]:
@@ -694,7 +730,8 @@ def closest_correspondence(
     vertices_2 : (n2, 3) array_like of float
         Target vertices.
     faces_2 : (m2, 3) array_like of int, optional
-        Target triangles: only used for the area ratio in the quality report.
+        Target triangles: used for the area ratio and the target's normals in the quality
+        report (``facing_away``).
     align : bool, default False
         Rigidly register the target onto the source (ICP from the identity) before the query.
     max_icp_distance : float, optional
@@ -717,11 +754,15 @@ def closest_correspondence(
         units), ``rotation_degrees`` and ``translation``; without ``align`` and with a mesh
         source, ``misalignment``: the mean distance before (``mean_distance_rel``) and after
         (``mean_distance_rel_moved``) the rigid motion fitted to the closest points, its
-        ``rotation_degrees`` and ``translation_rel``. The quality report is suspect when the
+        ``rotation_degrees`` and ``translation_rel``; with both shapes' triangles,
+        ``facing_away``: the share of the target's area whose normal is more than 45° off the
+        source surface's at its closest point. The quality report is suspect when the
         mean distance exceeds :data:`MAX_MEAN_DISTANCE` of the source's diagonal, when that
         rigid motion would bring the target much closer (:data:`MISALIGNED_RATIO`,
         :data:`MISALIGNED_GAIN`: a turned or moved copy; the fix is ``align=True``) or
-        when the target's vertices crowd onto few source vertices (:data:`MIN_COVERAGE`);
+        when the target's vertices crowd onto few source vertices (:data:`MIN_COVERAGE`),
+        or when ICP turned the target and left it far from the source or facing away from it
+        (:data:`ICP_DOUBTFUL_TURN`, :data:`MAX_FACING_AWAY`: ICP stopped in a wrong place);
         orthogonality, inconsistency and reversed_fraction are NaN (no functional map),
         area_ratio too unless ``faces_2`` is given.
 
@@ -792,6 +833,10 @@ def closest_correspondence(
     max_rel = float(distances.max() / diag)
     options["mean_distance_rel"] = mean_rel
     options["max_distance_rel"] = max_rel
+    facing = math.nan
+    if F1 is not None and F2 is not None:
+        facing = _facing_away(V1, F1, faces_21, query, F2)
+        options["facing_away"] = facing
     reasons: list[str] = []
     retry = "" if align else "pass align=True (--align) if they are almost aligned; "
     if mean_rel > MAX_MEAN_DISTANCE:
@@ -854,9 +899,18 @@ def closest_correspondence(
                 f"ICP turned the target by {turn:.3g}° and it still lies {mean_rel:.3g} of the "
                 f"source's bounding-box diagonal from the source on average (> "
                 f"{MEAN_DISTANCE_NOTE}): the shapes are not copies of one surface (another "
-                "pose, other geometry), so that turn, and the closest points, may be wrong. "
-                "If they were already aligned, match without align=True (--align); otherwise "
-                "use the spectral estimate (--map estimate)"
+                "pose, other geometry), or the target was turned too far for ICP, so that "
+                "turn, and the closest points, may be wrong. If they were already aligned, "
+                "match without align=True (--align); if the target is a turned copy, turn it "
+                "roughly into place first; otherwise use the spectral estimate (--map estimate)"
+            )
+        elif turn > ICP_DOUBTFUL_TURN and facing > MAX_FACING_AWAY:
+            reasons.append(
+                f"ICP turned the target by {turn:.3g}°, but {facing:.2f} of its area faces more "
+                "than 45° away from the source surface it lies on (> "
+                f"{MAX_FACING_AWAY}): ICP stopped in a wrong place (the target turned too far "
+                "for it, or a part that fits elsewhere); turn the target roughly into place "
+                "first, or use the spectral estimate (--map estimate)"
             )
     if reasons:  # not aligned at all: that reason names the fixes
         notes.extend(misaligned)
