@@ -93,6 +93,23 @@ def test_true_map_passes_and_a_torn_map_is_flagged(pair):
     assert any("stretches the target's edges" in r for r in q.reasons)
 
 
+def test_restriction_orthogonality_is_reported_not_judged(pair):
+    """A right partial map whose restriction map is far from orthonormal rows is not flagged.
+
+    A trial's right map of the front half of FAUST 093 (error 0.025) was flagged by its
+    orthogonality alone (0.44 > the full-shape bound 0.4), with advice to rescale its units.
+    """
+    from o3d_ofp.workflows.matching import MAX_ORTHOGONALITY
+
+    _, _, e1, _, _, truth, ec = pair
+    C = 1.6 * _restriction(truth, e1, ec)  # rows of norm 1.6: ‖C Cᵀ − I‖ / √(k2+1) ≈ 1.56
+    q = partial_quality(truth, e1, ec, C, overlap=0.65)
+    assert q.orthogonality > MAX_ORTHOGONALITY
+    assert not any("orthogonality" in r for r in q.reasons)
+    assert not any("rescale the target" in r for r in q.reasons)
+    assert f"restriction map orthogonality {q.orthogonality:.2f} (not judged)" in q.notes[0]
+
+
 def test_stretch_alone_flags_a_torn_map(pair):
     V, _, e1, Vc, Fc, truth, ec = pair
     wrong = _torn(V, Vc, truth)
