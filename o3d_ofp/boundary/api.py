@@ -61,7 +61,7 @@ from .convert import (
     point_normals,
     vertex_colors,
 )
-from .texture import has_texture_image, has_uvs
+from .texture import has_texture_image, has_uvs, mesh_texture
 
 __all__ = [
     "as_arrays",
@@ -456,8 +456,11 @@ def transfer_colors(
     Parameters
     ----------
     source, target : Open3D TriangleMesh or PointCloud (legacy or tensor)
-        The shapes; neither is modified. The source must have vertex colors (for any other
-        per-vertex signal use the array-level :func:`o3d_ofp.transfer_function`).
+        The shapes; neither is modified. The source must have vertex colors, or a texture (UVs
+        and an image, as :func:`texture_colors` reads them): its colors then, per vertex, or at
+        each target vertex's point on the source surface for an exact pull-back through a
+        closest-point map (for any other per-vertex signal use the array-level
+        :func:`o3d_ofp.transfer_function`).
     k1, k2 : int, default 29, 39
         Eigenfunctions multiplied on the source and the target (the paper's K = 30 / 40 for
         humans; order 3 with k ≈ 11-14 for other shapes).
@@ -507,11 +510,16 @@ def transfer_colors(
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     f = vertex_colors(source) if is_open3d_geometry(source) else None
+    texture = None
+    if f is None and is_open3d_geometry(source) and has_uvs(source):
+        texture = mesh_texture(source)  # its colors (a ValueError names a missing image)
+        f = texture.vertex_colors()
+        logger.info("transfer_colors: the source has a texture and no vertex colors: its "
+                    "texture's colors are transferred")  # fmt: skip
     if f is None:
         raise ValueError(
-            "the source has no vertex colors to transfer (for a texture use "
-            "o3d_ofp.texture_colors or transfer_texture; for another signal, the array-level "
-            "o3d_ofp.transfer_function)"
+            "the source has neither vertex colors nor a texture to transfer (for another "
+            "signal, the array-level o3d_ofp.transfer_function)"
         )
     closest = check_correspondence(correspondence) is not None
     closest = closest and correspondence.method == "closest"
@@ -540,7 +548,12 @@ def transfer_colors(
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
-        return like_target(target, colors=np.clip(pull_back(f, correspondence, F1), 0.0, 1.0))
+        if texture is not None and correspondence.barycentric_21 is not None:
+            # the texture at each target vertex's point on the source surface
+            g = texture.sample(correspondence.faces_21, correspondence.barycentric_21)
+        else:
+            g = pull_back(f, correspondence, F1)
+        return like_target(target, colors=np.clip(g, 0.0, 1.0))
     g = transfer_on_shapes(
         f,
         V1,

@@ -208,6 +208,11 @@ class MeshTexture:
         """(3m, 3) colors sampled at the triangle corners, in the order ``faces.reshape(-1)``."""
         return self._sample_uv(self.uvs.reshape(-1, 2), np.repeat(self.material, 3))
 
+    def vertex_colors(self) -> np.ndarray:
+        """(n, 3) colors in [0, 1] per vertex: the mean of its triangle corners' samples."""
+        corners = self.corner_colors()
+        return np.clip(corner_colors_to_vertices(self.faces, corners, self.vertices.shape[0]), 0, 1)
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class VertexColorSurface:
@@ -583,6 +588,4 @@ def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
     ValueError
         If the mesh has no UVs, or no texture image is given or loaded.
     """
-    tex = mesh_texture(mesh, texture)
-    corners = tex.corner_colors()
-    return np.clip(corner_colors_to_vertices(tex.faces, corners, tex.vertices.shape[0]), 0.0, 1.0)
+    return mesh_texture(mesh, texture).vertex_colors()

@@ -193,7 +193,15 @@ def run(args: argparse.Namespace) -> int:
         if args.save_map:
             given.save(args.save_map)
         with stage("pull-back through the surface map"):
-            g = pull_back(f, given, pair.F1)
+            if spec == "texture" and given.barycentric_21 is not None:
+                # the texture itself at each target vertex's point on the source surface, not
+                # the source's per-vertex samples interpolated there (a trial: error 0.022)
+                from ..boundary.texture import mesh_texture
+
+                texture = mesh_texture(pair.source, args.texture)  # read by read_signal above
+                g = texture.sample(given.faces_21, given.barycentric_21)
+            else:
+                g = pull_back(f, given, pair.F1)
         written = write_result(args.output, pair.target, g, kind, protect=inputs)
         report([f"{args.source} -> {args.target}: exact pull-back, map {_map_name(args, given)}",
                 "wrote " + ", ".join(written)])  # fmt: skip
