@@ -606,6 +606,8 @@ def test_texture_run_records_what_each_target_got(shapes, tmp_path, capsys):
         output_dir=tmp_path / "out", map="identity", texture_size=32,
     )  # fmt: skip
     assert [(r.status, r.kind) for r in results] == [("ok", "texture"), ("ok", "colors")]
+    # the PLY target stays a PLY (a trial's came out as an OBJ with vertex colors)
+    assert [os.path.basename(r.output) for r in results] == ["uv.obj", "plain.ply"]
     code = _cli("transfer", tmp_path / "src.obj", tmp_path / "uv.obj", "--map", "identity",
                 "-o", tmp_path / "flat.ply")  # fmt: skip
     assert code == 0 and "cannot hold a texture" in capsys.readouterr().err

@@ -427,9 +427,12 @@ def _outputs(
     for i, item in enumerate(items):
         if isinstance(item, str):
             name = os.path.basename(item)
-            if kind == "texture":  # OBJ + MTL + PNG (vertex colors for a target without UVs)
+            if kind == "texture" and name.lower().endswith((".obj", ".glb", ".gltf")):
+                # OBJ + MTL + PNG (vertex colors for a target without UVs). The other formats
+                # hold no UVs (as Open3D reads them): their targets get vertex colors, written
+                # as for kind "colors" (a trial's PLY target came out as an OBJ with colors)
                 name = os.path.splitext(name)[0] + ".obj"
-            elif kind == "colors" and name.lower().endswith(_NO_COLORS):
+            elif kind in ("colors", "texture") and name.lower().endswith(_NO_COLORS):
                 name = os.path.splitext(name)[0] + ".ply"
         else:
             name = f"target_{i}.ply"
