@@ -116,6 +116,21 @@ def test_mismatched_basis_cache_is_refused(files, capsys, tmp_path):
     assert not (tmp_path / "x.ply").exists()
 
 
+def test_texture_for_a_source_without_uvs_says_so(files, tmp_path, capsys):
+    """--texture with a source without UVs names the missing UVs.
+
+    A trial's said "--texture applies to --signal texture", though --help says it applies to a
+    bake too.
+    """
+    png = tmp_path / "t.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((4, 4, 3), dtype=np.uint8)).save(png)
+    assert main(["transfer", files["src"], files["tgt"], "--texture", str(png), "-o",
+                 str(tmp_path / "x.ply")]) == 2  # fmt: skip
+    _one_line_error(capsys, f"--texture {png}: {files['src']} has no texture coordinates")
+
+
 def test_identity_between_other_vertex_counts_names_copies_and_the_closest_map(
     files, capsys, tmp_path
 ):

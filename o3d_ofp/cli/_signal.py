@@ -58,6 +58,13 @@ def _read_signal(
     from ..boundary.texture import texture_colors
 
     if texture is not None and spec != "texture":
+        from ..boundary.texture import has_uvs
+
+        if not has_uvs(geometry):
+            raise UsageError(
+                f"--texture {texture}: {path} has no texture coordinates (UVs) to map an image "
+                "onto; drop --texture"
+            )
         raise UsageError("--texture applies to --signal texture")
     if texture is not None and not os.path.isfile(texture):
         raise UsageError(f"--texture {texture}: no such image file")
