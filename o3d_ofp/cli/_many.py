@@ -39,6 +39,7 @@ PAIR_ONLY = {
     "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
     "partial": "--partial (for one pair of shapes)",
     "via_basis": "--via-basis (for one pair of shapes)",
+    "pull_back": "--pull-back (for one pair of shapes)",
 }
 
 

@@ -65,6 +65,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "pull-back; then --k1/--k2/--order/--preset/--tol apply",
     )
     p.add_argument(
+        "--pull-back",
+        action="store_true",
+        help="with an estimated or given map: each target vertex takes its source vertex's "
+        "value, with no OFP basis (sharper colors where the map is right, noisier where it is "
+        "not); a closest map does this by default, at the exact surface point",
+    )
+    p.add_argument(
         "--uv-atlas",
         action="store_true",
         help="a textured or vertex-colored source onto a mesh target WITHOUT UVs: give the "
@@ -118,6 +125,11 @@ def run(args: argparse.Namespace) -> int:
     pair = read_pair(args)
     check_output_kind(args.output, pair.F2)
     closest = _closest(args, pair)
+    if args.via_basis and args.pull_back:
+        raise UsageError(
+            "--via-basis transfers through the OFP bases and --pull-back without them: give "
+            "one of them"
+        )
     if args.via_basis and not closest:
         raise UsageError(
             "--via-basis applies to a closest map (--map closest or its saved map): other maps "
@@ -154,6 +166,13 @@ def run(args: argparse.Namespace) -> int:
             "add --via-basis to transfer through the bases",
             files=True,
         )
+    elif args.pull_back:
+        _refuse_basis_flags(
+            args,
+            "--pull-back carries the values through the map with no OFP basis; drop it, or "
+            "drop --pull-back to transfer through the bases",
+            files=True,
+        )
     spec = args.signal or _default_signal(pair.source)
     textured_target = pair.F1 is not None and pair.F2 is not None and has_uvs(pair.target)
     if textured_target and args.signal in ("colors", "texture"):
@@ -184,15 +203,12 @@ def run(args: argparse.Namespace) -> int:
             what,
         )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
-    pair = map_first(args, pair)
-    given = pair.correspondence
-    if closest and not args.via_basis:  # exact pull-back, no basis
-        assert given is not None
+    if args.pull_back or (closest and not args.via_basis):  # exact pull-back, no basis
         from ..workflows.pipeline import pull_back
 
-        if args.save_map:
-            given.save(args.save_map)
-        with stage("pull-back through the surface map"):
+        given = _map_without_bases(args, pair)
+        surface = given.barycentric_21 is not None
+        with stage("pull-back through the surface map" if surface else "pull-back"):
             if spec == "texture" and given.barycentric_21 is not None:
                 # the texture itself at each target vertex's point on the source surface, not
                 # the source's per-vertex samples interpolated there (a trial: error 0.022)
@@ -203,9 +219,10 @@ def run(args: argparse.Namespace) -> int:
             else:
                 g = pull_back(f, given, pair.F1)
         written = write_result(args.output, pair.target, g, kind, protect=inputs)
-        report([f"{args.source} -> {args.target}: exact pull-back, map {_map_name(args, given)}",
-                "wrote " + ", ".join(written)])  # fmt: skip
+        report([f"{args.source} -> {args.target}: {'exact ' * surface}pull-back, map "
+                f"{_map_name(args, given)}", "wrote " + ", ".join(written)])  # fmt: skip
         return 0
+    pair = map_first(args, pair)
     B1, B2, eig_1, eig_2 = bases_for_pair(args, pair)
     corr = estimate_or_use_map(args, pair, eig_1, eig_2)
     if corr.n_source != pair.V1.shape[0]:
@@ -361,6 +378,35 @@ def _refuse_basis_flags(args: argparse.Namespace, why: str, *, files: bool = Fal
         raise UsageError(f"{'/'.join(named)} does not apply here: {why}")
 
 
+def _map_without_bases(args: argparse.Namespace, pair: Any) -> Any:
+    """Return the pair's map for a transfer without OFP bases (a bake, a pull-back).
+
+    A closest, given or dense-path map as :func:`map_first` makes it; otherwise estimated
+    from the two eigenbases alone. Saved with ``--save-map``.
+    """
+    from ..workflows.matching import ESTIMATION_K, required_k
+    from ._common import eigenbases_of
+
+    pair = map_first(args, pair)
+    eigs = (None, None)
+    if pair.correspondence is None:
+        with stage("eigenbases for map estimation"):
+            eigs = tuple(
+                eigenbases_of(
+                    args,
+                    [
+                        (path, V, F, required_k(V.shape[0], ESTIMATION_K))
+                        for path, V, F in (
+                            (args.source, pair.V1, pair.F1),
+                            (args.target, pair.V2, pair.F2),
+                        )
+                    ],
+                    clamp_k=True,
+                )
+            )
+    return estimate_or_use_map(args, pair, *eigs)
+
+
 def _check_texture(args: argparse.Namespace, source: Any) -> None:
     """Refuse, before any work, a bake whose colors cannot be read (named: file or flag)."""
     from ..boundary.texture import surface_colors
@@ -375,8 +421,6 @@ def _bake(args: argparse.Namespace, pair) -> int:
     """Bake the source's texture (or vertex colors) into the target's UV layout and write it."""
     from ..boundary.bake import has_uvs, transfer_texture
     from ..boundary.io import write_geometry
-    from ..workflows.matching import ESTIMATION_K, required_k
-    from ._common import eigenbases_of
 
     if args.via_basis:
         raise UsageError(
@@ -395,24 +439,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
     )
     _check_texture(args, pair.source)
     size = args.texture_size or TEXTURE_SIZE
-    pair = map_first(args, pair)
-    eigs = (None, None)
-    if pair.correspondence is None:
-        with stage("eigenbases for map estimation"):
-            eigs = tuple(
-                eigenbases_of(
-                    args,
-                    [
-                        (path, V, F, required_k(V.shape[0], ESTIMATION_K))
-                        for path, V, F in (
-                            (args.source, pair.V1, pair.F1),
-                            (args.target, pair.V2, pair.F2),
-                        )
-                    ],
-                    clamp_k=True,
-                )
-            )
-    corr = estimate_or_use_map(args, pair, *eigs)
+    corr = _map_without_bases(args, pair)
     with stage(f"texture bake ({size} x {size})"):
         try:
             out = transfer_texture(
