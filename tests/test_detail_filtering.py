@@ -90,7 +90,7 @@ def test_transfer_colors_open3d_level():
     assert ofp.approximation_error(colors, via_fmap, m) < 0.1
     assert isinstance(via_fmap := ofp.transfer_colors(source, target, fmap_12=C), type(target))
     assert len(via_fmap.vertices) == len(V2)
-    with pytest.raises(ValueError, match="source has no vertex colors"):
+    with pytest.raises(ValueError, match="source has neither vertex colors nor a texture"):
         ofp.transfer_colors(target, source, p2p_21=np.arange(len(V1)))
 
 

@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 g = pull_back(f, given, pair.F1)
         written = write_result(args.output, pair.target, g, kind, protect=inputs)
-        report([f"{args.source} -> {args.target}: {'exact ' * surface}pull-back, map "
+        report([f"{args.source} -> {args.target}: {'exact ' * closest}pull-back, map "
                 f"{_map_name(args, given)}", "wrote " + ", ".join(written)])  # fmt: skip
         return 0
     pair = map_first(args, pair)
