@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
-from ..core.geometry import face_areas_normals, vertex_normals
+from ..core.geometry import face_areas_normals
 from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality, shape_signature
 from .convert import require_open3d
 
@@ -126,17 +126,18 @@ ICP_MIN_FITNESS = 0.8
 #: their axis (three runs) at 0.030 (the bumps moved; flagged too), t0 -> t1 0.0° (ok).
 ICP_DOUBTFUL_TURN = 2.0
 #: With ``align``, a turn above :data:`ICP_DOUBTFUL_TURN` that leaves more than this share of the
-#: target's area facing more than 45° away from the source surface at its closest points (either
-#: way round: ``options["facing_away"]``) makes the map suspect: ICP stopped in a wrong place,
-#: on the surface but across it. Measured by ``python scripts/eval_closest_checks.py --align``:
-#: right registrations (copies turned up to 45°, a part turned 30°, decimated, subdivided, noisy)
-#: 0.000-0.032, smoothed copies 0.16 (turned 5-11° by ICP); FAUST 093 with its legs cut turned
-#: 62° and 90° about an oblique axis, which ICP turned by 34° and 47° only, 0.67 and 0.66, and a
-#: new-user trial's cut turned 62° (ICP: 72.8°, passed as ok with error 0.22) 0.51; other poses
-#: and the detail donuts (flagged by the distance) 0.36-0.49. Area-weighted: by vertex count the
-#: smoothed copies reach 0.40 (their dense regions: hands, face). Without ``align`` it is not a
-#: verdict: the aligned detail donuts, the detail transfer's own pair, face away on 0.35-0.40
-#: (their bumps).
+#: target's area facing more than 45° away from the source surface (each target triangle
+#: against the source triangle closest to its centroid, either way round:
+#: ``options["facing_away"]``) makes the map suspect: ICP stopped in a wrong place, on the
+#: surface but across it. Measured by ``python scripts/eval_closest_checks.py --align``: right
+#: registrations (copies turned up to 45°, a part turned 30°, decimated, subdivided) 0.000-0.006,
+#: a noisy copy 0.064, smoothed copies 0.15-0.17 (turned 5-11° by ICP); FAUST 093 with its legs
+#: cut turned 62° and 90° about an oblique axis, which ICP turned by 34° and 47° only, 0.67 and
+#: 0.66, and a new-user trial's cut turned 62° (ICP: 72.8°, passed as ok with error 0.22)
+#: 0.52; other poses and the detail donuts (flagged by the distance) 0.37-0.52. Face normals:
+#: vertex normals (a first version) flagged right registrations of shapes with creases (a box
+#: 0.75, a 4-sided cone 0.38; a review). Without ``align`` it is not a verdict: the aligned
+#: detail donuts, the detail transfer's own pair, face away on 0.35-0.43 (their bumps).
 MAX_FACING_AWAY = 0.3
 #: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
 #: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
@@ -396,26 +397,25 @@ class _Surface:
         return face_ids, bary, closest, np.linalg.norm(P - closest, axis=1)
 
 
-def _facing_away(
-    V1: np.ndarray, F1: np.ndarray, faces_21: np.ndarray, V2: np.ndarray, F2: np.ndarray
-) -> float:
-    """Share of the target's area whose normal is more than 45° off the source surface's.
+def _facing_away(surface: _Surface, V2: np.ndarray, F2: np.ndarray) -> float:
+    """Share of the target's area whose triangles face more than 45° off the source surface.
 
-    At each target vertex, the angle between its normal (``V2`` as queried: after ICP) and
-    the normal of the source triangle its closest point lies in, either way round (a mesh
-    whose triangles are wound the other way is the same surface); weighted by the vertex's
-    share of the target's area.
+    Each target triangle (``V2`` as queried: after ICP) is compared with the source triangle
+    closest to its centroid, face normal with face normal, either way round (a mesh wound the
+    other way, or inconsistently, is the same surface); weighted by the target triangles'
+    areas. Degenerate triangles on either side are left out (no normal). Face normals, not
+    vertex normals: a vertex normal at a crease (a box's corner) is far from every face there,
+    though the surfaces coincide.
     """
-    _, n1 = face_areas_normals(V1, F1)
-    areas, _ = face_areas_normals(V2, F2)
-    weight = np.zeros(V2.shape[0])
-    for c in range(3):
-        np.add.at(weight, F2[:, c], areas / 3.0)
-    total = weight.sum()
+    areas_2, normals_2 = face_areas_normals(V2, F2)
+    areas_1, normals_1 = face_areas_normals(surface.V, surface.F)
+    faces, _, _, _ = surface.closest(V2[F2].mean(axis=1))
+    usable = (areas_2 > 0) & (areas_1[faces] > 0)
+    total = areas_2[usable].sum()
     if not total > 0:
         return math.nan
-    cos = np.abs(np.einsum("ij,ij->i", vertex_normals(V2, F2), n1[faces_21]))
-    return float(weight[cos < math.sqrt(0.5)].sum() / total)
+    cos = np.abs(np.einsum("ij,ij->i", normals_2, normals_1[faces]))
+    return float(areas_2[usable & (cos < math.sqrt(0.5))].sum() / total)
 
 
 def _check_options(align: Any, max_icp_distance: Any) -> tuple[bool, float | None]:
@@ -835,7 +835,8 @@ def closest_correspondence(
     options["max_distance_rel"] = max_rel
     facing = math.nan
     if F1 is not None and F2 is not None:
-        facing = _facing_away(V1, F1, faces_21, query, F2)
+        assert surface is not None
+        facing = _facing_away(surface, query, F2)
         options["facing_away"] = facing
     reasons: list[str] = []
     retry = "" if align else "pass align=True (--align) if they are almost aligned; "
