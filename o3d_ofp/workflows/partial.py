@@ -98,7 +98,8 @@ MAX_JUMP = 0.15
 
 #: When the chosen start's refinement turns the map over, at most this many further
 #: orientation-preserving starts (in the ranking's order) are refined, and the first whose
-#: refinement keeps the orientation is kept (see _match_partial_surfaces: remeshed
+#: refinement keeps the orientation, with a lower geodesic distortion than the chosen start's,
+#: is kept (see _match_partial_surfaces: remeshed
 #: FAUST 002 -> 004 needed the second).
 NEXT_STARTS = 3
 
@@ -382,7 +383,8 @@ def match_partial_eigenbases(
     where the ZoomOut's image jumps more than :data:`MAX_JUMP` from the geodesic one, the
     geodesic one is kept; if the refined map turns the orientation over, the next
     orientation-preserving starts are refined in turn (at most :data:`NEXT_STARTS`) and the
-    first whose refinement keeps the orientation is kept; if none does, the chosen start is
+    first whose refinement keeps the orientation and changes geodesic distances less than the
+    chosen start is kept (a note says so); if none does, the chosen start is
     kept unrefined and flagged. The final map is checked (:func:`partial_quality`): a geodesic
     distortion above :data:`MAX_DISTORTION` or a stretch above :data:`MAX_STRETCH` makes it
     suspect (a region sent to the wrong place, or a target that is no part of the source).
@@ -572,16 +574,18 @@ def _match_partial_surfaces(
     turned = map_quality(p2p_refined, eig_1, eig_2, None, partial=True).reversed_fraction
     # That start is suspect too (partial_quality, ``refinement_turned``).
     rejected = None
+    fallback = None  # the note of a next start kept instead of the chosen one
     if turned <= MAX_REVERSED or best[0][0]:
         C, p2p = C_refined, p2p_refined
     else:
         rejected = turned
-        logger.info("partial match: the refinement turned %.0f %% over; start kept", 100 * turned)
         # The next orientation-preserving starts, in the ranking's order: the first whose
-        # refinement keeps the orientation is kept (and checked like any final map). Measured
+        # refinement keeps the orientation (and distances, below) is kept (and checked like
+        # any final map). Measured
         # on the 12 cuts of scripts/eval_partial.py: only remeshed 002 -> 004 and 001 -> 007
         # come here; 002 -> 004's next start turns over too, the one after ends at error 0.017
-        # (from the unrefined 0.057, flagged), distortion 0.036, stretch 1.10; 001 -> 007 has
+        # (from the unrefined 0.057, flagged), distortion 0.036 (the chosen start's 0.061),
+        # stretch 1.10; 001 -> 007 has
         # no other orientation-preserving start and stays flagged. Starts that turn over are
         # not tried: refined, one of 001 -> 007's ends wrong (0.082) within both bounds. At
         # most NEXT_STARTS are refined (one refinement costs about as much as 1-2 s at 6.9k).
@@ -589,26 +593,47 @@ def _match_partial_surfaces(
             (i for i, r in enumerate(refined) if not r[0][0] and r is not best_refined),
             key=lambda i: refined[i][0],
         )
-        for i in others[:NEXT_STARTS]:
+        for rank, i in enumerate(others[:NEXT_STARTS], start=2):
             key, _, p2p_start = refined[i]
             C_next, p2p_next = _refine(
                 p2p_start, u1, u2, k2_fit=k2_fit, k2_final=k2_final, subsample=zoomout_subsample
             )
-            turned = map_quality(p2p_next, eig_1, eig_2, None, partial=True).reversed_fraction
-            logger.debug(
-                "partial match: next start (distortion %.3f) refined, %.0f %% turned over",
-                key[1],
-                100 * turned,
+            turned_next = map_quality(p2p_next, eig_1, eig_2, None, partial=True).reversed_fraction
+            distortion_next = geodesic_distortion(
+                p2p_next, u1.vertices, u1.faces, u2.vertices, u2.faces
             )
-            if turned <= MAX_REVERSED:
-                logger.info("partial match: the next start whose refinement stays oriented is kept")
+            logger.debug(
+                "partial match: next start (distortion %.3f) refined: %.0f %% turned over, "
+                "distortion %.3f",
+                key[1],
+                100 * turned_next,
+                distortion_next,
+            )
+            # Kept only when it also changes geodesic distances less than the chosen start:
+            # else the flagged start stays (a review's blob cut, whose chosen start was right
+            # and its refinement made to turn over: the next start refined to a wrong map,
+            # error 0.42, distortion 0.055, that would have passed the checks).
+            if turned_next <= MAX_REVERSED and distortion_next < best[0][1]:
+                fallback = (
+                    f"the best-ranked start's geodesic refinement turned {100 * turned:.0f} % of "
+                    f"the triangles over; the start ranked {rank} (of the orientation-preserving "
+                    "ones, by geodesic distortion), whose refinement keeps the orientation, is "
+                    "kept instead"
+                )
+                logger.info("partial match: %s", fallback)
                 C, p2p, rejected, w_dcomm = C_next, p2p_next, None, starts[i][1]
                 break
+        else:
+            logger.info(
+                "partial match: the refinement turned %.0f %% over; start kept", 100 * turned
+            )
     report("point map", 0.85)
     v = membership(C, u1, u2)
     overlap = float(u1.mass @ (v > COVERED_LEVEL))  # the source has unit area here
     report("quality", 0.95)
     quality = partial_quality(p2p, eig_1, eig_2, C, overlap=overlap, refinement_turned=rejected)
+    if fallback is not None:
+        quality = dataclasses.replace(quality, notes=(*quality.notes, fallback))
     logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect and warn_suspect:
         warn(logger, quality.suspect_message("the partial map"))
