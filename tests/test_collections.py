@@ -854,3 +854,23 @@ def test_a_collection_without_dask_is_refused_first(shapes, tmp_path, capsys, mo
     err = capsys.readouterr().err
     assert "Dask is not installed" in err and "--workers 0" in err and "-e '.[dask]'" in err
     assert COUNTERS["source_bases"] == before and not (tmp_path / "o").exists()
+
+
+def test_a_collection_logs_each_target_s_quality_notes(shapes, tmp_path, capsys):
+    """A collection's log keeps each target's quality notes; a one-pair run prints them once.
+
+    A review: once the one-pair commands stopped logging the quality report they print, a
+    collection (which prints no such report) lost it too, e.g. a target in other units.
+    """
+    paths, V, F, _ = shapes
+    big = tmp_path / "big.ply"
+    write_geometry(big, triangle_mesh_from_arrays(2.0 * _bent(V, 0.1), F))
+    code = _cli("transfer", paths["src"], big, paths["t1"], "-o", tmp_path / "out",
+                "--workers", "0")  # fmt: skip
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "the target's area is" in err  # the note of big.ply, at the default level
+    # one pair: printed once, on stdout (not also in the log)
+    assert _cli("transfer", paths["src"], big, "-o", tmp_path / "one.ply") == 0
+    captured = capsys.readouterr()
+    assert "the target's area is" in captured.out and "the target's area is" not in captured.err

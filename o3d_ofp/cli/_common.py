@@ -56,9 +56,14 @@ class UsageError(Exception):
 
 
 class _Output:
-    """The command's result lines on stdout; nothing with ``-q``."""
+    """The command's result lines on stdout; nothing with ``-q``.
+
+    ``reports_quality``: the command prints a map's quality report itself (a run over one
+    pair), so the library's own log record of it is left out of stderr (``main``).
+    """
 
     quiet = False
+    reports_quality = False
 
     def write(self, text: str) -> None:
         if not self.quiet:

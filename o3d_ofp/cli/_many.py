@@ -16,7 +16,7 @@ import os
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from ._common import UsageError, report
+from ._common import OUT, UsageError, report
 from ._progress import ENABLED
 from ._types import nonnegative_int
 
@@ -83,6 +83,7 @@ def check_single(args: argparse.Namespace) -> None:
             raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
     if getattr(args, "force", False):
         raise UsageError("--force applies to several targets (TARGET... or a folder)")
+    OUT.reports_quality = True  # one pair: its quality report is printed, not logged
 
 
 def refuse_flags(args: argparse.Namespace, flags: Mapping[str, str]) -> None:
@@ -141,8 +142,6 @@ def report_records(records: Sequence[Any]) -> int:
     say which shapes failed, nor why.
     """
     import sys
-
-    from ._common import OUT
 
     lines = []
     for r in records:

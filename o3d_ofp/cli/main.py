@@ -37,10 +37,14 @@ class _FlagsFormatter(logging.Formatter):
 
 
 class _NoQualityRecords(logging.Filter):
-    """Leave out the library's log records of a map's quality report (the command prints it)."""
+    """Leave out the library's log records of a map's quality report when the command prints it.
+
+    A run over one pair prints the report (``OUT.reports_quality``); a collection's records
+    keep the lines of each target in the log.
+    """
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not getattr(record, "quality_report", False)
+        return not (getattr(record, "quality_report", False) and OUT.reports_quality)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -88,8 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _logging_to_stderr(level: int) -> Iterator[None]:
     """Send the package's log records to the current stderr for the duration of a command.
 
-    Below DEBUG, the records of a map's quality report are left out: the commands print the
-    report (:data:`o3d_ofp.workflows.matching.QUALITY_RECORD`).
+    Below DEBUG, the records of a map's quality report are left out where the command prints
+    the report (:data:`o3d_ofp.workflows.matching.QUALITY_RECORD`, :class:`_NoQualityRecords`).
     """
     root = logging.getLogger("o3d_ofp")
     handler = logging.StreamHandler(sys.stderr)
@@ -143,6 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         level = logging.INFO  # the long stages say what they do
     prog = f"o3d-ofp {args.command}"
     OUT.quiet = bool(args.quiet)
+    OUT.reports_quality = False  # set by a run over one pair (check_single)
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (or what -q silences).
     with _logging_to_stderr(level), warnings.catch_warnings():
