@@ -542,6 +542,10 @@ def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
     with pytest.raises(ValueError, match=r"preset='ours\*' does not apply .*via_basis=False"):
         ofp.transfer_colors(mesh, target, p2p_21=np.arange(len(V)), via_basis=False,
                             preset="ours*")  # fmt: skip
+    # arrays and bases are named by their kind, not printed (a review: a 20 kB message)
+    with pytest.raises(ValueError) as info:
+        ofp.transfer_colors(mesh, target, correspondence=closest, fmap_12=np.zeros((30, 40)))
+    assert "fmap_12=<ndarray> does not apply" in str(info.value) and len(str(info.value)) < 400
     # The defaults, given or not (numpy integers too), are the exact pull-back's.
     for options in ({}, {"k1": 29, "order": np.int64(2), "preset": "ours"}):
         out = ofp.transfer_colors(mesh, target, correspondence=closest, **options)

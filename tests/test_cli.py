@@ -143,6 +143,9 @@ def test_pull_back_through_an_estimated_or_given_map(files, tmp_path, capsys):
     assert main(["transfer", files["src"], files["tgt"], files["tgt"], "--pull-back", "-o",
                  str(tmp_path / "many")]) == 2  # fmt: skip
     _one_line_error(capsys, "--pull-back (for one pair of shapes)")
+    # with a closest map the advice names --via-basis (dropping --pull-back changes nothing)
+    assert main([*args, "--map", "closest", "--k1", "10", "-o", str(tmp_path / "c.ply")]) == 2
+    _one_line_error(capsys, "replace --pull-back by --via-basis")
 
 
 def ofp_load_map(path):
@@ -574,6 +577,12 @@ def test_textured_source_onto_a_target_with_uvs_bakes_a_texture(tmp_path, capsys
     Vb = np.asarray(back.vertices)  # (Open3D's glTF reader may reorder them: use positions)
     north, south = Vb[:, 2] > 0.5, Vb[:, 2] < -0.5
     assert colors[north, 0].mean() > 0.8 and colors[south, 2].mean() > 0.8
+    # --pull-back asks for per-vertex values: refused for a bake, with the fix (a review: it
+    # was ignored)
+    code = main(["transfer", str(tmp_path / "src.obj"), str(tmp_path / "src.obj"), "--map",
+                 "identity", "--pull-back", "-o", str(tmp_path / f"again{ext}")])  # fmt: skip
+    assert code == 2
+    _one_line_error(capsys, "--pull-back puts values on the target's vertices", "--signal colors")
 
 
 def test_texture_flags_and_a_missing_image_are_refused_before_the_work(tmp_path, capsys):
@@ -1001,12 +1010,17 @@ def test_landmarks_files_comma_separated_and_bad_ones(files, tmp_path, capsys, m
     argv = ["transfer", files["src"], files["tgt"], "--k1", "8", "--k2", "8", "-o"]
     assert main([*argv, str(tmp_path / "a.ply"), "--landmarks", str(csv)]) == 0
     np.testing.assert_array_equal(seen[-1], [[3, 5], [40, 41]])
+    # a spreadsheet's "CSV UTF-8": a byte-order mark, semicolons, Windows line ends (a review)
+    csv.write_text("\ufeff3;5\r\n40;41\r\n", encoding="utf-8")
+    assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", str(csv)]) == 0
+    np.testing.assert_array_equal(seen[-1], [[3, 5], [40, 41]])
     capsys.readouterr()
     for text, needle in (
         ("1 2 3\n4 5 6\n", "3 columns; the file needs two (source vertex, target vertex"),
         ("1\n2\n", "1 column; the file needs two"),
         ("source target\n1 2\n", "not a text file of two integer columns"),
         ("1.5 2\n", "the values must be integer vertex indices"),
+        ("\ufeff3;5\r\n40;41\r\n0;99999\r\n", "target indices must lie in [0, 642)"),
         ("# nothing\n", "no pairs in the file"),
         ("0 99999\n", "target indices must lie in [0, 642)"),
     ):

@@ -594,7 +594,10 @@ def _refuse_basis_options(function: Callable[..., Any], transfer: str, **given: 
             return value is None
         return bool(np.isscalar(value) and value == by_default)
 
-    named = [f"{name}={value!r}" for name, value in given.items() if not default(name, value)]
+    def shown(value: Any) -> str:  # arrays and bases by their kind, not their contents
+        return repr(value) if np.isscalar(value) else f"<{type(value).__name__}>"
+
+    named = [f"{name}={shown(value)}" for name, value in given.items() if not default(name, value)]
     if named:
         raise ValueError(
             f"{function.__name__}: {', '.join(named)} {'does' if len(named) == 1 else 'do'} "

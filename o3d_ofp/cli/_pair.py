@@ -100,8 +100,8 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     p.add_argument(
         "--landmarks",
         help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611, "
-        "a 2-column file (spaces or commas apart), or 'pick' (pick them on both shapes in "
-        "Open3D's vertex-selection window; needs a display)",
+        "a 2-column file (spaces, commas or semicolons apart), or 'pick' (pick them on both "
+        "shapes in Open3D's vertex-selection window; needs a display)",
     )
     p.add_argument(
         "--save-landmarks",
@@ -118,10 +118,13 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
         return None
     if os.path.isfile(spec):
         try:
-            with open(spec, encoding="utf-8") as fh, warnings.catch_warnings():
+            # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
+            with open(spec, encoding="utf-8-sig") as fh, warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "no data": said below
-                pairs = np.loadtxt(  # whitespace or commas (a CSV) apart
-                    (line.replace(",", " ") for line in fh), dtype=np.float64, ndmin=2
+                pairs = np.loadtxt(  # whitespace, commas or semicolons (CSVs) apart
+                    (line.replace(",", " ").replace(";", " ") for line in fh),
+                    dtype=np.float64,
+                    ndmin=2,
                 )
         except (ValueError, UnicodeDecodeError) as exc:
             raise UsageError(

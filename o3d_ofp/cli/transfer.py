@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
             "--uv-atlas needs a source mesh with a texture or vertex colors, a mesh target and "
             "an .obj/.glb/.gltf output"
         )
-    if closest and not args.via_basis:
+    if closest and not args.via_basis and not args.pull_back:
         _refuse_basis_flags(
             args,
             "the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
@@ -170,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
         _refuse_basis_flags(
             args,
             "--pull-back carries the values through the map with no OFP basis; drop it, or "
-            "drop --pull-back to transfer through the bases",
+            + ("replace --pull-back by --via-basis" if closest else "drop --pull-back")
+            + " to transfer through the bases",
             files=True,
         )
     spec = args.signal or _default_signal(pair.source)
@@ -426,6 +427,12 @@ def _bake(args: argparse.Namespace, pair) -> int:
         raise UsageError(
             "--via-basis sends colors through the OFP bases to the target's vertices; a bake "
             "reads the source through the map: add --signal colors, or drop --via-basis"
+        )
+    if args.pull_back:
+        raise UsageError(
+            "--pull-back puts values on the target's vertices; this run bakes the source's "
+            "colors into the target's UVs, which reads them through the map with no OFP basis "
+            "already: drop --pull-back, or add --signal colors for per-vertex colors"
         )
     instead = (
         ""

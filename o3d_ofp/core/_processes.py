@@ -263,7 +263,7 @@ def side_by_side(
         if free is not None and free < at_once * memory_each:
             fits = max(1, int(free // max(memory_each, 1.0)))
             if fits < at_once:
-                logger.debug(
+                logger.info(  # the only sign that memory made the run slower
                     "%s: %s available, about %s each: %d at once",
                     what,
                     format_bytes(free),

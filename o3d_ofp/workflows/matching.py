@@ -710,7 +710,8 @@ class Correspondence:
                 f"vertices, but the shapes have {n_target} and {n_source}: it belongs to "
                 "other shapes, or to these read otherwise (a map saved by o3d-ofp indexes the "
                 "vertices as o3d_ofp.read_geometry reads them; Open3D's reader with "
-                "enable_post_processing=True splits an OBJ's vertices along its UV seams)"
+                "enable_post_processing=True splits an OBJ's vertices, along its UV seams or at "
+                "every corner)"
             )
         said = self.mismatch(source, target, name=name)
         if said is not None:
