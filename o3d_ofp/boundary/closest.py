@@ -755,8 +755,8 @@ def closest_correspondence(
         source, ``misalignment``: the mean distance before (``mean_distance_rel``) and after
         (``mean_distance_rel_moved``) the rigid motion fitted to the closest points, its
         ``rotation_degrees`` and ``translation_rel``; with both shapes' triangles,
-        ``facing_away``: the share of the target's area whose normal is more than 45° off the
-        source surface's at its closest point. The quality report is suspect when the
+        ``facing_away``: the share of the target's area whose triangles face more than 45° off
+        the source triangle closest to their centroids. The quality report is suspect when the
         mean distance exceeds :data:`MAX_MEAN_DISTANCE` of the source's diagonal, when that
         rigid motion would bring the target much closer (:data:`MISALIGNED_RATIO`,
         :data:`MISALIGNED_GAIN`: a turned or moved copy; the fix is ``align=True``) or

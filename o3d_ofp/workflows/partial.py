@@ -99,8 +99,7 @@ MAX_JUMP = 0.15
 #: When the chosen start's refinement turns the map over, at most this many further
 #: orientation-preserving starts (in the ranking's order) are refined, and the first whose
 #: refinement keeps the orientation, with a lower geodesic distortion than the chosen start's,
-#: is kept (see _match_partial_surfaces: remeshed
-#: FAUST 002 -> 004 needed the second).
+#: is kept (see _match_partial_surfaces: remeshed FAUST 002 -> 004 needed the second of them).
 NEXT_STARTS = 3
 
 #: Membership level above which a source vertex counts as covered by the target (the
@@ -384,8 +383,8 @@ def match_partial_eigenbases(
     geodesic one is kept; if the refined map turns the orientation over, the next
     orientation-preserving starts are refined in turn (at most :data:`NEXT_STARTS`) and the
     first whose refinement keeps the orientation and changes geodesic distances less than the
-    chosen start is kept (a note says so); if none does, the chosen start is
-    kept unrefined and flagged. The final map is checked (:func:`partial_quality`): a geodesic
+    chosen start is kept (a note says so); if none does, the chosen start is kept unrefined
+    and flagged. The final map is checked (:func:`partial_quality`): a geodesic
     distortion above :data:`MAX_DISTORTION` or a stretch above :data:`MAX_STRETCH` makes it
     suspect (a region sent to the wrong place, or a target that is no part of the source).
     Both bases are scaled by the **source's** area, so the area ratio, which sets the slant,
@@ -580,15 +579,14 @@ def _match_partial_surfaces(
     else:
         rejected = turned
         # The next orientation-preserving starts, in the ranking's order: the first whose
-        # refinement keeps the orientation (and distances, below) is kept (and checked like
-        # any final map). Measured
-        # on the 12 cuts of scripts/eval_partial.py: only remeshed 002 -> 004 and 001 -> 007
-        # come here; 002 -> 004's next start turns over too, the one after ends at error 0.017
-        # (from the unrefined 0.057, flagged), distortion 0.036 (the chosen start's 0.061),
-        # stretch 1.10; 001 -> 007 has
-        # no other orientation-preserving start and stays flagged. Starts that turn over are
-        # not tried: refined, one of 001 -> 007's ends wrong (0.082) within both bounds. At
-        # most NEXT_STARTS are refined (one refinement costs about as much as 1-2 s at 6.9k).
+        # refinement keeps the orientation (and distances, below) is kept and checked like any
+        # final map. Measured on the 12 cuts of scripts/eval_partial.py: only remeshed
+        # 002 -> 004 and 001 -> 007 come here; 002 -> 004's next start turns over too, the one
+        # after ends at error 0.017 (from the unrefined 0.057, flagged), distortion 0.036 (the
+        # chosen start's 0.061), stretch 1.10; 001 -> 007 has no other orientation-preserving
+        # start and stays flagged. Starts that turn over are not tried: refined, one of
+        # 001 -> 007's ends wrong (0.082) within both bounds. At most NEXT_STARTS are refined
+        # (a refinement costs 1-2 s at 6.9k vertices).
         others = sorted(
             (i for i, r in enumerate(refined) if not r[0][0] and r is not best_refined),
             key=lambda i: refined[i][0],
@@ -610,8 +608,8 @@ def _match_partial_surfaces(
                 distortion_next,
             )
             # Kept only when it also changes geodesic distances less than the chosen start:
-            # else the flagged start stays (a review's blob cut, whose chosen start was right
-            # and its refinement made to turn over: the next start refined to a wrong map,
+            # else the flagged start stays (a review's blob cut, the chosen start's right
+            # refinement made to turn over in a test: the next start refined to a wrong map,
             # error 0.42, distortion 0.055, that would have passed the checks).
             if turned_next <= MAX_REVERSED and distortion_next < best[0][1]:
                 fallback = (
