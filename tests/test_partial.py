@@ -363,6 +363,13 @@ def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert f"{paths[1]} has 6." in err and "Rescale the target" in err and not out.exists()
+    # the factor is given (a trial: the refusal did not say by how much)
+    assert "multiply its coordinates by 1000 (metres to millimetres), which makes its area 0.6"\
+        in err
+    # a source and target swapped (area ratio 1.5): no units hint
+    with pytest.raises(ValueError, match="Swap source and target") as info:
+        ofp.match((Vc, Fc), (V, F), partial=True)
+    assert "multiply its coordinates" not in str(info.value)
 
 
 def test_match_partial_eigenbases_checks_its_inputs(whole):

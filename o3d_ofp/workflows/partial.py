@@ -320,7 +320,7 @@ def check_partial_areas(
             f"partial=True (--partial) matches a part (the target) onto the whole shape (the "
             f"source), in the same units; but {names[1]} has {a2 / a1:.3g} times the area of "
             f"{names[0]}: it cannot be a part of it. Swap source and target, or rescale the "
-            "target to the source's units"
+            f"target to the source's units{_units_hint(a2 / a1)}"
         )
     if a1 > 0 and a2 < MIN_AREA_RATIO * a1:
         raise ValueError(
@@ -328,8 +328,31 @@ def check_partial_areas(
             f"source), in the same units; but {names[1]} has {a2 / a1:.3g} times the area of "
             f"{names[0]}: a part below {MIN_AREA_RATIO:g} of the whole shares no frequencies "
             "with it (other units, e.g. millimetres and metres?). Rescale the target to the "
-            "source's units"
+            f"source's units{_units_hint(a2 / a1)}"
         )
+
+
+#: Names of the unit changes a power-of-ten scale factor of a target's coordinates undoes.
+_UNIT_CHANGES = {-3: "millimetres to metres", -2: "centimetres to metres",
+                 2: "metres to centimetres", 3: "metres to millimetres"}  # fmt: skip
+
+
+def _units_hint(ratio: float) -> str:
+    """Suggest a scale factor for a target whose area is ``ratio`` times the source's.
+
+    The power of ten nearest to the linear scale that would give both the same area, when it
+    is not 1 (areas within a factor of about 10: not a units mix-up) and the scaled target
+    would be admitted as a part; else "".
+    """
+    exponent = round(-0.5 * math.log10(ratio)) if ratio > 0 else 0
+    factor = 10.0**exponent
+    if exponent == 0 or not MIN_AREA_RATIO <= ratio * factor**2 <= PARTIAL_MAX_AREA_RATIO:
+        return ""
+    change = _UNIT_CHANGES.get(exponent)
+    return (
+        f": multiply its coordinates by {factor:g}{f' ({change})' if change else ''}, which "
+        f"makes its area {ratio * factor**2:.3g} times the source's"
+    )
 
 
 def check_partial_options(
