@@ -408,13 +408,14 @@ def _facing_away(surface: _Surface, V2: np.ndarray, F2: np.ndarray) -> float:
     though the surfaces coincide.
     """
     areas_2, normals_2 = face_areas_normals(V2, F2)
-    areas_1, normals_1 = face_areas_normals(surface.V, surface.F)
     faces, _, _, _ = surface.closest(V2[F2].mean(axis=1))
-    usable = (areas_2 > 0) & (areas_1[faces] > 0)
+    # the source triangles hit only (a 0.5M-vertex source has 1M triangles)
+    areas_1, normals_1 = face_areas_normals(surface.V, surface.F[faces])
+    usable = (areas_2 > 0) & (areas_1 > 0)
     total = areas_2[usable].sum()
     if not total > 0:
         return math.nan
-    cos = np.abs(np.einsum("ij,ij->i", normals_2, normals_1[faces]))
+    cos = np.abs(np.einsum("ij,ij->i", normals_2, normals_1))
     return float(areas_2[usable & (cos < math.sqrt(0.5))].sum() / total)
 
 
