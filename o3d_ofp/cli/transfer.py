@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
         given = _map_without_bases(args, pair)
         surface = given.barycentric_21 is not None
         with stage("pull-back through the surface map" if surface else "pull-back"):
-            if spec == "texture" and given.barycentric_21 is not None:
+            if spec == "texture" and surface:
                 # the texture itself at each target vertex's point on the source surface, not
                 # the source's per-vertex samples interpolated there (a trial: error 0.022)
                 from ..boundary.texture import mesh_texture

@@ -597,6 +597,7 @@ def _match_partial_surfaces(
     # That start is suspect too (partial_quality, ``refinement_turned``).
     rejected = None
     fallback = None  # the note of a next start kept instead of the chosen one
+    final_distortion = None  # the kept next start's, measured already
     if turned <= MAX_REVERSED or best[0][0]:
         C, p2p = C_refined, p2p_refined
     else:
@@ -643,6 +644,7 @@ def _match_partial_surfaces(
                 )
                 logger.info("partial match: %s", fallback)
                 C, p2p, rejected, w_dcomm = C_next, p2p_next, None, starts[i][1]
+                final_distortion = distortion_next
                 break
         else:
             logger.info(
@@ -652,7 +654,10 @@ def _match_partial_surfaces(
     v = membership(C, u1, u2)
     overlap = float(u1.mass @ (v > COVERED_LEVEL))  # the source has unit area here
     report("quality", 0.95)
-    quality = partial_quality(p2p, eig_1, eig_2, C, overlap=overlap, refinement_turned=rejected)
+    quality = partial_quality(
+        p2p, eig_1, eig_2, C, overlap=overlap, distortion=final_distortion,
+        refinement_turned=rejected,
+    )  # fmt: skip
     if fallback is not None:
         quality = dataclasses.replace(quality, notes=(*quality.notes, fallback))
     logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
