@@ -7,6 +7,7 @@ ground truth of every map.
 
 from __future__ import annotations
 
+import csv
 import json
 import logging
 import os
@@ -874,3 +875,26 @@ def test_a_collection_logs_each_target_s_quality_notes(shapes, tmp_path, capsys)
     assert _cli("transfer", paths["src"], big, "-o", tmp_path / "one.ply") == 0
     captured = capsys.readouterr()
     assert "the target's area is" in captured.out and "the target's area is" not in captured.err
+
+
+def test_a_target_in_other_units_has_the_area_note_in_the_summary(shapes, tmp_path, capsys):
+    """The map's quality notes are in the summary files, not only in the log.
+
+    Found by a trial: a target in millimetres (the source in metres) gave a pair run the
+    note on the area ratio, and a collection's summary nothing.
+    """
+    from o3d_ofp.cli.main import main
+
+    paths, V, F, _ = shapes
+    mm = tmp_path / "mm.ply"
+    write_geometry(mm, triangle_mesh_from_arrays(1000.0 * _bent(V, 0.1), F))
+    out = tmp_path / "out"
+    argv = ["transfer", paths["src"], str(mm), paths["t1"], "--workers", "0", "-o", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    rows = json.loads((out / "summary.json").read_text())["results"]
+    assert len(rows[0]["notes"]) == 1 and "1e+06 times the source's" in rows[0]["notes"][0]
+    assert rows[1]["notes"] == []
+    with open(out / "summary.csv", newline="") as fh:
+        cells = list(csv.DictReader(fh))
+    assert cells[0]["notes"] == rows[0]["notes"][0] and cells[1]["notes"] == ""

@@ -210,9 +210,12 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     # the records' messages in the command line's words (the flags, not the keywords)
     records = [
         dataclasses.replace(
-            r, warnings=tuple(in_flags(w) for w in r.warnings), error=in_flags(r.error)
+            r,
+            warnings=tuple(in_flags(w) for w in r.warnings),
+            notes=tuple(in_flags(n) for n in r.notes),
+            error=in_flags(r.error),
         )
-        if r.warnings or r.error
+        if r.warnings or r.notes or r.error
         else r
         for r in records
     ]

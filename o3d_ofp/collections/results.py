@@ -64,6 +64,10 @@ class TargetResult:
     warnings : tuple of str
         What was said about the shape's result (:class:`~o3d_ofp.OFPWarning` messages: a
         suspect map with its reasons and fix, parts left out, ...); empty when nothing was.
+    notes : tuple of str
+        The notes of its map's quality report (:attr:`~o3d_ofp.MapQuality.notes`: e.g. a
+        target whose area says other units or a part, a point cloud's estimated normals, a
+        partial map's restriction-map orthogonality); empty when there were none or no map.
     values : (n, 3) ndarray or None
         The transferred colors (kind "colors") or the new vertex positions ("detail"), kept
         only when no ``output_dir`` was given; not part of the summary files.
@@ -83,6 +87,7 @@ class TargetResult:
     cached: bool = False
     worker: str = ""
     warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
     values: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -102,6 +107,7 @@ class TargetResult:
             out["coverage"] = None
         out["seconds"] = round(float(out["seconds"]), 3)
         out["warnings"] = list(out["warnings"])
+        out["notes"] = list(out["notes"])
         return out
 
 
@@ -141,6 +147,7 @@ def write_summary(
     for r in rows:
         cells = {k: "" if v is None else v for k, v in r.items()}
         cells["warnings"] = " | ".join(r["warnings"])
+        cells["notes"] = " | ".join(r["notes"])
         writer.writerow(cells)
     csv_path = os.path.join(folder, "summary.csv")
     json_path = os.path.join(folder, "summary.json")

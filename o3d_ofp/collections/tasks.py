@@ -398,6 +398,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     job = source.job
     t0 = time.perf_counter()
     n2, cached, coverage, suspect = 0, False, math.nan, None
+    notes: tuple[str, ...] = ()
     made = job.kind
     try:
         target, V2, F2 = _read(spec)
@@ -406,6 +407,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         corr = _correspondence(source, eig_2, V2, F2)
         if corr.quality is not None:
             coverage, suspect = corr.quality.coverage, corr.quality.suspect
+            notes = tuple(_for_collections(n) for n in corr.quality.notes)
         else:
             coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
         if suspect and job.strict:
@@ -471,6 +473,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         n_vertices=n2,
         cached=cached,
         worker=worker_name(),
+        notes=notes,
         values=values,
     )
 
