@@ -137,6 +137,7 @@ def test_rerun_skips_finished_work_and_redoes_a_touched_input(client, shapes, tm
     assert [r.status for r in third] == ["skipped", "ok", "skipped"]
     forced = transfer_many(paths["src"], targets[:1], skip_existing=False, **run)
     assert forced[0].status == "ok"
+    os.utime(paths["t1"])  # back to now: the module's later reruns would not skip it for 5 s
 
 
 def test_second_run_reuses_the_cached_eigenbases(client, shapes, tmp_path):
@@ -898,3 +899,35 @@ def test_a_target_in_other_units_has_the_area_note_in_the_summary(shapes, tmp_pa
     with open(out / "summary.csv", newline="") as fh:
         cells = list(csv.DictReader(fh))
     assert cells[0]["notes"] == rows[0]["notes"][0] and cells[1]["notes"] == ""
+
+
+def test_a_rerun_keeps_what_was_found_when_the_skipped_outputs_were_made(
+    shapes, tmp_path, capsys
+):
+    """A skipped output's record keeps its map's suspect flag, coverage, warnings and notes.
+
+    Found by a trial: a rerun over a folder skipped the finished targets and rewrote the
+    summary with their suspect flags and warnings empty: the record that two written
+    outputs were wrong was gone.
+    """
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.core.shapes import icosphere
+
+    paths, V, F, _ = shapes
+    sphere, mm = tmp_path / "sphere.ply", tmp_path / "mm.ply"
+    write_geometry(sphere, triangle_mesh_from_arrays(*icosphere(3)))  # a suspect map
+    write_geometry(mm, triangle_mesh_from_arrays(1000.0 * _bent(V, 0.1), F))  # a note
+    out = tmp_path / "out"
+    argv = ["transfer", paths["src"], str(sphere), str(mm), "--workers", "0", "-o", str(out)]
+    assert main(argv) == 0
+    first = json.loads((out / "summary.json").read_text())["results"]
+    assert first[0]["suspect"] and first[0]["warnings"] and first[1]["notes"]
+    capsys.readouterr()
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "skipped  sphere.ply: up to date" in printed and "SUSPECT when it was made" in printed
+    again = json.loads((out / "summary.json").read_text())["results"]
+    assert [r["status"] for r in again] == ["skipped", "skipped"]
+    for before, now in zip(first, again, strict=True):
+        for key in ("coverage", "suspect", "n_vertices", "warnings", "notes", "kind"):
+            assert now[key] == before[key], key

@@ -150,7 +150,8 @@ def report_records(records: Sequence[Any]) -> int:
             if OUT.quiet:
                 sys.stderr.write(lines[-1] + "\n")
         elif r.status == "skipped":
-            lines.append(f"skipped  {r.name}: up to date ({r.output})")
+            sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
+            lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
         else:
             cov = "" if r.coverage != r.coverage else f", map coverage {r.coverage:.2f}"
             sus = " (SUSPECT map: see the warning above and the summary)" if r.suspect else ""

@@ -477,11 +477,16 @@ class _OutputsRecord:
             options.pop(key)
         self.options = options
         self.outputs: dict[str, dict[str, Any]] | None = None
+        # What was found when each output was made (map coverage, suspect flag, warnings,
+        # notes): a rerun that skips it keeps them in its record and summary. Found by a
+        # trial: a rerun's summary had the suspect flags of the outputs it skipped emptied.
+        self.findings: dict[str, dict[str, Any]] = {}
         if self.path is not None and os.path.isfile(self.path):
             try:
                 with open(self.path, encoding="utf-8") as fh:
                     data = json.load(fh)
                 self.outputs = dict(data["outputs"])
+                self.findings = dict(data.get("findings", {}))
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 logger.warning("%s: unreadable (%s): its outputs are redone", self.path, exc)
                 self.outputs = {}
@@ -508,14 +513,40 @@ class _OutputsRecord:
         logger.info("%s: %s is redone (%s)", name, output, why)
         return False
 
-    def add(self, output: str | None) -> None:
-        """Record that ``output`` was just made with these options."""
+    def add(self, output: str | None, result: TargetResult | None = None) -> None:
+        """Record that ``output`` was just made with these options (and what was found)."""
         if self.path is None or output is None:
             return
         if self.outputs is None:
             self.outputs = {}
-        self.outputs[os.path.basename(output)] = self.options
+        key = os.path.basename(output)
+        self.outputs[key] = self.options
+        if result is not None:
+            row = result.row()
+            self.findings[key] = {k: row[k] for k in _FOUND}
         self._write()
+
+    def found(self, output: str | None) -> dict[str, Any]:
+        """Return what was found when ``output`` was made (empty when not recorded)."""
+        if output is None:
+            return {}
+        row = self.findings.get(os.path.basename(output))
+        if not isinstance(row, dict):
+            return {}
+        out: dict[str, Any] = {}
+        for key in _FOUND:
+            value = row.get(key)
+            if key in ("warnings", "notes") and isinstance(value, list):
+                out[key] = tuple(str(v) for v in value)
+            elif key == "coverage" and isinstance(value, (int, float)):
+                out[key] = float(value)
+            elif key == "suspect" and isinstance(value, bool):
+                out[key] = value
+            elif key == "n_vertices" and isinstance(value, int):
+                out[key] = value
+            elif key == "kind" and value in ("colors", "texture", "detail"):
+                out[key] = value
+        return out
 
     def forget(self, outputs: Iterable[str | None]) -> None:
         """Drop the records of outputs about to be made again (written at once)."""
@@ -526,12 +557,18 @@ class _OutputsRecord:
         for output in outputs:
             if output is not None:
                 self.outputs.pop(os.path.basename(output), None)
+                self.findings.pop(os.path.basename(output), None)
         self._write()
 
     def _write(self) -> None:
         assert self.path is not None and self.outputs is not None
+        data = {"version": 1, "outputs": self.outputs, "findings": self.findings}
         with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            json.dump({"version": 1, "outputs": self.outputs}, fh, indent=1, sort_keys=True)
+            json.dump(data, fh, indent=1, sort_keys=True)
+
+
+#: The fields of a target's record kept for a rerun that skips its output.
+_FOUND = ("kind", "coverage", "suspect", "n_vertices", "warnings", "notes")
 
 
 def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
@@ -782,8 +819,8 @@ def transfer_many(
                 logger.info("%s: skipped: %s is newer than the source and the target and "
                             "made with the same options", names[i], outputs[i])  # fmt: skip
                 records[i] = TargetResult(
+                    **{"kind": kind, **made.found(outputs[i])},
                     index=i, name=names[i], path=path, status="skipped", output=outputs[i],
-                    kind=kind,
                 )  # fmt: skip
             else:
                 todo.append(i)
@@ -804,7 +841,7 @@ def transfer_many(
                 records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
                 COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
                 if records[r.index].status == "ok":
-                    made.add(outputs[r.index])
+                    made.add(outputs[r.index], records[r.index])
                     arrived += 1
 
             try:
