@@ -364,6 +364,26 @@ def test_unaligned_shapes_are_suspect(big_source, case):
     assert "not aligned" in reason and "align=True" in reason and "spectral" in reason
 
 
+@pytest.mark.parametrize("scale", [1000.0, 0.01, 3.0])
+def test_a_target_in_other_units_is_told_the_factor(big_source, scale):
+    """A copy in millimetres (or centimetres): the reason gives the power of ten, not ICP.
+
+    Found by a trial: a target in millimetres was told the shapes are 249 diagonals apart and
+    to try align=True, which does not scale. A copy 3 times larger is no units mix-up.
+    """
+    V1, F1 = big_source
+    corr = closest_correspondence(V1, F1, scale * V1)
+    [reason] = corr.quality.reasons
+    assert "not aligned" in reason and "spectral" in reason
+    if scale == 3.0:
+        assert "other units" not in reason and "align=True" in reason
+    else:
+        factor = f"{1 / scale:g}"
+        assert f"multiply the target's coordinates by {factor}" in reason
+        assert ("millimetres to metres" if scale == 1000 else "metres to centimetres") in reason
+        assert "align=True" not in reason  # ICP does not scale
+
+
 @pytest.mark.parametrize("case", ["other_pose", "turned_45"])
 def test_crowded_closest_map_is_suspect(case):
     """Shapes in the same place but not the same pose: close on average, the map is wrong.

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
-from ..core.geometry import face_areas_normals
+from ..core.geometry import face_areas_normals, units_change
 from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality, shape_signature
 from .convert import require_open3d
 
@@ -148,6 +148,24 @@ _SNAP = 1e-8
 def _positions(vertices: np.ndarray) -> np.ndarray:
     """(n,) index of each vertex's distinct position (copies of a vertex share one)."""
     return np.unique(vertices, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def _units(V2: np.ndarray, diag_1: float) -> str:
+    """Advice for a target in other units (its size a power of ten off the source's), or "".
+
+    Found by a trial: a target in millimetres onto a source in metres was told that the
+    shapes are not aligned, 249 diagonals apart, and to try ICP (which does not scale).
+    """
+    ratio = _frame(V2)[1] / diag_1
+    found = units_change(ratio)
+    if found is None or not 0.5 <= ratio * found[0] <= 2.0:
+        return ""
+    factor, change = found
+    return (
+        f"the target's bounding box is {ratio:.3g} times the source's: shapes in other units? "
+        f"multiply the target's coordinates by {factor:g}{f' ({change})' if change else ''}, "
+        f"e.g. Open3D's target.scale({factor:g}, center=(0, 0, 0)), then match again; "
+    )
 
 
 def _frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
@@ -846,8 +864,8 @@ def closest_correspondence(
         reasons.append(
             f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} of "
             f"the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point map "
-            f"(--map closest) is only for shapes in the same place: {retry}otherwise use the "
-            "spectral estimate (--map estimate)"
+            f"(--map closest) is only for shapes in the same place: {_units(V2, diag) or retry}"
+            "otherwise use the spectral estimate (--map estimate)"
         )
     misaligned: list[str] = []
     if surface is not None and not align:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -18,6 +20,34 @@ __all__ = [
     "tangent_frames",
     "vertex_normals",
 ]
+
+
+_UNIT_CHANGES = {-3: "millimetres to metres", -2: "centimetres to metres",
+                 2: "metres to centimetres", 3: "metres to millimetres"}  # fmt: skip
+
+
+def units_change(size_ratio: float) -> tuple[float, str] | None:
+    """Find the power of ten that undoes a units mix-up between two shapes of this size ratio.
+
+    Parameters
+    ----------
+    size_ratio : float
+        A length of one shape (its bounding-box diagonal, or the square root of its area) over
+        the same length of the other, > 0.
+
+    Returns
+    -------
+    (factor, change) or None
+        The power of ten nearest to ``1 / size_ratio`` and the unit change it undoes ("" when
+        it is not a common one, e.g. 1e-6); None when that power is 1 (sizes within a factor
+        of about 3: not a units mix-up).
+    """
+    if not size_ratio > 0 or not math.isfinite(size_ratio):
+        return None
+    exponent = round(-math.log10(size_ratio))
+    if exponent == 0:
+        return None
+    return 10.0**exponent, _UNIT_CHANGES.get(exponent, "")
 
 
 def face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
-from ..core.geometry import face_areas_normals
+from ..core.geometry import face_areas_normals, units_change
 from ..core.partial import (
     fit_partial_fmap,
     geodesic_distortion,
@@ -333,10 +333,6 @@ def check_partial_areas(
 
 
 #: Names of the unit changes a power-of-ten scale factor of a target's coordinates undoes.
-_UNIT_CHANGES = {-3: "millimetres to metres", -2: "centimetres to metres",
-                 2: "metres to centimetres", 3: "metres to millimetres"}  # fmt: skip
-
-
 def _units_hint(ratio: float) -> str:
     """Suggest a scale factor for a target whose area is ``ratio`` times the source's.
 
@@ -344,11 +340,12 @@ def _units_hint(ratio: float) -> str:
     is not 1 (areas within a factor of about 10: not a units mix-up) and the scaled target
     would be admitted as a part; else "".
     """
-    exponent = round(-0.5 * math.log10(ratio)) if ratio > 0 else 0
-    factor = 10.0**exponent
-    if exponent == 0 or not MIN_AREA_RATIO <= ratio * factor**2 <= PARTIAL_MAX_AREA_RATIO:
+    found = units_change(math.sqrt(ratio)) if ratio > 0 else None
+    if found is None:
         return ""
-    change = _UNIT_CHANGES.get(exponent)
+    factor, change = found
+    if not MIN_AREA_RATIO <= ratio * factor**2 <= PARTIAL_MAX_AREA_RATIO:
+        return ""
     return (
         f": multiply its coordinates by {factor:g}{f' ({change})' if change else ''}, which "
         f"makes its area {ratio * factor**2:.3g} times the source's"
