@@ -17,6 +17,13 @@ diagonal); symmetric mean point-to-surface distance to the clean mesh (/ diagona
 volume ratio to the clean mesh, for :func:`o3d_ofp.core.filtering.smooth_coordinates` at
 several ``smooth`` and Open3D's ``filter_smooth_taubin`` at several iteration counts.
 
+**Parts** (``--only parts``). The cuts of ``scripts/eval_partial.py`` (a plane keeps 55-80 % of
+pose 2's area): target = the cut of pose 2's 30-eigenfunction low-pass (the same smoothing as
+above, cut), truth = the cut of pose 2, source = pose 1 whole; the true map and the map of
+``ofp.match(..., partial=True)`` on the smooth cut. Mode "add" (the default) and
+"replace-detail"; the distance / √(truth's area), × doing nothing, the area ratio, and whether the
+"already has detail" warning was given (it should not be: the target is smooth).
+
 Pictures with error colormaps go to ``--out`` (default ``build/eval_detail``); ``--figure``
 writes the README's picture of the modes (FAUST 093 → 087, true map).
 
@@ -178,6 +185,51 @@ def run_detail(args: argparse.Namespace, out: Path) -> None:
             print(f"| mean | {m} | | {arr[:, 0].mean():.2f} | | {arr[:, 1].mean():.2f} | | |")
 
 
+def run_parts(args: argparse.Namespace) -> None:
+    """Detail onto parts: the cuts of eval_partial.py, their smoothed pose-2 targets."""
+    import warnings
+
+    from eval_partial import CUTS, plane_cut
+
+    print("\n### Detail transfer onto parts (target: the cut of pose 2 on 30 eigenfunctions)\n")
+    print(
+        "| cut | map | map error | map verdict | method | distance / √area | × nothing "
+        "| area ratio | warned |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    sources: dict[str, ofp.EigenBasis] = {}
+    for name, src, tgt, axis, side, fraction in CUTS:
+        V1, F1 = load(src)
+        if src not in sources:
+            sources[src] = ofp.eigenbasis(V1, F1, k=K_MATCH)
+        eig_1 = sources[src]
+        V2, F2 = load(tgt)
+        smooth_whole = lowpass_coordinates(ofp.eigenbasis(V2, F2, k=TARGET_BAND), TARGET_BAND)
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        truth, smooth = Vc, smooth_whole[orig]
+        eig_2 = ofp.eigenbasis(smooth, Fc, k=K_MATCH)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # its verdict is in the table
+            corr = ofp.match((V1, F1), (smooth, Fc), partial=True, eigenbases=(eig_1, eig_2))
+        estimated = corr.p2p_21
+        verdict = {"true": "-", "estimated": "suspect" if corr.quality.suspect else "ok"}
+        nothing = detail_metrics(smooth, truth, Fc)["dist"]
+        for map_name, p2p in (("true", orig), ("estimated", estimated)):
+            err = np.linalg.norm(V1[p2p] - V1[orig], axis=1).mean() / math.sqrt(eig_1.area)
+            for mode in ("add", "replace-detail"):
+                with warnings.catch_warnings(record=True) as said:
+                    warnings.simplefilter("always")
+                    X = transfer_detail_frames(eig_1, eig_2, p2p_21=p2p, mode=mode)
+                warned = any("already has detail" in str(w.message) for w in said)
+                r = detail_metrics(X, truth, Fc)
+                print(
+                    f"| {name} | {map_name} | {err:.4f} | {verdict[map_name]} | {mode} "
+                    f"| {r['dist']:.4f} | "
+                    f"{r['dist'] / nothing:.2f} | {r['area']:.3f} | {'yes' if warned else 'no'} |",
+                    flush=True,
+                )
+
+
 SMOOTH_MESHES = {
     "bunny": "models/bunny.off",
     "faust_093": "faust/tr_reg_093.ply",
@@ -319,7 +371,7 @@ def modes_figure(path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--only", choices=("detail", "smoothing", "figure"))
+    parser.add_argument("--only", choices=("detail", "smoothing", "figure", "parts"))
     parser.add_argument("--figure", help="write the README's picture of the modes here (.png)")
     parser.add_argument("--variants", action="store_true", help="also print ours' variants")
     parser.add_argument("--no-render", action="store_true", help="skip the pictures")
@@ -331,6 +383,8 @@ def main() -> None:
         run_detail(args, out)
     if args.only in (None, "smoothing"):
         run_smoothing(args, out)
+    if args.only in (None, "parts"):
+        run_parts(args)
     if args.figure:
         modes_figure(Path(args.figure))
 
