@@ -102,6 +102,8 @@ def test_tiny_stray_component_is_dropped_with_a_warning(caplog):
     with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.cleaning"):
         eig = ofp.eigenbasis(V2, F2, k=8)
     assert "kept the largest of 2 components" in caplog.text
+    # the left-out vertices are still in the results (a trial read "dropping" as removed)
+    assert "stay in the results with the values of their nearest kept vertex" in caplog.text
     _check_meaningful(eig, V2.shape[0], 8)
     assert np.all(eig.mass[len(V) :] == 0)
     # The stray vertices take the values of the nearest sphere vertex (the one at x = 1).
