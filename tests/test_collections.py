@@ -931,3 +931,15 @@ def test_a_rerun_keeps_what_was_found_when_the_skipped_outputs_were_made(
     for before, now in zip(first, again, strict=True):
         for key in ("coverage", "suspect", "n_vertices", "warnings", "notes", "kind"):
             assert now[key] == before[key], key
+
+
+def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
+    """A suspect map's fix that names partial=True: a collection refuses --partial (trial)."""
+    from o3d_ofp.collections.tasks import _for_collections
+
+    said = _for_collections(
+        "the target looks like a part of the other shape (0.64 of its area); fix: "
+        "partial=True / --partial with the whole shape as the source"
+    )
+    assert "a collection makes no partial match" in said and "--partial" in said
+    assert _for_collections("coverage 0.2") == "coverage 0.2"

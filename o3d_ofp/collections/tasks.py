@@ -376,8 +376,19 @@ def _silence_warnings_on_this_worker() -> None:
         _SILENCED = True
 
 
+#: Appended to a message whose fix is a partial match, which a collection does not make.
+ALONE_PARTIAL = (
+    "a collection makes no partial match: transfer this target alone (o3d-ofp transfer SOURCE "
+    "TARGET --partial, or ofp.match(source, target, partial=True))"
+)
+
+
 def _for_collections(message: str) -> str:
-    return f"{message} ({ALONE_WITH_LANDMARKS})" if "landmarks" in message else message
+    if "landmarks" in message:
+        message = f"{message} ({ALONE_WITH_LANDMARKS})"
+    if "partial=True" in message:
+        message = f"{message} ({ALONE_PARTIAL})"
+    return message
 
 
 def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
