@@ -388,6 +388,8 @@ def _detail_rms(eig: EigenBasis, low: np.ndarray, region: np.ndarray | None = No
     d = eig.vertices - low
     mass = eig.mass if region is None else np.where(region, eig.mass, 0.0)
     area = float(mass.sum())
+    if not area > 0:
+        return 0.0
     return math.sqrt(float(mass @ np.einsum("ij,ij->i", d, d)) / area / area)
 
 
@@ -468,7 +470,10 @@ def transfer_detail_frames(
     band : int, default 30
         Low band, in eigenfunctions: the detail is the part of the coordinates above the
         first ``band`` eigenfunctions. Lower takes more of the source's shape (and of its
-        pose), higher only its finer detail.
+        pose), higher only its finer detail. When the map's image covers less than
+        :data:`PART_COVERAGE` of the source's area (a part), the target's low band is its
+        eigenfunctions up to the source's ``band``-th eigenvalue (about the area ratio times
+        ``band``), and its detail and size are compared with the region the part covers.
     amount : float, default 1.0
         Multiplies the transferred detail, in [0, 10] (0 returns the base surface).
     carry : {"p2p", "ofp"}, default "p2p"
@@ -564,7 +569,7 @@ def transfer_detail_frames(
     if mode == "add" and amount > 0:
         own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
         theirs = _detail_rms(eig_1, low_1, region)
-        on_part = f" (on this part: above its {band_2}th eigenfunction)" if part else ""
+        on_part = f" (on this part: above its first {band_2} eigenfunctions)" if part else ""
         if theirs > 0 and own > DETAILED_TARGET * theirs:
             warn(
                 logger,
