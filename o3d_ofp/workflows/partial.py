@@ -358,7 +358,6 @@ def check_partial_areas(
         )
 
 
-#: Names of the unit changes a power-of-ten scale factor of a target's coordinates undoes.
 def _units_hint(ratio: float) -> str:
     """Suggest a scale factor for a target whose area is ``ratio`` times the source's.
 
