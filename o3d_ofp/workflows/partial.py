@@ -299,11 +299,11 @@ SMALL_PART = 0.5
 def small_part_note(area_ratio: float) -> str:
     """Return the note for a part below :data:`SMALL_PART` of the source's area, else "".
 
-    Measured (the 8 cuts of scripts/eval_partial.py keeping 0.25, 0.35 and 0.45 of the area
-    instead, 24 maps): 8 wrong (error above 0.05), 5 of them not flagged, and 3 right ones
-    flagged; no fraction below which they all fail, and no measure of the map separates
-    them (distortion 0.055-0.112 and stretch 1.05-1.36 on the wrong ones passed, against
-    0.035-0.143 and 1.04-1.35 on the right ones).
+    Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts kept at 0.45, 0.35
+    and 0.25 of the area instead, 24 maps): 9 wrong (error above 0.05), 6 of them not
+    flagged, and 4 right ones flagged; no fraction below which they all fail, and no measure
+    of the map separates them (the wrong ones that passed: distortion 0.055-0.112, stretch
+    1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35).
     """
     if not area_ratio < SMALL_PART:
         return ""
