@@ -301,7 +301,7 @@ def small_part_note(area_ratio: float) -> str:
 
     Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts kept at 0.45, 0.35
     and 0.25 of the area instead, 24 maps): 9 wrong (error above 0.05), 6 of them not
-    flagged, and 4 right ones flagged; no fraction below which they all fail, and no measure
+    flagged, and 3 right ones flagged; no fraction below which they all fail, and no measure
     of the map separates them (the wrong ones that passed: distortion 0.055-0.112, stretch
     1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35).
     """
