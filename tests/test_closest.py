@@ -364,18 +364,19 @@ def test_unaligned_shapes_are_suspect(big_source, case):
     assert "not aligned" in reason and "align=True" in reason and "spectral" in reason
 
 
-@pytest.mark.parametrize("scale", [1000.0, 0.01, 3.0])
+@pytest.mark.parametrize("scale", [1000.0, 0.01, 3.0, 12.0])
 def test_a_target_in_other_units_is_told_the_factor(big_source, scale):
     """A copy in millimetres (or centimetres): the reason gives the power of ten, not ICP.
 
     Found by a trial: a target in millimetres was told the shapes are 249 diagonals apart and
-    to try align=True, which does not scale. A copy 3 times larger is no units mix-up.
+    to try align=True, which does not scale. A copy 3 or 12 times larger is no
+    units mix-up (no unit is 10 times another here).
     """
     V1, F1 = big_source
     corr = closest_correspondence(V1, F1, scale * V1)
     [reason] = corr.quality.reasons
     assert "not aligned" in reason and "spectral" in reason
-    if scale == 3.0:
+    if scale in (3.0, 12.0):
         assert "other units" not in reason and "align=True" in reason
     else:
         factor = f"{1 / scale:g}"

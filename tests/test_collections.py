@@ -943,3 +943,6 @@ def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
     )
     assert "a collection makes no partial match" in said and "--partial" in said
     assert _for_collections("coverage 0.2") == "coverage 0.2"
+    # a partial shape named as one likely cause among others is no fix to apply
+    cause = "likely causes: shapes of other kinds, or a part of the other shape (partial=True)"
+    assert _for_collections(cause) == cause

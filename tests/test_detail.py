@@ -265,6 +265,32 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region():
     assert _covered(e1, ofp.eigenbasis(V2, F2, k=30), np.arange(len(V2))).all()  # whole
     band = _part_band(e1, detailed, 30, covered * e1.area / detailed.area)
     assert 18 <= band <= 26  # about the area ratio times 30 (Weyl's law)
+    # an estimated full-shape map onto a whole target that covers half of the source (a
+    # wrong map crowds; a smoothed target has less area) is no part (a review of the change)
+    import logging
+
+    from o3d_ofp.workflows.matching import Correspondence
+
+    whole = ofp.eigenbasis(smooth_whole, F2, k=40)
+    upper = np.flatnonzero(V1[:, 1] > np.median(V1[:, 1]))
+    crowded = upper[np.argmin(np.abs(V1[upper, 1][None, :] - V1[:, 1][:, None]), axis=1)]
+    assert e1.mass[_covered(e1, whole, crowded)].sum() < 0.6 * e1.area
+    logger = logging.getLogger("o3d_ofp.workflows.detail")
+    seen = []
+    handler = logging.Handler()
+    handler.emit = lambda record: seen.append(record.getMessage())
+    logger.addHandler(handler)
+    level = logger.level
+    logger.setLevel(logging.INFO)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            estimated = Correspondence(p2p_21=crowded, n_source=len(V1), method="estimate")
+            transfer_detail_frames(e1, whole, correspondence=estimated)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    assert not any("onto a part" in m for m in seen)
     for eig, warned in ((detailed, True), (smooth, False)):
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")

@@ -158,7 +158,9 @@ def _units(V2: np.ndarray, diag_1: float) -> str:
     """
     ratio = _frame(V2)[1] / diag_1
     found = units_change(ratio)
-    if found is None or not 0.5 <= ratio * found[0] <= 2.0:
+    # a named change only (millimetres, centimetres, metres): a target 10 times off is
+    # another shape or a mistake, not a unit
+    if found is None or not found[1] or not 0.5 <= ratio * found[0] <= 2.0:
         return ""
     factor, change = found
     return (

@@ -486,10 +486,12 @@ class _OutputsRecord:
                 with open(self.path, encoding="utf-8") as fh:
                     data = json.load(fh)
                 self.outputs = dict(data["outputs"])
-                self.findings = dict(data.get("findings", {}))
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 logger.warning("%s: unreadable (%s): its outputs are redone", self.path, exc)
                 self.outputs = {}
+            else:  # findings that cannot be read are only missing from skipped rows
+                found = data.get("findings") if isinstance(data, dict) else None
+                self.findings = dict(found) if isinstance(found, dict) else {}
 
     def same_options(self, output: str | None, name: str) -> bool:
         """Whether ``output`` was made with these options (True when nothing is recorded)."""
@@ -513,7 +515,7 @@ class _OutputsRecord:
         logger.info("%s: %s is redone (%s)", name, output, why)
         return False
 
-    def add(self, output: str | None, result: TargetResult | None = None) -> None:
+    def add(self, output: str | None, *, result: TargetResult | None = None) -> None:
         """Record that ``output`` was just made with these options (and what was found)."""
         if self.path is None or output is None:
             return
@@ -841,7 +843,7 @@ def transfer_many(
                 records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
                 COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
                 if records[r.index].status == "ok":
-                    made.add(outputs[r.index], records[r.index])
+                    made.add(outputs[r.index], result=records[r.index])
                     arrived += 1
 
             try:

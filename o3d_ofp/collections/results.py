@@ -42,7 +42,7 @@ class TargetResult:
         was newer than both inputs, or for bases: every cache entry was already there). A
         skipped transfer keeps what was found when its output was made (``coverage``,
         ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded in the output
-        folder.
+        folder (outputs made by versions before this record have none).
     output : str or None
         The file written (the transferred target, or the cached basis for
         :func:`~o3d_ofp.collections.bases_many`); ``None`` when nothing was written.
@@ -69,8 +69,8 @@ class TargetResult:
         suspect map with its reasons and fix, parts left out, ...); empty when nothing was.
     notes : tuple of str
         The notes of its map's quality report (:attr:`~o3d_ofp.MapQuality.notes`: e.g. a
-        target whose area says other units or a part, a point cloud's estimated normals, a
-        partial map's restriction-map orthogonality); empty when there were none or no map.
+        target whose area says other units or a part, a point cloud's estimated normals);
+        empty when there were none or no map.
     values : (n, 3) ndarray or None
         The transferred colors (kind "colors") or the new vertex positions ("detail"), kept
         only when no ``output_dir`` was given; not part of the summary files.

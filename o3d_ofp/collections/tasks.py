@@ -386,7 +386,7 @@ ALONE_PARTIAL = (
 def _for_collections(message: str) -> str:
     if "landmarks" in message:
         message = f"{message} ({ALONE_WITH_LANDMARKS})"
-    if "partial=True" in message:
+    if "fix: partial=True" in message:
         message = f"{message} ({ALONE_PARTIAL})"
     return message
 
@@ -470,6 +470,7 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         return failed(
             spec, f"{type(exc).__name__}: {exc}", kind=job.kind,
             seconds=time.perf_counter() - t0, n_vertices=n2, cached=cached, worker=worker_name(),
+            notes=notes,
         )  # fmt: skip
     return TargetResult(
         index=spec.index,

@@ -18,6 +18,7 @@ __all__ = [
     "point_neighbours",
     "point_normals",
     "tangent_frames",
+    "units_change",
     "vertex_normals",
 ]
 

@@ -73,6 +73,7 @@ __all__ = [
     "FIT_RANGE",
     "MAX_AMOUNT",
     "MODES",
+    "PART_COVERAGE",
     "ROTATION_K",
     "check_coordinates_area",
     "check_detail_options",
@@ -324,7 +325,7 @@ def _normals(eig: EigenBasis, surface: np.ndarray, given: Any, name: str) -> np.
 
 
 def _surface_area(
-    eig: EigenBasis, vertices: np.ndarray, region: np.ndarray | None = None
+    eig: EigenBasis, vertices: np.ndarray, *, region: np.ndarray | None = None
 ) -> float | None:
     """Area of the mesh with these vertex positions (of its triangles inside ``region``)."""
     if eig.faces is None:
@@ -334,9 +335,11 @@ def _surface_area(
 
 
 #: A map whose image covers less than this fraction of the source's area (the vertices within
-#: two mean edge lengths of an image vertex) maps the target onto a part of the source. Full
-#: maps leave no gap that wide (estimated maps crowd, by single vertices); the cuts of
-#: scripts/eval_partial.py keep 0.55-0.8 of the area.
+#: two mean edge lengths of an image vertex), onto a target whose area is also below this
+#: fraction of the source's, maps the target onto a part of the source; a partial map from
+#: ``match(partial=True)`` always does, an estimated full-shape map never. Right full maps
+#: leave no gap that wide (measured 0.99-1.0: estimated maps crowd by single vertices); the
+#: cuts of scripts/eval_partial.py keep 0.55-0.8 of the area.
 PART_COVERAGE = 0.9
 
 
@@ -383,7 +386,7 @@ def _part_band(eig_1: EigenBasis, eig_2: EigenBasis, band: int, sigma: float) ->
 DETAILED_TARGET = 0.8
 
 
-def _detail_rms(eig: EigenBasis, low: np.ndarray, region: np.ndarray | None = None) -> float:
+def _detail_rms(eig: EigenBasis, low: np.ndarray, *, region: np.ndarray | None = None) -> float:
     """RMS length of the detail ``vertices - low``, per sqrt(area) (scale-free), on ``region``."""
     d = eig.vertices - low
     mass = eig.mass if region is None else np.where(region, eig.mass, 0.0)
@@ -470,8 +473,9 @@ def transfer_detail_frames(
     band : int, default 30
         Low band, in eigenfunctions: the detail is the part of the coordinates above the
         first ``band`` eigenfunctions. Lower takes more of the source's shape (and of its
-        pose), higher only its finer detail. When the map's image covers less than
-        :data:`PART_COVERAGE` of the source's area (a part), the target's low band is its
+        pose), higher only its finer detail. Onto a part (a partial map, or a given or
+        closest-point map whose image covers less than :data:`PART_COVERAGE` of the source,
+        onto a target of less than that area), the target's low band is its
         eigenfunctions up to the source's ``band``-th eigenvalue (about the area ratio times
         ``band``), and its detail and size are compared with the region the part covers.
     amount : float, default 1.0
@@ -549,16 +553,26 @@ def transfer_detail_frames(
     # where comparing the part above its own first 30 eigenfunctions with the whole source
     # warned on 3; the result's area 0.77-1.01 of the truth's (0.70-0.98 with the whole's
     # low-pass area), its distance 0.52-0.71 of doing nothing (0.52-0.70). Cuts of FAUST 093
-    # that kept their detail, or were smoothed a little (filter_geometry smooth=0.02): 0.82-1.08
+    # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08
     # of the covered region's detail, like whole bodies (0.96-1.0), where the former measure
     # gave 0.77-0.86 and often no warning (a trial).
     region, band_2 = _covered(eig_1, eig_2, p2p), band_1
-    part = region is not None and eig_1.mass[region].sum() < PART_COVERAGE * eig_1.area
+    # An estimated full-shape map is never taken for a part: it crowds when it is wrong, and
+    # a smoothed whole target has less area than its source (a review of the change).
+    method = None if correspondence is None else correspondence.method
+    part = region is not None and (
+        method == "partial"
+        or (
+            method != "estimate"
+            and eig_1.mass[region].sum() < PART_COVERAGE * eig_1.area
+            and eig_2.area < PART_COVERAGE * eig_1.area
+        )
+    )
     if part:
         assert region is not None
         sigma = float(eig_1.mass[region].sum()) / eig_2.area
         band_2 = _part_band(eig_1, eig_2, band_1, sigma)
-        logger.debug(
+        logger.info(
             "detail transfer onto a part (%.2f of the source covered): target band %d",
             eig_1.mass[region].sum() / eig_1.area,
             band_2,
@@ -568,7 +582,7 @@ def transfer_detail_frames(
     base = X2 if mode == "add" else lowpass_coordinates(eig_2, band_2)
     if mode == "add" and amount > 0:
         own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
-        theirs = _detail_rms(eig_1, low_1, region)
+        theirs = _detail_rms(eig_1, low_1, region=region)
         on_part = f" (on this part: above its first {band_2} eigenfunctions)" if part else ""
         if theirs > 0 and own > DETAILED_TARGET * theirs:
             warn(
@@ -594,7 +608,7 @@ def transfer_detail_frames(
             mean_height = float(eig_1.mass @ np.einsum("ij,ij->i", detail_1, n1)) / eig_1.area
             moved += ((1.0 - w) * mean_height)[:, None] * n2
         logger.debug("map trusted at %.1f %% of the target", 100.0 * float(w.mean()))
-    area_base, area_low = _surface_area(eig_2, base), _surface_area(eig_1, low_1, region)
+    area_base, area_low = _surface_area(eig_2, base), _surface_area(eig_1, low_1, region=region)
     if area_base is not None and area_low is not None and area_low > 0:
         scale = math.sqrt(area_base / area_low)
     else:
