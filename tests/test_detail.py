@@ -240,7 +240,7 @@ def _cut_above(V, F, fraction, axis=1):
     return orig, index[kept]
 
 
-def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region():
+def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region(caplog):
     """A part of the source (a partial map) is compared with the region it covers.
 
     Found by a trial: 'add' onto a cut of a body that kept its detail gave no warning (it
@@ -275,21 +275,11 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region():
     upper = np.flatnonzero(V1[:, 1] > np.median(V1[:, 1]))
     crowded = upper[np.argmin(np.abs(V1[upper, 1][None, :] - V1[:, 1][:, None]), axis=1)]
     assert e1.mass[_covered(e1, whole, crowded)].sum() < 0.6 * e1.area
-    logger = logging.getLogger("o3d_ofp.workflows.detail")
-    seen = []
-    handler = logging.Handler()
-    handler.emit = lambda record: seen.append(record.getMessage())
-    logger.addHandler(handler)
-    level = logger.level
-    logger.setLevel(logging.INFO)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            estimated = Correspondence(p2p_21=crowded, n_source=len(V1), method="estimate")
-            transfer_detail_frames(e1, whole, correspondence=estimated)
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
+    with warnings.catch_warnings(), caplog.at_level(logging.INFO, "o3d_ofp.workflows.detail"):
+        warnings.simplefilter("ignore")
+        estimated = Correspondence(p2p_21=crowded, n_source=len(V1), method="estimate")
+        transfer_detail_frames(e1, whole, correspondence=estimated)
+    seen = [r.getMessage() for r in caplog.records]
     assert not any("onto a part" in m for m in seen)
     for eig, warned in ((detailed, True), (smooth, False)):
         with warnings.catch_warnings(record=True) as said:

@@ -556,25 +556,22 @@ def transfer_detail_frames(
     # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08
     # of the covered region's detail, like whole bodies (0.96-1.0), where the former measure
     # gave 0.77-0.86 and often no warning (a trial).
-    region, band_2 = _covered(eig_1, eig_2, p2p), band_1
-    # An estimated full-shape map is never taken for a part: it crowds when it is wrong, and
-    # a smoothed whole target has less area than its source (a review of the change).
+    # An estimated full-shape map is never taken for a part (its coverage is not measured):
+    # it crowds when it is wrong, and a smoothed whole target has less area than its source
+    # (a review of the change).
     method = None if correspondence is None else correspondence.method
+    region = None if method == "estimate" else _covered(eig_1, eig_2, p2p)
+    covered = 0.0 if region is None else float(eig_1.mass[region].sum())
     part = region is not None and (
         method == "partial"
-        or (
-            method != "estimate"
-            and eig_1.mass[region].sum() < PART_COVERAGE * eig_1.area
-            and eig_2.area < PART_COVERAGE * eig_1.area
-        )
+        or (covered < PART_COVERAGE * eig_1.area and eig_2.area < PART_COVERAGE * eig_1.area)
     )
+    band_2 = band_1
     if part:
-        assert region is not None
-        sigma = float(eig_1.mass[region].sum()) / eig_2.area
-        band_2 = _part_band(eig_1, eig_2, band_1, sigma)
+        band_2 = _part_band(eig_1, eig_2, band_1, covered / eig_2.area)
         logger.info(
             "detail transfer onto a part (%.2f of the source covered): target band %d",
-            eig_1.mass[region].sum() / eig_1.area,
+            covered / eig_1.area,
             band_2,
         )
     else:
