@@ -270,8 +270,9 @@ def test_a_child_dies_with_its_parent(tmp_path):
         from o3d_ofp.core._processes import side_by_side
 
         def child():
-            with open("child.pid", "w") as f:
-                f.write(str(os.getpid()))
+            with open("child.tmp", "w") as f:  # renamed when written: the parent, which
+                f.write(str(os.getpid()))  # waits for the name, never reads it empty
+            os.replace("child.tmp", "child.pid")
             time.sleep(60)
             return b"x" * 10_000_000  # more than a pipe holds
 
