@@ -636,3 +636,111 @@ def test_faust_cut_onto_another_body():
     # scripts/eval_partial.py measures this cut; the bound leaves room for round-off-driven
     # changes of the chosen start but fails on a flipped or collapsed map (> 0.15).
     assert _error(V1, corr.p2p_21, truth, area) < 0.1
+
+
+@pytest.fixture(scope="module")
+def colored_blob_and_part():
+    """A colored 642-vertex blob (legacy Open3D mesh) and its 70 % cut with per-corner UVs."""
+    import open3d as o3d
+
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    V, F = blob(3)
+    Vc, Fc, truth = plane_cut(V, F, axis=0, fraction=0.7)
+    source = triangle_mesh_from_arrays(V, F)
+    source.vertex_colors = o3d.utility.Vector3dVector(0.5 + 0.5 * np.sin(3 * V))
+    part = triangle_mesh_from_arrays(Vc, Fc)
+    uv = (Vc[:, 1:] - Vc[:, 1:].min(0)) / np.ptp(Vc[:, 1:], axis=0)  # a planar projection
+    part.triangle_uvs = o3d.utility.Vector2dVector(uv[Fc.reshape(-1)])
+    return source, part, truth
+
+
+def test_transfers_estimate_a_partial_map_with_partial_true(colored_blob_and_part):
+    """``partial=True`` on the three transfers is ``match(partial=True)``, then the transfer.
+
+    A trial's ``transfer_colors(..., partial=True)`` was a TypeError: only the command line
+    had the flag. The same map gives the same result; the full-shape map of the part, which
+    partial=True replaces, gives another (worse) one.
+    """
+    source, part, truth = colored_blob_and_part
+    colors = np.asarray(source.vertex_colors)
+    corr = ofp.match(source, part, partial=True)
+    assert corr.method == "partial"
+    options = {"k1": 12, "k2": 12}
+    by_flag = np.asarray(ofp.transfer_colors(source, part, partial=True, **options).vertex_colors)
+    two_steps = ofp.transfer_colors(source, part, correspondence=corr, **options)
+    np.testing.assert_allclose(by_flag, np.asarray(two_steps.vertex_colors), atol=1e-12)
+    full = np.asarray(ofp.transfer_colors(source, part, **options).vertex_colors)
+    error = np.abs(by_flag - colors[truth]).mean()
+    assert error < 0.5 * np.abs(full - colors[truth]).mean()
+
+    moved = ofp.transfer_detail(source, part, partial=True)
+    np.testing.assert_allclose(
+        np.asarray(moved.vertices),
+        np.asarray(ofp.transfer_detail(source, part, correspondence=corr).vertices),
+        atol=1e-12,
+    )
+
+    baked = ofp.transfer_texture(source, part, partial=True, size=64)
+    same = ofp.transfer_texture(source, part, correspondence=corr, size=64)
+    np.testing.assert_array_equal(np.asarray(baked.textures[0]), np.asarray(same.textures[0]))
+
+
+def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, caplog):
+    """Mode "coordinates" onto a part gives it the covered region's shape, not the whole's.
+
+    The area check compared the result with the whole source's area: a part of less than half
+    of it was always told its map was wrong.
+    """
+    V, F, e1 = whole
+    Vc, Fc, truth, ec = cut
+    part = np.isin(np.arange(len(Vc)), np.flatnonzero(Vc[:, 0] > np.quantile(Vc[:, 0], 0.4)))
+    small_F = Fc[part[Fc].all(axis=1)]
+    keep = np.unique(small_F)
+    index = np.full(len(Vc), -1)
+    index[keep] = np.arange(keep.size)
+    Vs, Fs = Vc[keep], index[small_F]
+    area = lambda X, T: 0.5 * np.linalg.norm(  # noqa: E731
+        np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]), axis=1
+    ).sum()
+    assert area(Vs, Fs) < 0.45 * area(V, F)  # below the factor 2 of the check
+    corr = Correspondence(p2p_21=truth[keep], n_source=len(V), method="partial")
+    with caplog.at_level("WARNING", logger="o3d_ofp"):
+        moved = ofp.transfer_detail((V, F), (Vs, Fs), mode="coordinates", correspondence=corr,
+                                    k1=20, k2=20)  # fmt: skip
+    assert not [r for r in caplog.records if "area" in r.getMessage()]
+    assert 0.5 < area(np.asarray(moved.vertices), Fs) / area(Vs, Fs) < 2.0
+    with caplog.at_level("WARNING", logger="o3d_ofp"), pytest.warns(ofp.OFPWarning, match="area"):
+        ofp.transfer_detail(
+            (V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20,
+            correspondence=dataclasses.replace(corr, method="given"),
+        )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("call", "kwargs", "error", "match"),
+    [
+        ("transfer_colors", {"partial": "yes"}, TypeError, "partial must be True or False"),
+        ("transfer_detail", {"partial": 1}, TypeError, "partial must be True or False"),
+        ("transfer_colors", {"p2p_21": "map"}, ValueError, "the given map .* is used as it is"),
+        ("transfer_texture", {"p2p_21": "map"}, ValueError, "the given map .* is used as it is"),
+        ("transfer_detail", {"cloud": True}, ValueError, "the target is a point cloud"),
+        ("transfer_colors", {"swap": True}, ValueError, "cannot be a part of it"),
+    ],
+)
+def test_partial_transfers_refuse_what_cannot_apply_before_any_eigensolve(
+    colored_blob_and_part, no_eigensolve, call, kwargs, error, match
+):
+    import open3d as o3d
+
+    source, part, _ = colored_blob_and_part
+    kwargs = {"partial": True, **kwargs}
+    if kwargs.pop("cloud", False):
+        part = o3d.geometry.PointCloud(part.vertices)
+    if kwargs.pop("swap", False):
+        source, part = o3d.geometry.TriangleMesh(part), source  # the whole given as the part
+        source.vertex_colors = o3d.utility.Vector3dVector(np.full((len(source.vertices), 3), 0.5))
+    if kwargs.get("p2p_21") == "map":
+        kwargs["p2p_21"] = np.zeros(len(part.vertices), dtype=int)
+    with pytest.raises(error, match=match):
+        getattr(ofp, call)(source, part, **kwargs)

@@ -450,6 +450,7 @@ def transfer_colors(
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
+    partial: bool = False,
 ) -> Any:
     """Transfer vertex colors from one Open3D geometry to another.
 
@@ -489,6 +490,10 @@ def transfer_colors(
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components in the eigenbases computed here (see
         :func:`eigenbasis`).
+    partial : bool, default False
+        The target is a part of the source (a one-sided scan, a cut) in the same units: the
+        map estimated here is a partial one, as :func:`match` with ``partial=True`` makes it
+        (both shapes triangle meshes; refused with a given map, which is used as it is).
 
     Returns
     -------
@@ -573,6 +578,7 @@ def transfer_colors(
         eigenbases=eigenbases,
         bases=bases,
         components=components,
+        partial=partial,
     )
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
@@ -657,6 +663,7 @@ def transfer_detail(
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
+    partial: bool = False,
 ) -> Any:
     """Give the target the source's geometric detail; return a new displaced geometry.
 
@@ -700,6 +707,11 @@ def transfer_detail(
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components in the eigenbases computed here (see
         :func:`eigenbasis`).
+    partial : bool, default False
+        The target is a part of the source (a one-sided scan, a cut) in the same units: the
+        map estimated here is a partial one, as :func:`match` with ``partial=True`` makes it
+        (both shapes triangle meshes; refused with a given map, which is used as it is).
+        The detail is then measured on the region of the source the part covers.
 
     Returns
     -------
@@ -756,8 +768,10 @@ def transfer_detail(
             eigenbases=eigenbases,
             bases=bases,
             components=components,
+            partial=partial,
         )
-        check_coordinates_area(V1, F1, moved, F2)
+        part = partial or (correspondence is not None and correspondence.method == "partial")
+        check_coordinates_area(V1, F1, moved, F2, part=V2 if part else None)
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)
     if eigenbases is not None:  # too small for the band: computed again, larger
@@ -777,6 +791,7 @@ def transfer_detail(
         landmarks=landmarks,
         eigenbases=eigenbases,
         components=components,
+        partial=partial,
     )
     if fmap_12 is not None:
         p2p_21 = p2p_from_fmap(fmap_12, eig_1, eig_2)

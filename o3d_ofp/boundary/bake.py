@@ -29,6 +29,8 @@ from scipy import ndimage
 from ..core.correspondence import check_p2p
 from ..core.texture import MAX_TEXTURE_SIZE
 from ..workflows.matching import Correspondence, check_correspondence, match_arrays
+from ..workflows.partial import match_partial_arrays
+from ..workflows.pipeline import check_partial_transfer
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .texture import (
@@ -214,10 +216,13 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
     return out
 
 
-def _estimate(V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray) -> Correspondence:
+def _estimate(
+    V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray, *, partial: bool
+) -> Correspondence:
     """Estimate the default map (``o3d_ofp.match`` with its defaults, on arrays)."""
-    logger.info("texture transfer: no map given, estimating one (eigenbases and ZoomOut)")
-    return match_arrays(V1, F1, V2, F2)
+    what = "a partial one" if partial else "one"
+    logger.info("texture transfer: no map given, estimating %s (eigenbases and ZoomOut)", what)
+    return (match_partial_arrays if partial else match_arrays)(V1, F1, V2, F2)
 
 
 def _mapped_points(
@@ -227,8 +232,10 @@ def _mapped_points(
     F2: np.ndarray,
     correspondence: Correspondence | None,
     p2p_21: Any,
+    *,
+    partial: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Source surface point of every target vertex.
+    """Source surface point of every target vertex (a map estimated when none is given).
 
     Returns
     -------
@@ -243,7 +250,7 @@ def _mapped_points(
     if correspondence is not None and p2p_21 is not None:
         raise ValueError("give either correspondence or p2p_21, not both")
     if correspondence is None and p2p_21 is None:
-        correspondence = _estimate(V1, F1, V2, F2)
+        correspondence = _estimate(V1, F1, V2, F2, partial=partial)
     if check_correspondence(correspondence) is not None:
         correspondence.check(n1, n2, source=V1, target=V2)
         if correspondence.faces_21 is not None:
@@ -373,6 +380,7 @@ def transfer_texture(
     texture: Any = None,
     dilate: int = 8,
     atlas: bool = False,
+    partial: bool = False,
 ) -> Any:
     """Bake the source's texture (or vertex colors) into a new image in the target's UV layout.
 
@@ -414,6 +422,11 @@ def transfer_texture(
         For a target without UVs: give it a new UV atlas first (Open3D's
         ``compute_uvatlas``, ``size`` texels wide; its vertices are kept) and bake into it.
         Without it such a target is an error (per-vertex colors: :func:`transfer_colors`).
+    partial : bool, default False
+        The target is a part of the source (a one-sided scan, a cut) in the same units: the
+        map estimated here is a partial one, as :func:`o3d_ofp.match` with ``partial=True``
+        makes it (both shapes triangle meshes; refused with a given map, which is used as it
+        is).
 
     Returns
     -------
@@ -449,6 +462,8 @@ def transfer_texture(
         src = surface_colors(source, texture)
         if isinstance(src, VertexColorSurface):
             logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
+    known = correspondence is not None or p2p_21 is not None
+    check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
     if not has_uvs(target):
         if not atlas:
             raise ValueError(
@@ -459,7 +474,9 @@ def transfer_texture(
     target_uv = corner_uvs(target)
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
-    points, _, _ = _mapped_points(src.vertices, src.faces, V2, F2, correspondence, p2p_21)
+    points, _, _ = _mapped_points(
+        src.vertices, src.faces, V2, F2, correspondence, p2p_21, partial=partial
+    )
 
     texels, tri2, bary2, inside = _rasterize(target_uv, size, band=math.sqrt(2.0) + 1e-6)
     logger.debug(

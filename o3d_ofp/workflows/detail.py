@@ -405,21 +405,28 @@ def _detail_rms(eig: EigenBasis, low: np.ndarray, *, region: np.ndarray | None =
 COORDINATES_AREA_RATIO = 2.0
 
 
-def check_coordinates_area(V1: np.ndarray, F1: Any, moved: np.ndarray, F2: Any) -> None:
+def check_coordinates_area(
+    V1: np.ndarray, F1: Any, moved: np.ndarray, F2: Any, *, part: np.ndarray | None = None
+) -> None:
     """Warn (OFPWarning) when transferred coordinates do not have the source's area.
 
     ``V1``, ``F1``: the source; ``moved``: the target's new vertices, ``F2`` its faces (either
-    faces None: a point cloud, not checked).
+    faces None: a point cloud, not checked). ``part``: the target's own (n2, 3) vertices when
+    it is a part of the source (a partial map, same units): the result should then have the
+    area of the region it covers, which is the part's own.
     """
     if F1 is None or F2 is None:
         return
     a1 = float(face_areas_normals(V1, F1)[0].sum())
+    if part is not None:
+        a1 = float(face_areas_normals(part, F2)[0].sum())
     a2 = float(face_areas_normals(moved, F2)[0].sum())
     ratio = a2 / a1 if a1 > 0 else math.inf
+    whose = "the part's own" if part is not None else "the source's"
     if not 1 / COORDINATES_AREA_RATIO <= ratio <= COORDINATES_AREA_RATIO:
         warn(
             logger,
-            f"the transferred coordinates give the target {ratio:.3g} times the source's area "
+            f"the transferred coordinates give the target {ratio:.3g} times {whose} area "
             "(the source's shape should come back): the map is wrong in places; check "
             "correspondence.quality, give landmarks (landmarks= / --landmarks), or a known map",
         )
@@ -532,7 +539,10 @@ def transfer_detail_frames(
     ofp_kw = dict(k1=k1, k2=k2, order=order, preset=preset, tol=tol, p2p_21=p2p, bases=bases)
     if mode == "coordinates":
         moved = transfer_function(eig_1.vertices, eig_1, eig_2, **ofp_kw)
-        check_coordinates_area(eig_1.vertices, eig_1.faces, moved, eig_2.faces)
+        part = correspondence is not None and correspondence.method == "partial"
+        check_coordinates_area(
+            eig_1.vertices, eig_1.faces, moved, eig_2.faces, part=eig_2.vertices if part else None
+        )
         return moved
 
     band_1 = _check_band(band, eig_1, "eig_1")

@@ -36,10 +36,12 @@ from .matching import (
     same_shape,
     uses_dense_path,
 )
+from .partial import check_partial_areas, match_partial_arrays, match_partial_eigenbases
 
 __all__ = [
     "BasesAhead",
     "check_method",
+    "check_partial_transfer",
     "estimate_for_transfer",
     "prepare_transfer",
     "pull_back",
@@ -245,6 +247,7 @@ def transfer_on_shapes(
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
+    partial: bool = False,
 ) -> np.ndarray:
     """Prepare a transfer and carry ``f_1`` through it: the one-call route of the API.
 
@@ -269,6 +272,7 @@ def transfer_on_shapes(
             eigenbases=eigenbases,
             bases=bases,
             components=components,
+            partial=partial,
             ready=ahead.start,
         )
         return transfer_function(
@@ -305,6 +309,7 @@ def prepare_transfer(
     eigenbases: tuple[Any, Any] | None = None,
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
+    partial: bool = False,
     ready: Callable[[EigenBasis, EigenBasis], None] | None = None,
 ) -> tuple[EigenBasis, EigenBasis, Correspondence | None]:
     """Decide the eigenbases and the map of a transfer (the one place that does).
@@ -330,6 +335,13 @@ def prepare_transfer(
         Precomputed eigenbases (checked against the shapes).
     bases : (OFPBasis, OFPBasis), optional
         Precomputed OFP bases (their eigenbases are used when a map is given).
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    partial : bool, default False
+        The target is a part of the source, in the same units: an estimated map is a partial
+        one (:func:`o3d_ofp.workflows.partial.match_partial_eigenbases`, or
+        :func:`~o3d_ofp.workflows.partial.match_partial_arrays` on the dense path). Refused
+        with a given map (it is used as it is) and for a point cloud, before any eigensolve.
     ready : callable, optional
         ``ready(eig_1, eig_2)``, called when a map is estimated on full-resolution eigenbases,
         before the estimation (e.g. :meth:`BasesAhead.start`).
@@ -348,9 +360,19 @@ def prepare_transfer(
         k1 = check_int(k1, name="k1", minimum=1, maximum=max(1, V1.shape[0] - 2))
         k2 = check_int(k2, name="k2", minimum=1, maximum=max(1, V2.shape[0] - 2))
     known = given == 1
+    check_partial_transfer(partial, known, V1, F1, V2, F2)
     if not known and eigenbases is None and bases is None:
         return estimate_for_transfer(
-            V1, F1, V2, F2, k1=k1, k2=k2, landmarks=landmarks, components=components, ready=ready
+            V1,
+            F1,
+            V2,
+            F2,
+            k1=k1,
+            k2=k2,
+            landmarks=landmarks,
+            components=components,
+            partial=partial,
+            ready=ready,
         )
     eig_1, eig_2 = _eigenbases(
         V1, F1, V2, F2, k1, k2, fmap_12, p2p_21, eigenbases, bases, correspondence, components
@@ -358,8 +380,44 @@ def prepare_transfer(
     if not known:
         if ready is not None:
             ready(eig_1, eig_2)
-        correspondence = match_eigenbases(eig_1, eig_2, landmarks=landmarks)
+        match = match_eigenbases
+        if partial:
+            match = match_partial_eigenbases
+        correspondence = match(eig_1, eig_2, landmarks=landmarks)
     return eig_1, eig_2, correspondence
+
+
+def check_partial_transfer(
+    partial: bool,
+    known: bool,
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+) -> None:
+    """Refuse, before any eigensolve, a ``partial=`` that cannot apply to this transfer.
+
+    ``partial`` must be a bool; True needs a map estimated here (``known`` False: a given map
+    is used as it is), two triangle meshes and a target whose area can be a part of the
+    source's (:func:`o3d_ofp.workflows.partial.check_partial_areas`).
+    """
+    if not isinstance(partial, bool):
+        raise TypeError(f"partial must be True or False; got {partial!r}")
+    if not partial:
+        return
+    if known:
+        raise ValueError(
+            "partial=True applies to a map estimated here; the given map (correspondence, "
+            "p2p_21 or fmap_12) is used as it is: drop partial=True (a map from "
+            "o3d_ofp.match(..., partial=True) is partial already)"
+        )
+    for F, name in ((F1, "source"), (F2, "target")):
+        if F is None:
+            raise ValueError(
+                f"partial=True needs triangle meshes: the {name} is a point cloud (no faces); "
+                "mesh it first or transfer without partial=True"
+            )
+    check_partial_areas(V1, F1, V2, F2)
 
 
 def _eigenbases(
@@ -433,6 +491,7 @@ def estimate_for_transfer(
     k2: int,
     landmarks: Any = None,
     components: str = "auto",
+    partial: bool = False,
     progress: Any = None,
     ready: Callable[[EigenBasis, EigenBasis], None] | None = None,
 ) -> tuple[EigenBasis, EigenBasis, Correspondence]:
@@ -456,6 +515,9 @@ def estimate_for_transfer(
         Known (source, target) pairs (checked before any eigensolve).
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (see :func:`o3d_ofp.eigenbasis`).
+    partial : bool, default False
+        The target is a part of the source (same units, two meshes: see
+        :func:`check_partial_transfer`): the map is a partial one.
     progress : callable, optional
         ``progress(stage, fraction_done)`` of the map estimation.
     ready : callable, optional
@@ -473,9 +535,13 @@ def estimate_for_transfer(
     k1 = check_int(k1, name="k1", minimum=1)
     k2 = check_int(k2, name="k2", minimum=1)
     landmarks = check_landmarks(landmarks, V1.shape[0], V2.shape[0])
+    check_partial_transfer(partial, False, V1, F1, V2, F2)
     meshes = F1 is not None and F2 is not None
     if uses_dense_path(V1.shape[0], V2.shape[0], meshes):
-        corr = match_arrays(
+        match_dense = match_arrays
+        if partial:
+            match_dense = match_partial_arrays
+        corr = match_dense(
             V1, F1, V2, F2, landmarks=landmarks, components=components, progress=progress
         )
         eig_1, eig_2 = eigenbases_of(
@@ -490,7 +556,10 @@ def estimate_for_transfer(
     )
     if ready is not None:
         ready(eig_1, eig_2)
-    corr = match_eigenbases(eig_1, eig_2, landmarks=landmarks, progress=progress)
+    match = match_eigenbases
+    if partial:
+        match = match_partial_eigenbases
+    corr = match(eig_1, eig_2, landmarks=landmarks, progress=progress)
     return eig_1, eig_2, corr
 
 
