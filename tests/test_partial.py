@@ -129,6 +129,9 @@ def test_a_part_smaller_than_those_measured_is_said(whole, partial_map):
     if not corr.quality.suspect:  # a suspect map's warning says more already
         assert sum("smaller part" in str(w.message) for w in said) == 1
     assert small_part_note(SMALL_PART) == "" and small_part_note(0.49)
+    # With landmarks given already, the advice asks for more of them, not for some.
+    assert "give a few known vertex pairs" in small_part_note(0.3)
+    assert "give more known vertex pairs" in small_part_note(0.3, landmarks=True)
 
 
 def test_verdict_is_that_of_the_final_map(whole, cut, partial_map):

@@ -91,6 +91,9 @@ def test_true_map_passes_and_a_torn_map_is_flagged(pair):
     assert q.suspect
     assert any("geodesic distances" in r and "not a part" in r for r in q.reasons)
     assert any("stretches the target's edges" in r for r in q.reasons)
+    assert any("give a few known vertex pairs" in r for r in q.reasons)
+    q = partial_quality(wrong, e1, ec, _restriction(wrong, e1, ec), overlap=0.65, landmarks=True)
+    assert any("give more known vertex pairs" in r for r in q.reasons)
 
 
 def test_restriction_orthogonality_is_reported_not_judged(pair):

@@ -191,6 +191,7 @@ def partial_quality(
     overlap: float,
     distortion: float | None = None,
     refinement_turned: float | None = None,
+    landmarks: bool = False,
 ) -> MapQuality:
     """Quality report of a partial map (target a part of the source, same units).
 
@@ -214,6 +215,9 @@ def partial_quality(
         When ``p2p_21`` is a start kept because its geodesic refinement turned this fraction
         of the triangles over (above ``MAX_REVERSED``): the map is then suspect (see
         :data:`MAX_DISTORTION`).
+    landmarks : bool, default False
+        Whether the map was fitted to landmarks: the advice then asks for more of them,
+        spread over the part, instead of some.
 
     Returns
     -------
@@ -271,9 +275,8 @@ def partial_quality(
         reasons.append(
             "likely causes: a region of the target sent to the wrong place (a part with "
             "symmetric or featureless regions), or a target that is not a part of the source "
-            "(another shape, or in other units); fix: give a few known vertex pairs "
-            "(landmarks=[[source, target], ...] / --landmarks), and rescale a target in other "
-            "units to the source's"
+            f"(another shape, or in other units); fix: {_landmarks_advice(landmarks)}, and "
+            "rescale a target in other units to the source's"
         )
     all_reasons = tuple(reasons) + base.reasons  # map_quality's advice, if any, stays last
     measured = (
@@ -282,7 +285,7 @@ def partial_quality(
         f"{incons:.2f} (limit {MAX_INCONSISTENCY}), restriction map orthogonality "
         f"{ortho:.2f} (not judged)"
     )
-    small = small_part_note(eig_2.area / eig_1.area)
+    small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
     return dataclasses.replace(
         base,
         orthogonality=ortho,
@@ -298,7 +301,17 @@ def partial_quality(
 SMALL_PART = 0.5
 
 
-def small_part_note(area_ratio: float) -> str:
+def _landmarks_advice(given: bool) -> str:
+    """Return the landmarks part of a partial map's advice: some, or more if some were given."""
+    if given:
+        return (
+            "give more known vertex pairs, spread over the part (landmarks=[[source, target], "
+            "...] / --landmarks)"
+        )
+    return "give a few known vertex pairs (landmarks=[[source, target], ...] / --landmarks)"
+
+
+def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
     """Return the note for a part below :data:`SMALL_PART` of the source's area, else "".
 
     Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts made to keep 0.45,
@@ -312,6 +325,8 @@ def small_part_note(area_ratio: float) -> str:
     ----------
     area_ratio : float
         The target's area over the source's, in the same units.
+    landmarks : bool, default False
+        Whether the map was fitted to landmarks (the note then asks for more).
 
     Returns
     -------
@@ -324,8 +339,7 @@ def small_part_note(area_ratio: float) -> str:
         f"the target is {area_ratio:.2f} of the source's area, a smaller part than those the "
         "partial match was measured on (0.55-0.8 of the area): on parts of 0.10-0.45, a "
         "third of the measured maps were wrong, most of them not flagged; check the result "
-        "(e.g. a colormap transferred from the source), or give a few known vertex pairs "
-        "(landmarks=[[source, target], ...] / --landmarks)"
+        f"(e.g. a colormap transferred from the source), or {_landmarks_advice(landmarks)}"
     )
 
 
@@ -691,14 +705,14 @@ def _match_partial_surfaces(
     report("quality", 0.95)
     quality = partial_quality(
         p2p, eig_1, eig_2, C, overlap=overlap, distortion=final_distortion,
-        refinement_turned=rejected,
+        refinement_turned=rejected, landmarks=landmarks is not None,
     )  # fmt: skip
     if fallback is not None:
         quality = dataclasses.replace(quality, notes=(*quality.notes, fallback))
     logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect and warn_suspect:
         warn(logger, quality.suspect_message("the partial map"))
-    small = small_part_note(u2.area / u1.area)
+    small = small_part_note(u2.area / u1.area, landmarks=landmarks is not None)
     if small and warn_suspect and not quality.suspect:
         warn(logger, f"partial match: {small}")
     report("done", 1.0)
