@@ -516,3 +516,22 @@ def test_closest_pull_back_of_a_texture_samples_it_at_the_surface_points(
     capsys.readouterr()
     got = np.asarray(o3d.io.read_triangle_mesh(str(out_path)).vertex_colors)
     assert np.abs(got - truth).mean() < 0.002 + 0.5 / 255  # the PLY's 8-bit rounding
+
+
+def test_texture_functions_read_file_paths_like_the_other_transfers(spot, decimated, tmp_path):
+    """A trial's ``transfer_texture('src.ply', ...)`` was told a str is "a point cloud"."""
+    source, _, obj = spot
+    target_file = tmp_path / "decimated.obj"
+    o3d.io.write_triangle_mesh(str(target_file), decimated)
+    target = o3d.io.read_triangle_mesh(str(target_file))
+    corr = _closest_map(source, target)
+    baked = transfer_texture(source, target, correspondence=corr, size=64)
+    from_files = transfer_texture(str(obj), target_file, correspondence=corr, size=64)
+    np.testing.assert_array_equal(np.asarray(from_files.textures[0]), np.asarray(baked.textures[0]))
+    pulled = texture_pullback(obj, str(target_file), correspondence=corr)
+    np.testing.assert_array_equal(
+        np.asarray(pulled.triangle_uvs),
+        np.asarray(texture_pullback(source, target, correspondence=corr).triangle_uvs),
+    )
+    with pytest.raises(ValueError, match="^target: .*nothing.obj"):
+        transfer_texture(source, tmp_path / "nothing.obj", correspondence=corr)

@@ -674,6 +674,9 @@ def test_transfers_estimate_a_partial_map_with_partial_true(colored_blob_and_par
     two_steps = ofp.transfer_colors(source, part, correspondence=corr, **options)
     np.testing.assert_allclose(by_flag, np.asarray(two_steps.vertex_colors), atol=1e-12)
     full = np.asarray(ofp.transfer_colors(source, part, **options).vertex_colors)
+    # The exact pull-back (via_basis=False, the CLI's --pull-back) estimates the map too.
+    pulled = ofp.transfer_colors(source, part, partial=True, via_basis=False)
+    np.testing.assert_array_equal(np.asarray(pulled.vertex_colors), colors[corr.p2p_21])
     error = np.abs(by_flag - colors[truth]).mean()
     assert error < 0.5 * np.abs(full - colors[truth]).mean()
 
@@ -727,6 +730,18 @@ def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, 
         ("transfer_detail", {"partial": 1}, TypeError, "partial must be True or False"),
         ("transfer_colors", {"p2p_21": "map"}, ValueError, "the given map .* is used as it is"),
         ("transfer_texture", {"p2p_21": "map"}, ValueError, "the given map .* is used as it is"),
+        (
+            "transfer_colors",
+            {"p2p_21": "map", "via_basis": False},
+            ValueError,
+            "the given map .* is used as it is",
+        ),
+        (
+            "transfer_colors",
+            {"partial": "yes", "via_basis": False},
+            TypeError,
+            "partial must be True or False",
+        ),
         ("transfer_detail", {"cloud": True}, ValueError, "the target is a point cloud"),
         ("transfer_colors", {"swap": True}, ValueError, "cannot be a part of it"),
     ],
@@ -747,3 +762,10 @@ def test_partial_transfers_refuse_what_cannot_apply_before_any_eigensolve(
         kwargs["p2p_21"] = np.zeros(len(part.vertices), dtype=int)
     with pytest.raises(error, match=match):
         getattr(ofp, call)(source, part, **kwargs)
+
+
+def test_colors_of_an_array_source_are_a_type_error(colored_blob_and_part, no_eigensolve):
+    """A trial's array source was told it had "neither vertex colors nor a texture"."""
+    _, part, _ = colored_blob_and_part
+    with pytest.raises(TypeError, match="needs an Open3D geometry .* got ndarray"):
+        ofp.transfer_colors(np.zeros((3, 3)), part, partial=True)

@@ -8,7 +8,6 @@ target's own kind.
 from __future__ import annotations
 
 import logging
-import os
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -46,8 +45,10 @@ from ..workflows.matching import (
     match_arrays,
     match_eigenbases,
 )
+from ..workflows.partial import match_partial_arrays
 from ..workflows.pipeline import (
     check_method,
+    check_partial_transfer,
     prepare_transfer,
     pull_back,
     transfer_on_shapes,
@@ -61,6 +62,7 @@ from .convert import (
     point_normals,
     vertex_colors,
 )
+from .io import read_if_path
 from .texture import has_texture_image, has_uvs, mesh_texture
 
 __all__ = [
@@ -75,18 +77,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-
-def _read_if_path(shape: Any, name: str) -> Any:
-    """Return the geometry read from ``shape`` if it is a file path (str or PathLike), else it."""
-    if isinstance(shape, (str, os.PathLike)):
-        from .io import read_geometry
-
-        try:
-            return read_geometry(shape)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{name}: {exc}") from exc
-    return shape
 
 
 def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[Any, Any]:
@@ -108,7 +98,7 @@ def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[An
     vertices : (n, 3) ndarray of float64 (a copy)
     faces : (m, 3) ndarray of int64 or None
     """
-    shape = _read_if_path(shape, name)
+    shape = read_if_path(shape, name)
     if is_open3d_geometry(shape):
         if faces is not None:
             raise ValueError(f"faces must be None when {name} is an Open3D geometry")
@@ -341,7 +331,7 @@ def match(
         raise ValueError(f"method must be 'estimate' or 'closest'; got {method!r}")
     if not isinstance(partial, bool):
         raise TypeError(f"partial must be True or False; got {partial!r}")
-    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
+    source, target = read_if_path(source, "source"), read_if_path(target, "target")
     if partial and method != "estimate":
         raise ValueError("partial=True applies to method='estimate' (closest points need none)")
     if partial:
@@ -481,7 +471,9 @@ def transfer_colors(
         Transfer through the OFP bases (the paper's transfer, robust to a noisy map) or pull
         the colors back exactly through the map. Default: exact pull-back for a closest-point
         map (``match(method="closest")``: at each target vertex's point on the source surface,
-        or its nearest point of a point-cloud source), the bases otherwise.
+        or its nearest point of a point-cloud source), the bases otherwise. With
+        ``via_basis=False`` and no map given, the map is estimated as :func:`match` does
+        (``landmarks``, ``components`` and ``partial`` apply), then pulled back.
     eigenbases : (EigenBasis, EigenBasis), optional
         Precomputed eigenbases of source and target (e.g. from cached bases); with an
         estimated map they should hold ~100 eigenfunctions for ZoomOut.
@@ -511,7 +503,7 @@ def transfer_colors(
     check_method(method)
     _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
     _check_pair(bases, "bases", OFPBasis, "ofp.ofp_basis")
-    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
+    source, target = read_if_path(source, "source"), read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     f = vertex_colors(source) if is_open3d_geometry(source) else None
@@ -521,6 +513,12 @@ def transfer_colors(
         f = texture.vertex_colors()
         logger.info("transfer_colors: the source has a texture and no vertex colors: its "
                     "texture's colors are transferred")  # fmt: skip
+    if f is None and not is_open3d_geometry(source):
+        raise TypeError(
+            f"transfer_colors needs an Open3D geometry (or a file) as source, to read its "
+            f"colors from; got {type(source).__name__} (for colors given as arrays, the "
+            "array-level o3d_ofp.transfer_function)"
+        )
     if f is None:
         raise ValueError(
             "the source has neither vertex colors nor a texture to transfer (for another "
@@ -528,15 +526,20 @@ def transfer_colors(
         )
     closest = check_correspondence(correspondence) is not None
     closest = closest and correspondence.method == "closest"
+    known = any(x is not None for x in (correspondence, p2p_21, fmap_12))
+    check_partial_transfer(partial, known, V1, F1, V2, F2)  # before any eigensolve
     exact = via_basis is False or (via_basis is None and closest)
     if exact:
+        # Without a map one is estimated (landmarks and components then apply), and pulled back.
+        estimated = {} if known else {"landmarks": None, "components": "auto"}
+        given = {"landmarks": landmarks, "components": components}
         _refuse_basis_options(
             transfer_colors,
             "the exact pull-back (via_basis=False)" if via_basis is False
             else "the exact pull-back (the default with a closest-point map)",
             k1=k1, k2=k2, order=order, preset=preset, tol=tol, fmap_12=fmap_12,
-            landmarks=landmarks, method=method, eigenbases=eigenbases, bases=bases,
-            components=components,
+            method=method, eigenbases=eigenbases, bases=bases,
+            **{**given, **estimated},
         )  # fmt: skip
     if _has_texture(target):
         warn(
@@ -547,9 +550,10 @@ def transfer_colors(
             "o3d_ofp.transfer_texture(source, target, correspondence=...)",
         )
     if exact:
+        if correspondence is None and p2p_21 is None:
+            estimate = match_partial_arrays if partial else match_arrays
+            correspondence = estimate(V1, F1, V2, F2, landmarks=landmarks, components=components)
         if correspondence is None:
-            if p2p_21 is None:
-                raise ValueError("via_basis=False needs a correspondence or p2p_21")
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
@@ -733,7 +737,7 @@ def transfer_detail(
     )
     _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
     _check_pair(bases, "bases", OFPBasis, "ofp.ofp_basis")
-    source, target = _read_if_path(source, "source"), _read_if_path(target, "target")
+    source, target = read_if_path(source, "source"), read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     if mode != "coordinates":  # the band is a count of eigenfunctions of both shapes
@@ -882,7 +886,7 @@ def filter_geometry(
             sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
     if not isinstance(keep_volume, bool):
         raise TypeError(f"keep_volume must be True or False; got {keep_volume!r}")
-    geometry = _read_if_path(geometry, "geometry")
+    geometry = read_if_path(geometry, "geometry")
     V, F = as_arrays(geometry, name="geometry")  # a (vertices, faces) tuple too
     if basis is not None and basis.n_vertices != V.shape[0]:
         raise ValueError(

@@ -33,6 +33,7 @@ from ..workflows.partial import match_partial_arrays
 from ..workflows.pipeline import check_partial_transfer
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
+from .io import read_if_path
 from .texture import (
     MeshTexture,
     VertexColorSurface,
@@ -397,12 +398,12 @@ def transfer_texture(
 
     Parameters
     ----------
-    source : Open3D TriangleMesh (legacy or tensor), MeshTexture or VertexColorSurface
-        The source: textured (per-corner UVs and an image, see :func:`mesh_texture`), or
-        without UVs and with vertex colors; or its arrays already read by
-        :func:`surface_colors` (picklable: what a collection run sends to its workers); not
-        modified.
-    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+    source : Open3D TriangleMesh (legacy or tensor), MeshTexture, VertexColorSurface or path
+        The source (a file path is read with :func:`o3d_ofp.read_geometry`): textured
+        (per-corner UVs and an image, see :func:`mesh_texture`), or without UVs and with
+        vertex colors; or its arrays already read by :func:`surface_colors` (picklable: what
+        a collection run sends to its workers); not modified.
+    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The target, with its own per-corner UVs (``triangle_uvs``); not modified.
     correspondence : Correspondence, optional
         The map, one source point per target vertex: its precise surface points
@@ -451,6 +452,7 @@ def transfer_texture(
     if int(dilate) != dilate or dilate < 0:
         raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
     size, dilate = int(size), int(dilate)
+    source, target = read_if_path(source, "source"), read_if_path(target, "target")
     src: MeshTexture | VertexColorSurface
     if isinstance(source, (MeshTexture, VertexColorSurface)):
         if texture is not None:
@@ -554,9 +556,9 @@ def texture_pullback(
 
     Parameters
     ----------
-    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The textured source; not modified.
-    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+    target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The target (its own UVs, if any, are replaced); not modified.
     correspondence : Correspondence, optional
         The map (its ``faces_21`` / ``barycentric_21`` surface points when present).
@@ -575,6 +577,7 @@ def texture_pullback(
         several images gives a legacy mesh, with a warning).
     """
     o3d = require_open3d()
+    source, target = read_if_path(source, "source"), read_if_path(target, "target")
     src = mesh_texture(source, texture)
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
@@ -619,7 +622,7 @@ def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.nda
 
     Parameters
     ----------
-    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh
+    source : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The source, textured or (without UVs) colored per vertex (see
         :func:`~o3d_ofp.boundary.texture.surface_colors`); not modified.
     points : (p, 3) array_like of float
@@ -632,7 +635,7 @@ def source_colors_at(source: Any, points: Any, *, texture: Any = None) -> np.nda
     (p, 3) ndarray of float64
         Colors in [0, 1].
     """
-    src = surface_colors(source, texture)
+    src = surface_colors(read_if_path(source, "source"), texture)
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or not np.all(np.isfinite(P)):
         raise ValueError(f"points must be a finite (p, 3) array; got shape {P.shape}")

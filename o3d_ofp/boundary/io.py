@@ -23,7 +23,7 @@ from ..core._atomic import default_file_mode
 from ._verbosity import open3d_errors_only
 from .convert import require_open3d
 
-__all__ = ["read_geometry", "write_geometry"]
+__all__ = ["read_geometry", "read_if_path", "write_geometry"]
 
 logger = logging.getLogger(__name__)
 
@@ -385,3 +385,16 @@ def write_geometry(
             raise
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
+
+
+def read_if_path(shape: Any, name: str) -> Any:
+    """Return the geometry read from ``shape`` if it is a file path (str or PathLike), else it.
+
+    ``name`` (e.g. "source") starts the message of a ValueError for a file that cannot be read.
+    """
+    if isinstance(shape, (str, os.PathLike)):
+        try:
+            return read_geometry(shape)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{name}: {exc}") from exc
+    return shape
