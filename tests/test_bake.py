@@ -533,5 +533,5 @@ def test_texture_functions_read_file_paths_like_the_other_transfers(spot, decima
         np.asarray(pulled.triangle_uvs),
         np.asarray(texture_pullback(source, target, correspondence=corr).triangle_uvs),
     )
-    with pytest.raises(ValueError, match="^target: .*nothing.obj"):
+    with pytest.raises(ValueError, match=r"^target: .*nothing\.obj"):
         transfer_texture(source, tmp_path / "nothing.obj", correspondence=corr)

@@ -643,7 +643,7 @@ def test_faust_cut_onto_another_body():
 
 @pytest.fixture(scope="module")
 def colored_blob_and_part():
-    """A colored 642-vertex blob (legacy Open3D mesh) and its 70 % cut with per-corner UVs."""
+    """Return a colored 642-vertex blob (legacy Open3D mesh) and its 70 % cut with UVs."""
     import open3d as o3d
 
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
@@ -698,8 +698,8 @@ def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, 
     The area check compared the result with the whole source's area: a part of less than half
     of it was always told its map was wrong.
     """
-    V, F, e1 = whole
-    Vc, Fc, truth, ec = cut
+    V, F, _ = whole
+    Vc, Fc, truth, _ = cut
     part = np.isin(np.arange(len(Vc)), np.flatnonzero(Vc[:, 0] > np.quantile(Vc[:, 0], 0.4)))
     small_F = Fc[part[Fc].all(axis=1)]
     keep = np.unique(small_F)
@@ -767,5 +767,49 @@ def test_partial_transfers_refuse_what_cannot_apply_before_any_eigensolve(
 def test_colors_of_an_array_source_are_a_type_error(colored_blob_and_part, no_eigensolve):
     """A trial's array source was told it had "neither vertex colors nor a texture"."""
     _, part, _ = colored_blob_and_part
-    with pytest.raises(TypeError, match="needs an Open3D geometry .* got ndarray"):
+    with pytest.raises(TypeError, match=r"needs an Open3D geometry .* got ndarray"):
         ofp.transfer_colors(np.zeros((3, 3)), part, partial=True)
+
+
+@pytest.mark.parametrize(
+    ("distortion", "elsewhere", "turned", "rival"),
+    [
+        (0.070, 1.0, 0.1, True),  # remeshed 007 -> 000: the right map (0.077) beside the wrong
+        (0.098, 1.0, 0.1, False),  # 093 -> 087 one side: a worse rival (0.058) beside the right
+        (0.070, 0.05, 0.1, False),  # the same map, up to a few vertices
+        (0.070, 1.0, 0.5, False),  # a rival that turns the part over is no rival
+        (0.130, 1.0, 0.1, False),  # nor one that fails the distortion bound
+    ],
+)
+def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
+    whole, cut, monkeypatch, distortion, elsewhere, turned, rival
+):
+    """``_rival``'s rule (RIVAL_MARGIN) on designed refinements of a further start.
+
+    The refinement of the further start is replaced: it sends the first ``elsewhere`` share of
+    the target's vertices to the far side of the source from the map's image, with the given
+    distortion and reversed fraction; the returned map's distortion is 0.076.
+    """
+    from o3d_ofp.workflows import partial as workflow
+
+    _, _, e1 = whole
+    _, _, truth, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    moved = truth.copy()
+    count = int(elsewhere * len(moved))
+    X = u1.vertices - u1.vertices.mean(axis=0)
+    moved[:count] = np.argmin(X[truth[:count]] @ X.T, axis=1)  # the far side of the blob
+    monkeypatch.setattr(workflow, "_refine", lambda p2p, *a, **k: (None, moved))
+    monkeypatch.setattr(workflow, "geodesic_distortion", lambda *a, **k: distortion)
+    monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: 1.1)
+    monkeypatch.setattr(
+        workflow, "map_quality", lambda *a, **k: dataclasses.make_dataclass(
+            "Q", ["reversed_fraction"])(turned),
+    )  # fmt: skip
+    reason = workflow._rival(
+        [1], [truth, truth], truth, 0.076, e1, ec, u1, u2,
+        k2_fit=29, k2_final=40, subsample=2000, landmarks=False,
+    )  # fmt: skip
+    assert (reason is not None) == rival
+    if rival:
+        assert "another start of the fit" in reason and "landmarks=" in reason

@@ -63,6 +63,8 @@ __all__ = [
     "MAX_STRETCH",
     "MIN_AREA_RATIO",
     "NEXT_STARTS",
+    "RIVAL_MARGIN",
+    "RIVAL_STARTS",
     "SECOND_OPINION_SIZE",
     "SMALL_PART",
     "check_partial_areas",
@@ -141,6 +143,15 @@ MAX_DISTORTION = 0.115
 #: and the blob cut: right 1.03-1.23, wrong 1.55-1.88 (the three of MAX_DISTORTION), no part
 #: 1.24-1.64 (these are flagged by the distortion: 0.137-0.249).
 MAX_STRETCH = 1.4
+#: A map that passes its checks is compared with the refinements of this many further
+#: orientation-preserving starts (in the ranking's order): see :data:`RIVAL_MARGIN`.
+RIVAL_STARTS = 3
+#: A further start whose refinement also passes every check, changes geodesic distances at
+#: most this fraction more than the returned map, and sends more than
+#: :data:`MAX_DISAGREEMENT` of the target's area more than :data:`DISAGREEMENT` away from the
+#: returned map's images, is a *rival*: the part is ambiguous and the map suspect. Measured
+#: (RIVAL_MEASURED_BELOW)
+RIVAL_MARGIN = 0.1
 
 
 def _refine(
@@ -625,12 +636,12 @@ def _match_partial_surfaces(
             report(f"ZoomOut {done + 1}/{len(jobs)}", 0.2 + 0.5 * done / len(jobs))
         refined = [job.result() for job in jobs]
     best: tuple[tuple[bool, float], np.ndarray, np.ndarray, float] | None = None
-    best_refined = None
-    for item, (_, w_dcomm) in zip(refined, starts, strict=True):
+    chosen = 0  # the index of the start the returned map comes from
+    for i, (item, (_, w_dcomm)) in enumerate(zip(refined, starts, strict=True)):
         key, C, p2p = item
         if best is None or key < best[0]:
             best = (key, C, p2p, w_dcomm)
-            best_refined = item
+            chosen = i
     assert best is not None
     _, C, p2p, w_dcomm = best
     # The check below reads the final map, not this start: the starts' distortion ranks them
@@ -661,7 +672,7 @@ def _match_partial_surfaces(
         # 001 -> 007's ends wrong (0.082) within both bounds. At most NEXT_STARTS are refined
         # (a refinement costs 1-2 s at 6.9k vertices).
         others = sorted(
-            (i for i, r in enumerate(refined) if not r[0][0] and r is not best_refined),
+            (i for i, r in enumerate(refined) if not r[0][0] and i != chosen),
             key=lambda i: refined[i][0],
         )
         for rank, i in enumerate(others[:NEXT_STARTS], start=2):
@@ -693,12 +704,26 @@ def _match_partial_surfaces(
                 )
                 logger.info("partial match: %s", fallback)
                 C, p2p, rejected, w_dcomm = C_next, p2p_next, None, starts[i][1]
-                final_distortion = distortion_next
+                final_distortion, chosen = distortion_next, i
                 break
         else:
             logger.info(
                 "partial match: the refinement turned %.0f %% over; start kept", 100 * turned
             )
+    rival = None
+    if rejected is None:  # a refined map: does another start end at another map as good?
+        report("rival starts", 0.8)
+        if final_distortion is None:
+            final_distortion = geodesic_distortion(
+                p2p, u1.vertices, u1.faces, u2.vertices, u2.faces
+            )
+        rival = _rival(
+            [i for i in sorted(range(len(refined)), key=lambda i: refined[i][0])
+             if not refined[i][0][0] and i != chosen][:RIVAL_STARTS],
+            [r[2] for r in refined], p2p, final_distortion, eig_1, eig_2, u1, u2,
+            k2_fit=k2_fit, k2_final=k2_final, subsample=zoomout_subsample,
+            landmarks=landmarks is not None,
+        )  # fmt: skip
     report("point map", 0.85)
     v = membership(C, u1, u2)
     overlap = float(u1.mass @ (v > COVERED_LEVEL))  # the source has unit area here
@@ -709,6 +734,8 @@ def _match_partial_surfaces(
     )  # fmt: skip
     if fallback is not None:
         quality = dataclasses.replace(quality, notes=(*quality.notes, fallback))
+    if rival is not None:
+        quality = dataclasses.replace(quality, suspect=True, reasons=(rival, *quality.reasons))
     logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect and warn_suspect:
         warn(logger, quality.suspect_message("the partial map"))
@@ -736,6 +763,74 @@ def _match_partial_surfaces(
         quality=quality,
         signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
     )
+
+
+def _rival(
+    indices: list[int],
+    start_maps: list[np.ndarray],
+    p2p: np.ndarray,
+    distortion: float,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    u1: EigenBasis,
+    u2: EigenBasis,
+    *,
+    k2_fit: int,
+    k2_final: int,
+    subsample: int | None,
+    landmarks: bool,
+) -> str | None:
+    """Refine the starts ``indices``; return the reason for a rival of ``p2p``, else None.
+
+    A rival (:data:`RIVAL_MARGIN`) passes every check of a partial map, changes geodesic
+    distances at most ``1 + RIVAL_MARGIN`` times as much as ``p2p`` (whose distortion is
+    ``distortion``) and sends more than :data:`MAX_DISAGREEMENT` of the target's area more
+    than :data:`DISAGREEMENT` away from ``p2p``'s images. ``start_maps`` are the starts' point
+    maps (all of them, indexed like the starts); ``u1``, ``u2`` the bases in the source's
+    units; ``landmarks``: whether the map was fitted to some (the advice asks for more).
+    """
+
+    def refined(i: int) -> tuple[float, float, float] | None:
+        _, p2p_i = _refine(
+            start_maps[i], u1, u2, k2_fit=k2_fit, k2_final=k2_final, subsample=subsample
+        )
+        if map_quality(p2p_i, eig_1, eig_2, None, partial=True).reversed_fraction > MAX_REVERSED:
+            return None
+        d = geodesic_distortion(p2p_i, u1.vertices, u1.faces, u2.vertices, u2.faces)
+        stretch = map_stretch(p2p_i, u1.vertices, u2.vertices, u2.faces)
+        apart = np.linalg.norm(u1.vertices[p2p] - u1.vertices[p2p_i], axis=1) > DISAGREEMENT
+        share = float(u2.mass @ apart / max(float(u2.mass.sum()), 1e-300))
+        logger.debug(
+            "partial match: rival start %d refined: distortion %.3f, stretch %.2f, apart on "
+            "%.1f %% of the target",
+            i + 1,
+            d,
+            stretch,
+            100 * share,
+        )
+        return d, stretch, share
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(refined, indices))
+    for result in results:
+        if result is None:
+            continue
+        d, stretch, share = result
+        if (
+            d <= MAX_DISTORTION
+            and stretch <= MAX_STRETCH
+            and d <= (1.0 + RIVAL_MARGIN) * distortion
+            and share > MAX_DISAGREEMENT
+        ):
+            return (
+                f"another start of the fit ends, refined, at a map that passes every check as "
+                f"well (geodesic distortion {d:.3f}, this map's {distortion:.3f}) and sends "
+                f"{100 * share:.0f} % of the target's area more than {DISAGREEMENT:g} of the "
+                "source's size away from this map's images: the part is ambiguous (e.g. a "
+                "region that fits turned about its axis) and this map may be the wrong one; "
+                f"fix: {_landmarks_advice(landmarks)}"
+            )
+    return None
 
 
 def _coarse_partial(eig_1: EigenBasis, eig_2: EigenBasis, **options: Any) -> Correspondence:
