@@ -64,6 +64,7 @@ __all__ = [
     "MIN_AREA_RATIO",
     "NEXT_STARTS",
     "RIVAL_MARGIN",
+    "RIVAL_SHARE",
     "RIVAL_STARTS",
     "SECOND_OPINION_SIZE",
     "SMALL_PART",
@@ -135,7 +136,7 @@ COVERED_LEVEL = 0.5
 #: the welded surface (stop 28: remeshed 007 has one duplicated vertex), it does pass (0.269,
 #: distortion 0.076, stretch 1.06), while 002 -> 004 went from 0.017 to 0.057 (flagged: its
 #: refinement turned over; since stop 30 the next start whose refinement keeps the orientation
-#: is kept: 0.017, ok).
+#: is kept: 0.017, ok). Since stop 32, 007 -> 000 is flagged by a rival start (RIVAL_MARGIN).
 MAX_DISTORTION = 0.115
 #: A partial map whose stretch (:func:`o3d_ofp.core.partial.map_stretch`: mapped target edge
 #: lengths over their lengths, both shapes in the same units) exceeds this is suspect: a map
@@ -147,11 +148,13 @@ MAX_STRETCH = 1.4
 #: orientation-preserving starts (in the ranking's order): see :data:`RIVAL_MARGIN`.
 RIVAL_STARTS = 3
 #: A further start whose refinement also passes every check, changes geodesic distances at
-#: most this fraction more than the returned map, and sends more than
-#: :data:`MAX_DISAGREEMENT` of the target's area more than :data:`DISAGREEMENT` away from the
-#: returned map's images, is a *rival*: the part is ambiguous and the map suspect. Measured
-#: (RIVAL_MEASURED_BELOW)
-RIVAL_MARGIN = 0.1
+#: most this fraction more than the returned map, and sends more than :data:`RIVAL_SHARE` of
+#: the target's area more than :data:`DISAGREEMENT` away from the returned map's images, is a
+#: *rival*: the part is ambiguous and the map suspect. Measured (RIVAL_MEASURED_BELOW)
+RIVAL_MARGIN = 0.05
+#: See :data:`RIVAL_MARGIN`: a rival differs from the map on most of the part (a region turned
+#: about its axis), not on a limb (two maps of about the same precision).
+RIVAL_SHARE = 0.5
 
 
 def _refine(
@@ -784,8 +787,8 @@ def _rival(
 
     A rival (:data:`RIVAL_MARGIN`) passes every check of a partial map, changes geodesic
     distances at most ``1 + RIVAL_MARGIN`` times as much as ``p2p`` (whose distortion is
-    ``distortion``) and sends more than :data:`MAX_DISAGREEMENT` of the target's area more
-    than :data:`DISAGREEMENT` away from ``p2p``'s images. ``start_maps`` are the starts' point
+    ``distortion``) and sends more than :data:`RIVAL_SHARE` of the target's area more than
+    :data:`DISAGREEMENT` away from ``p2p``'s images. ``start_maps`` are the starts' point
     maps (all of them, indexed like the starts); ``u1``, ``u2`` the bases in the source's
     units; ``landmarks``: whether the map was fitted to some (the advice asks for more).
     """
@@ -820,7 +823,7 @@ def _rival(
             d <= MAX_DISTORTION
             and stretch <= MAX_STRETCH
             and d <= (1.0 + RIVAL_MARGIN) * distortion
-            and share > MAX_DISAGREEMENT
+            and share > RIVAL_SHARE
         ):
             return (
                 f"another start of the fit ends, refined, at a map that passes every check as "
