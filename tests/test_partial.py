@@ -691,6 +691,11 @@ def test_transfers_estimate_a_partial_map_with_partial_true(colored_blob_and_par
     baked = ofp.transfer_texture(source, part, partial=True, size=64)
     same = ofp.transfer_texture(source, part, correspondence=corr, size=64)
     np.testing.assert_array_equal(np.asarray(baked.textures[0]), np.asarray(same.textures[0]))
+    # texture_pullback needs a textured source: the baked part is one (its own layout)
+    pulled = ofp.texture_pullback(baked, part, p2p_21=np.arange(len(part.vertices)))
+    with pytest.raises(ValueError, match="the given map .* is used as it is"):
+        ofp.texture_pullback(baked, part, p2p_21=np.arange(len(part.vertices)), partial=True)
+    assert len(pulled.triangle_uvs) == 3 * len(part.triangles)
 
 
 def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, caplog):
@@ -773,19 +778,20 @@ def test_colors_of_an_array_source_are_a_type_error(colored_blob_and_part, no_ei
 
 
 @pytest.mark.parametrize(
-    ("distortion", "elsewhere", "turned", "rival"),
+    ("distortion", "elsewhere", "turned", "stretch", "rival"),
     [
-        (0.070, 1.0, 0.1, True),  # remeshed 007 -> 000: the right map (0.077) beside the wrong
-        (0.079, 1.0, 0.1, True),  # at most 5 % more distortion
-        (0.098, 1.0, 0.1, False),  # 093 -> 087 one side: a worse rival (0.058) beside the right
-        (0.070, 0.3, 0.1, False),  # another map of a part cut smaller, off on a limb only
-        (0.070, 0.05, 0.1, False),  # the same map, up to a few vertices
-        (0.070, 1.0, 0.5, False),  # a rival that turns the part over is no rival
-        (0.130, 1.0, 0.1, False),  # nor one that fails the distortion bound
+        (0.070, 1.0, 0.1, 1.1, True),  # remeshed 007 -> 000: a nearly right map (0.077)
+        (0.079, 1.0, 0.1, 1.1, True),  # at most 5 % more distortion
+        (0.098, 1.0, 0.1, 1.1, False),  # 093 -> 087 one side: a worse rival (0.058)
+        (0.070, 0.3, 0.1, 1.1, False),  # another map of a part cut smaller, off on a limb only
+        (0.070, 0.05, 0.1, 1.1, False),  # the same map, up to a few vertices
+        (0.070, 1.0, 0.5, 1.1, False),  # a rival that turns the part over is no rival
+        (0.130, 1.0, 0.1, 1.1, False),  # nor one that fails the distortion bound
+        (0.070, 1.0, 0.1, 1.5, False),  # nor the stretch bound
     ],
 )
 def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
-    whole, cut, monkeypatch, distortion, elsewhere, turned, rival
+    whole, cut, monkeypatch, distortion, elsewhere, turned, stretch, rival
 ):
     """``_rival``'s rule (RIVAL_MARGIN) on designed refinements of a further start.
 
@@ -804,15 +810,58 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
     moved[:count] = np.argmin(X[truth[:count]] @ X.T, axis=1)  # the far side of the blob
     monkeypatch.setattr(workflow, "_refine", lambda p2p, *a, **k: (None, moved))
     monkeypatch.setattr(workflow, "geodesic_distortion", lambda *a, **k: distortion)
-    monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: 1.1)
+    monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: stretch)
     monkeypatch.setattr(
         workflow, "map_quality", lambda *a, **k: dataclasses.make_dataclass(
             "Q", ["reversed_fraction"])(turned),
     )  # fmt: skip
     reason = workflow._rival(
-        [1], [truth, truth], truth, 0.076, e1, ec, u1, u2,
-        k2_fit=29, k2_final=40, subsample=2000, landmarks=False,
+        [1], [truth, truth], {}, truth, 0.076, e1, ec, u1, u2,
+        k2_fit=29, k2_final=40, subsample=2000, landmarks=None,
     )  # fmt: skip
     assert (reason is not None) == rival
     if rival:
-        assert "another start of the fit" in reason and "landmarks=" in reason
+        assert "another start of the fit" in reason and "give a few known vertex" in reason
+        # With landmarks the rival must keep them about as well as the map: a pair the rival
+        # keeps (and the map does not) leaves it a rival; a pair the map keeps and the rival
+        # sends to the far side does not.
+        kept = np.array([[moved[0], 0]])
+        moved_pair = np.array([[truth[0], 0]])
+        for pairs, still in ((kept, True), (moved_pair, False)):
+            again = workflow._rival(
+                [1], [truth, truth], {}, truth, 0.076, e1, ec, u1, u2,
+                k2_fit=29, k2_final=40, subsample=2000, landmarks=pairs,
+            )  # fmt: skip
+            assert (again is not None) == still
+            assert again is None or "give more known vertex pairs" in again
+    # A refinement made already is reused, not made again.
+    monkeypatch.setattr(workflow, "_refine", lambda *a, **k: pytest.fail("refined again"))
+    workflow._rival(
+        [1], [truth, truth], {1: moved}, truth, 0.076, e1, ec, u1, u2,
+        k2_fit=29, k2_final=40, subsample=2000, landmarks=None,
+    )  # fmt: skip
+
+
+def test_a_rival_makes_a_passing_map_suspect_and_is_said_first(whole, cut, monkeypatch):
+    """The wiring of the rival check in the partial match; a flagged map is not checked."""
+    from o3d_ofp.workflows import partial as workflow
+
+    _, _, e1 = whole
+    ec = cut[3]
+    calls = []
+
+    def rival(indices, *args, **kwargs):
+        calls.append(list(indices))
+        return "another start of the fit ends (test)"
+
+    monkeypatch.setattr(workflow, "_rival", rival)
+    with pytest.warns(ofp.OFPWarning, match="another start of the fit ends"):
+        corr = match_partial_eigenbases(e1, ec)
+    assert corr.quality.suspect
+    assert corr.quality.reasons[0] == "another start of the fit ends (test)"
+    assert len(calls) == 1 and 0 < len(calls[0]) <= workflow.RIVAL_STARTS
+    # A map that fails its own checks gets no rival check.
+    calls.clear()
+    monkeypatch.setattr(workflow, "MAX_DISTORTION", 0.0)
+    corr = match_partial_eigenbases(e1, ec, warn_suspect=False)
+    assert corr.quality.suspect and calls == []

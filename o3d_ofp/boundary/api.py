@@ -726,8 +726,9 @@ def transfer_detail(
     Raises
     ------
     ValueError, TypeError
-        For a bad ``mode``, ``band``, ``amount`` or ``k_low`` (the message names the keyword),
-        before any eigensolve.
+        For a bad ``mode``, ``band``, ``amount``, ``k_low`` or ``partial`` (``partial=True``
+        with a given map, a point cloud, or a target that cannot be a part of the source; the
+        message names the keyword), before any eigensolve.
     """
     if k_low is not None:
         warnings.warn("k_low is deprecated; use band", DeprecationWarning, stacklevel=2)

@@ -542,6 +542,7 @@ def texture_pullback(
     correspondence: Correspondence | None = None,
     p2p_21: Any = None,
     texture: Any = None,
+    partial: bool = False,
 ) -> Any:
     """Give the target the source's texture image and, at its triangle corners, source UVs.
 
@@ -566,6 +567,9 @@ def texture_pullback(
         A vertex map instead; without any map one is estimated (see :func:`transfer_texture`).
     texture : str, os.PathLike, ndarray or Open3D image, optional
         The source's texture, rows top-down as in a file; default the source's own images.
+    partial : bool, default False
+        The target is a part of the source, in the same units: the map estimated here is a
+        partial one (as in :func:`transfer_texture`).
 
     Returns
     -------
@@ -582,7 +586,10 @@ def texture_pullback(
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
     V1, F1 = src.vertices, src.faces
-    points, tri, bary = _mapped_points(V1, F1, V2, F2, correspondence, p2p_21)
+    check_partial_transfer(
+        partial, correspondence is not None or p2p_21 is not None, V1, F1, V2, F2
+    )
+    points, tri, bary = _mapped_points(V1, F1, V2, F2, correspondence, p2p_21, partial=partial)
     surface = _Surface(V1, F1)
     if tri is None:
         tri, bary, _ = surface.closest(points)

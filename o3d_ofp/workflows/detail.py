@@ -417,9 +417,10 @@ def check_coordinates_area(
     """
     if F1 is None or F2 is None:
         return
-    a1 = float(face_areas_normals(V1, F1)[0].sum())
     if part is not None:
         a1 = float(face_areas_normals(part, F2)[0].sum())
+    else:
+        a1 = float(face_areas_normals(V1, F1)[0].sum())
     a2 = float(face_areas_normals(moved, F2)[0].sum())
     ratio = a2 / a1 if a1 > 0 else math.inf
     whose = "the part's own" if part is not None else "the source's"

@@ -147,9 +147,10 @@ MAX_STRETCH = 1.4
 #: A map that passes its checks is compared with the refinements of this many further
 #: orientation-preserving starts (in the ranking's order): see :data:`RIVAL_MARGIN`.
 RIVAL_STARTS = 3
-#: A further start whose refinement also passes every check, changes geodesic distances at
-#: most this fraction more than the returned map, and sends more than :data:`RIVAL_SHARE` of
-#: the target's area more than :data:`DISAGREEMENT` away from the returned map's images, is a
+#: A further start whose refinement also keeps the orientation and the distortion and stretch
+#: bounds, changes geodesic distances at most this fraction more than the returned map, and
+#: sends more than :data:`RIVAL_SHARE` of the target's area more than :data:`DISAGREEMENT`
+#: away from the returned map's images (and, with landmarks, keeps them about as well), is a
 #: *rival*: the part is ambiguous and the map suspect. Measured offline (stop 32: every start
 #: of the 12 cuts of ``scripts/eval_partial.py --remeshed`` and the 48 of ``--robustness``
 #: refined, the rule applied to the maps that passed the other checks): of 48 such maps, 34
@@ -254,7 +255,9 @@ def partial_quality(
         (``refinement_turned``) or when the point map disagrees with the restriction map (its
         orthogonality is reported, not judged: right partial maps reach 0.44).
     """
-    base = map_quality(p2p_21, eig_1, eig_2, None, partial=True, overlap=overlap)
+    base = map_quality(
+        p2p_21, eig_1, eig_2, None, partial=True, overlap=overlap, landmarks_given=landmarks
+    )
     area = eig_1.area
     u1, u2 = rescaled(eig_1, area), rescaled(eig_2, area)
     C = np.asarray(fmap_12, dtype=np.float64)
@@ -667,6 +670,9 @@ def _match_partial_surfaces(
     # refinement can end on a mirror image (measured on a FAUST back, front removed: 80 % of
     # the triangles turned over). A start that keeps the orientation is then kept as it was.
     turned = map_quality(p2p_refined, eig_1, eig_2, None, partial=True).reversed_fraction
+    # The starts refined here and the point maps they refined to (the rival check reuses them).
+    refinements = {chosen: p2p_refined}
+    turned_over = set()  # the starts whose refinement turned the map over: no rivals
     # That start is suspect too (partial_quality, ``refinement_turned``).
     rejected = None
     fallback = None  # the note of a next start kept instead of the chosen one
@@ -675,6 +681,7 @@ def _match_partial_surfaces(
         C, p2p = C_refined, p2p_refined
     else:
         rejected = turned
+        turned_over.add(chosen)
         # The next orientation-preserving starts, in the ranking's order: the first whose
         # refinement keeps the orientation (and distances, below) is kept and checked like any
         # final map. Measured on the 12 cuts of scripts/eval_partial.py: only remeshed
@@ -693,7 +700,10 @@ def _match_partial_surfaces(
             C_next, p2p_next = _refine(
                 p2p_start, u1, u2, k2_fit=k2_fit, k2_final=k2_final, subsample=zoomout_subsample
             )
+            refinements[i] = p2p_next
             turned_next = map_quality(p2p_next, eig_1, eig_2, None, partial=True).reversed_fraction
+            if turned_next > MAX_REVERSED:
+                turned_over.add(i)
             distortion_next = geodesic_distortion(
                 p2p_next, u1.vertices, u1.faces, u2.vertices, u2.faces
             )
@@ -723,32 +733,34 @@ def _match_partial_surfaces(
             logger.info(
                 "partial match: the refinement turned %.0f %% over; start kept", 100 * turned
             )
-    rival = None
-    if rejected is None:  # a refined map: does another start end at another map as good?
-        report("rival starts", 0.8)
-        if final_distortion is None:
-            final_distortion = geodesic_distortion(
-                p2p, u1.vertices, u1.faces, u2.vertices, u2.faces
-            )
-        rival = _rival(
-            [i for i in sorted(range(len(refined)), key=lambda i: refined[i][0])
-             if not refined[i][0][0] and i != chosen][:RIVAL_STARTS],
-            [r[2] for r in refined], p2p, final_distortion, eig_1, eig_2, u1, u2,
-            k2_fit=k2_fit, k2_final=k2_final, subsample=zoomout_subsample,
-            landmarks=landmarks is not None,
-        )  # fmt: skip
-    report("point map", 0.85)
+    report("point map", 0.8)
     v = membership(C, u1, u2)
     overlap = float(u1.mass @ (v > COVERED_LEVEL))  # the source has unit area here
-    report("quality", 0.95)
+    report("quality", 0.85)
+    if final_distortion is None:
+        final_distortion = geodesic_distortion(p2p, u1.vertices, u1.faces, u2.vertices, u2.faces)
     quality = partial_quality(
         p2p, eig_1, eig_2, C, overlap=overlap, distortion=final_distortion,
         refinement_turned=rejected, landmarks=landmarks is not None,
     )  # fmt: skip
     if fallback is not None:
         quality = dataclasses.replace(quality, notes=(*quality.notes, fallback))
-    if rival is not None:
-        quality = dataclasses.replace(quality, suspect=True, reasons=(rival, *quality.reasons))
+    if not quality.suspect:  # a map that passes: does another start end at another map as good?
+        report("rival starts", 0.9)
+        # The next orientation-preserving starts in the ranking's order, but for those whose
+        # refinement is known to turn the map over (the best-ranked one's, when a next start
+        # was kept): those are no rivals. Refinements made already are reused.
+        candidates = [
+            i for i in sorted(range(len(refined)), key=lambda i: refined[i][0])
+            if not refined[i][0][0] and i != chosen and i not in turned_over
+        ][:RIVAL_STARTS]  # fmt: skip
+        rival = _rival(
+            candidates, [r[2] for r in refined], refinements, p2p, final_distortion,
+            eig_1, eig_2, u1, u2, k2_fit=k2_fit, k2_final=k2_final,
+            subsample=zoomout_subsample, landmarks=landmarks,
+        )  # fmt: skip
+        if rival is not None:
+            quality = dataclasses.replace(quality, suspect=True, reasons=(rival, *quality.reasons))
     logger.info("partial match: %s", quality.summary(), extra=QUALITY_RECORD)
     if quality.suspect and warn_suspect:
         warn(logger, quality.suspect_message("the partial map"))
@@ -781,6 +793,7 @@ def _match_partial_surfaces(
 def _rival(
     indices: list[int],
     start_maps: list[np.ndarray],
+    refinements: dict[int, np.ndarray],
     p2p: np.ndarray,
     distortion: float,
     eig_1: EigenBasis,
@@ -791,23 +804,35 @@ def _rival(
     k2_fit: int,
     k2_final: int,
     subsample: int | None,
-    landmarks: bool,
+    landmarks: np.ndarray | None,
 ) -> str | None:
     """Refine the starts ``indices``; return the reason for a rival of ``p2p``, else None.
 
-    A rival (:data:`RIVAL_MARGIN`) passes every check of a partial map, changes geodesic
-    distances at most ``1 + RIVAL_MARGIN`` times as much as ``p2p`` (whose distortion is
-    ``distortion``) and sends more than :data:`RIVAL_SHARE` of the target's area more than
-    :data:`DISAGREEMENT` away from ``p2p``'s images. ``start_maps`` are the starts' point
-    maps (all of them, indexed like the starts); ``u1``, ``u2`` the bases in the source's
-    units; ``landmarks``: whether the map was fitted to some (the advice asks for more).
+    A rival (:data:`RIVAL_MARGIN`) keeps the orientation and the distortion and stretch
+    bounds of a partial map, changes geodesic distances at most ``1 + RIVAL_MARGIN`` times as
+    much as ``p2p`` (whose distortion is ``distortion``), sends more than :data:`RIVAL_SHARE`
+    of the target's area more than :data:`DISAGREEMENT` away from ``p2p``'s images and, with
+    ``landmarks`` ((p, 2) source and target vertices), sends their target vertices on average
+    no farther from their source vertices than ``p2p`` does, plus :data:`DISAGREEMENT`.
+    ``start_maps`` are the starts' point maps (all of them, indexed like the starts);
+    ``refinements`` the refined point maps of starts refined already (reused); ``u1``, ``u2``
+    the bases in the source's units (unit source area).
     """
+    X = u1.vertices
+
+    def off_landmarks(q: np.ndarray) -> float:
+        assert landmarks is not None
+        return float(np.linalg.norm(X[q[landmarks[:, 1]]] - X[landmarks[:, 0]], axis=1).mean())
 
     def refined(i: int) -> tuple[float, float, float] | None:
-        _, p2p_i = _refine(
-            start_maps[i], u1, u2, k2_fit=k2_fit, k2_final=k2_final, subsample=subsample
-        )
+        p2p_i = refinements.get(i)
+        if p2p_i is None:
+            _, p2p_i = _refine(
+                start_maps[i], u1, u2, k2_fit=k2_fit, k2_final=k2_final, subsample=subsample
+            )
         if map_quality(p2p_i, eig_1, eig_2, None, partial=True).reversed_fraction > MAX_REVERSED:
+            return None
+        if landmarks is not None and off_landmarks(p2p_i) > off_landmarks(p2p) + DISAGREEMENT:
             return None
         d = geodesic_distortion(p2p_i, u1.vertices, u1.faces, u2.vertices, u2.faces)
         stretch = map_stretch(p2p_i, u1.vertices, u2.vertices, u2.faces)
@@ -836,12 +861,13 @@ def _rival(
             and share > RIVAL_SHARE
         ):
             return (
-                f"another start of the fit ends, refined, at a map that passes every check as "
-                f"well (geodesic distortion {d:.3f}, this map's {distortion:.3f}) and sends "
+                "another start of the fit ends, refined, at a map that keeps the orientation "
+                f"and the distortion and stretch bounds as well (geodesic distortion {d:.3f}, "
+                f"this map's {distortion:.3f}) and sends "
                 f"{100 * share:.0f} % of the target's area more than {DISAGREEMENT:g} of the "
                 "source's size away from this map's images: the part is ambiguous (e.g. a "
                 "region that fits turned about its axis) and this map may be the wrong one; "
-                f"fix: {_landmarks_advice(landmarks)}"
+                f"fix: {_landmarks_advice(landmarks is not None)}"
             )
     return None
 
@@ -996,8 +1022,9 @@ def match_partial_arrays(
             f"{100 * disagreement:.0f} % of the target's area more than {DISAGREEMENT:g} of the "
             "source's size away from this "
             "map's images (a right map does not depend on the resolution): a region may be "
-            "sent to the wrong place; fix: give a few known vertex pairs (landmarks=[[source, "
-            "target], ...] / --landmarks), or match at full resolution (eigenbases=, slow)"
+            "sent to the wrong place; fix: "
+            f"{_landmarks_advice(options.get('landmarks') is not None)}, or "
+            "match at full resolution (eigenbases=, slow)"
         )
         quality = dataclasses.replace(
             corr.quality, suspect=True, reasons=(reason, *corr.quality.reasons)
