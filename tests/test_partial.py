@@ -693,7 +693,7 @@ def test_transfers_estimate_a_partial_map_with_partial_true(colored_blob_and_par
     np.testing.assert_array_equal(np.asarray(baked.textures[0]), np.asarray(same.textures[0]))
     # texture_pullback needs a textured source: the baked part is one (its own layout)
     pulled = ofp.texture_pullback(baked, part, p2p_21=np.arange(len(part.vertices)))
-    with pytest.raises(ValueError, match="the given map .* is used as it is"):
+    with pytest.raises(ValueError, match=r"the given map .* is used as it is"):
         ofp.texture_pullback(baked, part, p2p_21=np.arange(len(part.vertices)), partial=True)
     assert len(pulled.triangle_uvs) == 3 * len(part.triangles)
 
