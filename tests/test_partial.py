@@ -110,8 +110,8 @@ def test_a_part_smaller_than_those_measured_is_said(whole, partial_map):
     """Below half the source's area the map gets a note and a warning (not a verdict).
 
     Measured (scripts/eval_partial.py --robustness): on its cuts kept at 0.25-0.45 of the
-    area, 9 of 24 maps were wrong, 6 of them passed every check (trial: a one-sided scan of
-    26 % of a body mapped with error 0.08, reported ok).
+    area, 9 of 24 maps were wrong, 4 of them passed every check (6 before the rival check;
+    a trial: a one-sided scan of 26 % of a body mapped with error 0.08, reported ok).
     """
     import warnings
 

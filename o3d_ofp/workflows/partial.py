@@ -346,10 +346,10 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
 
     Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts made to keep 0.45,
     0.35 and 0.25 of the area instead, their largest pieces 0.10-0.45, 24 maps): 9 wrong
-    (error above 0.05), 6 of them not flagged, and 3 right ones flagged; no fraction below
-    which they all fail, and no measure of the map separates them (the wrong ones that
-    passed: distortion 0.055-0.112, stretch 1.05-1.36; the right ones: 0.035-0.143 and
-    1.04-1.35).
+    (error above 0.05), 4 of them not flagged (6 before the rival check of stop 32), and 3
+    right ones flagged; no fraction below which they all fail, and no measure of the map
+    separates them (the wrong ones that passed, stop 31: distortion 0.055-0.112, stretch
+    1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35).
 
     Parameters
     ----------
@@ -368,7 +368,8 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
     return (
         f"the target is {area_ratio:.2f} of the source's area, a smaller part than those the "
         "partial match was measured on (0.55-0.8 of the area): on parts of 0.10-0.45, a "
-        "third of the measured maps were wrong, most of them not flagged; check the result "
+        "third of the measured maps were wrong, almost half of those not flagged; check the "
+        "result "
         f"(e.g. a colormap transferred from the source), or {_landmarks_advice(landmarks)}"
     )
 
