@@ -490,6 +490,9 @@ def match_partial_eigenbases(
     and flagged. The final map is checked (:func:`partial_quality`): a geodesic
     distortion above :data:`MAX_DISTORTION` or a stretch above :data:`MAX_STRETCH` makes it
     suspect (a region sent to the wrong place, or a target that is no part of the source).
+    A map that passes is compared with the refinements of the next :data:`RIVAL_STARTS`
+    orientation-preserving starts: a *rival* as good (:data:`RIVAL_MARGIN`) that sends most of
+    the part elsewhere makes it suspect too (the part is ambiguous).
     Both bases are scaled by the **source's** area, so the area ratio, which sets the slant,
     is kept: the shapes must be in the same units, and both must be triangle meshes (a point
     cloud is refused: its orientation and geodesics, which the check needs, are unknown).
