@@ -42,13 +42,12 @@ from ..workflows.matching import (
     FIT_K,
     Correspondence,
     check_correspondence,
-    match_arrays,
-    match_eigenbases,
 )
-from ..workflows.partial import match_partial_arrays
 from ..workflows.pipeline import (
     check_method,
     check_partial_transfer,
+    estimate_map,
+    estimate_map_arrays,
     prepare_transfer,
     pull_back,
     transfer_on_shapes,
@@ -384,12 +383,10 @@ def match(
         from ..workflows.partial import check_partial_areas
 
         check_partial_areas(V1, F1, V2, F2)
-    if eigenbases is None and partial:
-        from ..workflows.partial import match_partial_arrays
-
-        return match_partial_arrays(V1, F1, V2, F2, components=components, **options)
     if eigenbases is None:
-        return match_arrays(V1, F1, V2, F2, components=components, **options)
+        return estimate_map_arrays(
+            V1, F1, V2, F2, partial=partial, components=components, **options
+        )
     eig_1, eig_2 = eigenbases
     for eig, V, name in ((eig_1, V1, "source"), (eig_2, V2, "target")):
         if eig.n_vertices != V.shape[0]:
@@ -399,11 +396,7 @@ def match(
             )
         # the same count, another shape (swapped, another pose): said, as by the transfers
         warn_other_shape(eig, V, f"the {name} eigenbasis", f"the {name}")
-    if partial:
-        from ..workflows.partial import match_partial_eigenbases
-
-        return match_partial_eigenbases(eig_1, eig_2, **options)
-    return match_eigenbases(eig_1, eig_2, **options)
+    return estimate_map(eig_1, eig_2, partial=partial, **options)
 
 
 def _check_pair(value: Any, name: str, kind: type, made_by: str) -> None:
@@ -551,8 +544,9 @@ def transfer_colors(
         )
     if exact:
         if correspondence is None and p2p_21 is None:
-            estimate = match_partial_arrays if partial else match_arrays
-            correspondence = estimate(V1, F1, V2, F2, landmarks=landmarks, components=components)
+            correspondence = estimate_map_arrays(
+                V1, F1, V2, F2, partial=partial, landmarks=landmarks, components=components
+            )
         if correspondence is None:
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)

@@ -28,9 +28,8 @@ from scipy import ndimage
 
 from ..core.correspondence import check_p2p
 from ..core.texture import MAX_TEXTURE_SIZE
-from ..workflows.matching import Correspondence, check_correspondence, match_arrays
-from ..workflows.partial import match_partial_arrays
-from ..workflows.pipeline import check_partial_transfer
+from ..workflows.matching import Correspondence, check_correspondence
+from ..workflows.pipeline import check_partial_transfer, estimate_map_arrays
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .io import read_if_path
@@ -223,7 +222,7 @@ def _estimate(
     """Estimate the default map (``o3d_ofp.match`` with its defaults, on arrays)."""
     what = "a partial one" if partial else "one"
     logger.info("texture transfer: no map given, estimating %s (eigenbases and ZoomOut)", what)
-    return (match_partial_arrays if partial else match_arrays)(V1, F1, V2, F2)
+    return estimate_map_arrays(V1, F1, V2, F2, partial=partial)
 
 
 def _mapped_points(

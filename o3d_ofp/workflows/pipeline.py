@@ -43,6 +43,8 @@ __all__ = [
     "check_method",
     "check_partial_transfer",
     "estimate_for_transfer",
+    "estimate_map",
+    "estimate_map_arrays",
     "prepare_transfer",
     "pull_back",
     "transfer_function",
@@ -380,11 +382,37 @@ def prepare_transfer(
     if not known:
         if ready is not None:
             ready(eig_1, eig_2)
-        match = match_eigenbases
-        if partial:
-            match = match_partial_eigenbases
-        correspondence = match(eig_1, eig_2, landmarks=landmarks)
+        correspondence = estimate_map(eig_1, eig_2, partial=partial, landmarks=landmarks)
     return eig_1, eig_2, correspondence
+
+
+def estimate_map(
+    eig_1: EigenBasis, eig_2: EigenBasis, *, partial: bool = False, **options: Any
+) -> Correspondence:
+    """Estimate a map between two eigenbases: a partial one with ``partial``, else a full one.
+
+    :func:`o3d_ofp.workflows.partial.match_partial_eigenbases` or
+    :func:`o3d_ofp.workflows.matching.match_eigenbases`, ``options`` passed on.
+    """
+    return (match_partial_eigenbases if partial else match_eigenbases)(eig_1, eig_2, **options)
+
+
+def estimate_map_arrays(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    *,
+    partial: bool = False,
+    **options: Any,
+) -> Correspondence:
+    """Estimate a map between two shapes' arrays (the dense path above its threshold).
+
+    :func:`o3d_ofp.workflows.partial.match_partial_arrays` with ``partial``, else
+    :func:`o3d_ofp.workflows.matching.match_arrays`, ``options`` passed on.
+    """
+    estimate = match_partial_arrays if partial else match_arrays
+    return estimate(V1, F1, V2, F2, **options)
 
 
 def check_partial_transfer(
@@ -538,12 +566,10 @@ def estimate_for_transfer(
     check_partial_transfer(partial, False, V1, F1, V2, F2)
     meshes = F1 is not None and F2 is not None
     if uses_dense_path(V1.shape[0], V2.shape[0], meshes):
-        match_dense = match_arrays
-        if partial:
-            match_dense = match_partial_arrays
-        corr = match_dense(
-            V1, F1, V2, F2, landmarks=landmarks, components=components, progress=progress
-        )
+        corr = estimate_map_arrays(
+            V1, F1, V2, F2, partial=partial, landmarks=landmarks, components=components,
+            progress=progress,
+        )  # fmt: skip
         eig_1, eig_2 = eigenbases_of(
             ((V1, F1, k1), (V2, F2, k2)), components=components, names=("the source", "the target")
         )
@@ -556,10 +582,7 @@ def estimate_for_transfer(
     )
     if ready is not None:
         ready(eig_1, eig_2)
-    match = match_eigenbases
-    if partial:
-        match = match_partial_eigenbases
-    corr = match(eig_1, eig_2, landmarks=landmarks, progress=progress)
+    corr = estimate_map(eig_1, eig_2, partial=partial, landmarks=landmarks, progress=progress)
     return eig_1, eig_2, corr
 
 
