@@ -658,15 +658,12 @@ def _match_partial_surfaces(
         for done, _ in enumerate(as_completed(jobs)):
             report(f"ZoomOut {done + 1}/{len(jobs)}", 0.2 + 0.5 * done / len(jobs))
         refined = [job.result() for job in jobs]
-    best: tuple[tuple[bool, float], np.ndarray, np.ndarray, float] | None = None
-    chosen = 0  # the index of the start the returned map comes from
-    for i, (item, (_, w_dcomm)) in enumerate(zip(refined, starts, strict=True)):
-        key, C, p2p = item
-        if best is None or key < best[0]:
-            best = (key, C, p2p, w_dcomm)
-            chosen = i
-    assert best is not None
-    _, C, p2p, w_dcomm = best
+    # The starts in the ranking's order (stable: the first of equal keys first).
+    ranking = sorted(range(len(refined)), key=lambda i: refined[i][0])
+    chosen = ranking[0]  # the index of the start the returned map comes from
+    best = refined[chosen]
+    _, C, p2p = best
+    w_dcomm = starts[chosen][1]
     # The check below reads the final map, not this start: the starts' distortion ranks them
     # but does not separate right from wrong (see MAX_DISTORTION).
     report("geodesic refinement", 0.7)
@@ -698,10 +695,7 @@ def _match_partial_surfaces(
         # start and stays flagged. Starts that turn over are not tried: refined, one of
         # 001 -> 007's ends wrong (0.082) within both bounds. At most NEXT_STARTS are refined
         # (a refinement costs 1-2 s at 6.9k vertices).
-        others = sorted(
-            (i for i, r in enumerate(refined) if not r[0][0] and i != chosen),
-            key=lambda i: refined[i][0],
-        )
+        others = [i for i in ranking if not refined[i][0][0] and i != chosen]
         for rank, i in enumerate(others[:NEXT_STARTS], start=2):
             key, _, p2p_start = refined[i]
             C_next, p2p_next = _refine(
@@ -758,9 +752,8 @@ def _match_partial_surfaces(
         # refinement is known to turn the map over (the best-ranked one's, when a next start
         # was kept): those are no rivals. Refinements made already are reused.
         candidates = [
-            i for i in sorted(range(len(refined)), key=lambda i: refined[i][0])
-            if not refined[i][0][0] and i != chosen and i not in turned_over
-        ][:RIVAL_STARTS]  # fmt: skip
+            i for i in ranking if not refined[i][0][0] and i != chosen and i not in turned_over
+        ][:RIVAL_STARTS]
         rival = _rival(
             candidates, [r[2] for r in refined], refinements, p2p, final_distortion,
             eig_1, eig_2, u1, u2, k2_fit=k2_fit, k2_final=k2_final,
