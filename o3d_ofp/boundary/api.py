@@ -520,9 +520,9 @@ def transfer_colors(
     closest = check_correspondence(correspondence) is not None
     closest = closest and correspondence.method == "closest"
     known = any(x is not None for x in (correspondence, p2p_21, fmap_12))
-    check_partial_transfer(partial, known, V1, F1, V2, F2)  # before any eigensolve
     exact = via_basis is False or (via_basis is None and closest)
-    if exact:
+    if exact:  # (the transfer through the bases checks it in prepare_transfer)
+        check_partial_transfer(partial, known, V1, F1, V2, F2)  # before any eigensolve
         # Without a map one is estimated (landmarks and components then apply), and pulled back.
         estimated = {} if known else {"landmarks": None, "components": "auto"}
         given = {"landmarks": landmarks, "components": components}

@@ -463,8 +463,9 @@ def transfer_texture(
         src = surface_colors(source, texture)
         if isinstance(src, VertexColorSurface):
             logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
-    known = correspondence is not None or p2p_21 is not None
-    check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
+    if partial is not False:  # (the target's arrays only for a partial estimate)
+        known = correspondence is not None or p2p_21 is not None
+        check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
     if not has_uvs(target):
         if not atlas:
             raise ValueError(
