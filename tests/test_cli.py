@@ -896,6 +896,11 @@ def test_a_map_file_that_collapses_is_said_and_strict_refuses_it(files, capsys, 
     assert "map quality SUSPECT" in captured.out and "collapses: only 1 distinct" in captured.out
     assert "collapses" in captured.err  # logged as a warning too
     out.unlink()
+    # -q silences the report, not the warning (a trial: -q hid a suspect map entirely)
+    assert main(["-q", *args, "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and "collapses" in captured.err and out.exists()
+    out.unlink()
     assert main([*args, "--strict", "-o", str(out)]) == 3
     assert "the map is suspect (--strict)" in capsys.readouterr().err
     assert not out.exists()

@@ -751,9 +751,11 @@ def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
     assert main([*argv, "-o", str(tmp_path / "q")]) == 1
     captured = capsys.readouterr()
     assert "failed   bad.ply: ValueError" in captured.err and captured.out == ""
-    # -q in this process (the log is at ERROR): the record still keeps what was said
+    # -q in this process (the log is at WARNING): the record still keeps what was said
     argv = ["-q", "transfer", paths["src"], str(sphere), paths["t0"], "--workers", "0"]
     assert main([*argv, "-o", str(tmp_path / "q2")]) == 0
+    captured = capsys.readouterr()  # the suspect target is still named under -q
+    assert "sphere.ply" in captured.err and "SUSPECT" in captured.err and captured.out == ""
     rows = json.loads((tmp_path / "q2" / "summary.json").read_text())["results"]
     assert rows[0]["suspect"] and "suspect" in rows[0]["warnings"][0], rows[0]
     assert rows[1]["warnings"] == []

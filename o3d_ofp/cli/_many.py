@@ -138,8 +138,8 @@ def _check_output_dir(path: str) -> None:
 def report_records(records: Sequence[Any]) -> int:
     """Print one line per shape and a count; return 1 when any failed, else 0.
 
-    With ``-q`` only the failures are printed (on stderr): the exit code 1 alone would not
-    say which shapes failed, nor why.
+    With ``-q`` only the failures and the suspect maps are printed (on stderr): the exit code
+    1 alone would not say which shapes failed, nor why, and a suspect map is a warning.
     """
     import sys
 
@@ -157,6 +157,8 @@ def report_records(records: Sequence[Any]) -> int:
             sus = " (SUSPECT map: see the warning above and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
+            if OUT.quiet and r.suspect:  # said even under -q, as a warning is
+                sys.stderr.write(lines[-1] + "\n")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
     lines.append(", ".join(f"{n} {s}" for s, n in counts.items()))
     report(lines)

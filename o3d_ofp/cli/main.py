@@ -3,7 +3,7 @@
 Exit codes: 0 success; 2 bad usage or bad input (one line on stderr naming the file or the
 flag, no traceback); 3 a suspect estimated map under ``--strict`` (nothing written); 1 an
 internal error (``-v`` adds the traceback). Long stages log at INFO on stderr (``-q``
-silences everything but errors); a progress bar is drawn when stderr is a terminal.
+silences everything but warnings and errors); a progress bar is drawn when stderr is a terminal.
 """
 
 from __future__ import annotations
@@ -71,7 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
-        "-q", "--quiet", action="store_true", help="print nothing but errors (files are written)"
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="print nothing but warnings and errors (files are written)",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
@@ -140,7 +143,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help
         return int(exc.code or 0)
     if args.quiet:
-        level = logging.ERROR
+        # Warnings stay: a suspect map or a refused option is said even under -q.
+        level = logging.WARNING
     elif args.verbose > 1:
         level = logging.DEBUG
     else:
