@@ -678,6 +678,14 @@ def test_transfers_estimate_a_partial_map_with_partial_true(colored_blob_and_par
     # The exact pull-back (via_basis=False, the CLI's --pull-back) estimates the map too.
     pulled = ofp.transfer_colors(source, part, partial=True, via_basis=False)
     np.testing.assert_array_equal(np.asarray(pulled.vertex_colors), colors[corr.p2p_21])
+    # ... from given eigenbases too, with no eigensolve (they were refused: "does not apply")
+    from o3d_ofp.core import spectrum
+
+    bases = tuple(ofp.eigenbasis(g, k=99) for g in (source, part))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(spectrum, "_solve", lambda *a, **k: pytest.fail("an eigensolve ran"))
+        given = ofp.transfer_colors(source, part, partial=True, via_basis=False, eigenbases=bases)
+    np.testing.assert_array_equal(np.asarray(given.vertex_colors), colors[corr.p2p_21])
     error = np.abs(by_flag - colors[truth]).mean()
     assert error < 0.5 * np.abs(full - colors[truth]).mean()
 

@@ -466,7 +466,8 @@ def transfer_colors(
         map (``match(method="closest")``: at each target vertex's point on the source surface,
         or its nearest point of a point-cloud source), the bases otherwise. With
         ``via_basis=False`` and no map given, the map is estimated as :func:`match` does
-        (``landmarks``, ``components`` and ``partial`` apply), then pulled back.
+        (``landmarks``, ``components``, ``partial`` and ``eigenbases`` apply), then pulled
+        back.
     eigenbases : (EigenBasis, EigenBasis), optional
         Precomputed eigenbases of source and target (e.g. from cached bases); with an
         estimated map they should hold ~100 eigenfunctions for ZoomOut.
@@ -523,16 +524,16 @@ def transfer_colors(
     exact = via_basis is False or (via_basis is None and closest)
     if exact:  # (the transfer through the bases checks it in prepare_transfer)
         check_partial_transfer(partial, known, V1, F1, V2, F2)  # before any eigensolve
-        # Without a map one is estimated (landmarks and components then apply), and pulled back.
-        estimated = {} if known else {"landmarks": None, "components": "auto"}
-        given = {"landmarks": landmarks, "components": components}
+        # Without a map one is estimated (landmarks, components and eigenbases then apply),
+        # and pulled back.
+        estimated = {} if known else {"landmarks": None, "components": "auto", "eigenbases": None}
+        given = {"landmarks": landmarks, "components": components, "eigenbases": eigenbases}
         _refuse_basis_options(
             transfer_colors,
             "the exact pull-back (via_basis=False)" if via_basis is False
             else "the exact pull-back (the default with a closest-point map)",
             k1=k1, k2=k2, order=order, preset=preset, tol=tol, fmap_12=fmap_12,
-            method=method, eigenbases=eigenbases, bases=bases,
-            **{**given, **estimated},
+            method=method, bases=bases, **{**given, **estimated},
         )  # fmt: skip
     if _has_texture(target):
         warn(
@@ -543,10 +544,11 @@ def transfer_colors(
             "o3d_ofp.transfer_texture(source, target, correspondence=...)",
         )
     if exact:
-        if correspondence is None and p2p_21 is None:
-            correspondence = estimate_map_arrays(
-                V1, F1, V2, F2, partial=partial, landmarks=landmarks, components=components
-            )
+        if correspondence is None and p2p_21 is None:  # as match() estimates it
+            correspondence = match(
+                (V1, F1), (V2, F2), partial=partial, landmarks=landmarks,
+                components=components, eigenbases=eigenbases,
+            )  # fmt: skip
         if correspondence is None:
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
