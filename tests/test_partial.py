@@ -730,11 +730,19 @@ def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, 
                                     k1=20, k2=20)  # fmt: skip
     assert not [r for r in caplog.records if "area" in r.getMessage()]
     assert 0.5 < area(np.asarray(moved.vertices), Fs) / area(Vs, Fs) < 2.0
-    with caplog.at_level("WARNING", logger="o3d_ofp"), pytest.warns(ofp.OFPWarning, match="area"):
-        ofp.transfer_detail(
-            (V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20,
-            correspondence=dataclasses.replace(corr, method="given"),
-        )  # fmt: skip
+    # The same map given as an array or a Correspondence of unknown kind: the result has the
+    # part's own area, which passes too (it was told its map was wrong).
+    import warnings
+
+    for given in ({"p2p_21": truth[keep]},
+                  {"correspondence": dataclasses.replace(corr, method="given")}):  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", ofp.OFPWarning)
+            ofp.transfer_detail((V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20, **given)
+    # A wrong map onto the part is still said (a map with no structure: far from both areas).
+    wrong = np.random.default_rng(0).integers(0, len(V), len(Vs))
+    with pytest.warns(ofp.OFPWarning, match="times the source's area"):
+        ofp.transfer_detail((V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20, p2p_21=wrong)
 
 
 @pytest.mark.parametrize(

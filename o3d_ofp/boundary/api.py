@@ -772,7 +772,7 @@ def transfer_detail(
             partial=partial,
         )
         part = partial or (correspondence is not None and correspondence.method == "partial")
-        check_coordinates_area(V1, F1, moved, F2, part=V2 if part else None)
+        check_coordinates_area(V1, F1, moved, F2, part=V2 if part else None, target=V2)
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)
     if eigenbases is not None:  # too small for the band: computed again, larger

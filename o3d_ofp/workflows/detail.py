@@ -406,31 +406,49 @@ COORDINATES_AREA_RATIO = 2.0
 
 
 def check_coordinates_area(
-    V1: np.ndarray, F1: Any, moved: np.ndarray, F2: Any, *, part: np.ndarray | None = None
+    V1: np.ndarray,
+    F1: Any,
+    moved: np.ndarray,
+    F2: Any,
+    *,
+    part: np.ndarray | None = None,
+    target: np.ndarray | None = None,
 ) -> None:
     """Warn (OFPWarning) when transferred coordinates do not have the source's area.
 
     ``V1``, ``F1``: the source; ``moved``: the target's new vertices, ``F2`` its faces (either
     faces None: a point cloud, not checked). ``part``: the target's own (n2, 3) vertices when
     it is a part of the source (a partial map, same units): the result should then have the
-    area of the region it covers, which is the part's own.
+    area of the region it covers, which is the part's own. ``target``: the target's own
+    vertices when the map's kind is not known (a given ``p2p_21``): a result with the
+    source's area, or with the target's own area when that is smaller (a part of the source
+    in its units, through a partial map given as an array), passes.
     """
     if F1 is None or F2 is None:
         return
-    if part is not None:
-        a1 = float(face_areas_normals(part, F2)[0].sum())
-    else:
-        a1 = float(face_areas_normals(V1, F1)[0].sum())
     a2 = float(face_areas_normals(moved, F2)[0].sum())
+
+    def within(a1: float) -> bool:
+        return a1 > 0 and 1 / COORDINATES_AREA_RATIO <= a2 / a1 <= COORDINATES_AREA_RATIO
+
+    if part is not None:
+        a1, whose = float(face_areas_normals(part, F2)[0].sum()), "the part's own"
+    else:
+        a1, whose = float(face_areas_normals(V1, F1)[0].sum()), "the source's"
+    if within(a1):
+        return
+    if part is None and target is not None:
+        own = float(face_areas_normals(target, F2)[0].sum())
+        if own < a1 and within(own):  # the shape of the region a partial map covers
+            logger.debug("the transferred coordinates have about the target's own area")
+            return
     ratio = a2 / a1 if a1 > 0 else math.inf
-    whose = "the part's own" if part is not None else "the source's"
-    if not 1 / COORDINATES_AREA_RATIO <= ratio <= COORDINATES_AREA_RATIO:
-        warn(
-            logger,
-            f"the transferred coordinates give the target {ratio:.3g} times {whose} area "
-            "(the source's shape should come back): the map is wrong in places; check "
-            "correspondence.quality, give landmarks (landmarks= / --landmarks), or a known map",
-        )
+    warn(
+        logger,
+        f"the transferred coordinates give the target {ratio:.3g} times {whose} area "
+        "(the source's shape should come back): the map is wrong in places; check "
+        "correspondence.quality, give landmarks (landmarks= / --landmarks), or a known map",
+    )
 
 
 def transfer_detail_frames(
@@ -542,8 +560,9 @@ def transfer_detail_frames(
         moved = transfer_function(eig_1.vertices, eig_1, eig_2, **ofp_kw)
         part = correspondence is not None and correspondence.method == "partial"
         check_coordinates_area(
-            eig_1.vertices, eig_1.faces, moved, eig_2.faces, part=eig_2.vertices if part else None
-        )
+            eig_1.vertices, eig_1.faces, moved, eig_2.faces,
+            part=eig_2.vertices if part else None, target=eig_2.vertices,
+        )  # fmt: skip
         return moved
 
     band_1 = _check_band(band, eig_1, "eig_1")
