@@ -285,6 +285,44 @@ def test_full_shape_map_of_a_part_is_flagged_with_the_fix(whole, cut):
     assert any("swap" in r for r in q.reasons)
 
 
+def test_a_part_in_other_units_is_told_to_be_rescaled(whole, cut):
+    """A part in millimetres onto a whole in metres: larger, but with the more boundary.
+
+    A trial's cut x1000, matched without partial=True, was told only "not near-isometric".
+    """
+    V, _, e1 = whole
+    Vc, _, _, ec = cut
+    for scale in (1000.0, 0.001):  # the part larger, then the whole larger, in area
+        e2 = rescaled(ec, scale**-2)  # area x scale²
+        q = map_quality(np.zeros(len(Vc), dtype=np.int64), e1, e2)
+        [reason] = [r for r in q.reasons if "looks like a part" in r]
+        assert ("in other units" in reason) == (scale > 1) and "partial=True" in reason
+        assert q.suspect
+    # The whole as the target in other units: the part (the source) is named, swap said.
+    q = map_quality(np.zeros(len(V), dtype=np.int64), ec, rescaled(e1, 1e-6))
+    assert any("the source looks like a part" in r and "swap" in r for r in q.reasons)
+
+
+def test_a_cloud_of_another_area_is_said_to_be_perhaps_a_part(whole, cut):
+    """A cloud's boundary is not measured: a smaller cloud gets a warned note, not a flag.
+
+    A trial's one-sided cloud (0.76 of the source's area) was matched wrong (0.22) in silence.
+    """
+    from o3d_ofp.workflows.matching import match_eigenbases
+
+    V, _, e1 = whole
+    Vc, _, _, _ = cut
+    cloud = ofp.eigenbasis(Vc, None, k=99)
+    with pytest.warns(ofp.OFPWarning, match="a point cloud's boundary is not measured"):
+        corr = match_eigenbases(e1, cloud, zoomout_to=30)
+    assert any("mesh both and match with partial=True" in n for n in corr.quality.notes)
+    # A whole cloud of about the source's area, or one in other units: no such note.
+    for scale in (1.0, 1000.0):
+        whole_cloud = ofp.eigenbasis(V * scale, None, k=20)
+        q = map_quality(np.arange(len(V)), e1, whole_cloud)
+        assert not any("boundary is not measured" in n for n in q.notes)
+
+
 def test_scaled_whole_shape_is_not_flagged(whole):
     V, F, e1 = whole
     e2 = ofp.eigenbasis(V * 30.0, F, k=10)
