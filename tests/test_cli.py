@@ -974,7 +974,9 @@ def test_python_mistakes_name_the_keyword_before_any_eigensolve(files, no_eigens
     # The basis options of an estimated transfer: refused before its eigensolves and map (they
     # were refused by the basis, after both)
     for options, message in (
-        ({"method": "zzz"}, "method must be 'p2p' or 'analytic'"),
+        ({"method": "zzz"}, "'p2p' or 'analytic'; got"),
+        # a trial's method="closest": the map's method, not the transfer's, and where it goes
+        ({"method": "closest"}, r"o3d_ofp\.match\(source, target, method='closest', align=True"),
         ({"order": 0}, "order must be >= 1"),
         ({"preset": "foo"}, "preset must be one of"),
         ({"tol": 2.0}, "tol must lie strictly between 0 and 1"),

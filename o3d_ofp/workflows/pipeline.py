@@ -81,7 +81,17 @@ def _bases(
 def check_method(method: Any) -> None:
     """Refuse an unknown transfer-matrix method (see :func:`transfer_function`)."""
     if method not in ("p2p", "analytic"):
-        raise ValueError(f"method must be 'p2p' or 'analytic'; got {method!r}")
+        hint = ""
+        if method in ("closest", "estimate"):  # match()'s methods, not the transfer's
+            hint = (
+                f" ({method!r} is a way to make the map: "
+                f"o3d_ofp.match(source, target, method={method!r}"
+                + (", align=True for almost aligned shapes" if method == "closest" else "")
+                + "), then pass it as correspondence=)"
+            )
+        raise ValueError(
+            f"method selects the transfer matrix, 'p2p' or 'analytic'; got {method!r}{hint}"
+        )
 
 
 class BasesAhead:
