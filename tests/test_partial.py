@@ -919,3 +919,28 @@ def test_a_rival_makes_a_passing_map_suspect_and_is_said_first(whole, cut, monke
     monkeypatch.setattr(workflow, "MAX_DISTORTION", 0.0)
     corr = match_partial_eigenbases(e1, ec, warn_suspect=False)
     assert corr.quality.suspect and calls == []
+
+
+def test_estimations_log_their_stages_without_a_progress_callback(whole, cut, monkeypatch, caplog):
+    """From Python (no progress= given), a long estimation logs its stages at INFO.
+
+    A trial's 44 s partial transfer, logging at INFO, said one line, at its end; the command
+    line passes its own reporter. Short runs say nothing (as the other long loops).
+    """
+    import logging
+
+    from o3d_ofp.core import _progress
+
+    V, F, e1 = whole
+    Vc, Fc, _, ec = cut
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        ofp.match((V, F), (Vc, Fc), eigenbases=(e1, ec), zoomout_to=30)  # short: quiet
+    assert "descriptor fit" not in caplog.text and "(100%" not in caplog.text
+    monkeypatch.setattr(_progress, "PROGRESS_SECONDS", 0.0)  # every stage is "late" now
+    for partial, name in ((False, "match"), (True, "partial match")):
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+            ofp.match((V, F), (Vc, Fc), eigenbases=(e1, ec), zoomout_to=40, partial=partial)
+        said = [r.getMessage() for r in caplog.records if r.getMessage().startswith(name + ":")]
+        assert said[0].startswith(f"{name}: descriptor fit (0%"), said
+        assert any(m.startswith(f"{name}: done (100%") for m in said), said

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 
-__all__ = ["PROGRESS_SECONDS", "Progress"]
+__all__ = ["PROGRESS_SECONDS", "Progress", "StageProgress"]
 
 #: A loop running longer than this many seconds logs its progress, then every as many.
 PROGRESS_SECONDS = 5.0
@@ -49,4 +49,35 @@ class Progress:
             self.total,
             min(99, percent) if self.about else percent,
             now - self.start,
+        )
+
+
+class StageProgress:
+    """A ``progress(stage, fraction_done)`` callback that logs at INFO every few seconds.
+
+    The default of the map estimations' ``progress=``: a library caller with logging at INFO
+    sees what a long estimation is doing (a trial's 44 s partial transfer logged one line, at
+    its end), as the command line's own reporter shows it; runs shorter than
+    :data:`PROGRESS_SECONDS` say nothing.
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The calling module's logger.
+    what : str
+        The run, e.g. ``"partial match"``.
+    """
+
+    def __init__(self, logger: logging.Logger, what: str):
+        self.logger, self.what = logger, what
+        self.start = self.last = time.perf_counter()
+
+    def __call__(self, stage: str, done: float) -> None:
+        """Note that the run is at ``stage``, ``done`` (in [0, 1]) of the way; log if it is time."""
+        now = time.perf_counter()
+        if now - self.last < PROGRESS_SECONDS:
+            return
+        self.last = now
+        self.logger.info(
+            "%s: %s (%d%%, %.0f s)", self.what, stage, int(100 * done), now - self.start
         )

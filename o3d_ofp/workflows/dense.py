@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core._progress import StageProgress
 from ..core._validation import check_int
 from ..core.multiscale import coarse_mesh, extend_p2p
 from ..core.spectrum import EigenBasis, eigenbasis
@@ -197,7 +198,7 @@ def match_dense(
         names=("the source", "the target")[0 if coarse_1 is None else 1 :],
         components=components,
     )
-    report = progress or (lambda stage, done: None)
+    report = progress or StageProgress(logger, "match (dense)")
     t0 = time.perf_counter()
     coarse = functools.partial(
         coarse_shape, k=k, coarse_vertices=coarse_vertices, components=components

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..core._atomic import atomic_path
+from ..core._progress import StageProgress
 from ..core._warnings import warn
 from ..core.correspondence import check_p2p, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refine
@@ -1201,7 +1202,7 @@ def _match_surfaces(
     """:func:`match_eigenbases` on two bases without copies of vertices (checked inputs)."""
     k_fit = min(k_fit, eig_1.k, eig_2.k)
     final = min(zoomout_to, eig_1.k, eig_2.k)
-    report = progress or (lambda stage, done: None)
+    report = progress or StageProgress(logger, "match")
     u1, u2 = unit_area(eig_1), unit_area(eig_2)
     # Four starts: the descriptor-commutativity term helps on some pairs (FAUST: 0.026 with it,
     # 0.16 without) and hurts on others (TOSCA centaurs: 0.094 with, 0.015 without), and so

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core._progress import StageProgress
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
 from ..core.geometry import face_areas_normals, units_change
@@ -596,7 +597,7 @@ def _match_partial_surfaces(
     warn_suspect: bool,
 ) -> Correspondence:
     """:func:`match_partial_eigenbases` between two cleaned surfaces (options checked there)."""
-    report = progress or (lambda stage, done: None)
+    report = progress or StageProgress(logger, "partial match")
     area = eig_1.area
     u1, u2 = rescaled(eig_1, area), rescaled(eig_2, area)
     ratio = u2.area / u1.area
@@ -960,7 +961,7 @@ def match_partial_arrays(
     if not isinstance(second_opinion, bool):
         raise TypeError(f"second_opinion must be True or False; got {second_opinion!r}")
     progress = options.pop("progress", None)
-    report = progress or (lambda stage, done: None)
+    report = progress or StageProgress(logger, "partial match")
     warn_suspect = options.pop("warn_suspect", True)
 
     def run(coarse_vertices: int | None, share: tuple[float, float], prefix: str) -> Any:
