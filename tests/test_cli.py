@@ -835,6 +835,12 @@ def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
     with pytest.raises(IsADirectoryError, match="is a folder: nothing was written"):
         write_geometry(blocked / "a.obj", mesh)
     assert sorted(p.name for p in blocked.iterdir()) == [png]
+    # The command line refuses it before any work (a trial's was said after a texture bake,
+    # with exit code 2): the same output checks as for the inputs written beside it.
+    from o3d_ofp.cli._common import UsageError, check_output
+
+    with pytest.raises(UsageError, match=rf"would also write .*{png}, which is a folder"):
+        check_output(str(blocked / "a.obj"), (".obj",))
 
 
 def test_point_and_stl_formats_are_written(files, capsys, tmp_path):

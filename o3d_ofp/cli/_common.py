@@ -228,6 +228,12 @@ def check_output(
         )
     folder = os.path.dirname(os.path.abspath(path))
     check_writable_folder(folder, path, flag=flag)
+    for other in (*side, *written_beside(path)):  # (found by a trial only after the work)
+        if os.path.isdir(other):
+            raise UsageError(
+                f"{flag} {path}: writing it would also write {other}, which is a folder; "
+                "choose another output name"
+            )
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):
             continue
