@@ -229,6 +229,9 @@ def test_pullback_borrows_the_source_layout(spot, decimated):
     # On the source itself with the identity map: the source's own UVs, exactly.
     same = texture_pullback(source, source, p2p_21=np.arange(len(source.vertices)))
     assert texture_error(same, source, samples=20000) < 1e-3
+    # An untextured source: the message names the source (a trial's named "the mesh")
+    with pytest.raises(ValueError, match=r"needs a textured source .*: the source: the mesh has"):
+        texture_pullback(decimated, source, p2p_21=np.zeros(len(source.vertices), dtype=int))
 
 
 def test_tensor_meshes_are_accepted(spot, decimated):

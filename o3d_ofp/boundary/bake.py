@@ -582,7 +582,12 @@ def texture_pullback(
     """
     o3d = require_open3d()
     source, target = read_if_path(source, "source"), read_if_path(target, "target")
-    src = mesh_texture(source, texture)
+    try:
+        src = mesh_texture(source, texture)
+    except ValueError as exc:  # (a trial's message did not say which mesh)
+        raise ValueError(
+            f"texture_pullback needs a textured source (UVs and an image): the source: {exc}"
+        ) from exc
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
     V1, F1 = src.vertices, src.faces

@@ -359,7 +359,10 @@ def read_pair(args: argparse.Namespace) -> Pair:
     if args.align and args.map != "closest":
         raise UsageError("--align applies to --map closest")
     if getattr(args, "partial", False) and args.map != "estimate":
-        raise UsageError("--partial applies to --map estimate")
+        raise UsageError(
+            "--partial applies to --map estimate; a given map is used as it is (a map saved "
+            "from a run with --partial is partial already): drop --partial"
+        )
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
     corr = _read_map(args.map, V1, V2)
@@ -603,12 +606,14 @@ def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2:
 
     corr = pair.correspondence
     if corr is None:
-        with (
-            stage("map estimation (descriptor fit, ZoomOut, point map)"),
-            stage_progress("matching") as progress,
-        ):
+        partial = getattr(args, "partial", False)
+        what = (
+            "partial map estimation (descriptor fits, partial ZoomOut, geodesic refinement, "
+            "checks)" if partial else "map estimation (descriptor fit, ZoomOut, point map)"
+        )  # fmt: skip
+        with stage(what), stage_progress("matching") as progress:
             match = match_eigenbases
-            if getattr(args, "partial", False):
+            if partial:
                 from ..workflows.partial import match_partial_eigenbases as match
             corr = match(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
         _report_quality(args, corr)

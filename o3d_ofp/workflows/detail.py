@@ -614,10 +614,10 @@ def transfer_detail_frames(
         if theirs > 0 and own > DETAILED_TARGET * theirs:
             warn(
                 logger,
-                f"the target already has detail above band {band_1}{on_part} ({own / theirs:.2f} "
-                "of the source's): mode 'add' keeps it and adds the source's on top, which "
-                "exaggerates it; mode='replace-detail' (--mode replace-detail) replaces it "
-                "instead",
+                f"the target already has detail above band {band_1}{on_part} "
+                f"({own / theirs:.3g} of the source's, above {DETAILED_TARGET:g}): mode 'add' "
+                "keeps it and adds the source's on top, which exaggerates it; "
+                "mode='replace-detail' (--mode replace-detail) replaces it instead",
             )
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]

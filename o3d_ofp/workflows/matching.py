@@ -791,7 +791,8 @@ class Correspondence:
                 return (
                     f"{name} was made for another {side} with {np.shape(shape)[0]} vertices "
                     "(its vertices are not where they were, even up to a move, a rotation or "
-                    "a scaling): source and target swapped, another pair, or a changed shape?"
+                    "a scaling): source and target swapped, another pair, a changed shape, or "
+                    "the same shape with its vertices in another order (an OBJ read again)"
                 )
         return None
 
