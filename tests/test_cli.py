@@ -952,7 +952,7 @@ def test_unknown_method_or_mode_in_python_is_refused(files):
     mesh = triangle_mesh_from_arrays(files["V"], files["F"], colors=files["colors"])
     with pytest.raises(ValueError, match=r"method must be .*'closest'.*; got 'zzz'"):
         ofp.match(mesh, mesh, method="zzz")
-    with pytest.raises(ValueError, match=r"method must be .*'p2p'.*; got 'zzz'"):
+    with pytest.raises(ValueError, match=r"method selects the transfer matrix, 'p2p'.*; got 'zzz'"):
         ofp.transfer_colors(mesh, mesh, method="zzz")
     with pytest.raises(ValueError, match=r"mode must be .*'add'.*; got 'zzz'"):
         ofp.transfer_detail(mesh, mesh, mode="zzz")

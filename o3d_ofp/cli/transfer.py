@@ -343,9 +343,12 @@ def _default_signal(source: Any) -> str:
     """
     from ..boundary.bake import has_uvs
     from ..boundary.convert import vertex_colors
+    from ..boundary.texture import has_texture_image
 
     if vertex_colors(source) is None and has_uvs(source):
-        logger.info("the source has a texture and no vertex colors: its colors are transferred")
+        if has_texture_image(source):  # (else the image is asked for next: --texture FILE)
+            logger.info("the source has a texture and no vertex colors: its colors are "
+                        "transferred")  # fmt: skip
         return "texture"
     return "colors"
 
