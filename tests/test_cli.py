@@ -803,7 +803,7 @@ def test_a_file_written_beside_the_output_may_not_replace_an_input(
     assert image.read_bytes() == b"not replaced" and not (tmp_path / "x.obj").exists()
 
 
-def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
+def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path, capsys):
     from o3d_ofp import write_geometry
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
 
@@ -839,8 +839,11 @@ def test_write_geometry_refuses_to_replace_a_protected_file(files, tmp_path):
     # with exit code 2): the same output checks as for the inputs written beside it.
     from o3d_ofp.cli._common import UsageError, check_output
 
-    with pytest.raises(UsageError, match=rf"would also write .*{png}, which is a folder"):
+    with pytest.raises(UsageError, match=rf"may also write .*{png} .*, which is a folder"):
         check_output(str(blocked / "a.obj"), (".obj",))
+    assert main(["approximate", files["src"], "-k", "6", "-o", str(blocked / "a.obj")]) == 2
+    _one_line_error(capsys, f"{png} (a file Open3D writes beside it), which is a folder")
+    assert sorted(p.name for p in blocked.iterdir()) == [png]
 
 
 def test_point_and_stl_formats_are_written(files, capsys, tmp_path):
@@ -922,7 +925,11 @@ def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eig
     code = main(["transfer", files["src"], files["tgt"], "--partial", "--map", str(other),
                  "-o", str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2
-    _one_line_error(capsys, "--partial applies to --map estimate")
+    _one_line_error(capsys, "--partial applies to --map estimate", "partial already")
+    code = main(["transfer", files["src"], files["tgt"], "--partial", "--map", "identity",
+                 "-o", str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    _one_line_error(capsys, "not to --map identity: drop --partial")
 
 
 def test_textured_source_onto_a_target_without_uvs_gives_vertex_colors(files, capsys, tmp_path):
@@ -983,6 +990,7 @@ def test_python_mistakes_name_the_keyword_before_any_eigensolve(files, no_eigens
         ({"method": "zzz"}, "'p2p' or 'analytic'; got"),
         # a trial's method="closest": the map's method, not the transfer's, and where it goes
         ({"method": "closest"}, r"o3d_ofp\.match\(source, target, method='closest', align=True"),
+        ({"method": "estimate"}, r"o3d_ofp\.match\(source, target, method='estimate'\), then"),
         ({"order": 0}, "order must be >= 1"),
         ({"preset": "foo"}, "preset must be one of"),
         ({"tol": 2.0}, "tol must lie strictly between 0 and 1"),

@@ -170,7 +170,7 @@ def test_transfer_takes_the_correspondence(pair, reference):
     np.testing.assert_array_equal(via_corr, via_p2p)
     with pytest.raises(ValueError, match="at most one of correspondence"):
         ofp.transfer_function(f, e1, e2, correspondence=reference, p2p_21=reference.p2p_21)
-    with pytest.raises(ValueError, match="'p2p' or 'analytic'; got"):
+    with pytest.raises(ValueError, match="method selects the transfer matrix, 'p2p' or 'analytic'"):
         ofp.transfer_function(f, e1, e2, correspondence=reference, method="zzz")
     wrong = Correspondence(p2p_21=np.zeros(10, dtype=np.int64), n_source=len(V1))
     with pytest.raises(ValueError, match="belongs to other shapes"):

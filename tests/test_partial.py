@@ -290,7 +290,7 @@ def test_a_part_in_other_units_is_told_to_be_rescaled(whole, cut):
 
     A trial's cut x1000, matched without partial=True, was told only "not near-isometric".
     """
-    V, _, e1 = whole
+    V, F, e1 = whole
     Vc, _, _, ec = cut
     for scale in (1000.0, 0.001):  # the part larger, then the whole larger, in area
         e2 = rescaled(ec, scale**-2)  # area x scale²
@@ -301,6 +301,16 @@ def test_a_part_in_other_units_is_told_to_be_rescaled(whole, cut):
     # The whole as the target in other units: the part (the source) is named, swap said.
     q = map_quality(np.zeros(len(V), dtype=np.int64), ec, rescaled(e1, 1e-6))
     assert any("the source looks like a part" in r and "swap" in r for r in q.reasons)
+    # A whole with small holes (a scan's) in other units is no part: its boundary is made of
+    # short curves (a review: the total boundary flagged a FAUST body with three holes).
+    centres = V[[0, len(V) // 3, 2 * len(V) // 3]]
+    near = np.linalg.norm(V[F].mean(axis=1)[:, None] - centres, axis=2).min(axis=1) < 0.15
+    assert 0 < near.sum() < 0.05 * len(F)
+    holed = ofp.eigenbasis(V, F[~near], k=10)
+    assert boundary_length(V, F[~near]) / math.sqrt(holed.area) > 0.6  # above the 0.4 bound
+    for scale in (1000.0, 0.001):
+        q = map_quality(np.arange(len(V)), e1, rescaled(holed, scale**-2))
+        assert not any("looks like a part" in r for r in q.reasons), q.reasons
 
 
 def test_a_cloud_of_another_area_is_said_to_be_perhaps_a_part(whole, cut):
@@ -316,8 +326,9 @@ def test_a_cloud_of_another_area_is_said_to_be_perhaps_a_part(whole, cut):
     with pytest.warns(ofp.OFPWarning, match="a point cloud's boundary is not measured"):
         corr = match_eigenbases(e1, cloud, zoomout_to=30)
     assert any("mesh both and match with partial=True" in n for n in corr.quality.notes)
-    # A whole cloud of about the source's area, or one in other units: no such note.
-    for scale in (1.0, 1000.0):
+    # A whole cloud of about the source's area, or one in other units (inches against
+    # centimetres: 6.45 in area, the smallest change of units): no such note.
+    for scale in (1.0, 2.54, 1000.0):
         whole_cloud = ofp.eigenbasis(V * scale, None, k=20)
         q = map_quality(np.arange(len(V)), e1, whole_cloud)
         assert not any("boundary is not measured" in n for n in q.notes)
@@ -777,6 +788,12 @@ def test_coordinates_onto_a_part_are_checked_against_the_parts_area(whole, cut, 
         with warnings.catch_warnings():
             warnings.simplefilter("error", ofp.OFPWarning)
             ofp.transfer_detail((V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20, **given)
+    # An estimated full-shape map must give the source's area: the same map marked so is said
+    # (a review: the target's own area let every map pass).
+    with pytest.warns(ofp.OFPWarning, match="times the source's area"):
+        estimated = dataclasses.replace(corr, method="estimate")
+        ofp.transfer_detail((V, F), (Vs, Fs), mode="coordinates", k1=20, k2=20,
+                            correspondence=estimated)  # fmt: skip
     # A wrong map onto the part is still said (a map with no structure: far from both areas).
     wrong = np.random.default_rng(0).integers(0, len(V), len(Vs))
     with pytest.warns(ofp.OFPWarning, match="times the source's area"):

@@ -87,7 +87,7 @@ def test_transfer_errors(small_pair):
     B_1, B_2 = ofp.ofp_basis(eig_1, order=2, k=6), ofp.ofp_basis(eig_2, order=2, k=5)
     with pytest.raises(ValueError, match="are source and target swapped"):
         ofp.transfer_matrix(B_1, B_2, np.zeros((7, 6)))
-    with pytest.raises(ValueError, match="'p2p' or 'analytic'; got"):
+    with pytest.raises(ValueError, match="method must be 'p2p' or 'analytic'"):
         ofp.transfer_matrix(B_1, B_2, np.zeros((6, 7)), method="magic")
     with pytest.raises(ValueError, match="p2p_21 has 3 entries"):
         ofp.transfer_matrix(B_1, B_2, p2p_21=np.arange(3))

@@ -772,7 +772,14 @@ def transfer_detail(
             partial=partial,
         )
         part = partial or (correspondence is not None and correspondence.method == "partial")
-        check_coordinates_area(V1, F1, moved, F2, part=V2 if part else None, target=V2)
+        # A full map estimated here (or given as match()'s) must give the source's area; a
+        # map of another kind (an array, identity, closest points) may be onto a part.
+        estimated = correspondence.method == "estimate" if correspondence is not None else (
+            p2p_21 is None and fmap_12 is None
+        )  # fmt: skip
+        check_coordinates_area(
+            V1, F1, moved, F2, part=V2 if part else None, target=None if estimated else V2
+        )
         return like_target(target, vertices=moved)
     need = max(band, ROTATION_K)
     if eigenbases is not None:  # too small for the band: computed again, larger

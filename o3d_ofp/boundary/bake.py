@@ -585,6 +585,8 @@ def texture_pullback(
     try:
         src = mesh_texture(source, texture)
     except ValueError as exc:  # (a trial's message did not say which mesh)
+        if texture is not None:  # the message names texture= itself
+            raise
         raise ValueError(
             f"texture_pullback needs a textured source (UVs and an image): the source: {exc}"
         ) from exc

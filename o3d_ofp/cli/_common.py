@@ -231,8 +231,8 @@ def check_output(
     for other in (*side, *written_beside(path)):  # (found by a trial only after the work)
         if os.path.isdir(other):
             raise UsageError(
-                f"{flag} {path}: writing it would also write {other}, which is a folder; "
-                "choose another output name"
+                f"{flag} {path}: writing it may also write {other} (a file Open3D writes "
+                "beside it), which is a folder; choose another output name"
             )
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):

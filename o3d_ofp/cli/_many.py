@@ -138,17 +138,14 @@ def _check_output_dir(path: str) -> None:
 def report_records(records: Sequence[Any]) -> int:
     """Print one line per shape and a count; return 1 when any failed, else 0.
 
-    With ``-q`` only the failures and the suspect maps are printed (on stderr): the exit code
-    1 alone would not say which shapes failed, nor why, and a suspect map is a warning.
+    With ``-q`` nothing is printed here: the failures and the suspect maps were logged as
+    warnings, which ``-q`` keeps (each named: the exit code 1 alone would not say which shapes
+    failed, nor why).
     """
-    import sys
-
     lines = []
     for r in records:
         if r.status == "failed":
             lines.append(f"failed   {r.name}: {r.error}")
-            if OUT.quiet:
-                sys.stderr.write(lines[-1] + "\n")
         elif r.status == "skipped":
             sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
             lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
@@ -157,8 +154,6 @@ def report_records(records: Sequence[Any]) -> int:
             sus = " (SUSPECT map: see the warning above and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
-            if OUT.quiet and r.suspect:  # said even under -q, as a warning is
-                sys.stderr.write(lines[-1] + "\n")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
     lines.append(", ".join(f"{n} {s}" for s, n in counts.items()))
     report(lines)

@@ -360,9 +360,12 @@ def read_pair(args: argparse.Namespace) -> Pair:
         raise UsageError("--align applies to --map closest")
     if getattr(args, "partial", False) and args.map != "estimate":
         raise UsageError(
-            "--partial applies to --map estimate; a given map is used as it is (a map saved "
-            "from a run with --partial is partial already): drop --partial"
-        )
+            f"--partial applies to --map estimate (the partial match), not to --map {args.map}"
+            + ("" if args.map in ("closest", "identity") else
+               ", a map used as it is (a map saved from a run with --partial is partial "
+               "already)")
+            + ": drop --partial"
+        )  # fmt: skip
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
     corr = _read_map(args.map, V1, V2)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import sys
-import time
 from collections.abc import Callable, Iterator
 
 from ..core import _progress
@@ -37,17 +36,8 @@ def stage_progress(title: str) -> Iterator[Callable[[str, float], None]]:
     if not ENABLED.on:
         yield lambda stage, done: None
         return
-    if not sys.stderr.isatty():
-        start = time.perf_counter()
-        last = [start]
-
-        def log(stage: str, done: float) -> None:
-            now = time.perf_counter()
-            if now - last[0] >= _progress.PROGRESS_SECONDS:
-                last[0] = now
-                logger.info("%s: %s (%d%%, %.0f s)", title, stage, round(100 * done), now - start)
-
-        yield log
+    if not sys.stderr.isatty():  # the library's own reporter (what a Python caller sees)
+        yield _progress.StageProgress(logger, title)
         return
     from tqdm import tqdm
 

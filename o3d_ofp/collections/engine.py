@@ -310,7 +310,9 @@ def _log_record(r: TargetResult) -> None:
     else:
         extra = "" if math.isnan(r.coverage) else f", map coverage {r.coverage:.2f}"
         logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, extra)
-        if r.suspect and not r.warnings:
+        # Named here when its reasons were not (a worker's are said again below, named; this
+        # process's log said them without the target's name).
+        if r.suspect and (not r.warnings or r.worker == "local"):
             logger.warning("%s: the map is suspect (see its record)", r.name)
     # A worker process's log is not shown here: its warnings are said again, named. In this
     # process (workers=0) the log already said them.

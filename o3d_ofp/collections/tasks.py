@@ -386,7 +386,7 @@ ALONE_PARTIAL = (
 def _for_collections(message: str) -> str:
     if "landmarks" in message:
         message = f"{message} ({ALONE_WITH_LANDMARKS})"
-    if "fix: partial=True" in message:
+    if "partial=True" in message:  # the fixes that name it (a part, in other units, a cloud)
         message = f"{message} ({ALONE_PARTIAL})"
     return message
 

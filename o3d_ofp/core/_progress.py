@@ -79,5 +79,5 @@ class StageProgress:
             return
         self.last = now
         self.logger.info(
-            "%s: %s (%d%%, %.0f s)", self.what, stage, int(100 * done), now - self.start
+            "%s: %s (%d%%, %.0f s)", self.what, stage, round(100 * done), now - self.start
         )

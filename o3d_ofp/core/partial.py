@@ -151,7 +151,9 @@ def slant(evals_1: np.ndarray, evals_2: np.ndarray, k2: int) -> int:
     return max(1, min(count, evals_1.shape[0] - 1))
 
 
-def boundary_length(vertices: np.ndarray, faces: np.ndarray | None) -> float:
+def boundary_length(
+    vertices: np.ndarray, faces: np.ndarray | None, *, longest: bool = False
+) -> float:
     """Total length of the boundary edges (edges of one triangle only) of a mesh.
 
     Parameters
@@ -159,6 +161,9 @@ def boundary_length(vertices: np.ndarray, faces: np.ndarray | None) -> float:
     vertices : (n, 3) ndarray
     faces : (m, 3) ndarray of int or None
         ``None`` (a point cloud): 0.
+    longest : bool, default False
+        The length of the longest boundary curve only (the boundary edges' connected pieces):
+        a cut leaves long curves, a scan's holes short ones.
 
     Returns
     -------
@@ -171,7 +176,16 @@ def boundary_length(vertices: np.ndarray, faces: np.ndarray | None) -> float:
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
-    return float(np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1).sum())
+    lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
+    if not longest or single.size == 0:
+        return float(lengths.sum())
+    import scipy.sparse as sp
+    import scipy.sparse.csgraph as csgraph
+
+    n = V.shape[0]
+    graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
+    _, piece = csgraph.connected_components(graph, directed=False)
+    return float(np.bincount(piece[single[:, 0]], weights=lengths).max())
 
 
 def map_stretch(

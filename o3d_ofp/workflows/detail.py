@@ -420,9 +420,10 @@ def check_coordinates_area(
     faces None: a point cloud, not checked). ``part``: the target's own (n2, 3) vertices when
     it is a part of the source (a partial map, same units): the result should then have the
     area of the region it covers, which is the part's own. ``target``: the target's own
-    vertices when the map's kind is not known (a given ``p2p_21``): a result with the
-    source's area, or with the target's own area when that is smaller (a part of the source
-    in its units, through a partial map given as an array), passes.
+    vertices when the map may be onto a part (a map given as an array, an identity or a
+    closest-point map; not an estimated full-shape map): a result with the source's area,
+    or with the target's own area when that is smaller (a part of the source in its units),
+    passes.
     """
     if F1 is None or F2 is None:
         return
@@ -559,9 +560,10 @@ def transfer_detail_frames(
     if mode == "coordinates":
         moved = transfer_function(eig_1.vertices, eig_1, eig_2, **ofp_kw)
         part = correspondence is not None and correspondence.method == "partial"
+        estimated = correspondence is not None and correspondence.method == "estimate"
         check_coordinates_area(
             eig_1.vertices, eig_1.faces, moved, eig_2.faces,
-            part=eig_2.vertices if part else None, target=eig_2.vertices,
+            part=eig_2.vertices if part else None, target=None if estimated else eig_2.vertices,
         )  # fmt: skip
         return moved
 

@@ -114,6 +114,12 @@ AREA_RATIO_NOTE = 1.5
 #: data: 0 (closed shapes) and 0.04 (SHREC'19 scans, both with holes).
 PARTIAL_AREA_RATIO = 1.2
 EXTRA_BOUNDARY = 0.4
+#: A part larger in area than the whole (the larger shape with the longer boundary curve) is
+#: said to be in other units from this area ratio: the smallest change of units, inches and
+#: centimetres, is 6.45 in area, times a part's 0.5-0.8; below it, two whole shapes of the
+#: same kind (correct pairs differ by up to 1.30, see above) with holes are told apart from
+#: nothing.
+UNITS_AREA_RATIO = 3.0
 #: With partial=True, a target larger than the source by this factor cannot be a part of it.
 PARTIAL_MAX_AREA_RATIO = 1.1
 
@@ -526,53 +532,56 @@ def _area_reasons(
             "cannot be a part of the source; fix: make the whole shape the source (swap them) "
             "and give both in the same units (rescale)"
         ]
-    if max(area_ratio, 1 / area_ratio) <= PARTIAL_AREA_RATIO:
+    factor = max(area_ratio, 1 / area_ratio)
+    if factor <= PARTIAL_AREA_RATIO:
         return []
     small, large = (eig_2, eig_1) if area_ratio < 1 else (eig_1, eig_2)
-    extra = boundary_length(small.vertices, small.faces) / math.sqrt(small.area)
-    extra -= boundary_length(large.vertices, large.faces) / math.sqrt(large.area)
+    # In units that may be the same, the total boundary; where the units surely differ, the
+    # longest boundary curve: a whole scan with holes, in other units, is no part (a review's
+    # FAUST body with three holes was flagged by its total), and a cut leaves a long curve
+    # (0.52-4.0 per sqrt(area) on the cuts of scripts/eval_partial.py).
+    longest = factor >= UNITS_AREA_RATIO
+
+    def boundary(eig: EigenBasis) -> float:
+        return boundary_length(eig.vertices, eig.faces, longest=longest) / math.sqrt(eig.area)
+
+    extra = boundary(small) - boundary(large)
     if extra > EXTRA_BOUNDARY:
         part = "target" if area_ratio < 1 else "source"
         return [
-            f"the {part} looks like a part of the other shape "
-            f"({min(area_ratio, 1 / area_ratio):.2f} of its area, {extra:.2f} more boundary per "
-            "sqrt(area)): a full-shape map cannot match a part; fix: partial=True / --partial "
-            "with the whole shape as the source"
+            f"the {part} looks like a part of the other shape ({1 / factor:.2g} of its area, "
+            f"{extra:.2f} more boundary per sqrt(area)): a full-shape map cannot match a "
+            "part; fix: partial=True / --partial with the whole shape as the source"
             + (" (swap source and target)" if part == "source" else "")
             + ", in the same units (rescale first if they differ)"
         ]
-    if -extra > EXTRA_BOUNDARY:
-        # The larger shape has the more boundary: a part can only be larger in other units
-        # (a trial's cut in millimetres onto a whole in metres was told only "not
+    if longest and -extra > EXTRA_BOUNDARY:
+        # The larger shape has the longer cut: a part can only be larger in other units (a
+        # trial's cut in millimetres onto a whole in metres was told only "not
         # near-isometric").
         part = "target" if area_ratio > 1 else "source"
         return [
-            f"the {part} looks like a part of the other shape in other units ({-extra:.2f} "
-            f"more boundary per sqrt(area), {max(area_ratio, 1 / area_ratio):.3g} times its "
-            "area): a full-shape map cannot match a part; fix: rescale the part to the whole "
-            "shape's units, then partial=True / --partial with the whole shape as the source"
+            f"the {part} looks like a part of the other shape in other units ({factor:.3g} "
+            f"times its area, a boundary curve {-extra:.2f} longer per sqrt(area)): a "
+            "full-shape map cannot match a part; fix: rescale the part to the whole shape's "
+            "units, then partial=True / --partial with the whole shape as the source"
             + (" (swap source and target)" if part == "source" else "")
         ]
     return []  # a scaled shape (other units) keeps its boundary: its map is right
 
 
-#: A point cloud's boundary is not measured, so a cloud that is a part of the other shape is
-#: not told from another body (:func:`_area_reasons` needs faces). Areas that differ by more
-#: than PARTIAL_AREA_RATIO and less than this factor (beyond it: other units, whose map is
-#: right) get :func:`cloud_part_note`, warned.
-CLOUD_PART_AREA_RATIO = 100.0
-
-
 def cloud_part_note(eig_1: EigenBasis, eig_2: EigenBasis, area_ratio: float) -> str | None:
     """Say that a cloud of a smaller area may be a part, which a full-shape map cannot match.
 
-    None unless either shape is a point cloud and the areas differ by a factor between
-    :data:`PARTIAL_AREA_RATIO` and :data:`CLOUD_PART_AREA_RATIO` (a trial's one-sided cloud
-    of 0.76 times the source's area was matched wrong, error 0.22, with no word).
+    A point cloud's boundary is not measured, so a cloud that is a part of the other shape is
+    not told from another body (:func:`_area_reasons` needs faces). None unless either shape
+    is a point cloud and the areas differ by a factor between :data:`PARTIAL_AREA_RATIO` and
+    :data:`UNITS_AREA_RATIO` (beyond: other units, whose map is right; a trial's one-sided
+    cloud of 0.76 times the source's area was matched wrong, error 0.22, with no word).
     """
     if eig_1.faces is not None and eig_2.faces is not None:
         return None
-    if not PARTIAL_AREA_RATIO < max(area_ratio, 1 / area_ratio) < CLOUD_PART_AREA_RATIO:
+    if not PARTIAL_AREA_RATIO < max(area_ratio, 1 / area_ratio) < UNITS_AREA_RATIO:
         return None
     small = "target" if area_ratio < 1 else "source"
     return (
@@ -1338,7 +1347,8 @@ def _match_surfaces(
     if (cloud_part := cloud_part_note(eig_1, eig_2, quality.area_ratio)) is not None:
         warn(logger, f"match: {cloud_part}")  # a note, but doubtful: said, suspect or not
     for note in quality.notes:
-        logger.info("match: %s", note, extra=QUALITY_RECORD)
+        if note != cloud_part:  # (said just above)
+            logger.info("match: %s", note, extra=QUALITY_RECORD)
     report("done", 1.0)
     options = {
         "landmarks": None if landmarks is None else np.asarray(landmarks).tolist(),
