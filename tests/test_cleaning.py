@@ -9,6 +9,7 @@ import pytest
 
 import o3d_ofp as ofp
 from o3d_ofp.core import _memory
+from o3d_ofp.core._warnings import warnings_logged
 from o3d_ofp.core.cleaning import AUTO_KEEP_FRACTION, check_shape, clean_shape
 from o3d_ofp.core.laplacian import laplacian
 from o3d_ofp.core.shapes import blob, icosphere
@@ -99,8 +100,9 @@ def test_tiny_stray_component_is_dropped_with_a_warning(caplog):
     stray_v = np.array([[3.0, 0, 0], [3.01, 0, 0], [3.0, 0.01, 0]])
     V2 = np.concatenate([V, stray_v])
     F2 = np.concatenate([F, [[len(V), len(V) + 1, len(V) + 2]]])
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.cleaning"):
-        eig = ofp.eigenbasis(V2, F2, k=8)
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.cleaning"), warnings_logged():
+        with pytest.warns(ofp.OFPWarning, match="kept the largest of 2 components"):
+            eig = ofp.eigenbasis(V2, F2, k=8)
     assert "kept the largest of 2 components" in caplog.text
     # the left-out vertices are still in the results (a trial read "dropping" as removed)
     assert "stay in the results with the values of their nearest kept vertex" in caplog.text

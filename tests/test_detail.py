@@ -5,6 +5,7 @@ import pytest
 from numpy.polynomial import legendre
 
 import o3d_ofp as ofp
+from o3d_ofp.core._warnings import warnings_logged
 from o3d_ofp.core.geometry import face_areas_normals, vertex_normals
 from o3d_ofp.core.shapes import blob, icosphere
 from o3d_ofp.workflows.detail import (
@@ -214,7 +215,7 @@ def test_add_mode_warns_when_the_target_already_has_detail(caplog):
         caplog.clear()
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
-            with caplog.at_level(logging.WARNING, logger=name):
+            with caplog.at_level(logging.WARNING, logger=name), warnings_logged():
                 transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode)
         assert [x.category for x in w] == ([ofp.OFPWarning] if warned else [])
         said = [r.getMessage() for r in caplog.records if r.name == name]

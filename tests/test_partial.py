@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
+from o3d_ofp.core._warnings import warnings_logged
 from o3d_ofp.core.correspondence import nearest_neighbors
 from o3d_ofp.core.partial import (
     boundary_length,
@@ -183,7 +184,7 @@ def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
         return C, nearest_neighbors(V, V[p2p] * np.array([-1.0, 1.0, 1.0]))
 
     monkeypatch.setattr(workflow, "_refine", mirrored)
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"), warnings_logged():
         corr = match_partial_eigenbases(e1, ec, k_fit=15)
     # The warning gives each reason on its own line (it was one line of ~600 characters).
     (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -600,7 +601,7 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
 
     monkeypatch.setattr(workflow, "match_arrays", contradicted)
     landmarks = _three_landmarks(truth)
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.workflows.partial"), warnings_logged():
         corr = ofp.match((V, F), (Vc, Fc), partial=True, landmarks=landmarks)
     assert calls == [None, 560]
     q = corr.quality

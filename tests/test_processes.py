@@ -101,8 +101,11 @@ with open(__file__, encoding="utf-8") as _source:
 
 @needs_two
 def test_a_child_warnings_and_log_records_reach_this_process(caplog):
+    from o3d_ofp.core._warnings import warnings_logged
+
+    # logged at WARNING as the command line sets it (the forked child inherits the level)
     with caplog.at_level(logging.INFO, logger="o3d_ofp"), collected_warnings() as said:
-        with pytest.warns(OFPWarning, match="a doubtful child result"):
+        with pytest.warns(OFPWarning, match="a doubtful child result"), warnings_logged():
             with pytest.warns(RuntimeWarning, match="a plain warning"):
                 assert side_by_side([lambda: 1, _warn_and_log], what="warning") == [1, 3]
     assert said == ["a doubtful child result"]

@@ -318,8 +318,9 @@ def match(
     -------
     Correspondence
         ``p2p_21`` (n2,), the functional map, the options and ``quality`` (``coverage``,
-        ``suspect`` and the measures behind it). A suspect map is logged as a warning with
-        the likely causes and the fix; ``save(path)`` / ``Correspondence.load(path)`` keep it.
+        ``suspect`` and the measures behind it). A suspect map is warned about
+        (:class:`OFPWarning`) with the likely causes and the fix; ``save(path)`` /
+        ``Correspondence.load(path)`` keep it.
 
     References
     ----------

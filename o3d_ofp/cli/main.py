@@ -17,7 +17,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from ..core._version import __version__
-from ..core._warnings import OFPWarning
+from ..core._warnings import OFPWarning, warnings_logged
 from . import approximate, basis, demo, detail, filter, render, transfer
 from ._common import OUT, UsageError, in_flags
 from ._pair import SUSPECT_EXIT, SuspectMap
@@ -153,8 +153,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     OUT.quiet = bool(args.quiet)
     OUT.reports_quality = False  # set by a run over one pair (check_single)
     ENABLED.on = not args.quiet
-    # OFPWarnings repeat what the log already prints (or what -q silences).
-    with _logging_to_stderr(level), warnings.catch_warnings():
+    # OFPWarnings repeat what the log already prints (logged at WARNING here).
+    with _logging_to_stderr(level), warnings.catch_warnings(), warnings_logged():
         warnings.simplefilter("ignore", OFPWarning)
         try:
             return args.func(args)

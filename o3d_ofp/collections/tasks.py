@@ -386,7 +386,9 @@ ALONE_PARTIAL = (
 def _for_collections(message: str) -> str:
     if "landmarks" in message:
         message = f"{message} ({ALONE_WITH_LANDMARKS})"
-    if "partial=True" in message:  # the fixes that name it (a part, in other units, a cloud)
+    # The fixes that use it (a part, a part in other units, a cloud that may be a part); not
+    # the "likely causes" line, which names it among others.
+    if any(f in message for f in ("fix: partial=True", "then partial=True", "with partial=True")):
         message = f"{message} ({ALONE_PARTIAL})"
     return message
 

@@ -2,9 +2,12 @@
 
 The package logs through :mod:`logging` (a ``NullHandler`` by default: nothing is printed
 unless the application configures logging). A doubtful result the caller should act on (a
-suspect map, detail added on top of detail, parts of a shape left out) is also issued as an
+suspect map, detail added on top of detail, parts of a shape left out) is issued as an
 :class:`OFPWarning` with :func:`warnings.warn`, which Python shows by default (at every
-doubtful call); the command line, which prints the log, silences these duplicates.
+doubtful call), and logged at DEBUG only: a notebook with logging at INFO (to see the long
+stages) showed every warning twice (two trials). ``logging.captureWarnings(True)`` sends the
+warnings to the log. The command line, which prints the log and silences the warnings,
+logs them at WARNING (:func:`warnings_logged`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import threading
 import warnings
 from collections.abc import Iterator
 
-__all__ = ["OFPWarning", "collected_warnings", "reissue", "warn"]
+__all__ = ["OFPWarning", "collected_warnings", "reissue", "warn", "warnings_logged"]
 
 _COLLECTING = threading.local()
 
@@ -32,13 +35,33 @@ class OFPWarning(UserWarning):
 warnings.filterwarnings("always", category=OFPWarning, append=True)
 
 
+class _LogLevel:
+    """The level :func:`warn` logs at (process-wide: a forked side process inherits it)."""
+
+    level = logging.DEBUG
+
+
+_LOG = _LogLevel()
+
+
+@contextlib.contextmanager
+def warnings_logged(level: int = logging.WARNING) -> Iterator[None]:
+    """Log what :func:`warn` says at ``level`` while the block runs (the command line's log)."""
+    before, _LOG.level = _LOG.level, level
+    try:
+        yield
+    finally:
+        _LOG.level = before
+
+
 def warn(logger: logging.Logger, message: str, *, stacklevel: int | None = None) -> None:
-    """Log ``message`` at WARNING on ``logger`` and issue it as an :class:`OFPWarning`.
+    """Issue ``message`` as an :class:`OFPWarning` and log it on ``logger`` (at DEBUG).
 
     The warning is attributed to the caller's own line: the first frame outside the package
     (a trial's warning pointed at ``o3d_ofp/boundary/api.py``); ``stacklevel`` overrides it.
+    The log record is at DEBUG, or at the level :func:`warnings_logged` sets.
     """
-    logger.warning("%s", message)
+    logger.log(_LOG.level, "%s", message)
     _collect(message)
     if stacklevel is None:
         stacklevel = _outside_the_package()

@@ -1099,7 +1099,7 @@ def match_eigenbases(
     -------
     Correspondence
         ``p2p_21``, the functional map, the options and the quality report. A suspect map is
-        logged as a warning that names the likely causes and the fix.
+        warned about (:class:`o3d_ofp.OFPWarning`), naming the likely causes and the fix.
 
     Notes
     -----

@@ -522,7 +522,7 @@ def match_partial_eigenbases(
     progress : callable, optional
         Called as ``progress(stage, fraction_done)``.
     warn_suspect : bool, default True
-        Warn (log and :class:`o3d_ofp.OFPWarning`) when the map is suspect; False for a
+        Warn (:class:`o3d_ofp.OFPWarning`) when the map is suspect; False for a
         caller that reports the verdict itself (its reasons are in ``quality`` either way).
 
     Returns
