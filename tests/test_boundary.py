@@ -558,3 +558,34 @@ def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
 
     with pytest.raises(ValueError, match=r"size=3: Open3D could not lay out a UV atlas"):
         with_uv_atlas(mesh, size=3)  # was Open3D's RuntimeError, no word of the size
+
+
+def test_an_obj_is_read_with_its_vertices_in_the_order_of_its_v_lines(tmp_path):
+    """Open3D's reader numbers an OBJ's vertices by first use in the faces: put back.
+
+    A trial's OBJ outputs were renumbered (per-vertex data kept beside the file no longer
+    lined up); per-corner UVs and vertex normals follow their vertices.
+    """
+    from o3d_ofp.core.shapes import blob
+
+    V, F = blob(3)
+    F = F[np.random.default_rng(0).permutation(len(F))]  # first use in faces != v order
+    mesh = adapters.triangle_mesh_from_arrays(V, F)
+    uv = 0.5 + 0.4 * V[:, :2] / np.abs(V[:, :2]).max()
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(uv[F.ravel()])
+    mesh.compute_vertex_normals()
+    normals = np.asarray(mesh.vertex_normals).copy()
+    path = tmp_path / "b.obj"
+    o3d.io.write_triangle_mesh(str(path), mesh)
+    as_open3d = np.asarray(o3d.io.read_triangle_mesh(str(path)).vertices)
+    assert not np.allclose(as_open3d, V, atol=1e-5)  # what Open3D gives: renumbered
+    read = ofp.read_geometry(path)
+    np.testing.assert_allclose(np.asarray(read.vertices), V, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(read.triangles), F)
+    np.testing.assert_allclose(np.asarray(read.triangle_uvs), uv[F.ravel()], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(read.vertex_normals), normals, atol=1e-4)
+    # written back: the same v lines, in the same order
+    ofp.write_geometry(tmp_path / "c.obj", read)
+    first, second = ([x for x in f.read_text().splitlines() if x.startswith("v ")]
+                     for f in (path, tmp_path / "c.obj"))  # fmt: skip
+    assert first == second

@@ -141,6 +141,8 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         mesh = o3d.io.read_triangle_mesh(path)
     if len(mesh.vertices) and len(mesh.triangles):
         _check_read(path, len(mesh.vertices))
+        if path.lower().endswith(".obj"):
+            mesh = _in_file_order(path, mesh, o3d)
         return mesh
     with open3d_errors_only():
         cloud = o3d.io.read_point_cloud(path)
@@ -154,6 +156,58 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         )
         return cloud
     raise ValueError(f"{path}: Open3D could not read any vertices from this file")
+
+
+def _obj_positions(path: str) -> np.ndarray:
+    """(m, 3) positions of an OBJ's ``v`` lines, in the file's order."""
+    with open(path, "rb") as fh:
+        rows = [line.split()[1:4] for line in fh if line.startswith(b"v ")]
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
+    """Put an OBJ's vertices back in the order of its ``v`` lines (Open3D's reader renumbers).
+
+    Open3D numbers an OBJ's vertices in the order the faces first use them (measured: FAUST
+    087 written with UVs and read back), so per-vertex data kept beside the file (a
+    registration's vertex i, a saved map) no longer lines up, and an OBJ written back is
+    renumbered (a trial). When the vertices are those of the ``v`` lines one to one, they are
+    permuted back (the triangles, per-vertex normals and colors with them; per-corner UVs,
+    textures and material ids are per triangle and stay); else (vertices split along UV
+    seams) the mesh is left as read.
+    """
+    try:
+        P = _obj_positions(path)
+    except (OSError, ValueError):
+        return mesh
+    V = np.asarray(mesh.vertices)
+    if P.shape != V.shape:
+        logger.debug("%s: %d vertices read from %d v lines: Open3D's order kept", path,
+                     V.shape[0], P.shape[0])  # fmt: skip
+        return mesh
+    # Open3D parses in single precision, not always to the nearest float: each read vertex
+    # is matched to the nearest v line, within 1e-6 of the shape's size, one to one.
+    from scipy.spatial import cKDTree
+
+    size = float(np.ptp(P, axis=0).max()) or 1.0
+    distance, new_of_read = cKDTree(P).query(V)  # read vertex -> its v line
+    if distance.max() > 1e-6 * size or np.unique(new_of_read).size != V.shape[0]:
+        return mesh  # not one to one (repeated positions, another reader): left as read
+    if np.array_equal(new_of_read, np.arange(V.shape[0])):
+        return mesh
+    read_of_new = np.empty_like(new_of_read)
+    read_of_new[new_of_read] = np.arange(V.shape[0])
+    out = o3d.geometry.TriangleMesh(mesh)
+    out.vertices = o3d.utility.Vector3dVector(V[read_of_new])
+    out.triangles = o3d.utility.Vector3iVector(new_of_read[np.asarray(mesh.triangles)])
+    if mesh.has_vertex_normals():
+        out.vertex_normals = o3d.utility.Vector3dVector(
+            np.asarray(mesh.vertex_normals)[read_of_new]
+        )
+    if mesh.has_vertex_colors():
+        out.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.vertex_colors)[read_of_new])
+    logger.debug("%s: vertices put back in the order of its v lines", path)
+    return out
 
 
 GLTF = (".gltf", ".glb")
