@@ -151,7 +151,7 @@ def report_records(records: Sequence[Any]) -> int:
             lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
         else:
             cov = "" if r.coverage != r.coverage else f", map coverage {r.coverage:.2f}"
-            sus = " (SUSPECT map: see the warning above and the summary)" if r.suspect else ""
+            sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}

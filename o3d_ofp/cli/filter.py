@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
         check_job_memory(
             [(args.mesh, V.shape[0], 1, 1, 1)], advice="use a simplified mesh (fewer vertices)"
         )
-        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} vertices)"):
+        what = "vertices" if F is not None else "points"
+        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} {what})"):
             B = eigenbasis(V, F, k=1, **eig_options(args))
     with stage("low-pass filter"):
         out = filter_geometry(

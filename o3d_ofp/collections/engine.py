@@ -205,7 +205,9 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
             yield c
         return
     n = local_workers() if workers is None else workers
-    logger.info("starting a local Dask cluster: %d worker processes x 1 thread", n)
+    logger.info(
+        "starting a local Dask cluster: %d worker process%s x 1 thread", n, "es" * (n != 1)
+    )
     import dask
 
     with _worker_environment() as pre_spawn:
