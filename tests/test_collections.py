@@ -542,6 +542,12 @@ def test_cli_bad_collection_usage_is_refused(shapes, tmp_path, capsys):
           "--scheduler", "tcp://127.0.0.1:9"], "--scheduler tcp://127.0.0.1:9: nothing answers"),
         (["transfer", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "o",
           "--scheduler", "localhost"], "expected tcp://HOST:PORT"),
+        # a trial's typo ran every other target first (exit 1 at the end)
+        (["transfer", paths["src"], paths["t0"], tmp_path / "typo.ply", "-o", tmp_path / "o",
+          "--workers", "0"], "typo.ply: no such target file or folder"),
+        # the output folder holding a target: said with the flag, not the keyword
+        (["transfer", paths["src"], paths["t0"], paths["t1"], "-o",
+          os.path.dirname(paths["t0"]), "--workers", "0"], "the output folder"),
     ]  # fmt: skip
     for argv, message in cases:
         assert _cli(*argv) == 2, argv

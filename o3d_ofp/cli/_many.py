@@ -184,6 +184,9 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
         )
     if not os.path.isfile(args.source):
         raise UsageError(f"{args.source}: no such source file")
+    for target in args.target:  # a typo is said before any work (a trial's ran every other)
+        if not os.path.exists(target):
+            raise UsageError(f"{target}: no such target file or folder")
     try:
         records = transfer_many(
             args.source,
@@ -204,7 +207,7 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
             **{k: v for k, v in options.items() if v is not None},
         )
     except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise UsageError(str(exc)) from exc
+        raise UsageError(in_flags(str(exc))) from exc
     # the records' messages in the command line's words (the flags, not the keywords)
     records = [
         dataclasses.replace(

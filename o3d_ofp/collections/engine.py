@@ -453,8 +453,8 @@ def _outputs(
         out = os.path.join(output_dir, name)
         if isinstance(item, str) and os.path.abspath(out) == os.path.abspath(item):
             raise ValueError(
-                f"output_dir {output_dir} holds the target {item}: its output would overwrite "
-                "it; write to another folder"
+                f"the output folder {output_dir} holds the target {item}: its output would "
+                "overwrite it; write to another folder"
             )
         outs.append(out)
     return names, outs

@@ -337,7 +337,8 @@ def _correspondence(
     n1, n2 = source.eig.n_vertices, eig_2.n_vertices
     if n1 != n2:
         raise ValueError(
-            f"map='identity' needs a target with the source's {n1} vertices; it has {n2}"
+            f"the identity map (map='identity' / --map identity) needs a target with the "
+            f"source's {n1} vertices; it has {n2}"
         )
     return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
 
