@@ -154,7 +154,7 @@ def slant(evals_1: np.ndarray, evals_2: np.ndarray, k2: int) -> int:
 def boundary_length(
     vertices: np.ndarray, faces: np.ndarray | None, *, longest: bool = False
 ) -> float:
-    """Total length of the boundary edges (edges of one triangle only) of a mesh.
+    """Length of a mesh's boundary edges (edges of one triangle only), or of its longest curve.
 
     Parameters
     ----------

@@ -114,11 +114,10 @@ AREA_RATIO_NOTE = 1.5
 #: data: 0 (closed shapes) and 0.04 (SHREC'19 scans, both with holes).
 PARTIAL_AREA_RATIO = 1.2
 EXTRA_BOUNDARY = 0.4
-#: A part larger in area than the whole (the larger shape with the longer boundary curve) is
-#: said to be in other units from this area ratio: the smallest change of units, inches and
-#: centimetres, is 6.45 in area, times a part's 0.5-0.8; below it, two whole shapes of the
-#: same kind (correct pairs differ by up to 1.30, see above) with holes are told apart from
-#: nothing.
+#: From this area ratio the units surely differ (the smallest change of units, inches and
+#: centimetres, is 6.45 in area, times a part's 0.5-0.8; correct pairs of whole shapes differ
+#: by up to 1.30, see above): the longest boundary curves are compared (a scan's holes are
+#: short), and a larger shape with the longer curve is said to be a part in other units.
 UNITS_AREA_RATIO = 3.0
 #: With partial=True, a target larger than the source by this factor cannot be a part of it.
 PARTIAL_MAX_AREA_RATIO = 1.1
