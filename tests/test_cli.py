@@ -858,6 +858,17 @@ def test_point_and_stl_formats_are_written(files, capsys, tmp_path):
         assert main([*base, "-o", str(out)]) == 2
         _one_line_error(capsys, f"c{ext}", "holds no vertex colors, so the colors would be lost")
         assert not out.exists()
+    # A target with UVs: refused the same, with no warning first that its colors go to the
+    # vertices of that file (a trial: the two messages contradicted each other)
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    uv_target = triangle_mesh_from_arrays(files["V"], files["F"])
+    uv_target.triangle_uvs = o3d.utility.Vector2dVector(np.zeros((3 * len(files["F"]), 2)))
+    o3d.io.write_triangle_mesh(str(tmp_path / "uv.obj"), uv_target)
+    argv = ["transfer", files["src"], str(tmp_path / "uv.obj"), "--map", "identity"]
+    assert main([*argv, "-o", str(tmp_path / "c.xyz")]) == 2
+    err = capsys.readouterr().err
+    assert "holds no vertex colors" in err and "has UVs" not in err, err
     for ext in (".stl", ".xyz", ".pcd", ".xyzrgb"):
         out = tmp_path / f"x{ext}"
         signal = ["--signal", "xyz"] if ext in (".stl", ".xyz") else []

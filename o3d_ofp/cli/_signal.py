@@ -28,15 +28,21 @@ def read_signal(
     are refused here, before any work: they would be dropped without a word.
     """
     values, kind = _read_signal(geometry, V, path, spec, texture)
+    if kind == "colors":
+        check_colors_output(output)
+    return values, kind
+
+
+def check_colors_output(output: str | None) -> None:
+    """Refuse colors bound for an ``-o`` format that holds none (STL, XYZ), before any work."""
     from ..boundary.io import NO_COLORS
 
     ext = os.path.splitext(output or "")[1].lower()
-    if kind == "colors" and ext in NO_COLORS:
+    if ext in NO_COLORS:
         raise UsageError(
             f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; write "
             ".ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts (points)"
         )
-    return values, kind
 
 
 def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:

@@ -34,7 +34,13 @@ from ._pair import (
     map_first,
     read_pair,
 )
-from ._signal import read_signal, signal_sides, texture_error, write_result
+from ._signal import (
+    check_colors_output,
+    read_signal,
+    signal_sides,
+    texture_error,
+    write_result,
+)
 from ._types import bounded_int
 
 __all__ = ["add_parser", "run"]
@@ -175,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
             files=True,
         )
     spec = args.signal or _default_signal(pair.source)
+    if spec in ("colors", "texture"):  # refused before the warnings below (which contradicted)
+        check_colors_output(args.output)
     textured_target = pair.F1 is not None and pair.F2 is not None and has_uvs(pair.target)
     if textured_target and args.signal in ("colors", "texture"):
         own = "the source's texture" if has_uvs(pair.source) else "them"
