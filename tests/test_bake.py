@@ -167,12 +167,16 @@ def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
     assert err_surface < err_vertex_map
 
 
-def test_a_target_without_uvs_gets_an_atlas_and_the_baked_texture(spot, decimated):
+def test_a_target_without_uvs_gets_an_atlas_and_the_baked_texture(spot, decimated, caplog):
+    import logging
+
     source = spot[0]
     plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
     before = _snapshot(plain)
     corr = _closest_map(source, plain)
-    baked = transfer_texture(source, plain, correspondence=corr, size=512, atlas=True)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.boundary.bake"):
+        baked = transfer_texture(source, plain, correspondence=corr, size=512, atlas=True)
+    assert "UV atlas done in" in caplog.text  # its own time (a trial read it as the bake's)
     _same(_snapshot(plain), before)  # the target is not modified
     assert len(baked.vertices) == len(plain.vertices) and baked.has_triangle_uvs()
     np.testing.assert_array_equal(np.asarray(baked.triangles), np.asarray(plain.triangles))
