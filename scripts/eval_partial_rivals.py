@@ -37,7 +37,6 @@ from o3d_ofp.core.partial import (
     partial_p2p,
     partial_zoomout,
     rescaled,
-    slant,
 )
 from o3d_ofp.workflows import partial as P
 from o3d_ofp.workflows.matching import (
@@ -59,15 +58,11 @@ def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
 
     u1, u2 = rescaled(s1, s1.area), rescaled(s2, s1.area)
     k2_fit = min(P.FIT_K, s2.k)
-    k2_final = k2_fit
-    while k2_final < s2.k and slant(u1.evals, u2.evals, k2_final + 1) < min(P.ESTIMATION_K, s1.k):
-        k2_final += 1
+    k2_final = P._final_target_size(u1, u2, k2_fit=k2_fit, k1_max=min(P.ESTIMATION_K, s1.k))
     options = {"landmarks": None, "w_dcomm": DCOMM_WEIGHTS, "w_orient": 1.0,
                "descriptors": partial_descriptors(u1, u2)}  # fmt: skip
-    sizes = sorted({min(k, k2_fit) for k in (*P.FIT_SIZES, k2_fit)})
-    starts = [C for k in sizes for C in fit_partial_fmap(u1, u2, k2=k, **options)]
-    for k in sorted({min(k, k2_fit) for k in P.DIRECT_FIT_SIZES} - set(sizes)):
-        starts += list(fit_partial_fmap(u1, u2, k2=k, solver="direct", **options))
+    starts = [C for k, solver in P._start_fits(k2_fit)
+              for C in fit_partial_fmap(u1, u2, k2=k, solver=solver, **options)]  # fmt: skip
 
     def measure(p2p):
         return {

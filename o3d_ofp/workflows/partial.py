@@ -583,6 +583,28 @@ def match_partial_eigenbases(
     )
 
 
+def _final_target_size(u1: EigenBasis, u2: EigenBasis, *, k2_fit: int, k1_max: int) -> int:
+    """Return the target size whose slant reaches the source size ``k1_max`` (about r · k1_max).
+
+    ``u1``, ``u2``: the bases in the source's units; at least ``k2_fit``, at most ``u2.k``.
+    """
+    k2_final = k2_fit
+    while k2_final < u2.k and slant(u1.evals, u2.evals, k2_final + 1) < k1_max:
+        k2_final += 1
+    return k2_final
+
+
+def _start_fits(k2_fit: int) -> list[tuple[int, str]]:
+    """List the (target size, solver) of each descriptor fit of the partial match, in order.
+
+    L-BFGS fits of :data:`FIT_SIZES` and ``k2_fit`` functions, then exact fits of the
+    :data:`DIRECT_FIT_SIZES` not among them (each size at most ``k2_fit``).
+    """
+    sizes = sorted({min(k, k2_fit) for k in (*FIT_SIZES, k2_fit)})
+    direct = sorted({min(k, k2_fit) for k in DIRECT_FIT_SIZES} - set(sizes))
+    return [(k, "lbfgs") for k in sizes] + [(k, "direct") for k in direct]
+
+
 def _match_partial_surfaces(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
@@ -602,11 +624,7 @@ def _match_partial_surfaces(
     u1, u2 = rescaled(eig_1, area), rescaled(eig_2, area)
     ratio = u2.area / u1.area
     k2_fit = min(k_fit, eig_2.k)
-    k1_max = min(zoomout_to, eig_1.k)
-    # The target size whose slant reaches the source size: about r · zoomout_to.
-    k2_final = k2_fit
-    while k2_final < eig_2.k and slant(u1.evals, u2.evals, k2_final + 1) < k1_max:
-        k2_final += 1
+    k2_final = _final_target_size(u1, u2, k2_fit=k2_fit, k1_max=min(zoomout_to, eig_1.k))
     logger.debug(
         "partial match: area ratio %.3g, fit %d target eigenfunctions, ZoomOut to %d (source %d)",
         ratio,
@@ -614,8 +632,6 @@ def _match_partial_surfaces(
         k2_final,
         slant(u1.evals, u2.evals, k2_final),
     )
-    report("descriptor fit", 0.0)
-    sizes = sorted({min(k, k2_fit) for k in (*FIT_SIZES, k2_fit)})
     fit_options = {
         "landmarks": landmarks,
         "w_dcomm": DCOMM_WEIGHTS,
@@ -624,8 +640,7 @@ def _match_partial_surfaces(
     }
     # The fits, each reported (they take 0.2 of the time: a trial's 23 s match said nothing
     # for its first 15 s).
-    fits = [(k, "lbfgs") for k in sizes]
-    fits += [(k, "direct") for k in sorted({min(k, k2_fit) for k in DIRECT_FIT_SIZES} - set(sizes))]
+    fits = _start_fits(k2_fit)
     starts = []
     for done, (k, solver) in enumerate(fits):
         report(f"descriptor fit {done + 1}/{len(fits)} ({k} functions)", 0.2 * done / len(fits))
