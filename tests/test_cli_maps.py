@@ -105,6 +105,15 @@ def test_map_file_messages(shapes, tmp_path, capsys):
     assert "not an .npz archive" in err and "pickle" not in err
     assert main(["transfer", p["src"], p["same"], "--map", "nope.npz", *out]) == 2
     assert "estimate|closest|identity" in _err(capsys)
+    # a mesh given as the map (a trial: told of a codec error), and a binary file named .vts
+    assert main(["transfer", p["src"], p["same"], "--map", p["same"], *out]) == 2
+    assert "a mesh file, not a map" in _err(capsys)
+    binary = tmp_path / "m.vts"
+    binary.write_bytes(bytes(range(128, 256)))
+    assert main(["transfer", p["src"], p["same"], "--map", str(binary), *out]) == 2
+    err = _err(capsys)
+    assert "not a .vts file" in err and "binary" in err and "codec" not in err
+    assert not os.path.exists(tmp_path / "a.ply")
 
 
 def test_read_only_output_folder_is_refused_before_the_work(shapes, tmp_path, capsys,

@@ -13,7 +13,9 @@ from typing import Any
 import numpy as np
 
 from ._common import (
+    CLOUD_OUT,
     MESH_HELP,
+    MESH_OUT,
     UsageError,
     about,
     add_basis_options,
@@ -295,6 +297,12 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
 
         p2p = load_npy(path, "0-based target->source map", flag="--map")
     else:
+        if os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT):
+            raise UsageError(
+                f"--map {path}: a mesh file, not a map (--map estimate|closest|identity|"
+                "MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes are the positional "
+                "arguments"
+            )
         try:
             p2p = read_vts(path)
         except ValueError as exc:

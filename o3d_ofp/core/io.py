@@ -34,6 +34,10 @@ def read_vts(path: str | os.PathLike[str]) -> np.ndarray:
         raise FileNotFoundError(f"{path}: no such file")
     try:
         values = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except UnicodeDecodeError:
+        raise ValueError(
+            f"{path}: not a .vts file (one vertex index per line): it is a binary file"
+        ) from None
     except ValueError as exc:
         raise ValueError(f"{path}: not a .vts file (one vertex index per line): {exc}") from exc
     if values.ndim != 1 or values.size == 0:
