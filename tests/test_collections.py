@@ -955,3 +955,19 @@ def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
     # a partial shape named as one likely cause among others is no fix to apply
     cause = "likely causes: shapes of other kinds, or a part of the other shape (partial=True)"
     assert _for_collections(cause) == cause
+
+
+def test_targets_sharing_a_file_name_are_renamed_and_said(tmp_path, caplog):
+    """Two targets named ``x.ply`` in two folders: outputs ``x-0.ply`` and ``x-1.ply``, said.
+
+    A trial: the renaming was silent, and the outputs did not say which target they came from.
+    """
+    from o3d_ofp.collections.engine import _outputs
+
+    items = [str(tmp_path / "a" / "x.ply"), str(tmp_path / "b" / "x.ply"), "y.ply"]
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.collections.engine"):
+        names, outs = _outputs(items, str(tmp_path / "out"), "colors")
+    assert names == ["x-0.ply", "x-1.ply", "y.ply"]
+    assert outs[1] == str(tmp_path / "out" / "x-1.ply")
+    (said,) = [r.getMessage() for r in caplog.records if "would write" in r.getMessage()]
+    assert said == "2 targets would write x.ply: their outputs are named x-0.ply, x-1.ply"

@@ -442,10 +442,18 @@ def _outputs(
             name = f"target_{i}.ply"
         names.append(name)
     seen = Counter(names)
-    names = [
+    renamed = [
         f"{os.path.splitext(n)[0]}-{i}{os.path.splitext(n)[1]}" if seen[n] > 1 else n
         for i, n in enumerate(names)
     ]
+    for shared in sorted(n for n, count in seen.items() if count > 1):
+        logger.info(
+            "%d targets would write %s: their outputs are named %s",
+            seen[shared],
+            shared,
+            ", ".join(new for old, new in zip(names, renamed, strict=True) if old == shared),
+        )
+    names = renamed
     if output_dir is None:
         return names, [None] * len(names)
     outs: list[str | None] = []
