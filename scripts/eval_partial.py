@@ -1,16 +1,16 @@
 """Partial shapes: a target cut by a plane, matched onto the whole source (ground truth known).
 
-    python scripts/eval_partial.py [--only NAME ...] [--remeshed]
+    python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth]
 
 For each cut (a plane keeping 55-80 % of the target's area): the map error (mean distance
 between the matched and the true source vertex, divided by sqrt(source area)) of
 ``ofp.match(..., partial=True)``, of the full-shape map of the uncut pair and of
 ``partial=False`` on the cut; the verdict of each; the estimated overlap against the kept
-area fraction; the geodesic distortion and the stretch of the final map (the suspect flag
-reads both, against ``MAX_DISTORTION`` and ``MAX_STRETCH``); the seconds of the partial match
-(given the eigenbases; the eigensolves are shared and timed apart) and the load average. Then
-targets that are NOT a part of the source (a cut of another kind of body, scaled to a plausible
-70 % of the source's area): their maps must be suspect.
+area fraction; the geodesic distortion and the stretch the suspect flag reads (against
+``MAX_DISTORTION`` and ``MAX_STRETCH``: those of the refined map, before its polish); the
+seconds of the partial match (given the eigenbases; the eigensolves are shared and timed
+apart) and the load average. Then targets that are NOT a part of the source (a cut of another
+kind of body, scaled to a plausible 70 % of the source's area): their maps must be suspect.
 With ``--remeshed``, also cuts of independently remeshed FAUST bodies (~5k vertices, other
 connectivity than the source's; truth from ``faust_remeshed/corres``, measured on the listed
 vertices the cut keeps). ``--only`` selects among all three lists by name (a remeshed cut is
@@ -19,6 +19,9 @@ With ``--robustness``, instead, each cut with the target rescaled by 3.5 % eithe
 a scan's calibration or a smoothing that shrinks it would), smoothed (the whole target by
 ``smooth_coordinates(smooth=0.02)``, then cut), or cut smaller (0.45, 0.35, 0.25 of the area;
 the largest piece is kept, which can be smaller still).
+With ``--from-truth``, instead, the refinements alone from each cut's true map: the partial
+ZoomOut (from the true map's restriction at 29 target functions to the match's final size)
+and the polish (``partial_polish``) of its map and of the true map.
 With ``--dense LEVEL``, instead, the cuts with both shapes midpoint-subdivided LEVEL times
 (FAUST at 2: 110k vertices, the TOSCA centaurs at 1: 63k; the same truth, the new vertices'
 included): ``ofp.match(..., partial=True)`` from the arrays (above 50 000 vertices: on coarse
@@ -41,7 +44,6 @@ import numpy as np
 
 import o3d_ofp as ofp
 from o3d_ofp.boundary.convert import geometry_to_arrays
-from o3d_ofp.core.partial import geodesic_distortion, map_stretch
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -216,10 +218,50 @@ def robustness_rows(only: list[str] | None) -> None:
             print(
                 f"| {name} | {label} | {kept:.2f} | {error(V1, part.p2p_21, orig, e1.area):.4f} "
                 f"| {'suspect' if part.quality.suspect else 'ok'} | "
-                f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
-                f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} |",
+                f"{part.quality.distortion:.3f} | {part.quality.stretch:.2f} |",
                 flush=True,
             )
+
+
+def truth_rows(only: list[str] | None) -> None:
+    """Print the refinements' errors from the true map of each cut (the refinement alone).
+
+    The true map's restriction map at FIT_K (29) target functions (``fmap_from_p2p``), read off as a
+    point map, then grown by the partial ZoomOut to the partial match's final size, then
+    the polish (``partial_polish``) of that ZoomOut's point map and of the true map itself.
+    """
+    from o3d_ofp.core.correspondence import fmap_from_p2p
+    from o3d_ofp.core.partial import (
+        partial_p2p,
+        partial_polish,
+        partial_zoomout,
+        rescaled,
+        slant,
+    )
+    from o3d_ofp.workflows.matching import FIT_K
+    from o3d_ofp.workflows.partial import _final_target_size
+
+    print(
+        "| cut | true map at 29 | partial ZoomOut | ZoomOut, polished | true map polished |\n"
+        "|---|---|---|---|---|"
+    )
+    for name, a, b, axis, side, fraction in CUTS:
+        if only and not any(o in name for o in only):
+            continue
+        V1, F1 = load(a)
+        V2, F2 = load(b)
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        e1, ec = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(Vc, Fc, k=99)
+        u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=99)
+        C = fmap_from_p2p(orig, u1, u2, k1=slant(u1.evals, u2.evals, FIT_K), k2=FIT_K)
+        zoomed = partial_zoomout(C, u1, u2, k2_final=k2_final, subsample=2000)
+        k1 = zoomed.shape[1] - 1
+        maps = [partial_p2p(C, u1, u2), partial_p2p(zoomed, u1, u2)]
+        maps.append(partial_polish(maps[1], u1, u2, k1_final=k1)[0])
+        maps.append(partial_polish(orig, u1, u2, k1_final=k1)[0])
+        cells = " | ".join(f"{error(V1, m, orig, e1.area):.4f}" for m in maps)
+        print(f"| {name} | {cells} |", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -235,6 +277,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="only the cuts with the target rescaled by 3.5 %%, smoothed, or cut smaller",
     )
+    parser.add_argument(
+        "--from-truth",
+        action="store_true",
+        help="only the refinements (partial ZoomOut, polish) from each cut's true map",
+    )
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
@@ -246,6 +293,11 @@ def main(argv: list[str] | None = None) -> int:
         dense_rows(args.dense, only=args.only, direct=args.direct)
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return 0
+    if args.from_truth:
+        if args.remeshed or args.robustness or args.dense is not None:
+            parser.error("--from-truth runs alone (with --only)")
+        truth_rows(args.only)
+        return 0
     if args.robustness:
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
         robustness_rows(args.only)
@@ -255,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
     print(
         "| cut | kept area | overlap | error partial | full pair | partial=False on cut | "
-        "verdict partial / False | distortion (final map) | stretch | s |"
+        "verdict partial / False | distortion (checked) | stretch | s |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     cache: dict[str, tuple] = {}
@@ -282,8 +334,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{error(V1, part.p2p_21, orig, e1.area):.4f} | {full_error:.4f} | "
             f"{error(V1, whole.p2p_21, orig, e1.area):.4f} | "
             f"{'suspect' if qp.suspect else 'ok'} / {'suspect' if qw.suspect else 'ok'} | "
-            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
-            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} | {seconds:.1f} |",
+            f"{part.quality.distortion:.3f} | {part.quality.stretch:.2f} | {seconds:.1f} |",
             flush=True,
         )
         notes += [f"{name}, partial=True: {r}" for r in qp.reasons]
@@ -301,8 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         part = ofp.match((V1, F1), (Vc, Fc), partial=True, eigenbases=(e1, ec))
         print(
             f"| {name} | {'suspect' if part.quality.suspect else 'ok'} | "
-            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
-            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} |",
+            f"{part.quality.distortion:.3f} | {part.quality.stretch:.2f} |",
             flush=True,
         )
         notes += [f"{name}, partial=True: {r}" for r in part.quality.reasons[:1]]
@@ -336,8 +386,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"| {a} -> {b} ({'+-'[side < 0]}{'xyz'[axis]} kept) | {kept:.2f} | {err:.4f} | "
             f"{'suspect' if part.quality.suspect else 'ok'} | "
-            f"{geodesic_distortion(part.p2p_21, V1, F1, Vc, Fc):.3f} | "
-            f"{map_stretch(part.p2p_21, V1, Vc, Fc):.2f} | {seconds:.1f} |",
+            f"{part.quality.distortion:.3f} | {part.quality.stretch:.2f} | {seconds:.1f} |",
             flush=True,
         )
         notes += [f"{a} -> {b}: {r}" for r in part.quality.reasons[:1]]

@@ -348,6 +348,12 @@ class MapQuality:
     reversed_of : {"triangles", "neighbourhoods"}
         What ``reversed_fraction`` counts: the target's triangles, or its points'
         neighbourhoods when either shape is a point cloud.
+    distortion, stretch : float or None
+        For a partial map: the geodesic distortion and the stretch its check read
+        (:func:`o3d_ofp.core.partial.geodesic_distortion`,
+        :func:`o3d_ofp.core.partial.map_stretch`; like every measure here, those of the
+        checked map, before its polish; on the dense path, of the coarse copies' map); None
+        otherwise.
     """
 
     coverage: float
@@ -361,6 +367,8 @@ class MapQuality:
     notes: tuple[str, ...] = ()
     overlap: float | None = None
     reversed_of: str = "triangles"
+    distortion: float | None = None
+    stretch: float | None = None
 
     def summary(self) -> str:
         """One line: the measures and the verdict."""
