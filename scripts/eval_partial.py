@@ -286,17 +286,17 @@ def main(argv: list[str] | None = None) -> int:
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
         return 2
+    if args.from_truth:
+        if args.remeshed or args.robustness or args.dense is not None:
+            parser.error("--from-truth runs alone (with --only)")
+        truth_rows(args.only)
+        return 0
     if args.dense is not None:
         if args.dense < 0:
             parser.error(f"--dense: the subdivision level must be >= 0; got {args.dense}")
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
         dense_rows(args.dense, only=args.only, direct=args.direct)
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
-        return 0
-    if args.from_truth:
-        if args.remeshed or args.robustness or args.dense is not None:
-            parser.error("--from-truth runs alone (with --only)")
-        truth_rows(args.only)
         return 0
     if args.robustness:
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")

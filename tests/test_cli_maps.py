@@ -107,7 +107,7 @@ def test_map_file_messages(shapes, tmp_path, capsys):
     assert "estimate|closest|identity" in _err(capsys)
     # a mesh given as the map (a trial: told of a codec error), and a binary file named .vts
     assert main(["transfer", p["src"], p["same"], "--map", p["same"], *out]) == 2
-    assert "a mesh file, not a map" in _err(capsys)
+    assert "a mesh or point-cloud file, not a map" in _err(capsys)
     binary = tmp_path / "m.vts"
     binary.write_bytes(bytes(range(128, 256)))
     assert main(["transfer", p["src"], p["same"], "--map", str(binary), *out]) == 2

@@ -299,9 +299,9 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     else:
         if os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT):
             raise UsageError(
-                f"--map {path}: a mesh file, not a map (--map estimate|closest|identity|"
-                "MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes are the positional "
-                "arguments"
+                f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|closest|"
+                "identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes are the "
+                "positional arguments"
             )
         try:
             p2p = read_vts(path)

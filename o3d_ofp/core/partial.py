@@ -773,15 +773,17 @@ def partial_zoomout(
 
 #: Source size, as a fraction of the final one, at which :func:`partial_polish` starts.
 #: Measured on the final maps of the 12 cuts of scripts/eval_partial.py --remeshed (99
-#: eigenfunctions per shape; stop 34, before the polish was part of the match): from 60 of 99,
-#: every one of the 9 right maps as precise or more (errors 0.0166-0.0436 -> 0.0161-0.0399);
-#: with the single size 99, less gain (0.0162-0.0418); from 30, worse on 3 of the 9.
+#: eigenfunctions per shape; stop 34, a machine-local experiment before the polish was part of
+#: the match, with all 99 target functions): from 60 of 99, every one of the 9 right maps as
+#: precise or more (errors 0.0166-0.0436 -> 0.0161-0.0399; with twice the slant's target
+#: functions 0.0156-0.0400); with the single size 99, less gain (0.0162-0.0418); from 30,
+#: worse on 3 of the 9.
 POLISH_FROM = 0.6
 #: Target functions of :func:`partial_polish`'s fits, as a multiple of those the slant gives
 #: (at most all of the target's). Measured on the same maps: with twice the slant, or all 99
 #: target functions, the same errors within 0.001 on the cuts of 55-80 % of the area; on a
 #: cut of 25 % (FAUST legs removed, kept 0.25), all 99 made the map rough (35 % of the
-#: triangles turned over, flagged; the slanted ZoomOut's 0.30 or less).
+#: triangles turned over, where the map before the polish turned fewer: it was not flagged).
 POLISH_TARGET_FACTOR = 2
 
 
@@ -794,7 +796,7 @@ def partial_polish(
     k1_final: int,
     subsample: int | None = 2000,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Refine a right partial point map with twice the slant's target functions: it stays put.
+    """Sharpen a right partial point map: fits with twice the slant's target functions.
 
     The partial ZoomOut (:func:`partial_zoomout`) fits ``Ψ C ≈ Φ[π]`` with as many target
     eigenfunctions as the slant allows (about ``r k1``): the restrictions of the source's
@@ -803,8 +805,8 @@ def partial_polish(
     0.016-0.027 read off at 29 target functions, 0.018-0.101 after the ZoomOut). Here the fit
     uses :data:`POLISH_TARGET_FACTOR` times as many target functions (at most all of them:
     more than the source functions need; :func:`polish_target_size`), and each target sample
-    goes to the source sample whose ``Φ`` row is
-    nearest to its row of ``Ψ C`` (the source embedding is not projected). Source sizes grow
+    goes to the source sample whose ``Φ`` row is nearest to its row of ``Ψ C`` (the source
+    embedding is not projected). Source sizes grow
     from :data:`POLISH_FROM` of ``k1_final`` to ``k1_final``. From the true maps this ends at
     0.009-0.016 (``python scripts/eval_partial.py --from-truth``: it keeps a right map where
     it is), and it does not move a map much: it sharpens a map that is right, and repairs

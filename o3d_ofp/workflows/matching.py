@@ -351,9 +351,8 @@ class MapQuality:
     distortion, stretch : float or None
         For a partial map: the geodesic distortion and the stretch its check read
         (:func:`o3d_ofp.core.partial.geodesic_distortion`,
-        :func:`o3d_ofp.core.partial.map_stretch`; like every measure here, those of the
-        checked map, before its polish; on the dense path, of the coarse copies' map); None
-        otherwise.
+        :func:`o3d_ofp.core.partial.map_stretch`; those of the checked map, before its
+        polish; on the dense path, of the coarse copies' map); None otherwise.
     """
 
     coverage: float
