@@ -881,6 +881,8 @@ def test_a_collection_logs_each_target_s_quality_notes(shapes, tmp_path, capsys)
     assert code == 0
     err = capsys.readouterr().err
     assert "the target's area is" in err  # the note of big.ply, at the default level
+    # each target's line says of what its coverage is (a trial read it as the target's share)
+    assert "map coverage" in err and "of the source's vertices" in err
     # one pair: printed once, on stdout (not also in the log)
     assert _cli("transfer", paths["src"], big, "-o", tmp_path / "one.ply") == 0
     captured = capsys.readouterr()

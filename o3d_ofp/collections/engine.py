@@ -310,7 +310,9 @@ def _log_record(r: TargetResult) -> None:
     elif r.status == "skipped":
         logger.info("%s: skipped (already done: %s)", r.name, r.output)
     else:
-        extra = "" if math.isnan(r.coverage) else f", map coverage {r.coverage:.2f}"
+        extra = ""
+        if not math.isnan(r.coverage):
+            extra = f", map coverage {r.coverage:.2f} of the source's vertices"
         logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, extra)
         # Named here when its reasons were not (a worker's are said again below, named; this
         # process's log said them without the target's name).
