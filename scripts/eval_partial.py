@@ -238,22 +238,26 @@ def truth_rows(only: list[str] | None) -> None:
         rescaled,
         slant,
     )
-    from o3d_ofp.workflows.matching import FIT_K
+    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
     from o3d_ofp.workflows.partial import _final_target_size
 
     print(
         "| cut | true map at 29 | partial ZoomOut | ZoomOut, polished | true map polished |\n"
         "|---|---|---|---|---|"
     )
+    sources: dict[str, tuple] = {}  # a source's eigenbasis serves all of its cuts
     for name, a, b, axis, side, fraction in CUTS:
         if only and not any(o in name for o in only):
             continue
-        V1, F1 = load(a)
+        if a not in sources:
+            V1, F1 = load(a)
+            sources[a] = (V1, ofp.eigenbasis(V1, F1, k=ESTIMATION_K))
+        V1, e1 = sources[a]
         V2, F2 = load(b)
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
-        e1, ec = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(Vc, Fc, k=99)
+        ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
         u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
-        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=99)
+        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=ESTIMATION_K)
         C = fmap_from_p2p(orig, u1, u2, k1=slant(u1.evals, u2.evals, FIT_K), k2=FIT_K)
         zoomed = partial_zoomout(C, u1, u2, k2_final=k2_final, subsample=2000)
         k1 = zoomed.shape[1] - 1

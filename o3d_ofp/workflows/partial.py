@@ -808,11 +808,11 @@ def _match_partial_surfaces(
         )  # fmt: skip
         if rival is not None:
             quality = dataclasses.replace(quality, suspect=True, reasons=(rival, *quality.reasons))
-    if polish and rejected is None:
+    polish = polish and rejected is None  # a start kept unrefined is returned as it was
+    if polish:
         # The quality above is the refined map's, as its bounds were measured; the polish
         # moves each image at most MAX_JUMP (it would smooth the tears a wrong map's stretch
         # measures: the front removed of scripts/eval_partial.py, 1.67 before, 0.99 after).
-        # A start kept unrefined is returned as it was.
         report("polish", 0.95)
         p2p, move = _polish(p2p, C.shape[1] - 1, u1, u2, subsample=zoomout_subsample)
         note = (
@@ -836,7 +836,7 @@ def _match_partial_surfaces(
         "descriptors": descriptors,
         "w_orient": w_orient,
         "w_dcomm": w_dcomm,
-        "polish": polish and rejected is None,
+        "polish": polish,
     }
     # Between bases in the same units a restriction map is the same in the shapes' own units.
     return Correspondence(
