@@ -879,10 +879,16 @@ def test_a_collection_logs_each_target_s_quality_notes(shapes, tmp_path, capsys)
     code = _cli("transfer", paths["src"], big, paths["t1"], "-o", tmp_path / "out",
                 "--workers", "0")  # fmt: skip
     assert code == 0
-    err = capsys.readouterr().err
+    first = capsys.readouterr()
+    err = first.err
     assert "the target's area is" in err  # the note of big.ply, at the default level
-    # each target's line says of what its coverage is (a trial read it as the target's share)
+    # each target's line says of what its coverage is (a trial read it as the target's share),
+    # in the log and in the command line's own line per target
     assert "map coverage" in err and "of the source's vertices" in err
+    line = next(t for t in first.out.splitlines() if t.startswith("ok       big.ply"))
+    assert "map coverage" in line and line.split("map coverage")[1].split(" -> ")[0].endswith(
+        "of the source's vertices"
+    )
     # one pair: printed once, on stdout (not also in the log)
     assert _cli("transfer", paths["src"], big, "-o", tmp_path / "one.ply") == 0
     captured = capsys.readouterr()

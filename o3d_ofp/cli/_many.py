@@ -150,7 +150,11 @@ def report_records(records: Sequence[Any]) -> int:
             sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
             lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
         else:
-            cov = "" if r.coverage != r.coverage else f", map coverage {r.coverage:.2f}"
+            cov = (
+                ""
+                if r.coverage != r.coverage
+                else f", map coverage {r.coverage:.2f} of the source's vertices"
+            )
             sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
