@@ -629,6 +629,12 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(
     # the direct match of this cut: 0.023 (test above); a coarse copy of 800 vertices is
     # coarser than FAUST's coarse copies at 110k (20000 vertices), so twice the bound there
     assert _error(V, corr.p2p_21, truth, e1.area) < 0.08
+    # polish= is the direct path's option: the dense path takes it (it was given twice to the
+    # coarse match, a TypeError) and says its map is not polished
+    unpolished = workflow.match_partial_arrays(
+        V, F, Vc, Fc, landmarks=landmarks, second_opinion=False, polish=False
+    )
+    assert unpolished.options["polish"] is False and unpolished.options["dense"] is True
 
 
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(

@@ -940,7 +940,9 @@ def _coarse_partial(eig_1: EigenBasis, eig_2: EigenBasis, **options: Any) -> Cor
     with ``Ψ`` (this package's convention for maps between bases in their own units), so the
     map it is given is ``C · a2/a1``: the full point map then reads the same embedding.
     """
-    # Not polished: the extension reads fmap_12, which the polish does not change.
+    # Not polished: the extension reads fmap_12, which the polish does not change (a caller's
+    # polish= is the direct path's; here it would be given twice).
+    options.pop("polish", None)
     corr = match_partial_eigenbases(eig_1, eig_2, polish=False, **options)
     assert corr.fmap_12 is not None
     return dataclasses.replace(corr, fmap_12=corr.fmap_12 * (eig_2.area / eig_1.area))
