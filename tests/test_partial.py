@@ -322,6 +322,35 @@ def test_polish_keeps_the_true_map_and_sharpens_a_noisy_one(whole, cut, subsampl
     assert _error(V, polished, truth, e1.area) < 0.005
 
 
+def test_polish_nested_qr_fits_equal_least_squares(whole, cut, monkeypatch):
+    """The polish factors the target basis once (nested QR); its fits are lstsq's.
+
+    Forcing the fallback (a factor with a zero on R's diagonal: ``lstsq`` on every fit) must
+    give the same point map and the same last fit.
+    """
+    V, _, e1 = whole
+    _, _, truth, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    rng = np.random.default_rng(1)
+    noise = rng.normal(scale=0.03 * math.sqrt(e1.area), size=(truth.size, 3))
+    noisy = nearest_neighbors(V, V[truth] + noise)
+    nested, C_nested = partial_polish(noisy, u1, u2, k1_final=40, subsample=1500)
+    real_qr = np.linalg.qr
+
+    def singular_qr(a):
+        Q, R = real_qr(a)
+        R = R.copy()
+        R[-1, -1] = 0.0  # below the nested solve's rank test: lstsq on every fit
+        return Q, R
+
+    monkeypatch.setattr(np.linalg, "qr", singular_qr)
+    fallback, C_fallback = partial_polish(noisy, u1, u2, k1_final=40, subsample=1500)
+    np.testing.assert_array_equal(nested, fallback)
+    # the same least-squares problems solved two ways: equal to round-off (the basis columns
+    # are well conditioned: mass-orthonormal eigenfunctions on 1500 samples)
+    np.testing.assert_allclose(C_nested, C_fallback, rtol=0, atol=1e-8 * np.abs(C_nested).max())
+
+
 def test_geodesic_map_is_kept_where_the_spectral_map_jumps():
     line = np.zeros((5, 3))
     line[:, 0] = [0.0, 0.1, 0.2, 0.5, 1.0]  # source vertices (unit-area units) on a line
