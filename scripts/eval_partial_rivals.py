@@ -10,9 +10,10 @@ checked by the distortion and stretch bounds; then the next ``RIVAL_STARTS``
 orientation-preserving starts are refined and each map that passes gets the rival rule
 (``RIVAL_MARGIN``, ``RIVAL_SHARE``, or ``--margin`` / ``--share``). Prints one row per map that
 passes (its error, the closest rival's distortion ratio, share apart and error, and the
-verdict of the rule) and the counts: right maps (error at most 0.05) and wrong ones flagged by
-the rule. About 45 minutes on 2 cores (each case is a whole partial match and up to three
-more refinements).
+verdict of the rule; the errors are the checked maps', which the rule reads: the match then
+polishes the map it returns, which moves it little, see ``eval_partial.py --remeshed``) and
+the counts: right maps (error at most 0.05) and wrong ones flagged by the rule. About 45
+minutes on 2 cores (each case is a whole partial match and up to three more refinements).
 """
 
 from __future__ import annotations
