@@ -202,6 +202,36 @@ def test_subdivided_faust_matches_the_exact_search():
         assert err_local <= 1.02 * _error(exact, V1, e1.area, rows), level
 
 
+def test_adjoint_extension_is_the_read_off_of_a_fit(blob_mesh, blob_pair, blob_reference):
+    # extend_p2p(adjoint=True) compares the full source's interpolated rows of Φ with the full
+    # target's rows of Ψ C, for a least-squares fit Ψ C ≈ Φ[π] with more target functions than
+    # source ones: the brute-force read-off of the same interpolated embeddings (the slow
+    # reference), and as precise as the usual extension.
+    from o3d_ofp.core.multiscale import _interpolation
+
+    V, _ = blob_mesh
+    e1, e2, _ = blob_pair
+    V2 = e2.vertices
+    b1, s1 = coarse_eigenbasis(V, 700, k=29)
+    b2, s2 = coarse_eigenbasis(V2, 700, k=29)
+    truth = cKDTree(V[s1]).query(V[s2])[1]
+    fit = np.linalg.lstsq(b2.evecs[:, :30], b1.evecs[truth, :21], rcond=None)[0]  # (30, 21)
+    p2p = extend_p2p(fit, b1, b2, V, V2, adjoint=True)
+    assert p2p.shape == (V2.shape[0],) and p2p.dtype == np.int64
+    phi = _interpolation(b1.vertices, V, 4) @ b1.evecs[:, :21]
+    psi = _interpolation(b2.vertices, V2, 4) @ (b2.evecs[:, :30] @ fit)
+    exact = nearest_neighbors(np.asarray(phi), np.asarray(psi))
+    assert np.mean(p2p == exact) >= 0.999  # exact search; ties of round-off aside
+    spacing = math.sqrt(e1.area / V.shape[0])
+    err = np.linalg.norm(V[p2p] - V, axis=1).mean()
+    err_full = np.linalg.norm(V[blob_reference] - V, axis=1).mean()
+    assert err < max(2.0 * err_full, spacing)
+    # read the usual way, the same fit is another map (the transpose is no inverse here)
+    assert np.mean(extend_p2p(fit[:21, :21], b1, b2, V, V2) == p2p) < 0.999
+    with pytest.raises(TypeError, match="adjoint"):
+        extend_p2p(fit, b1, b2, V, V2, adjoint="yes")
+
+
 def test_coarse_map_extends_to_the_full_shapes(blob_mesh, blob_pair, blob_reference):
     # A map between 700-point farthest-point subsamples (point-cloud Laplacians), carried to
     # the full 2562-vertex shapes: about as accurate as the full-resolution map, and its

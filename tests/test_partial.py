@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from o3d_ofp.core.partial import (
     partial_descriptors,
     partial_p2p,
     partial_polish,
+    partial_polish_fit,
     partial_zoomout,
     polish_target_size,
     rescaled,
@@ -607,6 +609,14 @@ def test_dense_path_extends_the_restriction_map_as_its_own_point_map(whole, cut)
     np.testing.assert_array_equal(extend_p2p(given.fmap_12, e1, ec, V, Vc), expected)
     unscaled = extend_p2p(C, e1, ec, V, Vc)  # read as a map between own-unit bases: off
     assert np.mean(unscaled != expected) > 0.02
+    # the polish's fit (made on bases in the source's units) read off by the adjoint extension
+    # in the shapes' own units: the direct path's polished map
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    k1 = given.fmap_12.shape[1] - 1
+    fit = partial_polish_fit(given.p2p_21, u1, u2, k1_final=k1)
+    polished, last = partial_polish(given.p2p_21, u1, u2, k1_final=k1)
+    np.testing.assert_array_equal(fit, last)
+    np.testing.assert_array_equal(extend_p2p(fit, e1, ec, V, Vc, adjoint=True), polished)
 
 
 @pytest.fixture
@@ -664,6 +674,54 @@ def test_large_shapes_are_matched_partially_on_coarse_copies(
         V, F, Vc, Fc, landmarks=landmarks, second_opinion=False, polish=False
     )
     assert unpolished.options["polish"] is False and unpolished.options["dense"] is True
+
+
+def test_a_dense_partial_map_follows_the_checked_coarse_map(
+    whole, cut, monkeypatch, blob_made_dense
+):
+    """The full map is the checked coarse point map extended to every vertex.
+
+    The dense path extended the coarse restriction map alone, which does not know where the
+    point map keeps the geodesic map (``_refine``): measured (``eval_partial.py --dense 2``),
+    FAUST 019 -> 094 legs removed at 110k vertices, the coarse point map 0.028, the full map
+    0.077. Here the restriction map's extension is made wrong everywhere (every target vertex
+    onto source vertex 0): where it lies over MAX_JUMP from the coarse map's image, that image
+    is kept, so the map is as precise as the dense test above; the polished extension (the
+    fit read the adjoint way) is used by default.
+    """
+    import o3d_ofp.workflows.partial as workflow
+
+    V, F, e1 = whole
+    Vc, Fc, truth, _ = cut
+    landmarks = _three_landmarks(truth)
+    real = workflow.extend_p2p
+    calls = []
+
+    def broken(C, coarse_1, coarse_2, V1, V2, *, adjoint=False):
+        calls.append(adjoint)
+        if adjoint:
+            return real(C, coarse_1, coarse_2, V1, V2, adjoint=True)
+        return np.zeros(len(V2), dtype=np.int64)
+
+    monkeypatch.setattr(workflow, "extend_p2p", broken)
+    plain = workflow.match_partial_arrays(
+        V, F, Vc, Fc, landmarks=landmarks, second_opinion=False, polish=False
+    )
+    assert calls == [False] and plain.options["polish"] is False
+    assert plain.options["refined"] is True
+    # the dense test above: 0.08 (coarse copies of 800 vertices)
+    assert _error(V, plain.p2p_21, truth, e1.area) < 0.08
+    (note,) = [n for n in plain.quality.notes if "extended to every vertex" in n]
+    share = float(re.search(r"; on ([0-9.]+) % of the target", note).group(1))
+    assert share > 80  # all but the target vertices whose coarse image is near vertex 0
+    calls.clear()
+    polished = workflow.match_partial_arrays(
+        V, F, Vc, Fc, landmarks=landmarks, second_opinion=False
+    )
+    assert calls == [True] and polished.options["polish"] is True
+    assert _error(V, polished.p2p_21, truth, e1.area) < 0.08
+    (note,) = [n for n in polished.quality.notes if "extended to every vertex" in n]
+    assert "coarse map polished" in note
 
 
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(

@@ -657,6 +657,7 @@ def extend_p2p(
     *,
     neighbours: int = 4,
     n_samples: int | None = None,
+    adjoint: bool = False,
 ) -> np.ndarray:
     """Point map between two full-resolution shapes from a map between coarse versions.
 
@@ -665,6 +666,13 @@ def extend_p2p(
     target vertex gets the full source vertex nearest in the embedding, as in
     :func:`local_p2p_from_fmap` with the interpolated bases: the point map has the full
     resolution although no full-resolution eigenpair was computed.
+
+    With ``adjoint=True`` the map is read the other way round: each target vertex's row of
+    ``Ψ C`` is compared with the source's rows of ``Φ`` (pyFM's ``use_adj=True``), the
+    read-off of a least-squares fit ``Ψ C ≈ Φ[π]`` of the source's functions pulled back by a
+    point map ``π``, such as :func:`o3d_ofp.core.partial.partial_polish_fit`'s, whose target
+    basis can be larger than the source's. In unit-area terms ``Φ̂ = Φ √A1`` and
+    ``Ψ̂ Ĉ = Ψ C √A1``: the same comparison in the bases' own units.
 
     Parameters
     ----------
@@ -679,6 +687,8 @@ def extend_p2p(
         Coarse points each full vertex is interpolated from.
     n_samples : int, optional
         Source cells of the search (see :func:`local_p2p_from_fmap`).
+    adjoint : bool, default False
+        Compare ``Ψ C`` with ``Φ`` instead of ``Ψ`` with ``Φ Cᵀ`` (above).
 
     Returns
     -------
@@ -699,16 +709,30 @@ def extend_p2p(
     n_samples = _default_samples(n1) if n_samples is None else n_samples
     n_samples = check_int(n_samples, name="n_samples", minimum=1)
     t0 = time.perf_counter()
+    if not isinstance(adjoint, bool):
+        raise TypeError(f"adjoint must be True or False; got {adjoint!r}")
     a1, a2 = coarse_1.area, coarse_2.area
-    Ct = np.ascontiguousarray(C.T) * (a1 / math.sqrt(a2))
-    # The source embedding Φ Ĉᵀ is interpolated directly (rows × d instead of cols columns).
-    phi = np.asarray(
-        _interpolation(coarse_1.vertices, V1, neighbours) @ (coarse_1.evecs[:, :cols] @ Ct)
-    )
-    psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_2.evecs[:, :rows])
+    if adjoint:  # Φ against Ψ C, both times √A1 (a common factor: left out)
+        phi = np.asarray(
+            _interpolation(coarse_1.vertices, V1, neighbours) @ coarse_1.evecs[:, :cols]
+        )
+        psi = np.asarray(
+            _interpolation(coarse_2.vertices, V2, neighbours) @ (coarse_2.evecs[:, :rows] @ C)
+        )
+        dims, root2 = cols, 1.0
+    else:
+        Ct = np.ascontiguousarray(C.T) * (a1 / math.sqrt(a2))
+        # The source embedding Φ Ĉᵀ is interpolated directly (rows × d instead of cols columns).
+        phi = np.asarray(
+            _interpolation(coarse_1.vertices, V1, neighbours) @ (coarse_1.evecs[:, :cols] @ Ct)
+        )
+        psi = np.asarray(
+            _interpolation(coarse_2.vertices, V2, neighbours) @ coarse_2.evecs[:, :rows]
+        )
+        dims, root2 = rows, math.sqrt(a2)
     t_interp = time.perf_counter() - t0
     with blas_threads(1):
-        out = _local_search(phi, np.eye(rows), psi, math.sqrt(a2), V1, V2, min(n_samples, n1), 0)
+        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, min(n_samples, n1), 0)
     logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
     return out
 

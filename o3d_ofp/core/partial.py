@@ -94,6 +94,7 @@ __all__ = [
     "partial_descriptors",
     "partial_p2p",
     "partial_polish",
+    "partial_polish_fit",
     "partial_residual",
     "partial_zoomout",
     "polish_target_size",
@@ -833,6 +834,33 @@ def partial_polish(
         The last fit (``k2 = polish_target_size(k1_final)``), ``Ψ C ≈ Φ[π]`` for the samples'
         map ``π`` of the last iteration; ``p2p_21`` is read off it.
     """
+    C = partial_polish_fit(p2p_21, eig_1, eig_2, k1_final=k1_final, subsample=subsample)
+    polished = nearest_neighbors(eig_1.evecs[:, : C.shape[1]], eig_2.evecs[:, : C.shape[0]] @ C)
+    return polished, C
+
+
+@one_blas_thread
+def partial_polish_fit(
+    p2p_21: np.ndarray,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    k1_final: int,
+    subsample: int | None = 2000,
+) -> np.ndarray:
+    """Run the iterations of :func:`partial_polish`, without its read-off on every vertex.
+
+    Same parameters. The polished map is read off as each target vertex's row of ``Ψ C``
+    against the source's rows of ``Φ``: on the vertices of these bases by
+    :func:`partial_polish`, on a finer copy of the shapes by
+    :func:`o3d_ofp.core.multiscale.extend_p2p` with ``adjoint=True`` (the dense path).
+
+    Returns
+    -------
+    (k2+1, k1_final+1) ndarray
+        The last fit ``Ψ C ≈ Φ[π]`` (``k2 = polish_target_size(k1_final)``), in the bases'
+        own units as well (both are scaled alike by :func:`rescaled`).
+    """
     k1_final = check_int(k1_final, name="k1_final", minimum=1, maximum=eig_1.k)
     p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     k2_max = polish_target_size(eig_1.evals, eig_2.evals, k1_final)
@@ -863,8 +891,7 @@ def partial_polish(
         else:
             C = np.linalg.lstsq(psi[:, : size + 1], target, rcond=None)[0]
         current = nearest_neighbors(phi[:, : k1 + 1], psi[:, : size + 1] @ C)
-    polished = nearest_neighbors(eig_1.evecs[:, : k1_final + 1], eig_2.evecs[:, : C.shape[0]] @ C)
-    return polished, C
+    return C
 
 
 def polish_target_size(evals_1: np.ndarray, evals_2: np.ndarray, k1: int) -> int:

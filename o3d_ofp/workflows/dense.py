@@ -127,6 +127,7 @@ def match_dense(
     landmarks: np.ndarray | None = None,
     progress: Callable[[str, float], None] | None = None,
     coarse_1: CoarseShape | None = None,
+    extend: Callable[..., tuple[np.ndarray, Any]] | None = None,
     **options: Any,
 ) -> Any:
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
@@ -157,6 +158,11 @@ def match_dense(
         The source's coarse copy and eigenbasis, when the caller has them
         (:func:`coarse_shape` with the same ``k`` and ``coarse_vertices``): a source matched
         onto several targets is then reduced once.
+    extend : callable, optional
+        ``extend(corr, coarse_1, coarse_2, vertices_1, vertices_2)`` returning the full point
+        map and the coarse Correspondence (its notes and options updated), for an estimate
+        whose point map is not its ``fmap_12``'s alone (the partial match's); default:
+        :func:`o3d_ofp.core.multiscale.extend_p2p` of ``corr.fmap_12``.
     **options
         Passed to ``estimate``.
 
@@ -246,7 +252,10 @@ def match_dense(
     )
     report("extension", 0.8)
     assert corr.fmap_12 is not None
-    p2p = extend_p2p(corr.fmap_12, eigs[0], eigs[1], V1, V2)
+    if extend is None:
+        p2p = extend_p2p(corr.fmap_12, eigs[0], eigs[1], V1, V2)
+    else:
+        p2p, corr = extend(corr, c1, c2, V1, V2)
     hit = np.unique(p2p).size
     quality = corr.quality
     if quality is not None:

@@ -1410,6 +1410,7 @@ def match_arrays(
     dense_above: int | None = None,
     estimate: Callable[..., Correspondence] | None = None,
     coarse_estimate: Callable[..., Correspondence] | None = None,
+    coarse_extend: Callable[..., tuple[np.ndarray, Correspondence]] | None = None,
     **options: Any,
 ) -> Correspondence:
     """Estimate a map between two shapes given as arrays: eigenbases, then :func:`match_eigenbases`.
@@ -1440,6 +1441,10 @@ def match_arrays(
     coarse_estimate : callable, optional
         The same between the coarse copies of the dense path, its ``fmap_12`` in the terms
         :func:`o3d_ofp.core.multiscale.extend_p2p` reads (default ``estimate``).
+    coarse_extend : callable, optional
+        How the dense path extends the coarse map to every vertex (``extend`` of
+        :func:`o3d_ofp.workflows.dense.match_dense`; default: ``extend_p2p`` of its
+        ``fmap_12``).
     **options
         Keyword options of ``estimate`` (``landmarks``, ``k_fit``, ``zoomout_to``, ...).
 
@@ -1467,6 +1472,7 @@ def match_arrays(
             coarse_vertices=coarse_vertices,
             components=components,
             coarse_1=coarse_source,
+            extend=coarse_extend,
             **{**options, "landmarks": landmarks},
         )
         return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'

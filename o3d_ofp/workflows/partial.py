@@ -11,6 +11,7 @@ as full shapes are (:func:`match_partial_arrays`, :mod:`o3d_ofp.workflows.dense`
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -23,6 +24,7 @@ from ..core._progress import StageProgress
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
 from ..core.geometry import face_areas_normals, units_change
+from ..core.multiscale import extend_p2p
 from ..core.partial import (
     fit_partial_fmap,
     geodesic_distortion,
@@ -32,6 +34,7 @@ from ..core.partial import (
     partial_descriptors,
     partial_p2p,
     partial_polish,
+    partial_polish_fit,
     partial_zoomout,
     rescaled,
     slant,
@@ -837,6 +840,7 @@ def _match_partial_surfaces(
         "w_orient": w_orient,
         "w_dcomm": w_dcomm,
         "polish": polish,
+        "refined": rejected is None,  # False: a start kept unrefined (its refinement turned over)
     }
     # Between bases in the same units a restriction map is the same in the shapes' own units.
     return Correspondence(
@@ -932,6 +936,65 @@ def _rival(
     return None
 
 
+def _extend_partial(
+    corr: Correspondence,
+    coarse_1: Any,
+    coarse_2: Any,
+    vertices_1: np.ndarray,
+    vertices_2: np.ndarray,
+    *,
+    polish: bool,
+    subsample: int | None,
+) -> tuple[np.ndarray, Correspondence]:
+    """Extend the checked coarse partial map to every vertex (``extend`` of the dense path).
+
+    The coarse point map is its restriction map's read-off except where that jumps more than
+    :data:`MAX_JUMP` from the geodesic map (``_refine``), so the extension of ``fmap_12``
+    alone loses what the point map keeps there (measured, ``scripts/eval_partial.py --dense
+    2``, FAUST 019 -> 094 legs removed: the coarse point map 0.028, the extension of its
+    restriction map 0.077, wrong on the 6 % of the target where it jumped). The full map is
+    read off the polish's fit of the checked coarse point map
+    (:func:`o3d_ofp.core.partial.partial_polish_fit`, ``extend_p2p(..., adjoint=True)``; with
+    ``polish`` and a refined map), else off ``fmap_12``; where its image lies more than
+    :data:`MAX_JUMP` (of sqrt(source area)) from the coarse map's own image of the vertex's
+    cell, that image is kept (a source vertex: the coarse vertices are some of the source's).
+    ``coarse_1``, ``coarse_2``: the :class:`o3d_ofp.workflows.dense.CoarseShape` of each.
+    """
+    eig_1, eig_2 = coarse_1.eig, coarse_2.eig
+    assert corr.fmap_12 is not None
+    polished = polish and bool(corr.options.get("refined", False))
+    if polished:
+        area = eig_1.area
+        fit = partial_polish_fit(
+            corr.p2p_21, rescaled(eig_1, area), rescaled(eig_2, area),
+            k1_final=corr.fmap_12.shape[1] - 1, subsample=subsample,
+        )  # fmt: skip
+        p2p = extend_p2p(fit, eig_1, eig_2, vertices_1, vertices_2, adjoint=True)
+    else:
+        p2p = extend_p2p(corr.fmap_12, eig_1, eig_2, vertices_1, vertices_2)
+    coarse = coarse_1.samples[corr.p2p_21[coarse_2.cell]]  # the coarse map, every vertex
+    V1 = np.asarray(vertices_1, dtype=np.float64)
+    jump = np.linalg.norm(V1[p2p] - V1[coarse], axis=1) > MAX_JUMP * math.sqrt(eig_1.area)
+    logger.debug(
+        "partial match (dense): the extension jumped from the coarse map on %.1f %% of the "
+        "target's vertices",
+        100 * jump.mean(),
+    )
+    note = (
+        f"the full point map is the checked coarse map{' polished' if polished else ''}, "
+        f"extended to every vertex; on {100 * jump.mean():.1f} % of the target's vertices the "
+        f"extension lay more than {MAX_JUMP} of sqrt(source area) from the coarse map's image, "
+        "which is kept there"
+    )
+    assert corr.quality is not None
+    corr = dataclasses.replace(
+        corr,
+        options={**corr.options, "polish": polished},
+        quality=dataclasses.replace(corr.quality, notes=(*corr.quality.notes, note)),
+    )
+    return np.where(jump, coarse, p2p), corr
+
+
 def _coarse_partial(eig_1: EigenBasis, eig_2: EigenBasis, **options: Any) -> Correspondence:
     """:func:`match_partial_eigenbases` between coarse copies, its map in ``extend_p2p``'s terms.
 
@@ -940,8 +1003,8 @@ def _coarse_partial(eig_1: EigenBasis, eig_2: EigenBasis, **options: Any) -> Cor
     with ``Ψ`` (this package's convention for maps between bases in their own units), so the
     map it is given is ``C · a2/a1``: the full point map then reads the same embedding.
     """
-    # Not polished: the extension reads fmap_12, which the polish does not change (a caller's
-    # polish= is the direct path's; here it would be given twice).
+    # Not polished here: the extension (_extend_partial) polishes the checked map as it
+    # extends it (a caller's polish= is taken there; here it would be given twice).
     options.pop("polish", None)
     corr = match_partial_eigenbases(eig_1, eig_2, polish=False, **options)
     assert corr.fmap_12 is not None
@@ -1022,6 +1085,12 @@ def match_partial_arrays(
             )
     if not isinstance(second_opinion, bool):
         raise TypeError(f"second_opinion must be True or False; got {second_opinion!r}")
+    polish = options.get("polish", True)
+    if not isinstance(polish, bool):
+        raise TypeError(f"polish must be True or False; got {polish!r}")
+    extend = functools.partial(
+        _extend_partial, polish=polish, subsample=options.get("zoomout_subsample", 2000)
+    )
     progress = options.pop("progress", None)
     report = progress or StageProgress(logger, "partial match")
     warn_suspect = options.pop("warn_suspect", True)
@@ -1035,6 +1104,7 @@ def match_partial_arrays(
             faces_2,
             estimate=match_partial_eigenbases,
             coarse_estimate=_coarse_partial,
+            coarse_extend=extend,
             progress=lambda stage, done: report(prefix + stage, share[0] + share[1] * done),
             warn_suspect=warn_suspect if coarse_vertices is None else False,
             **{**options, **extra},
