@@ -224,6 +224,7 @@ def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
     reasons = corr.quality.reasons
     assert warning.split("\n") == ["the partial map is suspect:", *(f"  - {r}" for r in reasons)]
     np.testing.assert_array_equal(corr.p2p_21, seen["start"])  # the start, unrefined
+    assert corr.options["refined"] is False and corr.options["polish"] is False  # not polished
     # the next orientation-preserving starts were tried (all turned over), at most NEXT_STARTS
     assert 1 < seen["calls"] <= 1 + workflow.NEXT_STARTS
     # Measured on scripts/eval_partial.py: the refinement turned 56 % and 48 % of the
@@ -336,7 +337,16 @@ def test_polish_nested_qr_fits_equal_least_squares(whole, cut, monkeypatch):
     rng = np.random.default_rng(1)
     noise = rng.normal(scale=0.03 * math.sqrt(e1.area), size=(truth.size, 3))
     noisy = nearest_neighbors(V, V[truth] + noise)
+    import scipy.linalg
+
+    solves = []
+    real_solve = scipy.linalg.solve_triangular
+    monkeypatch.setattr(
+        scipy.linalg, "solve_triangular", lambda *a, **k: solves.append(1) or real_solve(*a, **k)
+    )
     nested, C_nested = partial_polish(noisy, u1, u2, k1_final=40, subsample=1500)
+    assert len(solves) > 1  # the nested solves ran
+    solves.clear()
     real_qr = np.linalg.qr
 
     def singular_qr(a):
@@ -347,6 +357,7 @@ def test_polish_nested_qr_fits_equal_least_squares(whole, cut, monkeypatch):
 
     monkeypatch.setattr(np.linalg, "qr", singular_qr)
     fallback, C_fallback = partial_polish(noisy, u1, u2, k1_final=40, subsample=1500)
+    assert not solves  # lstsq only
     np.testing.assert_array_equal(nested, fallback)
     # the same least-squares problems solved two ways: equal to round-off (the basis columns
     # are well conditioned: mass-orthonormal eigenfunctions on 1500 samples)
@@ -686,8 +697,8 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
     FAUST 019 -> 094 legs removed at 110k vertices, the coarse point map 0.028, the full map
     0.077. Here the restriction map's extension is made wrong everywhere (every target vertex
     onto source vertex 0): where it lies over MAX_JUMP from the coarse map's image, that image
-    is kept, so the map is as precise as the dense test above; the polished extension (the
-    fit read the adjoint way) is used by default.
+    is kept. By default the extension is the polish's fit read the adjoint way: within
+    MAX_JUMP of the coarse map's images everywhere, and more precise than they are.
     """
     import o3d_ofp.workflows.partial as workflow
 
@@ -695,7 +706,8 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
     Vc, Fc, truth, _ = cut
     landmarks = _three_landmarks(truth)
     real = workflow.extend_p2p
-    calls = []
+    real_extend = workflow._extend_partial
+    calls, seen = [], {}
 
     def broken(C, coarse_1, coarse_2, V1, V2, *, adjoint=False):
         calls.append(adjoint)
@@ -703,25 +715,43 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
             return real(C, coarse_1, coarse_2, V1, V2, adjoint=True)
         return np.zeros(len(V2), dtype=np.int64)
 
+    def spy(corr, coarse_1, coarse_2, V1, V2, **options):
+        seen["args"] = (corr, coarse_1, coarse_2, V1, V2)
+        seen["coarse"] = coarse_1.samples[corr.p2p_21[coarse_2.cell]]  # every target vertex
+        seen["bound"] = MAX_JUMP * math.sqrt(coarse_1.eig.area)
+        return real_extend(corr, coarse_1, coarse_2, V1, V2, **options)
+
     monkeypatch.setattr(workflow, "extend_p2p", broken)
+    monkeypatch.setattr(workflow, "_extend_partial", spy)
     plain = workflow.match_partial_arrays(
         V, F, Vc, Fc, landmarks=landmarks, second_opinion=False, polish=False
     )
     assert calls == [False] and plain.options["polish"] is False
     assert plain.options["refined"] is True
-    # the dense test above: 0.08 (coarse copies of 800 vertices)
-    assert _error(V, plain.p2p_21, truth, e1.area) < 0.08
+    coarse_error = _error(V, seen["coarse"], truth, e1.area)  # measured 0.040
+    assert coarse_error < 0.08  # the dense test above: 0.08 (coarse copies of 800 vertices)
+    # the coarse map's images, but near source vertex 0 (where the broken extension lies)
+    assert np.mean(plain.p2p_21 == seen["coarse"]) > 0.8
     (note,) = [n for n in plain.quality.notes if "extended to every vertex" in n]
     share = float(re.search(r"; on ([0-9.]+) % of the target", note).group(1))
-    assert share > 80  # all but the target vertices whose coarse image is near vertex 0
+    assert share > 80
     calls.clear()
     polished = workflow.match_partial_arrays(
         V, F, Vc, Fc, landmarks=landmarks, second_opinion=False
     )
     assert calls == [True] and polished.options["polish"] is True
-    assert _error(V, polished.p2p_21, truth, e1.area) < 0.08
+    moved = np.linalg.norm(V[polished.p2p_21] - V[seen["coarse"]], axis=1)
+    assert moved.max() <= seen["bound"]
+    # measured 0.036 against the coarse map's 0.040: the polish, at full resolution
+    assert _error(V, polished.p2p_21, truth, e1.area) < 0.95 * coarse_error
     (note,) = [n for n in polished.quality.notes if "extended to every vertex" in n]
     assert "coarse map polished" in note
+    # a coarse map kept unrefined (flagged) is not polished: its restriction map is extended
+    corr, coarse_1, coarse_2, V1, V2 = seen["args"]
+    calls.clear()
+    unrefined = dataclasses.replace(corr, options={**corr.options, "refined": False})
+    _, out = real_extend(unrefined, coarse_1, coarse_2, V1, V2, polish=True, subsample=2000)
+    assert calls == [False] and out.options["polish"] is False
 
 
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(

@@ -670,14 +670,18 @@ def extend_p2p(
     With ``adjoint=True`` the map is read the other way round: each target vertex's row of
     ``Ψ C`` is compared with the source's rows of ``Φ`` (pyFM's ``use_adj=True``), the
     read-off of a least-squares fit ``Ψ C ≈ Φ[π]`` of the source's functions pulled back by a
-    point map ``π``, such as :func:`o3d_ofp.core.partial.partial_polish_fit`'s, whose target
-    basis can be larger than the source's. In unit-area terms ``Φ̂ = Φ √A1`` and
-    ``Ψ̂ Ĉ = Ψ C √A1``: the same comparison in the bases' own units.
+    point map ``π`` (this package's convention: ``fmap_from_p2p`` is its projection), such as
+    :func:`o3d_ofp.core.partial.partial_polish_fit`'s, whose target basis can be larger than
+    the source's. In unit-area terms ``Φ̂ = Φ √A1`` and
+    ``Ψ̂ Ĉ = Ψ C √A1``: the same comparison in the bases' own units. A fit made between both
+    bases scaled by one common factor (``rescaled(·, A1)`` of :mod:`o3d_ofp.core.partial`) is
+    the same; a map converted for the usual read-off (the partial match's ``C · A2/A1``) is not.
 
     Parameters
     ----------
     fmap_coarse : (k2+1, k1+1) array_like
-        Map between the coarse bases, in this package's convention.
+        Map between the coarse bases, in this package's convention (``Ψ C ≈ Φ[π]`` between
+        the bases in their own units).
     coarse_1, coarse_2 : EigenBasis
         Eigenbases of the coarse source and target (a decimated mesh, or
         :func:`coarse_eigenbasis`), in the same coordinates as the full shapes.

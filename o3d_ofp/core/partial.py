@@ -850,10 +850,21 @@ def partial_polish_fit(
 ) -> np.ndarray:
     """Run the iterations of :func:`partial_polish`, without its read-off on every vertex.
 
-    Same parameters. The polished map is read off as each target vertex's row of ``Ψ C``
-    against the source's rows of ``Φ``: on the vertices of these bases by
-    :func:`partial_polish`, on a finer copy of the shapes by
-    :func:`o3d_ofp.core.multiscale.extend_p2p` with ``adjoint=True`` (the dense path).
+    The polished map is read off as each target vertex's row of ``Ψ C`` against the source's
+    rows of ``Φ``: on the vertices of these bases by :func:`partial_polish`, on a finer copy
+    of the shapes by :func:`o3d_ofp.core.multiscale.extend_p2p` with ``adjoint=True`` (the
+    dense path).
+
+    Parameters
+    ----------
+    p2p_21 : (n2,) ndarray of int
+        For every target vertex, its source vertex (a refined partial map).
+    eig_1, eig_2 : EigenBasis
+        Source (whole) and target (part) eigenbases in the same units (:func:`rescaled`).
+    k1_final : int
+        Final source size (at most ``eig_1.k``).
+    subsample : int or None, default 2000
+        Farthest-point samples per shape the iterations run on (as in :func:`partial_polish`).
 
     Returns
     -------

@@ -41,6 +41,7 @@ from ..core.partial import (
 )
 from ..core.spectrum import EigenBasis, check_eigenbasis
 from . import matching
+from .dense import CoarseShape
 from .matching import (
     DCOMM_WEIGHTS,
     ESTIMATION_K,
@@ -104,6 +105,8 @@ DIRECT_FIT_SIZES = (12, 20)
 #: 0.04-0.05, the spectral refinement's 0.02 where it does not jump; the images differ by more
 #: than 0.15 at 0-2 % of the vertices on those cuts and at 9 % on the cut where the spectral
 #: refinement sent a region astray (error 0.10; with the geodesic map kept there: 0.028).
+#: The same bound caps the polish's moves (_polish) and, on the dense path, how far the full
+#: map may lie from the checked coarse map's image (_extend_partial).
 MAX_JUMP = 0.15
 
 #: When the chosen start's refinement turns the map over, at most this many further
@@ -551,16 +554,18 @@ def match_partial_eigenbases(
         caller that reports the verdict itself (its reasons are in ``quality`` either way).
     polish : bool, default True
         Polish the checked point map (:func:`o3d_ofp.core.partial.partial_polish`; each image
-        moves at most :data:`MAX_JUMP`, a note gives the mean move). The dense path's coarse
-        match does not: its map is extended to the full shapes from ``fmap_12``, which the
-        polish does not change.
+        moves at most :data:`MAX_JUMP`, a note gives the mean move). On the dense path
+        (:func:`match_partial_arrays`) the coarse match returns its checked map and the
+        polish is done as that map is extended to the full shapes.
 
     Returns
     -------
     Correspondence
         ``method="partial"``; ``fmap_12`` (k2+1, k1+1) is the restriction map (the checked
         map's, which the polish leaves as it is);
-        ``quality.overlap`` is the estimated fraction of the source's area the target covers.
+        ``quality.overlap`` is the estimated fraction of the source's area the target covers;
+        ``options["refined"]`` is False when a start was kept unrefined (flagged), and
+        ``options["polish"]`` says whether the map was polished.
 
     References
     ----------
@@ -938,8 +943,8 @@ def _rival(
 
 def _extend_partial(
     corr: Correspondence,
-    coarse_1: Any,
-    coarse_2: Any,
+    coarse_1: CoarseShape,
+    coarse_2: CoarseShape,
     vertices_1: np.ndarray,
     vertices_2: np.ndarray,
     *,
@@ -958,7 +963,6 @@ def _extend_partial(
     ``polish`` and a refined map), else off ``fmap_12``; where its image lies more than
     :data:`MAX_JUMP` (of sqrt(source area)) from the coarse map's own image of the vertex's
     cell, that image is kept (a source vertex: the coarse vertices are some of the source's).
-    ``coarse_1``, ``coarse_2``: the :class:`o3d_ofp.workflows.dense.CoarseShape` of each.
     """
     eig_1, eig_2 = coarse_1.eig, coarse_2.eig
     assert corr.fmap_12 is not None
@@ -1044,7 +1048,10 @@ def match_partial_arrays(
     its map is extended to every vertex (:func:`o3d_ofp.workflows.dense.match_dense`): no
     full-resolution eigenpair, and no full-resolution point map per start (the direct match
     of a 110k-vertex source and a 90k-vertex part takes minutes; ``python
-    scripts/eval_partial.py --dense 2 --direct`` measures both).
+    scripts/eval_partial.py --dense 2 --direct`` measures both). The full map follows the
+    checked coarse point map: polished as it is extended (with ``polish``, the default), and
+    where the extension lies more than :data:`MAX_JUMP` from the coarse map's image of a
+    vertex's cell, that image is kept (a note gives the share; see ``_extend_partial``).
 
     Coarse copies are remeshings, and a partial match can go wrong on a remeshed pair where
     it is right on another (measured on 110k-vertex FAUST cuts: one side removed, error 0.085
