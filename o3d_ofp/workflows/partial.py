@@ -1027,7 +1027,11 @@ DISAGREEMENT = 0.1
 #: checks: right maps (errors 0.023, 0.050, 0.027) 0.1 %, 0.9 % and 13.7 % (the centaur's rear
 #: removed: there the second opinion is the wrong one, a false alarm), wrong maps that passed
 #: every other check (0.085, 0.077; 0.140 in one run of the front removed) 16.7 %, 17.7 %,
-#: 63.7 %. A round bound below the wrong ones; the margin is these cuts', no more.
+#: 63.7 %. A round bound below the wrong ones; the margin is these cuts', no more. Stop 35,
+#: with the full map following the checked coarse map (the 0.077 one was wrong by its
+#: extension alone, and is right now): right maps (0.022, 0.048, 0.026, 0.025) 0.7 %, 0.1 %,
+#: 0.5 %, 14.2 % (the centaur's false alarm again); wrong ones 17.0 % (0.084, flagged) and
+#: 5.7 % (019 -> 094 one side removed, 0.063: not caught).
 MAX_DISAGREEMENT = 0.1
 
 
@@ -1054,10 +1058,11 @@ def match_partial_arrays(
     vertex's cell, that image is kept (a note gives the share; see ``_extend_partial``).
 
     Coarse copies are remeshings, and a partial match can go wrong on a remeshed pair where
-    it is right on another (measured on 110k-vertex FAUST cuts: one side removed, error 0.085
-    on copies of 20 000 vertices, 0.030 on copies of 14 000) with nothing in the map to say
-    so. On the dense path, a map that passed its checks therefore gets a *second opinion*:
-    the same match on coarse copies of :data:`SECOND_OPINION_SIZE` times the size. A right
+    it is right on another (measured on 110k-vertex FAUST cuts, stop 27: one side removed,
+    error 0.085 on copies of 20 000 vertices, 0.030 on copies of 14 000; stop 35: 0.084 on
+    copies of 20 000) with nothing in the map to say so. On the dense path, a map that passed
+    its checks therefore gets a *second opinion*: the same match on coarse copies of
+    :data:`SECOND_OPINION_SIZE` times the size. A right
     map does not depend on the resolution; when the two send more than
     :data:`MAX_DISAGREEMENT` of the target's area to places more than :data:`DISAGREEMENT`
     apart, the (first) map is suspect: one of the two is wrong on a region, and which one is
