@@ -1,6 +1,7 @@
 """Partial shapes: a target cut by a plane, matched onto the whole source (ground truth known).
 
-    python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth]
+    python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth
+                                   | --landmarks N [N ...] | --dense LEVEL [--direct]]
 
 For each cut (a plane keeping 55-80 % of the target's area): the map error (mean distance
 between the matched and the true source vertex, divided by sqrt(source area)) of
@@ -22,6 +23,10 @@ the largest piece is kept, which can be smaller still).
 With ``--from-truth``, instead, the refinements alone from each cut's true map: the partial
 ZoomOut (from the true map's restriction at 29 target functions to the match's final size)
 and the polish (``partial_polish``) of its map and of the true map.
+With ``--landmarks N [N ...]``, instead, each cut matched with N known pairs (the true
+source vertices of N farthest-point target vertices; 0: none): the error, the verdict and the
+landmarks' own offsets in the map (how far each landmark's target vertex lands from its given
+source vertex).
 With ``--dense LEVEL``, instead, the cuts with both shapes midpoint-subdivided LEVEL times
 (FAUST at 2: 110k vertices, the TOSCA centaurs at 1: 63k; the same truth, the new vertices'
 included): ``ofp.match(..., partial=True)`` from the arrays (above 50 000 vertices: on coarse
@@ -268,6 +273,49 @@ def truth_rows(only: list[str] | None) -> None:
         print(f"| {name} | {cells} |", flush=True)
 
 
+def landmark_rows(counts: list[int], only: list[str] | None) -> None:
+    """Print the table of ``--landmarks``: every cut with N true landmarks, for each N."""
+    from o3d_ofp.core.fmap import farthest_points
+
+    print(
+        "| cut | landmarks | error | verdict | landmarks' offsets (max) | s |\n"
+        "|---|---|---|---|---|---|"
+    )
+    sources: dict[str, tuple] = {}  # a source's eigenbasis serves all of its cuts
+    for name, a, b, axis, side, fraction in CUTS:
+        if only and not any(o in name for o in only):
+            continue
+        if a not in sources:
+            V1, F1 = load(a)
+            sources[a] = (V1, F1, ofp.eigenbasis(V1, F1, k=99))
+        V1, F1, e1 = sources[a]
+        V2, F2 = load(b)
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        ec = ofp.eigenbasis(Vc, Fc, k=99)
+        for count in counts:
+            landmarks = None
+            if count:
+                rows = farthest_points(Vc, count)
+                landmarks = np.stack([orig[rows], rows], axis=1)
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the verdict is a column
+                corr = ofp.match(
+                    (V1, F1), (Vc, Fc), partial=True, landmarks=landmarks, eigenbases=(e1, ec)
+                )
+            seconds = time.perf_counter() - t0
+            offsets = "-"
+            if count:
+                off = np.linalg.norm(V1[corr.p2p_21[rows]] - V1[orig[rows]], axis=1)
+                offsets = f"{off.max() / np.sqrt(e1.area):.3f}"
+            verdict = "suspect" if corr.quality.suspect else "ok"
+            print(
+                f"| {name} | {count} | {error(V1, corr.p2p_21, orig, e1.area):.4f} | {verdict} "
+                f"| {offsets} | {seconds:.1f} |",
+                flush=True,
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", nargs="*", help="run the cuts whose name contains one of these")
@@ -286,14 +334,28 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="only the refinements (partial ZoomOut, polish) from each cut's true map",
     )
+    parser.add_argument(
+        "--landmarks",
+        type=int,
+        nargs="+",
+        metavar="N",
+        help="only the cuts, each with N true landmarks (farthest-point target vertices)",
+    )
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         sys.stderr.write(f"needs the shared data at {DATA}\n")
         return 2
     if args.from_truth:
-        if args.remeshed or args.robustness or args.dense is not None:
+        if args.remeshed or args.robustness or args.dense is not None or args.landmarks:
             parser.error("--from-truth runs alone (with --only)")
         truth_rows(args.only)
+        return 0
+    if args.landmarks is not None:
+        if args.remeshed or args.robustness or args.dense is not None:
+            parser.error("--landmarks runs alone (with --only)")
+        if any(n < 0 for n in args.landmarks):
+            parser.error(f"--landmarks: counts must be >= 0; got {args.landmarks}")
+        landmark_rows(args.landmarks, args.only)
         return 0
     if args.dense is not None:
         if args.dense < 0:

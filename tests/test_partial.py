@@ -649,6 +649,30 @@ def _three_landmarks(truth: np.ndarray) -> np.ndarray:
     return np.stack([truth[rows], rows], axis=1)
 
 
+def test_a_partial_map_that_does_not_keep_the_landmarks_is_flagged(whole, cut):
+    """The landmarks enter the fit only; a map that moves one over MAX_JUMP away is suspect.
+
+    Measured (``eval_partial.py --landmarks 3 5``, true pairs): FAUST 019 -> 094 one side
+    removed sent one 0.24 of sqrt(area) from its given source vertex, silently.
+    """
+    V, _, e1 = whole
+    _, _, truth, ec = cut
+    good = _three_landmarks(truth)
+    corr = match_partial_eigenbases(e1, ec, landmarks=good, warn_suspect=False)
+    (note,) = [n for n in corr.quality.notes if n.startswith("landmarks:")]
+    kept = float(re.search(r"at most ([0-9.]+) of sqrt", note).group(1))
+    assert kept <= MAX_JUMP
+    assert not any("landmarks' target vertices" in r for r in corr.quality.reasons)
+    # one pair wrong: its source vertex the farthest from the true one
+    bad = good.copy()
+    bad[1, 0] = int(np.argmax(np.linalg.norm(V - V[truth[bad[1, 1]]], axis=1)))
+    corr = match_partial_eigenbases(e1, ec, landmarks=bad, warn_suspect=False)
+    assert corr.quality.suspect
+    (reason,) = [r for r in corr.quality.reasons if "landmarks' target vertices" in r]
+    assert "of the 3 landmarks' target vertices more than 0.15" in reason
+    assert "check those pairs" in reason
+
+
 def test_large_shapes_are_matched_partially_on_coarse_copies(
     whole, cut, monkeypatch, blob_made_dense
 ):
