@@ -867,12 +867,13 @@ def _landmarks_kept(
     """Say how far the map sends the landmarks' target vertices from their given source vertices.
 
     The landmarks enter the descriptor fit only, and the refinements can move them: measured
-    (``python scripts/eval_partial.py --landmarks 3 5``, true pairs at farthest-point target
-    vertices), right maps keep them within 0.025-0.083 of sqrt(source area) (extremities and
-    the cut, where a map is least precise), but FAUST 019 -> 094 one side removed sent one 0.24
-    away and head+arms one 0.19. Beyond :data:`MAX_JUMP` the map is suspect: it does not keep
-    a pair the caller knows. ``landmarks``: (p, 2) source and target vertices;
-    ``vertices_1``: the source's, scaled to unit area.
+    (``python scripts/eval_partial.py --landmarks 0 3 5``, true pairs at farthest-point target
+    vertices: extremities and the cut, where a map is least precise), the other maps keep them
+    within 0.017-0.085 of sqrt(source area), but FAUST 019 -> 094 one side removed sent one
+    0.24 (three pairs) and 0.26 (five) away, and head+arms one 0.19 (five). Beyond
+    :data:`MAX_JUMP` the map is suspect: it does not keep a pair the caller knows.
+    ``landmarks``: (p, 2) source and target vertices; ``vertices_1``: the source's, scaled to
+    unit area.
     """
     off = np.linalg.norm(vertices_1[p2p[landmarks[:, 1]]] - vertices_1[landmarks[:, 0]], axis=1)
     far = off > MAX_JUMP
