@@ -671,6 +671,7 @@ def test_a_partial_map_that_does_not_keep_the_landmarks_is_flagged(whole, cut):
     (reason,) = [r for r in corr.quality.reasons if "landmarks' target vertices" in r]
     assert "of the 3 landmarks' target vertices more than 0.15" in reason
     assert "check those pairs" in reason
+    assert corr.quality.reasons[0] == reason  # first: map_quality's advice, if any, stays last
 
 
 def test_large_shapes_are_matched_partially_on_coarse_copies(
@@ -770,6 +771,9 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
     assert _error(V, polished.p2p_21, truth, e1.area) < 0.95 * coarse_error
     (note,) = [n for n in polished.quality.notes if "extended to every vertex" in n]
     assert "coarse map polished" in note
+    # the landmark check read the coarse map: its note says so
+    (note,) = [n for n in polished.quality.notes if n.startswith("landmarks:")]
+    assert note.startswith("landmarks: the coarse map (before its polish and extension) sends")
     # a coarse map kept unrefined (flagged) is not polished: its restriction map is extended
     corr, coarse_1, coarse_2, V1, V2 = seen["args"]
     calls.clear()

@@ -105,8 +105,9 @@ DIRECT_FIT_SIZES = (12, 20)
 #: 0.04-0.05, the spectral refinement's 0.02 where it does not jump; the images differ by more
 #: than 0.15 at 0-2 % of the vertices on those cuts and at 9 % on the cut where the spectral
 #: refinement sent a region astray (error 0.10; with the geodesic map kept there: 0.028).
-#: The same bound caps the polish's moves (_polish) and, on the dense path, how far the full
-#: map may lie from the checked coarse map's image (_extend_partial).
+#: The same bound caps the polish's moves (_polish), on the dense path how far the full map may
+#: lie from the checked coarse map's image (_extend_partial), and how far a landmark may land
+#: from its given pair (_landmarks_kept).
 MAX_JUMP = 0.15
 
 #: When the chosen start's refinement turns the map over, at most this many further
@@ -521,7 +522,10 @@ def match_partial_eigenbases(
     A map that passes is compared with the refinements of the next :data:`RIVAL_STARTS`
     orientation-preserving starts: a *rival* as good (:data:`RIVAL_MARGIN`) that sends most of
     the part elsewhere makes it suspect too (the part is ambiguous). The checked point map is
-    then polished (``polish``); the quality report is the checked map's.
+    then polished (``polish``); the quality report is the checked map's, but for the
+    landmarks: with ``landmarks``, the returned map is suspect when it sends one of them more
+    than :data:`MAX_JUMP` from its given source vertex (``_landmarks_kept``; on the dense path
+    this reads the coarse map, before its polish and extension).
     Both bases are scaled by the **source's** area, so the area ratio, which sets the slant,
     is kept: the shapes must be in the same units, and both must be triangle meshes (a point
     cloud is refused: its orientation and geodesics, which the check needs, are unknown).
@@ -868,10 +872,13 @@ def _landmarks_kept(
 
     The landmarks enter the descriptor fit only, and the refinements can move them: measured
     (``python scripts/eval_partial.py --landmarks 0 3 5``, true pairs at farthest-point target
-    vertices: extremities and the cut, where a map is least precise), the other maps keep them
-    within 0.017-0.085 of sqrt(source area), but FAUST 019 -> 094 one side removed sent one
-    0.24 (three pairs) and 0.26 (five) away, and head+arms one 0.19 (five). Beyond
-    :data:`MAX_JUMP` the map is suspect: it does not keep a pair the caller knows.
+    vertices: extremities and the cut, where a map is least precise), on the seven cuts matched
+    right without landmarks the maps keep them within 0.017-0.085 of sqrt(source area), but
+    FAUST 019 -> 094 one side removed sent one 0.24 (three pairs) and 0.26 (five) away, and
+    head+arms one 0.19 (five): right maps by their mean error (0.042-0.044), wrong at a pair
+    the caller knows. The front removed with five (0.042, flagged by its refinement) reached
+    0.126: the margin below :data:`MAX_JUMP` is thin. Beyond it the map is suspect (the reason
+    goes first: the advice of ``map_quality``, if any, stays last).
     ``landmarks``: (p, 2) source and target vertices; ``vertices_1``: the source's, scaled to
     unit area.
     """
@@ -890,7 +897,7 @@ def _landmarks_kept(
         f"{off.max():.2f} away): it does not keep them; check those pairs (a wrong pair pulls "
         "the fit astray), else the map is wrong near them"
     )
-    return dataclasses.replace(quality, suspect=True, reasons=(*quality.reasons, reason))
+    return dataclasses.replace(quality, suspect=True, reasons=(reason, *quality.reasons))
 
 
 def _rival(
@@ -1025,10 +1032,20 @@ def _extend_partial(
         "which is kept there"
     )
     assert corr.quality is not None
+    # The landmark check (_landmarks_kept) read the coarse map: said so.
+    coarse_says = "the coarse map (before its polish and extension) sends"
+    notes = tuple(
+        n.replace("the map sends", coarse_says, 1) if n.startswith("landmarks:") else n
+        for n in corr.quality.notes
+    )
+    reasons = tuple(
+        r.replace("the map sends", coarse_says, 1) if "landmarks' target vertices" in r else r
+        for r in corr.quality.reasons
+    )
     corr = dataclasses.replace(
         corr,
         options={**corr.options, "polish": polished},
-        quality=dataclasses.replace(corr.quality, notes=(*corr.quality.notes, note)),
+        quality=dataclasses.replace(corr.quality, notes=(*notes, note), reasons=reasons),
     )
     return np.where(jump, coarse, p2p), corr
 
