@@ -187,6 +187,21 @@ ROBUSTNESS = [
 ]
 
 
+def _cuts_and_sources(only: list[str] | None):
+    """Yield (name, axis, side, fraction, V1, F1, e1, V2, F2) of the selected cuts.
+
+    ``e1``: the source's eigenbasis (99 functions), computed once for all of its cuts.
+    """
+    sources: dict[str, tuple] = {}
+    for name, a, b, axis, side, fraction in CUTS:
+        if only and not any(o in name for o in only):
+            continue
+        if a not in sources:
+            V1, F1 = load(a)
+            sources[a] = (V1, F1, ofp.eigenbasis(V1, F1, k=99))
+        yield (name, axis, side, fraction, *sources[a], *load(b))
+
+
 def robustness_rows(only: list[str] | None) -> None:
     """Print the cuts with the target slightly rescaled, smoothed, or cut smaller (same truth)."""
     from o3d_ofp.core.filtering import smooth_coordinates
@@ -195,15 +210,7 @@ def robustness_rows(only: list[str] | None) -> None:
         "| cut | target | kept area | error | verdict | distortion | stretch |\n"
         "|---|---|---|---|---|---|---|"
     )
-    sources: dict[str, tuple] = {}
-    for name, a, b, axis, side, fraction in CUTS:
-        if only and not any(o in name for o in only):
-            continue
-        if a not in sources:
-            V1, F1 = load(a)
-            sources[a] = (V1, F1, ofp.eigenbasis(V1, F1, k=99))
-        V1, F1, e1 = sources[a]
-        V2, F2 = load(b)
+    for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
         smoothed: dict[float, np.ndarray] = {}
         for label, scale, smooth, kept_fraction in ROBUSTNESS:
             X = V2
@@ -250,15 +257,7 @@ def truth_rows(only: list[str] | None) -> None:
         "| cut | true map at 29 | partial ZoomOut | ZoomOut, polished | true map polished |\n"
         "|---|---|---|---|---|"
     )
-    sources: dict[str, tuple] = {}  # a source's eigenbasis serves all of its cuts
-    for name, a, b, axis, side, fraction in CUTS:
-        if only and not any(o in name for o in only):
-            continue
-        if a not in sources:
-            V1, F1 = load(a)
-            sources[a] = (V1, ofp.eigenbasis(V1, F1, k=ESTIMATION_K))
-        V1, e1 = sources[a]
-        V2, F2 = load(b)
+    for name, axis, side, fraction, V1, _, e1, V2, F2 in _cuts_and_sources(only):
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
         ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
         u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
@@ -281,15 +280,7 @@ def landmark_rows(counts: list[int], only: list[str] | None) -> None:
         "| cut | landmarks | error | verdict | landmarks' offsets (max) | s |\n"
         "|---|---|---|---|---|---|"
     )
-    sources: dict[str, tuple] = {}  # a source's eigenbasis serves all of its cuts
-    for name, a, b, axis, side, fraction in CUTS:
-        if only and not any(o in name for o in only):
-            continue
-        if a not in sources:
-            V1, F1 = load(a)
-            sources[a] = (V1, F1, ofp.eigenbasis(V1, F1, k=99))
-        V1, F1, e1 = sources[a]
-        V2, F2 = load(b)
+    for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
         ec = ofp.eigenbasis(Vc, Fc, k=99)
         for count in counts:
