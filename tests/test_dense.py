@@ -222,6 +222,36 @@ def test_a_given_coarse_source_gives_the_same_map(twisted_pair, direct_and_dense
         match_dense(V1[:-1], F1, V2, F2, estimate=match_eigenbases, k=99, coarse_1=coarse)
 
 
+def test_dense_path_takes_landmarks_closer_than_a_coarse_cell(twisted_pair):
+    """Two landmarks in one coarse cell of the source, in two of the target: not an error.
+
+    They used to reach the coarse estimate as one coarse source vertex paired with two coarse
+    target vertices, which it refused, naming coarse vertices the caller never gave.
+    """
+    from o3d_ofp.core._warnings import OFPWarning
+    from o3d_ofp.workflows.dense import coarse_shape
+    from o3d_ofp.workflows.matching import check_landmarks
+
+    V1, F1, V2, F2 = twisted_pair
+    c1, c2 = (coarse_shape(V, F, k=99, coarse_vertices=3000) for V, F in ((V1, F1), (V2, F2)))
+    # a source cell holding two vertices whose true target vertices (the same indices) lie in
+    # two target cells
+    a, b = next(
+        (a, int(b))
+        for a in range(V1.shape[0])
+        for b in np.flatnonzero(c1.cell == c1.cell[a])
+        if c2.cell[a] != c2.cell[b]
+    )
+    far = int(np.argmax(np.linalg.norm(V1 - V1[a], axis=1)))
+    given = [[a, a], [b, b], [far, far], [a, a]]  # the first pair given twice, too
+    np.testing.assert_array_equal(check_landmarks(given, len(V1), len(V2)), given[:3])
+    with pytest.warns(OFPWarning, match=rf"landmarks \[{b}, {b}\]: on the coarse copies"):
+        corr = match_arrays(V1, F1, V2, F2, dense_above=0, coarse_vertices=3000, landmarks=given)
+    assert corr.options["landmarks"] == given[:3]  # the pairs as given, the repeated one once
+    # the map is the pair's (the dense map without landmarks: 0.031)
+    assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06
+
+
 def test_dense_path_rejects_bad_input(twisted_pair):
     V1, F1, V2, F2 = twisted_pair
     with pytest.raises(ValueError, match="landmarks"):

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core._progress import StageProgress
 from ..core._validation import check_int
+from ..core._warnings import warn
 from ..core.multiscale import coarse_mesh, extend_p2p
 from ..core.spectrum import EigenBasis, eigenbasis
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
@@ -116,6 +117,41 @@ def coarse_shape(
     return CoarseShape(Vc, Fc, samples, cell, eig)
 
 
+def _coarse_landmarks(landmarks: np.ndarray, c1: CoarseShape, c2: CoarseShape) -> np.ndarray:
+    """Carry (source, target) landmarks to the coarse vertices of their cells.
+
+    Pairs closer than a cell apart on a shape fall on one coarse vertex there: a pair whose
+    coarse vertices are both an earlier pair's is the same landmark on the coarse copies
+    (merged); a pair that shares one of them only would pair one coarse vertex with two, and
+    is left out of the coarse estimate with a warning (the first given is kept). Returns the
+    (q, 2) coarse pairs, q <= p, in the given order.
+    """
+    pairs = np.stack([c1.cell[landmarks[:, 0]], c2.cell[landmarks[:, 1]]], axis=1)
+    seen_1: dict[int, int] = {}  # coarse source vertex -> coarse target vertex it is paired with
+    seen_2: set[int] = set()
+    kept, dropped = [], []
+    for i, (a, b) in enumerate(pairs.tolist()):
+        if seen_1.get(a) == b:
+            continue  # the same coarse pair as an earlier landmark's
+        if a in seen_1 or b in seen_2:
+            dropped.append(i)
+            continue
+        seen_1[a] = b
+        seen_2.add(b)
+        kept.append(i)
+    if dropped:
+        given = ", ".join(f"[{s}, {t}]" for s, t in landmarks[dropped].tolist())
+        warn(
+            logger,
+            f"landmarks {given}: on the coarse copies (about {c1.vertices.shape[0]} and "
+            f"{c2.vertices.shape[0]} vertices) each lies in the cell of an earlier landmark on one "
+            "shape but not on the other, so the coarse estimate leaves it out (pairs a few "
+            "vertices apart pin the map no better than one); give landmarks farther apart, or "
+            "match at full resolution (eigenbases=, slow)",
+        )
+    return pairs[kept]
+
+
 def match_dense(
     vertices_1: np.ndarray,
     faces_1: np.ndarray,
@@ -153,7 +189,9 @@ def match_dense(
         :func:`o3d_ofp.eigenbasis`).
     landmarks : (p, 2) ndarray of int, optional
         Known (source, target) pairs in the full meshes' numbering (checked by the caller);
-        carried to the coarse vertices of their cells.
+        carried to the coarse vertices of their cells (pairs that fall on one coarse vertex
+        of a shape are merged, or left out of the coarse estimate with a warning when they
+        would pair it with two).
     progress : callable, optional
         Called as ``progress(stage, fraction_done)``.
     coarse_1 : CoarseShape, optional
@@ -235,7 +273,7 @@ def match_dense(
     eigs = [c1.eig, c2.eig]
     coarse_landmarks = None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
-        coarse_landmarks = np.stack([c1.cell[landmarks[:, 0]], c2.cell[landmarks[:, 1]]], axis=1)
+        coarse_landmarks = _coarse_landmarks(landmarks, c1, c2)
     logger.info(
         "match (dense): estimation between the coarse meshes (%.1fs) (15%%)",
         time.perf_counter() - t0,

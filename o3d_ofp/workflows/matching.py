@@ -963,6 +963,8 @@ def check_correspondence(obj: Any, name: str = "correspondence") -> Corresponden
 def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray | None:
     """Return landmarks as a (p, 2) int64 array after checking their shape and range.
 
+    A pair given more than once is returned once (the pairs keep their order).
+
     Raises
     ------
     ValueError
@@ -998,7 +1000,9 @@ def check_landmarks(landmarks: Any, n_source: int, n_target: int) -> np.ndarray 
                 f"landmarks: {side} vertex {v} is paired with several {other} vertices "
                 f"({', '.join(map(str, partners))}): give one pair per vertex"
             )
-    return lm.astype(np.int64)
+    # A pair given twice is used once (it would weigh twice in a fit and count twice in checks).
+    first = np.sort(np.unique(lm.astype(np.int64), axis=0, return_index=True)[1])
+    return lm[first].astype(np.int64)
 
 
 def given_map_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> str | None:
