@@ -26,7 +26,7 @@ and the polish (``partial_polish``) of its map and of the true map.
 With ``--landmarks N [N ...]``, instead, each cut matched with N known pairs (the true
 source vertices of N farthest-point target vertices; 0: none): the error, the verdict and the
 landmarks' own offsets in the map (how far each landmark's target vertex lands from its given
-source vertex).
+source vertex) and, for a suspect map, the opening words of its first reason.
 With ``--dense LEVEL``, instead, the cuts with both shapes midpoint-subdivided LEVEL times
 (FAUST at 2: 110k vertices, the TOSCA centaurs at 1: 63k; the same truth, the new vertices'
 included): ``ofp.match(..., partial=True)`` from the arrays (above 50 000 vertices: on coarse
@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import time
 import warnings
 from pathlib import Path
@@ -277,8 +278,8 @@ def landmark_rows(counts: list[int], only: list[str] | None) -> None:
     from o3d_ofp.core.fmap import farthest_points
 
     print(
-        "| cut | landmarks | error | verdict | landmarks' offsets (max) | s |\n"
-        "|---|---|---|---|---|---|"
+        "| cut | landmarks | error | verdict | landmarks' offsets (max) | s | first reason |\n"
+        "|---|---|---|---|---|---|---|"
     )
     for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
@@ -300,9 +301,11 @@ def landmark_rows(counts: list[int], only: list[str] | None) -> None:
                 off = np.linalg.norm(V1[corr.p2p_21[rows]] - V1[orig[rows]], axis=1)
                 offsets = f"{off.max() / np.sqrt(e1.area):.3f}"
             verdict = "suspect" if corr.quality.suspect else "ok"
+            # why a map is suspect: the first reason's opening words
+            why = textwrap.shorten(corr.quality.reasons[0], 70) if corr.quality.suspect else "-"
             print(
                 f"| {name} | {count} | {error(V1, corr.p2p_21, orig, e1.area):.4f} | {verdict} "
-                f"| {offsets} | {seconds:.1f} |",
+                f"| {offsets} | {seconds:.1f} | {why} |",
                 flush=True,
             )
 

@@ -771,15 +771,65 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
     assert _error(V, polished.p2p_21, truth, e1.area) < 0.95 * coarse_error
     (note,) = [n for n in polished.quality.notes if "extended to every vertex" in n]
     assert "coarse map polished" in note
-    # the landmark check read the coarse map: its note says so
-    (note,) = [n for n in polished.quality.notes if n.startswith("landmarks:")]
-    assert note.startswith("landmarks: the coarse map (before its polish and extension) sends")
+    # the landmark check read the coarse map, and then the full map: their notes say so
+    coarse_note, full_note = [n for n in polished.quality.notes if n.startswith("landmarks:")]
+    assert coarse_note.startswith(
+        "landmarks: the coarse map (before its polish and extension) sends"
+    )
+    assert full_note.startswith("landmarks: the full map sends their target vertices at most")
+    off = np.linalg.norm(V[polished.p2p_21[landmarks[:, 1]]] - V[landmarks[:, 0]], axis=1)
+    assert f"at most {off.max() / math.sqrt(e1.area):.3f} of" in full_note
     # a coarse map kept unrefined (flagged) is not polished: its restriction map is extended
     corr, coarse_1, coarse_2, V1, V2 = seen["args"]
     calls.clear()
     unrefined = dataclasses.replace(corr, options={**corr.options, "refined": False})
     _, out = real_extend(unrefined, coarse_1, coarse_2, V1, V2, polish=True, subsample=2000)
     assert calls == [False] and out.options["polish"] is False
+
+
+def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
+    whole, cut, monkeypatch, blob_made_dense
+):
+    """The full map, not only the coarse one, must keep the landmarks.
+
+    The coarse check reads the coarse map; the full map may lie up to MAX_JUMP from it. Here
+    the extension is made to send one landmark's target vertex to the farthest source vertex
+    from its pair: the map is suspect with that reason, said once, and no second opinion is
+    asked for (it would not change the verdict).
+    """
+    import o3d_ofp.workflows.partial as workflow
+    from o3d_ofp.core._warnings import OFPWarning
+
+    V, F, _ = whole
+    Vc, Fc, truth, _ = cut
+    landmarks = _three_landmarks(truth)
+    source, target = landmarks[1]
+    far = int(np.argmax(np.linalg.norm(V - V[source], axis=1)))
+    real_extend, real_match = workflow._extend_partial, workflow.match_arrays
+    runs = []
+
+    def moving(corr, *args, **options):
+        p2p, corr = real_extend(corr, *args, **options)
+        p2p = p2p.copy()
+        p2p[target] = far
+        return p2p, corr
+
+    def counted(*args, **options):
+        runs.append(options.get("coarse_vertices"))
+        return real_match(*args, **options)
+
+    monkeypatch.setattr(workflow, "_extend_partial", moving)
+    monkeypatch.setattr(workflow, "match_arrays", counted)
+    with pytest.warns(OFPWarning, match="the full map sends 1 of the 3 landmarks") as said:
+        corr = workflow.match_partial_arrays(V, F, Vc, Fc, landmarks=landmarks)
+    assert len([w for w in said if "is suspect" in str(w.message)]) == 1
+    assert corr.quality.suspect and corr.p2p_21[target] == far
+    assert corr.quality.reasons[0].startswith("the full map sends 1 of the 3 landmarks")
+    assert len(runs) == 1  # no second opinion
+    # unmoved, the same landmarks pass (the coarse check did, the full one does)
+    monkeypatch.setattr(workflow, "_extend_partial", real_extend)
+    kept = workflow.match_partial_arrays(V, F, Vc, Fc, landmarks=landmarks, second_opinion=False)
+    assert not any("landmarks' target vertices" in r for r in kept.quality.reasons)
 
 
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(

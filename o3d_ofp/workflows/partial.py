@@ -525,7 +525,8 @@ def match_partial_eigenbases(
     then polished (``polish``); the quality report is the checked map's, but for the
     landmarks: with ``landmarks``, the returned map is suspect when it sends one of them more
     than :data:`MAX_JUMP` from its given source vertex (``_landmarks_kept``; on the dense path
-    this reads the coarse map, before its polish and extension).
+    of :func:`match_partial_arrays` this reads the coarse map, before its polish and
+    extension, and again the full map).
     Both bases are scaled by the **source's** area, so the area ratio, which sets the slant,
     is kept: the shapes must be in the same units, and both must be triangle meshes (a point
     cloud is refused: its orientation and geodesics, which the check needs, are unknown).
@@ -900,6 +901,35 @@ def _landmarks_kept(
     return dataclasses.replace(quality, suspect=True, reasons=(reason, *quality.reasons))
 
 
+def _full_landmarks_kept(
+    corr: Correspondence, vertices_1: np.ndarray, *, warn_suspect: bool
+) -> Correspondence:
+    """On the dense path, check the landmarks again on the full map (``_landmarks_kept``).
+
+    The coarse match checked them on the coarse map, carried to the coarse vertices of their
+    cells; the full map, polished and extended, lies within :data:`MAX_JUMP` of that map's
+    images, so it can send a landmark's target vertex farther (up to about twice the bound).
+    The full map's note is added; a map the coarse check passed is made suspect here (and
+    said, with ``warn_suspect``) when the full map sends a landmark more than
+    :data:`MAX_JUMP` away; a map the coarse check flagged keeps its reason.
+    ``vertices_1``: the full source's, scaled to unit area; ``corr.options["landmarks"]``:
+    the pairs in the full meshes' numbering.
+    """
+    assert corr.quality is not None
+    landmarks = np.asarray(corr.options["landmarks"], dtype=np.int64).reshape(-1, 2)
+    checked = _landmarks_kept(corr.quality, corr.p2p_21, landmarks, vertices_1)
+    (note,) = checked.notes[len(corr.quality.notes) :]
+    note = note.replace("the map sends", "the full map sends", 1)
+    quality = dataclasses.replace(corr.quality, notes=(*corr.quality.notes, note))
+    flagged = any("landmarks' target vertices" in r for r in corr.quality.reasons)
+    if checked.suspect and not flagged:
+        reason = checked.reasons[0].replace("the map sends", "the full map sends", 1)
+        quality = dataclasses.replace(quality, suspect=True, reasons=(reason, *quality.reasons))
+        if warn_suspect and not corr.quality.suspect:
+            warn(logger, quality.suspect_message("the partial map"))
+    return dataclasses.replace(corr, quality=quality)
+
+
 def _rival(
     indices: list[int],
     start_maps: list[np.ndarray],
@@ -1107,6 +1137,8 @@ def match_partial_arrays(
     checked coarse point map: polished as it is extended (with ``polish``, the default), and
     where the extension lies more than :data:`MAX_JUMP` from the coarse map's image of a
     vertex's cell, that image is kept (a note gives the share; see ``_extend_partial``).
+    With landmarks, the full map is checked again (``_full_landmarks_kept``): the coarse
+    check read the coarse map, and the full map may lie up to :data:`MAX_JUMP` from it.
 
     Coarse copies are remeshings, and a partial match can go wrong on a remeshed pair where
     it is right on another (measured on 110k-vertex FAUST cuts, stop 27: one side removed,
@@ -1176,11 +1208,15 @@ def match_partial_arrays(
     dense = uses_dense_path(
         np.shape(vertices_1)[0], np.shape(vertices_2)[0], True, options.get("dense_above")
     )
-    if not (dense and second_opinion):
+    if not dense:
         return run(None, (0.0, 1.0), "")
-    corr = run(None, (0.0, 0.6), "")
+    corr = run(None, (0.0, 0.6 if second_opinion else 1.0), "")
     assert corr.quality is not None
-    if corr.quality.suspect:  # said already; a second opinion would not change the verdict
+    V1 = np.asarray(vertices_1, dtype=np.float64)
+    scale = math.sqrt(float(face_areas_normals(V1, faces_1)[0].sum()))  # sqrt(source area)
+    if corr.options.get("landmarks") is not None:
+        corr = _full_landmarks_kept(corr, V1 / scale, warn_suspect=warn_suspect)
+    if corr.quality.suspect or not second_opinion:  # a second opinion would not change it
         report("done", 1.0)
         return corr
     size = max(
@@ -1191,14 +1227,11 @@ def match_partial_arrays(
     )
     options.pop("coarse_source", None)  # built at the first size
     second = run(size, (0.6, 0.4), "second opinion: ")
-    V1 = np.asarray(vertices_1, dtype=np.float64)
     areas = face_areas_normals(np.asarray(vertices_2, dtype=np.float64), faces_2)[0]
     weight = np.bincount(
         np.asarray(faces_2).ravel(), weights=np.repeat(areas, 3), minlength=len(vertices_2)
     )
-    apart = np.linalg.norm(V1[corr.p2p_21] - V1[second.p2p_21], axis=1) > DISAGREEMENT * (
-        math.sqrt(float(face_areas_normals(V1, faces_1)[0].sum()))
-    )
+    apart = np.linalg.norm(V1[corr.p2p_21] - V1[second.p2p_21], axis=1) > DISAGREEMENT * scale
     disagreement = float(weight @ apart / max(weight.sum(), 1e-300))
     logger.info(
         "partial match (dense): the second opinion disagrees on %.1f %% of the target's area",
