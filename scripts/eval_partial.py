@@ -1,7 +1,7 @@
 """Partial shapes: a target cut by a plane, matched onto the whole source (ground truth known).
 
     python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth
-                                   | --landmarks N [N ...] | --dense LEVEL [--direct]]
+                                   | --landmarks N [N ...] | --dense LEVEL [--direct] [--loop]]
 
 For each cut (a plane keeping 55-80 % of the target's area): the map error (mean distance
 between the matched and the true source vertex, divided by sqrt(source area)) of
@@ -33,7 +33,8 @@ included): ``ofp.match(..., partial=True)`` from the arrays (above 50 000 vertic
 copies, the map extended to every vertex, and checked by a second opinion on smaller coarse
 copies: the fraction of the target's area where the two disagree), with its whole time
 (eigenbases included); ``--direct`` also runs the direct match on full-resolution eigenbases
-(minutes per cut at 110k vertices).
+(minutes per cut at 110k vertices); ``--loop`` subdivides by Loop's scheme instead (a smooth
+surface, as a scan's, where midpoint subdivision leaves flat triangles).
 """
 
 from __future__ import annotations
@@ -128,12 +129,20 @@ def plane_cut(
     return V[keep][used], remap[Fk], keep[used], float(kept_fraction)
 
 
-def subdivided(rel: str, level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Read a mesh and midpoint-subdivide it ``level`` times (its own vertices stay first)."""
-    return geometry_to_arrays(ofp.read_geometry(DATA / rel).subdivide_midpoint(level))
+def subdivided(rel: str, level: int, *, loop: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Read a mesh and subdivide it ``level`` times (one numbering for shapes of one mesh).
+
+    Midpoint subdivision keeps the surface (flat triangles, curvature only at the original
+    vertices); Loop subdivision (``loop``) smooths it, as a scan's surface is smooth, and
+    moves the original vertices (two shapes of one connectivity stay in correspondence).
+    """
+    mesh = ofp.read_geometry(DATA / rel)
+    return geometry_to_arrays(
+        mesh.subdivide_loop(level) if loop else mesh.subdivide_midpoint(level)
+    )
 
 
-def dense_rows(level: int, *, only: list[str] | None, direct: bool) -> None:
+def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool = False) -> None:
     """Print the table of ``--dense``: every cut with both shapes subdivided ``level`` times."""
     from o3d_ofp.workflows.dense import DENSE_VERTICES
     from o3d_ofp.workflows.partial import match_partial_arrays
@@ -148,7 +157,7 @@ def dense_rows(level: int, *, only: list[str] | None, direct: bool) -> None:
             continue
         for rel in (a, b):
             if rel not in shapes:
-                shapes[rel] = subdivided(rel, level)
+                shapes[rel] = subdivided(rel, level, loop=loop)
         (V1, F1), (V2, F2) = shapes[a], shapes[b]
         area = float(_areas(V1, F1).sum())
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
@@ -319,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--direct", action="store_true", help="with --dense: also the direct path")
     parser.add_argument(
+        "--loop", action="store_true", help="with --dense: Loop subdivision instead of midpoint"
+    )
+    parser.add_argument(
         "--robustness",
         action="store_true",
         help="only the cuts with the target rescaled by 3.5 %%, smoothed, or cut smaller",
@@ -351,11 +363,13 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--landmarks: counts must be >= 0; got {args.landmarks}")
         landmark_rows(args.landmarks, args.only)
         return 0
+    if args.loop and args.dense is None:
+        parser.error("--loop goes with --dense")
     if args.dense is not None:
         if args.dense < 0:
             parser.error(f"--dense: the subdivision level must be >= 0; got {args.dense}")
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
-        dense_rows(args.dense, only=args.only, direct=args.direct)
+        dense_rows(args.dense, only=args.only, direct=args.direct, loop=args.loop)
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return 0
     if args.robustness:
