@@ -311,7 +311,7 @@ def landmark_rows(counts: list[int], only: list[str] | None) -> None:
                 offsets = f"{off.max() / np.sqrt(e1.area):.3f}"
             verdict = "suspect" if corr.quality.suspect else "ok"
             # why a map is suspect: the first reason's opening words
-            why = textwrap.shorten(corr.quality.reasons[0], 70) if corr.quality.suspect else "-"
+            why = textwrap.shorten(corr.quality.reasons[0], 120) if corr.quality.suspect else "-"
             print(
                 f"| {name} | {count} | {error(V1, corr.p2p_21, orig, e1.area):.4f} | {verdict} "
                 f"| {offsets} | {seconds:.1f} | {why} |",

@@ -243,11 +243,23 @@ def test_dense_path_takes_landmarks_closer_than_a_coarse_cell(twisted_pair):
         if c2.cell[a] != c2.cell[b]
     )
     far = int(np.argmax(np.linalg.norm(V1 - V1[a], axis=1)))
-    given = [[a, a], [b, b], [far, far], [a, a]]  # the first pair given twice, too
-    np.testing.assert_array_equal(check_landmarks(given, len(V1), len(V2)), given[:3])
-    with pytest.warns(OFPWarning, match=rf"landmarks \[{b}, {b}\]: on the coarse copies"):
+    # and two vertices that share a cell on both shapes (away from the others): merged
+    c, d = next(
+        (c, int(d))
+        for c in range(V1.shape[0])
+        if c1.cell[c] not in c1.cell[[a, far]]
+        for d in np.flatnonzero(c1.cell == c1.cell[c])
+        if d != c and c2.cell[c] == c2.cell[d]
+    )
+    given = [[a, a], [b, b], [far, far], [c, c], [d, d], [a, a]]  # the first pair twice, too
+    np.testing.assert_array_equal(check_landmarks(given, len(V1), len(V2)), given[:5])
+    with pytest.warns(OFPWarning, match=r"landmarks \[") as said:
         corr = match_arrays(V1, F1, V2, F2, dense_above=0, coarse_vertices=3000, landmarks=given)
-    assert corr.options["landmarks"] == given[:3]  # the pairs as given, the repeated one once
+    # one warning, naming the left-out pair alone, as given; the quality keeps it as a note
+    (message,) = [str(w.message) for w in said if "on the coarse copies" in str(w.message)]
+    assert message.startswith(f"landmarks [{b}, {b}]: on the coarse copies")
+    assert message in corr.quality.notes
+    assert corr.options["landmarks"] == given[:5]  # the pairs as given, the repeated one once
     # the map is the pair's (the dense map without landmarks: 0.031)
     assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06
 

@@ -832,6 +832,35 @@ def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     assert not any("landmarks' target vertices" in r for r in kept.quality.reasons)
 
 
+def test_a_landmark_left_out_on_dense_copies_is_said_once(whole, cut, blob_made_dense):
+    """A pair closer than a coarse cell to another is said once, not again by the second opinion.
+
+    The second opinion runs the coarse match again on smaller copies: it used to warn again
+    (with other vertex counts, possibly naming other pairs).
+    """
+    import o3d_ofp.workflows.partial as workflow
+    from o3d_ofp.core._warnings import OFPWarning
+    from o3d_ofp.workflows.dense import coarse_shape
+
+    V, F, _ = whole
+    Vc, Fc, truth, _ = cut
+    landmarks = _three_landmarks(truth)
+    c1 = coarse_shape(V, F, k=99, coarse_vertices=800)
+    c2 = coarse_shape(Vc, Fc, k=99, coarse_vertices=800)
+    (s0, t0) = landmarks[0]
+    t = next(  # a target vertex whose true source shares the first landmark's source cell
+        t
+        for t in range(len(truth))
+        if c1.cell[truth[t]] == c1.cell[s0] and c2.cell[t] != c2.cell[t0] and truth[t] != s0
+    )
+    given = np.vstack([landmarks, [[truth[t], t]]])
+    with pytest.warns(OFPWarning) as said:
+        corr = workflow.match_partial_arrays(V, F, Vc, Fc, landmarks=given)
+    assert any(n.startswith("second opinion") for n in corr.quality.notes)  # it ran
+    left_out = [str(w.message) for w in said if "on the coarse copies" in str(w.message)]
+    assert len(left_out) == 1 and left_out[0].startswith(f"landmarks [{truth[t]}, {t}]:")
+
+
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
     whole, cut, monkeypatch, caplog, blob_made_dense
 ):

@@ -117,14 +117,16 @@ def coarse_shape(
     return CoarseShape(Vc, Fc, samples, cell, eig)
 
 
-def _coarse_landmarks(landmarks: np.ndarray, c1: CoarseShape, c2: CoarseShape) -> np.ndarray:
+def _coarse_landmarks(
+    landmarks: np.ndarray, c1: CoarseShape, c2: CoarseShape
+) -> tuple[np.ndarray, str | None]:
     """Carry (source, target) landmarks to the coarse vertices of their cells.
 
     Pairs closer than a cell apart on a shape fall on one coarse vertex there: a pair whose
     coarse vertices are both an earlier pair's is the same landmark on the coarse copies
-    (merged); a pair that shares one of them only would pair one coarse vertex with two, and
-    is left out of the coarse estimate with a warning (the first given is kept). Returns the
-    (q, 2) coarse pairs, q <= p, in the given order.
+    (merged); a pair that would pair a coarse vertex an earlier pair uses with another one is
+    left out of the coarse estimate (the first given is kept). Returns the (q, 2) coarse pairs,
+    q <= p, in the given order, and a note naming the pairs left out (None: none).
     """
     pairs = np.stack([c1.cell[landmarks[:, 0]], c2.cell[landmarks[:, 1]]], axis=1)
     seen_1: dict[int, int] = {}  # coarse source vertex -> coarse target vertex it is paired with
@@ -139,17 +141,17 @@ def _coarse_landmarks(landmarks: np.ndarray, c1: CoarseShape, c2: CoarseShape) -
         seen_1[a] = b
         seen_2.add(b)
         kept.append(i)
+    note = None
     if dropped:
         given = ", ".join(f"[{s}, {t}]" for s, t in landmarks[dropped].tolist())
-        warn(
-            logger,
+        note = (
             f"landmarks {given}: on the coarse copies (about {c1.vertices.shape[0]} and "
-            f"{c2.vertices.shape[0]} vertices) each lies in the cell of an earlier landmark on one "
-            "shape but not on the other, so the coarse estimate leaves it out (pairs a few "
-            "vertices apart pin the map no better than one); give landmarks farther apart, or "
-            "match at full resolution (eigenbases=, slow)",
+            f"{c2.vertices.shape[0]} vertices) each falls on a coarse vertex an earlier landmark "
+            "uses, paired there with another vertex, so the coarse estimate leaves it out "
+            "(pairs a few vertices apart pin the map no better than one); give landmarks "
+            "farther apart, or match at full resolution (eigenbases=, slow)"
         )
-    return pairs[kept]
+    return pairs[kept], note
 
 
 def match_dense(
@@ -166,6 +168,7 @@ def match_dense(
     progress: Callable[[str, float], None] | None = None,
     coarse_1: CoarseShape | None = None,
     extend: Callable[..., tuple[np.ndarray, Any]] | None = None,
+    warn_landmarks: bool = True,
     **options: Any,
 ) -> Any:
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
@@ -190,8 +193,8 @@ def match_dense(
     landmarks : (p, 2) ndarray of int, optional
         Known (source, target) pairs in the full meshes' numbering (checked by the caller);
         carried to the coarse vertices of their cells (pairs that fall on one coarse vertex
-        of a shape are merged, or left out of the coarse estimate with a warning when they
-        would pair it with two).
+        of a shape are merged, or left out of the coarse estimate when they would pair it
+        with two: a warning and a note of the quality say so).
     progress : callable, optional
         Called as ``progress(stage, fraction_done)``.
     coarse_1 : CoarseShape, optional
@@ -203,6 +206,9 @@ def match_dense(
         map and the coarse Correspondence (its notes and options updated), for an estimate
         whose point map is not its ``fmap_12``'s alone (the partial match's); default:
         :func:`o3d_ofp.core.multiscale.extend_p2p` of ``corr.fmap_12``.
+    warn_landmarks : bool, default True
+        Warn (:class:`o3d_ofp.OFPWarning`) when landmarks are left out of the coarse estimate
+        (the note is added either way); False for a caller that runs the match again.
     **options
         Passed to ``estimate``.
 
@@ -271,9 +277,11 @@ def match_dense(
         report("coarse target", 0.0)
         c2 = coarse(V2, faces_2)
     eigs = [c1.eig, c2.eig]
-    coarse_landmarks = None
+    coarse_landmarks, left_out = None, None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
-        coarse_landmarks = _coarse_landmarks(landmarks, c1, c2)
+        coarse_landmarks, left_out = _coarse_landmarks(landmarks, c1, c2)
+        if left_out is not None and warn_landmarks:
+            warn(logger, left_out)
     logger.info(
         "match (dense): estimation between the coarse meshes (%.1fs) (15%%)",
         time.perf_counter() - t0,
@@ -300,6 +308,8 @@ def match_dense(
     quality = corr.quality
     if quality is not None:
         quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
+        if left_out is not None:
+            quality = dataclasses.replace(quality, notes=(*quality.notes, left_out))
         # The report logged above is the coarse map's; the result's coverage is the full one.
         logger.info(
             "match (dense): the quality above is the coarse meshes'; at full resolution the "

@@ -1170,7 +1170,7 @@ def match_partial_arrays(
     Correspondence
         ``method="partial"``; on the dense path ``fmap_12`` is ``None`` (the map lives between
         the coarse bases) and the quality is the coarse map's, with the full map's coverage
-        (and the second opinion's verdict).
+        and landmark check (and the second opinion's verdict).
     """
     for name, F in (("source", faces_1), ("target", faces_2)):
         if F is None:
@@ -1191,7 +1191,11 @@ def match_partial_arrays(
     warn_suspect = options.pop("warn_suspect", True)
 
     def run(coarse_vertices: int | None, share: tuple[float, float], prefix: str) -> Any:
-        extra = {} if coarse_vertices is None else {"coarse_vertices": coarse_vertices}
+        # the second opinion (dense) says nothing the first run has said
+        extra = (
+            {} if coarse_vertices is None
+            else {"coarse_vertices": coarse_vertices, "warn_landmarks": False}
+        )  # fmt: skip
         return match_arrays(
             vertices_1,
             faces_1,
@@ -1217,7 +1221,8 @@ def match_partial_arrays(
     if corr.options.get("landmarks") is not None:
         corr = _full_landmarks_kept(corr, V1 / scale, warn_suspect=warn_suspect)
     if corr.quality.suspect or not second_opinion:  # a second opinion would not change it
-        report("done", 1.0)
+        if second_opinion:  # else the run reported it
+            report("done", 1.0)
         return corr
     size = max(
         200, int(options.get("coarse_vertices", matching.COARSE_VERTICES) * SECOND_OPINION_SIZE)
