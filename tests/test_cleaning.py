@@ -106,6 +106,9 @@ def test_tiny_stray_component_is_dropped_with_a_warning(caplog):
     assert "kept the largest of 2 components" in caplog.text
     # the left-out vertices are still in the results (a trial read "dropping" as removed)
     assert "stay in the results with the values of their nearest kept vertex" in caplog.text
+    # the share is of the area (3 of 645 vertices but a far smaller share of the area; a
+    # trial read "% of the total" as a share of the vertices)
+    assert "leaves out 3 vertices (" in caplog.text and " % of the area)" in caplog.text
     _check_meaningful(eig, V2.shape[0], 8)
     assert np.all(eig.mass[len(V) :] == 0)
     # The stray vertices take the values of the nearest sphere vertex (the one at x = 1).

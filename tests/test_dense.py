@@ -258,6 +258,7 @@ def test_dense_path_takes_landmarks_closer_than_a_coarse_cell(twisted_pair):
     # one warning, naming the left-out pair alone, as given; the quality keeps it as a note
     (message,) = [str(w.message) for w in said if "on the coarse copies" in str(w.message)]
     assert message.startswith(f"landmarks [{b}, {b}]: on the coarse copies")
+    assert message.endswith("match at full resolution (from Python: eigenbases=, slow)")
     assert message in corr.quality.notes
     assert corr.options["landmarks"] == given[:5]  # the pairs as given, the repeated one once
     # the map is the pair's (the dense map without landmarks: 0.031)

@@ -912,7 +912,8 @@ def closest_correspondence(
             f"the target's vertices crowd onto {hit} source vertices ({hit / smaller:.2f} of "
             f"the smaller shape, < {MIN_COVERAGE}): the shapes are not in the same place or "
             f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
-            f"same place: {retry}otherwise use the spectral estimate (--map estimate)"
+            f"same place: {retry}otherwise use the spectral estimate (--map estimate; "
+            "with --partial when the target is a part of the source)"
         )
     if align and not reasons:
         turn = float(options["icp"]["rotation_degrees"])

@@ -355,8 +355,8 @@ def _default_signal(source: Any) -> str:
 
     if vertex_colors(source) is None and has_uvs(source):
         if has_texture_image(source):  # (else the image is asked for next: --texture FILE)
-            logger.info("the source has a texture and no vertex colors: its texture, sampled "
-                        "at its vertices, is transferred")  # fmt: skip
+            logger.info("the source has a texture and no vertex colors: its texture is "
+                        "transferred")  # fmt: skip
         return "texture"
     return "colors"
 

@@ -149,9 +149,10 @@ class CleaningReport:
             parts.append(
                 f"kept the largest of {self.components} components: its eigenbasis leaves "
                 f"out {self.dropped_vertices} vertices ({100 * self.dropped_fraction:.2g} % "
-                "of the total), which stay in the results with the values of their nearest "
-                "kept vertex (a map, colors or detail there are not estimated: remove the "
-                "small pieces, or pass components='error' to refuse such shapes)"
+                f"of the {'area' if self.faces else 'points'}), which stay in the results with "
+                "the values of their nearest kept vertex (a map, colors or detail there are "
+                "not estimated: remove the small pieces, or pass components='error' to refuse "
+                "such shapes)"
             )
         if self.jittered:
             parts.append("jittered the points (degenerate neighbourhoods)")

@@ -149,7 +149,7 @@ def _coarse_landmarks(
             f"{c2.vertices.shape[0]} vertices) each falls on a coarse vertex an earlier landmark "
             "uses, paired there with another vertex, so the coarse estimate leaves it out "
             "(pairs a few vertices apart pin the map no better than one); give landmarks "
-            "farther apart, or match at full resolution (eigenbases=, slow)"
+            "farther apart, or match at full resolution (from Python: eigenbases=, slow)"
         )
     return pairs[kept], note
 

@@ -330,8 +330,10 @@ def partial_quality(
     if reasons and not base.reasons:
         reasons.append(
             "likely causes: a region of the target sent to the wrong place (a part with "
-            "symmetric or featureless regions), or a target that is not a part of the source "
-            f"(another shape, or in other units); fix: {_landmarks_advice(landmarks)}, and "
+            "symmetric or featureless regions), a noisy scan (noise inflates its area and "
+            "curvature, which the partial match reads), or a target that is not a part of the "
+            f"source (another shape, or in other units); fix: {_landmarks_advice(landmarks)}, "
+            "smooth a noisy scan first (filter_geometry / o3d-ofp filter --smooth), and "
             "rescale a target in other units to the source's"
         )
     all_reasons = tuple(reasons) + base.reasons  # map_quality's advice, if any, stays last
@@ -1258,7 +1260,7 @@ def match_partial_arrays(
             "map's images (a right map does not depend on the resolution): a region may be "
             "sent to the wrong place; fix: "
             f"{_landmarks_advice(options.get('landmarks') is not None)}, or "
-            "match at full resolution (eigenbases=, slow)"
+            "match at full resolution (from Python: eigenbases=, slow)"
         )
         quality = dataclasses.replace(
             corr.quality, suspect=True, reasons=(reason, *corr.quality.reasons)
