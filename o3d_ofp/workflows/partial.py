@@ -281,8 +281,10 @@ def partial_quality(
         target is not a part of the source), when the map's stretch
         (:func:`o3d_ofp.core.partial.map_stretch`) exceeds :data:`MAX_STRETCH` (it tears the
         part where a region is misplaced), when its refinement turned it over
-        (``refinement_turned``) or when the point map disagrees with the restriction map (its
-        orthogonality is reported, not judged: right partial maps reach 0.44).
+        (``refinement_turned``), when the point map disagrees with the restriction map (its
+        orthogonality is reported, not judged: right partial maps reach 0.44), or when the
+        target is below :data:`SMALL_PART` of the source's area and no ``landmarks`` were
+        given (:func:`small_part_note`; with landmarks that is a note).
     """
     base = map_quality(
         p2p_21, eig_1, eig_2, None, partial=True, overlap=overlap, landmarks_given=landmarks
@@ -344,6 +346,8 @@ def partial_quality(
         f"{ortho:.2f} (not judged)"
     )
     small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
+    if small and not landmarks:  # a reason: too often wrong unseen (small_part_note)
+        all_reasons = (*reasons, small, *base.reasons)
     return dataclasses.replace(
         base,
         orthogonality=ortho,
@@ -352,12 +356,13 @@ def partial_quality(
         stretch=float(stretch),
         suspect=bool(all_reasons),
         reasons=all_reasons,
-        notes=(measured, *base.notes, *([small] if small else [])),
+        notes=(measured, *base.notes, *([small] if small and landmarks else [])),
     )
 
 
 #: A target below this fraction of the source's area is smaller than the parts the partial
-#: match was measured on (the cuts of scripts/eval_partial.py keep 0.55-0.8).
+#: match was measured on (the cuts of scripts/eval_partial.py keep 0.55-0.8); without landmarks
+#: its map is suspect (:func:`small_part_note`), with landmarks it gets a note and a warning.
 SMALL_PART = 0.5
 
 
@@ -374,12 +379,16 @@ def _landmarks_advice(given: bool) -> str:
 def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
     """Return the note for a part below :data:`SMALL_PART` of the source's area, else "".
 
-    Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts made to keep 0.45,
-    0.35 and 0.25 of the area instead, their largest pieces 0.10-0.45, 24 maps): 9 wrong
-    (error above 0.05), 4 of them not flagged (6 before the rival check of stop 32), and 3
-    right ones flagged; no fraction below which they all fail, and no measure of the map
-    separates them (the wrong ones that passed, stop 31: distortion 0.055-0.112, stretch
-    1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35).
+    Without landmarks it is a reason (the map is suspect: :func:`partial_quality`); with
+    landmarks, a note. Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts
+    made to keep 0.45, 0.35 and 0.25 of the area instead, their largest pieces 0.10-0.45):
+    stop 31, 9 of 24 maps wrong (error above 0.05), 4 of them not flagged, and no measure of
+    the map separating them (the wrong ones that passed: distortion 0.055-0.112, stretch
+    1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35); stop 34, 5 of 21 wrong, all
+    flagged. One-sided scans pass wrong: new-user trials made them from FAUST 093 by keeping
+    the faces seen from one direction; stop 31, 26 % of the body, error 0.08, reported ok;
+    stop 36, four views of 0.26-0.50, all wrong (0.18-0.24), two reported ok (with five
+    landmarks, one of them: 0.043). A map that wrong that often is not passed without them.
 
     Parameters
     ----------
@@ -397,10 +406,11 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
         return ""
     return (
         f"the target is {area_ratio:.2f} of the source's area, a smaller part than those the "
-        "partial match was measured on (0.55-0.8 of the area): on parts of 0.10-0.45, a "
-        "third of the measured maps were wrong, almost half of those not flagged; check the "
-        "result "
-        f"(e.g. a colormap transferred from the source), or {_landmarks_advice(landmarks)}"
+        "partial match was measured on (0.55-0.8 of the area): on such parts the map is "
+        "often wrong without its measures showing it (plane cuts of 0.10-0.45 of a body: 5 "
+        "of 21 maps wrong; one-sided scans of 0.26-0.50: 4 of 4 wrong, 2 within every other "
+        "bound); check the result (e.g. a colormap transferred from the source), or "
+        f"{_landmarks_advice(landmarks)}"
     )
 
 
