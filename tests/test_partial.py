@@ -146,7 +146,42 @@ def test_a_part_smaller_than_those_measured_is_suspect_without_landmarks(whole, 
     [note] = [n for n in quality.notes if "smaller part" in n]
     assert "give more known vertex pairs" in note
     assert partial_quality(truth, e1, ec, corr.fmap_12, overlap=0.35).suspect  # without
+    # clustered landmarks (a trial's three pairs around one vertex: 0.089, reported ok) hold
+    # the map near them only: they do not lift the flag
+    clustered = partial_quality(
+        truth, e1, ec, corr.fmap_12, overlap=0.35, landmarks=True, landmarks_spread=False
+    )
+    assert clustered.suspect and any("smaller part" in r for r in clustered.reasons)
     assert small_part_note(SMALL_PART) == "" and small_part_note(0.49)
+
+
+def test_clustered_landmarks_are_said_and_do_not_lift_the_small_part_flag(whole):
+    """Landmarks within a region of one another are said, and count as none for a small part."""
+    import o3d_ofp.workflows.partial as workflow
+
+    V, F, e1 = whole
+    Vc, Fc, truth = plane_cut(V, F, axis=0, fraction=0.35)
+    ec = ofp.eigenbasis(Vc, Fc, k=99)
+    scale = np.sqrt(e1.area)
+    near = np.argsort(np.linalg.norm(Vc - Vc[0], axis=1))[:3]  # a vertex and its neighbours
+    clustered = np.stack([truth[near], near], axis=1)
+    far = np.array([0, len(truth) // 2, len(truth) - 1])
+    spread = np.stack([truth[far], far], axis=1)
+    assert workflow.landmarks_extent(clustered, V / scale) < workflow.MAX_JUMP
+    assert workflow.landmarks_extent(spread, V / scale) > workflow.MAX_JUMP
+    quality = {}
+    for name, landmarks in (("clustered", clustered), ("spread", spread)):
+        corr = workflow.match_partial_eigenbases(
+            e1, ec, landmarks=landmarks, warn_suspect=False
+        )
+        quality[name] = corr.quality
+    [note] = [n for n in quality["clustered"].notes if n.startswith("landmarks:")]
+    assert "of one another, so they hold the map near them only: spread them" in note
+    assert any("smaller part" in r for r in quality["clustered"].reasons)
+    [note] = [n for n in quality["spread"].notes if n.startswith("landmarks:")]
+    assert "one another" not in note
+    assert not any("smaller part" in r for r in quality["spread"].reasons)
+    assert any("smaller part" in n for n in quality["spread"].notes)
 
 
 def test_verdict_is_that_of_the_checked_map_and_the_polish_is_said(whole, cut, monkeypatch):
