@@ -444,11 +444,14 @@ def write_geometry(
 def read_if_path(shape: Any, name: str) -> Any:
     """Return the geometry read from ``shape`` if it is a file path (str or PathLike), else it.
 
-    ``name`` (e.g. "source") starts the message of a ValueError for a file that cannot be read.
+    ``name`` (e.g. "source") starts the message of the error for a file that cannot be read: a
+    FileNotFoundError for a missing file, else a ValueError.
     """
     if isinstance(shape, (str, os.PathLike)):
         try:
             return read_geometry(shape)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"{name}: {exc}") from exc
         except (OSError, ValueError) as exc:
             raise ValueError(f"{name}: {exc}") from exc
     return shape

@@ -129,9 +129,12 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
                     ndmin=2,
                 )
         except (ValueError, UnicodeDecodeError) as exc:
+            # numpy's message for a ragged file ends with advice for its own API ("; use
+            # `usecols` to select a subset ..."): only what precedes it is about the file
+            said = str(exc).split("; use `usecols`")[0]
             raise UsageError(
                 f"--landmarks {spec}: not a text file of two integer columns (source vertex, "
-                f"target vertex; '#' starts a comment): {exc}"
+                f"target vertex; '#' starts a comment): {said}"
             ) from exc
         if pairs.size and pairs.shape[1] != 2:
             raise UsageError(

@@ -77,7 +77,10 @@ def _read_signal(
     if spec == "colors":
         colors = vertex_colors(geometry)
         if colors is None:
-            hint = ""
+            hint = (
+                " (transfer its coordinates with --signal xyz, or a per-vertex signal with "
+                "--signal FILE.npy)"
+            )
             if getattr(geometry, "has_triangle_uvs", lambda: False)():
                 hint = " (it has texture coordinates: use --signal texture)"
             raise UsageError(f"{path}: has no vertex colors{hint}")
