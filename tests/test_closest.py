@@ -408,7 +408,7 @@ def test_crowded_closest_map_is_suspect(case):
     if case == "other_pose":
         assert q.coverage_ratio < CLOSEST_MIN_COVERAGE
         assert "crowd onto" in q.reasons[0] and "--map estimate" in q.reasons[0]
-        assert "with --partial when the target is a part" in q.reasons[0]
+        assert "with partial=True / --partial when the target is a part" in q.reasons[0]
         assert not any("rigid motion" in n for n in q.notes)
     else:
         assert "a 45° turn" in q.reasons[0] and "align=True" in q.reasons[0]

@@ -157,31 +157,50 @@ def test_a_part_smaller_than_those_measured_is_suspect_without_landmarks(whole, 
 
 def test_clustered_landmarks_are_said_and_do_not_lift_the_small_part_flag(whole):
     """Landmarks within a region of one another are said, and count as none for a small part."""
+    import warnings
+
     import o3d_ofp.workflows.partial as workflow
 
     V, F, e1 = whole
     Vc, Fc, truth = plane_cut(V, F, axis=0, fraction=0.35)
     ec = ofp.eigenbasis(Vc, Fc, k=99)
     scale = np.sqrt(e1.area)
-    near = np.argsort(np.linalg.norm(Vc - Vc[0], axis=1))[:3]  # a vertex and its neighbours
+    # three landmarks about 0.1 of sqrt(area) apart: clustered in unit-area units, not in the
+    # blob's own (its sqrt(area) is about 3.9), so a wiring without the scaling fails
+    d = np.linalg.norm(Vc - Vc[0], axis=1) / scale
+    near = np.array([0, np.argmin(np.abs(d - 0.06)), np.argmin(np.abs(d - 0.08))])
     clustered = np.stack([truth[near], near], axis=1)
     far = np.array([0, len(truth) // 2, len(truth) - 1])
     spread = np.stack([truth[far], far], axis=1)
-    assert workflow.landmarks_extent(clustered, V / scale) < workflow.MAX_JUMP
+    assert 0.04 < workflow.landmarks_extent(clustered, V / scale) < workflow.MAX_JUMP
+    assert workflow.landmarks_extent(clustered, V) > workflow.MAX_JUMP
     assert workflow.landmarks_extent(spread, V / scale) > workflow.MAX_JUMP
-    quality = {}
+    quality, said = {}, {}
     for name, landmarks in (("clustered", clustered), ("spread", spread)):
-        corr = workflow.match_partial_eigenbases(
-            e1, ec, landmarks=landmarks, warn_suspect=False
-        )
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            corr = workflow.match_partial_eigenbases(e1, ec, landmarks=landmarks)
         quality[name] = corr.quality
-    [note] = [n for n in quality["clustered"].notes if n.startswith("landmarks:")]
+        said[name] = [str(w.message) for w in caught if "smaller part" in str(w.message)]
+    q = quality["clustered"]
+    [note] = [n for n in q.notes if n.startswith("landmarks:")]
     assert "of one another, so they hold the map near them only: spread them" in note
-    assert any("smaller part" in r for r in quality["clustered"].reasons)
-    [note] = [n for n in quality["spread"].notes if n.startswith("landmarks:")]
+    [small] = [i for i, r in enumerate(q.reasons) if "smaller part" in r]
+    # the small part's reason comes before the advice on the map's own measures, if any
+    assert all(i > small for i, r in enumerate(q.reasons) if r.startswith("likely causes"))
+    assert len(said["clustered"]) == 1 and "is suspect" in said["clustered"][0]
+    q = quality["spread"]
+    [note] = [n for n in q.notes if n.startswith("landmarks:")]
     assert "one another" not in note
-    assert not any("smaller part" in r for r in quality["spread"].reasons)
-    assert any("smaller part" in n for n in quality["spread"].notes)
+    assert not any("smaller part" in r for r in q.reasons)
+    assert any("smaller part" in n for n in q.notes)
+    assert not q.suspect, q.reasons  # measured: it passes (the match is deterministic)
+    # a note, and a warning of its own, once
+    assert len(said["spread"]) == 1 and "is suspect" not in said["spread"][0]
+    # one landmark holds the map near it only, whatever the size of the part
+    one = workflow._landmarks_kept(q, truth, spread[:1], V / scale)
+    assert one.notes[-1].endswith("one landmark holds the map near it only: give more, spread "
+                                  "over the part")  # fmt: skip
 
 
 def test_verdict_is_that_of_the_checked_map_and_the_polish_is_said(whole, cut, monkeypatch):

@@ -913,7 +913,7 @@ def closest_correspondence(
             f"the smaller shape, < {MIN_COVERAGE}): the shapes are not in the same place or "
             f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
             f"same place: {retry}otherwise use the spectral estimate (--map estimate; "
-            "with --partial when the target is a part of the source)"
+            "with partial=True / --partial when the target is a part of the source)"
         )
     if align and not reasons:
         turn = float(options["icp"]["rotation_degrees"])

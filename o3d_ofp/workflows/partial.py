@@ -335,14 +335,20 @@ def partial_quality(
         reasons.append(
             f"the point map disagrees with the functional map (inconsistency {incons:.2f})"
         )
-    if reasons and not base.reasons:
+    measured_wrong = bool(reasons)
+    small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
+    lifted = landmarks and landmarks_spread
+    if small and not lifted:  # a reason: too often wrong unseen (small_part_note)
+        reasons.append(small)
+    if measured_wrong and not base.reasons:
         reasons.append(
             "likely causes: a region of the target sent to the wrong place (a part with "
             "symmetric or featureless regions), a noisy scan (noise inflates its area and "
             "curvature, which the partial match reads), or a target that is not a part of the "
-            f"source (another shape, or in other units); fix: {_landmarks_advice(landmarks)}, "
-            "smooth a noisy scan first (filter_geometry / o3d-ofp filter --smooth), and "
-            "rescale a target in other units to the source's"
+            f"source (another shape, or in other units); fix: {_landmarks_advice(landmarks)}; "
+            "if the scan is visibly noisy, smooth it lightly first (filter_geometry(smooth="
+            "0.01) / o3d-ofp filter --smooth 0.01: smoothing a clean part makes the match "
+            "worse); rescale a target in other units to the source's"
         )
     all_reasons = tuple(reasons) + base.reasons  # map_quality's advice, if any, stays last
     measured = (
@@ -351,10 +357,6 @@ def partial_quality(
         f"{incons:.2f} (limit {MAX_INCONSISTENCY}), restriction map orthogonality "
         f"{ortho:.2f} (not judged)"
     )
-    small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
-    lifted = landmarks and landmarks_spread
-    if small and not lifted:  # a reason: too often wrong unseen (small_part_note)
-        all_reasons = (*reasons, small, *base.reasons)
     return dataclasses.replace(
         base,
         orthogonality=ortho,
@@ -380,8 +382,9 @@ def landmarks_extent(landmarks: np.ndarray, vertices_1: np.ndarray) -> float:
 
 
 #: A target below this fraction of the source's area is smaller than the parts the partial
-#: match was measured on (the cuts of scripts/eval_partial.py keep 0.55-0.8); without landmarks
-#: its map is suspect (:func:`small_part_note`), with landmarks it gets a note and a warning.
+#: match was measured on (the cuts of scripts/eval_partial.py keep 0.55-0.8); without spread
+#: landmarks (:func:`landmarks_extent`) its map is suspect (:func:`small_part_note`), with them
+#: it gets a note and a warning.
 SMALL_PART = 0.5
 
 
@@ -398,15 +401,15 @@ def _landmarks_advice(given: bool) -> str:
 def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
     """Return the note for a part below :data:`SMALL_PART` of the source's area, else "".
 
-    Without landmarks it is a reason (the map is suspect: :func:`partial_quality`); with
-    landmarks, a note. Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts
+    Without spread landmarks it is a reason (the map is suspect: :func:`partial_quality`);
+    with them, a note. Measured (``python scripts/eval_partial.py --robustness``: the 8 cuts
     made to keep 0.45, 0.35 and 0.25 of the area instead, their largest pieces 0.10-0.45):
     stop 31, 9 of 24 maps wrong (error above 0.05), 4 of them not flagged, and no measure of
     the map separating them (the wrong ones that passed: distortion 0.055-0.112, stretch
     1.05-1.36; the right ones: 0.035-0.143 and 1.04-1.35); stop 34, 5 of 21 wrong, all
     flagged. One-sided scans pass wrong: new-user trials made them from FAUST 093 by keeping
     the faces seen from one direction; stop 31, 26 % of the body, error 0.08, reported ok;
-    stop 36, four views of 0.26-0.50, all wrong (0.18-0.24), two reported ok (with five
+    stop 36, four views of 0.31-0.49, all wrong (0.18-0.24), two reported ok (with five
     landmarks, one of them: 0.043). A map that wrong that often is not passed without them.
 
     Parameters
@@ -427,7 +430,7 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> str:
         f"the target is {area_ratio:.2f} of the source's area, a smaller part than those the "
         "partial match was measured on (0.55-0.8 of the area): on such parts the map is "
         "often wrong without its measures showing it (plane cuts of 0.10-0.45 of a body: 5 "
-        "of 21 maps wrong; one-sided scans of 0.26-0.50: 4 of 4 wrong, 2 within every other "
+        "of 21 maps wrong; one-sided scans of 0.26-0.49: 5 of 5 wrong, 3 within every other "
         "bound); check the result (e.g. a colormap transferred from the source), or "
         f"{_landmarks_advice(landmarks)}"
     )
@@ -922,7 +925,9 @@ def _landmarks_kept(
         "area) from the source vertices given for them"
     )
     spread = landmarks_extent(landmarks, vertices_1)
-    if spread < MAX_JUMP:
+    if len(landmarks) == 1:
+        note += "; one landmark holds the map near it only: give more, spread over the part"
+    elif spread < MAX_JUMP:
         note += (
             f"; they lie within {spread:.3f} of one another, so they hold the map near them "
             "only: spread them over the part"
@@ -957,7 +962,8 @@ def _full_landmarks_kept(
     landmarks = np.asarray(corr.options["landmarks"], dtype=np.int64).reshape(-1, 2)
     checked = _landmarks_kept(corr.quality, corr.p2p_21, landmarks, vertices_1)
     (note,) = checked.notes[len(corr.quality.notes) :]
-    note = note.replace("the map sends", "the full map sends", 1)
+    # the offsets only: how spread the landmarks are is the coarse note's (its verdict used it)
+    note = note.split("; ")[0].replace("the map sends", "the full map sends", 1)
     quality = dataclasses.replace(corr.quality, notes=(*corr.quality.notes, note))
     flagged = any("landmarks' target vertices" in r for r in corr.quality.reasons)
     if checked.suspect and not flagged:
