@@ -65,6 +65,20 @@ def blob_pair(blob_mesh):
 
 
 @pytest.fixture(scope="module")
+def coarse_blob(blob_mesh, blob_pair):
+    """700-point farthest-point coarse bases of the blob pair, and the true coarse map.
+
+    Returns ``(b1, s1, b2, s2, truth)``: each shape's coarse eigenbasis (29 functions) and
+    samples, and for every target sample its nearest source sample.
+    """
+    V, _ = blob_mesh
+    V2 = blob_pair[1].vertices
+    b1, s1 = coarse_eigenbasis(V, 700, k=29)
+    b2, s2 = coarse_eigenbasis(V2, 700, k=29)
+    return b1, s1, b2, s2, cKDTree(V[s1]).query(V[s2])[1]
+
+
+@pytest.fixture(scope="module")
 def blob_reference(blob_pair):
     e1, e2, C = blob_pair
     return local_p2p_from_fmap(C, e1, e2)
@@ -202,7 +216,9 @@ def test_subdivided_faust_matches_the_exact_search():
         assert err_local <= 1.02 * _error(exact, V1, e1.area, rows), level
 
 
-def test_adjoint_extension_is_the_read_off_of_a_fit(blob_mesh, blob_pair, blob_reference):
+def test_adjoint_extension_is_the_read_off_of_a_fit(
+    blob_mesh, blob_pair, blob_reference, coarse_blob
+):
     # extend_p2p(adjoint=True) compares the full source's interpolated rows of Φ with the full
     # target's rows of Ψ C, for a least-squares fit Ψ C ≈ Φ[π] with more target functions than
     # source ones: the brute-force read-off of the same interpolated embeddings (the slow
@@ -212,9 +228,7 @@ def test_adjoint_extension_is_the_read_off_of_a_fit(blob_mesh, blob_pair, blob_r
     V, _ = blob_mesh
     e1, e2, _ = blob_pair
     V2 = e2.vertices
-    b1, s1 = coarse_eigenbasis(V, 700, k=29)
-    b2, s2 = coarse_eigenbasis(V2, 700, k=29)
-    truth = cKDTree(V[s1]).query(V[s2])[1]
+    b1, _, b2, _, truth = coarse_blob
     fit = np.linalg.lstsq(b2.evecs[:, :30], b1.evecs[truth, :21], rcond=None)[0]  # (30, 21)
     p2p = extend_p2p(fit, b1, b2, V, V2, adjoint=True)
     assert p2p.shape == (V2.shape[0],) and p2p.dtype == np.int64
@@ -232,17 +246,15 @@ def test_adjoint_extension_is_the_read_off_of_a_fit(blob_mesh, blob_pair, blob_r
         extend_p2p(fit, b1, b2, V, V2, adjoint="yes")
 
 
-def test_coarse_map_extends_to_the_full_shapes(blob_mesh, blob_pair, blob_reference):
+def test_coarse_map_extends_to_the_full_shapes(blob_mesh, blob_pair, blob_reference, coarse_blob):
     # A map between 700-point farthest-point subsamples (point-cloud Laplacians), carried to
     # the full 2562-vertex shapes: about as accurate as the full-resolution map, and its
     # projection on small full-resolution bases close to the true one.
     V, _ = blob_mesh
     e1, e2, _ = blob_pair
     V2 = e2.vertices
-    b1, s1 = coarse_eigenbasis(V, 700, k=29)
-    b2, s2 = coarse_eigenbasis(V2, 700, k=29)
+    b1, s1, b2, _, truth = coarse_blob  # truth: the true coarse map, nearest source sample
     assert b1.n_vertices == 700 and b1.faces is None and s1.shape == (700,)
-    truth = cKDTree(V[s1]).query(V[s2])[1]  # true coarse map: nearest source sample
     C = fmap_from_p2p(truth, b1, b2)
     p2p = extend_p2p(C, b1, b2, V, V2)
     assert p2p.shape == (V.shape[0],) and p2p.dtype == np.int64
