@@ -902,7 +902,13 @@ def _match_partial_surfaces(
 
 
 def _landmarks_kept(
-    quality: MapQuality, p2p: np.ndarray, landmarks: np.ndarray, vertices_1: np.ndarray
+    quality: MapQuality,
+    p2p: np.ndarray,
+    landmarks: np.ndarray,
+    vertices_1: np.ndarray,
+    *,
+    subject: str = "the map",
+    spread_note: bool = True,
 ) -> MapQuality:
     """Say how far the map sends the landmarks' target vertices from their given source vertices.
 
@@ -916,16 +922,17 @@ def _landmarks_kept(
     0.126: the margin below :data:`MAX_JUMP` is thin. Beyond it the map is suspect (the reason
     goes first: the advice of ``map_quality``, if any, stays last).
     ``landmarks``: (p, 2) source and target vertices; ``vertices_1``: the source's, scaled to
-    unit area.
+    unit area; ``subject`` names the map in the note and the reason; ``spread_note``: say when
+    the landmarks are one or clustered (:func:`landmarks_extent`).
     """
     off = np.linalg.norm(vertices_1[p2p[landmarks[:, 1]]] - vertices_1[landmarks[:, 0]], axis=1)
     far = off > MAX_JUMP
     note = (
-        f"landmarks: the map sends their target vertices at most {off.max():.3f} of sqrt(source "
-        "area) from the source vertices given for them"
+        f"landmarks: {subject} sends their target vertices at most {off.max():.3f} of sqrt("
+        "source area) from the source vertices given for them"
     )
-    spread = landmarks_extent(landmarks, vertices_1)
-    if len(landmarks) == 1:
+    spread = landmarks_extent(landmarks, vertices_1) if spread_note else math.inf
+    if spread_note and len(landmarks) == 1:
         note += "; one landmark holds the map near it only: give more, spread over the part"
     elif spread < MAX_JUMP:
         note += (
@@ -936,10 +943,10 @@ def _landmarks_kept(
     if not far.any():
         return quality
     reason = (
-        f"the map sends {int(far.sum())} of the {off.size} landmarks' target vertices more than "
-        f"{MAX_JUMP} of the source's size from the source vertices given for them (the farthest "
-        f"{off.max():.2f} away): it does not keep them; check those pairs (a wrong pair pulls "
-        "the fit astray), else the map is wrong near them"
+        f"{subject} sends {int(far.sum())} of the {off.size} landmarks' target vertices more "
+        f"than {MAX_JUMP} of the source's size from the source vertices given for them (the "
+        f"farthest {off.max():.2f} away): it does not keep them; check those pairs (a wrong "
+        "pair pulls the fit astray), else the map is wrong near them"
     )
     return dataclasses.replace(quality, suspect=True, reasons=(reason, *quality.reasons))
 
@@ -960,15 +967,17 @@ def _full_landmarks_kept(
     """
     assert corr.quality is not None
     landmarks = np.asarray(corr.options["landmarks"], dtype=np.int64).reshape(-1, 2)
-    checked = _landmarks_kept(corr.quality, corr.p2p_21, landmarks, vertices_1)
-    (note,) = checked.notes[len(corr.quality.notes) :]
     # the offsets only: how spread the landmarks are is the coarse note's (its verdict used it)
-    note = note.split("; ")[0].replace("the map sends", "the full map sends", 1)
-    quality = dataclasses.replace(corr.quality, notes=(*corr.quality.notes, note))
+    checked = _landmarks_kept(
+        corr.quality, corr.p2p_21, landmarks, vertices_1, subject="the full map",
+        spread_note=False,
+    )  # fmt: skip
+    quality = dataclasses.replace(corr.quality, notes=checked.notes)
     flagged = any("landmarks' target vertices" in r for r in corr.quality.reasons)
     if checked.suspect and not flagged:
-        reason = checked.reasons[0].replace("the map sends", "the full map sends", 1)
-        quality = dataclasses.replace(quality, suspect=True, reasons=(reason, *quality.reasons))
+        quality = dataclasses.replace(
+            quality, suspect=True, reasons=(checked.reasons[0], *quality.reasons)
+        )
         if warn_suspect and not corr.quality.suspect:
             warn(logger, quality.suspect_message("the partial map"))
     return dataclasses.replace(corr, quality=quality)
