@@ -923,6 +923,41 @@ def test_a_landmark_left_out_on_dense_copies_is_said_once(whole, cut, blob_made_
     assert len(left_out) == 1 and left_out[0].startswith(f"landmarks [{truth[t]}, {t}]:")
 
 
+def test_a_dense_partial_match_reports_its_progress_forward(whole, cut, caplog, blob_made_dense):
+    """A caller's progress goes forward only, and the log lines give no shares of their own.
+
+    A trial's dense partial match printed the caller's shares ("matching: ... (32%)") and
+    the dense run's own ("match (dense): extension ... (80%)", then "(15%)" again for the
+    second opinion), so the percentages went backwards; the first match's end was
+    reported as "done" at 60 %.
+    """
+    import logging
+    import re
+
+    import o3d_ofp.workflows.partial as workflow
+
+    V, F, _ = whole
+    Vc, Fc, truth, _ = cut
+    seen = []
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        corr = workflow.match_partial_arrays(
+            V, F, Vc, Fc, landmarks=_three_landmarks(truth),
+            progress=lambda stage, done: seen.append((stage, done)),
+        )  # fmt: skip
+    assert any(n.startswith("second opinion") for n in corr.quality.notes)  # both runs ran
+    fractions = [done for _, done in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0, seen
+    assert [stage for stage, _ in seen].count("done") == 1  # the run's end only
+    assert "first match done" in [stage for stage, _ in seen]
+    shares = [r.getMessage() for r in caplog.records if re.search(r"\(\d+%\)", r.getMessage())]
+    assert shares == [], shares
+    # a dense run that reports its own progress (no callback) keeps its shares
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="o3d_ofp"):
+        workflow.match_arrays(V, F, V, F)
+    assert any(r.getMessage().endswith("(80%)") for r in caplog.records)
+
+
 def test_a_dense_partial_map_the_second_opinion_contradicts_is_flagged(
     whole, cut, monkeypatch, caplog, blob_made_dense
 ):

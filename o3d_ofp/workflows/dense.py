@@ -251,6 +251,14 @@ def match_dense(
         components=components,
     )
     report = progress or StageProgress(logger, "match (dense)")
+    # The stages below are logged as they start; their share of the run is said only when
+    # this run reports its own progress: a caller's ``progress`` gives its own shares, and a
+    # second one here went backwards against it (a trial's partial match: "matching: ...
+    # (32%)", then "match (dense): ... (80%)", then "matching: ... (40%)").
+
+    def share(done: float) -> str:
+        return f" ({round(100 * done)}%)" if progress is None else ""
+
     t0 = time.perf_counter()
     coarse = functools.partial(
         coarse_shape, k=k, coarse_vertices=coarse_vertices, components=components
@@ -258,8 +266,9 @@ def match_dense(
     c1 = coarse_1
     if c1 is None:
         logger.info(
-            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases (0%%)",
+            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases%s",
             coarse_vertices,
+            share(0.0),
         )
         report("coarse copies", 0.0)
         c1, c2 = run_per_shape(
@@ -271,8 +280,9 @@ def match_dense(
     else:
         logger.info(
             "match (dense): the source's coarse copy is given; coarse copy of the target "
-            "(~%d vertices) and its eigenbasis (0%%)",
+            "(~%d vertices) and its eigenbasis%s",
             coarse_vertices,
+            share(0.0),
         )
         report("coarse target", 0.0)
         c2 = coarse(V2, faces_2)
@@ -283,8 +293,9 @@ def match_dense(
         if left_out is not None and warn_landmarks:
             warn(logger, left_out)
     logger.info(
-        "match (dense): estimation between the coarse meshes (%.1fs) (15%%)",
+        "match (dense): estimation between the coarse meshes (%.1fs)%s",
         time.perf_counter() - t0,
+        share(0.15),
     )
 
     def coarse_progress(stage: str, done: float) -> None:
@@ -294,9 +305,10 @@ def match_dense(
         eigs[0], eigs[1], landmarks=coarse_landmarks, progress=coarse_progress, **options
     )
     logger.info(
-        "match (dense): extension to %d target vertices (%.1fs) (80%%)",
+        "match (dense): extension to %d target vertices (%.1fs)%s",
         n2,
         time.perf_counter() - t0,
+        share(0.8),
     )
     report("extension", 0.8)
     assert corr.fmap_12 is not None
@@ -319,7 +331,7 @@ def match_dense(
             quality.coverage,
             quality.coverage_ratio,
         )
-    logger.info("match (dense): done in %.1fs (100%%)", time.perf_counter() - t0)
+    logger.info("match (dense): done in %.1fs%s", time.perf_counter() - t0, share(1.0))
     report("done", 1.0)
     return dataclasses.replace(
         corr,

@@ -1257,7 +1257,11 @@ def match_partial_arrays(
             estimate=match_partial_eigenbases,
             coarse_estimate=_coarse_partial,
             coarse_extend=extend,
-            progress=lambda stage, done: report(prefix + stage, share[0] + share[1] * done),
+            progress=lambda stage, done: report(
+                # the first match's end is not the run's when a second opinion follows
+                prefix + ("first match done" if stage == "done" and sum(share) < 1 else stage),
+                share[0] + share[1] * done,
+            ),
             warn_suspect=warn_suspect if coarse_vertices is None else False,
             **{**options, **extra},
         )
@@ -1281,7 +1285,9 @@ def match_partial_arrays(
         200, int(options.get("coarse_vertices", matching.COARSE_VERTICES) * SECOND_OPINION_SIZE)
     )
     logger.info(
-        "partial match (dense): second opinion from coarse copies of ~%d vertices (60%%)", size
+        "partial match (dense): second opinion from coarse copies of ~%d vertices%s",
+        size,
+        " (60%)" if progress is None else "",  # a caller's progress says its own share
     )
     options.pop("coarse_source", None)  # built at the first size
     second = run(size, (0.6, 0.4), "second opinion: ")
