@@ -1068,6 +1068,30 @@ def test_landmarks_files_comma_separated_and_bad_ones(files, tmp_path, capsys, m
     _one_line_error(capsys, "--landmarks is empty: give pairs like 12:40")
 
 
+def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, capsys, monkeypatch):
+    """Inline pairs may be apart by semicolons, as in a file; ``--landmarks -1:40`` is checked.
+
+    A trial: "12:40;500:611" was refused, and ``--landmarks -1:40`` stopped at argparse's
+    "expected one argument" (a word starting with a dash is taken for an option).
+    """
+    import o3d_ofp.cli._pair as pair_module
+    from o3d_ofp.cli.main import joined_dash_values
+
+    seen, real = [], pair_module._landmarks
+    monkeypatch.setattr(pair_module, "_landmarks", lambda *a: seen.append(real(*a)) or seen[-1])
+    argv = ["transfer", files["src"], files["tgt"], "--k1", "8", "--k2", "8", "-o"]
+    assert main([*argv, str(tmp_path / "a.ply"), "--landmarks", "3:5;40:41"]) == 0
+    np.testing.assert_array_equal(seen[-1], [[3, 5], [40, 41]])
+    capsys.readouterr()
+    for value in ("-1:40", "-1:40,3:5"):
+        assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", value]) == 2
+        _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
+    # only such values are joined: numbers, options, "--" and joined options stay as given
+    words = ["--smooth", "-0.5", "--k1", "-3", "-v", "-1:4", "--", "-2:3", "--a=1", "-1:2"]
+    assert joined_dash_values(words) == words
+    assert joined_dash_values(["--landmarks", "-1:40", "-q"]) == ["--landmarks=-1:40", "-q"]
+
+
 def test_landmarks_pick_without_a_display_is_refused(
     files, capsys, tmp_path, monkeypatch, no_eigensolve
 ):

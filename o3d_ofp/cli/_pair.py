@@ -101,7 +101,8 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     )
     p.add_argument(
         "--landmarks",
-        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611, "
+        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611 "
+        "(or 12:40;500:611), "
         "a 2-column file (spaces, commas or semicolons apart), or 'pick' (pick them on both "
         "shapes in Open3D's vertex-selection window; needs a display)",
     )
@@ -148,7 +149,9 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
             raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
         try:
             pairs = np.array(
-                [[float(x) for x in item.split(":")] for item in spec.split(",")], dtype=float
+                # commas or semicolons apart, as in a file
+                [[float(x) for x in item.split(":")] for item in spec.replace(";", ",").split(",")],
+                dtype=float,
             )
         except ValueError as exc:
             raise UsageError(

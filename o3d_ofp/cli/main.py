@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import re
 import sys
 import warnings
 from collections.abc import Iterator, Sequence
@@ -115,6 +116,35 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
         root.propagate = saved[1]
 
 
+#: A value argparse reads as an option: a dash, a digit, then more than a plain number has.
+_DASH_VALUE = re.compile(r"-\d")
+_NUMBER = re.compile(r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def joined_dash_values(words: Sequence[str]) -> list[str]:
+    """Join a long option and a following value such as ``-1:40`` (``--landmarks=-1:40``).
+
+    argparse takes a word that starts with a dash for an option unless it is a plain number,
+    so ``--landmarks -1:40`` stopped at "expected one argument" (a trial); joined, the value
+    reaches the option's own check, which says what is wrong with it. No option starts with
+    a dash and a digit, so nothing else is joined.
+    """
+    out: list[str] = []
+    for word in words:
+        last = out[-1] if out else ""
+        if (
+            _DASH_VALUE.match(word)
+            and not _NUMBER.fullmatch(word)
+            and last.startswith("--")
+            and last != "--"
+            and "=" not in last
+        ):
+            out[-1] = f"{last}={word}"
+        else:
+            out.append(word)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line.
 
@@ -131,10 +161,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         internal error.
     """
     parser = build_parser()
+    words = joined_dash_values(sys.argv[1:] if argv is None else argv)
     try:
-        args, extra = parser.parse_known_args(argv)
+        args, extra = parser.parse_known_args(words)
         if extra:  # said by the parser they were given to: its name and its --help
-            words = list(sys.argv[1:] if argv is None else argv)
             before = words[: words.index(args.command)] if args.command in words else []
             if any(e in before for e in extra):
                 parser.error(f"unrecognized arguments: {' '.join(extra)}")
