@@ -223,3 +223,31 @@ def test_read_only_cache_folder_is_refused_before_the_work(shapes, tmp_path, cap
             err = _err(capsys)
             assert f"--cache {cache}" in err and "cannot be written" in err, err
     assert list(folder.iterdir()) == [] and not (tmp_path / "a.ply").exists()
+
+
+def test_closest_map_onto_a_target_in_other_units_names_and_takes_target_scale(
+    shapes, tmp_path, capsys
+):
+    """A copy in millimetres: the reason names ``--target-scale``, which gives the exact colors.
+
+    With the flag, the copy's colors are the source's on the copy's own coordinates.
+
+    The library's advice is Open3D's ``target.scale(...)``, which the command line could not
+    follow (a trial).
+    """
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    _d, p, V, F, colors = shapes
+    mm = tmp_path / "same_mm.ply"
+    ofp.write_geometry(mm, triangle_mesh_from_arrays(1000 * V, F))
+    out = tmp_path / "a.ply"
+    argv = ["transfer", p["src"], str(mm), "--map", "closest", "-o", str(out)]
+    assert main(argv) == 0  # a suspect map is written (no --strict), and said
+    err = _err(capsys)
+    assert "multiply the target's coordinates by 0.001 (millimetres to metres), e.g. " \
+        "--target-scale 0.001, then match again" in err
+    assert main([*argv, "--target-scale", "0.001", "--strict"]) == 0
+    written = ofp.read_geometry(out)
+    np.testing.assert_allclose(np.asarray(written.vertices), 1000 * V, rtol=1e-6)
+    # PLY colors are 8-bit
+    np.testing.assert_allclose(np.asarray(written.vertex_colors), colors, atol=1 / 255)

@@ -604,12 +604,18 @@ def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(
     err = capsys.readouterr().err
     assert f"{paths[1]} has 6." in err and "Rescale the target" in err and not out.exists()
     # the factor is given (a trial: the refusal did not say by how much)
-    assert "multiply its coordinates by 1000 (metres to millimetres), which makes its area 0.6"\
-        in err
+    assert "multiply its coordinates by 1000 (metres to millimetres: --target-scale 1000), which "\
+        "makes its area 0.6" in err
     # a source and target swapped (area ratio 1.5): no units hint
     with pytest.raises(ValueError, match="Swap source and target") as info:
         ofp.match((Vc, Fc), (V, F), partial=True)
     assert "multiply its coordinates" not in str(info.value)
+    # with the flag the CLI names, the run goes on (eigensolves allowed again): the source's
+    # coordinates sent to the part land near the part's own places on the whole (a right map)
+    monkeypatch.undo()
+    assert main([*argv, "--target-scale", "1000", "--k1", "12", "--k2", "12"]) == 0
+    sent = np.asarray(ofp.read_geometry(out).vertices)
+    assert np.linalg.norm(sent - Vc, axis=1).mean() < 0.1 * np.sqrt(e1.area)
 
 
 def test_match_partial_eigenbases_checks_its_inputs(whole):
@@ -1059,6 +1065,61 @@ def test_cli_partial_flag(tmp_path, capsys):
     assert out.exists() and Correspondence.load(saved).method == "partial"
     assert main([*args, "--partial", "--map", "closest", "-o", str(tmp_path / "x.ply")]) == 2
     assert "--partial applies to --map estimate" in capsys.readouterr().err
+
+
+def test_cli_target_scale_runs_as_on_a_rescaled_file(tmp_path, capsys):
+    """``--target-scale`` matches as if the target file were in the source's units.
+
+    A trial: a part in millimetres onto a whole in metres was told to multiply its
+    coordinates by 0.001, which the command line had no way to do. The map is the one of a
+    file written in metres; the colors written sit on the target's own (millimetre)
+    coordinates; a detail transfer is written in millimetres too; a collection refuses the
+    flag; a bad factor is refused by the parser.
+    """
+    from o3d_ofp.cli.main import main
+
+    src, tgt = _colored_blob_and_part(tmp_path)  # 642 vertices: fast
+    part = ofp.read_geometry(tgt)
+    Vm = np.asarray(part.vertices)
+    mm = tmp_path / "part_mm.ply"
+    mm_mesh = ofp.read_geometry(tgt)
+    mm_mesh.scale(1000.0, center=(0.0, 0.0, 0.0))
+    ofp.write_geometry(mm, mm_mesh)
+    Vmm = np.asarray(ofp.read_geometry(mm).vertices)
+    common = ["--k1", "12", "--k2", "12", "--partial"]
+    maps = [tmp_path / "m.npz", tmp_path / "mm.npz"]
+    outs = [tmp_path / "m.ply", tmp_path / "mm.ply"]
+    assert main(["transfer", str(src), str(tgt), *common, "--save-map", str(maps[0]),
+                 "-o", str(outs[0])]) == 0  # fmt: skip
+    assert main(["transfer", str(src), str(mm), *common, "--target-scale", "0.001",
+                 "--save-map", str(maps[1]), "-o", str(outs[1])]) == 0  # fmt: skip
+    corr_m, corr_mm = (Correspondence.load(m) for m in maps)
+    # the same map: the scaled file's coordinates differ from the metre file's by round-off
+    # only (float32 PLY), which may move a few near-ties of the nearest-neighbour read-offs
+    assert np.mean(corr_m.p2p_21 == corr_mm.p2p_21) > 0.98
+    written = [ofp.read_geometry(o) for o in outs]
+    np.testing.assert_allclose(np.asarray(written[1].vertices), Vmm, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(written[0].vertices), Vm, rtol=1e-6)
+    assert np.asarray(written[1].vertex_colors).shape == (len(Vm), 3)
+    capsys.readouterr()
+    # detail: written in the target's own units (the source's detail, scaled back)
+    details = [tmp_path / "dm.ply", tmp_path / "dmm.ply"]
+    scale = ["--target-scale", "0.001"]
+    for target, out, extra in ((tgt, details[0], []), (mm, details[1], scale)):
+        assert main(["detail", str(src), str(target), "--map", str(maps[0]), "--k1", "40",
+                     "--k2", "40", *extra, "-o", str(out)]) == 0  # fmt: skip
+    moved_m, moved_mm = (np.asarray(ofp.read_geometry(d).vertices) for d in details)
+    assert np.abs(moved_m - Vm).max() > 1e-4  # the detail moved the part
+    np.testing.assert_allclose(moved_mm / 1000, moved_m, atol=1e-5 * np.ptp(Vm))
+    # refused: a collection, a factor that is not a positive number
+    capsys.readouterr()
+    assert main(["transfer", str(src), str(mm), str(tgt), "--target-scale", "0.001",
+                 "-o", str(tmp_path / "many")]) == 2  # fmt: skip
+    assert "--target-scale (for one pair of shapes) does not apply" in capsys.readouterr().err
+    for bad in ("0", "-1", "nan", "mm"):
+        assert main(["transfer", str(src), str(mm), f"--target-scale={bad}",
+                     "-o", str(tmp_path / "x.ply")]) == 2  # fmt: skip
+        assert "--target-scale: expected a number > 0" in capsys.readouterr().err
 
 
 @pytest.mark.slow

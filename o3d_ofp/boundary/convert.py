@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import math
 from types import ModuleType
 from typing import Any
 
@@ -29,6 +30,7 @@ __all__ = [
     "point_cloud_from_arrays",
     "point_normals",
     "require_open3d",
+    "scaled_copy",
     "triangle_mesh_from_arrays",
     "vertex_colors",
 ]
@@ -398,4 +400,43 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
             attrs["colors"] = o3d.core.Tensor(np.round(C * top).astype(old.dtype))
         else:
             attrs["colors"] = o3d.core.Tensor(C.astype(old.dtype))
+    return out
+
+
+def scaled_copy(geometry: Any, factor: float) -> Any:
+    """Return a copy of ``geometry`` with its coordinates multiplied by ``factor``.
+
+    Unlike :func:`like_target` with new positions, the normals are kept as they are (a
+    uniform scaling leaves them unchanged): a file's own normals survive a scaling and its
+    inverse. The scaling is about the origin, as Open3D's ``scale(factor, center=(0, 0, 0))``.
+
+    Parameters
+    ----------
+    geometry : Open3D TriangleMesh or PointCloud (legacy or tensor), or (vertices, faces) tuple
+        The geometry; it is not modified.
+    factor : float
+        A positive, finite factor.
+
+    Returns
+    -------
+    geometry
+        A new geometry of the same kind, every other attribute carried over.
+    """
+    if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
+        raise ValueError(f"factor must be a positive, finite number; got {factor!r}")
+    if isinstance(geometry, tuple):
+        V, F = geometry
+        return as_vertices(V) * factor, F
+    o3d = require_open3d()
+    kind = geometry_kind(geometry)
+    if kind in ("legacy_mesh", "legacy_cloud"):
+        out = type(geometry)(geometry)  # Open3D's copy constructor: every attribute
+        name = "vertices" if kind == "legacy_mesh" else "points"
+        scaled = np.asarray(getattr(out, name), dtype=np.float64) * factor
+        setattr(out, name, o3d.utility.Vector3dVector(scaled))
+        return out
+    out = geometry.clone()
+    attrs = out.vertex if kind == "tensor_mesh" else out.point
+    positions = attrs["positions"]
+    attrs["positions"] = o3d.core.Tensor(positions.numpy() * factor).to(positions.dtype)
     return out

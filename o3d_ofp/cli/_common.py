@@ -90,10 +90,16 @@ _KEYWORD_OR_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/,;]|\(\))* / (?=--[a-z])")
 _FLAG_OR_KEYWORD = re.compile(r"(--[a-z][a-z-]*(?: [A-Z]+)?) / [a-z_]+=(?:\.\.\.|[^\s),;]*)")
 
 
+#: Library messages tell a target in other units to be scaled with Open3D: the command line
+#: has a flag for it.
+_TARGET_SCALE = re.compile(r"(?:Open3D's )?target\.scale\(([^,()]+), center=\(0, 0, 0\)\)")
+
+
 def in_flags(message: str) -> str:
     """Say the command line's flags where a library message names its keywords."""
     for keyword, flag in KEYWORD_FLAGS.items():
         message = message.replace(keyword, flag)
+    message = _TARGET_SCALE.sub(lambda m: f"--target-scale {m.group(1)}", message)
     message = _KEYWORD_THEN_FLAG.sub(lambda m: m.group(1), message)
     message = _KEYWORD_OR_FLAG.sub("", message)
     return _FLAG_OR_KEYWORD.sub(lambda m: m.group(1), message)

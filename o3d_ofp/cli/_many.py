@@ -40,6 +40,7 @@ PAIR_ONLY = {
     "partial": "--partial (for one pair of shapes)",
     "via_basis": "--via-basis (for one pair of shapes)",
     "pull_back": "--pull-back (for one pair of shapes)",
+    "target_scale": "--target-scale (for one pair of shapes)",
 }
 
 

@@ -24,7 +24,7 @@ from ._common import (
     same_file,
     stage,
 )
-from ._types import positive_int
+from ._types import positive_float, positive_int
 
 __all__ = [
     "Pair",
@@ -57,6 +57,23 @@ class Pair:
     F2: np.ndarray | None
     correspondence: Any  # Correspondence or None (estimate)
     landmarks: np.ndarray | None
+    #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
+    target_scale: float | None = None
+    #: The target as read, before ``--target-scale`` (None: ``target`` is)
+    target_as_read: Any = None
+
+    @property
+    def own_target(self) -> Any:
+        """The target as read: results that keep its coordinates are made like it."""
+        return self.target if self.target_as_read is None else self.target_as_read
+
+    def in_target_units(self, geometry: Any) -> Any:
+        """Return ``geometry``, made from the scaled target, in the target file's own units."""
+        if self.target_scale is None:
+            return geometry
+        from ..boundary.convert import scaled_copy
+
+        return scaled_copy(geometry, 1.0 / self.target_scale)
 
 
 def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool = False) -> None:
@@ -91,6 +108,14 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
         action="store_true",
         help="with --map estimate: the target is a part of the source (a one-sided scan, a "
         "cut) in the same units: partial functional maps; the report gives the overlap",
+    )
+    p.add_argument(
+        "--target-scale",
+        type=positive_float,
+        metavar="FACTOR",
+        help="multiply the target's coordinates by FACTOR for the run (a target in other units "
+        "than the source: 0.001 for millimetres onto metres), as if its file were in the "
+        "source's units; the result is written in the target's own units",
     )
     p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     p.add_argument(
@@ -382,6 +407,11 @@ def read_pair(args: argparse.Namespace) -> Pair:
         )  # fmt: skip
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
+    target_as_read, factor = None, getattr(args, "target_scale", None)
+    if factor is not None:  # every step below sees the target in the source's units
+        from ..boundary.convert import scaled_copy
+
+        target_as_read, target, V2 = target, scaled_copy(target, factor), V2 * factor
     corr = _read_map(args.map, V1, V2)
     if corr is not None and args.map != "closest":
         _check_given_map(args, corr, V1, V2)
@@ -426,7 +456,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
         from ._common import report
 
         report([f"wrote {landmarks.shape[0]} landmark pairs to {args.save_landmarks}"])
-    return Pair(source, target, V1, F1, V2, F2, corr, landmarks)
+    return Pair(source, target, V1, F1, V2, F2, corr, landmarks, factor, target_as_read)
 
 
 def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any, Any]:

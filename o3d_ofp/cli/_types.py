@@ -12,6 +12,7 @@ __all__ = [
     "bounded_int",
     "nonnegative_float",
     "nonnegative_int",
+    "positive_float",
     "positive_int",
     "unit_float",
     "vector3",
@@ -36,6 +37,7 @@ def _number(cast: type, ok: Callable[[Any], bool], expected: str) -> Callable[[s
 positive_int = _number(int, lambda v: v >= 1, "a positive integer")
 nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
 unit_float = _number(float, lambda v: 0.0 < v < 1.0, "a number in (0, 1)")
+positive_float = _number(float, lambda v: math.isfinite(v) and v > 0.0, "a number > 0")
 nonnegative_float = _number(float, lambda v: math.isfinite(v) and v >= 0.0, "a number >= 0")
 
 

@@ -184,7 +184,7 @@ def detail_one(args: argparse.Namespace, target_path: str, output_path: str) -> 
             eigenbases=(eig_1, eig_2),
             **ofp_options,
         )
-    write_geometry(output_path, moved, protect=(args.source, target_path))
+    write_geometry(output_path, pair.in_target_units(moved), protect=(args.source, target_path))
     what = args.mode if args.mode == "coordinates" else f"{args.mode}, band {args.band}"
     return [f"{args.source} -> {target_path}: detail ({what})", f"wrote {output_path}"]
 

@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
                 g = texture.sample(given.faces_21, given.barycentric_21)
             else:
                 g = pull_back(f, given, pair.F1)
-        written = write_result(args.output, pair.target, g, kind, protect=inputs)
+        written = write_result(args.output, pair.own_target, g, kind, protect=inputs)
         report([f"{args.source} -> {args.target}: {'exact ' * closest}pull-back, map "
                 f"{_map_name(args, given)}", "wrote " + ", ".join(written)])  # fmt: skip
         return 0
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         # transfer's own word on a collapsing map would say it again
         with _said_already("the given map is doubtful"):
             g = transfer_function(f, eig_1, eig_2, p2p_21=corr.p2p_21, bases=(B1, B2))
-    written = write_result(args.output, pair.target, g, kind, protect=inputs)
+    written = write_result(args.output, pair.own_target, g, kind, protect=inputs)
     report(
         [
             f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map "
@@ -470,7 +470,7 @@ def _bake(args: argparse.Namespace, pair) -> int:
             )
         except (FileNotFoundError, TypeError) as exc:
             raise UsageError(str(exc)) from exc
-    write_geometry(args.output, out, protect=_inputs(args))
+    write_geometry(args.output, pair.in_target_units(out), protect=_inputs(args))
     report(
         [
             f"{args.source} -> {args.target}: "

@@ -491,9 +491,10 @@ def _units_hint(ratio: float) -> str:
     factor, change = found
     if not MIN_AREA_RATIO <= ratio * factor**2 <= PARTIAL_MAX_AREA_RATIO:
         return ""
+    how = f"Open3D's target.scale({factor:g}, center=(0, 0, 0))"  # the CLI names its flag
     return (
-        f": multiply its coordinates by {factor:g}{f' ({change})' if change else ''}, which "
-        f"makes its area {ratio * factor**2:.3g} times the source's"
+        f": multiply its coordinates by {factor:g} ({f'{change}: ' if change else ''}{how}), "
+        f"which makes its area {ratio * factor**2:.3g} times the source's"
     )
 
 
