@@ -170,6 +170,39 @@ def test_results_keep_the_targets_kind_and_attributes(legacy_mesh):
     assert adapters.like_target(tcloud, colors=new).point.colors.dtype == o3d.core.uint8
 
 
+def test_scaled_copy_keeps_kind_attributes_and_normals(legacy_mesh):
+    """``scaled_copy`` (``--target-scale``) scales positions only; the input is untouched.
+
+    A file's own normals (here made not to be the computed ones) survive a scaling and its
+    inverse; ``like_target`` with new positions would recompute them.
+    """
+    V, F = adapters.geometry_to_arrays(legacy_mesh)
+    mesh = o3d.geometry.TriangleMesh(legacy_mesh)
+    own = np.tile([0.0, 0.0, 1.0], (len(V), 1))
+    mesh.vertex_normals = o3d.utility.Vector3dVector(own)
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(np.zeros((3 * len(F), 2)))
+    tmesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(V))
+    tcloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(V.astype(np.float32)))
+    for target in (mesh, tmesh, cloud, tcloud):
+        before = adapters.geometry_to_arrays(target)[0].copy()
+        scaled = adapters.scaled_copy(target, 1e-3)
+        assert type(scaled) is type(target)
+        np.testing.assert_allclose(adapters.geometry_to_arrays(scaled)[0], 1e-3 * V, rtol=1e-6)
+        np.testing.assert_array_equal(adapters.geometry_to_arrays(target)[0], before)
+    back = adapters.scaled_copy(adapters.scaled_copy(mesh, 1e-3), 1e3)
+    np.testing.assert_allclose(np.asarray(back.vertices), V, rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(back.vertex_normals), own)
+    assert back.has_triangle_uvs()
+    assert tmesh.vertex.positions.dtype == adapters.scaled_copy(tmesh, 2.0).vertex.positions.dtype
+    Vt, Ft = adapters.scaled_copy((V, F), 2.0)
+    np.testing.assert_array_equal(Vt, 2 * V)
+    assert Ft is F
+    for bad in (0.0, -1.0, float("nan"), float("inf"), "2"):
+        with pytest.raises(ValueError, match="factor must be a positive, finite number"):
+            adapters.scaled_copy(mesh, bad)
+
+
 def _sphere_uvs(V):
     u = 0.5 + np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi)
     v = 0.5 + np.arcsin(np.clip(V[:, 2], -1, 1)) / np.pi
