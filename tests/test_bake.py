@@ -316,6 +316,18 @@ def test_cli_uv_atlas_bakes_into_a_target_without_uvs(spot, decimated, tmp_path,
     assert main([*argv, "-o", str(tmp_path / "out.ply"), "--uv-atlas"]) == 2
     assert "--uv-atlas bakes the source's colors into a new atlas" in capsys.readouterr().err
     assert not (tmp_path / "out.ply").exists()
+    # a target in millimetres, --target-scale: the bake is written on its own coordinates
+    mm = o3d.geometry.TriangleMesh(plain)
+    mm.scale(1000.0, center=(0.0, 0.0, 0.0))
+    o3d.io.write_triangle_mesh(str(tmp_path / "mm.ply"), mm)
+    argv[2] = str(tmp_path / "mm.ply")
+    out = tmp_path / "mm.obj"
+    assert main([*argv, "-o", str(out), "--uv-atlas", "--target-scale", "0.001"]) == 0
+    back = o3d.io.read_triangle_mesh(str(out))
+    assert back.has_triangle_uvs() and any(not t.is_empty() for t in back.textures)
+    lo, hi = np.asarray(back.vertices).min(0), np.asarray(back.vertices).max(0)
+    np.testing.assert_allclose([lo, hi], [np.asarray(mm.vertices).min(0),
+                               np.asarray(mm.vertices).max(0)], rtol=1e-5)  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -1086,10 +1086,17 @@ def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, c
     for value in ("-1:40", "-1:40,3:5"):
         assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", value]) == 2
         _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
-    # only such values are joined: numbers, options, "--" and joined options stay as given
-    words = ["--smooth", "-0.5", "--k1", "-3", "-v", "-1:4", "--", "-2:3", "--a=1", "-1:2"]
-    assert joined_dash_values(words) == words
-    assert joined_dash_values(["--landmarks", "-1:40", "-q"]) == ["--landmarks=-1:40", "-q"]
+    # only such values are joined, after an option that takes one: numbers, flags without a
+    # value, short options, "--" and joined options stay as given
+    options = {"--smooth", "--k1", "--landmarks", "--a"}
+    words = ["--smooth", "-0.5", "--k1", "-3", "-v", "-1:4", "--", "-2:3", "--a=1", "-1:2",
+             "--strict", "-1.ply"]  # fmt: skip
+    assert joined_dash_values(words, options) == words
+    got = joined_dash_values(["--landmarks", "-1:40", "-q"], options)
+    assert got == ["--landmarks=-1:40", "-q"]
+    # a flag without a value followed by such a word: argparse's own message, as before
+    assert main([*argv[:3], "--strict", "-1.ply", "-o", str(tmp_path / "c.ply")]) == 2
+    assert "ignored explicit argument" not in capsys.readouterr().err
 
 
 def test_landmarks_pick_without_a_display_is_refused(

@@ -614,8 +614,9 @@ def test_a_part_in_much_smaller_units_names_the_area_ratio_and_the_fix(
     # coordinates sent to the part land near the part's own places on the whole (a right map)
     monkeypatch.undo()
     assert main([*argv, "--target-scale", "1000", "--k1", "12", "--k2", "12"]) == 0
+    # (written in the target's own units, as the flag says: a thousandth of the source's)
     sent = np.asarray(ofp.read_geometry(out).vertices)
-    assert np.linalg.norm(sent - Vc, axis=1).mean() < 0.1 * np.sqrt(e1.area)
+    assert np.linalg.norm(1000 * sent - Vc, axis=1).mean() < 0.1 * np.sqrt(e1.area)
 
 
 def test_match_partial_eigenbases_checks_its_inputs(whole):
@@ -1111,15 +1112,30 @@ def test_cli_target_scale_runs_as_on_a_rescaled_file(tmp_path, capsys):
     moved_m, moved_mm = (np.asarray(ofp.read_geometry(d).vertices) for d in details)
     assert np.abs(moved_m - Vm).max() > 1e-4  # the detail moved the part
     np.testing.assert_allclose(moved_mm / 1000, moved_m, atol=1e-5 * np.ptp(Vm))
-    # refused: a collection, a factor that is not a positive number
+    # a factor that does not fix the units: the advice is the factor for the file itself
     capsys.readouterr()
+    x = str(tmp_path / "x.ply")
+    assert main(["transfer", str(src), str(mm), *common, "--target-scale", "0.01", "-o", x]) == 2
+    err = capsys.readouterr().err
+    assert "--target-scale 0.01 does not fix the units:" in err
+    assert f"{mm} has 7" in err and "(millimetres to metres: --target-scale 0.001)" in err
+    assert main(["transfer", str(src), str(tgt), *common, "--target-scale", "1000", "-o", x]) == 2
+    err = capsys.readouterr().err
+    assert f"{tgt} scaled by 1000 has" in err and f"{tgt} as it is would be admitted" in err
+    # a basis file of the target in its own units cannot serve the scaled target
+    basis = tmp_path / "b.npz"
+    assert main(["basis", str(mm), "-k", "12", "-o", str(basis)]) == 0
+    assert main(["transfer", str(src), str(mm), *common, "--target-scale", "0.001",
+                 "--basis-2", str(basis), "-o", x]) == 2  # fmt: skip
+    assert "--target-scale changes them: drop --basis-2" in capsys.readouterr().err
+    # refused: a collection, a factor that is not a positive number
     assert main(["transfer", str(src), str(mm), str(tgt), "--target-scale", "0.001",
                  "-o", str(tmp_path / "many")]) == 2  # fmt: skip
     assert "--target-scale (for one pair of shapes) does not apply" in capsys.readouterr().err
-    for bad in ("0", "-1", "nan", "mm"):
+    for bad in ("0", "-1", "nan", "inf", "mm"):
         assert main(["transfer", str(src), str(mm), f"--target-scale={bad}",
                      "-o", str(tmp_path / "x.ply")]) == 2  # fmt: skip
-        assert "--target-scale: expected a number > 0" in capsys.readouterr().err
+        assert "--target-scale: expected a finite number > 0" in capsys.readouterr().err
 
 
 @pytest.mark.slow

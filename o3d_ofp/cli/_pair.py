@@ -107,15 +107,16 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
         "--partial",
         action="store_true",
         help="with --map estimate: the target is a part of the source (a one-sided scan, a "
-        "cut) in the same units: partial functional maps; the report gives the overlap",
+        "cut) in the same units (else --target-scale): partial functional maps; the report "
+        "gives the overlap",
     )
     p.add_argument(
         "--target-scale",
         type=positive_float,
         metavar="FACTOR",
-        help="multiply the target's coordinates by FACTOR for the run (a target in other units "
-        "than the source: 0.001 for millimetres onto metres), as if its file were in the "
-        "source's units; the result is written in the target's own units",
+        help="one target: multiply its coordinates by FACTOR for the run (a target in other "
+        "units than the source: 0.001 for millimetres onto metres), as if its file were in "
+        "the source's units; the result is written in the target's own units",
     )
     p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     p.add_argument(
@@ -407,7 +408,13 @@ def read_pair(args: argparse.Namespace) -> Pair:
         )  # fmt: skip
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
-    target_as_read, factor = None, getattr(args, "target_scale", None)
+    target_as_read, factor, V2_read = None, getattr(args, "target_scale", None), V2
+    if factor is not None and getattr(args, "basis_2", None):
+        raise UsageError(
+            f"--basis-2 {args.basis_2} holds the basis of {args.target} in its own units, and "
+            "--target-scale changes them: drop --basis-2 (--cache DIR keeps the scaled "
+            "target's basis apart)"
+        )
     if factor is not None:  # every step below sees the target in the source's units
         from ..boundary.convert import scaled_copy
 
@@ -424,10 +431,22 @@ def read_pair(args: argparse.Namespace) -> Pair:
                 )
         from ..workflows.partial import check_partial_areas
 
+        scaled_name = args.target if factor is None else f"{args.target} scaled by {factor:g}"
         try:
-            check_partial_areas(V1, F1, V2, F2, names=(args.source, args.target))
+            check_partial_areas(V1, F1, V2, F2, names=(args.source, scaled_name))
         except ValueError as exc:
-            raise UsageError(str(exc)) from exc
+            if factor is None:
+                raise UsageError(str(exc)) from exc
+            # the advice for the file as it is, whose factor is the one to give
+            try:
+                check_partial_areas(V1, F1, V2_read, F2, names=(args.source, args.target))
+            except ValueError as own:
+                said = f"--target-scale {factor:g} does not fix the units: {own}"
+                raise UsageError(said) from exc
+            raise UsageError(
+                f"--target-scale {factor:g}: {exc}; {args.target} as it is would be admitted: "
+                "drop --target-scale"
+            ) from exc
     _check_components(args, V1, F1, V2, F2)
     if args.map == "closest" and args.landmarks:
         raise UsageError("--landmarks apply to --map estimate, not --map closest")

@@ -37,7 +37,7 @@ def _number(cast: type, ok: Callable[[Any], bool], expected: str) -> Callable[[s
 positive_int = _number(int, lambda v: v >= 1, "a positive integer")
 nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
 unit_float = _number(float, lambda v: 0.0 < v < 1.0, "a number in (0, 1)")
-positive_float = _number(float, lambda v: math.isfinite(v) and v > 0.0, "a number > 0")
+positive_float = _number(float, lambda v: math.isfinite(v) and v > 0.0, "a finite number > 0")
 nonnegative_float = _number(float, lambda v: math.isfinite(v) and v >= 0.0, "a number >= 0")
 
 

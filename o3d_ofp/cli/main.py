@@ -121,24 +121,30 @@ _DASH_VALUE = re.compile(r"-\d")
 _NUMBER = re.compile(r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
-def joined_dash_values(words: Sequence[str]) -> list[str]:
-    """Join a long option and a following value such as ``-1:40`` (``--landmarks=-1:40``).
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Return the long options of ``parser`` and of its commands that take a value."""
+    found = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _value_options(sub)
+        elif action.nargs != 0:
+            found |= {o for o in action.option_strings if o.startswith("--")}
+    return found
+
+
+def joined_dash_values(words: Sequence[str], options: set[str]) -> list[str]:
+    """Join a long option of ``options`` and a value such as ``-1:40`` (``--landmarks=-1:40``).
 
     argparse takes a word that starts with a dash for an option unless it is a plain number,
     so ``--landmarks -1:40`` stopped at "expected one argument" (a trial); joined, the value
     reaches the option's own check, which says what is wrong with it. No option starts with
-    a dash and a digit, so nothing else is joined.
+    a dash and a digit; a flag that takes no value (``--strict``) is not joined.
     """
     out: list[str] = []
     for word in words:
         last = out[-1] if out else ""
-        if (
-            _DASH_VALUE.match(word)
-            and not _NUMBER.fullmatch(word)
-            and last.startswith("--")
-            and last != "--"
-            and "=" not in last
-        ):
+        if _DASH_VALUE.match(word) and not _NUMBER.fullmatch(word) and last in options:
             out[-1] = f"{last}={word}"
         else:
             out.append(word)
@@ -161,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         internal error.
     """
     parser = build_parser()
-    words = joined_dash_values(sys.argv[1:] if argv is None else argv)
+    words = joined_dash_values(sys.argv[1:] if argv is None else argv, _value_options(parser))
     try:
         args, extra = parser.parse_known_args(words)
         if extra:  # said by the parser they were given to: its name and its --help

@@ -212,6 +212,8 @@ def run(args: argparse.Namespace) -> int:
             what,
         )
     f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
+    # positions sent to the target are written in its own units, as a detail is
+    own_units = 1.0 if kind != "xyz" or pair.target_scale is None else 1.0 / pair.target_scale
     if args.pull_back or (closest and not args.via_basis):  # exact pull-back, no basis
         from ..workflows.pipeline import pull_back
 
@@ -227,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
                 g = texture.sample(given.faces_21, given.barycentric_21)
             else:
                 g = pull_back(f, given, pair.F1)
-        written = write_result(args.output, pair.own_target, g, kind, protect=inputs)
+        written = write_result(args.output, pair.own_target, own_units * g, kind, protect=inputs)
         report([f"{args.source} -> {args.target}: {'exact ' * closest}pull-back, map "
                 f"{_map_name(args, given)}", "wrote " + ", ".join(written)])  # fmt: skip
         return 0
@@ -241,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         # transfer's own word on a collapsing map would say it again
         with _said_already("the given map is doubtful"):
             g = transfer_function(f, eig_1, eig_2, p2p_21=corr.p2p_21, bases=(B1, B2))
-    written = write_result(args.output, pair.own_target, g, kind, protect=inputs)
+    written = write_result(args.output, pair.own_target, own_units * g, kind, protect=inputs)
     report(
         [
             f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map "
