@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import textwrap
 import time
@@ -168,10 +169,18 @@ def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool =
             seconds = time.perf_counter() - t0
             q = corr.quality
             label = "coarse copies" if corr.options.get("dense") else "direct"
-            # the second opinion's note: "... away on 1.2 % of the target's area ..."
-            second = [n.split(" away on ")[1].split(" of ")[0] for n in q.notes if " away on " in n]
-            flagged = any(r.startswith("the match on coarse copies") for r in q.reasons)
-            opinion = f"{second[0]}{' (flags it)' if flagged else ''}" if second else "-"
+            # the opinions' notes: "second opinion (...): ... images on 1.2 % of the target's
+            # area ..."; a third is asked when the second disagrees: its share against the
+            # first map, then (when it agrees with the second) against the second
+            shares: dict[str, list[str]] = {"second": [], "third": []}
+            for n in q.notes:
+                if m := re.match(r"(second|third) opinion .* on ([\d.]+ %) of the target", n):
+                    shares[m.group(1)].append(m.group(2))
+            flagged = any(r.startswith(("the match on coarse copies", "the matches on coarse"))
+                          for r in q.reasons)  # fmt: skip
+            opinion = "-" if not shares["second"] else shares["second"][0] + (
+                f", third {' / '.join(shares['third'])}" if shares["third"] else "") + (
+                " (flags it)" if flagged else "")  # fmt: skip
             print(
                 f"| {name} | {len(V1)} / {len(Vc)} | {label} | "
                 f"{error(V1, corr.p2p_21, orig, area):.4f} | {'suspect' if q.suspect else 'ok'} | "
