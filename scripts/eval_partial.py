@@ -1,7 +1,8 @@
 """Partial shapes: a target cut by a plane, matched onto the whole source (ground truth known).
 
     python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth
-                                   | --landmarks N [N ...] | --dense LEVEL [--direct] [--loop]]
+                                   | --landmarks N [N ...]
+                                   | --dense LEVEL [--direct] [--loop] [--resolutions N,N,...]]
 
 For each cut (a plane keeping 55-80 % of the target's area): the map error (mean distance
 between the matched and the true source vertex, divided by sqrt(source area)) of
@@ -34,7 +35,10 @@ copies, the map extended to every vertex, and checked by a second opinion on sma
 copies: the fraction of the target's area where the two disagree), with its whole time
 (eigenbases included); ``--direct`` also runs the direct match on full-resolution eigenbases
 (minutes per cut at 110k vertices); ``--loop`` subdivides by Loop's scheme instead (a smooth
-surface, as a scan's, where midpoint subdivision leaves flat triangles).
+surface, as a scan's, where midpoint subdivision leaves flat triangles); ``--resolutions``
+matches each cut on coarse copies of each of the given sizes instead, with no opinion, and
+prints each map's error and verdict and the share of the target's area on which each two of
+them are more than ``DISAGREEMENT`` apart (what the second and third opinions read).
 """
 
 from __future__ import annotations
@@ -141,6 +145,49 @@ def subdivided(rel: str, level: int, *, loop: bool = False) -> tuple[np.ndarray,
     return geometry_to_arrays(
         mesh.subdivide_loop(level) if loop else mesh.subdivide_midpoint(level)
     )
+
+
+def resolution_rows(
+    level: int, sizes: list[int], *, only: list[str] | None, loop: bool = False
+) -> None:
+    """Print the table of ``--resolutions``: each cut matched on coarse copies of each size."""
+    from o3d_ofp.workflows.partial import DISAGREEMENT, match_partial_arrays
+
+    print("| cut | coarse copies | error | verdict | apart |\n|---|---|---|---|---|")
+    shapes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, a, b, axis, side, fraction in CUTS:
+        if only and not any(o in name for o in only):
+            continue
+        for rel in (a, b):
+            if rel not in shapes:
+                shapes[rel] = subdivided(rel, level, loop=loop)
+        (V1, F1), (V2, F2) = shapes[a], shapes[b]
+        areas = _areas(V1, F1)
+        scale = float(np.sqrt(areas.sum()))
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        weight = np.bincount(Fc.ravel(), weights=np.repeat(_areas(Vc, Fc), 3), minlength=len(Vc))
+        weight /= weight.sum()
+        maps = {}
+        for n in sizes:
+            corr = match_partial_arrays(
+                V1, F1, Vc, Fc, second_opinion=False, coarse_vertices=n, warn_suspect=False,
+                dense_above=0,
+            )  # fmt: skip
+            maps[n] = corr.p2p_21
+            q = corr.quality
+            earlier = sizes[: sizes.index(n)]
+            far = [
+                np.linalg.norm(V1[maps[m]] - V1[corr.p2p_21], axis=1) > DISAGREEMENT * scale
+                for m in earlier
+            ]
+            apart = ", ".join(
+                f"{m}: {100 * float(weight @ f):.1f} %" for m, f in zip(earlier, far, strict=True)
+            )
+            print(
+                f"| {name} | {n} | {error(V1, corr.p2p_21, orig, scale**2):.4f} | "
+                f"{'suspect' if q.suspect else 'ok'} | {apart or '-'} |",
+                flush=True,
+            )
 
 
 def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool = False) -> None:
@@ -340,6 +387,11 @@ def main(argv: list[str] | None = None) -> int:
         "--loop", action="store_true", help="with --dense: Loop subdivision instead of midpoint"
     )
     parser.add_argument(
+        "--resolutions",
+        metavar="N,N,...",
+        help="with --dense: each cut on coarse copies of each of these sizes, no opinion",
+    )
+    parser.add_argument(
         "--robustness",
         action="store_true",
         help="only the cuts with the target rescaled by 3.5 %%, smoothed, or cut smaller",
@@ -372,13 +424,20 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--landmarks: counts must be >= 0; got {args.landmarks}")
         landmark_rows(args.landmarks, args.only)
         return 0
-    if args.loop and args.dense is None:
-        parser.error("--loop goes with --dense")
+    if (args.loop or args.resolutions) and args.dense is None:
+        parser.error("--loop and --resolutions go with --dense")
     if args.dense is not None:
         if args.dense < 0:
             parser.error(f"--dense: the subdivision level must be >= 0; got {args.dense}")
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
-        dense_rows(args.dense, only=args.only, direct=args.direct, loop=args.loop)
+        if args.resolutions:
+            try:
+                sizes = [int(n) for n in args.resolutions.split(",")]
+            except ValueError:
+                parser.error(f"--resolutions: sizes like 20000,14000,8000; got {args.resolutions}")
+            resolution_rows(args.dense, sizes, only=args.only, loop=args.loop)
+        else:
+            dense_rows(args.dense, only=args.only, direct=args.direct, loop=args.loop)
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return 0
     if args.robustness:

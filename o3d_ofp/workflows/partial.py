@@ -1171,8 +1171,9 @@ DISAGREEMENT = 0.1
 MAX_DISAGREEMENT = 0.1
 #: When the first map and the second opinion disagree, a third opinion on coarse copies of
 #: this fraction of the first's vertices (8 000 for the default 20 000) tells which of the two
-#: it agrees with. Measured (stop 37, ``python scripts/eval_partial.py --dense 2``, with and
-#: without ``--loop``: every cut matched on copies of 20 000, 14 000 and 8 000 vertices):
+#: it agrees with. Measured (stop 37, ``python scripts/eval_partial.py --dense 2
+#: --resolutions 20000,14000,8000``, with and without ``--loop``: every cut matched on copies
+#: of 20 000, 14 000 and 8 000 vertices):
 #: of the 16 maps, the two opinions disagreed on 7; where the first passed its own checks
 #: (4), the third agreed with the right one each time (the first twice: false alarms of the
 #: second opinion, now lifted; the second once, a wrong first map replaced by the second
