@@ -1242,7 +1242,8 @@ def match_partial_arrays(
     Correspondence
         ``method="partial"``; on the dense path ``fmap_12`` is ``None`` (the map lives between
         the coarse bases) and the quality is the coarse map's, with the full map's coverage
-        and landmark check (and the second opinion's verdict).
+        and landmark check (and the opinions' verdicts, in its notes; when the third opinion
+        agrees with the second, the map and its quality are the second opinion's, flagged).
     """
     for name, F in (("source", faces_1), ("target", faces_2)):
         if F is None:
