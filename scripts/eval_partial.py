@@ -147,13 +147,11 @@ def subdivided(rel: str, level: int, *, loop: bool = False) -> tuple[np.ndarray,
     )
 
 
-def resolution_rows(
-    level: int, sizes: list[int], *, only: list[str] | None, loop: bool = False
-) -> None:
-    """Print the table of ``--resolutions``: each cut matched on coarse copies of each size."""
-    from o3d_ofp.workflows.partial import DISAGREEMENT, match_partial_arrays
+def _dense_cuts(level: int, *, only: list[str] | None, loop: bool):
+    """Yield (name, V1, F1, Vc, Fc, truth) of each cut, both shapes subdivided ``level`` times.
 
-    print("| cut | coarse copies | error | verdict | apart |\n|---|---|---|---|---|")
+    Each mesh is subdivided once (shapes shared by several cuts are kept).
+    """
     shapes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name, a, b, axis, side, fraction in CUTS:
         if only and not any(o in name for o in only):
@@ -162,9 +160,19 @@ def resolution_rows(
             if rel not in shapes:
                 shapes[rel] = subdivided(rel, level, loop=loop)
         (V1, F1), (V2, F2) = shapes[a], shapes[b]
-        areas = _areas(V1, F1)
-        scale = float(np.sqrt(areas.sum()))
         Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        yield name, V1, F1, Vc, Fc, orig
+
+
+def resolution_rows(
+    level: int, sizes: list[int], *, only: list[str] | None, loop: bool = False
+) -> None:
+    """Print the table of ``--resolutions``: each cut matched on coarse copies of each size."""
+    from o3d_ofp.workflows.partial import DISAGREEMENT, match_partial_arrays
+
+    print("| cut | coarse copies | error | verdict | apart |\n|---|---|---|---|---|")
+    for name, V1, F1, Vc, Fc, orig in _dense_cuts(level, only=only, loop=loop):
+        scale = float(np.sqrt(_areas(V1, F1).sum()))
         weight = np.bincount(Fc.ravel(), weights=np.repeat(_areas(Vc, Fc), 3), minlength=len(Vc))
         weight /= weight.sum()
         maps = {}
@@ -199,16 +207,8 @@ def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool =
         "| cut | vertices (source / target) | path | error | verdict | second opinion "
         "| overlap | s |\n|---|---|---|---|---|---|---|---|"
     )
-    shapes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for name, a, b, axis, side, fraction in CUTS:
-        if only and not any(o in name for o in only):
-            continue
-        for rel in (a, b):
-            if rel not in shapes:
-                shapes[rel] = subdivided(rel, level, loop=loop)
-        (V1, F1), (V2, F2) = shapes[a], shapes[b]
+    for name, V1, F1, Vc, Fc, orig in _dense_cuts(level, only=only, loop=loop):
         area = float(_areas(V1, F1).sum())
-        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
         dense = max(len(V1), len(Vc)) > DENSE_VERTICES
         for dense_above in [None] + ([10**12] if direct and dense else []):
             t0 = time.perf_counter()
