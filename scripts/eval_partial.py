@@ -1,7 +1,7 @@
 """Partial shapes: a target cut by a plane, matched onto the whole source (ground truth known).
 
     python scripts/eval_partial.py [--only NAME ...] [--remeshed | --robustness | --from-truth
-                                   | --landmarks N [N ...]
+                                   | --baseline | --landmarks N [N ...]
                                    | --dense LEVEL [--direct] [--loop] [--resolutions N,N,...]]
 
 For each cut (a plane keeping 55-80 % of the target's area): the map error (mean distance
@@ -24,6 +24,8 @@ the largest piece is kept, which can be smaller still).
 With ``--from-truth``, instead, the refinements alone from each cut's true map: the partial
 ZoomOut (from the true map's restriction at 29 target functions to the match's final size)
 and the polish (``partial_polish``) of its map and of the true map.
+With ``--baseline``, instead, each cut's error for a partial functional map fit alone (the
+method of Rodolà et al. 2017, one fit), the same grown by a partial ZoomOut, and ours.
 With ``--landmarks N [N ...]``, instead, each cut matched with N known pairs (the true
 source vertices of N farthest-point target vertices; 0: none): the error, the verdict and the
 landmarks' own offsets in the map (how far each landmark's target vertex lands from its given
@@ -338,6 +340,50 @@ def truth_rows(only: list[str] | None) -> None:
         print(f"| {name} | {cells} |", flush=True)
 
 
+def baseline_rows(only: list[str] | None) -> None:
+    """Print each cut's error for a partial functional map fit alone, with ZoomOut, and ours.
+
+    The fit is the one the issue names (Rodolà et al., "Partial Functional Correspondence",
+    CGF 2017: the restriction map's slanted diagonal from the area ratio, descriptors, the
+    Laplacian and orientation terms; here with our descriptors and without their alternating
+    update of the part's indicator function, which the point map reads off instead), one
+    L-BFGS fit of FIT_K (29) target functions without the descriptor-commutativity term, read
+    off as a point map; then grown by the partial ZoomOut to the match's final size; then
+    ``ofp.match(..., partial=True)`` (its ten starts, ranking, geodesic refinement, checks,
+    polish). Seconds given both eigenbases.
+    """
+    from o3d_ofp.core.partial import fit_partial_fmap, partial_p2p, partial_zoomout, rescaled
+    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
+    from o3d_ofp.workflows.partial import _final_target_size
+
+    print(
+        "| cut | fit alone | s | fit + partial ZoomOut | s | ofp.match(partial=True) | verdict "
+        "| s |\n|---|---|---|---|---|---|---|---|"
+    )
+    for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
+        u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+        t0 = time.perf_counter()
+        (C,) = fit_partial_fmap(u1, u2, k2=FIT_K, w_dcomm=(0.0,))
+        fitted = partial_p2p(C, u1, u2)
+        t1 = time.perf_counter()
+        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=ESTIMATION_K)
+        zoomed = partial_p2p(partial_zoomout(C, u1, u2, k2_final=k2_final), u1, u2)
+        t2 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the verdict is in the table
+            part = ofp.match((V1, F1), (Vc, Fc), partial=True, eigenbases=(e1, ec))
+        t3 = time.perf_counter()
+        print(
+            f"| {name} | {error(V1, fitted, orig, e1.area):.4f} | {t1 - t0:.1f} | "
+            f"{error(V1, zoomed, orig, e1.area):.4f} | {t2 - t0:.1f} | "
+            f"{error(V1, part.p2p_21, orig, e1.area):.4f} | "
+            f"{'suspect' if part.quality.suspect else 'ok'} | {t3 - t2:.1f} |",
+            flush=True,
+        )
+
+
 def landmark_rows(counts: list[int], only: list[str] | None) -> None:
     """Print the table of ``--landmarks``: every cut with N true landmarks, for each N."""
     from o3d_ofp.core.fmap import farthest_points
@@ -402,6 +448,11 @@ def main(argv: list[str] | None = None) -> int:
         help="only the refinements (partial ZoomOut, polish) from each cut's true map",
     )
     parser.add_argument(
+        "--baseline",
+        action="store_true",
+        help="only the cuts: a partial functional map fit alone, with ZoomOut, and ours",
+    )
+    parser.add_argument(
         "--landmarks",
         type=int,
         nargs="+",
@@ -416,6 +467,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.remeshed or args.robustness or args.dense is not None or args.landmarks:
             parser.error("--from-truth runs alone (with --only)")
         truth_rows(args.only)
+        return 0
+    if args.baseline:
+        if args.remeshed or args.robustness or args.dense is not None or args.landmarks:
+            parser.error("--baseline runs alone (with --only)")
+        print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (start)")
+        baseline_rows(args.only)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return 0
     if args.landmarks is not None:
         if args.remeshed or args.robustness or args.dense is not None:
