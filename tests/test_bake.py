@@ -576,3 +576,47 @@ def test_texture_functions_read_file_paths_like_the_other_transfers(spot, decima
     )
     with pytest.raises(ValueError, match=r"^target: .*nothing\.obj"):
         transfer_texture(source, tmp_path / "nothing.obj", correspondence=corr)
+
+
+def test_transfer_colors_takes_the_image_of_a_source_whose_image_was_not_loaded(spot, decimated):
+    """A trial: the error for a source with UVs and no image said texture=, which it lacked."""
+    import o3d_ofp as ofp
+
+    mesh, image, obj = spot
+    bare = o3d.geometry.TriangleMesh(mesh)  # UVs, no image (an OBJ without its material)
+    bare.textures = []
+    bare.triangle_material_ids = o3d.utility.IntVector()
+    closest = ofp.match(mesh, decimated, method="closest")
+    with pytest.raises(ValueError, match="no texture image was loaded"):
+        ofp.transfer_colors(bare, decimated, correspondence=closest)
+    own = ofp.transfer_colors(mesh, decimated, correspondence=closest)
+    expected = np.asarray(own.vertex_colors)
+    png = obj.parent / "spot_texture.png"
+    for texture in (png, str(png), image):
+        out = ofp.transfer_colors(bare, decimated, correspondence=closest, texture=texture)
+        np.testing.assert_allclose(np.asarray(out.vertex_colors), expected, atol=1e-12)
+    assert not bare.has_textures()  # the input is not modified
+    with pytest.raises(TypeError, match="texture= is the image of a source mesh with UVs"):
+        ofp.transfer_colors(
+            o3d.geometry.PointCloud(mesh.vertices), decimated, p2p_21=np.zeros(
+                len(decimated.vertices), dtype=np.int64), texture=image,
+        )  # fmt: skip
+
+
+def test_transfer_texture_refuses_another_pairs_map_before_making_an_atlas(spot, monkeypatch):
+    """A trial's map of another pair was refused after the target's UV atlas (seconds)."""
+    import o3d_ofp as ofp
+    from o3d_ofp.boundary import bake
+
+    def no_atlas(*args, **kwargs):
+        raise AssertionError("the atlas was made before the map was checked")
+
+    monkeypatch.setattr(bake, "with_uv_atlas", no_atlas)
+    mesh = spot[0]
+    plain = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)  # no UVs: atlas=True
+    n = len(mesh.vertices)
+    other = Correspondence(p2p_21=np.zeros(n - 3, dtype=np.int64), n_source=n)
+    with pytest.raises(ValueError, match="it belongs to other shapes"):
+        ofp.transfer_texture(mesh, plain, correspondence=other, atlas=True)
+    with pytest.raises(ValueError, match="p2p_21 has 7 entries"):
+        ofp.transfer_texture(mesh, plain, p2p_21=np.zeros(7, dtype=np.int64), atlas=True)

@@ -576,9 +576,14 @@ def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
         ofp.transfer_colors(mesh, target, p2p_21=np.arange(len(V)), via_basis=False,
                             preset="ours*")  # fmt: skip
     # arrays and bases are named by their kind, not printed (a review: a 20 kB message)
+    big = np.zeros((5000, 2), dtype=np.int64)
     with pytest.raises(ValueError) as info:
-        ofp.transfer_colors(mesh, target, correspondence=closest, fmap_12=np.zeros((30, 40)))
-    assert "fmap_12=<ndarray> does not apply" in str(info.value) and len(str(info.value)) < 400
+        ofp.transfer_colors(mesh, target, correspondence=closest, landmarks=big)
+    assert "landmarks=<ndarray> does not apply" in str(info.value) and len(str(info.value)) < 400
+    # a second map beside the closest one is refused, not ignored (a trial's reversed p2p_21)
+    for other in ({"p2p_21": np.arange(len(V))[::-1].copy()}, {"fmap_12": np.zeros((30, 40))}):
+        with pytest.raises(ValueError, match="give at most one of correspondence, p2p_21"):
+            ofp.transfer_colors(mesh, target, correspondence=closest, **other)
     # The defaults, given or not (numpy integers too), are the exact pull-back's.
     for options in ({}, {"k1": 29, "order": np.int64(2), "preset": "ours"}):
         out = ofp.transfer_colors(mesh, target, correspondence=closest, **options)
@@ -622,3 +627,60 @@ def test_an_obj_is_read_with_its_vertices_in_the_order_of_its_v_lines(tmp_path):
     first, second = ([x for x in f.read_text().splitlines() if x.startswith("v ")]
                      for f in (path, tmp_path / "c.obj"))  # fmt: skip
     assert first == second
+
+
+def _no_eigensolve(monkeypatch):
+    """Make every eigensolve of a transfer fail, so an error raised first is raised before it."""
+    from o3d_ofp.workflows import pipeline
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("an eigenbasis was computed before the bad input was refused")
+
+    monkeypatch.setattr(pipeline, "_eigenbases", refuse)
+    monkeypatch.setattr(pipeline, "estimate_for_transfer", refuse)
+
+
+def test_transfers_refuse_a_bad_map_or_bad_colors_before_any_eigensolve(monkeypatch):
+    """A trial's p2p_21 of 100 entries (and NaN colors) were refused after both eigenbases."""
+    V, F = icosphere(2)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    colors = np.random.default_rng(2).random((len(V), 3))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
+    target = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)
+    before = np.asarray(mesh.vertex_colors).copy()
+    _no_eigensolve(monkeypatch)
+    n = len(V)
+    bad_maps = [
+        (np.arange(100), ValueError, "p2p_21 has 100 entries but the target has"),
+        (np.arange(n) + 5, ValueError, r"source vertex indices in \[0, "),
+        (np.zeros(n), TypeError, "1-D integer array"),
+    ]
+    for p2p, kind, message in bad_maps:
+        for transfer in (ofp.transfer_colors, ofp.transfer_detail):
+            with pytest.raises(kind, match=message):
+                transfer(mesh, target, p2p_21=p2p)
+    other = ofp.Correspondence(p2p_21=np.zeros(n - 1, dtype=np.int64), n_source=n)
+    with pytest.raises(ValueError, match=f"but the target has {n} and the source {n}"):
+        ofp.transfer_colors(mesh, target, correspondence=other)
+    with_nan = o3d.geometry.TriangleMesh(mesh)
+    nan_colors = colors.copy()
+    nan_colors[5] = np.nan
+    with_nan.vertex_colors = o3d.utility.Vector3dVector(nan_colors)
+    with pytest.raises(ValueError, match="the source's vertex color array holds NaN"):
+        ofp.transfer_colors(with_nan, target)
+    few = o3d.geometry.TriangleMesh(mesh)
+    few.vertex_colors = o3d.utility.Vector3dVector(colors[:100])  # Open3D: "no colors"
+    with pytest.raises(ValueError, match=f"source: the geometry has 100 colors for its {n} vert"):
+        ofp.transfer_colors(few, target)
+    np.testing.assert_array_equal(np.asarray(mesh.vertex_colors), before)
+
+
+def test_shapes_that_are_no_shapes_and_meshes_given_as_bases_are_named():
+    """A trial's match(5, target) said "vertices must have shape (n, 3); got ()"."""
+    V, F = icosphere(1)
+    for wrong in (5, None, {"v": V}):
+        with pytest.raises(TypeError, match=r"source must be an Open3D TriangleMesh or Point"):
+            ofp.match(wrong, (V, F))
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    with pytest.raises(TypeError, match=r"eig_1 must be an EigenBasis .*transfer_colors"):
+        ofp.transfer_function(V[:, 0], mesh, mesh, p2p_21=np.arange(len(V)))

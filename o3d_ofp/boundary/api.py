@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core import spectrum
-from ..core._validation import check_int
+from ..core._validation import as_signal, check_int
 from ..core._warnings import warn
 from ..core.basis import OFPBasis, check_basis_options, ofp_basis
 from ..core.correspondence import p2p_from_fmap
@@ -55,6 +55,7 @@ from ..workflows.pipeline import (
 )
 from .closest import closest_correspondence
 from .convert import (
+    geometry_kind,
     geometry_to_arrays,
     is_open3d_geometry,
     like_target,
@@ -108,6 +109,12 @@ def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[An
         if faces is not None:
             raise ValueError(f"faces must be None when {name} is a (vertices, faces) tuple")
         shape, faces = shape
+    if shape is None or (np.ndim(shape) == 0 and not isinstance(shape, np.ndarray)):
+        # a number or another object, not a shape (said by name, not as "shape ()")
+        raise TypeError(
+            f"{name} must be an Open3D TriangleMesh or PointCloud, a file path, a (vertices, "
+            f"faces) tuple or an (n, 3) array of vertices; got {type(shape).__name__}"
+        )
     return spectrum.input_arrays(shape, faces)
 
 
@@ -435,6 +442,7 @@ def transfer_colors(
     bases: tuple[Any, Any] | None = None,
     components: str = "auto",
     partial: bool = False,
+    texture: Any = None,
 ) -> Any:
     """Transfer vertex colors from one Open3D geometry to another.
 
@@ -481,6 +489,11 @@ def transfer_colors(
         The target is a part of the source (a one-sided scan, a cut) in the same units: the
         map estimated here is a partial one, as :func:`match` with ``partial=True`` makes it
         (both shapes triangle meshes; refused with a given map, which is used as it is).
+    texture : str, os.PathLike, (H, W[, C]) ndarray or Open3D image, optional
+        The source's texture image (rows top-down, as in an image file), for a source mesh
+        with UVs whose image was not loaded (no material file next to it); when given, the
+        colors transferred are this image's, read through the source's UVs, even where the
+        source has vertex colors. Default: the source's vertex colors, else its own texture.
 
     Returns
     -------
@@ -501,13 +514,25 @@ def transfer_colors(
     source, target = read_if_path(source, "source"), read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
-    f = vertex_colors(source) if is_open3d_geometry(source) else None
-    texture = None
-    if f is None and is_open3d_geometry(source) and has_uvs(source):
-        texture = mesh_texture(source)  # its colors (a ValueError names a missing image)
-        f = texture.vertex_colors()
-        logger.info("transfer_colors: the source has a texture and no vertex colors: its "
-                    "texture's colors are transferred")  # fmt: skip
+    try:
+        f = vertex_colors(source) if is_open3d_geometry(source) else None
+    except ValueError as exc:  # colors that are not one per vertex
+        raise ValueError(f"source: {exc}") from None
+    meshes = ("legacy_mesh", "tensor_mesh")
+    if texture is not None and not (is_open3d_geometry(source) and geometry_kind(source) in meshes):
+        raise TypeError(
+            "texture= is the image of a source mesh with UVs; the source is a "
+            f"{type(source).__name__}"
+        )
+    surface = None  # the source's texture, when its colors come from it
+    if is_open3d_geometry(source) and (texture is not None or (f is None and has_uvs(source))):
+        # its colors (a ValueError names missing UVs or a missing image)
+        surface = mesh_texture(source, texture)
+        f = surface.vertex_colors()
+        logger.info(
+            "transfer_colors: the colors of the source's %s are transferred",
+            "texture (texture=)" if texture is not None else "texture (it has no vertex colors)",
+        )
     if f is None and not is_open3d_geometry(source):
         raise TypeError(
             f"transfer_colors needs an Open3D geometry (or a file) as source, to read its "
@@ -519,8 +544,13 @@ def transfer_colors(
             "the source has neither vertex colors nor a texture to transfer (for another "
             "signal, the array-level o3d_ofp.transfer_function)"
         )
+    # NaN colors (an in-memory mesh's) are refused here, before any eigensolve, by their name.
+    what = "texture color" if surface is not None else "vertex color"
+    f = as_signal(f, V1.shape[0], name=f"the source's {what} array")
     closest = check_correspondence(correspondence) is not None
     closest = closest and correspondence.method == "closest"
+    if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:  # on every path
+        raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
     known = any(x is not None for x in (correspondence, p2p_21, fmap_12))
     exact = via_basis is False or (via_basis is None and closest)
     if exact:  # (the transfer through the bases checks it in prepare_transfer)
@@ -554,9 +584,9 @@ def transfer_colors(
             correspondence = Correspondence(p2p_21=p2p_21, n_source=V1.shape[0])
         correspondence.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
         logger.info("transfer_colors: exact pull-back through the %s map", correspondence.method)
-        if texture is not None and correspondence.barycentric_21 is not None:
+        if surface is not None and correspondence.barycentric_21 is not None:
             # the texture at each target vertex's point on the source surface
-            g = texture.sample(correspondence.faces_21, correspondence.barycentric_21)
+            g = surface.sample(correspondence.faces_21, correspondence.barycentric_21)
         else:
             g = pull_back(f, correspondence, F1)
         return like_target(target, colors=np.clip(g, 0.0, 1.0))

@@ -491,6 +491,14 @@ def transfer_texture(
     if partial is not False:  # (the target's arrays only for a partial estimate)
         known = correspondence is not None or p2p_21 is not None
         check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
+    if correspondence is not None or p2p_21 is not None:  # before an atlas (seconds of work)
+        if correspondence is not None and p2p_21 is not None:
+            raise ValueError("give either correspondence or p2p_21, not both")
+        n1, n2 = src.vertices.shape[0], geometry_to_arrays(target)[0].shape[0]
+        if check_correspondence(correspondence) is not None:
+            correspondence.check(n1, n2)  # the counts (the shapes are compared when it is used)
+        else:
+            check_p2p(p2p_21, n2, n1)
     if not has_uvs(target):
         if not atlas:
             raise ValueError(

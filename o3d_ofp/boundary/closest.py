@@ -864,9 +864,10 @@ def closest_correspondence(
     if mean_rel > MAX_MEAN_DISTANCE:
         after = " even after ICP (align=True, --align)" if align else ""
         reasons.append(
-            f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} of "
-            f"the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point map "
-            f"(--map closest) is only for shapes in the same place: {_units(V2, diag) or retry}"
+            f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} "
+            f"times the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point "
+            f"map (--map closest) is only for shapes in the same place: "
+            f"{_units(V2, diag) or retry}"
             "otherwise use the spectral estimate (--map estimate)"
         )
     misaligned: list[str] = []
@@ -940,7 +941,7 @@ def closest_correspondence(
     else:
         reasons.extend([*misaligned, *crowded])
     notes.append(
-        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} of the source's "
+        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} times the source's "
         "bounding-box diagonal"
     )
     if MEAN_DISTANCE_NOTE < mean_rel <= MAX_MEAN_DISTANCE:
@@ -978,7 +979,7 @@ def closest_correspondence(
     seconds = time.perf_counter() - t0
     logger.info(
         "closest map: %d target vertices onto %d source vertices in %.2f s, mean distance "
-        "%.3g of the diagonal",
+        "%.3g times the diagonal",
         n2,
         n1,
         seconds,

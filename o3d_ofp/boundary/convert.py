@@ -165,14 +165,19 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
         Colors in [0, 1], or ``None`` when the geometry has none.
     """
     kind = geometry_kind(geometry)
-    if kind == "legacy_mesh":
-        colors = (
-            np.array(geometry.vertex_colors, dtype=np.float64)
-            if geometry.has_vertex_colors()
-            else None
-        )
-    elif kind == "legacy_cloud":
-        colors = np.array(geometry.colors, dtype=np.float64) if geometry.has_colors() else None
+    if kind in ("legacy_mesh", "legacy_cloud"):
+        # Open3D's has_vertex_colors() / has_colors() are False when the colors are not one
+        # per vertex: such colors are said, not taken for none (a trial's 100 colors on a
+        # 6890-vertex mesh were "neither vertex colors nor a texture").
+        mesh = kind == "legacy_mesh"
+        colors = np.array(geometry.vertex_colors if mesh else geometry.colors, dtype=np.float64)
+        n = len(geometry.vertices if mesh else geometry.points)
+        if colors.size and colors.shape[0] != n:
+            raise ValueError(
+                f"the geometry has {colors.shape[0]} colors for its {n} "
+                f"{'vertices' if mesh else 'points'}: give one color per "
+                f"{'vertex' if mesh else 'point'} (or none)"
+            )
     else:
         attrs = geometry.vertex if kind == "tensor_mesh" else geometry.point
         colors = _tensor_attr(attrs, "colors")

@@ -441,7 +441,7 @@ def write_geometry(
         shutil.rmtree(tmpdir, ignore_errors=True)
 
 
-class _MissingFile(FileNotFoundError, ValueError):
+class MissingFileError(FileNotFoundError, ValueError):
     """A file path given for a shape names no file: both errors, as callers catch either."""
 
 
@@ -449,13 +449,13 @@ def read_if_path(shape: Any, name: str) -> Any:
     """Return the geometry read from ``shape`` if it is a file path (str or PathLike), else it.
 
     ``name`` (e.g. "source") starts the message of the error for a file that cannot be read: a
-    ValueError, which for a missing file is a FileNotFoundError too (:class:`_MissingFile`).
+    ValueError, which for a missing file is a FileNotFoundError too (:class:`MissingFileError`).
     """
     if isinstance(shape, (str, os.PathLike)):
         try:
             return read_geometry(shape)
         except FileNotFoundError as exc:
-            raise _MissingFile(f"{name}: {exc}") from exc
+            raise MissingFileError(f"{name}: {exc}") from exc
         except (OSError, ValueError) as exc:
             raise ValueError(f"{name}: {exc}") from exc
     return shape

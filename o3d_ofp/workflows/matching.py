@@ -767,7 +767,8 @@ class Correspondence:
         if (self.n_source, self.n_target) != (n_source, n_target):
             raise ValueError(
                 f"{name} maps {self.n_target} target vertices to {self.n_source} source "
-                f"vertices, but the shapes have {n_target} and {n_source}: it belongs to "
+                f"vertices, but the target has {n_target} and the source {n_source}: it "
+                "belongs to "
                 "other shapes, or to these read otherwise (a map saved by o3d-ofp indexes the "
                 "vertices as o3d_ofp.read_geometry reads them; Open3D's reader with "
                 "enable_post_processing=True splits an OBJ's vertices, along its UV seams or at "

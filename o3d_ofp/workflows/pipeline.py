@@ -210,6 +210,13 @@ def transfer_function(
         The transferred signal.
     """
     check_method(method)
+    for eig, name in ((eig_1, "eig_1"), (eig_2, "eig_2")):
+        if not isinstance(eig, EigenBasis):  # a mesh given here: where its basis comes from
+            raise TypeError(
+                f"{name} must be an EigenBasis (from o3d_ofp.eigenbasis(mesh)); got "
+                f"{type(eig).__name__} (for the colors of Open3D geometries, "
+                "o3d_ofp.transfer_colors)"
+            )
     f = as_signal(f_1, eig_1.n_vertices, name="f_1")
     B_1, B_2 = bases if bases is not None else _bases(eig_1, eig_2, k1, k2, order, tol, preset)
     if sum(x is not None for x in (correspondence, p2p_21, fmap_12)) > 1:
@@ -367,7 +374,13 @@ def prepare_transfer(
     given = sum(x is not None for x in (correspondence, p2p_21, fmap_12))
     if given > 1:  # before any eigensolve
         raise ValueError("give at most one of correspondence, p2p_21 and fmap_12")
-    check_correspondence(correspondence)
+    # A map of the wrong size is refused before any eigensolve too (a trial's p2p_21 of 100
+    # entries was refused after both eigenbases: minutes on a large scan); the shapes it was
+    # made for are compared once, where it is used (transfer_function).
+    if check_correspondence(correspondence) is not None:
+        correspondence.check(V1.shape[0], V2.shape[0])
+    if p2p_21 is not None:
+        check_p2p(p2p_21, V2.shape[0], V1.shape[0])
     if bases is None:  # the OFP bases' sizes, named as the caller gave them
         k1 = check_int(k1, name="k1", minimum=1, maximum=max(1, V1.shape[0] - 2))
         k2 = check_int(k2, name="k2", minimum=1, maximum=max(1, V2.shape[0] - 2))
