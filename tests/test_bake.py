@@ -596,6 +596,25 @@ def test_transfer_colors_takes_the_image_of_a_source_whose_image_was_not_loaded(
         out = ofp.transfer_colors(bare, decimated, correspondence=closest, texture=texture)
         np.testing.assert_allclose(np.asarray(out.vertex_colors), expected, atol=1e-12)
     assert not bare.has_textures()  # the input is not modified
+    # texture= is what is transferred, even where the source has vertex colors
+    colored = o3d.geometry.TriangleMesh(bare)
+    colored.paint_uniform_color([0.2, 0.9, 0.1])
+    out = ofp.transfer_colors(colored, decimated, correspondence=closest, texture=png)
+    np.testing.assert_allclose(np.asarray(out.vertex_colors), expected, atol=1e-12)
+    # the texture sampled at each target vertex's closest point, not the vertex colors of the
+    # texture (which a pull-back through p2p_21 alone would give)
+    by_vertex = ofp.transfer_colors(
+        bare, decimated, p2p_21=closest.p2p_21, via_basis=False, texture=png
+    )
+    assert np.abs(np.asarray(by_vertex.vertex_colors) - expected).max() > 0.05
+    # a few stray vertex colors (which Open3D ignores) do not hide the source's own texture
+    stray = o3d.geometry.TriangleMesh(mesh)
+    stray.vertex_colors = o3d.utility.Vector3dVector(np.zeros((10, 3)))
+    out = ofp.transfer_colors(stray, decimated, correspondence=closest)
+    np.testing.assert_allclose(np.asarray(out.vertex_colors), expected, atol=1e-12)
+    with pytest.raises(ValueError, match="texture= is the image of a source mesh with UVs, and"):
+        plain = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)
+        ofp.transfer_colors(plain, decimated, correspondence=closest, texture=png)
     with pytest.raises(TypeError, match="texture= is the image of a source mesh with UVs"):
         ofp.transfer_colors(
             o3d.geometry.PointCloud(mesh.vertices), decimated, p2p_21=np.zeros(

@@ -670,7 +670,7 @@ def test_transfers_refuse_a_bad_map_or_bad_colors_before_any_eigensolve(monkeypa
         ofp.transfer_colors(with_nan, target)
     few = o3d.geometry.TriangleMesh(mesh)
     few.vertex_colors = o3d.utility.Vector3dVector(colors[:100])  # Open3D: "no colors"
-    with pytest.raises(ValueError, match=f"source: the geometry has 100 colors for its {n} vert"):
+    with pytest.raises(ValueError, match=f"not one per vertex: it has 100 colors for its {n} vert"):
         ofp.transfer_colors(few, target)
     np.testing.assert_array_equal(np.asarray(mesh.vertex_colors), before)
 

@@ -60,6 +60,7 @@ from .convert import (
     is_open3d_geometry,
     like_target,
     point_normals,
+    stray_colors,
     vertex_colors,
 )
 from .io import read_if_path
@@ -514,15 +515,17 @@ def transfer_colors(
     source, target = read_if_path(source, "source"), read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
-    try:
-        f = vertex_colors(source) if is_open3d_geometry(source) else None
-    except ValueError as exc:  # colors that are not one per vertex
-        raise ValueError(f"source: {exc}") from None
+    f = vertex_colors(source) if is_open3d_geometry(source) else None
     meshes = ("legacy_mesh", "tensor_mesh")
     if texture is not None and not (is_open3d_geometry(source) and geometry_kind(source) in meshes):
         raise TypeError(
             "texture= is the image of a source mesh with UVs; the source is a "
             f"{type(source).__name__}"
+        )
+    if texture is not None and not has_uvs(source):
+        raise ValueError(
+            "texture= is the image of a source mesh with UVs, and the source has no texture "
+            "coordinates (for its vertex colors, leave texture= out)"
         )
     surface = None  # the source's texture, when its colors come from it
     if is_open3d_geometry(source) and (texture is not None or (f is None and has_uvs(source))):
@@ -540,6 +543,12 @@ def transfer_colors(
             "array-level o3d_ofp.transfer_function)"
         )
     if f is None:
+        stray = stray_colors(source)  # Open3D takes them for none (a trial's 100 colors)
+        if stray is not None:
+            raise ValueError(
+                f"the source's vertex colors are not one per vertex: {stray}; give one color "
+                "per vertex (Open3D ignores them otherwise)"
+            )
         raise ValueError(
             "the source has neither vertex colors nor a texture to transfer (for another "
             "signal, the array-level o3d_ofp.transfer_function)"

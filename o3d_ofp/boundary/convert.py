@@ -151,6 +151,23 @@ def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
     return vertices, faces
 
 
+def stray_colors(geometry: Any) -> str | None:
+    """Say when a legacy geometry's colors are not one per vertex (Open3D then ignores them).
+
+    Returns a sentence for an error message (e.g. "it has 100 colors for its 6890 vertices"),
+    or None when its colors are one per vertex or absent (a tensor geometry's attributes are).
+    """
+    kind = geometry_kind(geometry)
+    if kind not in ("legacy_mesh", "legacy_cloud"):
+        return None
+    mesh = kind == "legacy_mesh"
+    count = len(geometry.vertex_colors if mesh else geometry.colors)
+    n = len(geometry.vertices if mesh else geometry.points)
+    if count == 0 or count == n:
+        return None
+    return f"it has {count} colors for its {n} {'vertices' if mesh else 'points'}"
+
+
 def vertex_colors(geometry: Any) -> np.ndarray | None:
     """Copy the per-vertex (per-point) RGB colors of an Open3D geometry.
 
@@ -165,19 +182,14 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
         Colors in [0, 1], or ``None`` when the geometry has none.
     """
     kind = geometry_kind(geometry)
-    if kind in ("legacy_mesh", "legacy_cloud"):
-        # Open3D's has_vertex_colors() / has_colors() are False when the colors are not one
-        # per vertex: such colors are said, not taken for none (a trial's 100 colors on a
-        # 6890-vertex mesh were "neither vertex colors nor a texture").
-        mesh = kind == "legacy_mesh"
-        colors = np.array(geometry.vertex_colors if mesh else geometry.colors, dtype=np.float64)
-        n = len(geometry.vertices if mesh else geometry.points)
-        if colors.size and colors.shape[0] != n:
-            raise ValueError(
-                f"the geometry has {colors.shape[0]} colors for its {n} "
-                f"{'vertices' if mesh else 'points'}: give one color per "
-                f"{'vertex' if mesh else 'point'} (or none)"
-            )
+    if kind == "legacy_mesh":
+        colors = (
+            np.array(geometry.vertex_colors, dtype=np.float64)
+            if geometry.has_vertex_colors()  # False too when they are not one per vertex
+            else None
+        )
+    elif kind == "legacy_cloud":
+        colors = np.array(geometry.colors, dtype=np.float64) if geometry.has_colors() else None
     else:
         attrs = geometry.vertex if kind == "tensor_mesh" else geometry.point
         colors = _tensor_attr(attrs, "colors")
