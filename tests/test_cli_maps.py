@@ -127,6 +127,40 @@ def test_read_only_output_folder_is_refused_before_the_work(shapes, tmp_path, ca
     assert "--save-map" in _err(capsys) and not os.path.exists(tmp_path / "a.ply")
 
 
+def test_a_folder_that_refuses_files_is_named_before_the_work(shapes, tmp_path, capsys,
+                                                              monkeypatch):  # fmt: skip
+    """A folder where no file can be made is refused before the work, by its flag.
+
+    A trial's "-o /sys/x.ply" (as root: permission bits do not stop it, the file system does)
+    failed after the work with exit 2, naming a temporary file.
+    """
+    import tempfile
+
+    from o3d_ofp.cli import _common
+    from o3d_ofp.core import _atomic
+
+    _d, p, *_ = shapes
+    real = tempfile.mkstemp
+    refused = str(tmp_path / "refuses")
+    os.mkdir(refused)
+
+    def mkstemp(*args, dir=None, **kwargs):
+        if dir is not None and os.path.abspath(dir) == refused:
+            raise PermissionError(1, "Operation not permitted", os.path.join(dir, ".tmp"))
+        return real(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(_common.tempfile, "mkstemp", mkstemp)
+    out = os.path.join(refused, "a.ply")
+    assert main(["transfer", p["src"], p["same"], "--map", "identity", "-o", out]) == 2
+    err = _err(capsys)
+    assert f"-o {out}: the folder {refused} cannot be written (Operation not permitted)" in err
+    assert ".tmp" not in err and os.listdir(refused) == []
+    # A file that cannot be made during the run (the folder's check passed) is named itself.
+    with pytest.raises(PermissionError) as info, _atomic.atomic_path(out):
+        pass
+    assert info.value.filename == out
+
+
 def test_cloud_source_with_the_closest_map_copies_the_colors(shapes, tmp_path, capsys):
     _d, p, V, F, colors = shapes
     out = tmp_path / "a.ply"

@@ -15,6 +15,7 @@ import math
 import os
 import re
 import sys
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -280,6 +281,17 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
             f"{flag} {path}: the folder {folder} cannot be written (read-only or no "
             f"permission); choose another folder for {flag}"
         )
+    # Nor where the file system refuses files of any kind (/sys, /proc): a trial's
+    # "-o /sys/x.ply" failed after the work, naming a temporary file. A file made and removed.
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
+    except OSError as exc:
+        raise UsageError(
+            f"{flag} {path}: the folder {folder} cannot be written ({exc.strerror or exc}); "
+            f"choose another folder for {flag}"
+        ) from None
+    os.close(fd)
+    os.remove(probe)
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:

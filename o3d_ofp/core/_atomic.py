@@ -68,7 +68,10 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[s
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     stem = os.path.basename(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=suffix, dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=suffix, dir=folder)
+    except OSError as exc:  # said of the file asked for, not of a temporary name
+        raise type(exc)(exc.errno, exc.strerror, path) from None
     os.close(fd)
     try:
         yield tmp
