@@ -300,7 +300,7 @@ def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):
     moved = np.asarray(read_geometry(out / "t1.ply").vertices)
     np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-5)
     assert _cli(*argv[:-2], "--band", "40", "--k1", "30") == 2  # refused before any work
-    assert "--band 40 needs at least 40 eigenfunctions" in capsys.readouterr().err
+    assert "--k1 applies to --mode coordinates" in capsys.readouterr().err
 
 
 def test_bases_many_fills_the_cache_that_transfers_reuse(client, shapes, tmp_path, caplog):

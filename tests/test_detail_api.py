@@ -268,8 +268,12 @@ def _pair_arrays(files):
 
 BAD = [
     (["detail", "{src}", "{tgt}", "--band", "0"], "expected a positive integer"),
-    (["detail", "{src}", "{tgt}", "--band", "40", "--k1", "20"], "--band 40 needs at least 40"),
-    (["detail", "{src}", "{tgt}", "--k-low", "20", "--k2", "10"], "--k-low 20 needs at least"),
+    (["detail", "{src}", "{tgt}", "--band", "40", "--k1", "20"], "--k1 applies to --mode coord"),
+    (["detail", "{src}", "{tgt}", "--k-low", "20", "--k2", "10"], "up to --k-low (20): drop it"),
+    (["detail", "{src}", "{tgt}", "--mode", "replace-detail", "--order", "3", "--preset", "ours"],
+     "--order, --preset apply to --mode coordinates (the OFP bases); --mode replace-detail"),
+    (["detail", "{src}", "{tgt}", "--k1", "40", "--k2", "40", "--tol", "0.1"],
+     "--k1, --k2, --tol apply to --mode coordinates"),
     (["detail", "{src}", "{tgt}", "--k-low", "20", "--band", "25"], "--k-low 20 and --band 25"),
     (["detail", "{src}", "{tgt}", "--amount", "11"], "argument --amount"),
     (["detail", "{src}", "{tgt}", "--mode", "swap"], "argument --mode: invalid choice"),
@@ -380,3 +384,36 @@ def test_coordinates_from_a_wrong_map_are_said():
     with warnings.catch_warnings():
         warnings.simplefilter("error", ofp.OFPWarning)  # the true map: 0.95, quiet
         ofp.transfer_detail((V1, F), (V2, F), mode="coordinates", p2p_21=np.arange(len(V2)))
+
+
+def test_cli_detail_basis_files(files, tmp_path, capsys, monkeypatch):
+    """Basis files: eigenfunctions only in add mode; one threshold for both sides' bases.
+
+    A trial: --basis-1 in add mode made an OFP basis of the target it never used, and in
+    coordinates mode an "ours" file met the command's default "ours*" on the other side.
+    """
+    from o3d_ofp.core import basis as basis_module
+
+    b_ours = tmp_path / "ours.npz"
+    assert main(["basis", files["src"], "-k", "40", "--preset", "ours", "-o", str(b_ours)]) == 0
+    plain, with_file = tmp_path / "plain.ply", tmp_path / "file.ply"
+    argv = ["detail", files["src"], files["tgt"], "--map", "identity"]
+    assert main([*argv, "-o", str(plain)]) == 0
+    made = []
+    real = basis_module.ofp_basis
+    monkeypatch.setattr(basis_module, "ofp_basis", lambda *a, **k: made.append(1) or real(*a, **k))
+    assert main([*argv, "--basis-1", str(b_ours), "-o", str(with_file)]) == 0
+    assert not made  # add mode reads eigenfunctions only: no OFP basis is made
+    # The same detail: the file's eigenbasis holds 40 eigenfunctions, the one computed 30, the
+    # same up to the solver's round-off (and the PLY files' float32).
+    X, Y = (np.asarray(ofp.read_geometry(p).vertices) for p in (with_file, plain))
+    np.testing.assert_allclose(X, Y, atol=1e-5 * np.ptp(Y))
+    capsys.readouterr()
+    coords = [*argv, "--mode", "coordinates", "--basis-1", str(b_ours), "--k2", "40"]
+    out = tmp_path / "c.ply"
+    assert main([*coords, "-o", str(out)]) == 2  # detail's default is ours*: refused, said how
+    err = capsys.readouterr().err
+    assert "threshold 0.01, but the target's basis would be made with 1e-09 (--preset ours*, " \
+        "this command's default)" in err and "pass --preset ours" in err, err
+    assert not out.exists() and not made
+    assert main([*coords, "--preset", "ours", "-o", str(out)]) == 0

@@ -1173,8 +1173,8 @@ def test_cli_target_scale_runs_as_on_a_rescaled_file(tmp_path, capsys):
     details = [tmp_path / "dm.ply", tmp_path / "dmm.ply"]
     scale = ["--target-scale", "0.001"]
     for target, out, extra in ((tgt, details[0], []), (mm, details[1], scale)):
-        assert main(["detail", str(src), str(target), "--map", str(maps[0]), "--k1", "40",
-                     "--k2", "40", *extra, "-o", str(out)]) == 0  # fmt: skip
+        assert main(["detail", str(src), str(target), "--map", str(maps[0]), *extra, "-o",
+                     str(out)]) == 0  # fmt: skip
     moved_m, moved_mm = (np.asarray(ofp.read_geometry(d).vertices) for d in details)
     assert np.abs(moved_m - Vm).max() > 1e-4  # the detail moved the part
     np.testing.assert_allclose(moved_mm / 1000, moved_m, atol=1e-5 * np.ptp(Vm))

@@ -380,7 +380,10 @@ def check_job_memory(
                  _memory.format_bytes(limit))  # fmt: skip
 
 
-def _load_basis(path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str):
+def load_basis_file(
+    path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str
+) -> Any:
+    """Read the OFP basis file given as ``flag path``, checked to be ``mesh_path``'s."""
     from ..core.basis import OFPBasis
     from ..core.spectrum import shape_digest
 
@@ -431,7 +434,7 @@ def basis_for(
     from ..workflows.cache import cached_basis
 
     if file:
-        B = _load_basis(file, V, F, path, args, file_flag)
+        B = load_basis_file(file, V, F, path, args, file_flag)
         if k is not None and B.k != k:
             raise UsageError(
                 f"{file_flag} {file}: holds a basis on k={B.k} eigenfunctions, but {k_flag} {k} "
@@ -495,6 +498,55 @@ def check_basis_file_options(args: argparse.Namespace, B: Any, file_flag: str, f
                 f"{file_flag} {file}: holds a basis orthogonalized with threshold {B.tol:g}, "
                 f"but {flag} (threshold {tol:g}) was given; drop it or recompute the basis"
             )
+
+
+def _file_tol(path: str) -> float | None:
+    """Read the threshold of a basis file alone (None when unreadable: its full read says why)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return float(data["tol"])
+    except Exception:  # any damage is reported by OFPBasis.load, later
+        return None
+
+
+def check_basis_files_agree(args: argparse.Namespace) -> None:
+    """Refuse, before any work, two OFP bases orthogonalized with different thresholds.
+
+    A basis file keeps its own threshold; the other side's basis is read from its file or
+    made with the command's ``--preset`` / ``--tol`` (given or the command's default). A
+    trial's ``detail --mode coordinates --basis-1`` with an "ours" file ran the target with
+    the command's default "ours*": a transfer between bases of two thresholds, unsaid.
+    """
+    from ..core.orthogonalize import resolve_tol
+
+    own = resolve_tol(args.tol, None if args.tol is not None else args.preset)
+    files = [(i, f) for i, f in ((1, args.basis_1), (2, args.basis_2)) if f]
+    tols = {i: _file_tol(f) for i, f in files}
+    if not files or any(t is None for t in tols.values()):
+        return
+    t1, t2 = tols.get(1, own), tols.get(2, own)
+    if math.isclose(t1, t2, rel_tol=1e-9):
+        return
+    preset = {1e-2: "ours", 1e-9: "ours*"}
+    if len(files) == 2:
+        raise UsageError(
+            f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were orthogonalized with "
+            f"thresholds {t1:g} and {t2:g}: the two bases must share one; recompute one of them"
+        )
+    side, file = files[0]
+    t = tols[side]
+    name = next((n for v, n in preset.items() if math.isclose(v, t, rel_tol=1e-9)), None)
+    how = f"--preset {name}" if name else f"--tol {t:g}"
+    given = getattr(args, "given", set()) or set()
+    yours = (
+        f"--tol {args.tol:g}" if args.tol is not None
+        else f"--preset {args.preset}" + ("" if "preset" in given else ", this command's default")
+    )  # fmt: skip
+    raise UsageError(
+        f"--basis-{side} {file}: holds a basis orthogonalized with threshold {t:g}, but the "
+        f"{'target' if side == 1 else 'source'}'s basis would be made with {own:g} ({yours}): "
+        f"the two bases must share one; pass {how}, or recompute the basis file"
+    )
 
 
 def add_basis_options(

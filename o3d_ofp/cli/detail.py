@@ -17,6 +17,7 @@ from ._common import (
     UsageError,
     check_output,
     check_output_kind,
+    load_basis_file,
     report,
     stage,
     tol_options,
@@ -103,13 +104,18 @@ def check_options(args: argparse.Namespace) -> None:
         raise UsageError(f"{flag} does not apply to --mode coordinates (it has no detail band)")
     args.band_flag = flag
     if args.mode != "coordinates":
-        for side in (1, 2):
-            k = getattr(args, f"k{side}")
-            if k is not None and k < args.band:
-                raise UsageError(
-                    f"{flag} {args.band} needs at least {args.band} eigenfunctions of each shape, "
-                    f"but --k{side} is {k}: raise --k{side} or lower {flag}"
-                )
+        # The OFP bases' flags do nothing here (a trial's --k1 50 gave the same result, and
+        # only cost eigenfunctions): said, as the closest map's exact pull-back says them.
+        given = getattr(args, "given", set()) or set()
+        unused = [f"--k{side}" for side in (1, 2) if getattr(args, f"k{side}") is not None]
+        unused += [f"--{name}" for name in ("order", "preset", "tol") if name in given]
+        if unused:
+            raise UsageError(
+                f"{', '.join(unused)} {'applies' if len(unused) == 1 else 'apply'} to --mode "
+                f"coordinates (the OFP bases); --mode {args.mode} reads each shape's "
+                f"eigenfunctions up to {flag} ({args.band}): drop "
+                f"{'it' if len(unused) == 1 else 'them'}, or set {flag}"
+            )
 
 
 def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
@@ -118,11 +124,11 @@ def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
     from ._common import check_job_memory, eigenbases_of
 
     estimate = pair.correspondence is None
-    sides = [(args.source, pair.V1, pair.F1, args.k1, args.basis_1)]
-    sides.append((args.target, pair.V2, pair.F2, args.k2, args.basis_2))
+    sides = [(args.source, pair.V1, pair.F1, args.basis_1)]
+    sides.append((args.target, pair.V2, pair.F2, args.basis_2))
     wants = []
-    for path, V, _, k, _ in sides:
-        need = max(args.band, ROTATION_K, k or 0)
+    for path, V, _, _ in sides:
+        need = max(args.band, ROTATION_K)
         if need > V.shape[0] - 2:
             raise UsageError(
                 f"{args.band_flag} {args.band}: {path} has {V.shape[0]} vertices, too few for "
@@ -136,10 +142,16 @@ def _eigenbases(args: argparse.Namespace, pair: Any) -> tuple[Any, Any]:
         ],
         advice=f"lower {args.band_flag}, or use simplified meshes (fewer vertices)",
     )
-    eigs = []
-    if args.basis_1 or args.basis_2:  # cached bases: their eigenbases, when large enough
-        eigs = list(bases_for_pair(args, pair)[2:])
-    out = [eigs[i] if eigs and eigs[i].k >= want else None for i, want in enumerate(wants)]
+    # Basis files: their eigenbases, when large enough (their OFP bases are not used here, and
+    # no OFP basis is made for a side without one).
+    out = []
+    for side, ((path, V, F, file), want) in enumerate(zip(sides, wants, strict=True), start=1):
+        eig = load_basis_file(file, V, F, path, args, f"--basis-{side}").eig if file else None
+        if eig is not None and eig.k < want:
+            logger.info("--basis-%d %s: %d eigenfunctions, %d are needed: computing them",
+                        side, file, eig.k, want)  # fmt: skip
+            eig = None
+        out.append(eig)
     todo = [i for i, eig in enumerate(out) if eig is None]
     if todo:
         names = " and ".join(f"{sides[i][0]} ({sides[i][1].shape[0]} vertices, k={wants[i]})"
