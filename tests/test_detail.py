@@ -295,3 +295,37 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region(caplog)
             assert np.linalg.norm(X - V2[orig], axis=1).mean() < 0.75 * np.linalg.norm(
                 smooth_whole[orig] - V2[orig], axis=1
             ).mean()
+
+
+def test_a_part_in_pieces_is_measured_on_the_piece_its_eigenbasis_keeps():
+    """A part in pieces is compared with the region its kept piece covers.
+
+    A trial's cut in three pieces, matched exactly (closest points), gave no "already has
+    detail" warning with components="largest": the covered region counted the images of the
+    pieces the target's eigenbasis leaves out, so the part looked larger than the piece its
+    detail was measured on (its band too high, its detail too low).
+    """
+    import warnings
+
+    from o3d_ofp.workflows.detail import _covered
+
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    e1 = ofp.eigenbasis(V1, F1, k=40)
+    orig, Fc = _cut_above(V1, F1, 0.85)  # the body without its lower legs (one piece)
+    y = V1[:, 1]
+    low = F1[(y[F1] < y[orig].min() - 0.15 * np.ptp(y)).all(axis=1)]  # the feet: two pieces
+    keep = np.concatenate([orig, np.setdiff1d(np.unique(low), orig)])
+    index = np.full(len(V1), -1)
+    index[keep] = np.arange(keep.size)
+    faces = np.vstack([index[orig][Fc], index[low]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "kept the largest of 3 components"
+        pieces = ofp.eigenbasis(V1[keep], faces, k=40, components="largest")
+    assert (pieces.mass > 0).sum() == orig.size  # the feet are left out
+    kept_region = _covered(e1, pieces, keep)
+    only_kept = ofp.eigenbasis(V1[orig], Fc, k=40)
+    np.testing.assert_array_equal(kept_region, _covered(e1, only_kept, orig))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        transfer_detail_frames(e1, pieces, p2p_21=keep)
+    assert any("already has detail" in str(w.message) for w in said)

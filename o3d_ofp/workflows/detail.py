@@ -361,7 +361,10 @@ def _covered(eig_1: EigenBasis, eig_2: EigenBasis, p2p: np.ndarray) -> np.ndarra
     if eig_1.faces is None or eig_2.faces is None:
         return None  # no edge length to measure the gaps with: a cloud is taken as covered
     edge = max(_mean_edge(eig_1), _mean_edge(eig_2) * math.sqrt(eig_1.area / eig_2.area))
-    images = eig_1.vertices[np.unique(p2p)]
+    # The images of the target's vertices its eigenbasis keeps (mass > 0): pieces it leaves
+    # out (components="largest") are not in its area, and counted here they made a trial's
+    # three-piece cut look like a larger part than the piece its detail is measured on.
+    images = eig_1.vertices[np.unique(p2p[eig_2.mass > 0])]
     distance, _ = cKDTree(images).query(eig_1.vertices, distance_upper_bound=2 * edge)
     return np.isfinite(distance)
 
