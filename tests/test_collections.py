@@ -301,6 +301,13 @@ def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):
     np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-5)
     assert _cli(*argv[:-2], "--band", "40", "--k1", "30") == 2  # refused before any work
     assert "--k1 applies to --mode coordinates" in capsys.readouterr().err
+    # in this process (--workers 0) the library's warnings name their target (a trial: two
+    # bare "the target already has detail" lines)
+    argv = ["detail", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "add",
+            "--workers", "0", "--map", "identity", "--band", "20"]  # fmt: skip
+    assert _cli(*argv) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "already has detail" in line]
+    assert [line.split(": ")[1] for line in said] == ["t0.ply", "t1.ply"], said
 
 
 def test_bases_many_fills_the_cache_that_transfers_reuse(client, shapes, tmp_path, caplog):

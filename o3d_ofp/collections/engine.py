@@ -325,6 +325,29 @@ def _log_record(r: TargetResult) -> None:
             logger.warning("%s: %s", r.name, message)
 
 
+@contextlib.contextmanager
+def _warnings_named(name: str) -> Iterator[None]:
+    """Start the library's warnings logged meanwhile with ``name`` (a target run in-process).
+
+    A worker's warnings are said again with the target's name (:func:`_log_record`); in this
+    process (``workers=0``) they are said once, as they happen: a trial's "the target already
+    has detail" lines did not say which target.
+    """
+    previous = logging.getLogRecordFactory()
+
+    def factory(*args: Any, **kwargs: Any) -> logging.LogRecord:
+        record = previous(*args, **kwargs)
+        if record.levelno >= logging.WARNING and record.name.startswith("o3d_ofp."):
+            record.msg, record.args = f"{name}: {record.getMessage()}", ()
+        return record
+
+    logging.setLogRecordFactory(factory)
+    try:
+        yield
+    finally:
+        logging.setLogRecordFactory(previous)
+
+
 def _run(
     task: Callable[[Any, ShapeSpec], TargetResult],
     shared: Any,
@@ -348,7 +371,8 @@ def _run(
     with bar:
         if client is None and workers == 0:
             for spec in specs:
-                r = task(shared, spec)
+                with _warnings_named(spec.name):
+                    r = task(shared, spec)
                 _log_record(r)
                 if on_record is not None:
                     on_record(r)
