@@ -967,6 +967,10 @@ def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
     )
     assert "a collection makes no partial match" in said and "--partial" in said
     assert _for_collections("coverage 0.2") == "coverage 0.2"
+    # the command and function of the collection's own kind (a trial: detail told "transfer")
+    said = _for_collections("a symmetric shape: fix: give landmarks", "detail")
+    assert "(o3d-ofp detail SOURCE TARGET --landmarks ..., or ofp.transfer_detail(" in said
+    assert "o3d-ofp transfer SOURCE TARGET --landmarks" in _for_collections("landmarks")
     # a partial shape named as one likely cause among others is no fix to apply
     cause = "likely causes: shapes of other kinds, or a part of the other shape (partial=True)"
     assert _for_collections(cause) == cause

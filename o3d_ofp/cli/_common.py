@@ -81,6 +81,7 @@ KEYWORD_FLAGS = {
     "components='error'": "--components error",
     "landmarks=[[source, target], ...] / ": "",
     ", or ofp.transfer_colors(..., landmarks=...))": ")",
+    "colormap must be one of": "--colormap must be one of",
 }
 
 
@@ -227,8 +228,11 @@ def check_output(
     ``"colors"``): only existing files are compared.
     """
     ext = os.path.splitext(path)[1].lower()
-    if os.path.isdir(path):
-        raise UsageError(f"{flag} {path}: is a directory; give a file name")
+    if os.path.isdir(path) or path.endswith(("/", os.sep)):
+        raise UsageError(
+            f"{flag} {path}: is a directory{'' if os.path.isdir(path) else ' name'}; give a file "
+            "name (a folder is the output of several targets)"
+        )
     if ext not in allowed:
         raise UsageError(
             f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"

@@ -44,13 +44,16 @@ PAIR_ONLY = {
 }
 
 
-def add_collection_options(p: argparse.ArgumentParser) -> None:
-    """Add the flags of runs over several shapes."""
-    g = p.add_argument_group(
-        "several shapes",
+def add_collection_options(
+    p: argparse.ArgumentParser,
+    *,
+    description: str = (
         "give several targets or a folder of them; -o is then a folder (created if missing), "
-        "with summary.csv and summary.json",
-    )
+        "with summary.csv and summary.json"
+    ),
+) -> None:
+    """Add the flags of runs over several shapes (``description``: what such a run writes)."""
+    g = p.add_argument_group("several shapes", description)
     g.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",

@@ -31,7 +31,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_basis_options(p)
     p.add_argument("-o", "--output", help="basis file (.npz) of one shape")
-    add_collection_options(p)
+    add_collection_options(
+        p,
+        description="give several shapes, or folders of them, with --cache DIR and no -o: each "
+        "shape's bases are stored in DIR (a line per shape printed; --force does not apply)",
+    )
     p.set_defaults(func=run)
 
 

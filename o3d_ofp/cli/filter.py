@@ -13,6 +13,7 @@ from ._common import (
     MESH_HELP,
     MESH_OUT,
     UsageError,
+    about,
     basis_for,
     check_job_memory,
     check_output,
@@ -84,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
             [(args.mesh, V.shape[0], 1, 1, 1)], advice="use a simplified mesh (fewer vertices)"
         )
         what = "vertices" if F is not None else "points"
-        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} {what})"):
+        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} {what})"), about(args.mesh):
             B = eigenbasis(V, F, k=1, **eig_options(args))
     with stage("low-pass filter"):
         out = filter_geometry(

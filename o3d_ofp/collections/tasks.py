@@ -343,10 +343,11 @@ def _correspondence(
     return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
 
 
-#: Appended to a suspect map's fix in a collection, which takes no landmarks.
+#: Appended to a suspect map's fix in a collection, which takes no landmarks ({command} and
+#: {function}: the command and the Python function of the collection's kind).
 ALONE_WITH_LANDMARKS = (
-    "a collection takes no landmarks: transfer this target alone (o3d-ofp transfer SOURCE "
-    "TARGET --landmarks ..., or ofp.transfer_colors(..., landmarks=...))"
+    "a collection takes no landmarks: transfer this target alone (o3d-ofp {command} SOURCE "
+    "TARGET --landmarks ..., or ofp.{function}(..., landmarks=...))"
 )
 
 
@@ -363,7 +364,7 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         _silence_warnings_on_this_worker()
     with collected_warnings() as said:
         result = _transfer_task(source, spec)
-    messages = tuple(dict.fromkeys(_for_collections(m) for m in said))
+    messages = tuple(dict.fromkeys(_for_collections(m, source.job.kind) for m in said))
     return dataclasses.replace(result, warnings=messages) if messages else result
 
 
@@ -379,18 +380,27 @@ def _silence_warnings_on_this_worker() -> None:
 
 #: Appended to a message whose fix is a partial match, which a collection does not make.
 ALONE_PARTIAL = (
-    "a collection makes no partial match: transfer this target alone (o3d-ofp transfer SOURCE "
-    "TARGET --partial, or ofp.match(source, target, partial=True))"
+    "a collection makes no partial match: transfer this target alone (o3d-ofp {command} "
+    "SOURCE TARGET --partial, or ofp.match(source, target, partial=True))"
 )
 
 
-def _for_collections(message: str) -> str:
+def _for_collections(message: str, kind: str = "colors") -> str:
+    """Add to a library message the fix a collection cannot apply: the target run alone.
+
+    ``kind``: the collection's (its command and Python function are named: a trial's detail
+    run was told to re-run the target with ``o3d-ofp transfer``).
+    """
+    command, function = ("detail", "transfer_detail") if kind == "detail" else (
+        "transfer", "transfer_texture" if kind == "texture" else "transfer_colors"
+    )  # fmt: skip
     if "landmarks" in message:
-        message = f"{message} ({ALONE_WITH_LANDMARKS})"
+        alone = ALONE_WITH_LANDMARKS.format(command=command, function=function)
+        message = f"{message} ({alone})"
     # The fixes that use it (a part, a part in other units, a cloud that may be a part); not
     # the "likely causes" line, which names it among others.
     if any(f in message for f in ("fix: partial=True", "then partial=True", "with partial=True")):
-        message = f"{message} ({ALONE_PARTIAL})"
+        message = f"{message} ({ALONE_PARTIAL.format(command=command)})"
     return message
 
 
@@ -421,12 +431,12 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         corr = _correspondence(source, eig_2, V2, F2)
         if corr.quality is not None:
             coverage, suspect = corr.quality.coverage, corr.quality.suspect
-            notes = tuple(_for_collections(n) for n in corr.quality.notes)
+            notes = tuple(_for_collections(n, job.kind) for n in corr.quality.notes)
         else:
             coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
         if suspect and job.strict:
             reasons = "; ".join(corr.quality.reasons)
-            raise ValueError(f"suspect map (strict): {_for_collections(reasons)}")
+            raise ValueError(f"suspect map (strict): {_for_collections(reasons, job.kind)}")
         bases = (source.basis, B2)
         if (
             job.kind == "texture"
