@@ -540,7 +540,7 @@ def check_basis_files_agree(args: argparse.Namespace) -> None:
     side, file = files[0]
     t = tols[side]
     name = next((n for v, n in preset.items() if math.isclose(v, t, rel_tol=1e-9)), None)
-    how = f"--preset {name}" if name else f"--tol {t:g}"
+    how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
     given = getattr(args, "given", set()) or set()
     yours = (
         f"--tol {args.tol:g}" if args.tol is not None

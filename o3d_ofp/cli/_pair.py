@@ -488,7 +488,7 @@ def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any,
     from ..workflows.matching import ESTIMATION_K, required_k
     from ._common import check_job_memory
 
-    check_basis_files_agree(args)  # (also checked with the flags, before a dense map)
+    check_basis_files_agree(args)  # before either basis is made (a dense map comes first)
     estimate = pair.correspondence is None
     for side, path, V, k, file in ((1, args.source, pair.V1, args.k1, args.basis_1),
                                    (2, args.target, pair.V2, args.k2, args.basis_2)):  # fmt: skip
