@@ -303,6 +303,24 @@ def robustness_rows(only: list[str] | None) -> None:
             )
 
 
+def _rescaled_cuts(only: list[str] | None):
+    """Yield (name, V1, F1, e1, Vc, Fc, orig, ec, u1, u2, k2_final) of the selected cuts.
+
+    The cut (``plane_cut``), its eigenbasis (``ESTIMATION_K`` functions), both bases in the
+    source's units (``rescaled``) and the partial match's final target size.
+    """
+    from o3d_ofp.core.partial import rescaled
+    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
+    from o3d_ofp.workflows.partial import _final_target_size
+
+    for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
+        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
+        ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
+        u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=ESTIMATION_K)
+        yield name, V1, F1, e1, Vc, Fc, orig, ec, u1, u2, k2_final
+
+
 def truth_rows(only: list[str] | None) -> None:
     """Print the refinements' errors from the true map of each cut (the refinement alone).
 
@@ -311,25 +329,14 @@ def truth_rows(only: list[str] | None) -> None:
     the polish (``partial_polish``) of that ZoomOut's point map and of the true map itself.
     """
     from o3d_ofp.core.correspondence import fmap_from_p2p
-    from o3d_ofp.core.partial import (
-        partial_p2p,
-        partial_polish,
-        partial_zoomout,
-        rescaled,
-        slant,
-    )
-    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
-    from o3d_ofp.workflows.partial import _final_target_size
+    from o3d_ofp.core.partial import partial_p2p, partial_polish, partial_zoomout, slant
+    from o3d_ofp.workflows.matching import FIT_K
 
     print(
         "| cut | true map at 29 | partial ZoomOut | ZoomOut, polished | true map polished |\n"
         "|---|---|---|---|---|"
     )
-    for name, axis, side, fraction, V1, _, e1, V2, F2 in _cuts_and_sources(only):
-        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
-        ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
-        u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
-        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=ESTIMATION_K)
+    for name, V1, _, e1, _, _, orig, _, u1, u2, k2_final in _rescaled_cuts(only):
         C = fmap_from_p2p(orig, u1, u2, k1=slant(u1.evals, u2.evals, FIT_K), k2=FIT_K)
         zoomed = partial_zoomout(C, u1, u2, k2_final=k2_final, subsample=2000)
         k1 = zoomed.shape[1] - 1
@@ -352,23 +359,18 @@ def baseline_rows(only: list[str] | None) -> None:
     ``ofp.match(..., partial=True)`` (its ten starts, ranking, geodesic refinement, checks,
     polish). Seconds given both eigenbases.
     """
-    from o3d_ofp.core.partial import fit_partial_fmap, partial_p2p, partial_zoomout, rescaled
-    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
-    from o3d_ofp.workflows.partial import _final_target_size
+    from o3d_ofp.core.partial import fit_partial_fmap, partial_p2p, partial_zoomout
+    from o3d_ofp.workflows.matching import FIT_K
 
     print(
         "| cut | fit alone | s | fit + partial ZoomOut | s | ofp.match(partial=True) | verdict "
         "| s |\n|---|---|---|---|---|---|---|---|"
     )
-    for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
-        Vc, Fc, orig, _ = plane_cut(V2, F2, axis=axis, side=side, fraction=fraction)
-        ec = ofp.eigenbasis(Vc, Fc, k=ESTIMATION_K)
-        u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    for name, V1, F1, e1, Vc, Fc, orig, ec, u1, u2, k2_final in _rescaled_cuts(only):
         t0 = time.perf_counter()
         (C,) = fit_partial_fmap(u1, u2, k2=FIT_K, w_dcomm=(0.0,))
         fitted = partial_p2p(C, u1, u2)
         t1 = time.perf_counter()
-        k2_final = _final_target_size(u1, u2, k2_fit=FIT_K, k1_max=ESTIMATION_K)
         zoomed = partial_p2p(partial_zoomout(C, u1, u2, k2_final=k2_final), u1, u2)
         t2 = time.perf_counter()
         with warnings.catch_warnings():
