@@ -230,6 +230,18 @@ def _estimate(
     return estimate_map_arrays(V1, F1, V2, F2, partial=partial)
 
 
+def _check_given_map(correspondence: Any, p2p_21: Any, n1: int, n2: int) -> np.ndarray | None:
+    """Refuse two maps, or a map between other vertex counts than ``n1`` -> ``n2``.
+
+    Returns the checked ``p2p_21`` (None when it was not given).
+    """
+    if correspondence is not None and p2p_21 is not None:
+        raise ValueError("give either correspondence or p2p_21, not both")
+    if check_correspondence(correspondence) is not None:
+        correspondence.check(n1, n2)  # the counts (the shapes are compared where it is used)
+    return None if p2p_21 is None else check_p2p(p2p_21, n2, n1)
+
+
 def _mapped_points(
     V1: np.ndarray,
     F1: np.ndarray,
@@ -252,12 +264,11 @@ def _mapped_points(
         Their barycentric weights there.
     """
     n1, n2 = V1.shape[0], V2.shape[0]
-    if correspondence is not None and p2p_21 is not None:
-        raise ValueError("give either correspondence or p2p_21, not both")
-    if correspondence is None and p2p_21 is None:
+    p2p = _check_given_map(correspondence, p2p_21, n1, n2)
+    if correspondence is None and p2p is None:
         correspondence = _estimate(V1, F1, V2, F2, partial=partial)
-    if check_correspondence(correspondence) is not None:
-        correspondence.check(n1, n2, source=V1, target=V2)
+    if correspondence is not None:
+        correspondence.check(n1, n2, source=V1, target=V2)  # and the shapes it was made for
         if correspondence.faces_21 is not None:
             tri = np.asarray(correspondence.faces_21, dtype=np.int64)
             if tri.min() < 0 or tri.max() >= F1.shape[0]:
@@ -268,8 +279,6 @@ def _mapped_points(
             bary = np.asarray(correspondence.barycentric_21, dtype=np.float64)
             return np.einsum("pk,pkd->pd", bary, V1[F1[tri]]), tri, bary
         p2p = correspondence.p2p_21
-    else:
-        p2p = check_p2p(p2p_21, n2, n1)
     return V1[p2p], None, None
 
 
@@ -492,13 +501,8 @@ def transfer_texture(
         known = correspondence is not None or p2p_21 is not None
         check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
     if correspondence is not None or p2p_21 is not None:  # before an atlas (seconds of work)
-        if correspondence is not None and p2p_21 is not None:
-            raise ValueError("give either correspondence or p2p_21, not both")
-        n1, n2 = src.vertices.shape[0], geometry_to_arrays(target)[0].shape[0]
-        if check_correspondence(correspondence) is not None:
-            correspondence.check(n1, n2)  # the counts (the shapes are compared when it is used)
-        else:
-            check_p2p(p2p_21, n2, n1)
+        n2 = geometry_to_arrays(target)[0].shape[0]
+        _check_given_map(correspondence, p2p_21, src.vertices.shape[0], n2)
     if not has_uvs(target):
         if not atlas:
             raise ValueError(
