@@ -45,17 +45,22 @@ from .core.products import eigenproduct_indices, eigenproducts, n_eigenproducts
 from .core.spectrum import EigenBasis, EigenSolverError
 from .core.transfer import transfer_matrix, transfer_signal
 from .render import render_panel, show
-from .workflows.matching import Correspondence, MapQuality, match_eigenbases
+from .workflows.estimate import match_eigenbases
+from .workflows.maps import Correspondence, MapQuality
+from .workflows.options import BasisOptions, DetailOptions, MatchOptions
 from .workflows.pipeline import transfer_function
 
 __all__ = [
     "PRESETS",
+    "BasisOptions",
     "CleaningReport",
     "Correspondence",
+    "DetailOptions",
     "EigenBasis",
     "EigenSolverError",
     "GramSchmidt",
     "MapQuality",
+    "MatchOptions",
     "OFPBasis",
     "OFPWarning",
     "TargetResult",

@@ -30,8 +30,8 @@ from scipy import ndimage
 from ..core._warnings import warn
 from ..core.correspondence import check_p2p
 from ..core.texture import MAX_TEXTURE_SIZE
-from ..workflows.matching import Correspondence, check_correspondence
-from ..workflows.pipeline import check_partial_transfer, estimate_map_arrays
+from ..workflows.maps import Correspondence, check_correspondence
+from ..workflows.plan import plan_pair, prepare
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .io import read_if_path
@@ -216,30 +216,9 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
     out = t.to_legacy()
     if len(out.vertices) != n or not out.has_triangle_uvs():
         raise ValueError("Open3D's compute_uvatlas changed the mesh's vertices or gave no UVs")
-    # (a trial's 26 s atlas read as the bake's time: the bake itself took 1 s)
+    # said apart from the bake's own time (an atlas can take many times the bake)
     logger.info("texture transfer: UV atlas done in %.1f s", time.perf_counter() - t0)
     return out
-
-
-def _estimate(
-    V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray, *, partial: bool
-) -> Correspondence:
-    """Estimate the default map (``o3d_ofp.match`` with its defaults, on arrays)."""
-    what = "a partial one" if partial else "one"
-    logger.info("texture transfer: no map given, estimating %s (eigenbases and ZoomOut)", what)
-    return estimate_map_arrays(V1, F1, V2, F2, partial=partial)
-
-
-def _check_given_map(correspondence: Any, p2p_21: Any, n1: int, n2: int) -> np.ndarray | None:
-    """Refuse two maps, or a map between other vertex counts than ``n1`` -> ``n2``.
-
-    Returns the checked ``p2p_21`` (None when it was not given).
-    """
-    if correspondence is not None and p2p_21 is not None:
-        raise ValueError("give either correspondence or p2p_21, not both")
-    if check_correspondence(correspondence) is not None:
-        correspondence.check(n1, n2)  # the counts (the shapes are compared where it is used)
-    return None if p2p_21 is None else check_p2p(p2p_21, n2, n1)
 
 
 def _mapped_points(
@@ -248,38 +227,26 @@ def _mapped_points(
     V2: np.ndarray,
     F2: np.ndarray,
     correspondence: Correspondence | None,
-    p2p_21: Any,
-    *,
-    partial: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Source surface point of every target vertex (a map estimated when none is given).
 
-    Returns
-    -------
-    points : (n2, 3) ndarray of float64
-        The mapped points.
-    triangles : (n2,) ndarray of int64 or None
-        Their source triangles, when the map gives them (``faces_21``).
-    barycentric : (n2, 3) ndarray of float64 or None
-        Their barycentric weights there.
+    Returns the (n2, 3) points, and their source triangles and barycentric weights when the
+    map gives them (a surface map, ``faces_21``: a closest-point map), else None.
     """
-    n1, n2 = V1.shape[0], V2.shape[0]
-    p2p = _check_given_map(correspondence, p2p_21, n1, n2)
-    if correspondence is None and p2p is None:
-        correspondence = _estimate(V1, F1, V2, F2, partial=partial)
-    if correspondence is not None:
-        correspondence.check(n1, n2, source=V1, target=V2)  # and the shapes it was made for
-        if correspondence.faces_21 is not None:
-            tri = np.asarray(correspondence.faces_21, dtype=np.int64)
-            if tri.min() < 0 or tri.max() >= F1.shape[0]:
-                raise ValueError(
-                    f"correspondence.faces_21 must index the source's {F1.shape[0]} triangles; "
-                    f"got [{tri.min()}, {tri.max()}]"
-                )
-            bary = np.asarray(correspondence.barycentric_21, dtype=np.float64)
-            return np.einsum("pk,pkd->pd", bary, V1[F1[tri]]), tri, bary
-        p2p = correspondence.p2p_21
-    return V1[p2p], None, None
+    plan = plan_pair(V1, F1, V2, F2, task="texture", given=correspondence)
+    if correspondence is None:
+        logger.info("texture transfer: no map given, estimating one (eigenbases and ZoomOut)")
+    corr = prepare(plan, V1, F1, V2, F2, given=correspondence).correspondence
+    if corr.faces_21 is None:
+        return V1[corr.p2p_21], None, None
+    tri = np.asarray(corr.faces_21, dtype=np.int64)
+    if tri.min() < 0 or tri.max() >= F1.shape[0]:
+        raise ValueError(
+            f"correspondence.faces_21 must index the source's {F1.shape[0]} triangles; got "
+            f"[{tri.min()}, {tri.max()}]"
+        )
+    bary = np.asarray(corr.barycentric_21, dtype=np.float64)
+    return np.einsum("pk,pkd->pd", bary, V1[F1[tri]]), tri, bary
 
 
 def _rasterize(
@@ -409,12 +376,10 @@ def transfer_texture(
     target: Any,
     *,
     correspondence: Correspondence | None = None,
-    p2p_21: Any = None,
     size: int = 1024,
     texture: Any = None,
     dilate: int = 8,
     atlas: bool = False,
-    partial: bool = False,
 ) -> Any:
     """Bake the source's texture (or vertex colors) into a new image in the target's UV layout.
 
@@ -440,11 +405,11 @@ def transfer_texture(
         The target, with its own per-corner UVs (``triangle_uvs``); not modified.
     correspondence : Correspondence, optional
         The map, one source point per target vertex: its precise surface points
-        (``faces_21``, ``barycentric_21``) when it has them, else its vertex map ``p2p_21``.
-    p2p_21 : (n2,) array_like of int, optional
-        A vertex map instead (source vertex of every target vertex). Without any map one is
-        estimated with the steps and defaults of :func:`o3d_ofp.match` (shapes must be
-        close to isometric; check the logged quality report).
+        (``faces_21``, ``barycentric_21``) when it has them, else its vertex map ``p2p_21``
+        (a map the caller brings: :meth:`o3d_ofp.Correspondence.from_p2p`). Without it one is
+        estimated with the steps and defaults of :func:`o3d_ofp.match` (shapes must be close
+        to isometric; check the logged quality report; a part: ``match(partial=True)``
+        first).
     size : int, default 1024
         Side of the baked (size × size) image.
     texture : str, os.PathLike, ndarray or Open3D image, optional
@@ -456,11 +421,6 @@ def transfer_texture(
         For a target without UVs: give it a new UV atlas first (Open3D's
         ``compute_uvatlas``, ``size`` texels wide; its vertices are kept) and bake into it.
         Without it such a target is an error (per-vertex colors: :func:`transfer_colors`).
-    partial : bool, default False
-        The target is a part of the source (a one-sided scan, a cut) in the same units: the
-        map estimated here is a partial one, as :func:`o3d_ofp.match` with ``partial=True``
-        makes it (both shapes triangle meshes; refused with a given map, which is used as it
-        is).
 
     Returns
     -------
@@ -497,12 +457,8 @@ def transfer_texture(
         src = surface_colors(source, texture)
         if isinstance(src, VertexColorSurface):
             logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
-    if partial is not False:  # (the target's arrays only for a partial estimate)
-        known = correspondence is not None or p2p_21 is not None
-        check_partial_transfer(partial, known, src.vertices, src.faces, *geometry_to_arrays(target))
-    if correspondence is not None or p2p_21 is not None:  # before an atlas (seconds of work)
-        n2 = geometry_to_arrays(target)[0].shape[0]
-        _check_given_map(correspondence, p2p_21, src.vertices.shape[0], n2)
+    if check_correspondence(correspondence) is not None:  # before an atlas (seconds of work)
+        correspondence.check(src.vertices.shape[0], geometry_to_arrays(target)[0].shape[0])
     if not has_uvs(target):
         if not atlas:
             raise ValueError(
@@ -513,9 +469,7 @@ def transfer_texture(
     target_uv = corner_uvs(target)
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
-    points, _, _ = _mapped_points(
-        src.vertices, src.faces, V2, F2, correspondence, p2p_21, partial=partial
-    )
+    points, _, _ = _mapped_points(src.vertices, src.faces, V2, F2, correspondence)
 
     texels, tri2, bary2, inside = _rasterize(target_uv, size, band=math.sqrt(2.0) + 1e-6)
     logger.debug(
@@ -587,9 +541,7 @@ def texture_pullback(
     target: Any,
     *,
     correspondence: Correspondence | None = None,
-    p2p_21: Any = None,
     texture: Any = None,
-    partial: bool = False,
 ) -> Any:
     """Give the target the source's texture image and, at its triangle corners, source UVs.
 
@@ -609,14 +561,10 @@ def texture_pullback(
     target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The target (its own UVs, if any, are replaced); not modified.
     correspondence : Correspondence, optional
-        The map (its ``faces_21`` / ``barycentric_21`` surface points when present).
-    p2p_21 : (n2,) array_like of int, optional
-        A vertex map instead; without any map one is estimated (see :func:`transfer_texture`).
+        The map (its ``faces_21`` / ``barycentric_21`` surface points when present); without it
+        one is estimated (see :func:`transfer_texture`).
     texture : str, os.PathLike, ndarray or Open3D image, optional
         The source's texture, rows top-down as in a file; default the source's own images.
-    partial : bool, default False
-        The target is a part of the source, in the same units: the map estimated here is a
-        partial one (as in :func:`transfer_texture`).
 
     Returns
     -------
@@ -631,7 +579,7 @@ def texture_pullback(
     source, target = read_if_path(source, "source"), read_if_path(target, "target")
     try:
         src = mesh_texture(source, texture)
-    except ValueError as exc:  # (a trial's message did not say which mesh)
+    except ValueError as exc:  # said of the source
         if texture is not None:  # the message names texture= itself
             raise
         raise ValueError(
@@ -640,10 +588,8 @@ def texture_pullback(
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
     V1, F1 = src.vertices, src.faces
-    check_partial_transfer(
-        partial, correspondence is not None or p2p_21 is not None, V1, F1, V2, F2
-    )
-    points, tri, bary = _mapped_points(V1, F1, V2, F2, correspondence, p2p_21, partial=partial)
+    check_correspondence(correspondence)
+    points, tri, bary = _mapped_points(V1, F1, V2, F2, correspondence)
     surface = _Surface(V1, F1)
     if tri is None:
         tri, bary, _ = surface.closest(points)

@@ -28,7 +28,8 @@ import numpy as np
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
 from ..core.geometry import face_areas_normals, units_change
-from ..workflows.matching import AREA_RATIO_NOTE, Correspondence, MapQuality, shape_signature
+from ..workflows.maps import Correspondence, MapQuality, shape_signature
+from ..workflows.quality import AREA_RATIO_NOTE
 from .convert import require_open3d
 
 __all__ = [

@@ -24,6 +24,7 @@ import logging
 import math
 import os
 import sys
+import tempfile
 import time
 import uuid
 from collections import Counter
@@ -39,13 +40,19 @@ from ..boundary.convert import (
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
+from ..core._validation import check_int
 from ..core.orthogonalize import resolve_tol
 from ..core.texture import MAX_TEXTURE_SIZE
-from ..workflows import matching as _matching
-from ..workflows.dense import coarse_shape
-from ..workflows.detail import DETAIL_BAND, MAX_AMOUNT
-from ..workflows.detail import MODES as DETAIL_MODES
-from ..workflows.matching import ESTIMATION_K, uses_dense_path
+from ..core.wording import OptionError
+from ..workflows.options import (
+    COMPONENTS,
+    ESTIMATION_K,
+    BasisOptions,
+    DetailOptions,
+    check_bool,
+    check_choice,
+)
+from ..workflows.plan import plan_pair, prepare_source
 from .results import TargetResult
 from .tasks import (
     BasisJob,
@@ -54,7 +61,6 @@ from .tasks import (
     TransferJob,
     basis_task,
     failed,
-    shape_bases,
     transfer_task,
 )
 
@@ -95,24 +101,10 @@ BLAS_ENV = {
     "VECLIB_MAXIMUM_THREADS": "1",
 }
 
-_TRANSFER_OPTIONS = {
-    "map": "estimate",
-    "k1": 29,
-    "k2": 39,
-    "order": 2,
-    "tol": None,
-    "preset": None,  # "ours" for colors, "ours*" for detail
-    "mode": "add",
-    "band": DETAIL_BAND,
-    "amount": 1.0,
-    "k_low": None,  # deprecated name of band
-    "components": "auto",
-    "strict": False,
-    "signal": "auto",
-    "texture_size": 1024,
-    "atlas": False,
-    "texture": None,
-}
+#: The options of :func:`transfer_many` (its ``**options``) and the object each belongs to.
+_BASIS_OPTIONS = ("k1", "k2", "order", "preset", "tol")
+_DETAIL_OPTIONS = ("mode", "band", "amount")
+_JOB_OPTIONS = ("map", "components", "strict", "signal", "texture_size", "atlas", "texture")
 #: What each kind of transfer is.
 KINDS = ("colors", "texture", "detail")
 
@@ -210,7 +202,11 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
     )
     import dask
 
-    with _worker_environment() as pre_spawn:
+    # The workers' scratch space is a folder of this run's, removed with the cluster (Dask's
+    # default, <tmp>/dask-scratch-space, stays behind).
+    with _worker_environment() as pre_spawn, tempfile.TemporaryDirectory(
+        prefix="o3d_ofp-dask-"
+    ) as scratch:  # fmt: skip
         config = {"distributed.nanny.pre-spawn-environ": pre_spawn}
         with dask.config.set(config), _children_ignore_interrupts():  # the start only
             try:
@@ -221,6 +217,7 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
                     host="127.0.0.1",
                     dashboard_address=None,
                     silence_logs=logging.ERROR,
+                    local_directory=scratch,
                 )
             except RuntimeError as exc:
                 raise RuntimeError(
@@ -623,70 +620,40 @@ def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
 
 
 def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> TransferJob:
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {', '.join(KINDS)}; got {kind!r}")
-    unknown = sorted(set(options) - set(_TRANSFER_OPTIONS))
+    """The job of a :func:`transfer_many` call, each option checked by its options object."""
+    check_choice(kind, "kind", KINDS)
+    known = (*_BASIS_OPTIONS, *_DETAIL_OPTIONS, *_JOB_OPTIONS)
+    unknown = sorted(set(options) - set(known))
     if unknown:
-        raise TypeError(
-            f"unknown option(s) {', '.join(unknown)}; transfer_many takes "
-            f"{', '.join(sorted(_TRANSFER_OPTIONS))}"
+        raise OptionError(
+            unknown[0], f"is not an option of transfer_many; it takes {', '.join(sorted(known))}"
         )
-    o = {**_TRANSFER_OPTIONS, **options}
-    if o["map"] not in ("estimate", "identity"):
-        raise ValueError(f"map must be 'estimate' or 'identity'; got {o['map']!r}")
-    if o["mode"] == "replace":
-        logger.warning("mode='replace' is deprecated; use mode='coordinates'")
-        o["mode"] = "coordinates"
-    if o["mode"] not in DETAIL_MODES:
-        raise ValueError(f"mode must be one of {', '.join(DETAIL_MODES)}; got {o['mode']!r}")
-    k_low = o.pop("k_low")
-    if k_low is not None:
-        logger.warning("k_low is deprecated; use band")
-        if "band" in options and options["band"] != k_low:
-            raise ValueError(f"k_low={k_low} and band={options['band']} disagree: give band")
-        o["band"] = k_low
-    amount = o["amount"]
-    if (
-        isinstance(amount, bool)
-        or not isinstance(amount, (int, float))
-        or not (0.0 <= amount <= MAX_AMOUNT)
-    ):
-        raise ValueError(f"amount must be a number in [0, {MAX_AMOUNT:g}]; got {amount!r}")
-    if o["components"] not in ("auto", "largest", "error"):
-        raise ValueError(f"components must be auto, largest or error; got {o['components']!r}")
-    if o["signal"] not in ("auto", "colors", "texture"):
-        raise ValueError(f"signal must be 'auto', 'colors' or 'texture'; got {o['signal']!r}")
-    if kind == "texture" and o["signal"] == "colors":
-        raise ValueError(
-            "kind='texture' bakes the source's texture: signal='colors' does not apply"
-        )
-    for name in ("k1", "k2", "order", "texture_size", "band"):
-        value = o[name]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive integer; got {value!r}")
-    if not isinstance(o["atlas"], bool):
-        raise ValueError(f"atlas must be True or False; got {o['atlas']!r}")
-    if o["texture_size"] > MAX_TEXTURE_SIZE:
-        raise ValueError(
-            f"texture_size must be at most {MAX_TEXTURE_SIZE}; got {o['texture_size']}"
-        )
-    if o["texture"] is not None:
-        if not isinstance(o["texture"], (str, os.PathLike)):
-            kind_of = type(o["texture"]).__name__
-            raise TypeError(f"texture must be an image file path; got {kind_of}")
-        o["texture"] = os.path.abspath(os.fspath(o["texture"]))
-        if not os.path.isfile(o["texture"]):
-            raise FileNotFoundError(f"texture {o['texture']}: no such image file")
-        if kind == "detail" or o["signal"] == "colors":
-            raise ValueError("texture (the source's texture image) applies to its colors or bake")
-    if o["preset"] is None and o["tol"] is None:
-        o["preset"] = "ours*" if kind == "detail" else "ours"
-    resolve_tol(o["tol"], o["preset"])  # refuse a bad tol / preset now
+    given = {name: options[name] for name in _BASIS_OPTIONS if name in options}
+    bases = BasisOptions(**given) if given else None
+    detail = DetailOptions(**{n: options[n] for n in _DETAIL_OPTIONS if n in options})
+    job = {name: options[name] for name in _JOB_OPTIONS if name in options}
+    check_choice(job.get("map", "estimate"), "map", ("estimate", "identity"))
+    check_choice(job.get("components", "auto"), "components", COMPONENTS)
+    signal = check_choice(job.get("signal", "auto"), "signal", ("auto", "colors", "texture"))
+    check_bool(job.get("strict", False), "strict")
+    check_bool(job.get("atlas", False), "atlas")
+    check_int(job.get("texture_size", 1024), name="texture_size", minimum=1,
+              maximum=MAX_TEXTURE_SIZE)  # fmt: skip
+    if kind == "texture" and signal == "colors":
+        raise OptionError("signal", "'colors' does not apply to kind='texture' (a bake)")
+    texture = job.get("texture")
+    if texture is not None:
+        if not isinstance(texture, (str, os.PathLike)):
+            raise OptionError("texture", f"must be an image file path; got {type(texture).__name__}")
+        job["texture"] = os.path.abspath(os.fspath(texture))
+        if not os.path.isfile(job["texture"]):
+            raise FileNotFoundError(f"texture {job['texture']}: no such image file")
+        if kind == "detail" or signal == "colors":
+            raise OptionError("texture", "(the source's texture image) applies to its colors or bake")
     return TransferJob(
-        kind=kind,
-        cache_dir=None if cache_dir is None else os.fspath(cache_dir),
-        **o,
-    )
+        kind=kind, bases=bases, detail=detail,
+        cache_dir=None if cache_dir is None else os.fspath(cache_dir), **job,
+    )  # fmt: skip
 
 
 def _source(source: Any, job: TransferJob) -> SharedSource:
@@ -712,33 +679,23 @@ def _source(source: Any, job: TransferJob) -> SharedSource:
     elif F is None:
         raise ValueError(f"{name}: the source of a detail transfer must be a triangle mesh")
     t0 = time.perf_counter()
-    # A source on the dense path (more vertices than its threshold) has its maps to mesh
-    # targets estimated on coarse copies: its own eigenbasis serves the transfers only.
-    dense = job.map == "estimate" and uses_dense_path(V.shape[0], 0, F is not None)
-    eig, B, cached = shape_bases(V, F, job, 1, dense=dense)
+    # The source's side of the plan, with any target: a source above the dense threshold has
+    # its maps to mesh targets estimated on coarse copies (its coarse copy is made once).
+    plan = plan_pair(
+        V, F, None, None, task=job.task(), match=job.match, bases=job.bases, detail=job.detail,
+        names=(name, "the target"),
+    )  # fmt: skip
+    eig, B, cached, coarse = prepare_source(plan, V, F, match=job.match, cache_dir=job.cache_dir)
     COUNTERS["source_bases"] += 1
     logger.info(
-        "source %s: %d vertices, eigenbasis k=%d%s, OFP basis %d functions (%.1f s); shared "
-        "with every target",
-        name, V.shape[0], eig.k, " (cached)" if cached else "", B.size, time.perf_counter() - t0,
+        "source %s: %d vertices, eigenbasis k=%d%s%s (%.1f s); shared with every target",
+        name, V.shape[0], eig.k, " (cached)" if cached else "",
+        "" if B is None else f", OFP basis {B.size} functions",
+        time.perf_counter() - t0,
     )  # fmt: skip
-    coarse = None
-    if dense:  # every mesh target's map is estimated on coarse copies: the source's, once
-        t0 = time.perf_counter()
-        coarse = coarse_shape(
-            V,
-            F,
-            k=ESTIMATION_K,
-            coarse_vertices=_matching.COARSE_VERTICES,  # what match_arrays uses for the target
-            components=job.components,
-        )
-        logger.info(
-            "source %s: coarse copy of %d vertices and its eigenbasis (%.1f s); shared with "
-            "every target",
-            name,
-            coarse.vertices.shape[0],
-            time.perf_counter() - t0,
-        )
+    if coarse is not None:
+        logger.info("source %s: coarse copy of %d vertices and its eigenbasis; shared with "
+                    "every target", name, coarse.vertices.shape[0])  # fmt: skip
     return SharedSource(name, V, F, eig, B, signal, job, texture, coarse)
 
 
@@ -838,10 +795,8 @@ def transfer_many(
         When a cluster is needed and Dask is not installed.
     """
     job = _transfer_job(kind, cache_dir, options)
-    items = expand_paths(targets)
-    if not items:
-        raise ValueError("no targets (empty list, or directories without mesh files)")
-    out_dir = None if output_dir is None else os.fspath(output_dir)
+    items = _items(targets, "targets")
+    out_dir = _run_options(output_dir, "output_dir", workers, client)
     with _output_folder(out_dir):
         names, outputs = _outputs(items, out_dir, kind)
         source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
@@ -899,6 +854,40 @@ def transfer_many(
     counts = Counter(r.status for r in results)
     logger.info("transfer_many (%s): %s", kind, dict(counts))
     return results
+
+
+def _items(values: Any, name: str) -> list[Any]:
+    """The shapes of a collection: files, folders (their mesh files) and geometries, checked."""
+    if isinstance(values, (str, bytes, os.PathLike)) or is_open3d_geometry(values):
+        raise OptionError(
+            name, f"must be a list of shapes (files, folders or geometries); got one "
+            f"{type(values).__name__} ({values!r}): pass [{values!r}]"
+            if not is_open3d_geometry(values) else
+            f"must be a list of shapes; got one {type(values).__name__}: pass [it]",
+        )  # fmt: skip
+    try:
+        items = expand_paths(values)
+    except TypeError as exc:
+        raise OptionError(name, f"must be a list of shapes; got {type(values).__name__}") from exc
+    if not items:
+        raise OptionError(name, "holds no shapes (an empty list, or folders without mesh files)")
+    return items
+
+
+def _run_options(folder: Any, name: str, workers: Any, client: Any) -> str | None:
+    """Check a run's folder (a folder, not a file) and ``workers``; return the folder's path."""
+    if workers is not None:
+        check_int(workers, name="workers", minimum=0)
+        if workers == 0 and client is not None:
+            raise OptionError("workers", "=0 runs in this process: give it or client=, not both")
+    if folder is None:
+        return None
+    if not isinstance(folder, (str, os.PathLike)):
+        raise OptionError(name, f"must be a folder path; got {type(folder).__name__}")
+    path = os.fspath(folder)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise OptionError(name, f"{path} is a file; a folder is expected (made when missing)")
+    return path
 
 
 @contextlib.contextmanager
@@ -995,22 +984,18 @@ def bases_many(
         everything was already cached, ``failed`` with the message otherwise).
     """
     for name, value in (("k", k), ("order", order), ("eigenbasis_k", eigenbasis_k)):
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int) or value < 1
-        ):
-            raise ValueError(f"{name} must be a positive integer; got {value!r}")
-    if components not in ("auto", "largest", "error"):
-        raise ValueError(f"components must be auto, largest or error; got {components!r}")
+        if value is not None:
+            check_int(value, name=name, minimum=1)
+    check_choice(components, "components", COMPONENTS)
     resolve_tol(tol, preset)
-    folder = os.fspath(cache_dir)
+    items = _items(paths, "paths")
+    folder = _run_options(cache_dir, "cache_dir", workers, client)
+    assert folder is not None
     os.makedirs(folder, exist_ok=True)
     job = BasisJob(
         cache_dir=folder, k=k, order=order, tol=tol, preset=preset if tol is None else None,
         components=components, eigenbasis_k=eigenbasis_k,
     )  # fmt: skip
-    items = expand_paths(paths)
-    if not items:
-        raise ValueError("no shapes (empty list, or directories without mesh files)")
     names, _ = _outputs(items, None, "basis")
     specs = [_spec(i, item, names[i], None, "basis") for i, item in enumerate(items)]
     records = {s.index: s for s in specs if isinstance(s, TargetResult)}

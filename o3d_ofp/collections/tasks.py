@@ -3,7 +3,8 @@
 Every function here takes only picklable arguments (the shared source, one shape's spec, the
 options) and returns a :class:`~o3d_ofp.collections.results.TargetResult`; an exception of the
 shape (unreadable file, refused shape, failed solve) becomes a failed record instead of
-stopping the run.
+stopping the run. Each target's job is planned and run by :mod:`o3d_ofp.workflows.plan`, as
+for a single pair.
 """
 
 from __future__ import annotations
@@ -23,20 +24,15 @@ from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import MeshTexture, VertexColorSurface, without_texture
 from ..core._warnings import OFPWarning, collected_warnings, warn
-from ..core.basis import OFPBasis, ofp_basis
-from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.basis import OFPBasis
+from ..core.spectrum import EigenBasis
+from ..core.wording import Said
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
 from ..workflows.dense import CoarseShape
-from ..workflows.detail import DETAIL_BAND, ROTATION_K
-from ..workflows.matching import (
-    ESTIMATION_K,
-    Correspondence,
-    match_arrays,
-    match_eigenbases,
-    required_k,
-    uses_dense_path,
-)
-from ..workflows.pipeline import transfer_function
+from ..workflows.maps import Correspondence
+from ..workflows.options import ESTIMATION_K, BasisOptions, DetailOptions, MatchOptions, required_k
+from ..workflows.pipeline import carry
+from ..workflows.plan import plan_pair, prepare
 from .results import TargetResult
 
 __all__ = [
@@ -46,7 +42,6 @@ __all__ = [
     "TransferJob",
     "basis_task",
     "failed",
-    "shape_bases",
     "transfer_task",
     "worker_name",
 ]
@@ -56,7 +51,7 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class TransferJob:
-    """Options of a collection transfer (validated by the engine).
+    """Options of a collection transfer (validated where the engine builds it).
 
     Attributes
     ----------
@@ -67,10 +62,14 @@ class TransferJob:
     map : {"estimate", "identity"}
         How each target's map is made: estimated (descriptors, ZoomOut), or the identity
         (targets with the source's vertices, e.g. registrations of one template).
-    k1, k2, order, tol, preset
-        The OFP bases of source and target (see :func:`o3d_ofp.transfer_function`).
-    mode, band, amount
-        Detail transfer (see :func:`o3d_ofp.transfer_detail`).
+    bases : BasisOptions or None
+        The OFP bases, when the caller set them (None: the task's defaults).
+    detail : DetailOptions
+        Detail transfer (kind "detail").
+    components : str
+        Connected-component policy of the eigenbases.
+    strict : bool
+        A suspect map fails the target (nothing written).
     signal : {"auto", "colors", "texture"}
         What the source's colors are (kinds "colors" and "texture"): its vertex colors, its
         texture sampled at its vertices, or (auto) the first of these it has.
@@ -80,24 +79,14 @@ class TransferJob:
         Kind "texture": a mesh target without UVs gets a new UV atlas to bake into.
     texture : str or None
         The source's texture image (absolute path), for a source read without its own.
-    components : str
-        Connected-component policy of the eigenbases.
-    strict : bool
-        A suspect map fails the target (nothing written).
     cache_dir : str or None
         Eigenbasis / basis cache folder.
     """
 
     kind: str = "colors"
     map: str = "estimate"
-    k1: int = 29
-    k2: int = 39
-    order: int = 2
-    tol: float | None = None
-    preset: str | None = "ours"
-    mode: str = "add"
-    band: int = DETAIL_BAND
-    amount: float = 1.0
+    bases: BasisOptions | None = None
+    detail: DetailOptions = dataclasses.field(default_factory=DetailOptions)
     components: str = "auto"
     strict: bool = False
     signal: str = "auto"
@@ -106,22 +95,19 @@ class TransferJob:
     texture: str | None = None
     cache_dir: str | None = None
 
-    def eig_k(self, n_vertices: int, side: int, *, dense: bool = False) -> tuple[int, bool]:
-        """(k, clamp_k) of a shape's eigenbasis: ~100 for map estimation, else k1 / k2.
+    @property
+    def match(self) -> MatchOptions:
+        """How each target's map is estimated."""
+        return MatchOptions(components=self.components)
 
-        ``dense``: the map of this shape is estimated on coarse copies (the dense path), so
-        its own eigenbasis serves the transfer only.
-        """
-        k = self.k1 if side == 1 else self.k2
-        if self.kind == "detail" and self.mode != "coordinates":
-            k = max(k, self.band, ROTATION_K)  # the detail band and the local frames
-        if self.map == "estimate" and not dense:
-            estimation = required_k(n_vertices, ESTIMATION_K)
-            if k <= estimation:  # the estimation's size holds the transfer's too
-                return estimation, True
-        # Exactly k (more than the estimation needs, e.g. --k1 150): a shape too small for
-        # it is refused by the eigensolver, as for a pair (it was capped at 99 silently).
-        return k, False
+    def task(self, target: Any = None, *, mesh: bool = True) -> str:
+        """Return the planner's task for a target (None: the source's side, any target)."""
+        if self.kind == "detail":
+            return "detail"
+        bake = self.kind == "texture" and target is not None and not isinstance(target, tuple)
+        if bake and (has_uvs(target) or (self.atlas and mesh)):
+            return "texture"
+        return "colors"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,10 +136,10 @@ class SharedSource:
     faces : (m1, 3) ndarray of int64 or None
         Source triangles.
     eig : EigenBasis
-        Source eigenbasis (k = 99 for map estimation; k1, or the detail band, for a source on
-        the dense path, whose maps are estimated on coarse copies).
-    basis : OFPBasis
-        Source OFP basis (k1 eigenfunctions).
+        Source eigenbasis, as the source's plan sizes it (the estimation's ~100, or the
+        transfer's own on the dense path).
+    basis : OFPBasis or None
+        Source OFP basis (kinds "colors" and "texture").
     signal : (n1, 3) ndarray or None
         Source vertex colors (kinds "colors" and "texture").
     job : TransferJob
@@ -161,15 +147,15 @@ class SharedSource:
     texture : MeshTexture, VertexColorSurface or None
         The source's UVs and images, or its vertex colors (kind "texture").
     coarse : CoarseShape or None
-        The source's coarse copy and its eigenbasis, for a source on the dense path (its maps
-        to mesh targets are estimated on coarse copies): reduced once, not per target.
+        The source's coarse copy and its eigenbasis, for a source on the dense path: reduced
+        once, not per target.
     """
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray | None
     eig: EigenBasis
-    basis: OFPBasis
+    basis: OFPBasis | None
     signal: np.ndarray | None
     job: TransferJob
     texture: MeshTexture | VertexColorSurface | None = None
@@ -238,103 +224,9 @@ def _read(spec: ShapeSpec) -> tuple[Any, np.ndarray, np.ndarray | None]:
     return (V, F), V, F
 
 
-def shape_bases(
-    V: np.ndarray,
-    F: np.ndarray | None,
-    job: TransferJob,
-    side: int,
-    *,
-    dense: bool = False,
-) -> tuple[EigenBasis, OFPBasis, bool]:
-    """Eigenbasis and OFP basis of one side of a transfer, from the cache when there is one.
-
-    Parameters
-    ----------
-    V : (n, 3) ndarray of float64
-        Vertices.
-    F : (m, 3) ndarray of int64 or None
-        Triangles (``None``: a point cloud).
-    job : TransferJob
-        The options.
-    side : {1, 2}
-        Source (k1) or target (k2).
-    dense : bool, default False
-        The shape's map is estimated on the dense path (no ~100-eigenfunction basis needed).
-
-    Returns
-    -------
-    eig : EigenBasis
-        ~100 eigenfunctions for map estimation, else ``k1`` / ``k2``.
-    basis : OFPBasis
-        The OFP basis on ``k1`` / ``k2`` of them.
-    cached : bool
-        Whether the eigenbasis came from the cache.
-    """
-    k_eig, clamp = job.eig_k(V.shape[0], side, dense=dense)
-    k_basis = job.k1 if side == 1 else job.k2
-    if not clamp and k_eig >= V.shape[0]:  # before any work: the shape cannot hold them
-        flag, name = ("k1", "source") if side == 1 else ("k2", "target")
-        band = f", band = {job.band}" if job.kind == "detail" and k_eig > k_basis else ""
-        raise ValueError(
-            f"{flag} = {k_basis}{band}: the {name} has {V.shape[0]} vertices, too few for "
-            f"{k_eig} eigenfunctions; give a smaller {flag} (--{flag})"
-        )
-    if job.cache_dir is not None:
-        eig, cached = fetch_eigenbasis(
-            V, F, k=k_eig, clamp_k=clamp, cache_dir=job.cache_dir, components=job.components
-        )
-        _check_basis_size(eig, k_basis, side)
-        B, _ = fetch_basis(
-            V, F, k=k_basis, order=job.order, tol=job.tol, preset=job.preset,
-            cache_dir=job.cache_dir, eig=eig, components=job.components,
-        )  # fmt: skip
-        return eig, B, cached
-    eig = eigenbasis(V, F, k=k_eig, clamp_k=clamp, components=job.components)
-    _check_basis_size(eig, k_basis, side)
-    B = ofp_basis(eig, order=job.order, tol=job.tol, preset=job.preset, k=k_basis)
-    return eig, B, False
-
-
-def _check_basis_size(eig: EigenBasis, k_basis: int, side: int) -> None:
-    """Refuse a basis larger than the shape's eigenbasis (a shape too small for k1 / k2)."""
-    if k_basis > eig.k:
-        flag, name = ("k1", "source") if side == 1 else ("k2", "target")
-        raise ValueError(
-            f"{flag} = {k_basis}: the {name} has only {eig.k} non-constant eigenfunctions "
-            f"({eig.n_vertices} vertices); give a smaller {flag}"
-        )
-
-
-def _dense_pair(source: SharedSource, V2: np.ndarray, F2: np.ndarray | None) -> bool:
-    """Whether this target's map is estimated on the dense path (coarse copies)."""
-    meshes = source.faces is not None and F2 is not None
+def _identity(source: SharedSource, n2: int) -> Correspondence:
+    """Return the identity map (``map="identity"``): the target has the source's vertices."""
     n1 = source.vertices.shape[0]
-    return source.job.map == "estimate" and uses_dense_path(n1, V2.shape[0], meshes)
-
-
-def _correspondence(
-    source: SharedSource, eig_2: EigenBasis, V2: np.ndarray, F2: np.ndarray | None
-) -> Correspondence:
-    job = source.job
-    if _dense_pair(source, V2, F2):  # the target's coarse basis is made here
-        return match_arrays(
-            source.vertices,
-            source.faces,
-            V2,
-            F2,
-            components=job.components,
-            coarse_source=source.coarse,
-        )
-    if job.map == "estimate":
-        eig_1 = source.eig
-        need = required_k(eig_1.n_vertices, ESTIMATION_K)
-        if eig_1.k < need:  # a large source (dense path) onto a small or point-cloud target
-            logger.info("source eigenbasis of %d functions for this target's estimation", need)
-            eig_1 = eigenbasis(
-                source.vertices, source.faces, k=need, clamp_k=True, components=job.components
-            )
-        return match_eigenbases(eig_1, eig_2)
-    n1, n2 = source.eig.n_vertices, eig_2.n_vertices
     if n1 != n2:
         raise ValueError(
             f"the identity map (map='identity' / --map identity) needs a target with the "
@@ -347,8 +239,37 @@ def _correspondence(
 #: {function}: the command and the Python function of the collection's kind).
 ALONE_WITH_LANDMARKS = (
     "a collection takes no landmarks: transfer this target alone (o3d-ofp {command} SOURCE "
-    "TARGET --landmarks ..., or ofp.{function}(..., landmarks=...))"
+    "TARGET --landmarks ..., or ofp.match(source, target, landmarks=...), then "
+    "ofp.{function}(..., correspondence=...))"
 )
+#: Appended to a message whose fix is a partial match, which a collection does not make.
+ALONE_PARTIAL = (
+    "a collection makes no partial match: transfer this target alone (o3d-ofp {command} "
+    "SOURCE TARGET --partial, or ofp.match(source, target, partial=True))"
+)
+#: The findings whose fix is a partial match (not the "likely causes" that name it among
+#: others).
+_PARTIAL_FIXES = ("looks_partial", "looks_partial_units", "cloud_part", "part_larger")
+
+
+def _for_collections(message: str | Said, kind: str = "colors") -> str:
+    """Return a library message's words, with the fix a collection cannot apply: run it alone.
+
+    The fixes are read from the message's codes (a landmarks fix, a partial match), never from
+    its words; ``kind`` names the collection's command and Python function.
+    """
+    command, function = ("detail", "transfer_detail") if kind == "detail" else (
+        "transfer", "transfer_texture" if kind == "texture" else "transfer_colors"
+    )  # fmt: skip
+    if not isinstance(message, Said):
+        return message
+    text = message.text()
+    if {"landmarks", "landmarks_check"} & set(message.fixes):
+        text += f" ({ALONE_WITH_LANDMARKS.format(command=command, function=function)})"
+    codes = {message.code} | {getattr(v, "code", "") for v in message.values.values()}
+    if codes & set(_PARTIAL_FIXES):
+        text += f" ({ALONE_PARTIAL.format(command=command)})"
+    return text
 
 
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
@@ -404,21 +325,18 @@ def _for_collections(message: str, kind: str = "colors") -> str:
     return message
 
 
+_SILENCED = False
+
+
+def _silence_warnings_on_this_worker() -> None:
+    global _SILENCED
+    if not _SILENCED:
+        warnings.filterwarnings("ignore", category=OFPWarning)
+        _SILENCED = True
+
+
 def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
-    """Transfer the source's colors or detail onto one target; never raises for the target.
-
-    Parameters
-    ----------
-    source : SharedSource
-        The source with its bases (shared by every task).
-    spec : ShapeSpec
-        The target.
-
-    Returns
-    -------
-    TargetResult
-        ``ok`` with the output written (or the values kept), or ``failed`` with the message.
-    """
+    """Transfer the source's colors or detail onto one target; never raises for the target."""
     job = source.job
     t0 = time.perf_counter()
     n2, cached, coverage, suspect = 0, False, math.nan, None
@@ -427,55 +345,56 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     try:
         target, V2, F2 = _read(spec)
         n2 = V2.shape[0]
-        eig_2, B2, cached = shape_bases(V2, F2, job, 2, dense=_dense_pair(source, V2, F2))
-        corr = _correspondence(source, eig_2, V2, F2)
+        V1, F1 = source.vertices, source.faces
+        given = _identity(source, n2) if job.map == "identity" else None
+        task = job.task(target, mesh=spec.arrays is None and F2 is not None)
+        plan = plan_pair(
+            V1, F1, V2, F2, task=task, match=job.match, given=given, detail=job.detail,
+            bases=None if task == "texture" else job.bases,  # (checked by the source's plan)
+        )  # fmt: skip
+        prepared = prepare(
+            plan, V1, F1, V2, F2, match=job.match, given=given, eigenbases=(source.eig, None),
+            bases=(source.basis, None), cache_dir=job.cache_dir, coarse_source=source.coarse,
+        )  # fmt: skip
+        corr, cached = prepared.correspondence, prepared.cached[1]
         if corr.quality is not None:
             coverage, suspect = corr.quality.coverage, corr.quality.suspect
             notes = tuple(_for_collections(n, job.kind) for n in corr.quality.notes)
         else:
             coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
         if suspect and job.strict:
-            reasons = "; ".join(corr.quality.reasons)
-            raise ValueError(f"suspect map (strict): {_for_collections(reasons, job.kind)}")
-        bases = (source.basis, B2)
-        if (
-            job.kind == "texture"
-            and not isinstance(target, tuple)
-            and (has_uvs(target) or (job.atlas and spec.arrays is None and F2 is not None))
-        ):
+            reasons = "; ".join(_for_collections(r, job.kind) for r in corr.quality.reasons)
+            raise ValueError(f"suspect map (strict): {reasons}")
+        values, result = None, None
+        if task == "texture":
             assert source.texture is not None
             result = transfer_texture(
                 source.texture, target, correspondence=corr, size=job.texture_size,
                 atlas=job.atlas,
             )  # fmt: skip
-            values = None
-        elif job.kind in ("colors", "texture"):
+        elif task == "colors":
             made = "colors"  # a target without UVs (and no atlas): its vertices get the colors
-            g = transfer_function(
-                source.signal, source.eig, eig_2, correspondence=corr, bases=bases
-            )
-            values, result = np.clip(g, 0.0, 1.0), None
+            values = np.clip(carry(source.signal, plan, prepared), 0.0, 1.0)
         else:
             result = transfer_detail(
-                (source.vertices, source.faces), target, mode=job.mode, band=job.band,
-                amount=job.amount, k1=job.k1, k2=job.k2, order=job.order, tol=job.tol,
-                preset=None if job.tol is not None else job.preset, correspondence=corr,
-                eigenbases=(source.eig, eig_2), bases=bases,
+                (V1, F1), target, correspondence=corr, mode=job.detail.mode,
+                band=job.detail.band, amount=job.detail.amount, options=job.bases,
+                bases=(prepared.eig_1, prepared.eig_2) if prepared.bases is None
+                else prepared.bases,
             )  # fmt: skip
             values = geometry_to_arrays(result)[0]
         if spec.output is None and result is not None and values is None:
             raise ValueError("a baked texture needs an output folder (output_dir)")
         if spec.output is not None:
-            if result is None:
-                colored = like_target(target, colors=values)
-                result = without_texture(colored)
-                if result is not colored:
-                    warn(
-                        logger,
-                        f"{spec.name}: its texture image is not written: the colors replace "
-                        "it on its vertices (kind='texture' / --texture-size N bakes them into "
-                        "its UV layout)",
-                    )
+            if result is None or task == "detail":
+                geometry = like_target(target, colors=values) if task == "colors" else result
+                result = without_texture(geometry)
+                if result is not geometry:
+                    warn(logger, Said(
+                        "{name}: its texture image is not written: the colors replace it on its "
+                        "vertices ({texture_size} bakes them into its UV layout)",
+                        {"name": spec.name}, "texture_dropped",
+                    ))  # fmt: skip
             write_geometry(spec.output, result)
             values = None
     except Exception as exc:  # a target's failure is its record, never the run's
@@ -486,21 +405,11 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
             notes=notes,
         )  # fmt: skip
     return TargetResult(
-        index=spec.index,
-        name=spec.name,
-        path=spec.path,
-        status="ok",
-        output=spec.output,
-        seconds=time.perf_counter() - t0,
-        coverage=float(coverage),
-        suspect=bool(suspect),
-        kind=made,
-        n_vertices=n2,
-        cached=cached,
-        worker=worker_name(),
-        notes=notes,
+        index=spec.index, name=spec.name, path=spec.path, status="ok", output=spec.output,
+        seconds=time.perf_counter() - t0, coverage=float(coverage), suspect=bool(suspect),
+        kind=made, n_vertices=n2, cached=cached, worker=worker_name(), notes=notes,
         values=values,
-    )
+    )  # fmt: skip
 
 
 def basis_task(job: BasisJob, spec: ShapeSpec) -> TargetResult:

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from .wording import OptionError
+
 __all__ = [
     "as_faces",
     "as_signal",
@@ -124,19 +126,19 @@ def as_signal(f: Any, n: int, *, name: str = "f") -> np.ndarray:
 def check_int(value: Any, *, name: str, minimum: int, maximum: int | None = None) -> int:
     """Return ``value`` as an ``int`` after checking ``minimum <= value <= maximum``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer; got {value!r} of type {type(value).__name__}")
+        raise OptionError(name, f"must be an integer; got {value!r} of type {type(value).__name__}")
     value = int(value)
     if value < minimum or (maximum is not None and value > maximum):
         hi = "" if maximum is None else f" and <= {maximum}"
-        raise ValueError(f"{name} must be >= {minimum}{hi}; got {value}")
+        raise OptionError(name, f"must be >= {minimum}{hi}; got {value}")
     return value
 
 
 def check_tol(tol: Any, *, name: str = "tol") -> float:
     """Return ``tol`` as a float strictly inside ``(0, 1)``."""
     if isinstance(tol, bool) or not isinstance(tol, numbers.Real):
-        raise TypeError(f"{name} must be a float in (0, 1); got {tol!r}")
+        raise OptionError(name, f"must be a float in (0, 1); got {tol!r}")
     tol = float(tol)
     if not (0.0 < tol < 1.0):
-        raise ValueError(f"{name} must lie strictly between 0 and 1; got {tol}")
+        raise OptionError(name, f"must lie strictly between 0 and 1; got {tol}")
     return tol

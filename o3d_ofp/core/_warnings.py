@@ -20,6 +20,8 @@ import threading
 import warnings
 from collections.abc import Iterator
 
+from .wording import Said
+
 __all__ = ["OFPWarning", "collected_warnings", "reissue", "warn", "warnings_logged"]
 
 _COLLECTING = threading.local()
@@ -54,18 +56,20 @@ def warnings_logged(level: int = logging.WARNING) -> Iterator[None]:
         _LOG.level = before
 
 
-def warn(logger: logging.Logger, message: str, *, stacklevel: int | None = None) -> None:
+def warn(logger: logging.Logger, message: str | Said, *, stacklevel: int | None = None) -> None:
     """Issue ``message`` as an :class:`OFPWarning` and log it on ``logger`` (at DEBUG).
 
-    The warning is attributed to the caller's own line: the first frame outside the package
-    (a trial's warning pointed at ``o3d_ofp/boundary/api.py``); ``stacklevel`` overrides it.
-    The log record is at DEBUG, or at the level :func:`warnings_logged` sets.
+    The warning is attributed to the caller's own line: the first frame outside the package;
+    ``stacklevel`` overrides it. The log record is at DEBUG, or at the level
+    :func:`warnings_logged` sets; a :class:`~o3d_ofp.core.wording.Said` rides on it as
+    ``record.said`` (a front end words it for its reader).
     """
-    logger.log(_LOG.level, "%s", message)
+    extra = {"said": message} if isinstance(message, Said) else None
+    logger.log(_LOG.level, "%s", message, extra=extra)
     _collect(message)
     if stacklevel is None:
         stacklevel = _outside_the_package()
-    warnings.warn(message, OFPWarning, stacklevel=stacklevel)
+    warnings.warn(str(message), OFPWarning, stacklevel=stacklevel)
 
 
 _PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
@@ -81,14 +85,14 @@ def _outside_the_package() -> int:
     return level
 
 
-def _collect(message: str) -> None:
+def _collect(message: str | Said) -> None:
     """Add ``message`` to every :func:`collected_warnings` block open in this thread."""
     for messages in getattr(_COLLECTING, "lists", ()):
         messages.append(message)
 
 
 @contextlib.contextmanager
-def collected_warnings() -> Iterator[list[str]]:
+def collected_warnings() -> Iterator[list[str | Said]]:
     """Collect the messages :func:`warn` issues in this thread while the block runs.
 
     Independent of the logging levels and of the warning filters (process-wide state that
@@ -97,7 +101,7 @@ def collected_warnings() -> Iterator[list[str]]:
     lists = getattr(_COLLECTING, "lists", None)
     if lists is None:
         lists = _COLLECTING.lists = []
-    messages: list[str] = []
+    messages: list[str | Said] = []
     lists.append(messages)
     try:
         yield messages

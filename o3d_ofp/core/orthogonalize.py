@@ -60,6 +60,7 @@ from scipy.linalg.blas import dgemm, dnrm2, dtrsm
 from ._progress import Progress
 from ._threads import PARALLEL_ROWS
 from ._validation import as_signal, check_int, check_tol
+from .wording import OptionError
 
 __all__ = ["PRESETS", "GramSchmidt", "gram_schmidt", "gram_schmidt_blocks", "resolve_tol"]
 
@@ -108,9 +109,9 @@ def resolve_tol(tol: Any = None, preset: Any = None) -> float:
     """
     if preset is not None:
         if preset not in PRESETS:
-            raise ValueError(f"preset must be one of {sorted(PRESETS)}; got {preset!r}")
+            raise OptionError("preset", f"must be one of {sorted(PRESETS)}; got {preset!r}")
         if tol is not None and check_tol(tol) != PRESETS[preset]:
-            raise ValueError(f"tol={tol} contradicts preset={preset!r} (tol={PRESETS[preset]:g})")
+            raise OptionError("tol", f"{tol} contradicts preset={preset!r} (tol={PRESETS[preset]:g})")
         return PRESETS[preset]
     return PRESETS["ours"] if tol is None else check_tol(tol)
 

@@ -22,22 +22,16 @@ representation (a coarse remeshing instead of their reduced functional space).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import logging
-import time
-from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
-from ..core._progress import StageProgress
 from ..core._validation import check_int
-from ..core._warnings import warn
-from ..core.multiscale import coarse_mesh, extend_p2p
+from ..core.multiscale import coarse_mesh
 from ..core.spectrum import EigenBasis, eigenbasis
-from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
+from ..core.wording import Said
 
-__all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_shape", "match_dense"]
+__all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_landmarks", "coarse_shape"]
 
 logger = logging.getLogger(__name__)
 
@@ -117,9 +111,9 @@ def coarse_shape(
     return CoarseShape(Vc, Fc, samples, cell, eig)
 
 
-def _coarse_landmarks(
+def coarse_landmarks(
     landmarks: np.ndarray, c1: CoarseShape, c2: CoarseShape
-) -> tuple[np.ndarray, str | None]:
+) -> tuple[np.ndarray, Said | None]:
     """Carry (source, target) landmarks to the coarse vertices of their cells.
 
     Pairs closer than a cell apart on a shape fall on one coarse vertex there: a pair whose
@@ -143,206 +137,14 @@ def _coarse_landmarks(
         kept.append(i)
     note = None
     if dropped:
-        given = ", ".join(f"[{s}, {t}]" for s, t in landmarks[dropped].tolist())
-        note = (
-            f"landmarks {given}: on the coarse copies (about {c1.vertices.shape[0]} and "
-            f"{c2.vertices.shape[0]} vertices) each falls on a coarse vertex an earlier landmark "
-            "uses, paired there with another vertex, so the coarse estimate leaves it out "
-            "(pairs a few vertices apart pin the map no better than one); give landmarks "
-            "farther apart, or match at full resolution (from Python: eigenbases=, slow)"
-        )
+        note = Said(
+            "landmarks {given}: on the coarse copies (about {n1} and {n2} vertices) each falls "
+            "on a coarse vertex an earlier landmark uses, paired there with another vertex, so "
+            "the coarse estimate leaves it out (pairs a few vertices apart pin the map no better "
+            "than one); give landmarks farther apart, or match at full resolution (from Python: "
+            "eigenbases=, slow)",
+            {"given": ", ".join(f"[{s}, {t}]" for s, t in landmarks[dropped].tolist()),
+             "n1": int(c1.vertices.shape[0]), "n2": int(c2.vertices.shape[0])},
+            "landmarks_dropped",
+        )  # fmt: skip
     return pairs[kept], note
-
-
-def match_dense(
-    vertices_1: np.ndarray,
-    faces_1: np.ndarray,
-    vertices_2: np.ndarray,
-    faces_2: np.ndarray,
-    *,
-    estimate: Callable[..., Any],
-    k: int,
-    coarse_vertices: int = COARSE_VERTICES,
-    components: str = "auto",
-    landmarks: np.ndarray | None = None,
-    progress: Callable[[str, float], None] | None = None,
-    coarse_1: CoarseShape | None = None,
-    extend: Callable[..., tuple[np.ndarray, Any]] | None = None,
-    warn_landmarks: bool = True,
-    **options: Any,
-) -> Any:
-    """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
-
-    Parameters
-    ----------
-    vertices_1, faces_1 : (n1, 3) ndarray of float, (m1, 3) ndarray of int
-        Source mesh.
-    vertices_2, faces_2 : (n2, 3) ndarray of float, (m2, 3) ndarray of int
-        Target mesh.
-    estimate : callable
-        ``estimate(eig_1, eig_2, landmarks=..., progress=..., **options)`` returning a
-        ``Correspondence`` with ``fmap_12`` (:func:`o3d_ofp.workflows.matching.match_eigenbases`,
-        which passes itself: this module sits below it).
-    k : int
-        Non-constant eigenfunctions of the coarse bases (the size ZoomOut refines to).
-    coarse_vertices : int, default :data:`COARSE_VERTICES`
-        Vertices of each coarse mesh (the result has this many ± 10 %; capped by the shape).
-    components : {"auto", "largest", "error"}, default "auto"
-        Policy for several connected components of the coarse meshes (see
-        :func:`o3d_ofp.eigenbasis`).
-    landmarks : (p, 2) ndarray of int, optional
-        Known (source, target) pairs in the full meshes' numbering (checked by the caller);
-        carried to the coarse vertices of their cells (pairs that fall on one coarse vertex
-        of a shape are merged, or left out of the coarse estimate when they would pair it
-        with two: a warning and a note of the quality say so).
-    progress : callable, optional
-        Called as ``progress(stage, fraction_done)``.
-    coarse_1 : CoarseShape, optional
-        The source's coarse copy and eigenbasis, when the caller has them
-        (:func:`coarse_shape` with the same ``k`` and ``coarse_vertices``): a source matched
-        onto several targets is then reduced once.
-    extend : callable, optional
-        ``extend(corr, coarse_1, coarse_2, vertices_1, vertices_2)`` returning the full point
-        map and the coarse Correspondence (its notes and options updated), for an estimate
-        whose point map is not its ``fmap_12``'s alone (the partial match's); default:
-        :func:`o3d_ofp.core.multiscale.extend_p2p` of ``corr.fmap_12``.
-    warn_landmarks : bool, default True
-        Warn (:class:`o3d_ofp.OFPWarning`) when landmarks are left out of the coarse estimate
-        (the note is added either way); False for a caller that runs the match again.
-    **options
-        Passed to ``estimate``.
-
-    Returns
-    -------
-    Correspondence
-        ``p2p_21`` (n2,) between the full meshes; ``fmap_12`` is ``None`` (the estimated map
-        lives between the coarse bases, not the full ones); ``options`` record the coarse
-        sizes; ``quality`` is the coarse map's report with the coverage measured on the full
-        point map.
-    """
-    V1 = np.ascontiguousarray(vertices_1, dtype=np.float64)
-    V2 = np.ascontiguousarray(vertices_2, dtype=np.float64)
-    if faces_1 is None or faces_2 is None:
-        raise ValueError("match_dense needs two meshes (faces_1 and faces_2)")
-    coarse_vertices = check_int(coarse_vertices, name="coarse_vertices", minimum=200)
-    k = check_int(k, name="k", minimum=1)
-    n1, n2 = V1.shape[0], V2.shape[0]
-    if landmarks is not None:
-        landmarks = np.asarray(landmarks)
-        if (
-            landmarks.ndim != 2
-            or landmarks.shape[1] != 2
-            or not np.issubdtype(landmarks.dtype, np.integer)
-            or np.any(landmarks < 0)
-            or np.any(landmarks.max(axis=0, initial=-1) >= [n1, n2])
-        ):
-            raise ValueError(
-                f"landmarks must be (source, target) vertex pairs within [0, {n1}) x [0, {n2})"
-            )
-    if coarse_1 is not None and coarse_1.cell.shape[0] != n1:
-        raise ValueError(
-            f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; the source "
-            f"has {n1}"
-        )
-    # A shape the coarse copies' eigensolves would refuse is refused before either is built.
-    check_shapes(
-        [(V1, faces_1), (V2, faces_2)][0 if coarse_1 is None else 1 :],
-        names=("the source", "the target")[0 if coarse_1 is None else 1 :],
-        components=components,
-    )
-    report = progress or StageProgress(logger, "match (dense)")
-    # The stages below are logged as they start; their share of the run is said only when
-    # this run reports its own progress: a caller's ``progress`` gives its own shares, and a
-    # second one here went backwards against it (a trial's partial match: "matching: ...
-    # (32%)", then "match (dense): ... (80%)", then "matching: ... (40%)").
-
-    def share(done: float) -> str:
-        return f" ({round(100 * done)}%)" if progress is None else ""
-
-    t0 = time.perf_counter()
-    coarse = functools.partial(
-        coarse_shape, k=k, coarse_vertices=coarse_vertices, components=components
-    )
-    c1 = coarse_1
-    if c1 is None:
-        logger.info(
-            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases%s",
-            coarse_vertices,
-            share(0.0),
-        )
-        report("coarse copies", 0.0)
-        c1, c2 = run_per_shape(
-            [functools.partial(coarse, V1, faces_1), functools.partial(coarse, V2, faces_2)],
-            [n1, n2],
-            [eigenbasis_bytes(min(n, coarse_vertices), k) for n in (n1, n2)],
-            what="coarse copies",
-        )
-    else:
-        logger.info(
-            "match (dense): the source's coarse copy is given; coarse copy of the target "
-            "(~%d vertices) and its eigenbasis%s",
-            coarse_vertices,
-            share(0.0),
-        )
-        report("coarse target", 0.0)
-        c2 = coarse(V2, faces_2)
-    eigs = [c1.eig, c2.eig]
-    coarse_landmarks, left_out = None, None
-    if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
-        coarse_landmarks, left_out = _coarse_landmarks(landmarks, c1, c2)
-        if left_out is not None and warn_landmarks:
-            warn(logger, left_out)
-    logger.info(
-        "match (dense): estimation between the coarse meshes (%.1fs)%s",
-        time.perf_counter() - t0,
-        share(0.15),
-    )
-
-    def coarse_progress(stage: str, done: float) -> None:
-        report(f"coarse {stage}", 0.15 + 0.65 * done)
-
-    corr = estimate(
-        eigs[0], eigs[1], landmarks=coarse_landmarks, progress=coarse_progress, **options
-    )
-    logger.info(
-        "match (dense): extension to %d target vertices (%.1fs)%s",
-        n2,
-        time.perf_counter() - t0,
-        share(0.8),
-    )
-    report("extension", 0.8)
-    assert corr.fmap_12 is not None
-    if extend is None:
-        p2p = extend_p2p(corr.fmap_12, eigs[0], eigs[1], V1, V2)
-    else:
-        p2p, corr = extend(corr, c1, c2, V1, V2)
-    hit = np.unique(p2p).size
-    quality = corr.quality
-    if quality is not None:
-        quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
-        if left_out is not None:
-            quality = dataclasses.replace(quality, notes=(*quality.notes, left_out))
-        # The report logged above is the coarse map's; the result's coverage is the full one.
-        logger.info(
-            "match (dense): the quality above is the coarse meshes'; at full resolution the "
-            "map hits %d source vertices: coverage %.3f of the source's vertices (%.2f of the "
-            "smaller shape's count)",
-            hit,
-            quality.coverage,
-            quality.coverage_ratio,
-        )
-    logger.info("match (dense): done in %.1fs%s", time.perf_counter() - t0, share(1.0))
-    report("done", 1.0)
-    return dataclasses.replace(
-        corr,
-        p2p_21=p2p,
-        n_source=n1,
-        fmap_12=None,
-        options={
-            **corr.options,
-            "landmarks": None if landmarks is None else landmarks.tolist(),
-            "dense": True,
-            "coarse_vertices": [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])],
-        },
-        quality=quality,
-    )

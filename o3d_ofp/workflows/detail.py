@@ -50,7 +50,6 @@ from __future__ import annotations
 import logging
 import math
 import numbers
-import warnings
 from typing import Any
 
 import numpy as np
@@ -60,23 +59,20 @@ import scipy.sparse.linalg as sla
 from ..core._threads import blas_threads
 from ..core._validation import check_int
 from ..core._warnings import warn
-from ..core.basis import OFPBasis
 from ..core.correspondence import check_p2p
 from ..core.geometry import face_areas_normals, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
-from .matching import Correspondence, check_correspondence
+from ..core.wording import OptionError, Said
+from .maps import Correspondence, check_correspondence
+from .options import DETAIL_BAND, BasisOptions, DetailOptions
 from .pipeline import transfer_function
+from .plan import ROTATION_K
 
 __all__ = [
     "COORDINATES_AREA_RATIO",
-    "DETAIL_BAND",
     "FIT_RANGE",
-    "MAX_AMOUNT",
-    "MODES",
     "PART_COVERAGE",
-    "ROTATION_K",
     "check_coordinates_area",
-    "check_detail_options",
     "detail_vectors",
     "local_rotations",
     "lowpass_coordinates",
@@ -85,30 +81,11 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Default low band (non-constant eigenfunctions) the detail is measured from. A count of
-#: eigenfunctions, so it means the same at every resolution and scale. Measured on FAUST and
-#: TOSCA pairs (``scripts/eval_detail.py``, targets smoothed to 30 eigenfunctions, true map):
-#: distance to the truth 0.57-0.78x doing nothing at 30; a lower band (20) also takes the
-#: source's own pose and bulk (0.89-1.20x, volume +8-19 %); a higher one (40) leaves part of
-#: what the smoothing removed (0.72-0.82x). On a symmetric shape with repeated eigenvalues,
-#: choose a band that ends an eigenspace (on a sphere: 3, 8, 15, 24, 35, ...).
-DETAIL_BAND = 30
-#: Neighbourhood of the local rotation fit: the heat kernel at time ``1/λ_k`` for this k, a
-#: region a few times wider than a limb on a human (measured: 10 and 20 give the same results;
-#: 3 blurs the rotations of neighbouring parts).
-ROTATION_K = 10
 #: Fit (see :func:`local_rotations`) below which the map is not trusted at a vertex, and above
 #: which it is fully trusted. Measured at the defaults: true maps 0.70-0.83 at the 5th
 #: percentile, median 0.91-0.94; failed estimated maps median 0.40-0.48, 95th percentile
 #: 0.65-0.77. (0.6, 0.85) and (0.75, 0.95) give within 0.03 the same distances.
 FIT_RANGE = (0.7, 0.9)
-#: Largest ``amount``: a detail exaggerated ten times is no longer the source's detail.
-MAX_AMOUNT = 10.0
-
-#: Detail transfer modes (see the module notes); "replace" is a deprecated alias of
-#: "coordinates".
-MODES = ("add", "replace-detail", "coordinates")
-_ALIASES = {"replace": "coordinates"}
 _CARRIES = ("p2p", "ofp")
 
 
@@ -251,56 +228,6 @@ def local_rotations(
     spread = np.sqrt(np.clip(var_p, 0.0, None) * np.clip(var_q, 0.0, None))
     fit = np.divide(agree, spread, out=np.zeros(n), where=spread > 0)
     return rotations, np.clip(fit, -1.0, 1.0)
-
-
-def check_detail_options(
-    *, mode: str = "add", band: Any = DETAIL_BAND, amount: Any = 1.0, names: Any = None
-) -> tuple[str, int, float]:
-    """Check the detail transfer's options before any work; return them normalized.
-
-    Parameters
-    ----------
-    mode, band, amount
-        As in :func:`transfer_detail_frames` (``band`` is only checked to be a positive
-        integer here: whether the eigenbases hold it is checked when they exist).
-    names : mapping of str to str, optional
-        The names to use in messages instead of the keywords (e.g. the CLI's flags:
-        ``{"mode": "--mode", "band": "--band", "amount": "--amount"}``).
-
-    Returns
-    -------
-    mode : str
-        One of :data:`MODES` ("replace" becomes "coordinates", with a ``DeprecationWarning``).
-    band : int
-    amount : float
-
-    Raises
-    ------
-    ValueError, TypeError
-        Naming the keyword (or ``names[keyword]``).
-    """
-    name = {"mode": "mode", "band": "band", "amount": "amount", **(names or {})}
-    if mode in _ALIASES:
-        warnings.warn(
-            f"{name['mode']} {mode!r} is deprecated; use {_ALIASES[mode]!r}",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        mode = _ALIASES[mode]
-    if mode not in MODES:
-        raise ValueError(
-            f"{name['mode']} must be one of {', '.join(map(repr, MODES))}; got {mode!r}"
-        )
-    if isinstance(band, bool) or not isinstance(band, numbers.Integral):
-        raise TypeError(f"{name['band']} must be an integer number of eigenfunctions; got {band!r}")
-    if band < 1:
-        raise ValueError(f"{name['band']} must be >= 1; got {band}")
-    if isinstance(amount, bool) or not isinstance(amount, numbers.Real):
-        raise TypeError(f"{name['amount']} must be a number; got {amount!r}")
-    amount = float(amount)
-    if not (math.isfinite(amount) and 0.0 <= amount <= MAX_AMOUNT):
-        raise ValueError(f"{name['amount']} must be in [0, {MAX_AMOUNT:g}]; got {amount}")
-    return mode, int(band), amount
 
 
 def _check_band(band: Any, eig: EigenBasis, name: str) -> int:
@@ -447,12 +374,12 @@ def check_coordinates_area(
             logger.debug("the transferred coordinates have about the target's own area")
             return
     ratio = a2 / a1 if a1 > 0 else math.inf
-    warn(
-        logger,
-        f"the transferred coordinates give the target {ratio:.3g} times {whose} area "
-        "(the source's shape should come back): the map is wrong in places; check "
-        "correspondence.quality, give landmarks (landmarks= / --landmarks), or a known map",
-    )
+    warn(logger, Said(
+        "the transferred coordinates give the target {ratio:.3g} times {whose} area (the "
+        "source's shape should come back): the map is wrong in places; check "
+        "correspondence.quality, give landmarks ({landmarks_check}), or a known map",
+        {"ratio": ratio, "whose": whose}, "coordinates_area",
+    ))  # fmt: skip
 
 
 def transfer_detail_frames(
@@ -469,12 +396,6 @@ def transfer_detail_frames(
     fit_range: tuple[float, float] | None = FIT_RANGE,
     normals_1: Any = None,
     normals_2: Any = None,
-    k1: int = 29,
-    k2: int = 39,
-    order: int = 2,
-    preset: str | None = "ours*",
-    tol: float | None = None,
-    bases: tuple[OFPBasis, OFPBasis] | None = None,
 ) -> np.ndarray:
     """Give the target the source's geometric detail, in local frames; return new positions.
 
@@ -482,24 +403,21 @@ def transfer_detail_frames(
     ----------
     eig_1, eig_2 : EigenBasis
         Source (with the detail) and target eigenbases, each with ``k >= band`` and
-        ``k >= rotation_k`` (and ``k1`` / ``k2`` for ``carry="ofp"`` or mode
-        "coordinates"). Their ``vertices`` are the two shapes.
+        ``k >= rotation_k`` (and the OFP bases' 29 / 39 for ``carry="ofp"``). Their
+        ``vertices`` are the two shapes.
     p2p_21 : (n2,) array_like of int, optional
         Point map: the source vertex of every target vertex.
     correspondence : Correspondence, optional
-        A map from :func:`o3d_ofp.workflows.matching.match_eigenbases` (its point map is
-        used). Give exactly one of the two.
-    mode : {"add", "replace-detail", "coordinates"}, default "add"
+        A map from :func:`o3d_ofp.match` (its point map is used). Give exactly one of the two.
+    mode : {"add", "replace-detail"}, default "add"
         "add": the target keeps its own detail and the source's is added on top (right for a
         smooth target: it is taken as its own low-pass shape). "replace-detail": the
         target's own detail above ``band`` is replaced by the source's (added to the target's
         low-pass shape; a shape given itself as source then comes back unchanged). Measured
         on smoothed targets: "replace-detail" is 1.18-1.31x doing nothing, as re-projecting an
         already smoothed target on the eigenfunctions of its own (smoothed) surface removes
-        more of it. "coordinates": the paper's Fig. 13, the source's coordinates transferred
-        with OFP bases replace the target's (``k1``, ``k2``, ``order``, ``preset``, ``tol``,
-        ``bases`` as in :func:`~o3d_ofp.workflows.pipeline.transfer_function`). "replace" is
-        the deprecated former name of "coordinates" (a ``DeprecationWarning``).
+        more of it. (Mode "coordinates", the paper's Fig. 13, moves the target through the OFP
+        bases: :func:`o3d_ofp.transfer_detail`.)
     band : int, default 30
         Low band, in eigenfunctions: the detail is the part of the coordinates above the
         first ``band`` eigenfunctions. Lower takes more of the source's shape (and of its
@@ -512,11 +430,9 @@ def transfer_detail_frames(
         Multiplies the transferred detail, in [0, 10] (0 returns the base surface).
     carry : {"p2p", "ofp"}, default "p2p"
         How the detail reaches the target: pulled back through the point map, or transferred
-        with the OFP bases (``k1``, ``k2``, ``order``, ``preset``, ``tol``, ``bases``).
-        Measured with the true map: the OFP transfer of order 2 (29 / 39 eigenfunctions) loses
-        most of the detail (distance 0.79-0.97x doing nothing and normal angle 0.98-1.16x,
-        against 0.57-0.78x and 0.45-0.59x pulled back); order 3, the paper's Fig. 13 setting,
-        gives 0.86x on FAUST 093→087 and takes 15 s ("ours") to 250 s ("ours*"). With a
+        with the OFP bases (order 2 on 29 / 39 eigenfunctions, "ours*"). Measured with the
+        true map: the OFP transfer loses most of the detail (distance 0.79-0.97x doing nothing
+        and normal angle 0.98-1.16x, against 0.57-0.78x and 0.45-0.59x pulled back). With a
         wrong map both are the same (the map is not trusted).
     rotation_k : int, default 10
         Size of the neighbourhood the local rotations are fitted on (heat kernel at time
@@ -529,9 +445,6 @@ def transfer_detail_frames(
         normals of the source's low-pass shape and of the surface the detail is added to).
         Needed for point clouds; without them a cloud gets nothing where the map is not
         trusted.
-    k1, k2, order, preset, tol, bases
-        OFP bases for ``carry="ofp"`` and mode "coordinates" (default order 2 with 29 / 39
-        eigenfunctions, preset "ours*").
 
     Returns
     -------
@@ -545,31 +458,25 @@ def transfer_detail_frames(
         eigenbasis, an ``amount`` outside [0, 10], a bad ``fit_range``, or no / two maps;
         each message names the keyword.
     """
-    mode, _, amount = check_detail_options(mode=mode, band=band, amount=amount)
+    options = DetailOptions(mode=mode, band=band, amount=amount)
+    if options.mode == "coordinates":
+        raise OptionError("mode", "'coordinates' moves the target through the OFP bases: "
+                          "o3d_ofp.transfer_detail(..., mode='coordinates')")  # fmt: skip
+    mode, amount = options.mode, options.amount
     if carry not in _CARRIES:
-        raise ValueError(f"carry must be 'p2p' or 'ofp'; got {carry!r}")
+        raise OptionError("carry", f"must be 'p2p' or 'ofp'; got {carry!r}")
     check_eigenbasis(eig_1, "eig_1")
     check_eigenbasis(eig_2, "eig_2")
     if (p2p_21 is None) == (correspondence is None):
-        raise ValueError("give exactly one of p2p_21 and correspondence")
-    if check_correspondence(correspondence) is not None:
-        correspondence.check(
-            eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
+        raise OptionError("p2p_21", "and correspondence: give exactly one of them")
+    if check_correspondence(correspondence) is None:
+        correspondence = Correspondence(
+            p2p_21=check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices), n_source=eig_1.n_vertices
         )
-        p2p = np.asarray(correspondence.p2p_21)
-    else:
-        p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
-    ofp_kw = dict(k1=k1, k2=k2, order=order, preset=preset, tol=tol, p2p_21=p2p, bases=bases)
-    if mode == "coordinates":
-        moved = transfer_function(eig_1.vertices, eig_1, eig_2, **ofp_kw)
-        part = correspondence is not None and correspondence.method == "partial"
-        estimated = correspondence is not None and correspondence.method == "estimate"
-        check_coordinates_area(
-            eig_1.vertices, eig_1.faces, moved, eig_2.faces,
-            part=eig_2.vertices if part else None, target=None if estimated else eig_2.vertices,
-        )  # fmt: skip
-        return moved
-
+    correspondence.check(
+        eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
+    )
+    p2p = np.asarray(correspondence.p2p_21)
     band_1 = _check_band(band, eig_1, "eig_1")
     _check_band(band, eig_2, "eig_2")
     rotation_k = check_int(rotation_k, name="rotation_k", minimum=1, maximum=eig_2.k)
@@ -594,7 +501,7 @@ def transfer_detail_frames(
     # An estimated full-shape map is never taken for a part (its coverage is not measured):
     # it crowds when it is wrong, and a smoothed whole target has less area than its source
     # (a review of the change).
-    method = None if correspondence is None else correspondence.method
+    method = correspondence.method
     region = None if method == "estimate" else _covered(eig_1, eig_2, p2p)
     covered = 0.0 if region is None else float(eig_1.mass[region].sum())
     part = region is not None and (
@@ -617,17 +524,20 @@ def transfer_detail_frames(
         theirs = _detail_rms(eig_1, low_1, region=region)
         on_part = f" (on this part: above its first {band_2} eigenfunctions)" if part else ""
         if theirs > 0 and own > DETAILED_TARGET * theirs:
-            warn(
-                logger,
-                f"the target already has detail above band {band_1}{on_part} "
-                f"({own / theirs:.3g} of the source's, above {DETAILED_TARGET:g}): mode 'add' "
-                "keeps it and adds the source's on top, which exaggerates it; "
-                "mode='replace-detail' (--mode replace-detail) replaces it instead",
-            )
+            warn(logger, Said(
+                "the target already has detail above band {band}{on_part} ({share:.3g} of the "
+                "source's, above {bound:g}): mode 'add' keeps it and adds the source's on top, "
+                "which exaggerates it; {replace_detail} replaces it instead",
+                {"band": band_1, "on_part": on_part, "share": own / theirs,
+                 "bound": DETAILED_TARGET}, "detailed_target",
+            ))  # fmt: skip
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]
     else:
-        both = transfer_function(np.hstack([low_1, detail_1]), eig_1, eig_2, **ofp_kw)
+        both = transfer_function(
+            np.hstack([low_1, detail_1]), eig_1, eig_2, correspondence=correspondence,
+            options=BasisOptions(preset="ours*"),
+        )  # fmt: skip
         low_at_2, detail_at_2 = both[:, :3], both[:, 3:]
     R, fit = local_rotations(eig_2, low_at_2, base, rotation_k=rotation_k)
     moved = np.einsum("nij,nj->ni", R, detail_at_2)

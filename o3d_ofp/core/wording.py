@@ -1,0 +1,149 @@
+"""What the library says, as data: findings and errors with the fixes they advise, worded here.
+
+A quality check, a refusal or a warning that advises a fix is a :class:`Said`: a sentence with
+named fields for its values and for each fix it advises (codes of :data:`FIXES`). The one
+place that turns it into words is :meth:`Said.text`, for a Python caller (keywords:
+``partial=True``) or a command-line user (flags: ``--partial``); a front end asks for its
+wording and reads the fix codes (:attr:`Said.fixes`), never the words.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import string
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["FIXES", "AdvisedError", "OptionError", "Said", "text_of"]
+
+#: Each fix a message can advise: its Python wording and its command-line wording. A field
+#: ``{partial}`` in a :class:`Said` template becomes one of them; ``{target_scale}`` reads the
+#: ``factor`` value.
+FIXES: Mapping[str, tuple[str, str]] = {
+    "landmarks": ("landmarks=[[source, target], ...]", "--landmarks 12:40,500:611"),
+    "landmarks_check": ("landmarks=", "--landmarks; pick them with --landmarks pick"),
+    "partial": ("partial=True", "--partial"),
+    "closest": ("method='closest'", "--map closest"),
+    "estimate": ("method='estimate'", "--map estimate"),
+    "align": ("align=True", "--align"),
+    "no_align": ("align=False", "no --align"),
+    "atlas": ("atlas=True", "--uv-atlas"),
+    "texture": ("texture=...", "--texture FILE"),
+    "replace_detail": ("mode='replace-detail'", "--mode replace-detail"),
+    "smooth": ("filter_geometry(smooth=0.01)", "o3d-ofp filter --smooth 0.01"),
+    "components_largest": ("components='largest'", "--components largest"),
+    "components_error": ("components='error'", "--components error"),
+    "components_auto": ("components='auto'", "--components auto"),
+    "target_scale": (
+        "Open3D's target.scale({factor:g}, center=(0, 0, 0))",
+        "--target-scale {factor:g}",
+    ),
+    "identity": ("map='identity'", "--map identity"),
+    "texture_size": ("kind='texture'", "--texture-size N"),
+    "lower": (
+        "lower k1, k2 or order (options=BasisOptions(...)) or band",
+        "lower --k1/--k2, --order or --band",
+    ),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Said:
+    """A message whose fixes are codes, worded for its reader by :meth:`text`.
+
+    Attributes
+    ----------
+    template : str
+        The sentence, :meth:`str.format` fields for ``values`` and for the fixes it advises
+        (the keys of :data:`FIXES`).
+    values : mapping
+        The fields' values (numbers, names; JSON-serializable).
+    code : str
+        What was found or refused (e.g. ``"reversed"``, ``"looks_partial"``): front ends and
+        tests read this, not the words.
+    """
+
+    template: str
+    values: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    code: str = ""
+
+    @property
+    def fixes(self) -> tuple[str, ...]:
+        """The codes of the fixes the message advises (its parts' too), in the order named."""
+        found: list[str] = []
+        for _, name, _, _ in string.Formatter().parse(self.template):
+            value = self.values.get(name) if name else None
+            if isinstance(value, Said):
+                found.extend(value.fixes)
+            elif name in FIXES and name not in self.values:
+                found.append(name)
+        return tuple(dict.fromkeys(found))
+
+    def text(self, *, cli: bool = False) -> str:
+        """The message for a Python caller, or (``cli``) for a command-line user."""
+        values = {
+            name: value.text(cli=cli) if isinstance(value, Said) else value
+            for name, value in self.values.items()
+        }
+        words = {
+            code: FIXES[code][cli].format(**values)
+            for _, code, _, _ in string.Formatter().parse(self.template)
+            if code in FIXES and code not in values
+        }
+        return self.template.format(**values, **words)
+
+    def replace(self, **values: Any) -> Said:
+        """Return the same message with some values replaced."""
+        return dataclasses.replace(self, values={**self.values, **values})
+
+    @classmethod
+    def from_dict(cls, fields: Mapping[str, Any]) -> Said:
+        """Rebuild a message from :func:`dataclasses.asdict` of one (its parts too)."""
+        values = {
+            name: cls.from_dict(v) if isinstance(v, Mapping) and "template" in v else v
+            for name, v in fields.get("values", {}).items()
+        }
+        return cls(fields["template"], values, fields.get("code", ""))
+
+    def __str__(self) -> str:
+        return self.text()
+
+
+def text_of(message: Any, *, cli: bool = False) -> str:
+    """The words of a :class:`Said`, an exception carrying one, or anything else's ``str``."""
+    found = getattr(message, "said", message)
+    return found.text(cli=cli) if isinstance(found, Said) else str(message)
+
+
+class AdvisedError(ValueError):
+    """A refusal that advises a fix: ``str()`` words it for Python, :func:`text_of` for a reader.
+
+    Attributes
+    ----------
+    said : Said
+        The message as data.
+    """
+
+    def __init__(self, message: Said) -> None:
+        super().__init__(message.text())
+        self.said = message
+
+
+class OptionError(ValueError, TypeError):
+    """An option refused where it was handed over: it names the keyword, the CLI its flag.
+
+    Both a ValueError and a TypeError (a value of the wrong type is refused by the same
+    check, with the same kind of message).
+
+    Attributes
+    ----------
+    option : str
+        The keyword (a field of an options object, or a function's parameter).
+    problem : str
+        What is wrong with its value, after the name: ``"must be >= 1; got 0"``.
+    """
+
+    def __init__(self, option: str, problem: str) -> None:
+        super().__init__(option + ("" if problem.startswith((":", ",")) else " ") + problem)
+        self.option = option
+        self.problem = problem

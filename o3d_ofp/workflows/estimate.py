@@ -1,0 +1,447 @@
+"""The estimator skeleton: fit starts, refine them, settle on a map, judge it, review it.
+
+Every estimated map, full or partial, runs :func:`estimate`: the steps and their order live
+here once, and a :class:`Strategy` (:class:`~o3d_ofp.workflows.matching.FullMatch`,
+:class:`~o3d_ofp.workflows.partial.PartialMatch`) says how each step is done for its case.
+The estimation runs on each shape's cleaned surface (:func:`on_surfaces`) and on unit-scale
+copies, so the result depends neither on duplicated vertices nor on the shapes' units, place
+or orientation. Meshes too large for a direct match take the dense path
+(:func:`estimate_dense`: the same estimation between coarse copies, extended to every vertex,
+with the strategy's optional second opinions).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from typing import Any
+
+import numpy as np
+
+from ..core._progress import StageProgress
+from ..core._validation import check_int
+from ..core._warnings import warn
+from ..core.spectrum import EigenBasis, check_eigenbasis, on_cleaned_vertices
+from ..core.wording import OptionError
+from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
+from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
+from .maps import Correspondence, shape_signature, with_signatures
+from .matching import FullMatch
+from .options import MatchOptions
+from .partial import PartialMatch
+from .quality import say
+from .strategy import Run, Strategy
+
+__all__ = ["estimate", "estimate_dense", "match_eigenbases", "on_surfaces", "strategy_of"]
+
+logger = logging.getLogger(__name__)
+
+
+def strategy_of(options: MatchOptions) -> Strategy:
+    """Return the strategy of an estimation with these options (full or partial)."""
+    return PartialMatch() if options.partial else FullMatch()
+
+
+def estimate(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    options: MatchOptions | None = None,
+    strategy: Strategy | None = None,
+    progress: Callable[[str, float], None] | None = None,
+    warn_suspect: bool = True,
+) -> Correspondence:
+    """Estimate a map between two eigenbases: the skeleton every estimation runs.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases, each as large as the strategy needs
+        (:meth:`Strategy.needs`: a smaller basis is refused, never silently downgraded).
+    options : MatchOptions, optional
+        The estimation's options (default ``MatchOptions()``); ``landmarks`` are checked
+        against the bases' vertex counts.
+    strategy : Strategy, optional
+        How the steps are done (default :func:`strategy_of` the options).
+    progress : callable, optional
+        ``progress(stage, fraction_done)`` (default: logged every few seconds at INFO).
+    warn_suspect : bool, default True
+        Warn (:class:`o3d_ofp.OFPWarning`) about a suspect map; False for a caller that judges
+        it again (its reasons are in ``quality`` either way).
+
+    Returns
+    -------
+    Correspondence
+        ``p2p_21`` on the input vertices, the functional map, the options and the quality.
+    """
+    options = MatchOptions() if options is None else options
+    strategy = strategy_of(options) if strategy is None else strategy
+    eig_1, eig_2 = check_eigenbasis(eig_1, "eig_1"), check_eigenbasis(eig_2, "eig_2")
+    need = strategy.least(eig_1.n_vertices, eig_2.n_vertices, options)
+    for name, eig, k in (("source", eig_1, need[0]), ("target", eig_2, need[1])):
+        if eig.k < k:
+            raise OptionError(
+                "eigenbases",
+                f": the {name} eigenbasis has {eig.k} eigenfunctions but the {strategy.title} "
+                f"needs {k}: compute it with eigenbasis(..., k={options.zoomout_to}) (or lower "
+                "zoomout_to / k_fit knowingly)",
+            )
+    strategy.check(eig_1, eig_2)
+    landmarks = options.landmarks_for(eig_1.n_vertices, eig_2.n_vertices)
+
+    def on_surface(s1: EigenBasis, s2: EigenBasis, lm: np.ndarray | None) -> Correspondence:
+        return _estimate(s1, s2, strategy, lm, options, progress, warn_suspect)
+
+    return on_surfaces(eig_1, eig_2, on_surface, landmarks)
+
+
+def match_eigenbases(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    *,
+    options: MatchOptions | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> Correspondence:
+    """Estimate a map between two shapes from their eigenbases: the array-level :func:`o3d_ofp.match`.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases, with at least ``options.zoomout_to`` non-constant
+        eigenfunctions each (fewer only when a shape has fewer vertices): a smaller basis is an
+        error, never a silent downgrade.
+    options : MatchOptions, optional
+        Landmarks, a partial match (the target a part of the source, same units), the fit and
+        ZoomOut sizes (default ``MatchOptions()``; ``method="closest"`` needs the Open3D-level
+        :func:`o3d_ofp.match`).
+    progress : callable, optional
+        Called as ``progress(stage, fraction_done)`` at each stage.
+
+    Returns
+    -------
+    Correspondence
+        ``p2p_21``, the functional map, the options and the quality report. A suspect map is
+        warned about (:class:`o3d_ofp.OFPWarning`), naming the likely causes and the fix.
+
+    Notes
+    -----
+    The estimation runs on each shape's cleaned surface (:func:`on_surfaces`: one vertex per
+    welded group, e.g. the copies of an OBJ's vertices along its UV seams) and the point map
+    is carried back to the input vertices; the quality report's counts (coverage) are those of
+    the surfaces.
+
+    References
+    ----------
+    .. [1] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
+       ACM TOG 38(6), 2019.
+    .. [2] J. Ren et al., "Continuous and Orientation-preserving Correspondences via
+       Functional Maps", ACM TOG 37(6), 2018.
+    """
+    if options is not None and options.method != "estimate":
+        raise OptionError("method", "='closest' needs the shapes' surfaces: o3d_ofp.match")
+    return estimate(eig_1, eig_2, options=options, progress=progress)
+
+
+def _estimate(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    strategy: Strategy,
+    landmarks: np.ndarray | None,
+    options: MatchOptions,
+    progress: Callable[[str, float], None] | None,
+    warn_suspect: bool,
+) -> Correspondence:
+    """:func:`estimate` between two cleaned surfaces."""
+    report = progress or StageProgress(logger, strategy.title)
+    run = Run(eig_1, eig_2, *strategy.scaled(eig_1, eig_2), landmarks, options, report)
+    starts = strategy.starts(run)
+    first, share = strategy.refine_share
+    # The starts are independent and their BLAS runs on one thread: two at a time, one per core.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = [pool.submit(strategy.refine, run, i, start) for i, start in enumerate(starts)]
+        for done, _ in enumerate(as_completed(jobs)):
+            report(f"ZoomOut {done + 1}/{len(jobs)}", first + share * done / len(jobs))
+        refined = [job.result() for job in jobs]
+    settled = strategy.settle(run, starts, refined)
+    quality = strategy.judge(run, settled)
+    settled, quality = strategy.review(run, settled, quality)
+    say(strategy.title, strategy.what, quality, warn_suspect=warn_suspect)
+    report("done", 1.0)
+    return Correspondence(
+        p2p_21=settled.p2p_21,
+        n_source=eig_1.n_vertices,
+        fmap_12=settled.fmap_12,
+        method=strategy.method,
+        options=strategy.options(run, settled),
+        quality=quality,
+        signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
+    )
+
+
+def on_surfaces(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    match: Callable[[EigenBasis, EigenBasis, np.ndarray | None], Correspondence],
+    landmarks: np.ndarray | None,
+) -> Correspondence:
+    """Run an estimation on the shapes' cleaned surfaces; its map back on the input vertices.
+
+    ``match(s1, s2, landmarks)`` runs between :func:`o3d_ofp.core.spectrum.on_cleaned_vertices`
+    of both bases (one vertex per welded group: an OBJ's copies along its UV seams, an STL's
+    triangle soup; else the geodesic graphs have isolated copies and the spectral searches
+    meet ties), the landmarks carried to the surfaces' vertices; the point map is returned on
+    the input vertices, with the input's landmarks and signatures.
+    """
+    s1, rep_1 = on_cleaned_vertices(eig_1)
+    s2, rep_2 = on_cleaned_vertices(eig_2)
+    if rep_1 is None and rep_2 is None:
+        return with_signatures(match(eig_1, eig_2, landmarks), eig_1.vertices, eig_2.vertices)
+    on_surface = landmarks
+    if landmarks is not None:  # each input vertex stands for its surface vertex
+        on_surface = landmarks.copy()
+        for col, eig, rep in ((0, eig_1, rep_1), (1, eig_2, rep_2)):
+            if rep is not None:
+                on_surface[:, col] = eig.cleaning.index[landmarks[:, col]]
+    logger.info(
+        "match: on the cleaned surfaces (%d and %d of %d and %d vertices)",
+        s1.n_vertices, s2.n_vertices, eig_1.n_vertices, eig_2.n_vertices,
+    )  # fmt: skip
+    corr = match(s1, s2, on_surface)
+    p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
+    if rep_2 is not None:
+        p2p = p2p[eig_2.cleaning.index]
+    corr = dataclasses.replace(
+        corr,
+        p2p_21=p2p,
+        n_source=eig_1.n_vertices,
+        options={**corr.options, "landmarks": None if landmarks is None else landmarks.tolist()},
+    )
+    return with_signatures(corr, eig_1.vertices, eig_2.vertices)
+
+
+def estimate_dense(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+    *,
+    options: MatchOptions | None = None,
+    coarse_vertices: int | None = None,
+    coarse_source: Any = None,
+    progress: Callable[[str, float], None] | None = None,
+    opinions: bool = True,
+) -> Correspondence:
+    """Estimate a map between two dense meshes on coarse copies (the dense path).
+
+    :func:`o3d_ofp.workflows.dense.match_dense` with the options' strategy, then (``opinions``)
+    the strategy's check against matches on other coarse copies (the partial match's second
+    and third opinions; none for a full match).
+
+    Parameters
+    ----------
+    vertices_1, faces_1, vertices_2, faces_2
+        The two meshes.
+    options : MatchOptions, optional
+        The estimation's options (``landmarks`` in the meshes' numbering).
+    coarse_vertices : int, optional
+        Vertices of each coarse copy (default :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`).
+    coarse_source : CoarseShape, optional
+        The source's coarse copy, built once for several targets.
+    progress : callable, optional
+        ``progress(stage, fraction_done)``.
+    opinions : bool, default True
+        Run the strategy's second opinions.
+
+    Returns
+    -------
+    Correspondence
+    """
+    options = MatchOptions() if options is None else options
+    strategy = strategy_of(options)
+    first = COARSE_VERTICES if coarse_vertices is None else coarse_vertices
+    landmarks = options.landmarks_for(len(vertices_1), len(vertices_2))
+
+    whole = progress or StageProgress(logger, strategy.title)
+
+    def again(size: int, share: tuple[float, float], prefix: str) -> Correspondence:
+        """Run the dense match on coarse copies of ``size`` vertices, its progress in ``share``."""
+        report = progress
+        if share != (0.0, 1.0):  # one of several runs: its stages in its share of the whole
+
+            def report(stage: str, done: float) -> None:
+                last = stage == "done" and sum(share) < 1  # not the end of the whole
+                whole(prefix + ("first match done" if last else stage), share[0] + share[1] * done)
+
+        corr = _match_dense(
+            vertices_1, faces_1, vertices_2, faces_2, strategy=strategy, options=options,
+            landmarks=landmarks, coarse_vertices=size, progress=report,
+            coarse_1=coarse_source if size == first else None, quiet=size != first,
+        )  # fmt: skip
+        return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
+
+    if not opinions:
+        return again(first, (0.0, 1.0), "")
+    return strategy.dense(again, first, (vertices_1, faces_1, vertices_2, faces_2), whole)
+
+
+def _match_dense(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+    *,
+    strategy: Any,
+    options: Any,
+    landmarks: np.ndarray | None = None,
+    coarse_vertices: int = COARSE_VERTICES,
+    progress: Callable[[str, float], None] | None = None,
+    coarse_1: CoarseShape | None = None,
+    quiet: bool = False,
+) -> Any:
+    """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
+
+    Parameters
+    ----------
+    vertices_1, faces_1 : (n1, 3) ndarray of float, (m1, 3) ndarray of int
+        Source mesh.
+    vertices_2, faces_2 : (n2, 3) ndarray of float, (m2, 3) ndarray of int
+        Target mesh.
+    strategy : Strategy
+        The estimation's strategy (:mod:`o3d_ofp.workflows.estimate`): its
+        :meth:`~o3d_ofp.workflows.estimate.Strategy.for_coarse` runs between the coarse copies
+        and its :meth:`~o3d_ofp.workflows.estimate.Strategy.extend` carries the map to every
+        vertex.
+    options : MatchOptions
+        The estimation's options; ``zoomout_to`` sizes the coarse eigenbases.
+    landmarks : (p, 2) ndarray of int, optional
+        Known (source, target) pairs in the full meshes' numbering (checked by the caller);
+        carried to the coarse vertices of their cells (pairs that fall on one coarse vertex of
+        a shape are merged, or left out of the coarse estimate when they would pair it with
+        two: a warning and a note of the quality say so).
+    coarse_vertices : int, default :data:`COARSE_VERTICES`
+        Vertices of each coarse mesh (the result has this many ± 10 %; capped by the shape).
+    progress : callable, optional
+        Called as ``progress(stage, fraction_done)``.
+    coarse_1 : CoarseShape, optional
+        The source's coarse copy and eigenbasis (:func:`coarse_shape` with the same sizes): a
+        source matched onto several targets is reduced once.
+    quiet : bool, default False
+        Say nothing of the map (no warning for a suspect map or dropped landmarks): a run that
+        checks another (a second opinion).
+
+    Returns
+    -------
+    Correspondence
+        ``p2p_21`` (n2,) between the full meshes; ``fmap_12`` is ``None`` (the estimated map
+        lives between the coarse bases, not the full ones); ``options`` record the coarse
+        sizes; ``quality`` is the coarse map's report with the coverage measured on the full
+        point map.
+    """
+    V1 = np.ascontiguousarray(vertices_1, dtype=np.float64)
+    V2 = np.ascontiguousarray(vertices_2, dtype=np.float64)
+    coarse_vertices = check_int(coarse_vertices, name="coarse_vertices", minimum=200)
+    k = options.zoomout_to
+    n1, n2 = V1.shape[0], V2.shape[0]
+    if coarse_1 is not None and coarse_1.cell.shape[0] != n1:
+        raise ValueError(
+            f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; the source "
+            f"has {n1}"
+        )
+    # A shape the coarse copies' eigensolves would refuse is refused before either is built.
+    check_shapes(
+        [(V1, faces_1), (V2, faces_2)][0 if coarse_1 is None else 1 :],
+        names=("the source", "the target")[0 if coarse_1 is None else 1 :],
+        components=options.components,
+    )
+    report = progress or StageProgress(logger, "match (dense)")
+
+    def share(done: float) -> str:  # a caller's progress gives its own shares
+        return f" ({round(100 * done)}%)" if progress is None else ""
+
+    t0 = time.perf_counter()
+    coarse = functools.partial(
+        coarse_shape, k=k, coarse_vertices=coarse_vertices, components=options.components
+    )
+    c1 = coarse_1
+    if c1 is None:
+        logger.info(
+            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases%s",
+            coarse_vertices,
+            share(0.0),
+        )
+        report("coarse copies", 0.0)
+        c1, c2 = run_per_shape(
+            [functools.partial(coarse, V1, faces_1), functools.partial(coarse, V2, faces_2)],
+            [n1, n2],
+            [eigenbasis_bytes(min(n, coarse_vertices), k) for n in (n1, n2)],
+            what="coarse copies",
+        )
+    else:
+        logger.info(
+            "match (dense): the source's coarse copy is given; coarse copy of the target "
+            "(~%d vertices) and its eigenbasis%s",
+            coarse_vertices,
+            share(0.0),
+        )
+        report("coarse target", 0.0)
+        c2 = coarse(V2, faces_2)
+    lm_coarse, left_out = None, None
+    if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
+        lm_coarse, left_out = coarse_landmarks(landmarks, c1, c2)
+        if left_out is not None and not quiet:
+            warn(logger, left_out)
+    logger.info(
+        "match (dense): estimation between the coarse meshes (%.1fs)%s",
+        time.perf_counter() - t0,
+        share(0.15),
+    )
+
+    def coarse_progress(stage: str, done: float) -> None:
+        report(f"coarse {stage}", 0.15 + 0.65 * done)
+
+    corr = estimate(
+        c1.eig, c2.eig, options=dataclasses.replace(options, landmarks=lm_coarse),
+        strategy=strategy.for_coarse(), progress=coarse_progress, warn_suspect=not quiet,
+    )  # fmt: skip
+    logger.info(
+        "match (dense): extension to %d target vertices (%.1fs)%s",
+        n2,
+        time.perf_counter() - t0,
+        share(0.8),
+    )
+    report("extension", 0.8)
+    p2p, corr = strategy.extend(corr, c1, c2, V1, V2)
+    hit = np.unique(p2p).size
+    quality = corr.quality
+    if quality is not None:
+        quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
+        if left_out is not None:
+            quality = quality.noted(left_out)
+        # The report logged above is the coarse map's; the result's coverage is the full one.
+        logger.info(
+            "match (dense): the quality above is the coarse meshes'; at full resolution the "
+            "map hits %d source vertices: coverage %.3f of the source's vertices (%.2f of the "
+            "smaller shape's count)",
+            hit,
+            quality.coverage,
+            quality.coverage_ratio,
+        )
+    logger.info("match (dense): done in %.1fs%s", time.perf_counter() - t0, share(1.0))
+    report("done", 1.0)
+    return dataclasses.replace(
+        corr,
+        p2p_21=p2p,
+        n_source=n1,
+        fmap_12=None,
+        options={
+            **corr.options,
+            "landmarks": None if landmarks is None else landmarks.tolist(),
+            "dense": True,
+            "coarse_vertices": [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])],
+        },
+        quality=quality,
+    )

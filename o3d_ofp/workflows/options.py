@@ -1,0 +1,285 @@
+"""The options of a job, checked once where the caller hands them over.
+
+Each options object validates every field in ``__post_init__`` and raises
+:class:`~o3d_ofp.core.wording.OptionError` naming the field (the command line maps the field to
+its flag through one table); code below trusts them. The defaults written here are the only
+copies of the package's defaults (the paper's K = 30 / 40 for humans: ``k1=29``, ``k2=39``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import warnings
+from typing import Any
+
+import numpy as np
+
+from ..core._validation import check_int
+from ..core.orthogonalize import resolve_tol
+from ..core.wording import OptionError
+
+__all__ = [
+    "COMPONENTS",
+    "DETAIL_BAND",
+    "DETAIL_MODES",
+    "ESTIMATION_K",
+    "FIT_K",
+    "MAX_AMOUNT",
+    "BasisOptions",
+    "DetailOptions",
+    "MatchOptions",
+    "check_bool",
+    "check_choice",
+    "deprecated_choice",
+    "required_k",
+]
+
+#: Non-constant eigenfunctions an estimated map is refined to by ZoomOut (pyFM's standard
+#: pipeline refines 30 -> 100 with the constant).
+ESTIMATION_K = 99
+#: Size of the map optimized from descriptors before ZoomOut (the paper's K = 30).
+FIT_K = 29
+#: Policies for several connected components (see :func:`o3d_ofp.eigenbasis`).
+COMPONENTS = ("auto", "largest", "error")
+#: Default low band (non-constant eigenfunctions) the detail is measured from. A count of
+#: eigenfunctions, so it means the same at every resolution and scale. Measured on FAUST and
+#: TOSCA pairs (``scripts/eval_detail.py``, targets smoothed to 30 eigenfunctions, true map):
+#: distance to the truth 0.57-0.78x doing nothing at 30; a lower band (20) also takes the
+#: source's own pose and bulk (0.89-1.20x, volume +8-19 %); a higher one (40) leaves part of
+#: what the smoothing removed (0.72-0.82x). On a symmetric shape with repeated eigenvalues,
+#: choose a band that ends an eigenspace (on a sphere: 3, 8, 15, 24, 35, ...).
+DETAIL_BAND = 30
+#: Largest ``amount`` of a detail transfer: a detail exaggerated ten times is no longer the
+#: source's detail.
+MAX_AMOUNT = 10.0
+#: Detail transfer modes (see :mod:`o3d_ofp.workflows.detail`).
+DETAIL_MODES = ("add", "replace-detail", "coordinates")
+#: Deprecated names of options' values: (option, old value) -> new value.
+_RENAMED = {("mode", "replace"): "coordinates"}
+
+
+def required_k(n_vertices: int, wanted: int = ESTIMATION_K) -> int:
+    """Eigenfunctions a shape of ``n_vertices`` vertices can give of ``wanted``: at most n - 1."""
+    return max(1, min(wanted, n_vertices - 1))
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """Return ``value`` if it is True or False, else raise an OptionError naming ``name``."""
+    if not isinstance(value, bool | np.bool_):
+        raise OptionError(name, f"must be True or False; got {value!r}")
+    return bool(value)
+
+
+def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    """Return ``value`` if it is one of ``choices``, else raise an OptionError naming ``name``."""
+    if not isinstance(value, str) or value not in choices:
+        raise OptionError(name, f"must be one of {', '.join(map(repr, choices))}; got {value!r}")
+    return value
+
+
+def deprecated_choice(name: str, value: Any) -> Any:
+    """The value a deprecated value of option ``name`` now has (a DeprecationWarning says so).
+
+    The one place deprecated option values are mapped (``mode="replace"``).
+    """
+    new = _RENAMED.get((name, value)) if isinstance(value, str) else None
+    if new is None:
+        return value
+    warnings.warn(f"{name} {value!r} is deprecated; use {new!r}", DeprecationWarning, stacklevel=4)
+    return new
+
+
+def _number(value: Any, name: str, lo: float, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise OptionError(name, f"must be a number; got {value!r}")
+    if not (math.isfinite(value) and lo <= value <= hi):
+        bound = f">= {lo:g}" if hi == math.inf else f"in [{lo:g}, {hi:g}]"
+        raise OptionError(name, f"must be a finite number {bound}; got {value!r}")
+    return float(value)
+
+
+def _landmarks(value: Any) -> np.ndarray | None:
+    """(p, 2) int64 pairs, each given once in order; a vertex paired twice is refused."""
+    if value is None:
+        return None
+    lm = np.asarray(value)
+    if lm.ndim != 2 or lm.shape[1] != 2 or lm.shape[0] == 0 or not np.issubdtype(
+        lm.dtype, np.integer
+    ):
+        raise OptionError(
+            "landmarks",
+            "must be a (p, 2) integer array of (source, target) vertex pairs; got "
+            f"{lm.dtype}{lm.shape}",
+        )
+    if lm.min() < 0:
+        raise OptionError("landmarks", f": vertex indices must be >= 0; got {lm.min()}")
+    first = np.sort(np.unique(lm.astype(np.int64), axis=0, return_index=True)[1])
+    pairs = lm[first].astype(np.int64)  # a pair given twice counts once
+    for col, side, other in ((0, "source", "target"), (1, "target", "source")):
+        values, counts = np.unique(pairs[:, col], return_counts=True)
+        if np.any(counts > 1):
+            v = int(values[np.argmax(counts > 1)])
+            partners = sorted(int(x) for x in pairs[pairs[:, col] == v, 1 - col])
+            raise OptionError(
+                "landmarks",
+                f": {side} vertex {v} is paired with several {other} vertices "
+                f"({', '.join(map(str, partners))}): give one pair per vertex",
+            )
+    pairs.setflags(write=False)
+    return pairs
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MatchOptions:
+    """How a map between two shapes is made (see :func:`o3d_ofp.match`).
+
+    Attributes
+    ----------
+    method : {"estimate", "closest"}
+        The spectral map, or closest points for shapes already in the same place.
+    partial : bool
+        The target is a part of the source, in the same units (estimate only).
+    align : bool
+        Rigid ICP pre-alignment before closest points (closest only).
+    landmarks : (p, 2) ndarray of int or None
+        Known (source, target) vertex pairs (estimate only); each pair kept once.
+    components : {"auto", "largest", "error"}
+        Policy for several connected components of the eigenbases computed.
+    k_fit : int
+        Size of the map fitted to the descriptors (the paper's K = 30 is 29).
+    zoomout_to : int
+        Eigenfunctions ZoomOut refines to (at least ``k_fit``).
+    zoomout_subsample : int or None
+        Farthest-point samples per shape for ZoomOut's iterations (None: every vertex).
+    descriptors : {"wks", "hks"}
+        Descriptor family ("wks" only for a partial match).
+    w_orient : float
+        Weight of the orientation-preserving term (>= 0).
+    """
+
+    method: str = "estimate"
+    partial: bool = False
+    align: bool = False
+    landmarks: Any = None
+    components: str = "auto"
+    k_fit: int = FIT_K
+    zoomout_to: int = ESTIMATION_K
+    zoomout_subsample: int | None = 2000
+    descriptors: str = "wks"
+    w_orient: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_choice(self.method, "method", ("estimate", "closest"))
+        check_bool(self.partial, "partial")
+        check_bool(self.align, "align")
+        check_choice(self.components, "components", COMPONENTS)
+        object.__setattr__(self, "landmarks", _landmarks(self.landmarks))
+        check_int(self.k_fit, name="k_fit", minimum=1)
+        check_int(self.zoomout_to, name="zoomout_to", minimum=1)
+        if self.zoomout_to < self.k_fit:
+            raise OptionError(
+                "zoomout_to",
+                f"({self.zoomout_to}) must be >= k_fit ({self.k_fit}): ZoomOut refines the fitted "
+                "map to more eigenfunctions",
+            )
+        if self.zoomout_subsample is not None:
+            check_int(self.zoomout_subsample, name="zoomout_subsample", minimum=2)
+        check_choice(self.descriptors, "descriptors", ("wks",) if self.partial else ("wks", "hks"))
+        _number(self.w_orient, "w_orient", 0.0)
+        closest = self.method == "closest"
+        for name, wrong in (
+            ("partial", self.partial and closest),
+            ("landmarks", self.landmarks is not None and closest),
+            ("align", self.align and not closest),
+        ):
+            if wrong:
+                applies = "method='closest'" if name == "align" else "method='estimate'"
+                raise OptionError(name, f"applies to {applies}; method is {self.method!r}")
+
+    @property
+    def estimation(self) -> dict[str, Any]:
+        """The keyword options of the estimation itself (fit sizes, ZoomOut, descriptors)."""
+        return {
+            "k_fit": self.k_fit,
+            "zoomout_to": self.zoomout_to,
+            "zoomout_subsample": self.zoomout_subsample,
+            "descriptors": self.descriptors,
+            "w_orient": self.w_orient,
+        }
+
+    def landmarks_for(self, n_source: int, n_target: int) -> np.ndarray | None:
+        """The landmarks, checked to lie within shapes of these vertex counts."""
+        lm = self.landmarks
+        if lm is not None:
+            for col, (n, side) in enumerate(((n_source, "source"), (n_target, "target"))):
+                if lm[:, col].max() >= n:
+                    raise OptionError(
+                        "landmarks",
+                        f": {side} vertex indices must lie in [0, {n}); got "
+                        f"[{lm[:, col].min()}, {lm[:, col].max()}]",
+                    )
+        return lm
+
+
+@dataclasses.dataclass(frozen=True)
+class BasisOptions:
+    """The OFP bases of a transfer (see :func:`o3d_ofp.ofp_basis`).
+
+    Attributes
+    ----------
+    k1, k2 : int
+        Eigenfunctions multiplied on the source and the target (the paper's K = 30 / 40 for
+        humans; order 3 with k of 11-14 suits other shapes).
+    order : int
+        Product order.
+    preset, tol
+        Orthogonalization threshold ("ours" = 1e-2, "ours*" = 1e-9, or ``tol`` in (0, 1));
+        both None: the task's default ("ours" for colors, "ours*" for transferred coordinates).
+    matrix : {"p2p", "analytic"}
+        How the transfer matrix is computed (see :func:`o3d_ofp.transfer_matrix`; "analytic"
+        needs a functional map).
+    """
+
+    k1: int = 29
+    k2: int = 39
+    order: int = 2
+    preset: str | None = None
+    tol: float | None = None
+    matrix: str = "p2p"
+
+    def __post_init__(self) -> None:
+        for name in ("k1", "k2", "order"):
+            check_int(getattr(self, name), name=name, minimum=1)
+        resolve_tol(self.tol, self.preset)
+        check_choice(self.matrix, "matrix", ("p2p", "analytic"))
+
+    def threshold(self, default: str = "ours") -> float:
+        """The drop threshold: ``tol``, else ``preset``, else the ``default`` preset."""
+        return resolve_tol(self.tol, self.preset if self.preset or self.tol else default)
+
+
+@dataclasses.dataclass(frozen=True)
+class DetailOptions:
+    """A detail transfer (see :func:`o3d_ofp.transfer_detail`).
+
+    Attributes
+    ----------
+    mode : {"add", "replace-detail", "coordinates"}
+        "replace" is the deprecated name of "coordinates" (a DeprecationWarning).
+    band : int
+        Eigenfunctions of the low band the detail is measured above.
+    amount : float
+        Multiplies the transferred detail, in [0, :data:`MAX_AMOUNT`].
+    """
+
+    mode: str = "add"
+    band: int = DETAIL_BAND
+    amount: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", deprecated_choice("mode", self.mode))
+        check_choice(self.mode, "mode", DETAIL_MODES)
+        object.__setattr__(self, "band", check_int(self.band, name="band", minimum=1))
+        object.__setattr__(self, "amount", _number(self.amount, "amount", 0.0, MAX_AMOUNT))

@@ -1,0 +1,553 @@
+"""The planner: what a job between two shapes computes, decided once, then run.
+
+:func:`plan_pair` takes the two shapes, what is asked (a map, colors, a texture bake, detail)
+and the validated options, and decides everything that ties the steps together: how the map
+is made (given, closest points, a full or a partial estimate), whether it is estimated on
+coarse copies (the dense path), how many eigenfunctions each shape needs, which OFP bases and
+with which threshold, and whether values are pulled back through the map or carried by the
+bases. :func:`prepare` runs the plan: eigenbases (computed side by side, cached, or given), the
+map, the bases. The geometry-level functions, the command line and the collections all plan
+with :func:`plan_pair` and run :func:`prepare`; none decides these things itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from ..core._memory import available_memory, basis_job_bytes, format_bytes
+from ..core._threads import PARALLEL_ROWS
+from ..core._warnings import warn
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.wording import AdvisedError, OptionError, Said
+from .cache import fetch_basis, fetch_eigenbasis
+from .dense import DENSE_VERTICES, CoarseShape, coarse_shape
+from .eigenbases import answer_bytes, check_shapes, run_per_shape
+from .estimate import estimate, estimate_dense, strategy_of
+from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
+from .options import BasisOptions, DetailOptions, MatchOptions
+from .partial import check_partial_areas
+
+__all__ = ["ROTATION_K", "TASKS", "Plan", "Prepared", "plan_pair", "prepare", "prepare_source"]
+
+logger = logging.getLogger(__name__)
+
+#: What a job asks for: the map only, colors (or any signal) on the target's vertices, the
+#: source's texture baked into the target's UVs, or the source's geometric detail.
+TASKS = ("map", "colors", "texture", "detail")
+#: Neighbourhood of the detail transfer's local rotation fit: the heat kernel at time
+#: ``1/λ_k`` for this k, a region a few times wider than a limb on a human (measured: 10 and
+#: 20 give the same results; 3 blurs the rotations of neighbouring parts).
+ROTATION_K = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What a job between two shapes computes (made by :func:`plan_pair`, run by :func:`prepare`).
+
+    Attributes
+    ----------
+    task : {"map", "colors", "texture", "detail"}
+        What is asked.
+    estimator : {"given", "closest", "full", "partial"}
+        How the map is made: given by the caller, closest points (made at the Open3D
+        boundary), or estimated for whole shapes or for a part.
+    dense : bool
+        The map is estimated on coarse copies (either mesh above
+        :data:`~o3d_ofp.workflows.dense.DENSE_VERTICES` vertices): no full-resolution eigenpair
+        serves the estimation.
+    eig_k : (int, int)
+        Non-constant eigenfunctions computed on each shape at full resolution (0: none).
+    clamp : (bool, bool)
+        Whether that count is the estimation's, capped by the shape's vertex count.
+    basis_k : (int, int) or None
+        Eigenfunctions multiplied in each OFP basis; None: no OFP basis.
+    order : int
+        Product order of the bases.
+    tol : float
+        Their drop threshold.
+    matrix : {"p2p", "analytic"}
+        How the transfer matrix between the bases is computed.
+    exact : bool
+        Values are pulled back through the map with no OFP basis.
+    """
+
+    task: str
+    estimator: str
+    dense: bool
+    eig_k: tuple[int, int]
+    clamp: tuple[bool, bool]
+    basis_k: tuple[int, int] | None
+    order: int
+    tol: float
+    matrix: str
+    exact: bool
+
+    @property
+    def estimated(self) -> bool:
+        """Whether the map is estimated spectrally here (full or partial)."""
+        return self.estimator in ("full", "partial")
+
+
+def plan_pair(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray | None,
+    F2: np.ndarray | None,
+    *,
+    task: str,
+    match: MatchOptions | None = None,
+    bases: BasisOptions | None = None,
+    detail: DetailOptions | None = None,
+    given: Correspondence | None = None,
+    via_basis: bool | None = None,
+    names: tuple[str, str] = ("the source", "the target"),
+) -> Plan:
+    """Decide what a job between two shapes computes (the one function that does).
+
+    Parameters
+    ----------
+    V1, F1 : (n1, 3) ndarray, (m1, 3) ndarray or None
+        The source (faces None: a point cloud).
+    V2, F2 : (n2, 3) ndarray or None, (m2, 3) ndarray or None
+        The target; ``V2`` None: any target (a collection's source, planned alone: it takes
+        the dense path when it is above the threshold itself).
+    task : {"map", "colors", "texture", "detail"}
+        What is asked.
+    match : MatchOptions, optional
+        How a map not given is made (default ``MatchOptions()``).
+    bases : BasisOptions, optional
+        The OFP bases of the task, when it has them (default ``BasisOptions()``); given with a
+        task that builds none (an exact pull-back, a bake, detail in its local frames), refused.
+    detail : DetailOptions, optional
+        The detail transfer (task "detail"; default ``DetailOptions()``).
+    given : Correspondence, optional
+        A map the caller brings (then ``match`` is not used: a partial match or landmarks are
+        refused).
+    via_basis : bool, optional
+        Task "colors": carry the values through the OFP bases (True) or pull them back through
+        the map (False); default: pulled back through a closest-point map, carried otherwise.
+    names : (str, str)
+        How messages name the two shapes.
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    OptionError, AdvisedError
+        Naming the option (or the shape) that cannot apply to this job, before any work.
+    """
+    from .options import check_choice
+
+    check_choice(task, "task", TASKS)
+    explicit = bases is not None
+    match = MatchOptions() if match is None else match
+    bases = BasisOptions() if bases is None else bases
+    detail = DetailOptions() if detail is None else detail
+    if via_basis is not None:
+        from .options import check_bool
+
+        check_bool(via_basis, "via_basis")
+    n1, n2 = V1.shape[0], None if V2 is None else V2.shape[0]
+    meshes = F1 is not None and (V2 is None or F2 is not None)
+    estimator = _estimator(match, given)
+    if estimator == "partial" and not meshes:
+        side = names[0] if F1 is None else names[1]
+        raise OptionError(
+            "partial", f"=True needs triangle meshes: {side} is a point cloud (no faces); mesh "
+            "it first or match without partial=True",
+        )  # fmt: skip
+    if estimator == "partial" and V2 is not None:
+        check_partial_areas(V1, F1, V2, F2, names=names)
+    if estimator in ("full", "partial") and n2 is not None:
+        match.landmarks_for(n1, n2)
+    dense = estimator in ("full", "partial") and meshes and max(n1, n2 or 0) > DENSE_VERTICES
+    closest = estimator == "closest" or (given is not None and given.method == "closest")
+    coordinates = task == "detail" and detail.mode == "coordinates"
+    exact = task in ("texture", "map") or (
+        task == "colors" and (via_basis is False or (via_basis is None and closest))
+    )
+    with_bases = (task == "colors" and not exact) or coordinates
+    if explicit and not with_bases:
+        why = _no_bases(task, detail, closest)
+        raise OptionError("options", f"(the OFP bases' sizes and threshold) does not apply: {why}")
+    # What the task itself needs of each eigenbasis.
+    if with_bases:
+        need = [bases.k1, bases.k2]
+        what = ["k1", "k2"]
+    elif task == "detail":
+        need = [max(detail.band, ROTATION_K)] * 2
+        what = ["band"] * 2
+    else:
+        need, what = [0, 0], ["", ""]
+    if given is not None and given.fmap_12 is not None and bases.matrix == "analytic":
+        rows, cols = given.fmap_12.shape
+        need = [max(need[0], cols - 1), max(need[1], rows - 1)]
+    for side, (n, k, name) in enumerate(zip((n1, n2), need, what, strict=True)):
+        if n is not None and k > max(1, n - 2):
+            raise OptionError(
+                name, f"({k}): {names[side]} has {n} vertices, too few for {k} eigenfunctions "
+                f"(at most {max(1, n - 2)}); lower {name}",
+            )  # fmt: skip
+    no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
+    if bases.matrix == "analytic" and with_bases and no_fmap:
+        raise OptionError(
+            "matrix", "='analytic' needs a functional map between the eigenbases: a map "
+            "estimated for whole shapes below the dense threshold, or one given with "
+            "Correspondence.from_fmap; use matrix='p2p'",
+        )  # fmt: skip
+    estimation = [0, 0]
+    if estimator in ("full", "partial") and not dense:
+        estimation = list(strategy_of(match).needs(n1, n2 or n1, match))
+        if n2 is None:  # a collection's source: its side only
+            estimation[1] = 0
+    eig_k = tuple(max(a, b) for a, b in zip(need, estimation, strict=True))
+    clamp = tuple(bool(e) and e >= k for e, k in zip(estimation, need, strict=True))
+    return Plan(
+        task=task,
+        estimator=estimator,
+        dense=dense,
+        eig_k=eig_k,  # type: ignore[arg-type]
+        clamp=clamp,  # type: ignore[arg-type]
+        basis_k=(bases.k1, bases.k2) if with_bases else None,
+        order=bases.order,
+        tol=bases.threshold("ours*" if coordinates else "ours"),
+        matrix=bases.matrix,
+        exact=exact,
+    )
+
+
+def _estimator(match: MatchOptions, given: Correspondence | None) -> str:
+    """How the map is made: given, closest points, a full or a partial estimate."""
+    if given is None:
+        return "closest" if match.method == "closest" else "partial" if match.partial else "full"
+    for name, wrong in (("partial", match.partial), ("landmarks", match.landmarks is not None)):
+        if wrong:
+            raise OptionError(
+                name, "applies to a map estimated here; the given map is used as it is (a map "
+                "from o3d_ofp.match(..., partial=True) is partial already)",
+            )  # fmt: skip
+    return "given"
+
+
+def _no_bases(task: str, detail: DetailOptions, closest: bool) -> str:
+    """Why a task builds no OFP basis (for the refusal of basis options given to it)."""
+    if task == "detail":
+        return f"mode {detail.mode!r} reads each shape's eigenfunctions up to band ({detail.band})"
+    if task == "colors" and closest:
+        return (
+            "the exact pull-back (the default with a closest-point map) carries the colors with "
+            "no OFP basis; drop it, or pass via_basis=True to transfer through the OFP bases"
+        )
+    if task == "colors":
+        return (
+            "the exact pull-back (via_basis=False) carries the colors with no OFP basis; drop "
+            "it, or pass via_basis=True to transfer through the OFP bases"
+        )
+    return f"task {task!r} reads the source through the map, with no OFP basis"
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Prepared:
+    """What :func:`prepare` made: the eigenbases, the map and the OFP bases of a job."""
+
+    eig_1: EigenBasis | None
+    eig_2: EigenBasis | None
+    correspondence: Correspondence
+    bases: tuple[OFPBasis, OFPBasis] | None
+    #: Whether each side's eigenbasis was read from the cache.
+    cached: tuple[bool, bool] = (False, False)
+
+
+def prepare(
+    plan: Plan,
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    *,
+    match: MatchOptions | None = None,
+    given: Correspondence | None = None,
+    eigenbases: Sequence[EigenBasis | None] = (None, None),
+    bases: Sequence[OFPBasis | None] = (None, None),
+    cache_dir: Any = None,
+    coarse_source: Any = None,
+    progress: Callable[[str, float], None] | None = None,
+    names: tuple[str, str] = ("the source", "the target"),
+) -> Prepared:
+    """Run a plan: the eigenbases, the map and the OFP bases it needs, each made once.
+
+    Parameters
+    ----------
+    plan : Plan
+        From :func:`plan_pair` for these shapes.
+    V1, F1, V2, F2
+        The two shapes.
+    match : MatchOptions, optional
+        How the map is estimated (the plan's ``match``).
+    given : Correspondence, optional
+        The map, when the plan's estimator is "given" or "closest" (checked against the
+        shapes; its own eigenbases, when it carries them, are used).
+    eigenbases : (EigenBasis or None, EigenBasis or None)
+        Eigenbases the caller has (computed again, larger, when the plan needs more).
+    bases : (OFPBasis or None, OFPBasis or None)
+        OFP bases the caller has (a missing one is built with the plan's sizes and the given
+        one's threshold, which must agree with the plan's).
+    cache_dir : str or os.PathLike, optional
+        Eigenbases and bases computed here are read from / written to this cache.
+    coarse_source : CoarseShape, optional
+        The source's coarse copy, for the dense path of a source matched onto many targets.
+    progress : callable, optional
+        ``progress(stage, fraction_done)`` of the map estimation.
+    names : (str, str)
+        How messages name the two shapes.
+
+    Returns
+    -------
+    Prepared
+    """
+    match = MatchOptions() if match is None else match
+    shapes = ((V1, F1), (V2, F2))
+    have = [
+        _given_eig(e, b, given, i, V)
+        for i, (e, b, V) in enumerate(zip(eigenbases, bases, (V1, V2), strict=True))
+    ]
+    for i, eig in enumerate(have):
+        if eig is not None and eig.n_vertices != shapes[i][0].shape[0]:
+            raise OptionError(
+                "eigenbases", f": the {('source', 'target')[i]} eigenbasis has {eig.n_vertices} "
+                f"vertices but {names[i]} has {shapes[i][0].shape[0]}: it belongs to another shape",
+            )  # fmt: skip
+        if eig is not None:
+            warn_other_shape(eig, shapes[i][0], f"the {('source', 'target')[i]} eigenbasis",
+                             names[i])  # fmt: skip
+    todo = [i for i in (0, 1) if plan.eig_k[i] and (have[i] is None or have[i].k < plan.eig_k[i])]
+    for i in todo:
+        if have[i] is not None:
+            logger.info("the %s eigenbasis has %d eigenfunctions, %d are needed: computing it "
+                        "again", ("source", "target")[i], have[i].k, plan.eig_k[i])  # fmt: skip
+    _check_memory(plan, shapes, todo, bases, names)
+    if len(todo) > 1:  # every shape refused before any is solved
+        check_shapes([shapes[i] for i in todo], names=[names[i] for i in todo],
+                     components=match.components)  # fmt: skip
+    if given is not None:
+        _check_given(given, V1, V2)
+    corr = given
+    if plan.dense:
+        corr = estimate_dense(V1, F1, V2, F2, options=match, coarse_source=coarse_source,
+                              progress=progress)  # fmt: skip
+    eigs, cached = _eigenbases(plan, shapes, have, todo, match.components, cache_dir)
+    with _Ahead(plan, eigs, bases, cache_dir, shapes, match.components) as ahead:
+        if plan.estimated and not plan.dense:
+            ahead.start()
+            corr = estimate(eigs[0], eigs[1], options=match, progress=progress)
+            corr = dataclasses.replace(corr, eigenbases=(eigs[0], eigs[1]))
+        assert corr is not None
+        return Prepared(eigs[0], eigs[1], corr, ahead.result(), cached)
+
+
+def prepare_source(
+    plan: Plan,
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    *,
+    match: MatchOptions | None = None,
+    cache_dir: Any = None,
+) -> tuple[EigenBasis, OFPBasis | None, bool, CoarseShape | None]:
+    """Run the source's side of a plan made without a target (a collection's shared source).
+
+    Returns its eigenbasis, its OFP basis (None when the plan has none), whether the
+    eigenbasis was read from the cache, and, on the dense path, its coarse copy (built once,
+    for every target).
+    """
+    match = MatchOptions() if match is None else match
+    shapes = ((V1, F1), (None, None))
+    eigs, cached = _eigenbases(plan, shapes, [None, None], [0], match.components, cache_dir)
+    basis = None
+    if plan.basis_k is not None:
+        basis = _Ahead(plan, eigs, (None, None), cache_dir, shapes, match.components)._basis(0)
+    coarse = None
+    if plan.dense:  # every mesh target's map is estimated on coarse copies: the source's, once
+        coarse = coarse_shape(V1, F1, k=match.zoomout_to, components=match.components)
+    assert eigs[0] is not None
+    return eigs[0], basis, cached[0], coarse
+
+
+def _given_eig(
+    eig: EigenBasis | None, basis: OFPBasis | None, given: Correspondence | None, side: int, V: Any
+) -> EigenBasis | None:
+    """Return the eigenbasis of a side the caller has: given, a given basis's, or the map's own."""
+    if eig is not None:
+        return eig
+    if basis is not None:
+        return basis.eig
+    if given is not None and given.eigenbases is not None:
+        own = given.eigenbases[side]
+        if own.n_vertices == V.shape[0] and same_shape(own.vertices, V):
+            return own
+    return None
+
+
+def _check_given(given: Correspondence, V1: np.ndarray, V2: np.ndarray) -> None:
+    """Refuse a given map of other sizes; say one made for other shapes, or that collapses."""
+    given.check(V1.shape[0], V2.shape[0], source=V1, target=V2)
+    if given.quality is None:  # nothing judged it yet
+        why = given_map_collapse(given.p2p_21, V1.shape[0], V2.shape[0])
+        if why is not None:
+            warn(logger, Said("the given map is doubtful: {why}", {"why": why}, "given_collapse"))
+
+
+def _check_memory(
+    plan: Plan,
+    shapes: tuple[tuple[Any, Any], ...],
+    todo: list[int],
+    bases: Sequence[OFPBasis | None],
+    names: tuple[str, str],
+) -> None:
+    """Refuse, before any eigensolve, a job whose estimated peak memory exceeds what is free."""
+    jobs = []
+    for i in (0, 1):
+        k = plan.basis_k[i] if plan.basis_k and bases[i] is None else 0
+        if i in todo or k:
+            n = shapes[i][0].shape[0]
+            jobs.append((names[i], n, k or 1, plan.eig_k[i], plan.order if k else 1))
+    need = sum(basis_job_bytes(n, k=k, order=o, eig_k=e) for _, n, k, e, o in jobs)
+    limit = available_memory()
+    if not jobs or limit is None or need <= limit:
+        return
+    what = " and ".join(f"{name} ({n} vertices, k={max(k, e)})" for name, n, k, e, _ in jobs)
+    raise AdvisedError(Said(
+        "the bases of {what} need about {need} of memory, more than the {limit} available: "
+        "{lower}, or use simplified meshes (fewer vertices)",
+        {"what": what, "need": format_bytes(need), "limit": format_bytes(limit)}, "memory",
+    ))  # fmt: skip
+
+
+def _eigenbases(
+    plan: Plan,
+    shapes: tuple[tuple[Any, Any], ...],
+    have: list[EigenBasis | None],
+    todo: list[int],
+    components: str,
+    cache_dir: Any,
+) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:
+    """Return the eigenbases of the plan (those the caller has, the others computed side by
+    side) and whether each was read from the cache."""
+    out, cached = list(have), [False, False]
+    if not todo:
+        return out, (False, False)
+
+    def job(i: int) -> tuple[EigenBasis, bool]:
+        V, F = shapes[i]
+        options = {"k": plan.eig_k[i], "clamp_k": plan.clamp[i], "components": components}
+        if cache_dir is not None:
+            return fetch_eigenbasis(V, F, cache_dir=cache_dir, **options)
+        return eigenbasis(V, F, **options), False
+
+    sizes = [shapes[i][0].shape[0] for i in todo]
+    memory = [
+        basis_job_bytes(n, k=1, order=1, eig_k=plan.eig_k[i]) + answer_bytes(n, plan.eig_k[i] + 1)
+        for n, i in zip(sizes, todo, strict=True)
+    ]
+    jobs = [functools.partial(job, i) for i in todo]
+    for i, (eig, hit) in zip(todo, run_per_shape(jobs, sizes, memory, what="eigenbases"), strict=True):
+        out[i], cached[i] = eig, hit
+    return out, (cached[0], cached[1])
+
+
+class _Ahead:
+    """The OFP bases of a plan; the target's built in a thread while the map is estimated.
+
+    The estimation leaves a core idle in its single-threaded stages (ZoomOut, the full
+    resolution point map): :meth:`start` begins the target's basis (the larger: k2 >= k1 by
+    default) there; :meth:`result` builds the rest. Shapes of
+    :data:`~o3d_ofp.core._threads.PARALLEL_ROWS` vertices and more run their BLAS on both cores
+    already: their bases are built one after the other. On an error the thread's basis is
+    abandoned.
+    """
+
+    def __init__(
+        self,
+        plan: Plan,
+        eigs: list[EigenBasis | None],
+        given: Sequence[OFPBasis | None],
+        cache_dir: Any,
+        shapes: tuple[tuple[Any, Any], ...],
+        components: str,
+    ) -> None:
+        self.plan, self.eigs, self.given = plan, eigs, list(given)
+        self.cache_dir, self.shapes, self.components = cache_dir, shapes, components
+        self._pool: ThreadPoolExecutor | None = None
+        self._target: Future[OFPBasis] | None = None
+        if plan.basis_k is not None:
+            _check_thresholds(self.given, plan.tol)
+
+    def __enter__(self) -> _Ahead:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)
+
+    def _basis(self, i: int) -> OFPBasis:
+        if self.given[i] is not None:
+            return self.given[i]
+        eig, k = self.eigs[i], self.plan.basis_k[i]  # type: ignore[index]
+        assert eig is not None
+        if self.cache_dir is not None:
+            V, F = self.shapes[i]
+            return fetch_basis(
+                V, F, k=k, order=self.plan.order, tol=self.plan.tol, cache_dir=self.cache_dir,
+                eig=eig, components=self.components,
+            )[0]  # fmt: skip
+        return ofp_basis(eig, k=min(k, eig.k), order=self.plan.order, tol=self.plan.tol)
+
+    def start(self) -> None:
+        """Start the target's basis in a thread (when there is one to build, on small shapes)."""
+        plan, eig_2 = self.plan, self.eigs[1]
+        if plan.basis_k is None or self.given[1] is not None or eig_2 is None:
+            return
+        if max(e.n_vertices for e in self.eigs if e is not None) >= PARALLEL_ROWS:
+            return
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="o3d_ofp-basis")
+        self._target = self._pool.submit(self._basis, 1)
+
+    def result(self) -> tuple[OFPBasis, OFPBasis] | None:
+        """Return the two bases (None when the plan has none)."""
+        if self.plan.basis_k is None:
+            return None
+        if self._target is not None:
+            return self._basis(0), self._target.result()
+        small = max(e.n_vertices for e in self.eigs if e is not None) < PARALLEL_ROWS
+        if small and self.given[0] is None and self.given[1] is None:
+            # one basis per core (their BLAS on one thread each below PARALLEL_ROWS)
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                target = pool.submit(self._basis, 1)
+                return self._basis(0), target.result()
+        return self._basis(0), self._basis(1)
+
+
+def _check_thresholds(given: Sequence[OFPBasis | None], tol: float) -> None:
+    """Refuse OFP bases of two thresholds: a given one against the other given one or the plan's."""
+    tols = [b.tol for b in given if b is not None]
+    if len(tols) == 2 and not np.isclose(tols[0], tols[1], rtol=1e-9):
+        raise OptionError(
+            "bases", f": the source's basis was orthogonalized with threshold {tols[0]:g} and the "
+            f"target's with {tols[1]:g}: the two bases must share one; recompute one of them",
+        )  # fmt: skip
+    if len(tols) == 1 and not np.isclose(tols[0], tol, rtol=1e-9):
+        side = "source" if given[0] is not None else "target"
+        raise OptionError(
+            "bases", f": the {side}'s basis was orthogonalized with threshold {tols[0]:g}, but "
+            f"the other basis would be made with {tol:g}: the two bases must share one; pass "
+            f"options=BasisOptions(tol={tols[0]:g}), or recompute the basis",
+        )  # fmt: skip
