@@ -2,14 +2,18 @@
 
 A vertex with a NaN or inf coordinate, coordinates too far apart for float64's squares, a
 face naming a vertex the file does not have: the message names the vertex or face as the file
-numbers it (for OFF and OBJ with its line), whether Open3D read the file or not.
+numbers it (for OFF and OBJ with its line), whether Open3D read the file or not. A file named
+.ply that is no PLY, or that Open3D's PLY reader (RPly, in C) stops reading, prints nothing:
+what RPly writes to the process's stderr is quoted in the message instead.
 """
 
+import os
 import re
 
 import numpy as np
 import pytest
 
+from o3d_ofp.boundary import convert as adapters
 from o3d_ofp.core.shapes import icosphere
 
 o3d = pytest.importorskip("open3d", reason="reading files needs Open3D")
@@ -122,6 +126,43 @@ def test_coordinates_too_far_apart(tmp_path, capfd):
     )
     _refused(_off(tmp_path / "x.off", "1e300"), span, capfd)
     _refused(_obj(tmp_path / "x.obj", "1e300"), span, capfd)
+
+
+def test_a_file_named_ply_that_is_no_ply_prints_nothing(tmp_path, capfd):
+    for i, text in enumerate(["plx\nformat ascii 1.0\nend_header\n", "hello\n", "plyx\n"]):
+        path = tmp_path / f"not{i}.ply"
+        path.write_text(text)
+        _refused(path, r"not a PLY file \(its first line is not 'ply'\)", capfd)
+
+
+def test_what_rply_stops_at_is_quoted_not_printed(tmp_path, capfd):
+    # 1e300 does not fit the "float" property: RPly stops at vertex 2
+    _refused(
+        _ply(tmp_path / "x.ply", "1e300"),
+        r"Open3D's PLY reader stopped at \"Error reading 'y' of 'vertex' number 2\": the file "
+        r"is damaged, cut short, or holds a value its property's type cannot hold",
+        capfd,
+    )
+    # A binary PLY cut in its faces: the header's minimal size counts one byte per face.
+    path = tmp_path / "whole.ply"
+    o3d.io.write_triangle_mesh(str(path), adapters.triangle_mesh_from_arrays(*icosphere(2)))
+    data = path.read_bytes()
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(data[: len(data) * 9 // 10])
+    _refused(
+        cut, r"Open3D's PLY reader stopped at \"Error reading .* of 'face' number \d+\".*", capfd
+    )
+
+
+def test_other_stderr_output_during_a_ply_read_is_passed_on(capfd):
+    """What another thread writes to fd 2 while a PLY is read goes out, the RPly lines not."""
+    from o3d_ofp.boundary.io import _reader_messages
+
+    with _reader_messages() as said:
+        os.write(2, b"RPly: Wrong magic number. Expected 'ply'\n")
+        os.write(2, b"another thread's line\n")
+    assert said == ["Wrong magic number. Expected 'ply'"]
+    assert capfd.readouterr().err == "another thread's line\n"
 
 
 def test_a_binary_mesh_with_one_nan_names_it(tmp_path):

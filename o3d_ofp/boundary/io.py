@@ -15,8 +15,10 @@ import contextlib
 import logging
 import os
 import shutil
+import sys
 import tempfile
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -239,6 +241,67 @@ def _refuse_bad_contents(path: str, vertices: Any = None, triangles: Any = None)
         raise ValueError(f"{path}: {problem}")
 
 
+_stderr_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _reader_messages() -> Iterator[list[str]]:
+    """Catch the lines Open3D's PLY reader (RPly) prints on the process's stderr in the block.
+
+    RPly writes its errors ("RPly: Wrong magic number") with C's ``fprintf(stderr)``, out of
+    reach of ``sys.stderr`` and of Open3D's verbosity level, so file descriptor 2 itself
+    points to a temporary file for the block. The list yielded gets the RPly messages on
+    leaving; anything else written to stderr meanwhile (by another thread) is written to it
+    then. One block at a time in the process; where fd 2 cannot be duplicated, nothing is
+    caught.
+    """
+    said: list[str] = []
+    with _stderr_lock, tempfile.TemporaryFile() as tmp:
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            sys.stderr.flush()  # Python's pending text goes out before fd 2 is swapped
+        try:
+            saved = os.dup(2)
+        except OSError:
+            yield said
+            return
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            others = []
+            for line in tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True):
+                if line.startswith("RPly: "):
+                    said.append(line.removeprefix("RPly: ").strip())
+                else:
+                    others.append(line)
+            if others:
+                with contextlib.suppress(OSError):
+                    os.write(2, "".join(others).encode())
+
+
+def _open3d_read(path: str, read: Callable[[str], Any]) -> Any:
+    """Return ``read(path)``, with Open3D's console output held back.
+
+    An error Open3D's PLY reader prints is refused instead (as a file cut short when the
+    header tells so), and not printed.
+    """
+    ply = path.lower().endswith(".ply")
+    # Open3D warns on stdout about a file with points but no triangles: that case is handled.
+    with open3d_errors_only(), _reader_messages() if ply else contextlib.nullcontext([]) as said:
+        geometry = read(path)
+    if said:
+        points = geometry.vertices if hasattr(geometry, "vertices") else geometry.points
+        _check_read(path, len(points))
+        raise ValueError(
+            f'{path}: Open3D\'s PLY reader stopped at "{said[0]}": the file is damaged, cut '
+            "short, or holds a value its property's type cannot hold"
+        )
+    return geometry
+
+
 def read_geometry(path: str | os.PathLike[str]) -> Any:
     """Read a triangle mesh (or, when the file holds no triangles, a point cloud) with Open3D.
 
@@ -265,7 +328,8 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         PLY header, since Open3D only prints a warning and fills the rest with zeros); if
         its vertices or faces make no shape: a NaN or inf coordinate, a span whose square
         float64 cannot hold, a face naming a vertex the file does not have (the message names
-        the vertex or face, for OFF and OBJ with its line).
+        the vertex or face, for OFF and OBJ with its line); if it is named .ply but is no PLY
+        file. The message is one line: what Open3D's PLY reader prints is quoted, not shown.
     """
     o3d = require_open3d()
     path = os.fspath(path)
@@ -274,13 +338,13 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     if os.path.getsize(path) == 0:
         raise ValueError(f"{path}: the file is empty")
     try:  # Open3D says only "could not read any vertices" when it may not open the file
-        with open(path, "rb"):
-            pass
+        with open(path, "rb") as fh:
+            head = fh.read(4)
     except PermissionError as exc:
         raise PermissionError(f"{path}: cannot be read (permission denied)") from exc
-    # Open3D prints a warning for a file with points but no triangles: that case is handled.
-    with open3d_errors_only():
-        mesh = o3d.io.read_triangle_mesh(path)
+    if path.lower().endswith(".ply") and (head[:3] != b"ply" or not head[3:].isspace()):
+        raise ValueError(f"{path}: not a PLY file (its first line is not 'ply')")
+    mesh = _open3d_read(path, o3d.io.read_triangle_mesh)
     if len(mesh.vertices) and len(mesh.triangles):
         _check_read(path, len(mesh.vertices))
         _refuse_bad_contents(path, mesh.vertices, mesh.triangles)
@@ -288,8 +352,7 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
             mesh = _in_file_order(path, mesh, o3d)
         return mesh
     _refuse_bad_contents(path)  # an OFF or OBJ read without triangles: its fault, if any
-    with open3d_errors_only():
-        cloud = o3d.io.read_point_cloud(path)
+    cloud = _open3d_read(path, o3d.io.read_point_cloud)
     if len(cloud.points):
         _check_read(path, len(cloud.points))
         _refuse_bad_contents(path, cloud.points)
