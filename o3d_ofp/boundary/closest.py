@@ -78,8 +78,8 @@ MIN_COVERAGE = 0.25
 #: both ways, FAUST 093's low-pass copies 0.82-0.84 (a rigid motion slides a shrunken copy a
 #: little closer), FAUST 093 onto 087 (another pose in the same place) 0.83. Known limit: the
 #: low-pass copy turned by 5° (0.89) is not said: a misalignment is seen only when it
-#: dominates the distance. (Earlier measurements on a new-user trial's copies: 0.71-0.96 for
-#: smoothed copies, 0.13-0.35 for turned or moved decimated bunnies.)
+#: dominates the distance. Other copies agree: smoothed ones 0.71-0.96, turned or moved
+#: decimated bunnies 0.13-0.35.
 MISALIGNED_RATIO = 0.5
 #: See :data:`MISALIGNED_RATIO`: 0.0005 of the diagonal is about FAUST turned by 0.6° or the bunny
 #: moved by 0.15 % of the diagonal; a smaller gain above :data:`MISALIGNED_NOTE` adds a note.
@@ -133,11 +133,12 @@ ICP_DOUBTFUL_TURN = 2.0
 #: registrations (copies turned up to 45°, a part turned 30°, decimated, subdivided) 0.000-0.006,
 #: a noisy copy 0.064, smoothed copies 0.15-0.17 (turned 5-11° by ICP); FAUST 093 with its legs
 #: cut turned 62° and 90° about an oblique axis, which ICP turned by 34° and 47° only, 0.67 and
-#: 0.66, and a new-user trial's cut turned 62° (ICP: 72.8°, passed as ok with error 0.22)
-#: 0.52; other poses and the detail donuts (flagged by the distance) 0.37-0.52. Face normals:
-#: vertex normals (a first version) flagged right registrations of shapes with creases (a box
-#: 0.75, a 4-sided cone 0.38; a review). Without ``align`` it is not a verdict: the aligned
-#: detail donuts, the detail transfer's own pair, face away on 0.35-0.43 (their bumps).
+#: 0.66, and another cut of it turned 62° (ICP: 72.8°, map error 0.22, which the distance
+#: rule passes) 0.52; other poses and the detail donuts (flagged by the distance) 0.37-0.52.
+#: Face normals, not vertex normals: a vertex normal at a crease would flag right
+#: registrations of shapes with creases (a box 0.75, a 4-sided cone 0.38). Without ``align``
+#: it is not a verdict: the aligned detail donuts, the detail transfer's own pair, face away
+#: on 0.35-0.43 (their bumps).
 MAX_FACING_AWAY = 0.3
 #: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
 #: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
@@ -153,8 +154,8 @@ def _positions(vertices: np.ndarray) -> np.ndarray:
 def _units(V2: np.ndarray, diag_1: float) -> str:
     """Advice for a target in other units (its size a power of ten off the source's), or "".
 
-    Found by a trial: a target in millimetres onto a source in metres was told that the
-    shapes are not aligned, 249 diagonals apart, and to try ICP (which does not scale).
+    A target in millimetres onto a source in metres lies hundreds of diagonals away: the
+    advice is the factor to rescale it by, not ICP (which does not scale).
     """
     ratio = _frame(V2)[1] / diag_1
     found = units_change(ratio)

@@ -378,8 +378,8 @@ def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
 
     Open3D numbers an OBJ's vertices in the order the faces first use them (measured: FAUST
     087 written with UVs and read back), so per-vertex data kept beside the file (a
-    registration's vertex i, a saved map) no longer lines up, and an OBJ written back is
-    renumbered (a trial). When the vertices are those of the ``v`` lines one to one, they are
+    registration's vertex i, a saved map) would not line up, and an OBJ written back would be
+    renumbered. When the vertices are those of the ``v`` lines one to one, they are
     permuted back (the triangles, per-vertex normals and colors with them; per-corner UVs,
     textures and material ids are per triangle and stay); else (vertices split along UV
     seams) the mesh is left as read.
@@ -521,7 +521,7 @@ def _gltf_vertex_counts(mesh: Any) -> set[int]:
 
 
 def _check_gltf(path: str, shown: str, counts: set[int], textured: bool, o3d: Any) -> None:
-    """Read a written glTF back: Open3D has written unreadable or untextured files before."""
+    """Read a written glTF back: refuse one Open3D cannot read, or that lost its texture."""
     with open3d_errors_only():
         back = o3d.t.io.read_triangle_mesh(path)
     n = back.vertex.positions.shape[0] if "positions" in back.vertex else 0
