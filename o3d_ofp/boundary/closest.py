@@ -79,8 +79,8 @@ MIN_COVERAGE = 0.25
 #: both ways, FAUST 093's low-pass copies 0.82-0.84 (a rigid motion slides a shrunken copy a
 #: little closer), FAUST 093 onto 087 (another pose in the same place) 0.83. Known limit: the
 #: low-pass copy turned by 5° (0.89) is not said: a misalignment is seen only when it
-#: dominates the distance. (Earlier measurements on a new-user trial's copies: 0.71-0.96 for
-#: smoothed copies, 0.13-0.35 for turned or moved decimated bunnies.)
+#: dominates the distance. Other copies agree: smoothed ones 0.71-0.96, turned or moved
+#: decimated bunnies 0.13-0.35.
 MISALIGNED_RATIO = 0.5
 #: See :data:`MISALIGNED_RATIO`: 0.0005 of the diagonal is about FAUST turned by 0.6° or the bunny
 #: moved by 0.15 % of the diagonal; a smaller gain above :data:`MISALIGNED_NOTE` adds a note.
@@ -134,11 +134,12 @@ ICP_DOUBTFUL_TURN = 2.0
 #: registrations (copies turned up to 45°, a part turned 30°, decimated, subdivided) 0.000-0.006,
 #: a noisy copy 0.064, smoothed copies 0.15-0.17 (turned 5-11° by ICP); FAUST 093 with its legs
 #: cut turned 62° and 90° about an oblique axis, which ICP turned by 34° and 47° only, 0.67 and
-#: 0.66, and a new-user trial's cut turned 62° (ICP: 72.8°, passed as ok with error 0.22)
-#: 0.52; other poses and the detail donuts (flagged by the distance) 0.37-0.52. Face normals:
-#: vertex normals (a first version) flagged right registrations of shapes with creases (a box
-#: 0.75, a 4-sided cone 0.38; a review). Without ``align`` it is not a verdict: the aligned
-#: detail donuts, the detail transfer's own pair, face away on 0.35-0.43 (their bumps).
+#: 0.66, and another cut of it turned 62° (ICP: 72.8°, map error 0.22, which the distance
+#: rule passes) 0.52; other poses and the detail donuts (flagged by the distance) 0.37-0.52.
+#: Face normals, not vertex normals: a vertex normal at a crease would flag right
+#: registrations of shapes with creases (a box 0.75, a 4-sided cone 0.38). Without ``align``
+#: it is not a verdict: the aligned detail donuts, the detail transfer's own pair, face away
+#: on 0.35-0.43 (their bumps).
 MAX_FACING_AWAY = 0.3
 #: Barycentric weights below this are snapped to 0 (the point lies on an edge or at a vertex),
 #: so ties between the triangles sharing it are broken the same way whatever the float32 BVH
@@ -154,8 +155,8 @@ def _positions(vertices: np.ndarray) -> np.ndarray:
 def _units(V2: np.ndarray, diag_1: float) -> str:
     """Advice for a target in other units (its size a power of ten off the source's), or "".
 
-    Found by a trial: a target in millimetres onto a source in metres was told that the
-    shapes are not aligned, 249 diagonals apart, and to try ICP (which does not scale).
+    A target in millimetres onto a source in metres lies hundreds of diagonals away: the
+    advice is the factor to rescale it by, not ICP (which does not scale).
     """
     ratio = _frame(V2)[1] / diag_1
     found = units_change(ratio)
@@ -726,6 +727,273 @@ def _icp(
     return out, end[0], end[1] * diag, start[0]
 
 
+def _aligned_query(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    surface: _Surface | None,
+    V2: np.ndarray,
+    max_icp_distance: float | None,
+    options: dict[str, Any],
+    notes: list[str],
+) -> np.ndarray:
+    """Register the target onto the source (:func:`_icp`); return its vertices moved there.
+
+    Records the registration in ``options["icp"]`` and adds a note when its fitness is below
+    :data:`ICP_MIN_FITNESS`.
+    """
+    centre, diag = _frame(V1)
+    max_distance = ICP_DISTANCE * diag if max_icp_distance is None else max_icp_distance
+    transform, fitness, rmse, fitness_0 = _icp(V1, F1, surface, V2, centre, diag, max_distance)
+    angle = _rotation_degrees(transform[:3, :3])
+    options["icp"] = {
+        "transformation": transform.tolist(),
+        "fitness": fitness,
+        "fitness_identity": fitness_0,
+        "inlier_rmse": rmse,
+        "max_correspondence_distance": max_distance,
+        "rotation_degrees": angle,
+        "translation": float(np.linalg.norm(transform[:3, 3])),
+    }
+    logger.info(
+        "ICP: rotation %.3g°, fitness %.3f, inlier RMSE %.3g of the diagonal",
+        angle,
+        fitness,
+        rmse / diag,
+    )
+    if fitness < ICP_MIN_FITNESS:
+        notes.append(
+            f"ICP fitness {fitness:.2f}: only that fraction of the target lies within "
+            f"{max_distance:.3g} (the shapes' units, {max_distance / diag:.2g} of the "
+            "source's bounding-box diagonal) of the source after alignment: a partial "
+            "target, a pose too far from the source's for ICP, or shapes in other units "
+            "(ICP does not scale: rescale the target first)"
+        )
+    return V2 @ transform[:3, :3].T + transform[:3, 3]
+
+
+def _closest_on_source(
+    V1: np.ndarray, F1: np.ndarray | None, surface: _Surface | None, query: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """Return (p2p, faces, barycentric, distances) of the query points on the source.
+
+    On a mesh: the closest surface point and the vertex of its largest weight; on a point
+    cloud: the nearest point (no faces and barycentric coordinates: None).
+    """
+    if surface is None:
+        from scipy.spatial import cKDTree
+
+        distances, p2p = cKDTree(V1).query(query, workers=-1)
+        return p2p.astype(np.int64), None, None, distances
+    assert F1 is not None
+    faces_21, bary, _, distances = surface.closest(query)
+    return F1[faces_21, np.argmax(bary, axis=1)], faces_21, bary, distances
+
+
+def _not_aligned(
+    mean_rel: float, align: bool, V2: np.ndarray, diag: float, retry: str
+) -> list[str]:
+    """Return the reason (in a list; empty if none) when the target lies far from the source."""
+    if mean_rel <= MAX_MEAN_DISTANCE:
+        return []
+    after = " even after ICP (align=True, --align)" if align else ""
+    return [
+        f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} "
+        f"times the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point "
+        f"map (--map closest) is only for shapes in the same place: "
+        f"{_units(V2, diag) or retry}"
+        "otherwise use the spectral estimate (--map estimate)"
+    ]
+
+
+def _misaligned(
+    surface: _Surface,
+    V2: np.ndarray,
+    distances_rel: np.ndarray,
+    options: dict[str, Any],
+    notes: list[str],
+) -> list[str]:
+    """Return the reason (in a list; empty if none) when a rigid motion brings the target closer.
+
+    Records :func:`_misalignment` in ``options["misalignment"]``; a smaller gain (above
+    :data:`MISALIGNED_NOTE`) is a note.
+    """
+    before, after, degrees, shift = _misalignment(surface, V2, distances_rel)
+    options["misalignment"] = {
+        "mean_distance_rel": before,
+        "mean_distance_rel_moved": after,
+        "rotation_degrees": degrees,
+        "translation_rel": shift,
+    }
+    logger.debug(
+        "closest map: a rigid motion (%.3g°, shift %.3g of the diagonal) takes the mean "
+        "distance from %.3g to %.3g of the diagonal",
+        degrees,
+        shift,
+        before,
+        after,
+    )
+    gain = before - after
+    explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
+    motion = f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
+    if explained and gain > MISALIGNED_GAIN:
+        return [
+            f"{motion} brings the target from {before:.3g} to {after:.3g} of the source's "
+            "diagonal on average: the shapes are not quite aligned, and closest points "
+            "slide along the surface; pass align=True (--align) to register them first"
+        ]
+    if explained and gain > MISALIGNED_NOTE:
+        notes.append(
+            f"{motion} would bring the target from {before:.3g} to {after:.3g} of the "
+            "source's diagonal: align=True (--align) registers them exactly"
+        )
+    return []
+
+
+def _coverage(
+    V1: np.ndarray, V2: np.ndarray, p2p: np.ndarray, retry: str
+) -> tuple[float, float, list[str]]:
+    """Return (coverage, coverage_ratio, reasons): the distinct source positions hit.
+
+    Positions, not vertices: a mesh read with its UVs has copies of the vertices along the
+    seams (Spot: 17564 vertices at 2930 positions), which are no other points. The reason
+    (below :data:`MIN_COVERAGE` of the smaller shape) says the target's vertices crowd.
+    """
+    at_1 = _positions(V1)
+    distinct_1 = int(at_1.max()) + 1
+    hit = np.unique(at_1[p2p]).size
+    smaller = min(distinct_1, int(_positions(V2).max()) + 1)
+    crowded: list[str] = []
+    if hit < MIN_COVERAGE * smaller:
+        crowded.append(
+            f"the target's vertices crowd onto {hit} source vertices ({hit / smaller:.2f} of "
+            f"the smaller shape, < {MIN_COVERAGE}): the shapes are not in the same place or "
+            f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
+            f"same place: {retry}otherwise use the spectral estimate (--map estimate; "
+            "with partial=True / --partial when the target is a part of the source)"
+        )
+    return hit / distinct_1, hit / smaller, crowded
+
+
+def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[str]:
+    """Return the reason (in a list; empty if none) when ICP turned the target wrongly.
+
+    A turn above :data:`ICP_DOUBTFUL_TURN` that leaves the target farther than
+    :data:`MEAN_DISTANCE_NOTE` from the source, or facing away from it on more than
+    :data:`MAX_FACING_AWAY` of its area.
+    """
+    if turn > ICP_DOUBTFUL_TURN and mean_rel > MEAN_DISTANCE_NOTE:
+        return [
+            f"ICP turned the target by {turn:.3g}° and it still lies {mean_rel:.3g} of the "
+            f"source's bounding-box diagonal from the source on average (> "
+            f"{MEAN_DISTANCE_NOTE}): the shapes are not copies of one surface (another "
+            "pose, other geometry), or the target was turned too far for ICP, so that "
+            "turn, and the closest points, may be wrong. If they were already aligned, "
+            "match without align=True (--align); if the target is a turned copy, turn it "
+            "roughly into place first; otherwise use the spectral estimate (--map estimate)"
+        ]
+    if turn > ICP_DOUBTFUL_TURN and facing > MAX_FACING_AWAY:
+        return [
+            f"ICP turned the target by {turn:.3g}°, but {facing:.2f} of its area faces more "
+            "than 45° away from the source surface it lies on (> "
+            f"{MAX_FACING_AWAY}): ICP stopped in a wrong place (the target turned too far "
+            "for it, or a part that fits elsewhere); turn the target roughly into place "
+            "first, or use the spectral estimate (--map estimate)"
+        ]
+    return []
+
+
+def _distance_notes(mean_rel: float, max_rel: float, retry: str, suspect: bool) -> list[str]:
+    """Return the notes on the closest-point distances (fractions of the source's diagonal)."""
+    notes = [
+        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} times the source's "
+        "bounding-box diagonal"
+    ]
+    if MEAN_DISTANCE_NOTE < mean_rel <= MAX_MEAN_DISTANCE:
+        notes.append(
+            f"the target lies {mean_rel:.3g} of the diagonal from the source on average: the "
+            f"shapes differ in geometry or are slightly misaligned ({retry}a closest-point map "
+            "needs shapes in the same place)"
+        )
+    if max_rel > MAX_DISTANCE_NOTE and not suspect:
+        notes.append(
+            f"some target vertices lie far from the source (up to {max_rel:.3g} of its "
+            "diagonal): parts of the target may be missing from the source"
+        )
+    return notes
+
+
+def _area_ratio(
+    V1: np.ndarray, F1: np.ndarray | None, V2: np.ndarray, F2: np.ndarray | None, notes: list[str]
+) -> float:
+    """Return target area / source area (NaN without both shapes' triangles); a note if far off."""
+    if F2 is None or F1 is None:
+        return math.nan
+    a1 = face_areas_normals(V1, F1)[0].sum()
+    a2 = face_areas_normals(V2, F2)[0].sum()
+    area_ratio = float(a2 / a1) if a1 > 0 else math.nan
+    if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
+        notes.append(
+            f"the target's area is {area_ratio:.3g} times the source's: not the same "
+            "surface (different units, or a partial shape)"
+        )
+    return area_ratio
+
+
+def _closest_quality(
+    V1: np.ndarray,
+    F1: np.ndarray | None,
+    V2: np.ndarray,
+    F2: np.ndarray | None,
+    surface: _Surface | None,
+    query: np.ndarray,
+    p2p: np.ndarray,
+    distances: np.ndarray,
+    options: dict[str, Any],
+    notes: list[str],
+) -> MapQuality:
+    """Return the quality report of a closest-point map (see :func:`closest_correspondence`).
+
+    ``p2p`` and ``distances`` are those of the target's vertices as queried (``query``: after
+    ICP); ``options`` gets the distances, ``facing_away`` and ``misalignment``; ``notes``
+    holds those made so far (ICP's).
+    """
+    align = bool(options["align"])
+    diag = _frame(V1)[1]
+    mean_rel = float(distances.mean() / diag)
+    max_rel = float(distances.max() / diag)
+    options["mean_distance_rel"] = mean_rel
+    options["max_distance_rel"] = max_rel
+    facing = math.nan
+    if surface is not None and F2 is not None:
+        facing = _facing_away(surface, query, F2)
+        options["facing_away"] = facing
+    retry = "" if align else "pass align=True (--align) if they are almost aligned; "
+    reasons = _not_aligned(mean_rel, align, V2, diag, retry)
+    misaligned: list[str] = []
+    if surface is not None and not align:
+        misaligned = _misaligned(surface, V2, distances / diag, options, notes)
+    coverage, coverage_ratio, crowded = _coverage(V1, V2, p2p, retry)
+    if align and not reasons:
+        reasons = _icp_doubts(float(options["icp"]["rotation_degrees"]), mean_rel, facing)
+    if reasons:  # not aligned at all: that reason names the fixes
+        notes.extend(misaligned)
+    else:
+        reasons.extend([*misaligned, *crowded])
+    notes.extend(_distance_notes(mean_rel, max_rel, retry, bool(reasons)))
+    area_ratio = _area_ratio(V1, F1, V2, F2, notes)
+    return MapQuality(
+        coverage=coverage,
+        coverage_ratio=coverage_ratio,
+        orthogonality=math.nan,
+        inconsistency=math.nan,
+        reversed_fraction=math.nan,
+        area_ratio=area_ratio,
+        suspect=bool(reasons),
+        reasons=tuple(reasons),
+        notes=tuple(notes),
+    )
+
+
 def closest_correspondence(
     vertices_1: Any,
     faces_1: Any,
@@ -802,8 +1070,6 @@ def closest_correspondence(
     V2 = as_vertices(vertices_2, name="vertices_2")
     F2 = None if faces_2 is None else as_faces(faces_2, V2.shape[0], name="faces_2")
     align, max_icp_distance = _check_options(align, max_icp_distance)
-    n1, n2 = V1.shape[0], V2.shape[0]
-    centre, diag = _frame(V1)
     options: dict[str, Any] = {
         "align": align,
         "source": "points" if F1 is None else "mesh",
@@ -813,184 +1079,22 @@ def closest_correspondence(
     surface = None if F1 is None else _Surface(V1, F1)
     query = V2
     if align:
-        max_distance = ICP_DISTANCE * diag if max_icp_distance is None else max_icp_distance
-        transform, fitness, rmse, fitness_0 = _icp(V1, F1, surface, V2, centre, diag, max_distance)
-        query = V2 @ transform[:3, :3].T + transform[:3, 3]
-        angle = _rotation_degrees(transform[:3, :3])
-        options["icp"] = {
-            "transformation": transform.tolist(),
-            "fitness": fitness,
-            "fitness_identity": fitness_0,
-            "inlier_rmse": rmse,
-            "max_correspondence_distance": max_distance,
-            "rotation_degrees": angle,
-            "translation": float(np.linalg.norm(transform[:3, 3])),
-        }
-        logger.info(
-            "ICP: rotation %.3g°, fitness %.3f, inlier RMSE %.3g of the diagonal",
-            angle,
-            fitness,
-            rmse / diag,
-        )
-        if fitness < ICP_MIN_FITNESS:
-            notes.append(
-                f"ICP fitness {fitness:.2f}: only that fraction of the target lies within "
-                f"{max_distance:.3g} (the shapes' units, {max_distance / diag:.2g} of the "
-                "source's bounding-box diagonal) of the source after alignment: a partial "
-                "target, a pose too far from the source's for ICP, or shapes in other units "
-                "(ICP does not scale: rescale the target first)"
-            )
-
-    if F1 is None:
-        from scipy.spatial import cKDTree
-
-        distances, p2p = cKDTree(V1).query(query, workers=-1)
-        p2p = p2p.astype(np.int64)
-        faces_21 = bary = None
-    else:
-        faces_21, bary, _, distances = surface.closest(query)
-        p2p = F1[faces_21, np.argmax(bary, axis=1)]
-
-    mean_rel = float(distances.mean() / diag)
-    max_rel = float(distances.max() / diag)
-    options["mean_distance_rel"] = mean_rel
-    options["max_distance_rel"] = max_rel
-    facing = math.nan
-    if F1 is not None and F2 is not None:
-        assert surface is not None
-        facing = _facing_away(surface, query, F2)
-        options["facing_away"] = facing
-    reasons: list[str] = []
-    retry = "" if align else "pass align=True (--align) if they are almost aligned; "
-    if mean_rel > MAX_MEAN_DISTANCE:
-        after = " even after ICP (align=True, --align)" if align else ""
-        reasons.append(
-            f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} "
-            f"times the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point "
-            f"map (--map closest) is only for shapes in the same place: "
-            f"{_units(V2, diag) or retry}"
-            "otherwise use the spectral estimate (--map estimate)"
-        )
-    misaligned: list[str] = []
-    if surface is not None and not align:
-        before, after, degrees, shift = _misalignment(surface, V2, distances / diag)
-        options["misalignment"] = {
-            "mean_distance_rel": before,
-            "mean_distance_rel_moved": after,
-            "rotation_degrees": degrees,
-            "translation_rel": shift,
-        }
-        logger.debug(
-            "closest map: a rigid motion (%.3g°, shift %.3g of the diagonal) takes the mean "
-            "distance from %.3g to %.3g of the diagonal",
-            degrees,
-            shift,
-            before,
-            after,
-        )
-        gain = before - after
-        explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
-        motion = f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
-        if explained and gain > MISALIGNED_GAIN:
-            misaligned.append(
-                f"{motion} brings the target from {before:.3g} to {after:.3g} of the source's "
-                "diagonal on average: the shapes are not quite aligned, and closest points "
-                "slide along the surface; pass align=True (--align) to register them first"
-            )
-        elif explained and gain > MISALIGNED_NOTE:
-            notes.append(
-                f"{motion} would bring the target from {before:.3g} to {after:.3g} of the "
-                "source's diagonal: align=True (--align) registers them exactly"
-            )
-    # Coverage counts distinct positions: a mesh read with its UVs has copies of the vertices
-    # along the seams (Spot: 17564 vertices at 2930 positions), which are no other points.
-    at_1 = _positions(V1)
-    distinct_1 = int(at_1.max()) + 1
-    hit = np.unique(at_1[p2p]).size
-    smaller = min(distinct_1, int(_positions(V2).max()) + 1)
-    crowded: list[str] = []
-    if hit < MIN_COVERAGE * smaller:
-        crowded.append(
-            f"the target's vertices crowd onto {hit} source vertices ({hit / smaller:.2f} of "
-            f"the smaller shape, < {MIN_COVERAGE}): the shapes are not in the same place or "
-            f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
-            f"same place: {retry}otherwise use the spectral estimate (--map estimate; "
-            "with partial=True / --partial when the target is a part of the source)"
-        )
-    if align and not reasons:
-        turn = float(options["icp"]["rotation_degrees"])
-        if turn > ICP_DOUBTFUL_TURN and mean_rel > MEAN_DISTANCE_NOTE:
-            reasons.append(
-                f"ICP turned the target by {turn:.3g}° and it still lies {mean_rel:.3g} of the "
-                f"source's bounding-box diagonal from the source on average (> "
-                f"{MEAN_DISTANCE_NOTE}): the shapes are not copies of one surface (another "
-                "pose, other geometry), or the target was turned too far for ICP, so that "
-                "turn, and the closest points, may be wrong. If they were already aligned, "
-                "match without align=True (--align); if the target is a turned copy, turn it "
-                "roughly into place first; otherwise use the spectral estimate (--map estimate)"
-            )
-        elif turn > ICP_DOUBTFUL_TURN and facing > MAX_FACING_AWAY:
-            reasons.append(
-                f"ICP turned the target by {turn:.3g}°, but {facing:.2f} of its area faces more "
-                "than 45° away from the source surface it lies on (> "
-                f"{MAX_FACING_AWAY}): ICP stopped in a wrong place (the target turned too far "
-                "for it, or a part that fits elsewhere); turn the target roughly into place "
-                "first, or use the spectral estimate (--map estimate)"
-            )
-    if reasons:  # not aligned at all: that reason names the fixes
-        notes.extend(misaligned)
-    else:
-        reasons.extend([*misaligned, *crowded])
-    notes.append(
-        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} times the source's "
-        "bounding-box diagonal"
-    )
-    if MEAN_DISTANCE_NOTE < mean_rel <= MAX_MEAN_DISTANCE:
-        notes.append(
-            f"the target lies {mean_rel:.3g} of the diagonal from the source on average: the "
-            f"shapes differ in geometry or are slightly misaligned ({retry}a closest-point map "
-            "needs shapes in the same place)"
-        )
-    if max_rel > MAX_DISTANCE_NOTE and not reasons:
-        notes.append(
-            f"some target vertices lie far from the source (up to {max_rel:.3g} of its "
-            "diagonal): parts of the target may be missing from the source"
-        )
-    area_ratio = math.nan
-    if F2 is not None and F1 is not None:
-        a1 = face_areas_normals(V1, F1)[0].sum()
-        a2 = face_areas_normals(V2, F2)[0].sum()
-        area_ratio = float(a2 / a1) if a1 > 0 else math.nan
-        if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
-            notes.append(
-                f"the target's area is {area_ratio:.3g} times the source's: not the same "
-                "surface (different units, or a partial shape)"
-            )
-    quality = MapQuality(
-        coverage=hit / distinct_1,
-        coverage_ratio=hit / smaller,
-        orthogonality=math.nan,
-        inconsistency=math.nan,
-        reversed_fraction=math.nan,
-        area_ratio=area_ratio,
-        suspect=bool(reasons),
-        reasons=tuple(reasons),
-        notes=tuple(notes),
-    )
-    seconds = time.perf_counter() - t0
+        query = _aligned_query(V1, F1, surface, V2, max_icp_distance, options, notes)
+    p2p, faces_21, bary, distances = _closest_on_source(V1, F1, surface, query)
+    quality = _closest_quality(V1, F1, V2, F2, surface, query, p2p, distances, options, notes)
     logger.info(
         "closest map: %d target vertices onto %d source vertices in %.2f s, mean distance "
         "%.3g times the diagonal",
-        n2,
-        n1,
-        seconds,
-        mean_rel,
+        V2.shape[0],
+        V1.shape[0],
+        time.perf_counter() - t0,
+        options["mean_distance_rel"],
     )
-    if reasons:
-        warn(logger, reasons[0])
+    if quality.suspect:
+        warn(logger, quality.reasons[0])
     return Correspondence(
         p2p_21=p2p,
-        n_source=n1,
+        n_source=V1.shape[0],
         method="closest",
         options=options,
         quality=quality,

@@ -2,9 +2,11 @@
 
 Open3D's readers report a damaged file (a PLY body cut short, say) only as a console warning
 and return zero-filled or empty data; :func:`read_geometry` therefore checks what came back
-against the file itself. :func:`write_geometry` writes into a temporary folder beside the
-destination and moves the files into place (the geometry file last), so an OBJ's material and
-texture files get their final names and a failure leaves nothing behind.
+against the file itself, and refuses (naming the vertex, face or line) coordinates that are
+NaN, inf or too far apart and faces that name missing vertices. :func:`write_geometry`
+writes into a temporary folder beside the destination and moves the files into place (the
+geometry file last), so an OBJ's material and texture files get their final names and a
+failure leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -13,13 +15,16 @@ import contextlib
 import logging
 import os
 import shutil
+import sys
 import tempfile
-from collections.abc import Sequence
-from typing import Any
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..core._atomic import default_file_mode
+from ..core.cleaning import _MAX_SIZE, _MIN_SIZE
 from ._verbosity import open3d_errors_only
 from .convert import require_open3d
 
@@ -100,6 +105,203 @@ def _check_read(path: str, n_vertices: int) -> None:
         )
 
 
+class _Contents(NamedTuple):
+    """What a file holds, numbered as the file numbers it (for the messages of a bad file)."""
+
+    vertices: np.ndarray  # (n, 3) float64
+    corners: np.ndarray  # the vertex numbers the faces name, face after face
+    face_of: np.ndarray  # the face number of each corner
+    base: int  # the number of the first vertex and the first face (0; OBJ: 1)
+    vertex_lines: Sequence[int] | None = None  # the line of each vertex in the file
+    face_lines: Sequence[int] | None = None  # the line of each face
+
+
+def _contents_problem(c: _Contents) -> str | None:
+    """Return what makes the contents no shape, or None.
+
+    The first of: a NaN or inf coordinate, a span whose square float64 cannot hold, a face
+    naming a vertex the file does not have.
+    """
+
+    def line(lines: Sequence[int] | None, i: int) -> str:
+        return "" if lines is None else f" (line {lines[i]})"
+
+    V = c.vertices
+    finite = np.isfinite(V).all(axis=1)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        kind = "a NaN" if np.isnan(V[i]).any() else "an infinite"
+        return f"vertex {i + c.base}{line(c.vertex_lines, i)} has {kind} coordinate"
+    with np.errstate(over="ignore"):  # a span beyond float64's range is refused just below
+        size = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    if size > 0 and not (_MIN_SIZE < size < _MAX_SIZE):
+        problem = "overflow" if size > 1 else "underflow"
+        return (
+            f"the vertices span {size:.3g} units: areas (size²) would {problem} in float64; "
+            "rescale the coordinates (the basis does not depend on the scale)"
+        )
+    bad = np.flatnonzero((c.corners < c.base) | (c.corners >= len(V) + c.base))
+    if bad.size:
+        face = int(c.face_of[bad[0]])
+        return (
+            f"face {face + c.base}{line(c.face_lines, face)} names vertex "
+            f"{int(c.corners[bad[0]])}, but the file has {len(V)} vertices ({c.base}-based)"
+        )
+    return None
+
+
+def _numbers(words: Sequence[bytes], n: int, kind: type) -> list[Any]:
+    """Return the first ``n`` words as numbers of ``kind`` (ValueError if there are fewer)."""
+    if len(words) < n:
+        raise ValueError(f"{len(words)} numbers where {n} are needed")
+    return [kind(w) for w in words[:n]]
+
+
+def _off_contents(path: str) -> _Contents:
+    """Read the vertices and faces of an OFF file as it numbers them (ValueError if not)."""
+    with open(path, "rb") as fh:
+        rows = [(n, line.split(b"#")[0].split()) for n, line in enumerate(fh, start=1)]
+    rows = [(n, words) for n, words in rows if words]
+    if not rows or not rows[0][1][0].endswith(b"OFF"):
+        raise ValueError("no OFF header")
+    start = 1 if len(rows[0][1]) > 1 else 2  # the counts on the header's line, or the next
+    counts = rows[0][1][1:] if start == 1 else rows[1][1]
+    n_v, n_f = _numbers(counts, 2, int)
+    vertex_rows = rows[start : start + n_v]
+    face_rows = rows[start + n_v : start + n_v + n_f]
+    faces = [_numbers(words[1:], int(words[0]), int) for _, words in face_rows]
+    return _Contents(
+        np.array([_numbers(w, 3, float) for _, w in vertex_rows], dtype=np.float64).reshape(-1, 3),
+        np.array([i for f in faces for i in f], dtype=np.int64),
+        np.repeat(np.arange(len(faces)), [len(f) for f in faces]),
+        0,
+        [n for n, _ in vertex_rows],
+        [n for n, _ in face_rows],
+    )
+
+
+def _obj_contents(path: str) -> _Contents:
+    """Read the ``v`` and ``f`` lines of an OBJ file (ValueError if it cannot)."""
+    vertices: list[list[float]] = []
+    vertex_lines: list[int] = []
+    faces: list[list[int]] = []
+    face_lines: list[int] = []
+    with open(path, "rb") as fh:
+        for n, line in enumerate(fh, start=1):
+            words = line.split()
+            if words and words[0] == b"v":
+                vertices.append(_numbers(words[1:], 3, float))
+                vertex_lines.append(n)
+            elif words and words[0] == b"f":
+                written = [int(w.split(b"/")[0]) for w in words[1:]]
+                # a negative number counts back from the last v line before the face
+                faces.append([len(vertices) + 1 + i if -len(vertices) <= i < 0 else i
+                              for i in written])  # fmt: skip
+                face_lines.append(n)
+    return _Contents(
+        np.array(vertices, dtype=np.float64).reshape(-1, 3),
+        np.array([i for f in faces for i in f], dtype=np.int64),
+        np.repeat(np.arange(len(faces)), [len(f) for f in faces]),
+        1,
+        vertex_lines,
+        face_lines,
+    )
+
+
+#: Text formats whose contents are read again, line by line, to name what is wrong in them.
+_TEXT_CONTENTS: dict[str, Callable[[str], _Contents]] = {
+    ".off": _off_contents,
+    ".obj": _obj_contents,
+}
+
+
+def _refuse_bad_contents(path: str, vertices: Any = None, triangles: Any = None) -> None:
+    """Refuse a file whose vertices or faces make no shape, naming the first fault.
+
+    ``vertices`` and ``triangles`` are what Open3D read (None: it read nothing usable). An OFF
+    or OBJ file with a fault, or that Open3D could not read, is read again here line by line,
+    so the message gives the vertex, face and line as the file numbers them (Open3D renumbers
+    an OBJ's vertices, and an OFF reader that stops at a NaN leaves nothing to check).
+    """
+    problem = None
+    if vertices is not None:
+        V = np.asarray(vertices, dtype=np.float64)
+        T = np.asarray([] if triangles is None else triangles, dtype=np.int64).reshape(-1, 3)
+        face_of = np.repeat(np.arange(T.shape[0]), 3)
+        problem = _contents_problem(_Contents(V, T.reshape(-1), face_of, 0))
+        if problem is None:
+            return
+    text_contents = _TEXT_CONTENTS.get(os.path.splitext(path)[1].lower())
+    if text_contents is not None:
+        try:
+            problem = _contents_problem(text_contents(path)) or problem
+        except (OSError, ValueError, IndexError):  # a file this reader does not follow
+            pass
+    if problem is not None:
+        raise ValueError(f"{path}: {problem}")
+
+
+_stderr_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _reader_messages() -> Iterator[list[str]]:
+    """Catch the lines Open3D's PLY reader (RPly) prints on the process's stderr in the block.
+
+    RPly writes its errors ("RPly: Wrong magic number") with C's ``fprintf(stderr)``, out of
+    reach of ``sys.stderr`` and of Open3D's verbosity level, so file descriptor 2 itself
+    points to a temporary file for the block. The list yielded gets the RPly messages on
+    leaving; anything else written to stderr meanwhile (by another thread) is written to it
+    then. One block at a time in the process; where fd 2 cannot be duplicated, nothing is
+    caught.
+    """
+    said: list[str] = []
+    with _stderr_lock, tempfile.TemporaryFile() as tmp:
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            sys.stderr.flush()  # Python's pending text goes out before fd 2 is swapped
+        try:
+            saved = os.dup(2)
+        except OSError:
+            yield said
+            return
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            others = []
+            for line in tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True):
+                if line.startswith("RPly: "):
+                    said.append(line.removeprefix("RPly: ").strip())
+                else:
+                    others.append(line)
+            if others:
+                with contextlib.suppress(OSError):
+                    os.write(2, "".join(others).encode())
+
+
+def _open3d_read(path: str, read: Callable[[str], Any]) -> Any:
+    """Return ``read(path)``, with Open3D's console output held back.
+
+    An error Open3D's PLY reader prints is refused instead (as a file cut short when the
+    header tells so), and not printed.
+    """
+    ply = path.lower().endswith(".ply")
+    # Open3D warns on stdout about a file with points but no triangles: that case is handled.
+    with open3d_errors_only(), _reader_messages() if ply else contextlib.nullcontext([]) as said:
+        geometry = read(path)
+    if said:
+        points = geometry.vertices if hasattr(geometry, "vertices") else geometry.points
+        _check_read(path, len(points))
+        raise ValueError(
+            f'{path}: Open3D\'s PLY reader stopped at "{said[0]}": the file is damaged, cut '
+            "short, or holds a value its property's type cannot hold"
+        )
+    return geometry
+
+
 def read_geometry(path: str | os.PathLike[str]) -> Any:
     """Read a triangle mesh (or, when the file holds no triangles, a point cloud) with Open3D.
 
@@ -123,7 +325,11 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         If this process may not read it.
     ValueError
         If Open3D cannot read it, it holds no points, or it is cut short (checked against the
-        PLY header, since Open3D only prints a warning and fills the rest with zeros).
+        PLY header, since Open3D only prints a warning and fills the rest with zeros); if
+        its vertices or faces make no shape: a NaN or inf coordinate, a span whose square
+        float64 cannot hold, a face naming a vertex the file does not have (the message names
+        the vertex or face, for OFF and OBJ with its line); if it is named .ply but is no PLY
+        file. The message is one line: what Open3D's PLY reader prints is quoted, not shown.
     """
     o3d = require_open3d()
     path = os.fspath(path)
@@ -132,22 +338,24 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     if os.path.getsize(path) == 0:
         raise ValueError(f"{path}: the file is empty")
     try:  # Open3D says only "could not read any vertices" when it may not open the file
-        with open(path, "rb"):
-            pass
+        with open(path, "rb") as fh:
+            head = fh.read(4)
     except PermissionError as exc:
         raise PermissionError(f"{path}: cannot be read (permission denied)") from exc
-    # Open3D prints a warning for a file with points but no triangles: that case is handled.
-    with open3d_errors_only():
-        mesh = o3d.io.read_triangle_mesh(path)
+    if path.lower().endswith(".ply") and (head[:3] != b"ply" or not head[3:].isspace()):
+        raise ValueError(f"{path}: not a PLY file (its first line is not 'ply')")
+    mesh = _open3d_read(path, o3d.io.read_triangle_mesh)
     if len(mesh.vertices) and len(mesh.triangles):
         _check_read(path, len(mesh.vertices))
+        _refuse_bad_contents(path, mesh.vertices, mesh.triangles)
         if path.lower().endswith(".obj"):
             mesh = _in_file_order(path, mesh, o3d)
         return mesh
-    with open3d_errors_only():
-        cloud = o3d.io.read_point_cloud(path)
+    _refuse_bad_contents(path)  # an OFF or OBJ read without triangles: its fault, if any
+    cloud = _open3d_read(path, o3d.io.read_point_cloud)
     if len(cloud.points):
         _check_read(path, len(cloud.points))
+        _refuse_bad_contents(path, cloud.points)
         logger.info(
             "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
             "read as a point cloud of %d points",
@@ -170,8 +378,8 @@ def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
 
     Open3D numbers an OBJ's vertices in the order the faces first use them (measured: FAUST
     087 written with UVs and read back), so per-vertex data kept beside the file (a
-    registration's vertex i, a saved map) no longer lines up, and an OBJ written back is
-    renumbered (a trial). When the vertices are those of the ``v`` lines one to one, they are
+    registration's vertex i, a saved map) would not line up, and an OBJ written back would be
+    renumbered. When the vertices are those of the ``v`` lines one to one, they are
     permuted back (the triangles, per-vertex normals and colors with them; per-corner UVs,
     textures and material ids are per triangle and stay); else (vertices split along UV
     seams) the mesh is left as read.
@@ -313,7 +521,7 @@ def _gltf_vertex_counts(mesh: Any) -> set[int]:
 
 
 def _check_gltf(path: str, shown: str, counts: set[int], textured: bool, o3d: Any) -> None:
-    """Read a written glTF back: Open3D has written unreadable or untextured files before."""
+    """Read a written glTF back: refuse one Open3D cannot read, or that lost its texture."""
     with open3d_errors_only():
         back = o3d.t.io.read_triangle_mesh(path)
     n = back.vertex.positions.shape[0] if "positions" in back.vertex else 0
