@@ -28,8 +28,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..core._warnings import warn
-from ..core.correspondence import check_p2p
 from ..core.texture import MAX_TEXTURE_SIZE
+from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, check_correspondence
 from ..workflows.plan import plan_pair, prepare
 from ._verbosity import open3d_errors_only
@@ -461,10 +461,10 @@ def transfer_texture(
         correspondence.check(src.vertices.shape[0], geometry_to_arrays(target)[0].shape[0])
     if not has_uvs(target):
         if not atlas:
-            raise ValueError(
-                "the target has no texture coordinates: pass atlas=True (CLI: --uv-atlas) to "
-                "bake into a new UV atlas, or transfer per-vertex colors (transfer_colors)"
-            )
+            raise AdvisedError(Said(
+                "the target has no texture coordinates: pass {atlas} to bake into a new UV "
+                "atlas, or transfer per-vertex colors (transfer_colors)", {}, "no_uvs",
+            ))  # fmt: skip
         target = with_uv_atlas(target, size=size)
     target_uv = corner_uvs(target)
     V2, F2 = geometry_to_arrays(target)
@@ -480,14 +480,13 @@ def transfer_texture(
     )
     shared = _uv_overlap(target_uv, int(np.count_nonzero(inside)), size)
     if shared > UV_OVERLAP:
-        warn(
-            logger,
-            f"the target's UV triangles overlap: {100 * shared:.0f} % of their UV area shares "
-            "texels with other triangles (mirrored, stacked or tiled UVs), and a shared texel "
-            "holds the colors of one of them only, wrong on the others; bake into a layout of "
-            "the target's own (remove its UVs and pass atlas=True / --uv-atlas), or transfer "
-            "per-vertex colors (transfer_colors)",
-        )
+        warn(logger, Said(
+            "the target's UV triangles overlap: {percent:.0f} % of their UV area shares texels "
+            "with other triangles (mirrored, stacked or tiled UVs), and a shared texel holds "
+            "the colors of one of them only, wrong on the others; bake into a layout of the "
+            "target's own (remove its UVs and pass {atlas}), or transfer per-vertex colors "
+            "(transfer_colors)", {"percent": 100 * shared}, "uv_overlap",
+        ))  # fmt: skip
     q = np.einsum("pk,pkd->pd", bary2, points[F2[tri2]])
     tri1, bary1, _ = _Surface(src.vertices, src.faces).closest(q)
     colors = src.sample(tri1, bary1)

@@ -28,6 +28,7 @@ import numpy as np
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
 from ..core.geometry import face_areas_normals, units_change
+from ..core.wording import Said
 from ..workflows.maps import Correspondence, MapQuality, shape_signature
 from ..workflows.quality import AREA_RATIO_NOTE
 from .convert import require_open3d
@@ -152,7 +153,7 @@ def _positions(vertices: np.ndarray) -> np.ndarray:
     return np.unique(vertices, axis=0, return_inverse=True)[1].reshape(-1)
 
 
-def _units(V2: np.ndarray, diag_1: float) -> str:
+def _units(V2: np.ndarray, diag_1: float) -> Said | str:
     """Advice for a target in other units (its size a power of ten off the source's), or "".
 
     A target in millimetres onto a source in metres lies hundreds of diagonals away: the
@@ -165,10 +166,11 @@ def _units(V2: np.ndarray, diag_1: float) -> str:
     if found is None or not found[1] or not 0.5 <= ratio * found[0] <= 2.0:
         return ""
     factor, change = found
-    return (
-        f"the target's bounding box is {ratio:.3g} times the source's: shapes in other units? "
-        f"multiply the target's coordinates by {factor:g}{f' ({change})' if change else ''}, "
-        f"e.g. Open3D's target.scale({factor:g}, center=(0, 0, 0)), then match again; "
+    return Said(
+        "the target's bounding box is {ratio:.3g} times the source's: shapes in other units? "
+        "multiply the target's coordinates by {factor:g}{change}, e.g. {target_scale}, then "
+        "match again; ",
+        {"ratio": ratio, "factor": factor, "change": f" ({change})" if change else ""},
     )
 
 
@@ -734,7 +736,7 @@ def _aligned_query(
     V2: np.ndarray,
     max_icp_distance: float | None,
     options: dict[str, Any],
-    notes: list[str],
+    notes: list[Said],
 ) -> np.ndarray:
     """Register the target onto the source (:func:`_icp`); return its vertices moved there.
 
@@ -761,13 +763,15 @@ def _aligned_query(
         rmse / diag,
     )
     if fitness < ICP_MIN_FITNESS:
-        notes.append(
-            f"ICP fitness {fitness:.2f}: only that fraction of the target lies within "
-            f"{max_distance:.3g} (the shapes' units, {max_distance / diag:.2g} of the "
-            "source's bounding-box diagonal) of the source after alignment: a partial "
-            "target, a pose too far from the source's for ICP, or shapes in other units "
-            "(ICP does not scale: rescale the target first)"
-        )
+        notes.append(Said(
+            "ICP fitness {fitness:.2f}: only that fraction of the target lies within "
+            "{distance:.3g} (the shapes' units, {rel:.2g} of the source's bounding-box "
+            "diagonal) of the source after alignment: a partial target, a pose too far from "
+            "the source's for ICP, or shapes in other units (ICP does not scale: rescale the "
+            "target first)",
+            {"fitness": fitness, "distance": max_distance, "rel": max_distance / diag},
+            "icp_fitness",
+        ))  # fmt: skip
     return V2 @ transform[:3, :3].T + transform[:3, 3]
 
 
@@ -790,19 +794,18 @@ def _closest_on_source(
 
 
 def _not_aligned(
-    mean_rel: float, align: bool, V2: np.ndarray, diag: float, retry: str
-) -> list[str]:
+    mean_rel: float, align: bool, V2: np.ndarray, diag: float, retry: Said | str
+) -> list[Said]:
     """Return the reason (in a list; empty if none) when the target lies far from the source."""
     if mean_rel <= MAX_MEAN_DISTANCE:
         return []
-    after = " even after ICP (align=True, --align)" if align else ""
-    return [
-        f"the shapes are not aligned{after}: mean closest-point distance {mean_rel:.3g} "
-        f"times the source's bounding-box diagonal (> {MAX_MEAN_DISTANCE}). A closest-point "
-        f"map (--map closest) is only for shapes in the same place: "
-        f"{_units(V2, diag) or retry}"
-        "otherwise use the spectral estimate (--map estimate)"
-    ]
+    return [Said(
+        "the shapes are not aligned{after}: mean closest-point distance {mean:.3g} times the "
+        "source's bounding-box diagonal (> {bound}). A closest-point map ({closest}) is only "
+        "for shapes in the same place: {retry}otherwise use the spectral estimate ({estimate})",
+        {"after": Said(" even after ICP ({align})") if align else "", "mean": mean_rel,
+         "bound": MAX_MEAN_DISTANCE, "retry": _units(V2, diag) or retry}, "not_aligned",
+    )]  # fmt: skip
 
 
 def _misaligned(
@@ -810,8 +813,8 @@ def _misaligned(
     V2: np.ndarray,
     distances_rel: np.ndarray,
     options: dict[str, Any],
-    notes: list[str],
-) -> list[str]:
+    notes: list[Said],
+) -> list[Said]:
     """Return the reason (in a list; empty if none) when a rigid motion brings the target closer.
 
     Records :func:`_misalignment` in ``options["misalignment"]``; a smaller gain (above
@@ -834,24 +837,25 @@ def _misaligned(
     )
     gain = before - after
     explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
-    motion = f"a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
+    values = {"degrees": degrees, "shift": shift, "before": before, "after": after}
+    motion = "a rigid motion (a {degrees:.2g}° turn, a shift of {shift:.2g} of the diagonal)"
     if explained and gain > MISALIGNED_GAIN:
-        return [
-            f"{motion} brings the target from {before:.3g} to {after:.3g} of the source's "
-            "diagonal on average: the shapes are not quite aligned, and closest points "
-            "slide along the surface; pass align=True (--align) to register them first"
-        ]
+        return [Said(
+            motion + " brings the target from {before:.3g} to {after:.3g} of the source's "
+            "diagonal on average: the shapes are not quite aligned, and closest points slide "
+            "along the surface; pass {align} to register them first", values, "misaligned",
+        )]  # fmt: skip
     if explained and gain > MISALIGNED_NOTE:
-        notes.append(
-            f"{motion} would bring the target from {before:.3g} to {after:.3g} of the "
-            "source's diagonal: align=True (--align) registers them exactly"
-        )
+        notes.append(Said(
+            motion + " would bring the target from {before:.3g} to {after:.3g} of the source's "
+            "diagonal: {align} registers them exactly", values, "misaligned_note",
+        ))  # fmt: skip
     return []
 
 
 def _coverage(
-    V1: np.ndarray, V2: np.ndarray, p2p: np.ndarray, retry: str
-) -> tuple[float, float, list[str]]:
+    V1: np.ndarray, V2: np.ndarray, p2p: np.ndarray, retry: Said | str
+) -> tuple[float, float, list[Said]]:
     """Return (coverage, coverage_ratio, reasons): the distinct source positions hit.
 
     Positions, not vertices: a mesh read with its UVs has copies of the vertices along the
@@ -862,19 +866,21 @@ def _coverage(
     distinct_1 = int(at_1.max()) + 1
     hit = np.unique(at_1[p2p]).size
     smaller = min(distinct_1, int(_positions(V2).max()) + 1)
-    crowded: list[str] = []
+    crowded: list[Said] = []
     if hit < MIN_COVERAGE * smaller:
-        crowded.append(
-            f"the target's vertices crowd onto {hit} source vertices ({hit / smaller:.2f} of "
-            f"the smaller shape, < {MIN_COVERAGE}): the shapes are not in the same place or "
-            f"not the same pose. A closest-point map (--map closest) is only for shapes in the "
-            f"same place: {retry}otherwise use the spectral estimate (--map estimate; "
-            "with partial=True / --partial when the target is a part of the source)"
-        )
+        crowded.append(Said(
+            "the target's vertices crowd onto {hit} source vertices ({share:.2f} of the smaller "
+            "shape, < {bound}): the shapes are not in the same place or not the same pose. A "
+            "closest-point map ({closest}) is only for shapes in the same place: {retry}"
+            "otherwise use the spectral estimate ({estimate}; with {partial} when the target "
+            "is a part of the source)",
+            {"hit": hit, "share": hit / smaller, "bound": MIN_COVERAGE, "retry": retry},
+            "crowded",
+        ))  # fmt: skip
     return hit / distinct_1, hit / smaller, crowded
 
 
-def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[str]:
+def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[Said]:
     """Return the reason (in a list; empty if none) when ICP turned the target wrongly.
 
     A turn above :data:`ICP_DOUBTFUL_TURN` that leaves the target farther than
@@ -882,48 +888,51 @@ def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[str]:
     :data:`MAX_FACING_AWAY` of its area.
     """
     if turn > ICP_DOUBTFUL_TURN and mean_rel > MEAN_DISTANCE_NOTE:
-        return [
-            f"ICP turned the target by {turn:.3g}° and it still lies {mean_rel:.3g} of the "
-            f"source's bounding-box diagonal from the source on average (> "
-            f"{MEAN_DISTANCE_NOTE}): the shapes are not copies of one surface (another "
-            "pose, other geometry), or the target was turned too far for ICP, so that "
-            "turn, and the closest points, may be wrong. If they were already aligned, "
-            "match without align=True (--align); if the target is a turned copy, turn it "
-            "roughly into place first; otherwise use the spectral estimate (--map estimate)"
-        ]
+        return [Said(
+            "ICP turned the target by {turn:.3g}° and it still lies {mean:.3g} of the source's "
+            "bounding-box diagonal from the source on average (> {bound}): the shapes are not "
+            "copies of one surface (another pose, other geometry), or the target was turned too "
+            "far for ICP, so that turn, and the closest points, may be wrong. If they were "
+            "already aligned, match {no_align}; if the target is a turned copy, turn it "
+            "roughly into place first; otherwise use the spectral estimate ({estimate})",
+            {"turn": turn, "mean": mean_rel, "bound": MEAN_DISTANCE_NOTE}, "icp_far",
+        )]  # fmt: skip
     if turn > ICP_DOUBTFUL_TURN and facing > MAX_FACING_AWAY:
-        return [
-            f"ICP turned the target by {turn:.3g}°, but {facing:.2f} of its area faces more "
-            "than 45° away from the source surface it lies on (> "
-            f"{MAX_FACING_AWAY}): ICP stopped in a wrong place (the target turned too far "
-            "for it, or a part that fits elsewhere); turn the target roughly into place "
-            "first, or use the spectral estimate (--map estimate)"
-        ]
+        return [Said(
+            "ICP turned the target by {turn:.3g}°, but {facing:.2f} of its area faces more than "
+            "45° away from the source surface it lies on (> {bound}): ICP stopped in a wrong "
+            "place (the target turned too far for it, or a part that fits elsewhere); turn the "
+            "target roughly into place first, or use the spectral estimate ({estimate})",
+            {"turn": turn, "facing": facing, "bound": MAX_FACING_AWAY}, "icp_facing",
+        )]  # fmt: skip
     return []
 
 
-def _distance_notes(mean_rel: float, max_rel: float, retry: str, suspect: bool) -> list[str]:
+def _distance_notes(
+    mean_rel: float, max_rel: float, retry: Said | str, suspect: bool
+) -> list[Said]:
     """Return the notes on the closest-point distances (fractions of the source's diagonal)."""
-    notes = [
-        f"closest-point distance: mean {mean_rel:.3g}, max {max_rel:.3g} times the source's "
-        "bounding-box diagonal"
-    ]
+    values = {"mean": mean_rel, "max": max_rel, "retry": retry}
+    notes = [Said(
+        "closest-point distance: mean {mean:.3g}, max {max:.3g} times the source's bounding-box "
+        "diagonal", values, "distances",
+    )]  # fmt: skip
     if MEAN_DISTANCE_NOTE < mean_rel <= MAX_MEAN_DISTANCE:
-        notes.append(
-            f"the target lies {mean_rel:.3g} of the diagonal from the source on average: the "
-            f"shapes differ in geometry or are slightly misaligned ({retry}a closest-point map "
-            "needs shapes in the same place)"
-        )
+        notes.append(Said(
+            "the target lies {mean:.3g} of the diagonal from the source on average: the shapes "
+            "differ in geometry or are slightly misaligned ({retry}a closest-point map needs "
+            "shapes in the same place)", values, "far_on_average",
+        ))  # fmt: skip
     if max_rel > MAX_DISTANCE_NOTE and not suspect:
-        notes.append(
-            f"some target vertices lie far from the source (up to {max_rel:.3g} of its "
-            "diagonal): parts of the target may be missing from the source"
-        )
+        notes.append(Said(
+            "some target vertices lie far from the source (up to {max:.3g} of its diagonal): "
+            "parts of the target may be missing from the source", values, "far_vertices",
+        ))  # fmt: skip
     return notes
 
 
 def _area_ratio(
-    V1: np.ndarray, F1: np.ndarray | None, V2: np.ndarray, F2: np.ndarray | None, notes: list[str]
+    V1: np.ndarray, F1: np.ndarray | None, V2: np.ndarray, F2: np.ndarray | None, notes: list[Said]
 ) -> float:
     """Return target area / source area (NaN without both shapes' triangles); a note if far off."""
     if F2 is None or F1 is None:
@@ -932,10 +941,10 @@ def _area_ratio(
     a2 = face_areas_normals(V2, F2)[0].sum()
     area_ratio = float(a2 / a1) if a1 > 0 else math.nan
     if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
-        notes.append(
-            f"the target's area is {area_ratio:.3g} times the source's: not the same "
-            "surface (different units, or a partial shape)"
-        )
+        notes.append(Said(
+            "the target's area is {ratio:.3g} times the source's: not the same surface "
+            "(different units, or a partial shape)", {"ratio": area_ratio}, "area_ratio",
+        ))  # fmt: skip
     return area_ratio
 
 
@@ -949,7 +958,7 @@ def _closest_quality(
     p2p: np.ndarray,
     distances: np.ndarray,
     options: dict[str, Any],
-    notes: list[str],
+    notes: list[Said],
 ) -> MapQuality:
     """Return the quality report of a closest-point map (see :func:`closest_correspondence`).
 
@@ -967,9 +976,9 @@ def _closest_quality(
     if surface is not None and F2 is not None:
         facing = _facing_away(surface, query, F2)
         options["facing_away"] = facing
-    retry = "" if align else "pass align=True (--align) if they are almost aligned; "
+    retry = "" if align else Said("pass {align} if they are almost aligned; ")
     reasons = _not_aligned(mean_rel, align, V2, diag, retry)
-    misaligned: list[str] = []
+    misaligned: list[Said] = []
     if surface is not None and not align:
         misaligned = _misaligned(surface, V2, distances / diag, options, notes)
     coverage, coverage_ratio, crowded = _coverage(V1, V2, p2p, retry)
@@ -1075,7 +1084,7 @@ def closest_correspondence(
         "source": "points" if F1 is None else "mesh",
         "max_icp_distance": max_icp_distance,
     }
-    notes: list[str] = []
+    notes: list[Said] = []
     surface = None if F1 is None else _Surface(V1, F1)
     query = V2
     if align:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..core.texture import corner_colors_to_vertices, sample_texture
+from ..core.wording import AdvisedError, Said, text_of
 from ._verbosity import open3d_errors_only
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 
@@ -373,22 +374,22 @@ def _no_uvs(n_uvs: int, n_faces: int) -> ValueError:
     )
 
 
-def no_texture_message(path: str, exc: Exception) -> str:
+def no_texture_message(path: str, exc: Exception) -> Said:
     """``path: <why>``, naming the material or image files the OBJ names and lacks."""
     missing = missing_texture_files(path)
     if not missing:
-        return f"{path}: {exc}"
-    return (
-        f"{path}: {', '.join(missing)} (named by its material) not found: put the files "
-        "beside it, or pass the image (--texture FILE / texture=...)"
+        return Said("{path}: {why}", {"path": path, "why": text_of(exc)}, "no_texture")
+    return Said(
+        "{path}: {files} (named by its material) not found: put the files beside it, or pass "
+        "the image ({texture})", {"path": path, "files": ", ".join(missing)}, "texture_missing",
     )
 
 
-def _no_image() -> ValueError:
-    return ValueError(
+def _no_image() -> AdvisedError:
+    return AdvisedError(Said(
         "the mesh has UVs but no texture image was loaded (no material file next to it?): pass "
-        "the image explicitly (texture=... / --texture FILE)"
-    )
+        "the image explicitly ({texture})", {}, "no_image",
+    ))  # fmt: skip
 
 
 def _legacy_parts(mesh: Any, n_faces: int) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:

@@ -26,7 +26,7 @@ from ..boundary.texture import MeshTexture, VertexColorSurface, without_texture
 from ..core._warnings import OFPWarning, collected_warnings, warn
 from ..core.basis import OFPBasis
 from ..core.spectrum import EigenBasis
-from ..core.wording import Said
+from ..core.wording import AdvisedError, Said
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
 from ..workflows.dense import CoarseShape
 from ..workflows.maps import Correspondence
@@ -228,10 +228,10 @@ def _identity(source: SharedSource, n2: int) -> Correspondence:
     """Return the identity map (``map="identity"``): the target has the source's vertices."""
     n1 = source.vertices.shape[0]
     if n1 != n2:
-        raise ValueError(
-            f"the identity map (map='identity' / --map identity) needs a target with the "
-            f"source's {n1} vertices; it has {n2}"
-        )
+        raise AdvisedError(Said(
+            "the identity map ({identity}) needs a target with the source's {n1} vertices; it "
+            "has {n2}", {"n1": n1, "n2": n2}, "identity_size",
+        ))  # fmt: skip
     return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
 
 
