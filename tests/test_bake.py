@@ -22,7 +22,7 @@ from o3d_ofp.boundary.bake import (  # noqa: E402
     transfer_texture,
 )
 from o3d_ofp.boundary.texture import corner_uvs, mesh_texture, texture_colors  # noqa: E402
-from o3d_ofp.workflows.matching import Correspondence  # noqa: E402
+from o3d_ofp.workflows.maps import Correspondence  # noqa: E402
 
 
 @pytest.fixture(scope="module")

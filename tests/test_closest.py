@@ -22,7 +22,7 @@ from o3d_ofp.boundary.closest import (
 )
 from o3d_ofp.boundary.closest import MIN_COVERAGE as CLOSEST_MIN_COVERAGE
 from o3d_ofp.core.shapes import blob, icosphere, torus
-from o3d_ofp.workflows.matching import Correspondence
+from o3d_ofp.workflows.maps import Correspondence
 from tests.conftest import load_shared_mesh, shared_path
 
 o3d = pytest.importorskip("open3d", reason="closest-point maps need Open3D")

@@ -270,7 +270,7 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region(caplog)
     # wrong map crowds; a smoothed target has less area) is no part (a review of the change)
     import logging
 
-    from o3d_ofp.workflows.matching import Correspondence
+    from o3d_ofp.workflows.maps import Correspondence
 
     whole = ofp.eigenbasis(smooth_whole, F2, k=40)
     upper = np.flatnonzero(V1[:, 1] > np.median(V1[:, 1]))

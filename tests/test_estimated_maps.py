@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import o3d_ofp as ofp
-from o3d_ofp.workflows.matching import match_eigenbases
+from o3d_ofp import match_eigenbases
 
 from .conftest import load_shared_mesh, shared_path
 
@@ -99,7 +99,8 @@ def test_landmarks_resolve_an_ambiguous_pair():
     V2, F2 = load_shared_mesh("faust/tr_reg_094.ply")
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
     lm = np.random.default_rng(1).choice(len(V1), 3, replace=False)
-    p2p = match_eigenbases(e1, e2, landmarks=np.stack([lm, lm], axis=1)).p2p_21
+    landmarks = np.stack([lm, lm], axis=1)
+    p2p = match_eigenbases(e1, e2, options=ofp.MatchOptions(landmarks=landmarks)).p2p_21
     assert _p2p_error(p2p, V1, e1.area) < 0.04
 
 

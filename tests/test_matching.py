@@ -9,7 +9,8 @@ import pytest
 
 import o3d_ofp as ofp
 from o3d_ofp.core.shapes import blob, icosphere
-from o3d_ofp.workflows.matching import Correspondence, map_quality
+from o3d_ofp.workflows.maps import Correspondence
+from o3d_ofp.workflows.quality import map_quality
 
 from .conftest import load_shared_mesh
 
@@ -117,7 +118,7 @@ def test_a_collapsed_or_flipped_map_is_flagged(pair, reference, caplog):
 
 
 def test_a_functional_map_far_from_an_isometry_is_flagged(pair):
-    from o3d_ofp.workflows.matching import MAX_ORTHOGONALITY
+    from o3d_ofp.workflows.quality import MAX_ORTHOGONALITY
 
     (V1, F1), (V2, F2) = pair
     e1, e2 = ofp.eigenbasis(V1, F1, k=20), ofp.eigenbasis(V2, F2, k=20)
@@ -146,7 +147,7 @@ def test_a_shape_of_another_kind_is_flagged(other):
     with pytest.warns(ofp.OFPWarning, match="suspect"):
         corr = ofp.match(human, target)
     assert corr.quality.suspect
-    reasons = " ".join(corr.quality.reasons)
+    reasons = " ".join(map(str, corr.quality.reasons))
     assert "not near-isometric" in reasons, reasons
     # no right map exists: not called a mirror image of one, and landmarks are not the fix
     assert "mirror image" not in reasons and "landmarks do not make them so" in reasons
@@ -174,12 +175,11 @@ def test_transfer_takes_the_correspondence(pair, reference):
     f = np.sin(3 * V1)
     e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=39)
     via_corr = ofp.transfer_function(f, e1, e2, correspondence=reference)
-    via_p2p = ofp.transfer_function(f, e1, e2, p2p_21=reference.p2p_21)
+    given = Correspondence.from_p2p(reference.p2p_21, (V1, F1), (V2, F2))
+    via_p2p = ofp.transfer_function(f, e1, e2, correspondence=given)
     np.testing.assert_array_equal(via_corr, via_p2p)
-    with pytest.raises(ValueError, match="at most one of correspondence"):
-        ofp.transfer_function(f, e1, e2, correspondence=reference, p2p_21=reference.p2p_21)
-    with pytest.raises(ValueError, match="method selects the transfer matrix, 'p2p' or 'analytic'"):
-        ofp.transfer_function(f, e1, e2, correspondence=reference, method="zzz")
+    with pytest.raises(ValueError, match="matrix must be one of 'p2p', 'analytic'"):
+        ofp.transfer_function(f, e1, e2, correspondence=reference, options=ofp.BasisOptions(matrix="zzz"))
     wrong = Correspondence(p2p_21=np.zeros(10, dtype=np.int64), n_source=len(V1))
     with pytest.raises(ValueError, match="belongs to other shapes"):
         ofp.transfer_function(f, e1, e2, correspondence=wrong)
@@ -188,7 +188,7 @@ def test_transfer_takes_the_correspondence(pair, reference):
 def test_bad_configurations_are_errors_not_downgrades(pair):
     (V1, F1), (V2, F2) = pair
     e1, e2 = ofp.eigenbasis(V1, F1, k=29), ofp.eigenbasis(V2, F2, k=29)
-    with pytest.raises(ValueError, match="has 29 eigenfunctions but ZoomOut needs 99"):
+    with pytest.raises(ValueError, match="has 29 eigenfunctions but the match needs 99"):
         ofp.match_eigenbases(e1, e2)
     with pytest.raises(ValueError, match=r"landmarks: target vertex indices must lie in \[0, "):
         ofp.match((V1, F1), (V2, F2), landmarks=[[0, 10**6]])
@@ -238,12 +238,13 @@ def test_a_map_used_on_other_shapes_is_warned_about(pair, reference, tmp_path):
     (V1, F1), (V2, F2) = pair
     e1, e2 = ofp.eigenbasis(V1, F1, k=12), ofp.eigenbasis(V2, F2, k=12)
     moved = ofp.eigenbasis(3.0 * V1 @ _rotation(4).T + 7.0, F1, k=12)
+    small = ofp.BasisOptions(k1=6, k2=6)
     with warnings.catch_warnings():
         warnings.simplefilter("error", ofp.OFPWarning)  # the right shapes, even moved: silent
         for source in (e1, moved):
-            ofp.transfer_function(V1[:, 0], source, e2, correspondence=reference, k1=6, k2=6)
+            ofp.transfer_function(V1[:, 0], source, e2, correspondence=reference, options=small)
     with pytest.warns(ofp.OFPWarning, match="another source .* swapped"):
-        ofp.transfer_function(V2[:, 0], e2, e1, correspondence=reference, k1=6, k2=6)
+        ofp.transfer_function(V2[:, 0], e2, e1, correspondence=reference, options=small)
     reference.save(tmp_path / "m.npz")
     back = Correspondence.load(tmp_path / "m.npz")
     for a, b in zip(back.signatures, reference.signatures, strict=True):
@@ -266,9 +267,9 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
         "import numpy as np, o3d_ofp as ofp\n"
         "from o3d_ofp.core.shapes import blob\n"
         "V, F = blob(2)\n"
-        "e = ofp.eigenbasis(V, F, k=10)\n"
+        "e = ofp.eigenbasis(V, F, k=10); c = ofp.Correspondence.from_p2p(np.zeros(len(V), int), V, V)\n"
         "for _ in range(2):\n"
-        "    ofp.transfer_function(V, e, e, p2p_21=np.zeros(len(V), int), k1=5, k2=5)\n"
+        "    ofp.transfer_function(V, e, e, correspondence=c, options=ofp.BasisOptions(k1=5, k2=5))\n"
     )
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -284,7 +285,7 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
         ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
     ):
         with pytest.raises(ValueError, match=message):
-            ofp.match((V1, F1), (V2, F2), **options)
+            ofp.MatchOptions(**options)
     with pytest.raises(TypeError, match="eigenbases must be a pair"):
         ofp.match((V1, F1), (V2, F2), eigenbases=e1)
     # eigenbases swapped (same vertex count, other shapes): said

@@ -103,7 +103,7 @@ def test_estimated_map_onto_a_point_cloud_uses_the_orientation_term():
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, None, k=99)
 
     def error(**options):
-        corr = ofp.match((V1, F1), (V2, None), eigenbases=(e1, e2), **options)
+        corr = ofp.match((V1, F1), (V2, None), eigenbases=(e1, e2), options=ofp.MatchOptions(**options))
         return np.linalg.norm(V1[corr.p2p_21] - V1, axis=1).mean() / np.sqrt(area)
 
     with_term, without = error(), error(w_orient=0.0)
@@ -118,7 +118,7 @@ def test_a_mirror_image_map_onto_or_from_a_cloud_is_flagged(clouds):
     same map onto the copy's mirror image reverses it everywhere. Before the check, a cloud
     had no reversed fraction (NaN) and no flip was ever said.
     """
-    from o3d_ofp.workflows.matching import map_quality
+    from o3d_ofp.workflows.quality import map_quality
 
     V, F = blob(4)  # no symmetry
     mirror = V * np.array([-1.0, 1.0, 1.0])
@@ -142,7 +142,7 @@ def test_the_cloud_flip_check_on_faust():
     difference from 0 and 1; right estimated maps reach 0.27, flipped ones 0.36-0.44
     (``python scripts/eval_cloud.py --estimate``).
     """
-    from o3d_ofp.workflows.matching import MAX_REVERSED, map_quality
+    from o3d_ofp.workflows.quality import MAX_REVERSED, map_quality
 
     V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
     V2, _ = load_shared_mesh("faust/tr_reg_087.ply")

@@ -108,6 +108,10 @@ class Said:
     def __str__(self) -> str:
         return self.text()
 
+    def __contains__(self, words: str) -> bool:
+        """Whether its Python wording holds ``words`` (as the plain strings it replaces did)."""
+        return words in self.text()
+
 
 def text_of(message: Any, *, cli: bool = False) -> str:
     """The words of a :class:`Said`, an exception carrying one, or anything else's ``str``."""

@@ -92,9 +92,8 @@ def deprecated_choice(name: str, value: Any) -> Any:
 
 
 def _number(value: Any, name: str, lo: float, hi: float = math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise OptionError(name, f"must be a number; got {value!r}")
-    if not (math.isfinite(value) and lo <= value <= hi):
+    real = not isinstance(value, bool) and isinstance(value, numbers.Real)
+    if not (real and math.isfinite(value) and lo <= value <= hi):
         bound = f">= {lo:g}" if hi == math.inf else f"in [{lo:g}, {hi:g}]"
         raise OptionError(name, f"must be a finite number {bound}; got {value!r}")
     return float(value)
@@ -184,8 +183,10 @@ class MatchOptions:
                 f"({self.zoomout_to}) must be >= k_fit ({self.k_fit}): ZoomOut refines the fitted "
                 "map to more eigenfunctions",
             )
-        if self.zoomout_subsample is not None:
-            check_int(self.zoomout_subsample, name="zoomout_subsample", minimum=2)
+        sub = self.zoomout_subsample
+        if sub is not None and (isinstance(sub, bool) or not isinstance(sub, numbers.Integral)
+                                or sub < 2):  # fmt: skip
+            raise OptionError("zoomout_subsample", f"must be None or an integer >= 2; got {sub!r}")
         check_choice(self.descriptors, "descriptors", ("wks",) if self.partial else ("wks", "hks"))
         _number(self.w_orient, "w_orient", 0.0)
         closest = self.method == "closest"
