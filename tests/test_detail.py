@@ -1,5 +1,8 @@
 """Detail transfer in local frames (o3d_ofp.workflows.detail) on arrays."""
 
+import re
+from contextlib import nullcontext
+
 import numpy as np
 import pytest
 from numpy.polynomial import legendre
@@ -8,6 +11,7 @@ import o3d_ofp as ofp
 from o3d_ofp.core._warnings import warnings_logged
 from o3d_ofp.core.geometry import face_areas_normals, vertex_normals
 from o3d_ofp.core.shapes import blob, icosphere
+from o3d_ofp.core.wording import OptionError
 from o3d_ofp.workflows.detail import (
     detail_vectors,
     local_rotations,
@@ -160,15 +164,34 @@ def test_refused_options_name_the_keyword(blob_pair):
 
 
 def test_coordinates_mode_is_the_paper_fig13(blob_pair):
+    """Mode "coordinates" (``ofp.transfer_detail``) is the OFP transfer of the coordinates.
+
+    The frames' workflow refuses it, naming ``mode`` and where it is done (it has no bases).
+    """
     source, target, F = blob_pair
     e1, e2 = ofp.eigenbasis(source, F, k=39), ofp.eigenbasis(target, F, k=39)
     p2p = np.arange(len(target))
-    fig13 = ofp.transfer_function(source, e1, e2, p2p_21=p2p, preset="ours*")
-    got = transfer_detail_frames(e1, e2, p2p_21=p2p, mode="coordinates")
-    np.testing.assert_allclose(got, fig13)
+    corr = ofp.Correspondence.from_p2p(p2p, e1.vertices, e2.vertices)
+    fig13 = ofp.transfer_function(
+        source, e1, e2, correspondence=corr, options=ofp.BasisOptions(preset="ours*")
+    )
+    got = ofp.transfer_detail(
+        (source, F), (target, F), correspondence=corr, mode="coordinates", bases=(e1, e2)
+    )
+    np.testing.assert_allclose(np.asarray(got.vertices), fig13)
     with pytest.warns(DeprecationWarning, match="'replace' is deprecated; use 'coordinates'"):
-        old_name = transfer_detail_frames(e1, e2, p2p_21=p2p, mode="replace")
-    np.testing.assert_allclose(old_name, fig13)
+        old_name = ofp.transfer_detail(
+            (source, F), (target, F), correspondence=corr, mode="replace", bases=(e1, e2)
+        )
+    np.testing.assert_allclose(np.asarray(old_name.vertices), fig13)
+    where = re.escape("o3d_ofp.transfer_detail(..., mode='coordinates')")
+    for mode in ("coordinates", "replace"):
+        with (
+            pytest.warns(DeprecationWarning) if mode == "replace" else nullcontext(),
+            pytest.raises(OptionError, match=where) as info,
+        ):
+            transfer_detail_frames(e1, e2, p2p_21=p2p, mode=mode)
+        assert info.value.option == "mode"
 
 
 def test_faust_pose_pair_beats_doing_nothing_and_the_baseline():

@@ -51,7 +51,8 @@ def test_detail_transfer_donut(donuts, mode):
     source = adapters.triangle_mesh_from_arrays(V1, F1)
     target = adapters.triangle_mesh_from_arrays(V2, F2)
     before = np.asarray(target.vertices).copy()
-    out = ofp.transfer_detail(source, target, mode=mode, p2p_21=p2p)
+    corr = ofp.Correspondence.from_p2p(p2p, source, target)
+    out = ofp.transfer_detail(source, target, mode=mode, correspondence=corr)
     np.testing.assert_array_equal(np.asarray(target.vertices), before)  # input untouched
     X = np.asarray(out.vertices)
     assert X.shape == V2.shape and np.asarray(out.triangles).shape == F2.shape
@@ -66,7 +67,13 @@ def test_detail_transfer_to_point_cloud(donuts):
     (V1, F1), (V2, _), p2p = donuts
     source = adapters.triangle_mesh_from_arrays(V1, F1)
     cloud = adapters.point_cloud_from_arrays(V2)
-    out = ofp.transfer_detail(source, cloud, mode="add", p2p_21=p2p, k2=29)
+    corr = ofp.Correspondence.from_p2p(p2p, source, cloud)
+    # mode "add" builds no OFP basis: its sizes (k2=29 here before) are refused, not ignored
+    with pytest.raises(ValueError, match=r"options .* does not apply: mode 'add'") as info:
+        ofp.transfer_detail(source, cloud, mode="add", correspondence=corr,
+                            options=ofp.BasisOptions(k2=29))  # fmt: skip
+    assert info.value.option == "options"
+    out = ofp.transfer_detail(source, cloud, mode="add", correspondence=corr)
     assert isinstance(out, o3d.geometry.PointCloud) and len(out.points) == len(V2)
     moved = np.linalg.norm(np.asarray(out.points) - V2, axis=1)
     assert 0 < moved.max() < 0.05
@@ -78,7 +85,8 @@ def test_transfer_colors_open3d_level():
     colors = 0.5 + 0.5 * np.sin(6 * V1)
     source = adapters.triangle_mesh_from_arrays(V1, F1, colors=colors)
     target = adapters.triangle_mesh_from_arrays(V2, F2)
-    out = ofp.transfer_colors(source, target, p2p_21=np.arange(len(V2)))
+    identity = ofp.Correspondence.from_p2p(np.arange(len(V2)), source, target)
+    out = ofp.transfer_colors(source, target, correspondence=identity)
     assert isinstance(out, o3d.geometry.TriangleMesh) and not target.has_vertex_colors()
     got = np.asarray(out.vertex_colors)
     m = ofp.laplacian(V2, F2)[1]
@@ -86,12 +94,16 @@ def test_transfer_colors_open3d_level():
     # a given functional map larger than the bases (60 × 60 > (k2+1, k1+1)) is used whole
     e1, e2 = ofp.eigenbasis(V1, F1, k=59), ofp.eigenbasis(V2, F2, k=59)
     C = ofp.fmap_from_p2p(np.arange(len(V2)), e1, e2)
-    via_fmap = np.asarray(ofp.transfer_colors(source, target, fmap_12=C).vertex_colors)
-    assert ofp.approximation_error(colors, via_fmap, m) < 0.1
-    assert isinstance(via_fmap := ofp.transfer_colors(source, target, fmap_12=C), type(target))
-    assert len(via_fmap.vertices) == len(V2)
+    fmap = ofp.Correspondence.from_fmap(C, e1, e2)
+    via_fmap = ofp.transfer_colors(source, target, correspondence=fmap)
+    assert isinstance(via_fmap, type(target)) and len(via_fmap.vertices) == len(V2)
+    assert ofp.approximation_error(colors, np.asarray(via_fmap.vertex_colors), m) < 0.1
     with pytest.raises(ValueError, match="source has neither vertex colors nor a texture"):
-        ofp.transfer_colors(target, source, p2p_21=np.arange(len(V1)))
+        ofp.transfer_colors(
+            target, source, correspondence=ofp.Correspondence.from_p2p(
+                np.arange(len(V1)), target, source
+            ),
+        )  # fmt: skip
 
 
 # --- smoothing that is a low-pass (issue 13) -------------------------------------------------
