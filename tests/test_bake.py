@@ -25,6 +25,11 @@ from o3d_ofp.boundary.texture import corner_uvs, mesh_texture, texture_colors  #
 from o3d_ofp.workflows.maps import Correspondence  # noqa: E402
 
 
+def _given(p2p, source):
+    """A vertex map the caller brings, onto a target with one vertex per entry."""
+    n = len(source.vertices) if hasattr(source, "vertices") else len(source.points)
+    return Correspondence.from_p2p(np.asarray(p2p, dtype=np.int64), n, len(p2p))
+
 @pytest.fixture(scope="module")
 def spot(tmp_path_factory):
     """Spot read by Open3D's legacy OBJ reader with its own material (texture loaded by it)."""
@@ -115,7 +120,7 @@ def _covered(uv, size):
 def test_identity_bake_reproduces_the_source_texture(spot):
     mesh = spot[0]
     before = _snapshot(mesh)
-    baked = transfer_texture(mesh, mesh, p2p_21=np.arange(len(mesh.vertices)), size=1024)
+    baked = transfer_texture(mesh, mesh, correspondence=_given(np.arange(len(mesh.vertices)), mesh), size=1024)
     _same(before, _snapshot(mesh))  # the target (here also the source) is not modified
     # A new legacy mesh: the target's geometry and UVs, one texture, material ids 0.
     assert baked is not mesh and len(baked.textures) == 1
@@ -144,13 +149,13 @@ def test_a_target_whose_uv_triangles_overlap_is_warned_about(spot):
     identity = np.arange(len(mesh.vertices))
     with warnings.catch_warnings():
         warnings.simplefilter("error", ofp.OFPWarning)  # spot's own atlas: no overlap
-        transfer_texture(mesh, mesh, p2p_21=identity, size=256)
+        transfer_texture(mesh, mesh, correspondence=_given(identity, mesh), size=256)
     folded = o3d.geometry.TriangleMesh(mesh)
     uv = np.asarray(mesh.triangle_uvs).copy()
     uv[:, 0] = 0.5 - np.abs(uv[:, 0] - 0.5)  # the right half folded onto the left
     folded.triangle_uvs = o3d.utility.Vector2dVector(uv)
     with pytest.warns(ofp.OFPWarning, match=r"UV triangles overlap: \d+ % .*atlas=True"):
-        transfer_texture(mesh, folded, p2p_21=identity, size=256)
+        transfer_texture(mesh, folded, correspondence=_given(identity, mesh), size=256)
 
 
 def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
@@ -159,7 +164,7 @@ def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
     per_vertex = _per_vertex_error(source, decimated)
     baked = transfer_texture(source, decimated, correspondence=corr, size=1024)
     err_surface = texture_error(baked, source, samples=30000)
-    baked_p2p = transfer_texture(source, decimated, p2p_21=corr.p2p_21, size=1024)
+    baked_p2p = transfer_texture(source, decimated, correspondence=_given(corr.p2p_21, source), size=1024)
     err_vertex_map = texture_error(baked_p2p, source, samples=30000)
     # Measured: per-vertex 0.044, baked 0.0004 (surface map) and 0.0095 (vertex map).
     assert err_surface <= 0.7 * per_vertex
@@ -253,11 +258,11 @@ def test_pullback_borrows_the_source_layout(spot, decimated):
     err = texture_error(pulled, source, samples=30000)
     assert err < 0.5 * _per_vertex_error(source, decimated)  # measured 0.0023 vs 0.044
     # On the source itself with the identity map: the source's own UVs, exactly.
-    same = texture_pullback(source, source, p2p_21=np.arange(len(source.vertices)))
+    same = texture_pullback(source, source, correspondence=_given(np.arange(len(source.vertices)), source))
     assert texture_error(same, source, samples=20000) < 1e-3
     # An untextured source: the message names the source (a trial's named "the mesh")
     with pytest.raises(ValueError, match=r"needs a textured source .*: the source: the mesh has"):
-        texture_pullback(decimated, source, p2p_21=np.zeros(len(source.vertices), dtype=int))
+        texture_pullback(decimated, source, correspondence=_given(np.zeros(len(source.vertices), dtype=int), decimated))
 
 
 def test_tensor_meshes_are_accepted(spot, decimated):
@@ -287,20 +292,22 @@ def test_bad_arguments(spot, decimated):
     plain = o3d.geometry.TriangleMesh(decimated.vertices, decimated.triangles)
     n2 = len(decimated.vertices)
     p2p = np.zeros(n2, dtype=np.int64)
-    with pytest.raises(ValueError, match="no texture coordinates: pass atlas=True"):
-        transfer_texture(source, plain, p2p_21=p2p)
+    given = Correspondence(p2p, len(source.vertices))
+    with pytest.raises(ValueError, match="no texture coordinates: pass atlas=True") as refused:
+        transfer_texture(source, plain, correspondence=given)
+    assert "--uv-atlas" in refused.value.said.text(cli=True)
     with pytest.raises(TypeError, match="atlas"):
-        transfer_texture(source, decimated, p2p_21=p2p, atlas="yes")
-    with pytest.raises(ValueError, match="either correspondence or p2p_21"):
-        transfer_texture(source, decimated, p2p_21=p2p, correspondence=Correspondence(p2p, 3225))
+        transfer_texture(source, decimated, correspondence=given, atlas="yes")
+    with pytest.raises(TypeError, match="p2p_21"):  # a vertex map: Correspondence.from_p2p
+        transfer_texture(source, decimated, p2p_21=p2p)
     with pytest.raises(ValueError, match="belongs to other shapes"):
         transfer_texture(source, decimated, correspondence=Correspondence(p2p, 10))
     with pytest.raises(ValueError, match="size"):
-        transfer_texture(source, decimated, p2p_21=p2p, size=0)
+        transfer_texture(source, decimated, correspondence=given, size=0)
     with pytest.raises(ValueError, match="dilate"):
-        transfer_texture(source, decimated, p2p_21=p2p, dilate=-1)
+        transfer_texture(source, decimated, correspondence=given, dilate=-1)
     with pytest.raises(ValueError, match="no texture image"):
-        transfer_texture(decimated, decimated, p2p_21=np.arange(n2))
+        transfer_texture(decimated, decimated, correspondence=_given(np.arange(n2), decimated))
 
 
 def test_cli_uv_atlas_bakes_into_a_target_without_uvs(spot, decimated, tmp_path, capsys):
@@ -475,7 +482,7 @@ def test_cli_colors_onto_a_textured_target_write_no_stale_texture(spot, spot_col
     assert "is a point cloud: its colors go to the vertices" in capsys.readouterr().err
     assert "map_Kd" not in (tmp_path / "p.mtl").read_text()
     with pytest.raises(TypeError, match="a point cloud has no surface to bake from"):
-        transfer_texture(cloud, spot[0], p2p_21=np.arange(len(spot[0].vertices)))
+        transfer_texture(cloud, spot[0], correspondence=_given(np.arange(len(spot[0].vertices)), cloud))
 
 
 def test_cli_via_basis_refusals_do_not_send_the_user_in_circles(spot, spot_colors_ply,
@@ -604,8 +611,9 @@ def test_transfer_colors_takes_the_image_of_a_source_whose_image_was_not_loaded(
     # the texture sampled at each target vertex's closest point, not the vertex colors of the
     # texture (which a pull-back through p2p_21 alone would give)
     by_vertex = ofp.transfer_colors(
-        bare, decimated, p2p_21=closest.p2p_21, via_basis=False, texture=png
-    )
+        bare, decimated, correspondence=_given(closest.p2p_21, bare), via_basis=False,
+        texture=png,
+    )  # fmt: skip
     assert np.abs(np.asarray(by_vertex.vertex_colors) - expected).max() > 0.05
     # a few stray vertex colors (which Open3D ignores) do not hide the source's own texture
     stray = o3d.geometry.TriangleMesh(mesh)
@@ -617,8 +625,8 @@ def test_transfer_colors_takes_the_image_of_a_source_whose_image_was_not_loaded(
         ofp.transfer_colors(plain, decimated, correspondence=closest, texture=png)
     with pytest.raises(TypeError, match="texture= is the image of a source mesh with UVs"):
         ofp.transfer_colors(
-            o3d.geometry.PointCloud(mesh.vertices), decimated, p2p_21=np.zeros(
-                len(decimated.vertices), dtype=np.int64), texture=image,
+            o3d.geometry.PointCloud(mesh.vertices), decimated, correspondence=_given(np.zeros(
+                len(decimated.vertices), dtype=np.int64), mesh), texture=image,
         )  # fmt: skip
 
 
@@ -637,5 +645,5 @@ def test_transfer_texture_refuses_another_pairs_map_before_making_an_atlas(spot,
     other = Correspondence(p2p_21=np.zeros(n - 3, dtype=np.int64), n_source=n)
     with pytest.raises(ValueError, match="it belongs to other shapes"):
         ofp.transfer_texture(mesh, plain, correspondence=other, atlas=True)
-    with pytest.raises(ValueError, match="p2p_21 has 7 entries"):
-        ofp.transfer_texture(mesh, plain, p2p_21=np.zeros(7, dtype=np.int64), atlas=True)
+    with pytest.raises(ValueError, match="maps 7 target vertices"):
+        ofp.transfer_texture(mesh, plain, correspondence=_given(np.zeros(7, int), mesh), atlas=True)

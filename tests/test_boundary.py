@@ -526,38 +526,37 @@ def test_open3d_level_findings_of_a_python_trial():
     mesh.vertex.positions = o3d.core.Tensor(V.astype(np.float32))
     mesh.triangle.indices = o3d.core.Tensor(F.astype(np.int64))
     rng = np.random.default_rng(0)
-    identity = np.arange(n)
+    identity = ofp.Correspondence.from_p2p(np.arange(n), n, n)
     for dtype in (np.uint8, np.uint16):
         top = np.iinfo(dtype).max
         src, tgt = mesh.clone(), mesh.clone()
         src.vertex.colors = o3d.core.Tensor((rng.random((n, 3)) * top).astype(dtype))
         tgt.vertex.colors = o3d.core.Tensor(np.zeros((n, 3), dtype))
-        out = ofp.transfer_colors(src, tgt, p2p_21=identity, via_basis=False)
+        out = ofp.transfer_colors(src, tgt, correspondence=identity, via_basis=False)
         got = out.vertex.colors.numpy()  # the target's dtype, on its full scale
         assert got.dtype == dtype
         assert np.abs(got.astype(float) - src.vertex.colors.numpy()).max() <= 1
     rgba = mesh.clone()
     rgba.vertex.colors = o3d.core.Tensor(rng.random((n, 4)).astype(np.float32))
-    out = ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, via_basis=False)
+    out = ofp.transfer_colors(rgba, mesh.clone(), correspondence=identity, via_basis=False)
     rgb = rgba.vertex.colors.numpy()[:, :3]
     np.testing.assert_allclose(out.vertex.colors.numpy(), rgb, atol=1e-6)
     two = mesh.clone()
     two.vertex.colors = o3d.core.Tensor(rng.random((n, 2)).astype(np.float32))
     with pytest.raises(ValueError, match=r"colors have shape \(162, 2\)"):
-        ofp.transfer_colors(two, mesh.clone(), p2p_21=identity)
+        ofp.transfer_colors(two, mesh.clone(), correspondence=identity)
     with pytest.raises(TypeError, match="via_basis must be True, False or None"):
-        ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, via_basis="no")
+        ofp.transfer_colors(rgba, mesh.clone(), correspondence=identity, via_basis="no")
     with pytest.raises(TypeError, match="bases must be a pair"):
-        ofp.transfer_colors(rgba, mesh.clone(), p2p_21=identity, bases=(None,))
+        ofp.transfer_colors(rgba, mesh.clone(), correspondence=identity, bases=(None,))
     with pytest.raises(TypeError, match="keep_volume must be True or False"):
         ofp.filter_geometry(mesh, smooth=0.01, keep_volume="no")
 
 
 def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
-    """Options an exact pull-back would ignore are refused by name.
+    """OFP basis options an exact pull-back would ignore are refused by name.
 
-    A trial's transfer_colors(..., correspondence=closest, k1=20, order=3) was accepted and its
-    options ignored; the defaults (given or not) and via_basis=True are not refused.
+    The defaults (given or not) and via_basis=True are not refused.
     """
     import o3d_ofp as ofp
 
@@ -569,26 +568,26 @@ def test_exact_pull_back_refuses_the_basis_options_it_would_ignore():
     mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
     target = o3d.geometry.TriangleMesh(mesh)
     closest = ofp.match(mesh, target, method="closest")
-    with pytest.raises(ValueError, match=r"k1=20, order=3 do not apply to the exact pull-back "
-                       r".*closest-point map.*drop them, or pass via_basis=True"):  # fmt: skip
-        ofp.transfer_colors(mesh, target, correspondence=closest, k1=20, order=3)
-    with pytest.raises(ValueError, match=r"preset='ours\*' does not apply .*via_basis=False"):
-        ofp.transfer_colors(mesh, target, p2p_21=np.arange(len(V)), via_basis=False,
-                            preset="ours*")  # fmt: skip
-    # arrays and bases are named by their kind, not printed (a review: a 20 kB message)
-    big = np.zeros((5000, 2), dtype=np.int64)
-    with pytest.raises(ValueError) as info:
-        ofp.transfer_colors(mesh, target, correspondence=closest, landmarks=big)
-    assert "landmarks=<ndarray> does not apply" in str(info.value) and len(str(info.value)) < 400
-    # a second map beside the closest one is refused, not ignored (a trial's reversed p2p_21)
-    for other in ({"p2p_21": np.arange(len(V))[::-1].copy()}, {"fmap_12": np.zeros((30, 40))}):
-        with pytest.raises(ValueError, match="give at most one of correspondence, p2p_21"):
-            ofp.transfer_colors(mesh, target, correspondence=closest, **other)
+    with pytest.raises(ValueError, match=r"options .*does not apply: the exact pull-back "
+                       r".*closest-point map.*drop it, or pass via_basis=True") as info:  # fmt: skip
+        ofp.transfer_colors(
+            mesh, target, correspondence=closest, options=ofp.BasisOptions(k1=20, order=3)
+        )
+    assert info.value.option == "options"
+    given = ofp.Correspondence.from_p2p(np.arange(len(V)), mesh, target)
+    with pytest.raises(ValueError, match=r"options .*does not apply: .*via_basis=False"):
+        ofp.transfer_colors(mesh, target, correspondence=given, via_basis=False,
+                            options=ofp.BasisOptions(preset="ours*"))  # fmt: skip
+    # landmarks belong to the map's estimation: a transfer does not take them
+    with pytest.raises(TypeError, match="landmarks"):
+        ofp.transfer_colors(mesh, target, correspondence=closest, landmarks=[[0, 0]])
     # The defaults, given or not (numpy integers too), are the exact pull-back's.
-    for options in ({}, {"k1": 29, "order": np.int64(2), "preset": "ours"}):
-        out = ofp.transfer_colors(mesh, target, correspondence=closest, **options)
+    for options in (None, ofp.BasisOptions(k1=29, order=np.int64(2), preset="ours")):
+        out = ofp.transfer_colors(mesh, target, correspondence=closest, options=options)
         np.testing.assert_allclose(np.asarray(out.vertex_colors), colors, atol=1e-12)
-    out = ofp.transfer_colors(mesh, target, correspondence=closest, k1=20, via_basis=True)
+    out = ofp.transfer_colors(
+        mesh, target, correspondence=closest, options=ofp.BasisOptions(k1=20), via_basis=True
+    )
     assert np.abs(np.asarray(out.vertex_colors) - colors).mean() > 1e-3  # through the bases
     smoothed = ofp.filter_geometry((V, F), smooth=0.01)  # the README's tuple input
     assert np.asarray(smoothed.vertices).shape == V.shape
@@ -631,13 +630,13 @@ def test_an_obj_is_read_with_its_vertices_in_the_order_of_its_v_lines(tmp_path):
 
 def _no_eigensolve(monkeypatch):
     """Make every eigensolve of a transfer fail, so an error raised first is raised before it."""
-    from o3d_ofp.workflows import pipeline
+    from o3d_ofp.workflows import plan
 
     def refuse(*args, **kwargs):
         raise AssertionError("an eigenbasis was computed before the bad input was refused")
 
-    monkeypatch.setattr(pipeline, "_eigenbases", refuse)
-    monkeypatch.setattr(pipeline, "estimate_for_transfer", refuse)
+    monkeypatch.setattr(plan, "_eigenbases", refuse)
+    monkeypatch.setattr(plan, "estimate_dense", refuse)
 
 
 def test_transfers_refuse_a_bad_map_or_bad_colors_before_any_eigensolve(monkeypatch):
@@ -655,13 +654,13 @@ def test_transfers_refuse_a_bad_map_or_bad_colors_before_any_eigensolve(monkeypa
         (np.arange(n) + 5, ValueError, r"source vertex indices in \[0, "),
         (np.zeros(n), TypeError, "1-D integer array"),
     ]
-    for p2p, kind, message in bad_maps:
-        for transfer in (ofp.transfer_colors, ofp.transfer_detail):
-            with pytest.raises(kind, match=message):
-                transfer(mesh, target, p2p_21=p2p)
+    for p2p, kind, message in bad_maps:  # refused as the map is made, before any transfer
+        with pytest.raises(kind, match=message):
+            ofp.Correspondence.from_p2p(p2p, mesh, target)
     other = ofp.Correspondence(p2p_21=np.zeros(n - 1, dtype=np.int64), n_source=n)
-    with pytest.raises(ValueError, match=f"but the target has {n} and the source {n}"):
-        ofp.transfer_colors(mesh, target, correspondence=other)
+    for transfer in (ofp.transfer_colors, ofp.transfer_detail, ofp.transfer_texture):
+        with pytest.raises(ValueError, match=f"but the target has {n} and the source {n}"):
+            transfer(mesh, target, correspondence=other)
     with_nan = o3d.geometry.TriangleMesh(mesh)
     nan_colors = colors.copy()
     nan_colors[5] = np.nan
@@ -683,4 +682,4 @@ def test_shapes_that_are_no_shapes_and_meshes_given_as_bases_are_named():
             ofp.match(wrong, (V, F))
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
     with pytest.raises(TypeError, match=r"eig_1 must be an EigenBasis .*transfer_colors"):
-        ofp.transfer_function(V[:, 0], mesh, mesh, p2p_21=np.arange(len(V)))
+        ofp.transfer_function(V[:, 0], mesh, mesh)

@@ -159,7 +159,7 @@ def test_check_shape_refuses_what_the_cleaning_refuses_without_a_laplacian(monke
 
 def test_a_pair_is_checked_before_either_shape_is_solved(monkeypatch):
     """The second shape's components are refused before the first one's eigensolve."""
-    import o3d_ofp.workflows.eigenbases as eigenbases_module
+    import o3d_ofp.workflows.plan as eigenbases_module
 
     V, F = icosphere(3)
     V2 = np.concatenate([V, V + np.array([4.0, 0.0, 0.0])])
@@ -218,9 +218,13 @@ def test_duplicated_vertices_give_the_same_transfer_on_the_original_vertices():
     f = np.sin(3 * V[:, 0]) + V[:, 1] ** 2
     f_d = np.concatenate([f, f[dup]])
     p2p = np.arange(len(target[0])) % len(V)  # any map, given on original indices
-    kw = dict(k1=12, k2=12, order=2)
-    g_c = transfer_function(f, eig_c, eig_t, p2p_21=p2p, **kw)
-    g_d = transfer_function(f_d, eig_d, eig_t, p2p_21=p2p, **kw)
+    kw = dict(options=ofp.BasisOptions(k1=12, k2=12, order=2))
+
+    def given(p2p, eig_1, eig_2):
+        return ofp.Correspondence.from_p2p(p2p, eig_1.n_vertices, eig_2.n_vertices)
+
+    g_c = transfer_function(f, eig_c, eig_t, correspondence=given(p2p, eig_c, eig_t), **kw)
+    g_d = transfer_function(f_d, eig_d, eig_t, correspondence=given(p2p, eig_d, eig_t), **kw)
     # Same bases up to round-off (the orthogonalization sees identical rows).
     np.testing.assert_allclose(g_d, g_c, atol=1e-9 * np.abs(g_c).max())
     # Duplicates on the target side: the output is on every original target vertex.
@@ -228,7 +232,7 @@ def test_duplicated_vertices_give_the_same_transfer_on_the_original_vertices():
     Vtd = np.concatenate([Vt, Vt[:50]])
     eig_td = ofp.eigenbasis(Vtd, Ft, k=12)  # 50 unreferenced copies: removed, then refilled
     p2p_d = np.arange(len(Vtd)) % len(V)
-    g_td = transfer_function(f, eig_c, eig_td, p2p_21=p2p_d, **kw)
+    g_td = transfer_function(f, eig_c, eig_td, correspondence=given(p2p_d, eig_c, eig_td), **kw)
     assert g_td.shape == (len(Vtd),)
     np.testing.assert_allclose(g_td[: len(Vt)], g_c, atol=1e-9 * np.abs(g_c).max())
     np.testing.assert_allclose(g_td[len(Vt) :], g_c[:50], atol=1e-9 * np.abs(g_c).max())
@@ -368,7 +372,8 @@ def test_nasty_file_gives_a_basis_and_a_self_transfer_or_a_clear_error(name):
     # Self-transfer with the identity map reproduces the basis approximation of the
     # coordinates on every input vertex.
     X = V - V.mean(axis=0)
-    g = transfer_function(X, eig, eig, p2p_21=np.arange(len(V)), k1=k, k2=k, bases=(B, B))
+    identity = ofp.Correspondence.from_p2p(np.arange(len(V)), len(V), len(V))
+    g = transfer_function(X, eig, eig, correspondence=identity, bases=(B, B))
     np.testing.assert_allclose(g, B.approximate(X), atol=1e-9 * np.abs(X).max())
     assert B.approximation_error(X) < 0.2
 

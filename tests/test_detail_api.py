@@ -383,12 +383,6 @@ def test_components_keyword_reaches_every_call_that_computes_a_basis(tmp_path):
     assert moved.shape == (n, 3) and np.all(np.isfinite(moved))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library: transfer_detail's refusal of two components advises components='largest', "
-    "a keyword transfer_detail no longer takes (core/cleaning.py:296, raised through "
-    "workflows/plan.py prepare -> check_shapes)",
-)
 def test_transfer_detail_says_how_it_takes_the_components_policy():
     """The advice for several components must be one transfer_detail can follow."""
     two = _two_spheres()
@@ -398,12 +392,6 @@ def test_transfer_detail_says_how_it_takes_the_components_policy():
     assert "bases=" in said or "match(" in said, said
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library: an eigenbasis given in bases= too small for the band is computed again "
-    "with components='auto' (workflows/plan.py _eigenbases: match.components), not the "
-    "policy it was computed with",
-)
 def test_a_too_small_eigenbasis_is_computed_again_with_its_components_policy():
     two = _two_spheres()
     with warnings.catch_warnings():

@@ -299,45 +299,46 @@ def _colored_pair(blob_mesh):
 
 
 def test_the_targets_basis_is_built_while_the_map_is_estimated(monkeypatch, blob_mesh):
-    """The target's OFP basis starts before the map is estimated (pipeline.BasesAhead).
+    """The target's OFP basis starts before the map is estimated (the plan's bases ahead).
 
     And transfer_colors gives what the steps one after the other give.
     """
     import threading
 
     pytest.importorskip("open3d")
-    from o3d_ofp.workflows import pipeline
+    from o3d_ofp.workflows import plan
 
     source, target = _colored_pair(blob_mesh)
     building = []
-    real_match = pipeline.match_eigenbases
+    real_estimate = plan.estimate
 
-    def match(*args, **kwargs):
+    def estimate(*args, **kwargs):
         building.append(any(t.name.startswith("o3d_ofp-basis") for t in threading.enumerate()))
-        return real_match(*args, **kwargs)
+        return real_estimate(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "match_eigenbases", match)
+    monkeypatch.setattr(plan, "estimate", estimate)
     out = np.asarray(ofp.transfer_colors(source, target).vertex_colors)
     assert building == [True]
     V1, F1 = blob_mesh
     V2 = np.asarray(target.vertices)
-    e1, e2, corr = pipeline.estimate_for_transfer(V1, F1, V2, F1, k1=29, k2=39)
-    g = pipeline.transfer_function(np.asarray(source.vertex_colors), e1, e2, correspondence=corr)
+    corr = ofp.match((V1, F1), (V2, F1))
+    e1, e2 = corr.eigenbases
+    g = ofp.transfer_function(np.asarray(source.vertex_colors), e1, e2, correspondence=corr)
     np.testing.assert_array_equal(out, np.clip(g, 0.0, 1.0))
 
 
 def test_an_error_in_the_targets_basis_reaches_the_caller(monkeypatch, blob_mesh):
     pytest.importorskip("open3d")
-    from o3d_ofp.workflows import pipeline
+    from o3d_ofp.workflows import plan
 
     source, target = _colored_pair(blob_mesh)
-    real = pipeline.ofp_basis
+    real = plan.ofp_basis
 
     def failing(eig, **options):
         if options["k"] == 39:
             raise MemoryError("no room for the target's basis (forced)")
         return real(eig, **options)
 
-    monkeypatch.setattr(pipeline, "ofp_basis", failing)
+    monkeypatch.setattr(plan, "ofp_basis", failing)
     with pytest.raises(MemoryError, match="forced"):
         ofp.transfer_colors(source, target)

@@ -395,12 +395,12 @@ def _source_colors(source: Any, V1: np.ndarray, texture: Any) -> tuple[np.ndarra
     meshes = ("legacy_mesh", "tensor_mesh")
     if texture is not None and geometry_kind(source) not in meshes:
         raise OptionError(
-            "texture", f"is the image of a source mesh with UVs; the source is a "
+            "texture", f"= is the image of a source mesh with UVs; the source is a "
             f"{type(source).__name__}",
         )  # fmt: skip
     if texture is not None and not has_uvs(source):
         raise OptionError(
-            "texture", "is the image of a source mesh with UVs, and the source has no texture "
+            "texture", "= is the image of a source mesh with UVs, and the source has no texture "
             "coordinates (for its vertex colors, leave texture= out)",
         )  # fmt: skip
     f, surface = vertex_colors(source), None
@@ -484,8 +484,9 @@ def transfer_colors(
     check_correspondence(correspondence)
     eigs, ofps = _bases(bases)
     plan = plan_pair(
-        V1, F1, V2, F2, task="colors", bases=options, given=correspondence, via_basis=via_basis
-    )
+        V1, F1, V2, F2, task="colors", bases=options, given=correspondence, given_bases=ofps,
+        via_basis=via_basis,
+    )  # fmt: skip
     if plan.exact and bases is not None:
         raise OptionError("bases", "do not apply to the exact pull-back (no OFP basis)")
     if is_open3d_geometry(target) and has_uvs(target) and has_texture_image(target):
@@ -577,8 +578,9 @@ def transfer_detail(
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     plan = plan_pair(
-        V1, F1, V2, F2, task="detail", detail=detail, bases=options, given=correspondence
-    )
+        V1, F1, V2, F2, task="detail", detail=detail, bases=options, given=correspondence,
+        given_bases=ofps,
+    )  # fmt: skip
     prepared = prepare(plan, V1, F1, V2, F2, given=correspondence, eigenbases=eigs, bases=ofps)
     corr = prepared.correspondence
     if detail.mode == "coordinates":

@@ -31,7 +31,10 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "texture": ("texture=...", "--texture FILE"),
     "replace_detail": ("mode='replace-detail'", "--mode replace-detail"),
     "smooth": ("filter_geometry(smooth=0.01)", "o3d-ofp filter --smooth 0.01"),
-    "components_largest": ("components='largest'", "--components largest"),
+    "components_largest": (
+        "components='largest' (to o3d_ofp.match, or to the eigenbases given as bases=)",
+        "--components largest",
+    ),
     "components_error": ("components='error'", "--components error"),
     "components_auto": ("components='auto'", "--components auto"),
     "target_scale": (
@@ -148,6 +151,6 @@ class OptionError(ValueError, TypeError):
     """
 
     def __init__(self, option: str, problem: str) -> None:
-        super().__init__(option + ("" if problem.startswith((":", ",")) else " ") + problem)
+        super().__init__(option + ("" if problem.startswith((":", ",", "=")) else " ") + problem)
         self.option = option
         self.problem = problem

@@ -523,7 +523,8 @@ def check_correspondence(obj: Any, name: str = "correspondence") -> Corresponden
     if obj is not None and not isinstance(obj, Correspondence):
         raise TypeError(
             f"{name} must be an o3d_ofp Correspondence (from ofp.match or "
-            f"ofp.Correspondence.load); got {type(obj).__name__} (a vertex map goes in p2p_21=)"
+            f"ofp.Correspondence.load); got {type(obj).__name__} (a vertex map the caller brings: "
+            "ofp.Correspondence.from_p2p(p2p_21, source, target))"
         )
     return obj
 

@@ -73,8 +73,9 @@ def transfer_function(
     check_correspondence(correspondence)
     V1, F1, V2, F2 = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
     plan = plan_pair(
-        V1, F1, V2, F2, task="colors", bases=options, given=correspondence, via_basis=True
-    )
+        V1, F1, V2, F2, task="colors", bases=options, given=correspondence,
+        given_bases=bases or (None, None), via_basis=True,
+    )  # fmt: skip
     prepared = prepare(
         plan, V1, F1, V2, F2, given=correspondence, eigenbases=(eig_1, eig_2),
         bases=bases or (None, None),

@@ -107,6 +107,7 @@ def plan_pair(
     bases: BasisOptions | None = None,
     detail: DetailOptions | None = None,
     given: Correspondence | None = None,
+    given_bases: Sequence[OFPBasis | None] = (None, None),
     via_basis: bool | None = None,
     names: tuple[str, str] = ("the source", "the target"),
 ) -> Plan:
@@ -131,6 +132,8 @@ def plan_pair(
     given : Correspondence, optional
         A map the caller brings (then ``match`` is not used: a partial match or landmarks are
         refused).
+    given_bases : (OFPBasis or None, OFPBasis or None)
+        OFP bases the caller has: their sizes are the plan's on their side.
     via_basis : bool, optional
         Task "colors": carry the values through the OFP bases (True) or pull them back through
         the map (False); default: pulled back through a closest-point map, carried otherwise.
@@ -149,14 +152,19 @@ def plan_pair(
     from .options import check_choice
 
     check_choice(task, "task", TASKS)
-    explicit = bases is not None
     match = MatchOptions() if match is None else match
-    bases = BasisOptions() if bases is None else bases
     detail = DetailOptions() if detail is None else detail
-    if via_basis is not None:
-        from .options import check_bool
+    coordinates = task == "detail" and detail.mode == "coordinates"
+    preset = "ours*" if coordinates else "ours"
 
-        check_bool(via_basis, "via_basis")
+    def resolved(b: BasisOptions) -> tuple[Any, ...]:
+        return b.k1, b.k2, b.order, b.threshold(preset), b.matrix
+
+    # options at their defaults (given or not) apply to any task; others to one with bases
+    explicit = bases is not None and resolved(bases) != resolved(BasisOptions())
+    bases = BasisOptions() if bases is None else bases
+    if via_basis is not None and not isinstance(via_basis, bool):
+        raise OptionError("via_basis", f"must be True, False or None; got {via_basis!r}")
     n1, n2 = V1.shape[0], None if V2 is None else V2.shape[0]
     meshes = F1 is not None and (V2 is None or F2 is not None)
     estimator = _estimator(match, given)
@@ -172,7 +180,6 @@ def plan_pair(
         match.landmarks_for(n1, n2)
     dense = estimator in ("full", "partial") and meshes and max(n1, n2 or 0) > DENSE_VERTICES
     closest = estimator == "closest" or (given is not None and given.method == "closest")
-    coordinates = task == "detail" and detail.mode == "coordinates"
     exact = task in ("texture", "map") or (
         task == "colors" and (via_basis is False or (via_basis is None and closest))
     )
@@ -182,8 +189,8 @@ def plan_pair(
         raise OptionError("options", f"(the OFP bases' sizes and threshold) does not apply: {why}")
     # What the task itself needs of each eigenbasis.
     if with_bases:
-        need = [bases.k1, bases.k2]
-        what = ["k1", "k2"]
+        need = [b.k if b is not None else k for b, k in zip(given_bases, (bases.k1, bases.k2))]
+        what = ["" if b is not None else f"k{i + 1}" for i, b in enumerate(given_bases)]
     elif task == "detail":
         need = [max(detail.band, ROTATION_K)] * 2
         what = ["band"] * 2
@@ -193,7 +200,7 @@ def plan_pair(
         rows, cols = given.fmap_12.shape
         need = [max(need[0], cols - 1), max(need[1], rows - 1)]
     for side, (n, k, name) in enumerate(zip((n1, n2), need, what, strict=True)):
-        if n is not None and k > max(1, n - 2):
+        if n is not None and name and k > max(1, n - 2):
             raise OptionError(
                 name, f"({k}): {names[side]} has {n} vertices, too few for {k} eigenfunctions "
                 f"(at most {max(1, n - 2)}); lower {name}",
@@ -218,9 +225,9 @@ def plan_pair(
         dense=dense,
         eig_k=eig_k,  # type: ignore[arg-type]
         clamp=clamp,  # type: ignore[arg-type]
-        basis_k=(bases.k1, bases.k2) if with_bases else None,
+        basis_k=(need[0], need[1]) if with_bases else None,
         order=bases.order,
-        tol=bases.threshold("ours*" if coordinates else "ours"),
+        tol=bases.threshold(preset),
         matrix=bases.matrix,
         exact=exact,
     )
@@ -336,17 +343,25 @@ def prepare(
             logger.info("the %s eigenbasis has %d eigenfunctions, %d are needed: computing it "
                         "again", ("source", "target")[i], have[i].k, plan.eig_k[i])  # fmt: skip
     _check_memory(plan, shapes, todo, bases, names)
+    # The eigenbases made here keep the policy of the map's estimation, and a given one made
+    # larger keeps the pieces it kept.
+    policy = given.options.get("components", match.components) if given else match.components
+    components = [
+        "largest" if eig is not None and eig.cleaning is not None
+        and eig.cleaning.report.dropped_vertices else policy
+        for eig in have
+    ]  # fmt: skip
     if len(todo) > 1:  # every shape refused before any is solved
-        check_shapes([shapes[i] for i in todo], names=[names[i] for i in todo],
-                     components=match.components)  # fmt: skip
+        for i in todo:
+            check_shapes([shapes[i]], names=[names[i]], components=components[i])
     if given is not None:
         _check_given(given, V1, V2)
     corr = given
     if plan.dense:
         corr = estimate_dense(V1, F1, V2, F2, options=match, coarse_source=coarse_source,
                               progress=progress)  # fmt: skip
-    eigs, cached = _eigenbases(plan, shapes, have, todo, match.components, cache_dir)
-    with _Ahead(plan, eigs, bases, cache_dir, shapes, match.components) as ahead:
+    eigs, cached = _eigenbases(plan, shapes, have, todo, components, cache_dir)
+    with _Ahead(plan, eigs, bases, cache_dir, shapes, components) as ahead:
         if plan.estimated and not plan.dense:
             ahead.start()
             corr = estimate(eigs[0], eigs[1], options=match, progress=progress)
@@ -371,10 +386,11 @@ def prepare_source(
     """
     match = MatchOptions() if match is None else match
     shapes = ((V1, F1), (None, None))
-    eigs, cached = _eigenbases(plan, shapes, [None, None], [0], match.components, cache_dir)
+    eigs, cached = _eigenbases(plan, shapes, [None, None], [0], [match.components] * 2, cache_dir)
     basis = None
     if plan.basis_k is not None:
-        basis = _Ahead(plan, eigs, (None, None), cache_dir, shapes, match.components)._basis(0)
+        ahead = _Ahead(plan, eigs, (None, None), cache_dir, shapes, [match.components] * 2)
+        basis = ahead._basis(0)
     coarse = None
     if plan.dense:  # every mesh target's map is estimated on coarse copies: the source's, once
         coarse = coarse_shape(V1, F1, k=match.zoomout_to, components=match.components)
@@ -437,18 +453,19 @@ def _eigenbases(
     shapes: tuple[tuple[Any, Any], ...],
     have: list[EigenBasis | None],
     todo: list[int],
-    components: str,
+    components: Sequence[str],
     cache_dir: Any,
 ) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:
     """Return the eigenbases of the plan (those the caller has, the others computed side by
-    side) and whether each was read from the cache."""
+    side) and whether each was read from the cache.
+    """
     out, cached = list(have), [False, False]
     if not todo:
         return out, (False, False)
 
     def job(i: int) -> tuple[EigenBasis, bool]:
         V, F = shapes[i]
-        options = {"k": plan.eig_k[i], "clamp_k": plan.clamp[i], "components": components}
+        options = {"k": plan.eig_k[i], "clamp_k": plan.clamp[i], "components": components[i]}
         if cache_dir is not None:
             return fetch_eigenbasis(V, F, cache_dir=cache_dir, **options)
         return eigenbasis(V, F, **options), False
@@ -482,7 +499,7 @@ class _Ahead:
         given: Sequence[OFPBasis | None],
         cache_dir: Any,
         shapes: tuple[tuple[Any, Any], ...],
-        components: str,
+        components: Sequence[str],
     ) -> None:
         self.plan, self.eigs, self.given = plan, eigs, list(given)
         self.cache_dir, self.shapes, self.components = cache_dir, shapes, components
@@ -507,7 +524,7 @@ class _Ahead:
             V, F = self.shapes[i]
             return fetch_basis(
                 V, F, k=k, order=self.plan.order, tol=self.plan.tol, cache_dir=self.cache_dir,
-                eig=eig, components=self.components,
+                eig=eig, components=self.components[i],
             )[0]  # fmt: skip
         return ofp_basis(eig, k=min(k, eig.k), order=self.plan.order, tol=self.plan.tol)
 

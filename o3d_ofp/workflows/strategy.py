@@ -115,6 +115,7 @@ class Strategy:
         """The options recorded in the Correspondence."""
         return {
             **run.options.estimation,
+            "components": run.options.components,
             "landmarks": None if run.landmarks is None else run.landmarks.tolist(),
         }
 
