@@ -26,7 +26,7 @@ from o3d_ofp.workflows.maps import Correspondence  # noqa: E402
 
 
 def _given(p2p, source):
-    """A vertex map the caller brings, onto a target with one vertex per entry."""
+    """Return a vertex map the caller brings, onto a target with one vertex per entry."""
     n = len(source.vertices) if hasattr(source, "vertices") else len(source.points)
     return Correspondence.from_p2p(np.asarray(p2p, dtype=np.int64), n, len(p2p))
 
@@ -120,7 +120,8 @@ def _covered(uv, size):
 def test_identity_bake_reproduces_the_source_texture(spot):
     mesh = spot[0]
     before = _snapshot(mesh)
-    baked = transfer_texture(mesh, mesh, correspondence=_given(np.arange(len(mesh.vertices)), mesh), size=1024)
+    identity = _given(np.arange(len(mesh.vertices)), mesh)
+    baked = transfer_texture(mesh, mesh, correspondence=identity, size=1024)
     _same(before, _snapshot(mesh))  # the target (here also the source) is not modified
     # A new legacy mesh: the target's geometry and UVs, one texture, material ids 0.
     assert baked is not mesh and len(baked.textures) == 1
@@ -164,7 +165,8 @@ def test_bake_with_a_known_map_beats_any_per_vertex_coloring(spot, decimated):
     per_vertex = _per_vertex_error(source, decimated)
     baked = transfer_texture(source, decimated, correspondence=corr, size=1024)
     err_surface = texture_error(baked, source, samples=30000)
-    baked_p2p = transfer_texture(source, decimated, correspondence=_given(corr.p2p_21, source), size=1024)
+    vertex_map = _given(corr.p2p_21, source)
+    baked_p2p = transfer_texture(source, decimated, correspondence=vertex_map, size=1024)
     err_vertex_map = texture_error(baked_p2p, source, samples=30000)
     # Measured: per-vertex 0.044, baked 0.0004 (surface map) and 0.0095 (vertex map).
     assert err_surface <= 0.7 * per_vertex
@@ -258,11 +260,13 @@ def test_pullback_borrows_the_source_layout(spot, decimated):
     err = texture_error(pulled, source, samples=30000)
     assert err < 0.5 * _per_vertex_error(source, decimated)  # measured 0.0023 vs 0.044
     # On the source itself with the identity map: the source's own UVs, exactly.
-    same = texture_pullback(source, source, correspondence=_given(np.arange(len(source.vertices)), source))
+    identity = _given(np.arange(len(source.vertices)), source)
+    same = texture_pullback(source, source, correspondence=identity)
     assert texture_error(same, source, samples=20000) < 1e-3
     # An untextured source: the message names the source (a trial's named "the mesh")
     with pytest.raises(ValueError, match=r"needs a textured source .*: the source: the mesh has"):
-        texture_pullback(decimated, source, correspondence=_given(np.zeros(len(source.vertices), dtype=int), decimated))
+        zeros = _given(np.zeros(len(source.vertices), dtype=int), decimated)
+        texture_pullback(decimated, source, correspondence=zeros)
 
 
 def test_tensor_meshes_are_accepted(spot, decimated):
@@ -482,7 +486,8 @@ def test_cli_colors_onto_a_textured_target_write_no_stale_texture(spot, spot_col
     assert "is a point cloud: its colors go to the vertices" in capsys.readouterr().err
     assert "map_Kd" not in (tmp_path / "p.mtl").read_text()
     with pytest.raises(TypeError, match="a point cloud has no surface to bake from"):
-        transfer_texture(cloud, spot[0], correspondence=_given(np.arange(len(spot[0].vertices)), cloud))
+        identity = _given(np.arange(len(spot[0].vertices)), cloud)
+        transfer_texture(cloud, spot[0], correspondence=identity)
 
 
 def test_cli_via_basis_refusals_do_not_send_the_user_in_circles(spot, spot_colors_ply,

@@ -103,7 +103,8 @@ def test_estimated_map_onto_a_point_cloud_uses_the_orientation_term():
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, None, k=99)
 
     def error(**options):
-        corr = ofp.match((V1, F1), (V2, None), eigenbases=(e1, e2), options=ofp.MatchOptions(**options))
+        opts = ofp.MatchOptions(**options)
+        corr = ofp.match((V1, F1), (V2, None), eigenbases=(e1, e2), options=opts)
         return np.linalg.norm(V1[corr.p2p_21] - V1, axis=1).mean() / np.sqrt(area)
 
     with_term, without = error(), error(w_orient=0.0)

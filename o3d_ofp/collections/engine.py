@@ -620,7 +620,7 @@ def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
 
 
 def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> TransferJob:
-    """The job of a :func:`transfer_many` call, each option checked by its options object."""
+    """Return the job of a :func:`transfer_many` call, each option checked by its options object."""
     check_choice(kind, "kind", KINDS)
     known = (*_BASIS_OPTIONS, *_DETAIL_OPTIONS, *_JOB_OPTIONS)
     unknown = sorted(set(options) - set(known))

@@ -111,7 +111,8 @@ def resolve_tol(tol: Any = None, preset: Any = None) -> float:
         if preset not in PRESETS:
             raise OptionError("preset", f"must be one of {sorted(PRESETS)}; got {preset!r}")
         if tol is not None and check_tol(tol) != PRESETS[preset]:
-            raise OptionError("tol", f"{tol} contradicts preset={preset!r} (tol={PRESETS[preset]:g})")
+            given = PRESETS[preset]
+            raise OptionError("tol", f"{tol} contradicts preset={preset!r} (tol={given:g})")
         return PRESETS[preset]
     return PRESETS["ours"] if tol is None else check_tol(tol)
 

@@ -83,7 +83,7 @@ class Said:
         return tuple(dict.fromkeys(found))
 
     def text(self, *, cli: bool = False) -> str:
-        """The message for a Python caller, or (``cli``) for a command-line user."""
+        """Return the message for a Python caller, or (``cli``) for a command-line user."""
         values = {
             name: value.text(cli=cli) if isinstance(value, Said) else value
             for name, value in self.values.items()
@@ -117,7 +117,7 @@ class Said:
 
 
 def text_of(message: Any, *, cli: bool = False) -> str:
-    """The words of a :class:`Said`, an exception carrying one, or anything else's ``str``."""
+    """Return the words of a :class:`Said`, of an exception carrying one, or ``str()``."""
     found = getattr(message, "said", message)
     return found.text(cli=cli) if isinstance(found, Said) else str(message)
 

@@ -106,7 +106,7 @@ def match_eigenbases(
     options: MatchOptions | None = None,
     progress: Callable[[str, float], None] | None = None,
 ) -> Correspondence:
-    """Estimate a map between two shapes from their eigenbases: the array-level :func:`o3d_ofp.match`.
+    """Estimate a map between two shapes from their eigenbases (:func:`o3d_ofp.match` on arrays).
 
     Parameters
     ----------

@@ -139,16 +139,16 @@ class MapQuality:
         return Said("{what} is suspect:" + lines, {"what": what, **values}, "suspect")
 
     def flagged(self, reason: Said, *, first: bool = True) -> MapQuality:
-        """This report made suspect by ``reason`` (first among the reasons, or last)."""
+        """Return this report made suspect by ``reason`` (first among the reasons, or last)."""
         reasons = (reason, *self.reasons) if first else (*self.reasons, reason)
         return dataclasses.replace(self, suspect=True, reasons=reasons)
 
     def noted(self, *notes: Said) -> MapQuality:
-        """This report with ``notes`` added."""
+        """Return this report with ``notes`` added."""
         return dataclasses.replace(self, notes=(*self.notes, *notes))
 
     def codes(self) -> set[str]:
-        """The codes of its reasons and notes (what a caller tests, never the words)."""
+        """Return the codes of its reasons and notes (what a caller tests, never the words)."""
         return {s.code for s in (*self.reasons, *self.notes)}
 
     def as_dict(self) -> dict[str, Any]:
@@ -157,7 +157,7 @@ class MapQuality:
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> MapQuality:
-        """The report :meth:`as_dict` gave (or a format-1 file's, whose reasons were words)."""
+        """Return the report :meth:`as_dict` gave (or a format-1 file's, reasons as words)."""
 
         def said_of(item: Any) -> Said:
             if isinstance(item, str):  # format 1: the words alone
@@ -255,7 +255,7 @@ class Correspondence:
 
     @classmethod
     def from_p2p(cls, p2p_21: Any, source: Any, target: Any) -> Correspondence:
-        """A vertex map the caller brings, as a Correspondence between ``source`` and ``target``.
+        """Make a Correspondence of a vertex map the caller brings.
 
         Parameters
         ----------
@@ -281,7 +281,7 @@ class Correspondence:
 
     @classmethod
     def from_fmap(cls, fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis) -> Correspondence:
-        """A functional map the caller brings, with its point map (nearest neighbours).
+        """Return a functional map the caller brings, with its point map (nearest neighbours).
 
         Parameters
         ----------
@@ -558,7 +558,7 @@ def given_map_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> Said
 
 
 def _vertices_of(shape: Any) -> np.ndarray | int:
-    """The (n, 3) vertices of a shape given in any of the package's forms, or its count."""
+    """Return the (n, 3) vertices of a shape given in any of the package's forms, or its count."""
     if isinstance(shape, numbers.Integral) and not isinstance(shape, bool):
         return int(shape)
     if isinstance(shape, tuple):
@@ -575,5 +575,8 @@ def _vertices_of(shape: Any) -> np.ndarray | int:
             continue
     V = np.asarray(shape, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3:
-        raise OptionError("shape", f"must be a geometry, (vertices, faces), (n, 3) vertices or a count; got {type(shape).__name__}")
+        raise OptionError(
+            "shape", "must be a geometry, (vertices, faces), (n, 3) vertices or a count; got "
+            f"{type(shape).__name__}",
+        )  # fmt: skip
     return V

@@ -286,7 +286,7 @@ class FullMatch(Strategy):
         return self._settled(run, C, info)
 
     def _settled(self, run: Run, C: np.ndarray, info: dict[str, Any]) -> Settled:
-        """The map ``C`` between the unit-area bases, its point map and its own-units map."""
+        """Return the map ``C`` between the unit-area bases, its point map and its own-units map."""
         if run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS:
             p2p = local_p2p_from_fmap(C, run.u1, run.u2)  # exact, without the quadratic scan
         else:

@@ -80,7 +80,7 @@ def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
 
 
 def deprecated_choice(name: str, value: Any) -> Any:
-    """The value a deprecated value of option ``name`` now has (a DeprecationWarning says so).
+    """Return the value a deprecated value of option ``name`` now has (with a warning).
 
     The one place deprecated option values are mapped (``mode="replace"``).
     """
@@ -211,7 +211,7 @@ class MatchOptions:
         }
 
     def landmarks_for(self, n_source: int, n_target: int) -> np.ndarray | None:
-        """The landmarks, checked to lie within shapes of these vertex counts."""
+        """Return the landmarks, checked to lie within shapes of these vertex counts."""
         lm = self.landmarks
         if lm is not None:
             for col, (n, side) in enumerate(((n_source, "source"), (n_target, "target"))):
@@ -257,7 +257,7 @@ class BasisOptions:
         check_choice(self.matrix, "matrix", ("p2p", "analytic"))
 
     def threshold(self, default: str = "ours") -> float:
-        """The drop threshold: ``tol``, else ``preset``, else the ``default`` preset."""
+        """Return the drop threshold: ``tol``, else ``preset``, else the ``default`` preset."""
         return resolve_tol(self.tol, self.preset if self.preset or self.tol else default)
 
 

@@ -168,7 +168,7 @@ THIRD_OPINION_SIZE = 0.4
 
 
 def _surfaces(run: Run) -> tuple[np.ndarray, ...]:
-    """The source's and the target's vertices and faces in the source's units."""
+    """Return the source's and the target's vertices and faces in the source's units."""
     return run.u1.vertices, run.u1.faces, run.u2.vertices, run.u2.faces
 
 
@@ -520,7 +520,7 @@ class PartialMatch(Strategy):
         }
 
     def for_coarse(self) -> PartialMatch:
-        """The match between coarse copies: unpolished, its map in ``extend_p2p``'s terms."""
+        """Return the match between coarse copies: unpolished, its map in ``extend_p2p``'s terms."""
         return PartialMatch(polish=self.polish, coarse=True)
 
     def extend(
@@ -538,7 +538,7 @@ class PartialMatch(Strategy):
         shapes: tuple[np.ndarray, ...],
         report: Callable[[str, float], None],
     ) -> Correspondence:
-        """The dense match, with a second and (when they disagree) a third opinion.
+        """Return the dense match, with a second and (when they disagree) a third opinion.
 
         Coarse copies are remeshings, and a partial match can go wrong on one remeshed pair
         where it is right on another, with nothing in the map to say so. A map that passed its
@@ -722,7 +722,7 @@ def _with_opinions(
     shapes: tuple[np.ndarray, ...],
     report: Callable[[str, float], None],
 ) -> Correspondence:
-    """The dense partial match with its opinions (see :meth:`PartialMatch.dense`).
+    """Return the dense partial match with its opinions (see :meth:`PartialMatch.dense`).
 
     ``again(size, share, prefix)`` matches on coarse copies of ``size`` vertices; ``shapes``
     are the full meshes' arrays; ``report`` the whole run's progress.

@@ -189,7 +189,8 @@ def plan_pair(
         raise OptionError("options", f"(the OFP bases' sizes and threshold) does not apply: {why}")
     # What the task itself needs of each eigenbasis.
     if with_bases:
-        need = [b.k if b is not None else k for b, k in zip(given_bases, (bases.k1, bases.k2))]
+        own = (bases.k1, bases.k2)
+        need = [b.k if b is not None else k for b, k in zip(given_bases, own, strict=True)]
         what = ["" if b is not None else f"k{i + 1}" for i, b in enumerate(given_bases)]
     elif task == "detail":
         need = [max(detail.band, ROTATION_K)] * 2
@@ -456,8 +457,9 @@ def _eigenbases(
     components: Sequence[str],
     cache_dir: Any,
 ) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:
-    """Return the eigenbases of the plan (those the caller has, the others computed side by
-    side) and whether each was read from the cache.
+    """Return the plan's eigenbases and whether each was read from the cache.
+
+    Those the caller has are kept; the others are computed side by side.
     """
     out, cached = list(have), [False, False]
     if not todo:
@@ -476,7 +478,8 @@ def _eigenbases(
         for n, i in zip(sizes, todo, strict=True)
     ]
     jobs = [functools.partial(job, i) for i in todo]
-    for i, (eig, hit) in zip(todo, run_per_shape(jobs, sizes, memory, what="eigenbases"), strict=True):
+    solved = run_per_shape(jobs, sizes, memory, what="eigenbases")
+    for i, (eig, hit) in zip(todo, solved, strict=True):
         out[i], cached[i] = eig, hit
     return out, (cached[0], cached[1])
 

@@ -218,7 +218,8 @@ def map_quality(
     reasons.extend(_area_reasons(eig_1, eig_2, area_ratio, partial))
     suspect = bool(reasons)
     if reasons:
-        reasons.append(_LIKELY_CAUSES["far" if far else "landmarks" if landmarks_given else "other"])
+        cause = "far" if far else "landmarks" if landmarks_given else "other"
+        reasons.append(_LIKELY_CAUSES[cause])
     return MapQuality(
         coverage=float(hit / n1),
         coverage_ratio=float(ratio),
@@ -535,7 +536,7 @@ def partial_quality(
 
 
 def landmarks_advice(given: bool) -> Said:
-    """The landmarks part of a partial map's advice: some, or more if some were given."""
+    """Return the landmarks part of a partial map's advice: some, or more if some were given."""
     if given:
         return Said("give more known vertex pairs, spread over the part ({landmarks_check})")
     return Said("give a few known vertex pairs ({landmarks})")

@@ -1,4 +1,4 @@
-"""The steps of a map estimation, as a strategy: what :func:`o3d_ofp.workflows.estimate.estimate` runs.
+"""The steps of a map estimation as a strategy, run by :func:`o3d_ofp.workflows.estimate.estimate`.
 
 :func:`~o3d_ofp.workflows.estimate.estimate` runs the steps in their order (fit starts, refine
 them, settle on a map, judge it, review it); a :class:`Strategy` says how each is done for one
@@ -81,18 +81,18 @@ class Strategy:
         return required_k(n1, options.zoomout_to), required_k(n2, options.zoomout_to)
 
     def least(self, n1: int, n2: int, options: MatchOptions) -> tuple[int, int]:
-        """Return the fewest eigenfunctions each given eigenbasis may hold (default :meth:`needs`)."""
+        """Return the fewest eigenfunctions each given eigenbasis may hold (:meth:`needs`)."""
         return self.needs(n1, n2, options)
 
     def check(self, eig_1: EigenBasis, eig_2: EigenBasis) -> None:
         """Refuse bases this estimation cannot run on (beyond their sizes); default: none."""
 
     def scaled(self, eig_1: EigenBasis, eig_2: EigenBasis) -> tuple[EigenBasis, EigenBasis]:
-        """The copies of the bases the estimation runs on."""
+        """Return the copies of the bases the estimation runs on."""
         raise NotImplementedError
 
     def starts(self, run: Run) -> list[Any]:
-        """The starting maps (fitted to descriptors)."""
+        """Return the starting maps (fitted to descriptors)."""
         raise NotImplementedError
 
     def refine(self, run: Run, index: int, start: Any) -> Any:
@@ -104,15 +104,15 @@ class Strategy:
         raise NotImplementedError
 
     def judge(self, run: Run, settled: Settled) -> MapQuality:
-        """The settled map's quality report."""
+        """Return the settled map's quality report."""
         raise NotImplementedError
 
     def review(self, run: Run, settled: Settled, quality: MapQuality) -> tuple[Settled, MapQuality]:
-        """A second look at the judged map (repair, rivals, polish); default: none."""
+        """Return a second look at the judged map (repair, rivals, polish); default: none."""
         return settled, quality
 
     def options(self, run: Run, settled: Settled) -> dict[str, Any]:
-        """The options recorded in the Correspondence."""
+        """Return the options recorded in the Correspondence."""
         return {
             **run.options.estimation,
             "components": run.options.components,
@@ -120,7 +120,7 @@ class Strategy:
         }
 
     def for_coarse(self) -> Strategy:
-        """The strategy of the estimation between a dense pair's coarse copies."""
+        """Return the strategy of the estimation between a dense pair's coarse copies."""
         return self
 
     def extend(self, corr: Correspondence, coarse_1: Any, coarse_2: Any, V1: Any, V2: Any) -> Any:
