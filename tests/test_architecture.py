@@ -221,3 +221,78 @@ def test_the_version_is_the_projects():
 
     with open(ROOT.parent / "pyproject.toml", "rb") as fh:
         assert tomllib.load(fh)["project"]["version"] == __version__
+
+
+def _code_names(module_path: Path) -> set[str]:
+    """Names a module's code uses (attributes and identifiers, not its comments or strings)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(module_path.read_text())):
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, ast.alias):
+            names.add(node.asname or node.name.rpartition(".")[2])
+    return names
+
+
+#: Each decision of a job between two shapes, the names its rule is made with, and the one
+#: module allowed to use them (besides where they are defined). The README's "Architecture"
+#: names the function: workflows.plan.plan_pair decides, workflows.plan.prepare runs it.
+DECISIONS = {
+    "dense path or not": ({"DENSE_VERTICES"}, {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.dense"}),
+    "eigenbasis sizes": (
+        {"needs", "ROTATION_K"},
+        {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.strategy", "o3d_ofp.workflows.partial",
+         "o3d_ofp.workflows.detail"},
+    ),
+    "partial or full, which estimator": (
+        {"strategy_of", "FullMatch", "PartialMatch"},
+        {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.estimate", "o3d_ofp.workflows.matching",
+         "o3d_ofp.workflows.partial"},
+    ),
+    "which bases and threshold": ({"threshold"}, {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.options"}),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("decision", sorted(DECISIONS))
+def test_each_decision_is_made_in_one_place(decision):
+    names, allowed = DECISIONS[decision]
+    found = sorted(
+        f"{module} uses {sorted(names & _code_names(path))}"
+        for module, path in _modules().items()
+        if module not in allowed and names & _code_names(path)
+    )
+    assert not found, f"{decision} is re-decided outside its place: {found}"
+
+
+def test_front_ends_run_the_planner_and_never_re_decide():
+    """The command line and the collections plan with workflows.plan; no estimation internals."""
+    internals = {
+        "ESTIMATION_K", "FIT_K", "required_k", "DENSE_VERTICES", "uses_dense_path",
+        "match_eigenbases", "estimate", "estimate_dense", "strategy_of", "match_dense",
+    }  # fmt: skip
+    found = sorted(
+        f"{module}: {sorted(internals & _code_names(path))}"
+        for module, path in _modules().items()
+        if module.split(".")[1] in ("cli", "collections") and internals & _code_names(path)
+    )
+    assert not found, found
+
+
+def test_the_checks_of_decisions_catch_a_re_decision(tmp_path):
+    probe = tmp_path / "probe.py"
+    probe.write_text("from ..workflows.dense import DENSE_VERTICES\nx = n > DENSE_VERTICES\n")
+    assert "DENSE_VERTICES" in _code_names(probe)
+    probe.write_text('"""DENSE_VERTICES in words only."""\n# DENSE_VERTICES\n')
+    assert "DENSE_VERTICES" not in _code_names(probe)
+
+
+def test_the_defaults_of_the_bases_are_written_once():
+    """k1 = 29 and k2 = 39 (the paper's K = 30 / 40) as literals only in workflows.options."""
+    found = []
+    for module, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and type(node.value) is int and node.value == 39:
+                found.append(module)
+    assert set(found) <= {"o3d_ofp.workflows.options", "o3d_ofp.workflows.matching"}, found

@@ -14,8 +14,9 @@ import numpy as np
 from ..core.basis import approximation_error, ofp_basis
 from ..core.shapes import blob
 from ..core.spectrum import eigenbasis
-from .matching import ESTIMATION_K, match_eigenbases
-from .pipeline import transfer_function
+from .options import BasisOptions
+from .pipeline import carry
+from .plan import plan_pair, prepare
 
 __all__ = ["DemoResult", "DemoRow", "demo_signal", "run_demo"]
 
@@ -127,12 +128,12 @@ def run_demo(*, subdivisions: int = 5, seed: int = 0, k: int = 29, order: int = 
     c, s = np.cos(0.7), np.sin(0.7)
     target = target @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
     t0 = time.perf_counter()
-    eig_1 = eigenbasis(vertices, faces, k=max(k, ESTIMATION_K))
-    eig_2 = eigenbasis(target, faces, k=max(k, ESTIMATION_K))
-    corr = match_eigenbases(eig_1, eig_2)
-    g = transfer_function(colors, eig_1, eig_2, k1=k, k2=k, order=order, correspondence=corr)
+    bases = BasisOptions(k1=k, k2=k, order=order)
+    plan = plan_pair(vertices, faces, target, faces, task="colors", bases=bases)
+    prepared = prepare(plan, vertices, faces, target, faces)
+    g = carry(colors, plan, prepared)
     t_transfer = time.perf_counter() - t0
-    p2p = corr.p2p_21
+    p2p = prepared.correspondence.p2p_21
     map_error = float(np.linalg.norm(vertices[p2p] - vertices, axis=1).mean() / np.sqrt(eig.area))
     return DemoResult(
         vertices=vertices,
@@ -144,6 +145,6 @@ def run_demo(*, subdivisions: int = 5, seed: int = 0, k: int = 29, order: int = 
         target_vertices=target,
         transferred=np.clip(g, 0.0, 1.0),
         map_error=map_error,
-        transfer_error=approximation_error(colors, g, eig_2.mass),
+        transfer_error=approximation_error(colors, g, prepared.eig_2.mass),
         transfer_seconds=t_transfer,
     )
