@@ -335,7 +335,7 @@ def _rasterize(
 #: A bake warns when more than this share of the target's UV area lies on texels other
 #: triangles cover too. Measured at 256 and 1024 texels: spot's and Open3D atlases of FAUST
 #: 087 share 0.0000-0.0003 (texel rounding); a side projection of 087 0.51, an atlas tiled
-#: twice 0.60 (a trial's mirrored layout baked at error 0.39 against 0.18, with no word).
+#: twice 0.60 (a mirrored layout bakes at error 0.39 against 0.18 for the target's own).
 UV_OVERLAP = 0.05
 
 

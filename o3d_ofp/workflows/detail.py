@@ -289,8 +289,8 @@ def _covered(eig_1: EigenBasis, eig_2: EigenBasis, p2p: np.ndarray) -> np.ndarra
         return None  # no edge length to measure the gaps with: a cloud is taken as covered
     edge = max(_mean_edge(eig_1), _mean_edge(eig_2) * math.sqrt(eig_1.area / eig_2.area))
     # The images of the target's vertices its eigenbasis keeps (mass > 0): pieces it leaves
-    # out (components="largest") are not in its area, and counted here they made a trial's
-    # three-piece cut look like a larger part than the piece its detail is measured on.
+    # out (components="largest") are not in its area, and would make a part in pieces look
+    # larger than the piece its detail is measured on.
     images = eig_1.vertices[np.unique(p2p[eig_2.mass > 0])]
     distance, _ = cKDTree(images).query(eig_1.vertices, distance_upper_bound=2 * edge)
     return np.isfinite(distance)
@@ -495,12 +495,10 @@ def transfer_detail_frames(
     # where comparing the part above its own first 30 eigenfunctions with the whole source
     # warned on 3; the result's area 0.77-1.01 of the truth's (0.70-0.98 with the whole's
     # low-pass area), its distance 0.52-0.71 of doing nothing (0.52-0.70). Cuts of FAUST 093
-    # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08
-    # of the covered region's detail, like whole bodies (0.96-1.0), where the former measure
-    # gave 0.77-0.86 and often no warning (a trial).
+    # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08 of the
+    # covered region's detail, like whole bodies (0.96-1.0).
     # An estimated full-shape map is never taken for a part (its coverage is not measured):
-    # it crowds when it is wrong, and a smoothed whole target has less area than its source
-    # (a review of the change).
+    # it crowds when it is wrong, and a smoothed whole target has less area than its source.
     method = correspondence.method
     region = None if method == "estimate" else _covered(eig_1, eig_2, p2p)
     covered = 0.0 if region is None else float(eig_1.mass[region].sum())
