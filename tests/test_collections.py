@@ -364,6 +364,70 @@ def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
         transfer_many(paths["src"], [str(tmp_path)], workers=0)
 
 
+def test_targets_given_as_one_path_are_refused_naming_the_argument(shapes, tmp_path, monkeypatch):
+    """One path (or geometry) where a list is expected: refused at once, nothing transferred.
+
+    A string is iterable: taken as the list of its characters, "." would name the working
+    folder and every mesh file in it would be transferred.
+    """
+    from o3d_ofp.core.wording import OptionError
+
+    paths, V, F, _ = shapes
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "here.ply").write_bytes(Path(paths["t0"]).read_bytes())  # in the working folder
+    out, before = tmp_path / "out", COUNTERS["source_bases"]
+    for one in ("one/target.ply", Path("one/target.ply"), triangle_mesh_from_arrays(V, F)):
+        with pytest.raises(OptionError, match="must be a list of shapes") as info:
+            transfer_many(paths["src"], one, workers=0, output_dir=out, map="identity")
+        assert info.value.option == "targets", info.value
+    with pytest.raises(OptionError, match=r"not one str: pass \['one/target.ply'\]"):
+        transfer_many(paths["src"], "one/target.ply", workers=0, output_dir=out)
+    with pytest.raises(OptionError) as info:
+        bases_many("one/target.ply", cache_dir=tmp_path / "cache", workers=0)
+    assert info.value.option == "paths"
+    assert COUNTERS["source_bases"] == before  # no work done
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here.ply"]  # nothing written
+
+
+def test_bad_workers_are_refused_before_dask_starts(shapes, tmp_path, client):
+    from o3d_ofp.core.wording import OptionError
+
+    paths, *_ = shapes
+    calls = [
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=-3, output_dir=tmp_path / "o"),
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=0, client=client),
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=1.5),
+        lambda: bases_many([paths["t0"]], cache_dir=tmp_path / "cache", workers=-3),
+    ]
+    for call in calls:
+        t0 = time.perf_counter()
+        with pytest.raises(OptionError) as info:
+            call()
+        assert time.perf_counter() - t0 < 0.3  # at once: no cluster, no eigensolve
+        assert info.value.option == "workers", info.value
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no folder made
+
+
+def test_a_file_where_a_folder_is_expected_is_refused_naming_it(shapes, tmp_path):
+    from o3d_ofp.core.wording import OptionError
+
+    paths, *_ = shapes
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    source, targets = paths["src"], [paths["t0"]]
+    calls = [
+        ("output_dir", lambda: transfer_many(source, targets, workers=0, output_dir=a_file)),
+        ("cache_dir", lambda: transfer_many(source, targets, workers=0, cache_dir=a_file)),
+        ("cache_dir", lambda: bases_many(targets, cache_dir=a_file, workers=0)),
+    ]
+    before = COUNTERS["source_bases"]
+    for name, call in calls:
+        with pytest.raises(OptionError, match="is a file; a folder is expected") as info:
+            call()
+        assert info.value.option == name and str(a_file) in str(info.value)
+    assert COUNTERS["source_bases"] == before and a_file.read_text() == "x"
+
+
 def test_importing_collections_does_not_import_dask():
     code = (
         "import sys, o3d_ofp.collections\n"
