@@ -7,6 +7,7 @@ ground truth of every map.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -45,11 +46,12 @@ def _bent(V, amount):
 
 
 @pytest.fixture(scope="module")
-def client():
+def client(tmp_path_factory):
     """Start a real scheduler, two worker processes; a task that kills its worker fails at once.
 
     The workers get the collections' environment (one BLAS thread, Dask's malloc setting left
-    out), which is also put back in this process afterwards.
+    out), which is also put back in this process afterwards; their scratch space is a
+    temporary folder.
     """
     import dask
 
@@ -59,6 +61,7 @@ def client():
         config = {
             "distributed.scheduler.allowed-failures": 0,
             "distributed.nanny.pre-spawn-environ": pre_spawn,
+            "temporary-directory": str(tmp_path_factory.mktemp("dask")),
         }
         with dask.config.set(config):
             cluster = distributed.LocalCluster(
@@ -67,6 +70,7 @@ def client():
                 threads_per_worker=1,
                 host="127.0.0.1",
                 dashboard_address=None,
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # no fixed port
                 silence_logs=logging.CRITICAL,
             )
         with cluster, distributed.Client(cluster) as c:
@@ -426,6 +430,33 @@ def test_a_file_where_a_folder_is_expected_is_refused_naming_it(shapes, tmp_path
             call()
         assert info.value.option == name and str(a_file) in str(info.value)
     assert COUNTERS["source_bases"] == before and a_file.read_text() == "x"
+
+
+def test_a_local_cluster_leaves_no_scratch_space_and_takes_no_fixed_port(
+    shapes, tmp_path, monkeypatch
+):
+    """The local cluster's scratch space is removed with it; its scheduler takes a free port.
+
+    Dask's defaults: <tmp>/dask-scratch-space, left behind; the scheduler's HTTP server on port
+    8787, which a cluster started beside another one finds taken (a warning, here an error).
+    """
+    import socket
+    import tempfile
+
+    paths, *_ = shapes
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))  # the worker processes'
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))  # this process's
+    with socket.socket() as other:  # another cluster's scheduler
+        with contextlib.suppress(OSError):  # (taken already: as good)
+            other.bind(("127.0.0.1", 8787))
+            other.listen()
+        results = transfer_many(paths["src"], [paths["t0"], paths["t1"]], workers=1,
+                                output_dir=tmp_path / "out", map="identity")  # fmt: skip
+    assert [r.status for r in results] == ["ok", "ok"]
+    assert results[0].worker.startswith("tcp://127.0.0.1:")  # on a local cluster
+    assert list(tmp.iterdir()) == []
 
 
 def test_importing_collections_does_not_import_dask():

@@ -77,6 +77,11 @@ _BAKED = (".obj", ".glb", ".gltf")
 BLAS_ENV = {f"{name}_NUM_THREADS": "1" for name in ("OMP", "OPENBLAS", "MKL", "BLIS")}
 BLAS_ENV["VECLIB_MAXIMUM_THREADS"] = "1"
 
+#: The local cluster's scheduler: no dashboard, and its HTTP server (which it starts anyway, on
+#: port 8787 by default) on a free port of 127.0.0.1, so that clusters started side by side do
+#: not contend for one port.
+_NO_DASHBOARD = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
+
 #: The keywords of :func:`transfer_many`'s ``**options``, by the object each belongs to (the
 #: rest are the :class:`~o3d_ofp.collections.tasks.TransferJob`'s own).
 _BASIS_OPTIONS = ("k1", "k2", "order", "preset", "tol")
@@ -186,6 +191,7 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
                 cluster = distributed.LocalCluster(  # the scheduler, nannies read the config here
                     n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                     dashboard_address=None, silence_logs=logging.ERROR,
+                    scheduler_kwargs=_NO_DASHBOARD,
                 )  # fmt: skip
             except RuntimeError as exc:
                 raise RuntimeError(
