@@ -627,7 +627,7 @@ def transfer_many(
         Folder of the results (created when missing): ``<output_dir>/<target file name>``
         (``target_<i>.ply`` for a geometry; ``.ply`` for a colored target whose format holds
         no colors; ``-<i>`` added to names given twice), each written atomically. ``None``:
-        nothing is written and each record keeps the values.
+        nothing is written and each record keeps the values (kind "texture" needs a folder).
     cache_dir : str or os.PathLike, optional
         Eigenbasis and OFP-basis cache (see :mod:`o3d_ofp.workflows.cache`): a second run over
         the same shapes solves no eigenproblem again. Damaged entries are recomputed.
@@ -660,8 +660,11 @@ def transfer_many(
 
     Raises
     ------
-    ValueError, TypeError
-        For bad options, an unreadable source or one without colors (before any work).
+    OptionError
+        For a bad option or argument, naming it (a ValueError and a TypeError), before any
+        work: targets given as one path, ``workers`` < 0, a folder argument that is a file.
+    ValueError, FileNotFoundError
+        For a source that cannot be read or has no colors (before any target is run).
     ImportError
         When a cluster is needed and Dask is not installed.
     """

@@ -39,10 +39,10 @@ class TargetResult:
         The input file, or ``None`` for a geometry.
     status : {"ok", "failed", "skipped"}
         Done; failed (``error`` says why; the other shapes went on); or skipped (the output
-        was newer than both inputs, or for bases: every cache entry was already there). A
-        skipped transfer keeps what was found when its output was made (``coverage``,
-        ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded in the output
-        folder (outputs made by versions before this record have none).
+        was newer than both inputs and made with the same options, or for bases: every cache
+        entry was already there). A skipped transfer keeps what was found when its output was
+        made (``coverage``, ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded
+        in the output folder (an output of a folder without that record has none).
     output : str or None
         The file written (the transferred target, or the cached basis for
         :func:`~o3d_ofp.collections.bases_many`); ``None`` when nothing was written.

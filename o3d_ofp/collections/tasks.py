@@ -109,7 +109,7 @@ class TransferJob:
     texture: str | None = None
     cache_dir: str | None = None
     #: How each target's map is estimated (made of ``components``, which it checks).
-    match: MatchOptions = dataclasses.field(init=False, repr=False)
+    match: MatchOptions = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         check_choice(self.kind, "kind", KINDS)
