@@ -7,6 +7,7 @@ ground truth of every map.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -45,11 +46,12 @@ def _bent(V, amount):
 
 
 @pytest.fixture(scope="module")
-def client():
+def client(tmp_path_factory):
     """Start a real scheduler, two worker processes; a task that kills its worker fails at once.
 
     The workers get the collections' environment (one BLAS thread, Dask's malloc setting left
-    out), which is also put back in this process afterwards.
+    out), which is also put back in this process afterwards; their scratch space is a
+    temporary folder.
     """
     import dask
 
@@ -59,6 +61,7 @@ def client():
         config = {
             "distributed.scheduler.allowed-failures": 0,
             "distributed.nanny.pre-spawn-environ": pre_spawn,
+            "temporary-directory": str(tmp_path_factory.mktemp("dask")),
         }
         with dask.config.set(config):
             cluster = distributed.LocalCluster(
@@ -67,6 +70,7 @@ def client():
                 threads_per_worker=1,
                 host="127.0.0.1",
                 dashboard_address=None,
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # no fixed port
                 silence_logs=logging.CRITICAL,
             )
         with cluster, distributed.Client(cluster) as c:
@@ -234,31 +238,31 @@ def test_detail_in_this_process(shapes, tmp_path):
     # The same as the two-shape call with the same map (PLY stores float32 coordinates).
     import o3d_ofp as ofp
 
+    identity = ofp.Correspondence.from_p2p(np.arange(len(V)), len(V), len(V))
     one = ofp.transfer_detail(
-        read_geometry(paths["src"]), read_geometry(paths["t0"]), p2p_21=np.arange(len(V))
+        read_geometry(paths["src"]), read_geometry(paths["t0"]), correspondence=identity
     )
     np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-6 * np.ptp(bent))
 
 
 def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_path, monkeypatch):
-    from o3d_ofp.collections import tasks
-    from o3d_ofp.workflows import matching
+    import o3d_ofp as ofp
+    from o3d_ofp.workflows import dense, estimate, plan
 
     paths, V, F, _ = shapes
     # The 642-vertex shapes made "dense" (above 500 vertices, coarse copies of 400): each
     # target's map comes from the dense path, no ~100-eigenfunction basis of any full shape.
-    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
-    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
+    monkeypatch.setattr(plan, "DENSE_VERTICES", 500)
+    monkeypatch.setattr(estimate, "COARSE_VERTICES", 400)
+    monkeypatch.setitem(dense.coarse_shape.__kwdefaults__, "coarse_vertices", 400)
     sizes: list[int] = []
-    real = tasks.eigenbasis
+    real = plan.eigenbasis
 
     def spy(V, F, *, k, **options):
         sizes.append(k)
         return real(V, F, k=k, **options)
 
-    monkeypatch.setattr(tasks, "eigenbasis", spy)
-    from o3d_ofp.workflows import dense
-
+    monkeypatch.setattr(plan, "eigenbasis", spy)
     coarse_sizes: list[int] = []
     real_coarse = dense.eigenbasis
 
@@ -275,13 +279,14 @@ def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_
     # coarse eigenbases: the source's once (shared), then each target's
     assert len(coarse_sizes) == 3, coarse_sizes
     # each target's colors are those of the two-shape pipeline through the dense-path map
-    corr = matching.match_arrays(V, F, _bent(V, 0.1), F)
+    corr = ofp.match((V, F), (_bent(V, 0.1), F))
     assert corr.options["dense"] is True
     colors = np.asarray(read_geometry(paths["src"]).vertex_colors)
     e1, e2 = real(V, F, k=12), real(_bent(V, 0.1), F, k=12)
     from o3d_ofp.workflows.pipeline import transfer_function
 
-    g = np.clip(transfer_function(colors, e1, e2, k1=12, k2=12, correspondence=corr), 0, 1)
+    options = ofp.BasisOptions(k1=12, k2=12)
+    g = np.clip(transfer_function(colors, e1, e2, correspondence=corr, options=options), 0, 1)
     # PLY stores colors as 8-bit: half a step of 1/255
     np.testing.assert_allclose(_colors(results[0].output), g, atol=0.5 / 255 + 1e-9)
 
@@ -295,8 +300,9 @@ def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):
     assert "2 ok, 0 failed, 0 skipped" in capsys.readouterr().out
     import o3d_ofp as ofp
 
+    identity = ofp.Correspondence.from_p2p(np.arange(len(V)), len(V), len(V))
     one = ofp.transfer_detail(read_geometry(paths["src"]), read_geometry(paths["t1"]),
-                              p2p_21=np.arange(len(V)), mode="replace-detail", band=20)  # fmt: skip
+                              correspondence=identity, mode="replace-detail", band=20)  # fmt: skip
     moved = np.asarray(read_geometry(out / "t1.ply").vertices)
     np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-5)
     assert _cli(*argv[:-2], "--band", "40", "--k1", "30") == 2  # refused before any work
@@ -340,12 +346,14 @@ def test_bases_many_fills_the_cache_that_transfers_reuse(client, shapes, tmp_pat
 
 def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
     paths, *_ = shapes
-    with pytest.raises(TypeError, match="unknown option"):
+    with pytest.raises(TypeError, match="k3 is not an option of transfer_many"):
         transfer_many(paths["src"], [paths["t0"]], workers=0, k3=4)
     with pytest.raises(ValueError, match="kind"):
         transfer_many(paths["src"], [paths["t0"]], kind="zzz", workers=0)
-    with pytest.raises(ValueError, match="no texture or vertex colors to bake"):
-        transfer_many(paths["t1"], [paths["t0"]], kind="texture", workers=0)  # colorless
+    with pytest.raises(ValueError, match="no texture or vertex colors to bake"):  # colorless
+        transfer_many(paths["t1"], [paths["t0"]], kind="texture", workers=0, output_dir=tmp_path)
+    with pytest.raises(ValueError, match="output_dir is needed by kind='texture'"):
+        transfer_many(paths["src"], [paths["t0"]], kind="texture", workers=0)
     with pytest.raises(ValueError, match="signal"):
         transfer_many(paths["src"], [paths["t0"]], signal="xyz", workers=0)
     with pytest.raises(ValueError, match="texture_size"):
@@ -356,8 +364,99 @@ def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
         transfer_many(paths["src"], [paths["t0"]], output_dir=os.path.dirname(paths["t0"]))
     with pytest.raises(FileNotFoundError):
         transfer_many(str(tmp_path / "nope.ply"), [paths["t0"]], workers=0)
-    with pytest.raises(ValueError, match="no targets"):
+    with pytest.raises(ValueError, match="targets holds no shapes"):
         transfer_many(paths["src"], [str(tmp_path)], workers=0)
+
+
+def test_targets_given_as_one_path_are_refused_naming_the_argument(shapes, tmp_path, monkeypatch):
+    """One path (or geometry) where a list is expected: refused at once, nothing transferred.
+
+    A string is iterable: taken as the list of its characters, "." would name the working
+    folder and every mesh file in it would be transferred.
+    """
+    from o3d_ofp.core.wording import OptionError
+
+    paths, V, F, _ = shapes
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "here.ply").write_bytes(Path(paths["t0"]).read_bytes())  # in the working folder
+    out, before = tmp_path / "out", COUNTERS["source_bases"]
+    for one in ("one/target.ply", Path("one/target.ply"), triangle_mesh_from_arrays(V, F)):
+        with pytest.raises(OptionError, match="must be a list of shapes") as info:
+            transfer_many(paths["src"], one, workers=0, output_dir=out, map="identity")
+        assert info.value.option == "targets", info.value
+    with pytest.raises(OptionError, match=r"not one str: pass \['one/target.ply'\]"):
+        transfer_many(paths["src"], "one/target.ply", workers=0, output_dir=out)
+    with pytest.raises(OptionError) as info:
+        bases_many("one/target.ply", cache_dir=tmp_path / "cache", workers=0)
+    assert info.value.option == "paths"
+    assert COUNTERS["source_bases"] == before  # no work done
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here.ply"]  # nothing written
+
+
+def test_bad_workers_are_refused_before_dask_starts(shapes, tmp_path, client):
+    from o3d_ofp.core.wording import OptionError
+
+    paths, *_ = shapes
+    calls = [
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=-3, output_dir=tmp_path / "o"),
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=0, client=client),
+        lambda: transfer_many(paths["src"], [paths["t0"]], workers=1.5),
+        lambda: bases_many([paths["t0"]], cache_dir=tmp_path / "cache", workers=-3),
+    ]
+    for call in calls:
+        t0 = time.perf_counter()
+        with pytest.raises(OptionError) as info:
+            call()
+        assert time.perf_counter() - t0 < 0.3  # at once: no cluster, no eigensolve
+        assert info.value.option == "workers", info.value
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no folder made
+
+
+def test_a_file_where_a_folder_is_expected_is_refused_naming_it(shapes, tmp_path):
+    from o3d_ofp.core.wording import OptionError
+
+    paths, *_ = shapes
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    source, targets = paths["src"], [paths["t0"]]
+    calls = [
+        ("output_dir", lambda: transfer_many(source, targets, workers=0, output_dir=a_file)),
+        ("cache_dir", lambda: transfer_many(source, targets, workers=0, cache_dir=a_file)),
+        ("cache_dir", lambda: bases_many(targets, cache_dir=a_file, workers=0)),
+    ]
+    before = COUNTERS["source_bases"]
+    for name, call in calls:
+        with pytest.raises(OptionError, match="is a file; a folder is expected") as info:
+            call()
+        assert info.value.option == name and str(a_file) in str(info.value)
+    assert COUNTERS["source_bases"] == before and a_file.read_text() == "x"
+
+
+def test_a_local_cluster_leaves_no_scratch_space_and_takes_no_fixed_port(
+    shapes, tmp_path, monkeypatch
+):
+    """The local cluster's scratch space is removed with it; its scheduler takes a free port.
+
+    Dask's defaults: <tmp>/dask-scratch-space, left behind; the scheduler's HTTP server on port
+    8787, which a cluster started beside another one finds taken (a warning, here an error).
+    """
+    import socket
+    import tempfile
+
+    paths, *_ = shapes
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))  # the worker processes'
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))  # this process's
+    with socket.socket() as other:  # another cluster's scheduler
+        with contextlib.suppress(OSError):  # (taken already: as good)
+            other.bind(("127.0.0.1", 8787))
+            other.listen()
+        results = transfer_many(paths["src"], [paths["t0"], paths["t1"]], workers=1,
+                                output_dir=tmp_path / "out", map="identity")  # fmt: skip
+    assert [r.status for r in results] == ["ok", "ok"]
+    assert results[0].worker.startswith("tcp://127.0.0.1:")  # on a local cluster
+    assert list(tmp.iterdir()) == []
 
 
 def test_importing_collections_does_not_import_dask():
@@ -376,14 +475,17 @@ def _transfer(seed):
     """One whole transfer on a 2562-vertex pair (CHOLMOD + Lanczos, descriptors, ZoomOut)."""
     from o3d_ofp.core.basis import ofp_basis
     from o3d_ofp.core.spectrum import eigenbasis
-    from o3d_ofp.workflows.matching import match_eigenbases
+    from o3d_ofp.workflows.estimate import match_eigenbases
+    from o3d_ofp.workflows.options import BasisOptions, MatchOptions
     from o3d_ofp.workflows.pipeline import transfer_function
 
     V, F = blob(4, seed=seed)
     e1, e2 = eigenbasis(V, F, k=30), eigenbasis(_bent(V, 0.15), F, k=30)
-    corr = match_eigenbases(e1, e2, k_fit=15, zoomout_to=30, zoomout_subsample=300)
+    options = MatchOptions(k_fit=15, zoomout_to=30, zoomout_subsample=300)
+    corr = match_eigenbases(e1, e2, options=options)
     bases = (ofp_basis(e1, k=15), ofp_basis(e2, k=20))
-    f = transfer_function(V, e1, e2, correspondence=corr, bases=bases)
+    sizes = BasisOptions(k1=15, k2=20)
+    f = transfer_function(V, e1, e2, correspondence=corr, bases=bases, options=sizes)
     return e2.evecs, corr.p2p_21, f
 
 
@@ -662,7 +764,7 @@ def test_a_source_without_its_material_takes_texture_in_a_collection(shapes, tmp
 
 
 def test_a_killed_worker_is_a_failed_record(client):
-    from o3d_ofp.collections.engine import _progress_bar, _run_on
+    from o3d_ofp.collections.engine import _run
     from o3d_ofp.collections.tasks import ShapeSpec
 
     def task(shared, spec):
@@ -671,8 +773,9 @@ def test_a_killed_worker_is_a_failed_record(client):
         return TargetResult(index=spec.index, name=spec.name, path=None, status="ok")
 
     specs = [ShapeSpec(0, "a", None), ShapeSpec(1, "b", None)]
-    with _progress_bar(2, "test", False) as bar:
-        records = _run_on(client, task, None, specs, kind="colors", bar=bar)
+    records: list[TargetResult] = []
+    run = {"client": client, "workers": None, "progress": False}
+    _run(task, None, specs, kind="colors", on_record=records.append, **run)
     by_index = {r.index: r for r in records}
     assert by_index[0].status == "ok"
     assert by_index[1].status == "failed" and by_index[1].error.startswith("KilledWorker")
@@ -706,7 +809,7 @@ def test_bases_larger_than_the_estimation_are_kept_or_refused(shapes, tmp_path, 
     assert [r.status for r in results] == ["ok"]
     sizes = [int(m.split("k=")[1].split()[0]) for m in caplog.messages if "ofp_basis" in m]
     assert sorted(sizes) == [110, 120], caplog.messages
-    with pytest.raises(ValueError, match=r"k1 = 700: the source has 642 vertices, too few"):
+    with pytest.raises(ValueError, match=r"k1 \(700\): src.ply has 642 vertices, too few"):
         transfer_many(paths["src"], [paths["t1"]], workers=0, output_dir=tmp_path, k1=700)
 
 
@@ -733,7 +836,7 @@ def test_read_only_output_folder_is_refused_first_and_no_empty_folder_is_left(
     assert main([*argv, "-o", str(folder / "new")]) == 2  # made inside a read-only folder
     # a run refused after the folder was made removes it again (only when it is empty)
     new = tmp_path / "new"
-    with pytest.raises(ValueError, match="k1 = 700"):
+    with pytest.raises(ValueError, match=r"k1 \(700\)"):
         transfer_many(paths["src"], [paths["t0"]], workers=0, output_dir=new, k1=700)
     assert not new.exists()
 
@@ -744,8 +847,9 @@ def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
     """A suspect map's reasons are in its record; -q still names the failed targets.
 
     Found by a trial: a suspect map's reasons were printed only by the worker process (a
-    raw Python warning), the record said ``suspect: true`` alone, the fix named landmarks a
-    collection refuses; with -q the failed targets were not named at all.
+    raw Python warning), the record said ``suspect: true`` alone; with -q the failed targets
+    were not named at all. A fix a collection refuses is read from the reasons' codes (not
+    from a word of theirs).
     """
     from o3d_ofp.cli.main import main
     from o3d_ofp.core.shapes import icosphere
@@ -756,7 +860,11 @@ def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
     out = tmp_path / "out"
     [r] = transfer_many(paths["src"], [str(sphere)], client=client, output_dir=out)
     assert r.status == "ok" and r.suspect and r.warnings
-    assert "suspect" in r.warnings[0] and "transfer this target alone" in r.warnings[0]
+    assert "suspect" in r.warnings[0] and "likely causes" in r.warnings[0]
+    # shapes of other kinds: no landmarks fix (the message says they do not help), so no
+    # advice to transfer the target alone with landmarks
+    assert "landmarks do not make them so" in r.warnings[0]
+    assert "a collection takes no landmarks" not in r.warnings[0]
     _, json_path = write_summary([r], out)
     assert json.loads(Path(json_path).read_text())["results"][0]["warnings"] == list(r.warnings)
     # -q: the failures are still named (on stderr, once), nothing else is printed
@@ -843,7 +951,7 @@ def test_an_interrupted_rerun_with_other_options_leaves_no_stale_record(shapes, 
         transfer_many(paths["src"], targets, k1=20, **run)
     monkeypatch.setattr(engine, "transfer_task", real)
     record = json.loads((out / ".o3d_ofp_outputs.json").read_text())["outputs"]
-    assert record["t0.ply"]["k1"] == 20 and record["t1.ply"]["k1"] == 20
+    assert record["t0.ply"]["options"]["k1"] == 20 and record["t1.ply"]["options"]["k1"] == 20
     assert "t2.ply" not in record  # to be remade: no record until it is
     again = transfer_many(paths["src"], targets, k1=29, **run)
     assert [r.status for r in again] == ["ok", "ok", "ok"]  # none skipped as "the same"
@@ -958,22 +1066,35 @@ def test_a_rerun_keeps_what_was_found_when_the_skipped_outputs_were_made(
 
 
 def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
-    """A suspect map's fix that names partial=True: a collection refuses --partial (trial)."""
-    from o3d_ofp.collections.tasks import _for_collections
+    """A fix a collection refuses (a partial match, landmarks) says to run the target alone.
 
-    said = _for_collections(
-        "the target looks like a part of the other shape (0.64 of its area); fix: "
-        "partial=True / --partial with the whole shape as the source"
-    )
+    The fixes are read from the messages' codes, never from their words.
+    """
+    from o3d_ofp.collections.tasks import _for_collections
+    from o3d_ofp.core.wording import Said
+
+    part = Said(
+        "the target looks like a part of the other shape; fix: {partial} with the whole shape "
+        "as the source", {}, "looks_partial",
+    )  # fmt: skip
+    said = _for_collections(part)
+    assert "partial=True with the whole shape" in said
     assert "a collection makes no partial match" in said and "--partial" in said
+    # a reason inside a suspect map's message: its code is read too
+    suspect = Said("{what} is suspect:\n  - {r0}", {"what": "the map", "r0": part}, "suspect")
+    assert "a collection makes no partial match" in _for_collections(suspect)
     assert _for_collections("coverage 0.2") == "coverage 0.2"
-    # the command and function of the collection's own kind (a trial: detail told "transfer")
-    said = _for_collections("a symmetric shape: fix: give landmarks", "detail")
-    assert "(o3d-ofp detail SOURCE TARGET --landmarks ..., or ofp.transfer_detail(" in said
-    assert "o3d-ofp transfer SOURCE TARGET --landmarks" in _for_collections("landmarks")
+    assert _for_collections(Said("coverage {c}", {"c": 0.2}, "low")) == "coverage 0.2"
+    # the command and function of the collection's own kind
+    symmetric = Said("a symmetric shape: fix: give a few known vertex pairs ({landmarks})")
+    said = _for_collections(symmetric, "detail")
+    assert "(o3d-ofp detail SOURCE TARGET --landmarks ..., or ofp.match(" in said
+    assert "then ofp.transfer_detail(..., correspondence=...)" in said
+    assert "o3d-ofp transfer SOURCE TARGET --landmarks" in _for_collections(symmetric)
+    assert "ofp.transfer_texture(" in _for_collections(symmetric, "texture")
     # a partial shape named as one likely cause among others is no fix to apply
-    cause = "likely causes: shapes of other kinds, or a part of the other shape (partial=True)"
-    assert _for_collections(cause) == cause
+    cause = Said("likely causes: a part of the other shape ({partial})", {}, "causes_far")
+    assert _for_collections(cause) == cause.text()
 
 
 def test_targets_sharing_a_file_name_are_renamed_and_said(tmp_path, caplog):
@@ -981,12 +1102,12 @@ def test_targets_sharing_a_file_name_are_renamed_and_said(tmp_path, caplog):
 
     A trial: the renaming was silent, and the outputs did not say which target they came from.
     """
-    from o3d_ofp.collections.engine import _outputs
+    from o3d_ofp.collections.engine import _specs
 
     items = [str(tmp_path / "a" / "x.ply"), str(tmp_path / "b" / "x.ply"), "y.ply"]
     with caplog.at_level(logging.INFO, logger="o3d_ofp.collections.engine"):
-        names, outs = _outputs(items, str(tmp_path / "out"), "colors")
-    assert names == ["x-0.ply", "x-1.ply", "y.ply"]
-    assert outs[1] == str(tmp_path / "out" / "x-1.ply")
+        specs, failed = _specs(items, str(tmp_path / "out"), "colors")
+    assert [s.name for s in specs] == ["x-0.ply", "x-1.ply", "y.ply"] and not failed
+    assert specs[1].output == str(tmp_path / "out" / "x-1.ply")
     (said,) = [r.getMessage() for r in caplog.records if "would write" in r.getMessage()]
     assert said == "2 targets would write x.ply: their outputs are named x-0.ply, x-1.ply"

@@ -1,18 +1,18 @@
 """Collections on a Dask cluster: one source onto many targets, and the bases of many shapes.
 
-:func:`transfer_many` prepares the source once in the calling process (its eigenbasis for map
-estimation and its OFP basis), broadcasts it to every worker, and runs one task per target:
-read, eigenbasis (from the cache when there is one), map, transfer, atomic write. A target's
-failure (unreadable file, refused shape, a worker killed for memory) is that target's record;
-the others go on. A rerun skips targets whose output is newer than both inputs and was made
-with the same options (:data:`OUTPUTS_RECORD`).
+:func:`transfer_many` prepares the source once in the calling process (its side of the plan:
+eigenbasis, OFP basis, coarse copy), broadcasts it to every worker, and runs one task per
+target: read, plan, map, transfer, atomic write. A target's failure (unreadable file, refused
+shape, a worker killed for memory) is that target's record; the others go on. A rerun skips
+targets whose output is newer than both inputs and was made with the same options
+(:data:`OUTPUTS_RECORD`).
 
 Without a ``client`` a :class:`distributed.LocalCluster` sized to the machine is started for
 the call (one single-threaded worker process per core, BLAS limited to one thread per worker
-through the workers' environment) and closed afterwards; ``client=`` (a
-:class:`distributed.Client` or a scheduler address ``"tcp://HOST:PORT"``) runs on an existing
-cluster; ``workers=0`` runs everything in the calling process, one shape after the other,
-without Dask. Dask is imported only when it is used.
+through the workers' environment, its scratch space a temporary folder) and closed afterwards;
+``client=`` (a :class:`distributed.Client` or a scheduler address ``"tcp://HOST:PORT"``) runs
+on an existing cluster; ``workers=0`` runs everything in the calling process, one shape after
+the other, without Dask. Dask is imported only when it is used.
 """
 
 from __future__ import annotations
@@ -26,48 +26,26 @@ import os
 import sys
 import tempfile
 import time
-import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
-from ..boundary.convert import (
-    geometry_to_arrays,
-    is_open3d_geometry,
-    like_target,
-    vertex_colors,
-)
+from ..boundary.convert import geometry_to_arrays, is_open3d_geometry, like_target, vertex_colors
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
-from ..core.orthogonalize import resolve_tol
-from ..core.texture import MAX_TEXTURE_SIZE
-from ..core.wording import OptionError
-from ..workflows.options import (
-    COMPONENTS,
-    ESTIMATION_K,
-    BasisOptions,
-    DetailOptions,
-    check_bool,
-    check_choice,
-)
+from ..core.wording import AdvisedError, OptionError, Said
+from ..workflows.options import ESTIMATION_K, BasisOptions, DetailOptions
 from ..workflows.plan import plan_pair, prepare_source
 from .results import TargetResult
-from .tasks import (
-    BasisJob,
-    ShapeSpec,
-    SharedSource,
-    TransferJob,
-    basis_task,
-    failed,
-    transfer_task,
-)
+from .tasks import BasisJob, ShapeSpec, SharedSource, TransferJob, basis_task, failed, transfer_task
 
 __all__ = [
     "BLAS_ENV",
     "COUNTERS",
     "MESH_EXTENSIONS",
+    "OUTPUTS_RECORD",
     "bases_many",
     "expand_paths",
     "local_workers",
@@ -89,24 +67,33 @@ MESH_EXTENSIONS = (
 )  # fmt: skip
 #: Outputs of these kinds cannot hold vertex colors: a colored target is written as ``.ply``.
 _NO_COLORS = (".stl", ".xyz", ".xyzn", ".pts")
+#: Outputs of a bake: OBJ + MTL + PNG. The other formats hold no UVs (as Open3D reads them):
+#: their targets get vertex colors, written in their own format.
+_BAKED = (".obj", ".glb", ".gltf")
 
 #: Environment of the workers of the local cluster: one BLAS / OpenMP thread per worker, so
 #: that n single-threaded workers on n cores do not oversubscribe them (set before the worker
 #: process starts, which is when OpenBLAS reads it).
-BLAS_ENV = {
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-    "BLIS_NUM_THREADS": "1",
-    "VECLIB_MAXIMUM_THREADS": "1",
-}
+BLAS_ENV = {f"{name}_NUM_THREADS": "1" for name in ("OMP", "OPENBLAS", "MKL", "BLIS")}
+BLAS_ENV["VECLIB_MAXIMUM_THREADS"] = "1"
 
-#: The options of :func:`transfer_many` (its ``**options``) and the object each belongs to.
+#: The local cluster's scheduler: no dashboard, and its HTTP server (which it starts anyway, on
+#: port 8787 by default) on a free port of 127.0.0.1, so that clusters started side by side do
+#: not contend for one port.
+_NO_DASHBOARD = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
+
+#: The keywords of :func:`transfer_many`'s ``**options``, by the object each belongs to (the
+#: rest are the :class:`~o3d_ofp.collections.tasks.TransferJob`'s own).
 _BASIS_OPTIONS = ("k1", "k2", "order", "preset", "tol")
 _DETAIL_OPTIONS = ("mode", "band", "amount")
 _JOB_OPTIONS = ("map", "components", "strict", "signal", "texture_size", "atlas", "texture")
-#: What each kind of transfer is.
-KINDS = ("colors", "texture", "detail")
+
+#: File of an output folder that records the options each output was made with (a rerun with
+#: other options, or another kind, redoes it) and what was found then.
+OUTPUTS_RECORD = ".o3d_ofp_outputs.json"
+#: The fields of a target's record kept for a rerun that skips its output, and their types.
+_FOUND = {"kind": str, "coverage": float, "suspect": bool, "n_vertices": int, "warnings": list,
+          "notes": list}  # fmt: skip
 
 
 def local_workers() -> int:
@@ -133,20 +120,12 @@ def expand_paths(items: Iterable[Any]) -> list[Any]:
     """
     out: list[Any] = []
     for item in items:
-        if isinstance(item, (str, os.PathLike)):
-            path = os.fspath(item)
-            if os.path.isdir(path):
-                out.extend(
-                    os.path.join(path, f)
-                    for f in sorted(os.listdir(path))
-                    if not f.startswith(".")
-                    and f.lower().endswith(MESH_EXTENSIONS)
-                    and os.path.isfile(os.path.join(path, f))
-                )
-            else:
-                out.append(path)
-        else:
-            out.append(item)
+        path = os.fspath(item) if isinstance(item, (str, os.PathLike)) else None
+        if path is None or not os.path.isdir(path):
+            out.append(item if path is None else path)
+            continue
+        files = (os.path.join(path, f) for f in sorted(os.listdir(path)) if not f.startswith("."))
+        out.extend(f for f in files if f.lower().endswith(MESH_EXTENSIONS) and os.path.isfile(f))
     return out
 
 
@@ -160,7 +139,8 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
         An existing client (used as is, left open), or a scheduler address
         ``"tcp://HOST:PORT"`` (a client is opened and closed afterwards). ``None``: a
         :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes on
-        127.0.0.1, BLAS limited to one thread each (:data:`BLAS_ENV`), closed afterwards.
+        127.0.0.1, BLAS limited to one thread each (:data:`BLAS_ENV`), its scratch space a
+        temporary folder, closed (and the folder removed) afterwards.
     workers : int, optional
         Workers of the local cluster (default: :func:`local_workers`).
 
@@ -197,32 +177,26 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
             yield c
         return
     n = local_workers() if workers is None else workers
-    logger.info(
-        "starting a local Dask cluster: %d worker process%s x 1 thread", n, "es" * (n != 1)
-    )
+    logger.info("starting a local Dask cluster: %d worker process%s x 1 thread", n, "es" * (n != 1))
     import dask
 
-    # The workers' scratch space is a folder of this run's, removed with the cluster (Dask's
-    # default, <tmp>/dask-scratch-space, stays behind).
-    with _worker_environment() as pre_spawn, tempfile.TemporaryDirectory(
-        prefix="o3d_ofp-dask-"
-    ) as scratch:  # fmt: skip
-        config = {"distributed.nanny.pre-spawn-environ": pre_spawn}
+    # Dask's default scratch space, <tmp>/dask-scratch-space, would stay behind.
+    with (
+        tempfile.TemporaryDirectory(prefix="o3d_ofp-dask-", ignore_cleanup_errors=True) as scratch,
+        _worker_environment() as env,
+    ):
+        config = {"distributed.nanny.pre-spawn-environ": env, "temporary-directory": scratch}
         with dask.config.set(config), _children_ignore_interrupts():  # the start only
             try:
-                cluster = distributed.LocalCluster(  # the nannies read the config here
-                    n_workers=n,
-                    threads_per_worker=1,
-                    processes=True,
-                    host="127.0.0.1",
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                    local_directory=scratch,
-                )
+                cluster = distributed.LocalCluster(  # the scheduler, nannies read the config here
+                    n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    dashboard_address=None, silence_logs=logging.ERROR,
+                    scheduler_kwargs=_NO_DASHBOARD,
+                )  # fmt: skip
             except RuntimeError as exc:
                 raise RuntimeError(
                     f"the local Dask cluster did not start ({exc}). From a script, call this "
-                    "under `if __name__ == \"__main__\":` (the worker processes start by "
+                    'under `if __name__ == "__main__":` (the worker processes start by '
                     "importing the script, which must not start a cluster again); or pass "
                     "workers=0 to run in this process, or client= an existing cluster"
                 ) from exc
@@ -234,11 +208,11 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
 def _children_ignore_interrupts() -> Iterator[None]:
     """Start processes that ignore Ctrl-C: this process stops them and says so itself.
 
-    A Ctrl-C in a terminal reaches every process of its group: each worker of a local cluster
-    printed its own KeyboardInterrupt traceback. A process started while SIGINT is ignored
-    keeps ignoring it (Python installs its Ctrl-C handler only over the default one), so the
-    workers leave it to this process, which closes the cluster. Only from the main thread
-    (elsewhere signals cannot be set, and nothing changes).
+    A Ctrl-C in a terminal reaches every process of its group, and each worker would print
+    its own traceback. A process started while SIGINT is ignored keeps ignoring it (Python
+    installs its Ctrl-C handler only over the default one), so the workers leave it to this
+    process, which closes the cluster. Only from the main thread (elsewhere signals cannot be
+    set, and nothing changes).
     """
     import signal
     import threading
@@ -270,66 +244,44 @@ def _worker_environment() -> Iterator[dict[str, Any]]:
     """
     import dask
 
-    env: dict[str, Any] = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
-    env.update(BLAS_ENV)
+    env = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **BLAS_ENV}
     env["MALLOC_TRIM_THRESHOLD_"] = None  # None: not set (Dask's convention)
-    keys = [*env, "PYTHONHASHSEED"]
-    saved = {k: os.environ.get(k) for k in keys}
-    if os.environ.get("MALLOC_TRIM_THRESHOLD_"):
-        logger.info(
-            "MALLOC_TRIM_THRESHOLD_ is set in this process's environment (by an earlier Dask "
-            "cluster?): not passed on to the workers"
-        )
-        os.environ.pop("MALLOC_TRIM_THRESHOLD_")
-    # Dask takes a variable already in this process's environment over its config, and a
-    # Nanny's env= is applied after the worker has imported numpy: set them here.
+    saved = {k: os.environ.get(k) for k in [*env, "PYTHONHASHSEED"]}
+    if os.environ.pop("MALLOC_TRIM_THRESHOLD_", None):
+        logger.info("MALLOC_TRIM_THRESHOLD_ is set in this process's environment (by an earlier "
+                    "Dask cluster?): not passed on to the workers")  # fmt: skip
     os.environ.update(BLAS_ENV)
     try:
         yield env
     finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _progress_bar(total: int, desc: str, enabled: bool) -> Any:
-    from tqdm import tqdm
-
-    on = enabled and sys.stderr.isatty()
-    return tqdm(total=total, desc=desc, unit="shape", file=sys.stderr, disable=not on)
+        os.environ.update({k: v for k, v in saved.items() if v is not None})
+        for k in (k for k, v in saved.items() if v is None):
+            os.environ.pop(k, None)
 
 
 def _log_record(r: TargetResult) -> None:
+    """Log a record as it arrives: failures and suspect maps as warnings, named."""
     if r.status == "failed":
         logger.warning("%s: failed: %s", r.name, r.error)
-    elif r.status == "skipped":
+        return
+    if r.status == "skipped":
         logger.info("%s: skipped (already done: %s)", r.name, r.output)
     else:
-        extra = ""
-        if not math.isnan(r.coverage):
-            extra = f", map coverage {r.coverage:.2f} of the source's vertices"
-        logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, extra)
-        # Named here when its reasons were not (a worker's are said again below, named; this
-        # process's log said them without the target's name).
-        if r.suspect and (not r.warnings or r.worker == "local"):
+        covered = f", map coverage {r.coverage:.2f} of the source's vertices"
+        covered = "" if math.isnan(r.coverage) else covered
+        logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, covered)
+        if r.suspect and (not r.warnings or r.worker == "local"):  # its reasons were not named
             logger.warning("%s: the map is suspect (see its record)", r.name)
-    # A worker process's log is not shown here: its warnings are said again, named. In this
-    # process (workers=0) the log already said them.
-    if r.status != "failed" and r.worker != "local":
+    # A worker process's log is not shown here: its warnings are said again, named (in this
+    # process, workers=0, the log said them as they happened, named by _warnings_named).
+    if r.worker != "local":
         for message in r.warnings:
             logger.warning("%s: %s", r.name, message)
 
 
 @contextlib.contextmanager
 def _warnings_named(name: str) -> Iterator[None]:
-    """Start the library's warnings logged meanwhile with ``name`` (a target run in-process).
-
-    A worker's warnings are said again with the target's name (:func:`_log_record`); in this
-    process (``workers=0``) they are said once, as they happen: a trial's "the target already
-    has detail" lines did not say which target.
-    """
+    """Start the library's warnings logged meanwhile with ``name`` (a target run in-process)."""
     previous = logging.getLogRecordFactory()
 
     def factory(*args: Any, **kwargs: Any) -> logging.LogRecord:
@@ -354,369 +306,288 @@ def _run(
     client: Any,
     workers: int | None,
     progress: bool,
-    on_record: Callable[[TargetResult], None] | None = None,
-) -> list[TargetResult]:
-    """Run ``task(shared, spec)`` for every spec; exceptions of a task become its record.
+    on_record: Callable[[TargetResult], None],
+) -> None:
+    """Run ``task(shared, spec)`` for every spec, with a progress bar on a terminal.
 
-    ``on_record`` is called with each record as it arrives (an interrupted run has handled
-    every record that arrived before the interrupt).
+    Exceptions of a task, and a worker that died running it, become its record; ``on_record``
+    is called with each record as it arrives (an interrupted run has handled every record
+    that arrived before the interrupt).
     """
+    from tqdm import tqdm
+
     if not specs:
-        return []
-    records: list[TargetResult] = []
-    bar = _progress_bar(len(specs), kind, progress)
-    with bar:
+        return
+    on = progress and sys.stderr.isatty()
+    with tqdm(total=len(specs), desc=kind, unit="shape", file=sys.stderr, disable=not on) as bar:
+
+        def arrived(r: TargetResult) -> None:
+            _log_record(r)
+            on_record(r)
+            bar.update()
+
         if client is None and workers == 0:
             for spec in specs:
                 with _warnings_named(spec.name):
                     r = task(shared, spec)
-                _log_record(r)
-                if on_record is not None:
-                    on_record(r)
-                records.append(r)
-                bar.update()
-            return records
-        n = None if workers is None else min(workers, len(specs))
-        if client is None and n is None:
-            n = min(local_workers(), len(specs))
-        with open_client(client, workers=n) as c:
-            records = _run_on(c, task, shared, specs, kind=kind, bar=bar, on_record=on_record)
-    return records
+                arrived(r)
+            return
+        with open_client(client, workers=min(workers or local_workers(), len(specs))) as c:
+            for r in _on_cluster(c, task, shared, specs, kind):
+                arrived(r)
 
 
-def _run_on(
-    c: Any,
-    task: Callable[[Any, ShapeSpec], TargetResult],
-    shared: Any,
-    specs: Sequence[ShapeSpec],
-    *,
-    kind: str,
-    bar: Any,
-    on_record: Callable[[TargetResult], None] | None = None,
-) -> list[TargetResult]:
+def _on_cluster(
+    c: Any, task: Callable[[Any, ShapeSpec], TargetResult], shared: Any, specs: Any, kind: str
+) -> Iterator[TargetResult]:
+    """Yield the records of the tasks run on the cluster of client ``c``, as they arrive."""
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
-    threads = c.nthreads()
-    if threads and max(threads.values()) > 1:
-        logger.info(
-            "some Dask workers run %d threads: correct (the library is thread-safe), but their "
-            "shapes share the process's cores and BLAS thread limits; one thread per worker "
-            "process is usually faster",
-            max(threads.values()),
-        )
-    token = uuid.uuid4().hex[:8]
     shared_future = c.scatter(shared, broadcast=True, hash=False)
     started = time.perf_counter()
-    futures = {
-        c.submit(
-            task, shared_future, spec, key=f"o3d-ofp-{kind}-{spec.index}-{token}", pure=False
-        ): spec
-        for spec in specs
-    }
-    records = []
+    futures = {c.submit(task, shared_future, spec, pure=False): spec for spec in specs}
     try:
         for future in as_completed(futures):
-            spec = futures[future]
             try:
                 r = future.result()
-            except KilledWorker as exc:
-                r = failed(
-                    spec,
-                    f"KilledWorker: the worker running this shape died (out of memory?): {exc}",
-                    kind=kind,
-                    seconds=time.perf_counter() - started,
-                )
-            except Exception as exc:  # the task's own errors are records; this is Dask's
-                r = failed(
-                    spec, f"{type(exc).__name__}: {exc}", kind=kind,
-                    seconds=time.perf_counter() - started,
-                )  # fmt: skip
+            except Exception as exc:  # the task's own errors are records: this is Dask's
+                why = f"{type(exc).__name__}: {exc}"
+                if isinstance(exc, KilledWorker):
+                    why = f"KilledWorker: its worker died running it (out of memory?): {exc}"
+                r = failed(futures[future], why, kind=kind, seconds=time.perf_counter() - started)
             future.release()
-            _log_record(r)
-            if on_record is not None:
-                on_record(r)
-            records.append(r)
-            bar.update()
+            yield r
     finally:
-        for future in futures:
-            if not future.done():
-                future.cancel()
+        c.cancel([future for future in futures if not future.done()])
         shared_future.release()
-    return records
 
 
-def _outputs(
-    items: Sequence[Any], output_dir: str | None, kind: str
-) -> tuple[list[str], list[str | None]]:
-    """(name, output path) of every target; duplicate names get ``-<index>`` before the suffix."""
-    names = []
+def _names(items: Sequence[Any], kind: str) -> list[str]:
+    """Return each target's output name: its file's (``target_<i>.ply`` for a geometry).
+
+    In a format that holds what is written (a bake: OBJ + MTL + PNG; colors: not a format
+    without vertex colors); names given twice get ``-<index>`` before the suffix, said.
+    """
+    parts = []
     for i, item in enumerate(items):
-        if isinstance(item, str):
-            name = os.path.basename(item)
-            if kind == "texture" and name.lower().endswith((".obj", ".glb", ".gltf")):
-                # OBJ + MTL + PNG (vertex colors for a target without UVs). The other formats
-                # hold no UVs (as Open3D reads them): their targets get vertex colors, written
-                # as for kind "colors" (a trial's PLY target came out as an OBJ with colors)
-                name = os.path.splitext(name)[0] + ".obj"
-            elif kind in ("colors", "texture") and name.lower().endswith(_NO_COLORS):
-                name = os.path.splitext(name)[0] + ".ply"
-        else:
-            name = f"target_{i}.ply"
-        names.append(name)
-    seen = Counter(names)
-    renamed = [
-        f"{os.path.splitext(n)[0]}-{i}{os.path.splitext(n)[1]}" if seen[n] > 1 else n
-        for i, n in enumerate(names)
-    ]
+        name = os.path.basename(item) if isinstance(item, str) else f"target_{i}.ply"
+        stem, ext = os.path.splitext(name)
+        if kind == "texture" and ext.lower() in _BAKED:
+            ext = ".obj"
+        elif kind in ("colors", "texture") and ext.lower() in _NO_COLORS:
+            ext = ".ply"
+        parts.append((stem, ext))
+    seen = Counter(stem + ext for stem, ext in parts)
+    names = [f"{s}-{i}{e}" if seen[s + e] > 1 else s + e for i, (s, e) in enumerate(parts)]
     for shared in sorted(n for n, count in seen.items() if count > 1):
         logger.info(
-            "%d targets would write %s: their outputs are named %s",
-            seen[shared],
-            shared,
-            ", ".join(new for old, new in zip(names, renamed, strict=True) if old == shared),
-        )
-    names = renamed
-    if output_dir is None:
-        return names, [None] * len(names)
-    outs: list[str | None] = []
-    for item, name in zip(items, names, strict=True):
-        out = os.path.join(output_dir, name)
-        if isinstance(item, str) and os.path.abspath(out) == os.path.abspath(item):
+            "%d targets would write %s: their outputs are named %s", seen[shared], shared,
+            ", ".join(n for (s, e), n in zip(parts, names, strict=True) if s + e == shared),
+        )  # fmt: skip
+    return names
+
+
+def _specs(
+    items: Sequence[Any], output_dir: str | None, kind: str
+) -> tuple[list[ShapeSpec], dict[int, TargetResult]]:
+    """Return the tasks' inputs, and the failed records of geometries that give no arrays.
+
+    A file is read on the worker; a geometry is sent as arrays, its result written here.
+    """
+    specs, records = [], {}
+    for i, (item, name) in enumerate(zip(items, _names(items, kind), strict=True)):
+        output = None if output_dir is None else os.path.join(output_dir, name)
+        if not isinstance(item, str):
+            try:
+                specs.append(ShapeSpec(i, name, None, geometry_to_arrays(item), output))
+            except (TypeError, ValueError) as exc:
+                records[i] = failed(ShapeSpec(i, name, None), exc, kind=kind)
+        elif output is not None and os.path.abspath(output) == os.path.abspath(item):
             raise ValueError(
                 f"the output folder {output_dir} holds the target {item}: its output would "
                 "overwrite it; write to another folder"
             )
-        outs.append(out)
-    return names, outs
-
-
-#: File of an output folder that records the options each output was made with, so that a
-#: rerun with other options (or another command) redoes it instead of skipping it.
-OUTPUTS_RECORD = ".o3d_ofp_outputs.json"
+        else:
+            specs.append(ShapeSpec(i, name, item, None, output))
+    return specs, records
 
 
 class _OutputsRecord:
-    """The options each output of a folder was made with (:data:`OUTPUTS_RECORD`).
+    """The options each output of a folder was made with, and what was found then.
 
-    A rerun skips an output newer than its inputs only when it was made with the same
-    options: found by a trial, a rerun with ``--k1 20`` (or ``detail`` over a folder of color
-    transfers) reported every target "up to date" and kept the old results. Outputs of a
-    folder without the record (made before it existed) are judged by their times alone.
+    Kept in the folder's :data:`OUTPUTS_RECORD`, by output name: a rerun skips an output newer
+    than its inputs only when it was made with the same options (other options make another
+    output), and its record keeps the map's coverage, suspect flag, warnings and notes found
+    when the output was made. Outputs of a folder without the record are judged by their times
+    alone.
     """
 
     def __init__(self, out_dir: str | None, job: TransferJob) -> None:
         self.path = None if out_dir is None else os.path.join(out_dir, OUTPUTS_RECORD)
-        options = dataclasses.asdict(job)
-        for key in ("cache_dir", "strict"):  # where the bases come from; no effect on outputs
-            options.pop(key)
-        self.options = options
-        self.outputs: dict[str, dict[str, Any]] | None = None
-        # What was found when each output was made (map coverage, suspect flag, warnings,
-        # notes): a rerun that skips it keeps them in its record and summary. Found by a
-        # trial: a rerun's summary had the suspect flags of the outputs it skipped emptied.
-        self.findings: dict[str, dict[str, Any]] = {}
+        bases = dataclasses.asdict(job.bases or BasisOptions())
+        own = {name: getattr(job, name) for name in _JOB_OPTIONS if name != "strict"}
+        detail = dataclasses.asdict(job.detail)
+        self.options = {"kind": job.kind, **bases, **detail, **own}  # what the outputs depend on
+        self.entries: dict[str, Any] | None = None  # None: no record in the folder
         if self.path is not None and os.path.isfile(self.path):
             try:
                 with open(self.path, encoding="utf-8") as fh:
-                    data = json.load(fh)
-                self.outputs = dict(data["outputs"])
+                    self.entries = dict(json.load(fh)["outputs"])
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 logger.warning("%s: unreadable (%s): its outputs are redone", self.path, exc)
-                self.outputs = {}
-            else:  # findings that cannot be read are only missing from skipped rows
-                found = data.get("findings") if isinstance(data, dict) else None
-                self.findings = dict(found) if isinstance(found, dict) else {}
+                self.entries = {}
 
-    def same_options(self, output: str | None, name: str) -> bool:
-        """Whether ``output`` was made with these options (True when nothing is recorded)."""
-        if self.outputs is None or output is None:
+    def skipped(self, spec: ShapeSpec, source: str | None, kind: str) -> TargetResult | None:
+        """Return the record of a target whose output is up to date (None: it is to be made)."""
+        if not (_up_to_date(spec.output, (source, spec.path)) and self._same_options(spec)):
+            return None
+        logger.info("%s: skipped: %s is newer than the source and the target and made with the "
+                    "same options", spec.name, spec.output)  # fmt: skip
+        found = {"kind": kind, **self._found(spec.name)}
+        return TargetResult(spec.index, spec.name, spec.path, "skipped", spec.output, **found)
+
+    def _same_options(self, spec: ShapeSpec) -> bool:
+        if self.entries is None:
             return True
-        before = self.outputs.get(os.path.basename(output))
+        entry = self.entries.get(spec.name)
+        before = entry.get("options") if isinstance(entry, dict) else None
         if before == self.options:
             return True
-        if before is None:
+        if entry is None:
             why = "not recorded as made by o3d_ofp"
+        elif not isinstance(before, dict) or before.keys() != self.options.keys():
+            why = "recorded by another version of o3d_ofp"
         else:
-            changed = [
-                f"{k} {before.get(k)!r} -> {v!r}" for k, v in self.options.items()
-                if before.get(k) != v
-            ]  # fmt: skip
-            why = (
-                "made with other options: " + ", ".join(changed)
-                if changed
-                else "recorded by another version of o3d_ofp"
+            changed = (
+                f"{k} {before[k]!r} -> {v!r}" for k, v in self.options.items() if before[k] != v
             )
-        logger.info("%s: %s is redone (%s)", name, output, why)
+            why = "made with other options: " + ", ".join(changed)
+        logger.info("%s: %s is redone (%s)", spec.name, spec.output, why)
         return False
 
-    def add(self, output: str | None, *, result: TargetResult | None = None) -> None:
-        """Record that ``output`` was just made with these options (and what was found)."""
-        if self.path is None or output is None:
-            return
-        if self.outputs is None:
-            self.outputs = {}
-        key = os.path.basename(output)
-        self.outputs[key] = self.options
-        if result is not None:
-            row = result.row()
-            self.findings[key] = {k: row[k] for k in _FOUND}
-        self._write()
-
-    def found(self, output: str | None) -> dict[str, Any]:
-        """Return what was found when ``output`` was made (empty when not recorded)."""
-        if output is None:
+    def _found(self, name: str) -> dict[str, Any]:
+        entry = (self.entries or {}).get(name)
+        found = entry.get("found") if isinstance(entry, dict) else None
+        if not isinstance(found, dict):
             return {}
-        row = self.findings.get(os.path.basename(output))
-        if not isinstance(row, dict):
-            return {}
-        out: dict[str, Any] = {}
-        for key in _FOUND:
-            value = row.get(key)
-            if key in ("warnings", "notes") and isinstance(value, list):
-                out[key] = tuple(str(v) for v in value)
-            elif key == "coverage" and isinstance(value, (int, float)):
-                out[key] = float(value)
-            elif key == "suspect" and isinstance(value, bool):
-                out[key] = value
-            elif key == "n_vertices" and isinstance(value, int):
-                out[key] = value
-            elif key == "kind" and value in ("colors", "texture", "detail"):
-                out[key] = value
+        out = {k: found[k] for k, type_ in _FOUND.items() if isinstance(found.get(k), type_)}
+        out.update({k: tuple(map(str, out[k])) for k in ("warnings", "notes") if k in out})
         return out
 
-    def forget(self, outputs: Iterable[str | None]) -> None:
+    def made(self, result: TargetResult) -> None:
+        """Record that the output of ``result`` was just made with these options."""
+        if self.path is not None and result.output is not None:
+            row = result.row()
+            entry = {"options": self.options, "found": {k: row[k] for k in _FOUND}}
+            self.entries = {**(self.entries or {}), result.name: entry}
+            self._write()
+
+    def forget(self, specs: Iterable[ShapeSpec]) -> None:
         """Drop the records of outputs about to be made again (written at once)."""
-        if self.path is None:
-            return
-        if self.outputs is None:
-            self.outputs = {}
-        for output in outputs:
-            if output is not None:
-                self.outputs.pop(os.path.basename(output), None)
-                self.findings.pop(os.path.basename(output), None)
-        self._write()
+        if self.path is not None:
+            names = {spec.name for spec in specs}
+            self.entries = {k: v for k, v in (self.entries or {}).items() if k not in names}
+            self._write()
 
     def _write(self) -> None:
-        assert self.path is not None and self.outputs is not None
-        data = {"version": 1, "outputs": self.outputs, "findings": self.findings}
+        assert self.path is not None
         with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1, sort_keys=True)
-
-
-#: The fields of a target's record kept for a rerun that skips its output.
-_FOUND = ("kind", "coverage", "suspect", "n_vertices", "warnings", "notes")
+            json.dump({"version": 2, "outputs": self.entries}, fh, indent=1, sort_keys=True)
 
 
 def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
     """Whether ``output`` exists and is newer than every input (all of them files)."""
-    if output is None or any(p is None for p in inputs):
-        return False
     try:
         done = os.stat(output).st_mtime_ns
-        return all(done > os.stat(p).st_mtime_ns for p in inputs if p is not None)
-    except OSError:
+        return all(done > os.stat(p).st_mtime_ns for p in inputs)
+    except (OSError, TypeError):  # no output yet, or an input given as a geometry (None)
         return False
 
 
-def _transfer_job(kind: str, cache_dir: Any, options: dict[str, Any]) -> TransferJob:
-    """Return the job of a :func:`transfer_many` call, each option checked by its options object."""
-    check_choice(kind, "kind", KINDS)
+def _transfer_job(kind: str, cache_dir: str | None, options: dict[str, Any]) -> TransferJob:
+    """Return the job of a :func:`transfer_many` call, each option checked by its object."""
     known = (*_BASIS_OPTIONS, *_DETAIL_OPTIONS, *_JOB_OPTIONS)
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise OptionError(
             unknown[0], f"is not an option of transfer_many; it takes {', '.join(sorted(known))}"
         )
-    given = {name: options[name] for name in _BASIS_OPTIONS if name in options}
-    bases = BasisOptions(**given) if given else None
-    detail = DetailOptions(**{n: options[n] for n in _DETAIL_OPTIONS if n in options})
-    job = {name: options[name] for name in _JOB_OPTIONS if name in options}
-    check_choice(job.get("map", "estimate"), "map", ("estimate", "identity"))
-    check_choice(job.get("components", "auto"), "components", COMPONENTS)
-    signal = check_choice(job.get("signal", "auto"), "signal", ("auto", "colors", "texture"))
-    check_bool(job.get("strict", False), "strict")
-    check_bool(job.get("atlas", False), "atlas")
-    check_int(job.get("texture_size", 1024), name="texture_size", minimum=1,
-              maximum=MAX_TEXTURE_SIZE)  # fmt: skip
-    if kind == "texture" and signal == "colors":
-        raise OptionError("signal", "'colors' does not apply to kind='texture' (a bake)")
-    texture = job.get("texture")
-    if texture is not None:
-        if not isinstance(texture, (str, os.PathLike)):
-            raise OptionError("texture", f"must be an image file path; got {type(texture).__name__}")
-        job["texture"] = os.path.abspath(os.fspath(texture))
-        if not os.path.isfile(job["texture"]):
-            raise FileNotFoundError(f"texture {job['texture']}: no such image file")
-        if kind == "detail" or signal == "colors":
-            raise OptionError("texture", "(the source's texture image) applies to its colors or bake")
+    bases = {name: options[name] for name in _BASIS_OPTIONS if name in options}
     return TransferJob(
-        kind=kind, bases=bases, detail=detail,
-        cache_dir=None if cache_dir is None else os.fspath(cache_dir), **job,
+        kind=kind, bases=BasisOptions(**bases) if bases else None, cache_dir=cache_dir,
+        detail=DetailOptions(**{n: options[n] for n in _DETAIL_OPTIONS if n in options}),
+        **{name: options[name] for name in _JOB_OPTIONS if name in options},
     )  # fmt: skip
 
 
-def _source(source: Any, job: TransferJob) -> SharedSource:
-    """Read the source and compute its bases, once for every target."""
-    path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
+def _source(source: Any, path: str | None, job: TransferJob) -> SharedSource:
+    """Read the source and run its side of the plan (any target), once for every target."""
     geometry = read_geometry(path) if path is not None else source
     if not is_open3d_geometry(geometry):
-        raise TypeError(f"source must be a file or an Open3D geometry; got {type(source).__name__}")
+        raise OptionError(
+            "source", f"must be a file or an Open3D geometry; got {type(source).__name__}"
+        )
     name = os.path.basename(path) if path else "source"
     V, F = geometry_to_arrays(geometry)
-    signal, texture = None, None
-    if job.kind == "texture":
-        try:
-            texture = surface_colors(geometry, job.texture)
-        except (TypeError, ValueError, FileNotFoundError) as exc:
-            own = path is not None and job.texture is None
-            why = no_texture_message(path, exc) if own else f"{name}: {exc}"
-            raise ValueError(f"the source has no texture or vertex colors to bake: {why}") from exc
-    if job.kind in ("colors", "texture"):
-        signal = _source_colors(
-            geometry, name, job.signal, quiet=job.kind == "texture", texture=job.texture
-        )
-    elif F is None:
+    signal, texture = _source_colors(geometry, path, name, job)
+    if job.kind == "detail" and F is None:
         raise ValueError(f"{name}: the source of a detail transfer must be a triangle mesh")
     t0 = time.perf_counter()
-    # The source's side of the plan, with any target: a source above the dense threshold has
-    # its maps to mesh targets estimated on coarse copies (its coarse copy is made once).
-    plan = plan_pair(
-        V, F, None, None, task=job.task(), match=job.match, bases=job.bases, detail=job.detail,
-        names=(name, "the target"),
-    )  # fmt: skip
+    try:
+        plan = plan_pair(
+            V, F, None, None, task=job.task(), match=job.match, bases=job.bases,
+            detail=job.detail, names=(name, "the target"),
+        )  # fmt: skip
+    except OptionError as exc:  # transfer_many takes the OFP bases' fields as keywords
+        if exc.option != "options":
+            raise
+        raise OptionError(", ".join(_BASIS_OPTIONS), exc.problem) from None
     eig, B, cached, coarse = prepare_source(plan, V, F, match=job.match, cache_dir=job.cache_dir)
     COUNTERS["source_bases"] += 1
     logger.info(
-        "source %s: %d vertices, eigenbasis k=%d%s%s (%.1f s); shared with every target",
+        "source %s: %d vertices, eigenbasis k=%d%s%s%s (%.1f s); shared with every target",
         name, V.shape[0], eig.k, " (cached)" if cached else "",
         "" if B is None else f", OFP basis {B.size} functions",
+        "" if coarse is None else f", coarse copy of {coarse.vertices.shape[0]} vertices",
         time.perf_counter() - t0,
     )  # fmt: skip
-    if coarse is not None:
-        logger.info("source %s: coarse copy of %d vertices and its eigenbasis; shared with "
-                    "every target", name, coarse.vertices.shape[0])  # fmt: skip
     return SharedSource(name, V, F, eig, B, signal, job, texture, coarse)
 
 
-def _source_colors(
-    geometry: Any, name: str, signal: str, *, quiet: bool = False, texture: str | None = None
-) -> Any:
-    """Return the source's colors per vertex: its vertex colors or its texture sampled there."""
-    colors = vertex_colors(geometry) if signal in ("auto", "colors") and texture is None else None
-    if colors is not None or signal == "colors":
-        if colors is None:
+def _source_colors(geometry: Any, path: str | None, name: str, job: TransferJob) -> tuple[Any, Any]:
+    """Return the source's colors per vertex and, for a bake, the colors of its surface.
+
+    Its vertex colors, or its texture sampled at its vertices (``signal``); a bake reads its
+    texture, else its vertex colors.
+    """
+    if job.kind == "detail":
+        return None, None
+    texture = None
+    if job.kind == "texture":
+        try:
+            texture = surface_colors(geometry, job.texture)
+        except (TypeError, ValueError, FileNotFoundError) as exc:  # its fixes kept as data
+            why = Said("{name}: {why}", {"name": name, "why": getattr(exc, "said", str(exc))})
+            if path is not None and job.texture is None:
+                why = no_texture_message(path, exc)
+            refusal = "the source has no texture or vertex colors to bake: {why}"
+            raise AdvisedError(Said(refusal, {"why": why}, "no_texture")) from exc
+    if job.signal != "texture" and job.texture is None:
+        colors = vertex_colors(geometry)
+        if colors is not None:
+            return colors, texture
+        if job.signal == "colors":
             raise ValueError(f"{name}: the source has no vertex colors to transfer")
-        return colors
     try:
-        colors = texture_colors(geometry, texture)
+        colors = texture_colors(geometry, job.texture)
     except (TypeError, ValueError, FileNotFoundError) as exc:
         raise ValueError(
             f"{name}: the source has no vertex colors and no usable texture ({exc})"
         ) from exc
-    if signal == "auto" and not quiet:
+    if job.signal == "auto" and job.kind == "colors":
         logger.info("%s: no vertex colors; transferring its texture sampled at its vertices", name)
-    return colors
+    return colors, texture
 
 
 def transfer_many(
@@ -756,7 +627,7 @@ def transfer_many(
         Folder of the results (created when missing): ``<output_dir>/<target file name>``
         (``target_<i>.ply`` for a geometry; ``.ply`` for a colored target whose format holds
         no colors; ``-<i>`` added to names given twice), each written atomically. ``None``:
-        nothing is written and each record keeps the values.
+        nothing is written and each record keeps the values (kind "texture" needs a folder).
     cache_dir : str or os.PathLike, optional
         Eigenbasis and OFP-basis cache (see :mod:`o3d_ofp.workflows.cache`): a second run over
         the same shapes solves no eigenproblem again. Damaged entries are recomputed.
@@ -789,81 +660,69 @@ def transfer_many(
 
     Raises
     ------
-    ValueError, TypeError
-        For bad options, an unreadable source or one without colors (before any work).
+    OptionError
+        For a bad option or argument, naming it (a ValueError and a TypeError), before any
+        work: targets given as one path, ``workers`` < 0, a folder argument that is a file.
+    ValueError, FileNotFoundError
+        For a source that cannot be read or has no colors (before any target is run).
     ImportError
         When a cluster is needed and Dask is not installed.
     """
-    job = _transfer_job(kind, cache_dir, options)
     items = _items(targets, "targets")
-    out_dir = _run_options(output_dir, "output_dir", workers, client)
+    _check_workers(workers, client)
+    out_dir = _folder(output_dir, "output_dir")
+    job = _transfer_job(kind, _folder(cache_dir, "cache_dir"), options)
+    if kind == "texture" and out_dir is None:
+        raise OptionError("output_dir", "is needed by kind='texture': the baked images go there")
+    source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
     with _output_folder(out_dir):
-        names, outputs = _outputs(items, out_dir, kind)
-        source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
-        if source_path is not None and not os.path.isfile(source_path):
-            raise FileNotFoundError(f"{source_path}: no such source file")
-        records: dict[int, TargetResult] = {}
-        todo: list[int] = []
+        specs, records = _specs(items, out_dir, kind)
         made = _OutputsRecord(out_dir, job)
-        for i, item in enumerate(items):
-            path = item if isinstance(item, str) else None
-            current = path is not None and _up_to_date(outputs[i], (source_path, path))
-            if skip_existing and current and not made.same_options(outputs[i], names[i]):
-                current = False
-            if skip_existing and current:
-                logger.info("%s: skipped: %s is newer than the source and the target and "
-                            "made with the same options", names[i], outputs[i])  # fmt: skip
-                records[i] = TargetResult(
-                    **{"kind": kind, **made.found(outputs[i])},
-                    index=i, name=names[i], path=path, status="skipped", output=outputs[i],
-                )  # fmt: skip
-            else:
-                todo.append(i)
+        for spec in specs if skip_existing else ():
+            if (r := made.skipped(spec, source_path, kind)) is not None:
+                records[r.index] = r
+        todo = [spec for spec in specs if spec.index not in records]
         if todo:
-            shared = _source(source, job)
-            specs = [_spec(i, items[i], names[i], outputs[i], kind) for i in todo]
-            ready = [s for s in specs if isinstance(s, ShapeSpec)]
-            for s in specs:
-                if isinstance(s, TargetResult):
-                    records[s.index] = s
-            # The outputs about to be (re)made lose their record first: an interrupted run
-            # leaves none of them said to be made with these options.
-            made.forget(outputs[i] for i in todo)
-            arrived = 0
-
-            def on_record(r: TargetResult) -> None:
-                nonlocal arrived
-                records[r.index] = _finish_in_memory(r, items[r.index], outputs[r.index], kind)
-                COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
-                if records[r.index].status == "ok":
-                    made.add(outputs[r.index], result=records[r.index])
-                    arrived += 1
-
-            try:
-                _run(
-                    transfer_task, shared, ready, kind=kind, client=client, workers=workers,
-                    progress=progress, on_record=on_record,
-                )  # fmt: skip
-            except KeyboardInterrupt:
-                logger.warning(
-                    "interrupted: %d of %d targets done%s", arrived, len(todo),
-                    "; a rerun skips them and does the others" if out_dir else "",
-                )  # fmt: skip
-                raise
+            shared = _source(source, source_path, job)
+            run = {"client": client, "workers": workers, "progress": progress}
+            records.update(_transfer_targets(shared, todo, items, made, **run))
     results = [records[i] for i in range(len(items))]
-    counts = Counter(r.status for r in results)
-    logger.info("transfer_many (%s): %s", kind, dict(counts))
+    logger.info("transfer_many (%s): %s", kind, dict(Counter(r.status for r in results)))
     return results
 
 
+def _transfer_targets(
+    shared: SharedSource, todo: list[ShapeSpec], items: list[Any], made: _OutputsRecord, **run: Any
+) -> dict[int, TargetResult]:
+    """Run the targets ``todo``; each output is recorded as made as soon as it is written."""
+    records: dict[int, TargetResult] = {}
+    made.forget(todo)  # first: an interrupted run leaves none of them said to be made so
+
+    def on_record(r: TargetResult) -> None:
+        COUNTERS[f"target_eigenbases_{'cached' if r.cached else 'computed'}"] += r.ok
+        r = _finish_in_memory(r, items[r.index], shared.job.kind)
+        records[r.index] = r
+        if r.status == "ok":
+            made.made(r)
+
+    try:
+        _run(transfer_task, shared, todo, kind=shared.job.kind, on_record=on_record, **run)
+    except KeyboardInterrupt:
+        done = sum(r.status == "ok" for r in records.values())
+        logger.warning(
+            "interrupted: %d of %d targets done%s", done, len(todo),
+            "; a rerun skips them and does the others" if made.path else "",
+        )  # fmt: skip
+        raise
+    return records
+
+
 def _items(values: Any, name: str) -> list[Any]:
-    """The shapes of a collection: files, folders (their mesh files) and geometries, checked."""
+    """Return the shapes of a collection (folders replaced by their mesh files), checked."""
     if isinstance(values, (str, bytes, os.PathLike)) or is_open3d_geometry(values):
         raise OptionError(
-            name, f"must be a list of shapes (files, folders or geometries); got one "
-            f"{type(values).__name__} ({values!r}): pass [{values!r}]"
-            if not is_open3d_geometry(values) else
-            f"must be a list of shapes; got one {type(values).__name__}: pass [it]",
+            name, f"must be a list of shapes (files, folders or geometries), not one "
+            f"{type(values).__name__}: pass [{values!r}]",
         )  # fmt: skip
     try:
         items = expand_paths(values)
@@ -874,17 +733,21 @@ def _items(values: Any, name: str) -> list[Any]:
     return items
 
 
-def _run_options(folder: Any, name: str, workers: Any, client: Any) -> str | None:
-    """Check a run's folder (a folder, not a file) and ``workers``; return the folder's path."""
+def _check_workers(workers: Any, client: Any) -> None:
+    """Refuse a ``workers`` that is no count of processes, or 0 (this process) with a client."""
     if workers is not None:
         check_int(workers, name="workers", minimum=0)
         if workers == 0 and client is not None:
             raise OptionError("workers", "=0 runs in this process: give it or client=, not both")
-    if folder is None:
+
+
+def _folder(value: Any, name: str, *, required: bool = False) -> str | None:
+    """Return the path of a run's folder (None stays None); a file there is refused."""
+    if value is None and not required:
         return None
-    if not isinstance(folder, (str, os.PathLike)):
-        raise OptionError(name, f"must be a folder path; got {type(folder).__name__}")
-    path = os.fspath(folder)
+    if not isinstance(value, (str, os.PathLike)):
+        raise OptionError(name, f"must be a folder path; got {type(value).__name__}")
+    path = os.fspath(value)
     if os.path.exists(path) and not os.path.isdir(path):
         raise OptionError(name, f"{path} is a file; a folder is expected (made when missing)")
     return path
@@ -892,15 +755,14 @@ def _run_options(folder: Any, name: str, workers: Any, client: Any) -> str | Non
 
 @contextlib.contextmanager
 def _output_folder(out_dir: str | None) -> Iterator[None]:
-    """Create the output folder (checked writable); removed again, if empty, on a failure.
+    """Create the output folder, refused at once when it cannot be written.
 
-    A read-only folder is refused before any work (it was found by the first target's write,
-    after the source's eigensolve, and the summary could not be written either).
+    Removed again, if empty, when the run fails (a refusal or an interrupt included).
     """
     if out_dir is None:
         yield
         return
-    with output_folder(out_dir):  # removed again if the run fails before writing anything
+    with output_folder(out_dir):
         if not os.access(out_dir, os.W_OK | os.X_OK):
             raise PermissionError(
                 f"{out_dir}: the output folder cannot be written (read-only or no permission); "
@@ -909,33 +771,18 @@ def _output_folder(out_dir: str | None) -> Iterator[None]:
         yield
 
 
-def _spec(i: int, item: Any, name: str, output: str | None, kind: str) -> ShapeSpec | TargetResult:
-    """Return the task input of a target: a geometry is sent as arrays (written back here)."""
-    if isinstance(item, str):
-        return ShapeSpec(i, name, item, None, output)
-    try:
-        arrays = geometry_to_arrays(item)
-    except (TypeError, ValueError) as exc:
-        return failed(ShapeSpec(i, name, None), f"{type(exc).__name__}: {exc}", kind=kind)
-    return ShapeSpec(i, name, None, arrays, None)
-
-
-def _finish_in_memory(r: TargetResult, item: Any, output: str | None, kind: str) -> TargetResult:
+def _finish_in_memory(r: TargetResult, item: Any, kind: str) -> TargetResult:
     """Write the result of a target given as a geometry like that geometry (same kind)."""
-    if isinstance(item, str) or r.status != "ok" or output is None:
+    if isinstance(item, str) or r.status != "ok" or r.output is None:
         return r
     try:
-        if kind == "colors":
-            geometry = like_target(item, colors=r.values)
-        else:
-            geometry = like_target(item, vertices=r.values)
-        write_geometry(output, geometry)
+        values = {"colors" if kind == "colors" else "vertices": r.values}
+        write_geometry(r.output, like_target(item, **values))
     except Exception as exc:  # a target's failure is its record, never the run's
-        logger.warning("%s: failed to write %s: %s: %s", r.name, output, type(exc).__name__, exc)
-        return dataclasses.replace(
-            r, status="failed", error=f"{type(exc).__name__}: {exc}", values=None
-        )
-    return dataclasses.replace(r, output=output, values=None)
+        error = f"{type(exc).__name__}: {exc}"
+        logger.warning("%s: failed to write %s: %s", r.name, r.output, error)
+        return dataclasses.replace(r, status="failed", error=error, output=None, values=None)
+    return dataclasses.replace(r, values=None)
 
 
 def bases_many(
@@ -983,27 +830,18 @@ def bases_many(
         One record per shape (``kind="basis"``, ``output`` the basis file, ``skipped`` when
         everything was already cached, ``failed`` with the message otherwise).
     """
-    for name, value in (("k", k), ("order", order), ("eigenbasis_k", eigenbasis_k)):
-        if value is not None:
-            check_int(value, name=name, minimum=1)
-    check_choice(components, "components", COMPONENTS)
-    resolve_tol(tol, preset)
     items = _items(paths, "paths")
-    folder = _run_options(cache_dir, "cache_dir", workers, client)
-    assert folder is not None
-    os.makedirs(folder, exist_ok=True)
+    _check_workers(workers, client)
+    folder = str(_folder(cache_dir, "cache_dir", required=True))
     job = BasisJob(
         cache_dir=folder, k=k, order=order, tol=tol, preset=preset if tol is None else None,
         components=components, eigenbasis_k=eigenbasis_k,
     )  # fmt: skip
-    names, _ = _outputs(items, None, "basis")
-    specs = [_spec(i, item, names[i], None, "basis") for i, item in enumerate(items)]
-    records = {s.index: s for s in specs if isinstance(s, TargetResult)}
-    ready = [s for s in specs if isinstance(s, ShapeSpec)]
-    for r in _run(
-        basis_task, job, ready, kind="basis", client=client, workers=workers, progress=progress
-    ):
-        records[r.index] = r
+    os.makedirs(folder, exist_ok=True)
+    specs, records = _specs(items, None, "basis")
+    run = {"client": client, "workers": workers, "progress": progress}
+    _run(basis_task, job, specs, kind="basis", on_record=lambda r: records.update({r.index: r}),
+         **run)  # fmt: skip
     results = [records[i] for i in range(len(items))]
     logger.info("bases_many: %s", dict(Counter(r.status for r in results)))
     return results

@@ -39,10 +39,10 @@ class TargetResult:
         The input file, or ``None`` for a geometry.
     status : {"ok", "failed", "skipped"}
         Done; failed (``error`` says why; the other shapes went on); or skipped (the output
-        was newer than both inputs, or for bases: every cache entry was already there). A
-        skipped transfer keeps what was found when its output was made (``coverage``,
-        ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded in the output
-        folder (outputs made by versions before this record have none).
+        was newer than both inputs and made with the same options, or for bases: every cache
+        entry was already there). A skipped transfer keeps what was found when its output was
+        made (``coverage``, ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded
+        in the output folder (an output of a folder without that record has none).
     output : str or None
         The file written (the transferred target, or the cached basis for
         :func:`~o3d_ofp.collections.bases_many`); ``None`` when nothing was written.
@@ -104,14 +104,10 @@ class TargetResult:
 
     def row(self) -> dict[str, Any]:
         """Return the summary row: every field but ``values`` (NaN coverage as ``None``)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        del out["values"]
-        if isinstance(out["coverage"], float) and math.isnan(out["coverage"]):
-            out["coverage"] = None
-        out["seconds"] = round(float(out["seconds"]), 3)
-        out["warnings"] = list(out["warnings"])
-        out["notes"] = list(out["notes"])
-        return out
+        out = {name: getattr(self, name) for name in SUMMARY_FIELDS}
+        nan = isinstance(self.coverage, float) and math.isnan(self.coverage)
+        out.update(coverage=None if nan else self.coverage, seconds=round(float(self.seconds), 3))
+        return {**out, "warnings": list(self.warnings), "notes": list(self.notes)}
 
 
 #: Columns of summary.csv (and keys of every summary.json row), in order.
@@ -148,16 +144,11 @@ def write_summary(
     writer = csv.DictWriter(buf, fieldnames=SUMMARY_FIELDS, lineterminator="\n")
     writer.writeheader()
     for r in rows:
-        cells = {k: "" if v is None else v for k, v in r.items()}
-        cells["warnings"] = " | ".join(r["warnings"])
-        cells["notes"] = " | ".join(r["notes"])
-        writer.writerow(cells)
-    csv_path = os.path.join(folder, "summary.csv")
-    json_path = os.path.join(folder, "summary.json")
-    for path, text in (
-        (csv_path, buf.getvalue()),
-        (json_path, json.dumps({"counts": counts, "results": rows}, indent=1) + "\n"),
-    ):
+        joined = {k: " | ".join(r[k]) for k in ("warnings", "notes")}
+        writer.writerow({**{k: "" if v is None else v for k, v in r.items()}, **joined})
+    csv_path, json_path = (os.path.join(folder, f"summary.{ext}") for ext in ("csv", "json"))
+    summary = json.dumps({"counts": counts, "results": rows}, indent=1) + "\n"
+    for path, text in ((csv_path, buf.getvalue()), (json_path, summary)):
         with atomic_path(path, suffix=".tmp") as tmp, open(tmp, "w", encoding="utf-8") as fh:
             fh.write(text)
     logger.info("summary of %d shapes (%s) in %s", len(rows), counts, folder)

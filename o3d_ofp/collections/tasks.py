@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
+import os
 import time
 import warnings
 from typing import Any
@@ -23,16 +23,28 @@ from ..boundary.bake import has_uvs, transfer_texture
 from ..boundary.convert import geometry_to_arrays, like_target
 from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import MeshTexture, VertexColorSurface, without_texture
+from ..core._validation import check_int
 from ..core._warnings import OFPWarning, collected_warnings, warn
 from ..core.basis import OFPBasis
+from ..core.orthogonalize import resolve_tol
 from ..core.spectrum import EigenBasis
-from ..core.wording import AdvisedError, Said
+from ..core.texture import MAX_TEXTURE_SIZE
+from ..core.wording import AdvisedError, OptionError, Said
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
 from ..workflows.dense import CoarseShape
 from ..workflows.maps import Correspondence
-from ..workflows.options import ESTIMATION_K, BasisOptions, DetailOptions, MatchOptions, required_k
+from ..workflows.options import (
+    COMPONENTS,
+    ESTIMATION_K,
+    BasisOptions,
+    DetailOptions,
+    MatchOptions,
+    check_bool,
+    check_choice,
+    required_k,
+)
 from ..workflows.pipeline import carry
-from ..workflows.plan import plan_pair, prepare
+from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from .results import TargetResult
 
 __all__ = [
@@ -43,15 +55,17 @@ __all__ = [
     "basis_task",
     "failed",
     "transfer_task",
-    "worker_name",
 ]
 
 logger = logging.getLogger(__name__)
 
+#: What a collection transfers.
+KINDS = ("colors", "texture", "detail")
+
 
 @dataclasses.dataclass(frozen=True)
 class TransferJob:
-    """Options of a collection transfer (validated where the engine builds it).
+    """Options of a collection transfer, each checked here (as the options objects check theirs).
 
     Attributes
     ----------
@@ -63,10 +77,10 @@ class TransferJob:
         How each target's map is made: estimated (descriptors, ZoomOut), or the identity
         (targets with the source's vertices, e.g. registrations of one template).
     bases : BasisOptions or None
-        The OFP bases, when the caller set them (None: the task's defaults).
+        The OFP bases, when the caller set them (None: the planner's defaults).
     detail : DetailOptions
         Detail transfer (kind "detail").
-    components : str
+    components : {"auto", "largest", "error"}
         Connected-component policy of the eigenbases.
     strict : bool
         A suspect map fails the target (nothing written).
@@ -78,7 +92,7 @@ class TransferJob:
     atlas : bool
         Kind "texture": a mesh target without UVs gets a new UV atlas to bake into.
     texture : str or None
-        The source's texture image (absolute path), for a source read without its own.
+        The source's texture image (made an absolute path), for a source read without its own.
     cache_dir : str or None
         Eigenbasis / basis cache folder.
     """
@@ -94,25 +108,42 @@ class TransferJob:
     atlas: bool = False
     texture: str | None = None
     cache_dir: str | None = None
+    #: How each target's map is estimated (made of ``components``, which it checks).
+    match: MatchOptions = dataclasses.field(init=False, repr=False, compare=False)
 
-    @property
-    def match(self) -> MatchOptions:
-        """How each target's map is estimated."""
-        return MatchOptions(components=self.components)
+    def __post_init__(self) -> None:
+        check_choice(self.kind, "kind", KINDS)
+        check_choice(self.map, "map", ("estimate", "identity"))
+        object.__setattr__(self, "match", MatchOptions(components=self.components))
+        check_choice(self.signal, "signal", ("auto", "colors", "texture"))
+        check_bool(self.strict, "strict")
+        check_bool(self.atlas, "atlas")
+        check_int(self.texture_size, name="texture_size", minimum=1, maximum=MAX_TEXTURE_SIZE)
+        if self.kind == "texture" and self.signal == "colors":
+            raise OptionError("signal", "'colors' does not apply to kind='texture' (a bake)")
+        if self.texture is None:
+            return
+        if not isinstance(self.texture, (str, os.PathLike)):
+            raise OptionError("texture", f"must be an image file path; got {self.texture!r}")
+        if self.kind == "detail" or self.signal == "colors":
+            raise OptionError(
+                "texture", "(the source's texture image) applies to its colors or bake"
+            )
+        object.__setattr__(self, "texture", os.path.abspath(os.fspath(self.texture)))
+        if not os.path.isfile(self.texture):
+            raise FileNotFoundError(f"texture {self.texture}: no such image file")
 
     def task(self, target: Any = None, *, mesh: bool = True) -> str:
         """Return the planner's task for a target (None: the source's side, any target)."""
         if self.kind == "detail":
             return "detail"
         bake = self.kind == "texture" and target is not None and not isinstance(target, tuple)
-        if bake and (has_uvs(target) or (self.atlas and mesh)):
-            return "texture"
-        return "colors"
+        return "texture" if bake and (has_uvs(target) or (self.atlas and mesh)) else "colors"
 
 
 @dataclasses.dataclass(frozen=True)
 class BasisJob:
-    """Options of :func:`~o3d_ofp.collections.bases_many` (validated by the engine)."""
+    """Options of :func:`~o3d_ofp.collections.bases_many`, checked here."""
 
     cache_dir: str
     k: int = 29
@@ -121,6 +152,13 @@ class BasisJob:
     preset: str | None = "ours"
     components: str = "auto"
     eigenbasis_k: int | None = ESTIMATION_K
+
+    def __post_init__(self) -> None:
+        for name in ("k", "order", "eigenbasis_k"):
+            if getattr(self, name) is not None:
+                check_int(getattr(self, name), name=name, minimum=1)
+        check_choice(self.components, "components", COMPONENTS)
+        resolve_tol(self.tol, self.preset)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -136,10 +174,9 @@ class SharedSource:
     faces : (m1, 3) ndarray of int64 or None
         Source triangles.
     eig : EigenBasis
-        Source eigenbasis, as the source's plan sizes it (the estimation's ~100, or the
-        transfer's own on the dense path).
+        Source eigenbasis, as the source's plan sizes it.
     basis : OFPBasis or None
-        Source OFP basis (kinds "colors" and "texture").
+        Source OFP basis (when the plan has one).
     signal : (n1, 3) ndarray or None
         Source vertex colors (kinds "colors" and "texture").
     job : TransferJob
@@ -147,8 +184,7 @@ class SharedSource:
     texture : MeshTexture, VertexColorSurface or None
         The source's UVs and images, or its vertex colors (kind "texture").
     coarse : CoarseShape or None
-        The source's coarse copy and its eigenbasis, for a source on the dense path: reduced
-        once, not per target.
+        The source's coarse copy and its eigenbasis, for a source on the dense path.
     """
 
     name: str
@@ -177,7 +213,8 @@ class ShapeSpec:
     arrays : ((n, 3) ndarray, (m, 3) ndarray or None) or None
         Vertices and faces of a geometry given in memory.
     output : str or None
-        Where the worker writes the result (``None``: return the values instead).
+        Where the result goes: written by the worker for a file, by the caller for a geometry
+        (the worker returns the values; ``None``: nothing is written).
     """
 
     index: int
@@ -197,46 +234,23 @@ def worker_name() -> str:
         return "local"
 
 
-def failed(
-    spec: ShapeSpec, error: str, *, kind: str, seconds: float = 0.0, **extra: Any
-) -> TargetResult:
-    """Return a failed record for ``spec`` with the message ``error``."""
-    return TargetResult(
-        index=spec.index,
-        name=spec.name,
-        path=spec.path,
-        status="failed",
-        seconds=seconds,
-        error=error,
-        kind=kind,
-        **extra,
-    )
+def failed(spec: ShapeSpec, exc: BaseException | str, *, kind: str, **found: Any) -> TargetResult:
+    """Return the failed record of ``spec``: the exception's type and message, or ``exc``."""
+    error = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    return TargetResult(spec.index, spec.name, spec.path, "failed", error=error, kind=kind, **found)
 
 
 def _read(spec: ShapeSpec) -> tuple[Any, np.ndarray, np.ndarray | None]:
     """(geometry or (V, F) tuple, vertices, faces) of a shape."""
     if spec.path is not None:
         geometry = read_geometry(spec.path)
-        V, F = geometry_to_arrays(geometry)
-        return geometry, V, F
+        return (geometry, *geometry_to_arrays(geometry))
     assert spec.arrays is not None
-    V, F = spec.arrays
-    return (V, F), V, F
+    return (spec.arrays, *spec.arrays)
 
 
-def _identity(source: SharedSource, n2: int) -> Correspondence:
-    """Return the identity map (``map="identity"``): the target has the source's vertices."""
-    n1 = source.vertices.shape[0]
-    if n1 != n2:
-        raise AdvisedError(Said(
-            "the identity map ({identity}) needs a target with the source's {n1} vertices; it "
-            "has {n2}", {"n1": n1, "n2": n2}, "identity_size",
-        ))  # fmt: skip
-    return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
-
-
-#: Appended to a suspect map's fix in a collection, which takes no landmarks ({command} and
-#: {function}: the command and the Python function of the collection's kind).
+#: Appended to a message whose fix is landmarks, which a collection does not take ({command}
+#: and {function}: the command and the Python function of the collection's kind).
 ALONE_WITH_LANDMARKS = (
     "a collection takes no landmarks: transfer this target alone (o3d-ofp {command} SOURCE "
     "TARGET --landmarks ..., or ofp.match(source, target, landmarks=...), then "
@@ -249,222 +263,173 @@ ALONE_PARTIAL = (
 )
 #: The findings whose fix is a partial match (not the "likely causes" that name it among
 #: others).
-_PARTIAL_FIXES = ("looks_partial", "looks_partial_units", "cloud_part", "part_larger")
+_PARTIAL_FIXES = {"looks_partial", "looks_partial_units", "cloud_part", "part_larger"}
+
+
+def _codes(message: Said) -> set[str]:
+    """Return the codes of a message and of the messages in it."""
+    inner = (_codes(v) for v in message.values.values() if isinstance(v, Said))
+    return {message.code}.union(*inner)
 
 
 def _for_collections(message: str | Said, kind: str = "colors") -> str:
-    """Return a library message's words, with the fix a collection cannot apply: run it alone.
+    """Word a library message, with the fix a collection cannot apply: the target run alone.
 
-    The fixes are read from the message's codes (a landmarks fix, a partial match), never from
-    its words; ``kind`` names the collection's command and Python function.
+    The fixes are read from the message's codes (landmarks, a partial match), never from its
+    words; ``kind`` names the collection's command and Python function.
     """
-    command, function = ("detail", "transfer_detail") if kind == "detail" else (
-        "transfer", "transfer_texture" if kind == "texture" else "transfer_colors"
-    )  # fmt: skip
     if not isinstance(message, Said):
         return message
+    command = "detail" if kind == "detail" else "transfer"
+    function = f"transfer_{kind if kind in ('detail', 'texture') else 'colors'}"
     text = message.text()
     if {"landmarks", "landmarks_check"} & set(message.fixes):
         text += f" ({ALONE_WITH_LANDMARKS.format(command=command, function=function)})"
-    codes = {message.code} | {getattr(v, "code", "") for v in message.values.values()}
-    if codes & set(_PARTIAL_FIXES):
+    if _codes(message) & _PARTIAL_FIXES:
         text += f" ({ALONE_PARTIAL.format(command=command)})"
     return text
 
 
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
-    """Run :func:`_transfer_task`; what the library said of the target is kept in its record.
+    """Transfer the source onto one target; what the library said of it is kept in its record.
 
-    The warnings (a suspect map with its reasons and fix, ...) issued in this thread are
-    collected (:func:`~o3d_ofp.core._warnings.collected_warnings`: thread-safe, whatever the
-    logging levels, e.g. ``-q``). On a Dask worker the OFPWarnings themselves are silenced:
-    the process would print them away from the run's log and summary; the caller logs each
-    record's warnings with the target's name.
+    The warnings issued in this thread are collected
+    (:func:`~o3d_ofp.core._warnings.collected_warnings`: thread-safe, whatever the logging
+    levels). On a Dask worker the OFPWarnings themselves are silenced (the worker process
+    would print them away from the run's log); the caller logs each record's warnings with
+    the target's name.
     """
     if worker_name() != "local":
-        _silence_warnings_on_this_worker()
+        warnings.filterwarnings("ignore", category=OFPWarning)
     with collected_warnings() as said:
         result = _transfer_task(source, spec)
     messages = tuple(dict.fromkeys(_for_collections(m, source.job.kind) for m in said))
     return dataclasses.replace(result, warnings=messages) if messages else result
 
 
-_SILENCED = False
-
-
-def _silence_warnings_on_this_worker() -> None:
-    global _SILENCED
-    if not _SILENCED:
-        warnings.filterwarnings("ignore", category=OFPWarning)
-        _SILENCED = True
-
-
-#: Appended to a message whose fix is a partial match, which a collection does not make.
-ALONE_PARTIAL = (
-    "a collection makes no partial match: transfer this target alone (o3d-ofp {command} "
-    "SOURCE TARGET --partial, or ofp.match(source, target, partial=True))"
-)
-
-
-def _for_collections(message: str, kind: str = "colors") -> str:
-    """Add to a library message the fix a collection cannot apply: the target run alone.
-
-    ``kind``: the collection's (its command and Python function are named: a trial's detail
-    run was told to re-run the target with ``o3d-ofp transfer``).
-    """
-    command, function = ("detail", "transfer_detail") if kind == "detail" else (
-        "transfer", "transfer_texture" if kind == "texture" else "transfer_colors"
-    )  # fmt: skip
-    if "landmarks" in message:
-        alone = ALONE_WITH_LANDMARKS.format(command=command, function=function)
-        message = f"{message} ({alone})"
-    # The fixes that use it (a part, a part in other units, a cloud that may be a part); not
-    # the "likely causes" line, which names it among others.
-    if any(f in message for f in ("fix: partial=True", "then partial=True", "with partial=True")):
-        message = f"{message} ({ALONE_PARTIAL.format(command=command)})"
-    return message
-
-
-_SILENCED = False
-
-
-def _silence_warnings_on_this_worker() -> None:
-    global _SILENCED
-    if not _SILENCED:
-        warnings.filterwarnings("ignore", category=OFPWarning)
-        _SILENCED = True
-
-
 def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
-    """Transfer the source's colors or detail onto one target; never raises for the target."""
-    job = source.job
-    t0 = time.perf_counter()
-    n2, cached, coverage, suspect = 0, False, math.nan, None
-    notes: tuple[str, ...] = ()
-    made = job.kind
+    """Map the source onto one target and transfer; never raises for the target."""
+    job, t0 = source.job, time.perf_counter()
+    found: dict[str, Any] = {}
     try:
         target, V2, F2 = _read(spec)
-        n2 = V2.shape[0]
-        V1, F1 = source.vertices, source.faces
-        given = _identity(source, n2) if job.map == "identity" else None
+        found["n_vertices"] = V2.shape[0]
         task = job.task(target, mesh=spec.arrays is None and F2 is not None)
-        plan = plan_pair(
-            V1, F1, V2, F2, task=task, match=job.match, given=given, detail=job.detail,
-            bases=None if task == "texture" else job.bases,  # (checked by the source's plan)
-        )  # fmt: skip
-        prepared = prepare(
-            plan, V1, F1, V2, F2, match=job.match, given=given, eigenbases=(source.eig, None),
-            bases=(source.basis, None), cache_dir=job.cache_dir, coarse_source=source.coarse,
-        )  # fmt: skip
-        corr, cached = prepared.correspondence, prepared.cached[1]
-        if corr.quality is not None:
-            coverage, suspect = corr.quality.coverage, corr.quality.suspect
-            notes = tuple(_for_collections(n, job.kind) for n in corr.quality.notes)
-        else:
-            coverage, suspect = np.unique(corr.p2p_21).size / corr.n_source, False
-        if suspect and job.strict:
+        plan, prepared = _prepared(source, V2, F2, task)
+        corr = prepared.correspondence
+        found.update(cached=prepared.cached[1], **_verdict(corr, job.kind))
+        if job.strict and found["suspect"]:
             reasons = "; ".join(_for_collections(r, job.kind) for r in corr.quality.reasons)
             raise ValueError(f"suspect map (strict): {reasons}")
-        values, result = None, None
-        if task == "texture":
-            assert source.texture is not None
-            result = transfer_texture(
-                source.texture, target, correspondence=corr, size=job.texture_size,
-                atlas=job.atlas,
-            )  # fmt: skip
-        elif task == "colors":
-            made = "colors"  # a target without UVs (and no atlas): its vertices get the colors
-            values = np.clip(carry(source.signal, plan, prepared), 0.0, 1.0)
-        else:
-            result = transfer_detail(
-                (V1, F1), target, correspondence=corr, mode=job.detail.mode,
-                band=job.detail.band, amount=job.detail.amount, options=job.bases,
-                bases=(prepared.eig_1, prepared.eig_2) if prepared.bases is None
-                else prepared.bases,
-            )  # fmt: skip
-            values = geometry_to_arrays(result)[0]
-        if spec.output is None and result is not None and values is None:
-            raise ValueError("a baked texture needs an output folder (output_dir)")
-        if spec.output is not None:
-            if result is None or task == "detail":
-                geometry = like_target(target, colors=values) if task == "colors" else result
-                result = without_texture(geometry)
-                if result is not geometry:
-                    warn(logger, Said(
-                        "{name}: its texture image is not written: the colors replace it on its "
-                        "vertices ({texture_size} bakes them into its UV layout)",
-                        {"name": spec.name}, "texture_dropped",
-                    ))  # fmt: skip
-            write_geometry(spec.output, result)
-            values = None
+        values = _transferred(source, spec, target, plan, prepared)
     except Exception as exc:  # a target's failure is its record, never the run's
         logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
-        return failed(
-            spec, f"{type(exc).__name__}: {exc}", kind=job.kind,
-            seconds=time.perf_counter() - t0, n_vertices=n2, cached=cached, worker=worker_name(),
-            notes=notes,
-        )  # fmt: skip
-    return TargetResult(
-        index=spec.index, name=spec.name, path=spec.path, status="ok", output=spec.output,
-        seconds=time.perf_counter() - t0, coverage=float(coverage), suspect=bool(suspect),
-        kind=made, n_vertices=n2, cached=cached, worker=worker_name(), notes=notes,
-        values=values,
+        seconds = time.perf_counter() - t0
+        return failed(spec, exc, kind=job.kind, seconds=seconds, worker=worker_name(), **found)
+    return TargetResult(  # a geometry's output is written by the caller, from the values
+        spec.index, spec.name, spec.path, "ok", output=spec.output, kind=task,
+        seconds=time.perf_counter() - t0, worker=worker_name(), values=values, **found,
     )  # fmt: skip
+
+
+def _prepared(
+    source: SharedSource, V2: np.ndarray, F2: np.ndarray | None, task: str
+) -> tuple[Plan, Prepared]:
+    """Plan the target's job and run the plan with the source's shared bases."""
+    job, V1, F1 = source.job, source.vertices, source.faces
+    given = None
+    if job.map == "identity":
+        n1, n2 = V1.shape[0], V2.shape[0]
+        if n1 != n2:
+            raise AdvisedError(Said(
+                "the identity map ({identity}) needs a target with the source's {n1} vertices; "
+                "it has {n2}", {"n1": n1, "n2": n2}, "identity_size",
+            ))  # fmt: skip
+        given = Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
+    plan = plan_pair(
+        V1, F1, V2, F2, task=task, match=job.match, given=given, detail=job.detail,
+        bases=None if task == "texture" else job.bases, names=(source.name, "the target"),
+    )  # fmt: skip
+    prepared = prepare(
+        plan, V1, F1, V2, F2, match=job.match, given=given, eigenbases=(source.eig, None),
+        bases=(source.basis, None), cache_dir=job.cache_dir, coarse_source=source.coarse,
+    )  # fmt: skip
+    return plan, prepared
+
+
+def _verdict(corr: Correspondence, kind: str) -> dict[str, Any]:
+    """Return the map's coverage, suspect flag and notes (in a collection's words)."""
+    quality = corr.quality
+    if quality is None:  # a given map: judged by nothing but its coverage
+        return {"coverage": np.unique(corr.p2p_21).size / corr.n_source, "suspect": False}
+    notes = tuple(_for_collections(n, kind) for n in quality.notes)
+    return {"coverage": float(quality.coverage), "suspect": bool(quality.suspect), "notes": notes}
+
+
+def _transferred(
+    source: SharedSource, spec: ShapeSpec, target: Any, plan: Plan, prepared: Prepared
+) -> np.ndarray | None:
+    """Transfer onto the target and write it (a file's); else return the values."""
+    job, corr = source.job, prepared.correspondence
+    keep = spec.output is None or spec.arrays is not None  # a geometry's: written by the caller
+    if plan.task == "texture":  # (a texture run has an output folder)
+        assert source.texture is not None
+        result = transfer_texture(
+            source.texture, target, correspondence=corr, size=job.texture_size, atlas=job.atlas
+        )
+    elif plan.task == "detail":
+        result = transfer_detail(
+            (source.vertices, source.faces), target, correspondence=corr, mode=job.detail.mode,
+            band=job.detail.band, amount=job.detail.amount, options=job.bases,
+            bases=prepared.bases or (prepared.eig_1, prepared.eig_2),
+        )  # fmt: skip
+    else:
+        values = np.clip(carry(source.signal, plan, prepared), 0.0, 1.0)
+        if keep:
+            return values
+        colored = like_target(target, colors=values)
+        result = without_texture(colored)
+        if result is not colored:
+            warn(logger, Said(
+                "{name}: its texture image is not written: the colors replace it on its "
+                "vertices ({texture_size} bakes them into its UV layout)",
+                {"name": spec.name}, "texture_dropped",
+            ))  # fmt: skip
+    if keep:
+        return geometry_to_arrays(result)[0]
+    write_geometry(spec.output, result)
+    return None
 
 
 def basis_task(job: BasisJob, spec: ShapeSpec) -> TargetResult:
     """Compute (or find) one shape's cached eigenbasis and OFP basis; never raises for it.
 
-    Parameters
-    ----------
-    job : BasisJob
-        The options and the cache folder.
-    spec : ShapeSpec
-        The shape.
-
-    Returns
-    -------
-    TargetResult
-        ``output`` is the basis' cache file; ``skipped`` when every entry was already cached.
+    ``output`` of the record is the basis' cache file; ``skipped`` when every entry was
+    already cached.
     """
-    t0 = time.perf_counter()
-    n, cached = 0, False
+    t0, n = time.perf_counter(), 0
+    basis = {"k": job.k, "order": job.order, "tol": job.tol, "preset": job.preset}
     try:
         _, V, F = _read(spec)
         n = V.shape[0]
-        eig = None
-        cached = True
+        eig, cached = None, True
         if job.eigenbasis_k is not None:
             eig, cached = fetch_eigenbasis(
                 V, F, k=required_k(n, job.eigenbasis_k), clamp_k=True, cache_dir=job.cache_dir,
                 components=job.components,
             )  # fmt: skip
             if eig.k < job.k:
-                eig = None  # a smaller eigenbasis than the basis needs: fetch_basis solves again
-        _, basis_cached = fetch_basis(
-            V, F, k=job.k, order=job.order, tol=job.tol, preset=job.preset,
-            cache_dir=job.cache_dir, eig=eig, components=job.components,
-        )  # fmt: skip
-        cached = cached and basis_cached
-        output = basis_cache_path(
-            V, F, k=job.k, order=job.order, tol=job.tol, preset=job.preset,
-            cache_dir=job.cache_dir, components=job.components,
-        )  # fmt: skip
+                eig = None  # smaller than the basis needs: fetch_basis solves again
+        cached &= fetch_basis(
+            V, F, **basis, cache_dir=job.cache_dir, eig=eig, components=job.components
+        )[1]
+        output = basis_cache_path(V, F, **basis, cache_dir=job.cache_dir, components=job.components)
     except Exception as exc:  # a shape's failure is its record, never the run's
         logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
-        return failed(
-            spec, f"{type(exc).__name__}: {exc}", kind="basis",
-            seconds=time.perf_counter() - t0, n_vertices=n, worker=worker_name(),
-        )  # fmt: skip
+        seconds = time.perf_counter() - t0
+        return failed(spec, exc, kind="basis", seconds=seconds, n_vertices=n, worker=worker_name())
     return TargetResult(
-        index=spec.index,
-        name=spec.name,
-        path=spec.path,
-        status="skipped" if cached else "ok",
-        output=output,
-        seconds=time.perf_counter() - t0,
-        kind="basis",
-        n_vertices=n,
-        cached=cached,
-        worker=worker_name(),
-    )
+        spec.index, spec.name, spec.path, "skipped" if cached else "ok",
+        output=output, seconds=time.perf_counter() - t0, kind="basis", n_vertices=n,
+        cached=cached, worker=worker_name(),
+    )  # fmt: skip
