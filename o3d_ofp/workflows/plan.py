@@ -28,7 +28,7 @@ from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import AdvisedError, OptionError, Said
 from .cache import fetch_basis, fetch_eigenbasis
-from .dense import DENSE_VERTICES, CoarseShape, coarse_shape
+from .dense import COARSE_VERTICES, DENSE_VERTICES, CoarseShape, coarse_shape
 from .eigenbases import answer_bytes, check_shapes, run_per_shape
 from .estimate import estimate, estimate_dense, strategy_of
 from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
@@ -394,7 +394,10 @@ def prepare_source(
         basis = ahead._basis(0)
     coarse = None
     if plan.dense:  # every mesh target's map is estimated on coarse copies: the source's, once
-        coarse = coarse_shape(V1, F1, k=match.zoomout_to, components=match.components)
+        coarse = coarse_shape(
+            V1, F1, k=match.zoomout_to, coarse_vertices=COARSE_VERTICES,
+            components=match.components,
+        )  # fmt: skip
     assert eigs[0] is not None
     return eigs[0], basis, cached[0], coarse
 
