@@ -27,9 +27,7 @@ from ..core.spectrum import DIGEST_OPTIONS, EigenBasis, eigenbasis, shape_digest
 __all__ = [
     "basis_cache_path",
     "cached_basis",
-    "cached_eigenbasis",
     "default_cache_dir",
-    "eigenbasis_cache_path",
     "fetch_basis",
     "fetch_eigenbasis",
     "load_eigenbasis",
@@ -102,40 +100,6 @@ def _read_cached(path: str, load: Any, digest: str, what: str) -> Any:
         return None
     logger.info("%s loaded from cache %s", what, path)
     return value
-
-
-def eigenbasis_cache_path(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int,
-    clamp_k: bool = False,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> str:
-    """Path of the cached eigenbasis of a shape (it may not exist).
-
-    Parameters
-    ----------
-    vertices : (n, 3) array_like of float
-        Vertex positions.
-    faces : (m, 3) array_like of int, optional
-        Triangles (``None``: a point cloud).
-    k : int
-        Non-constant eigenfunctions asked for.
-    clamp_k : bool, default False
-        As in :func:`o3d_ofp.eigenbasis` (part of the key).
-    cache_dir : str or os.PathLike, optional
-        Cache folder (default :func:`default_cache_dir`).
-    **eig_options
-        Other keyword options of :func:`o3d_ofp.eigenbasis`.
-
-    Returns
-    -------
-    str
-        ``<cache_dir>/eig-<key>.npz``, the key a digest of the shape, ``k`` and the options.
-    """
-    return _eig_entry(vertices, faces, k, clamp_k, cache_dir, eig_options)[0]
 
 
 def save_eigenbasis(eig: EigenBasis, path: str | os.PathLike[str]) -> None:
@@ -233,32 +197,6 @@ def fetch_eigenbasis(
     save_eigenbasis(eig, path)
     logger.info("eigenbasis cached in %s", path)
     return eig, False
-
-
-def cached_eigenbasis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int,
-    clamp_k: bool = False,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> EigenBasis:
-    """Return a shape's eigenbasis from the cache, or compute and cache it.
-
-    Parameters
-    ----------
-    vertices, faces, k, clamp_k, cache_dir, **eig_options
-        As in :func:`fetch_eigenbasis`.
-
-    Returns
-    -------
-    EigenBasis
-        Eigenvalues (k+1,), eigenvectors (n, k+1), on the input's n vertices.
-    """
-    return fetch_eigenbasis(
-        vertices, faces, k=k, clamp_k=clamp_k, cache_dir=cache_dir, **eig_options
-    )[0]
 
 
 def basis_cache_path(

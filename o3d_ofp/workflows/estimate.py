@@ -263,6 +263,7 @@ def estimate_dense(
     options = MatchOptions() if options is None else options
     strategy = strategy_of(options)
     first = COARSE_VERTICES if coarse_vertices is None else coarse_vertices
+    check_int(first, name="coarse_vertices", minimum=200)
     landmarks = options.landmarks_for(len(vertices_1), len(vertices_2))
 
     whole = progress or StageProgress(logger, strategy.title)
@@ -294,154 +295,108 @@ def _match_dense(
     vertices_2: np.ndarray,
     faces_2: np.ndarray,
     *,
-    strategy: Any,
-    options: Any,
-    landmarks: np.ndarray | None = None,
-    coarse_vertices: int = COARSE_VERTICES,
-    progress: Callable[[str, float], None] | None = None,
-    coarse_1: CoarseShape | None = None,
-    quiet: bool = False,
-) -> Any:
+    strategy: Strategy,
+    options: MatchOptions,
+    landmarks: np.ndarray | None,
+    coarse_vertices: int,
+    progress: Callable[[str, float], None] | None,
+    coarse_1: CoarseShape | None,
+    quiet: bool,
+) -> Correspondence:
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
 
-    Parameters
-    ----------
-    vertices_1, faces_1 : (n1, 3) ndarray of float, (m1, 3) ndarray of int
-        Source mesh.
-    vertices_2, faces_2 : (n2, 3) ndarray of float, (m2, 3) ndarray of int
-        Target mesh.
-    strategy : Strategy
-        The estimation's strategy (:mod:`o3d_ofp.workflows.estimate`): its
-        :meth:`~o3d_ofp.workflows.estimate.Strategy.for_coarse` runs between the coarse copies
-        and its :meth:`~o3d_ofp.workflows.estimate.Strategy.extend` carries the map to every
-        vertex.
-    options : MatchOptions
-        The estimation's options; ``zoomout_to`` sizes the coarse eigenbases.
-    landmarks : (p, 2) ndarray of int, optional
-        Known (source, target) pairs in the full meshes' numbering (checked by the caller);
-        carried to the coarse vertices of their cells (pairs that fall on one coarse vertex of
-        a shape are merged, or left out of the coarse estimate when they would pair it with
-        two: a warning and a note of the quality say so).
-    coarse_vertices : int, default :data:`COARSE_VERTICES`
-        Vertices of each coarse mesh (the result has this many ± 10 %; capped by the shape).
-    progress : callable, optional
-        Called as ``progress(stage, fraction_done)``.
-    coarse_1 : CoarseShape, optional
-        The source's coarse copy and eigenbasis (:func:`coarse_shape` with the same sizes): a
-        source matched onto several targets is reduced once.
-    quiet : bool, default False
-        Say nothing of the map (no warning for a suspect map or dropped landmarks): a run that
-        checks another (a second opinion).
+    The strategy's :meth:`~o3d_ofp.workflows.strategy.Strategy.for_coarse` runs between coarse
+    copies of about ``coarse_vertices`` vertices (``coarse_1``: the source's, made once for
+    several targets), with eigenbases of ``options.zoomout_to`` functions; ``landmarks`` (in the
+    full meshes' numbering) go to the coarse vertices of their cells (pairs that fall on one
+    coarse vertex are merged, or left out when they would pair it twice: a note, and a warning
+    unless ``quiet``, which also silences a suspect map: a run that checks another). Its
+    :meth:`~o3d_ofp.workflows.strategy.Strategy.extend` carries the map to every vertex.
 
     Returns
     -------
     Correspondence
-        ``p2p_21`` (n2,) between the full meshes; ``fmap_12`` is ``None`` (the estimated map
-        lives between the coarse bases, not the full ones); ``options`` record the coarse
-        sizes; ``quality`` is the coarse map's report with the coverage measured on the full
-        point map.
+        ``p2p_21`` (n2,) between the full meshes; ``fmap_12`` is ``None`` (the map lives
+        between the coarse bases); ``options`` record the coarse sizes; ``quality`` is the
+        coarse map's report with the coverage measured on the full point map.
     """
     V1 = np.ascontiguousarray(vertices_1, dtype=np.float64)
     V2 = np.ascontiguousarray(vertices_2, dtype=np.float64)
-    coarse_vertices = check_int(coarse_vertices, name="coarse_vertices", minimum=200)
-    k = options.zoomout_to
     n1, n2 = V1.shape[0], V2.shape[0]
-    if coarse_1 is not None and coarse_1.cell.shape[0] != n1:
-        raise ValueError(
-            f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; the source "
-            f"has {n1}"
-        )
-    # A shape the coarse copies' eigensolves would refuse is refused before either is built.
-    check_shapes(
-        [(V1, faces_1), (V2, faces_2)][0 if coarse_1 is None else 1 :],
-        names=("the source", "the target")[0 if coarse_1 is None else 1 :],
-        components=options.components,
-    )
     report = progress or StageProgress(logger, "match (dense)")
 
-    def share(done: float) -> str:  # a caller's progress gives its own shares
-        return f" ({round(100 * done)}%)" if progress is None else ""
+    def say(what: str, done: float, *args: Any) -> None:  # a caller's progress: its own shares
+        logger.info("match (dense): " + what + ("" if progress else f" ({round(100 * done)}%)"),
+                    *args)  # fmt: skip
 
     t0 = time.perf_counter()
-    coarse = functools.partial(
-        coarse_shape, k=k, coarse_vertices=coarse_vertices, components=options.components
+    c1, c2 = _coarse_copies(
+        (V1, faces_1), (V2, faces_2), coarse_1, coarse_vertices, options, say, report
     )
-    c1 = coarse_1
-    if c1 is None:
-        logger.info(
-            "match (dense): coarse copies (~%d vertices) of both shapes and their eigenbases%s",
-            coarse_vertices,
-            share(0.0),
-        )
-        report("coarse copies", 0.0)
-        c1, c2 = run_per_shape(
-            [functools.partial(coarse, V1, faces_1), functools.partial(coarse, V2, faces_2)],
-            [n1, n2],
-            [eigenbasis_bytes(min(n, coarse_vertices), k) for n in (n1, n2)],
-            what="coarse copies",
-        )
-    else:
-        logger.info(
-            "match (dense): the source's coarse copy is given; coarse copy of the target "
-            "(~%d vertices) and its eigenbasis%s",
-            coarse_vertices,
-            share(0.0),
-        )
-        report("coarse target", 0.0)
-        c2 = coarse(V2, faces_2)
     lm_coarse, left_out = None, None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
         lm_coarse, left_out = coarse_landmarks(landmarks, c1, c2)
         if left_out is not None and not quiet:
             warn(logger, left_out)
-    logger.info(
-        "match (dense): estimation between the coarse meshes (%.1fs)%s",
-        time.perf_counter() - t0,
-        share(0.15),
-    )
-
-    def coarse_progress(stage: str, done: float) -> None:
-        report(f"coarse {stage}", 0.15 + 0.65 * done)
-
+    say("estimation between the coarse meshes (%.1fs)", 0.15, time.perf_counter() - t0)
     corr = estimate(
         c1.eig, c2.eig, options=dataclasses.replace(options, landmarks=lm_coarse),
-        strategy=strategy.for_coarse(), progress=coarse_progress, warn_suspect=not quiet,
+        strategy=strategy.for_coarse(), warn_suspect=not quiet,
+        progress=lambda stage, done: report(f"coarse {stage}", 0.15 + 0.65 * done),
     )  # fmt: skip
-    logger.info(
-        "match (dense): extension to %d target vertices (%.1fs)%s",
-        n2,
-        time.perf_counter() - t0,
-        share(0.8),
-    )
+    say("extension to %d target vertices (%.1fs)", 0.8, n2, time.perf_counter() - t0)
     report("extension", 0.8)
     p2p, corr = strategy.extend(corr, c1, c2, V1, V2)
     hit = np.unique(p2p).size
     quality = corr.quality
     if quality is not None:
         quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
-        if left_out is not None:
-            quality = quality.noted(left_out)
+        quality = quality if left_out is None else quality.noted(left_out)
         # The report logged above is the coarse map's; the result's coverage is the full one.
         logger.info(
             "match (dense): the quality above is the coarse meshes'; at full resolution the "
             "map hits %d source vertices: coverage %.3f of the source's vertices (%.2f of the "
-            "smaller shape's count)",
-            hit,
-            quality.coverage,
-            quality.coverage_ratio,
-        )
-    logger.info("match (dense): done in %.1fs%s", time.perf_counter() - t0, share(1.0))
+            "smaller shape's count)", hit, quality.coverage, quality.coverage_ratio,
+        )  # fmt: skip
+    say("done in %.1fs", 1.0, time.perf_counter() - t0)
     report("done", 1.0)
+    sizes = [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])]
     return dataclasses.replace(
-        corr,
-        p2p_21=p2p,
-        n_source=n1,
-        fmap_12=None,
-        options={
-            **corr.options,
-            "landmarks": None if landmarks is None else landmarks.tolist(),
-            "dense": True,
-            "coarse_vertices": [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])],
-        },
-        quality=quality,
+        corr, p2p_21=p2p, n_source=n1, fmap_12=None, quality=quality,
+        options={**corr.options, "landmarks": None if landmarks is None else landmarks.tolist(),
+                 "dense": True, "coarse_vertices": sizes},
+    )  # fmt: skip
+
+
+def _coarse_copies(
+    source: tuple[np.ndarray, np.ndarray],
+    target: tuple[np.ndarray, np.ndarray],
+    coarse_1: CoarseShape | None,
+    size: int,
+    options: MatchOptions,
+    say: Callable[..., None],
+    report: Callable[[str, float], None],
+) -> tuple[CoarseShape, CoarseShape]:
+    """Return the coarse copies of both shapes (side by side), or the target's beside one given.
+
+    A shape their eigensolves would refuse is refused before either is built.
+    """
+    shapes = [source, target][0 if coarse_1 is None else 1 :]
+    check_shapes(shapes, names=("the source", "the target")[2 - len(shapes) :],
+                 components=options.components)  # fmt: skip
+    coarse = functools.partial(
+        coarse_shape, k=options.zoomout_to, coarse_vertices=size, components=options.components
     )
+    if coarse_1 is not None:
+        say("the source's coarse copy is given; coarse copy of the target (~%d vertices) and "
+            "its eigenbasis", 0.0, size)  # fmt: skip
+        report("coarse target", 0.0)
+        return coarse_1, coarse(*target)
+    say("coarse copies (~%d vertices) of both shapes and their eigenbases", 0.0, size)
+    report("coarse copies", 0.0)
+    n = [len(source[0]), len(target[0])]
+    c1, c2 = run_per_shape(
+        [functools.partial(coarse, *source), functools.partial(coarse, *target)], n,
+        [eigenbasis_bytes(min(m, size), options.zoomout_to) for m in n], what="coarse copies",
+    )  # fmt: skip
+    return c1, c2

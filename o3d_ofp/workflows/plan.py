@@ -167,17 +167,7 @@ def plan_pair(
         raise OptionError("via_basis", f"must be True, False or None; got {via_basis!r}")
     n1, n2 = V1.shape[0], None if V2 is None else V2.shape[0]
     meshes = F1 is not None and (V2 is None or F2 is not None)
-    estimator = _estimator(match, given)
-    if estimator == "partial" and not meshes:
-        side = names[0] if F1 is None else names[1]
-        raise OptionError(
-            "partial", f"=True needs triangle meshes: {side} is a point cloud (no faces); mesh "
-            "it first or match without partial=True",
-        )  # fmt: skip
-    if estimator == "partial" and V2 is not None:
-        check_partial_areas(V1, F1, V2, F2, names=names)
-    if estimator in ("full", "partial") and n2 is not None:
-        match.landmarks_for(n1, n2)
+    estimator = _estimator(match, given, (V1, F1, V2, F2), names)
     dense = estimator in ("full", "partial") and meshes and max(n1, n2 or 0) > DENSE_VERTICES
     closest = estimator == "closest" or (given is not None and given.method == "closest")
     exact = task in ("texture", "map") or (
@@ -187,25 +177,7 @@ def plan_pair(
     if explicit and not with_bases:
         why = _no_bases(task, detail, closest)
         raise OptionError("options", f"(the OFP bases' sizes and threshold) does not apply: {why}")
-    # What the task itself needs of each eigenbasis.
-    if with_bases:
-        own = (bases.k1, bases.k2)
-        need = [b.k if b is not None else k for b, k in zip(given_bases, own, strict=True)]
-        what = ["" if b is not None else f"k{i + 1}" for i, b in enumerate(given_bases)]
-    elif task == "detail":
-        need = [max(detail.band, ROTATION_K)] * 2
-        what = ["band"] * 2
-    else:
-        need, what = [0, 0], ["", ""]
-    if given is not None and given.fmap_12 is not None and bases.matrix == "analytic":
-        rows, cols = given.fmap_12.shape
-        need = [max(need[0], cols - 1), max(need[1], rows - 1)]
-    for side, (n, k, name) in enumerate(zip((n1, n2), need, what, strict=True)):
-        if n is not None and name and k > max(1, n - 2):
-            raise OptionError(
-                name, f"({k}): {names[side]} has {n} vertices, too few for {k} eigenfunctions "
-                f"(at most {max(1, n - 2)}); lower {name}",
-            )  # fmt: skip
+    need = _task_needs(task, (n1, n2), bases, detail, given, given_bases, with_bases, names)
     no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
     if bases.matrix == "analytic" and with_bases and no_fmap:
         raise OptionError(
@@ -234,10 +206,26 @@ def plan_pair(
     )
 
 
-def _estimator(match: MatchOptions, given: Correspondence | None) -> str:
-    """How the map is made: given, closest points, a full or a partial estimate."""
+def _estimator(
+    match: MatchOptions, given: Correspondence | None, shapes: tuple[Any, ...], names: Any
+) -> str:
+    """How the map is made: given, closest points, a full or a partial estimate (checked)."""
+    V1, F1, V2, F2 = shapes
     if given is None:
-        return "closest" if match.method == "closest" else "partial" if match.partial else "full"
+        if match.method == "closest":
+            return "closest"
+        if V2 is not None:
+            match.landmarks_for(V1.shape[0], V2.shape[0])
+        if not match.partial:
+            return "full"
+        if F1 is None or (V2 is not None and F2 is None):
+            raise OptionError(
+                "partial", f"=True needs triangle meshes: {names[F1 is not None]} is a point "
+                "cloud (no faces); mesh it first or match without partial=True",
+            )  # fmt: skip
+        if V2 is not None:
+            check_partial_areas(V1, F1, V2, F2, names=names)
+        return "partial"
     for name, wrong in (("partial", match.partial), ("landmarks", match.landmarks is not None)):
         if wrong:
             raise OptionError(
@@ -245,6 +233,37 @@ def _estimator(match: MatchOptions, given: Correspondence | None) -> str:
                 "from o3d_ofp.match(..., partial=True) is partial already)",
             )  # fmt: skip
     return "given"
+
+
+def _task_needs(
+    task: str,
+    n: tuple[int, int | None],
+    bases: BasisOptions,
+    detail: DetailOptions,
+    given: Correspondence | None,
+    given_bases: Sequence[OFPBasis | None],
+    with_bases: bool,
+    names: tuple[str, str],
+) -> list[int]:
+    """Eigenfunctions the task itself needs on each side, checked against the vertex counts."""
+    if with_bases:
+        own = (bases.k1, bases.k2)
+        need = [b.k if b is not None else k for b, k in zip(given_bases, own, strict=True)]
+        what = ["" if b is not None else f"k{i + 1}" for i, b in enumerate(given_bases)]
+    elif task == "detail":
+        need, what = [max(detail.band, ROTATION_K)] * 2, ["band"] * 2
+    else:
+        need, what = [0, 0], ["", ""]
+    if given is not None and given.fmap_12 is not None and bases.matrix == "analytic":
+        rows, cols = given.fmap_12.shape
+        need = [max(need[0], cols - 1), max(need[1], rows - 1)]
+    for side, (count, k, name) in enumerate(zip(n, need, what, strict=True)):
+        if count is not None and name and k > max(1, count - 2):
+            raise OptionError(
+                name, f"({k}): {names[side]} has {count} vertices, too few for {k} "
+                f"eigenfunctions (at most {max(1, count - 2)}); lower {name}",
+            )  # fmt: skip
+    return need
 
 
 def _no_bases(task: str, detail: DetailOptions, closest: bool) -> str:
