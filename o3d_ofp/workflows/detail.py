@@ -486,49 +486,10 @@ def transfer_detail_frames(
             raise ValueError(f"fit_range must be (lo, hi) with 0 <= lo < hi <= 1; got {fit_range}")
     low_1 = lowpass_coordinates(eig_1, band_1)
     detail_1 = eig_1.vertices - low_1
-    X2 = np.array(eig_2.vertices)
-    # Onto a part of the source (a partial map): the part's eigenfunctions have higher
-    # frequencies than the whole's at the same count, so its low band is the one below the
-    # source's band-th eigenvalue; the source's detail and low-pass area are those of the
-    # region the part covers. Measured with the true maps on the 8 cuts of
-    # scripts/eval_detail.py --only parts (smooth parts): no "already has detail" warning,
-    # where comparing the part above its own first 30 eigenfunctions with the whole source
-    # warned on 3; the result's area 0.77-1.01 of the truth's (0.70-0.98 with the whole's
-    # low-pass area), its distance 0.52-0.71 of doing nothing (0.52-0.70). Cuts of FAUST 093
-    # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08 of the
-    # covered region's detail, like whole bodies (0.96-1.0).
-    # An estimated full-shape map is never taken for a part (its coverage is not measured):
-    # it crowds when it is wrong, and a smoothed whole target has less area than its source.
-    method = correspondence.method
-    region = None if method == "estimate" else _covered(eig_1, eig_2, p2p)
-    covered = 0.0 if region is None else float(eig_1.mass[region].sum())
-    part = region is not None and (
-        method == "partial"
-        or (covered < PART_COVERAGE * eig_1.area and eig_2.area < PART_COVERAGE * eig_1.area)
-    )
-    band_2 = band_1
-    if part:
-        band_2 = _part_band(eig_1, eig_2, band_1, covered / eig_2.area)
-        logger.info(
-            "detail transfer onto a part (%.2f of the source covered): target band %d",
-            covered / eig_1.area,
-            band_2,
-        )
-    else:
-        region = None
-    base = X2 if mode == "add" else lowpass_coordinates(eig_2, band_2)
+    region, band_2 = _onto_part(eig_1, eig_2, correspondence, band_1)
+    base = np.array(eig_2.vertices) if mode == "add" else lowpass_coordinates(eig_2, band_2)
     if mode == "add" and amount > 0:
-        own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
-        theirs = _detail_rms(eig_1, low_1, region=region)
-        on_part = f" (on this part: above its first {band_2} eigenfunctions)" if part else ""
-        if theirs > 0 and own > DETAILED_TARGET * theirs:
-            warn(logger, Said(
-                "the target already has detail above band {band}{on_part} ({share:.3g} of the "
-                "source's, above {bound:g}): mode 'add' keeps it and adds the source's on top, "
-                "which exaggerates it; {replace_detail} replaces it instead",
-                {"band": band_1, "on_part": on_part, "share": own / theirs,
-                 "bound": DETAILED_TARGET}, "detailed_target",
-            ))  # fmt: skip
+        _warn_detailed_target(eig_1, eig_2, low_1, region, band_1, band_2)
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]
     else:
@@ -555,3 +516,60 @@ def transfer_detail_frames(
         scale = math.sqrt(eig_2.area / eig_1.area)
     logger.debug("detail transfer: band %d, scale %.4g, carry %s", band_1, scale, carry)
     return base + (amount * scale) * moved
+
+
+def _onto_part(
+    eig_1: EigenBasis, eig_2: EigenBasis, correspondence: Correspondence, band_1: int
+) -> tuple[np.ndarray | None, int]:
+    """Return the source region a part covers (None: not a part) and the part's own band.
+
+    Onto a part of the source (a partial map), the part's eigenfunctions have higher
+    frequencies than the whole's at the same count, so its low band is the one below the
+    source's band-th eigenvalue; the source's detail and low-pass area are those of the
+    region the part covers.
+    """
+    # Measured with the true maps on the 8 cuts of
+    # scripts/eval_detail.py --only parts (smooth parts): no "already has detail" warning,
+    # where comparing the part above its own first 30 eigenfunctions with the whole source
+    # warned on 3; the result's area 0.77-1.01 of the truth's (0.70-0.98 with the whole's
+    # low-pass area), its distance 0.52-0.71 of doing nothing (0.52-0.70). Cuts of FAUST 093
+    # that kept their detail, or were smoothed a little (smooth 0.02): 0.82-1.08 of the
+    # covered region's detail, like whole bodies (0.96-1.0).
+    # An estimated full-shape map is never taken for a part (its coverage is not measured):
+    # it crowds when it is wrong, and a smoothed whole target has less area than its source.
+    method = correspondence.method
+    p2p = np.asarray(correspondence.p2p_21)
+    region = None if method == "estimate" else _covered(eig_1, eig_2, p2p)
+    covered = 0.0 if region is None else float(eig_1.mass[region].sum())
+    part = region is not None and (
+        method == "partial"
+        or (covered < PART_COVERAGE * eig_1.area and eig_2.area < PART_COVERAGE * eig_1.area)
+    )
+    if not part:
+        return None, band_1
+    band_2 = _part_band(eig_1, eig_2, band_1, covered / eig_2.area)
+    logger.info("detail transfer onto a part (%.2f of the source covered): target band %d",
+                covered / eig_1.area, band_2)  # fmt: skip
+    return region, band_2
+
+
+def _warn_detailed_target(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    low_1: np.ndarray,
+    region: np.ndarray | None,
+    band_1: int,
+    band_2: int,
+) -> None:
+    """Warn (mode "add") when the target already has detail: the source's would go on top."""
+    own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
+    theirs = _detail_rms(eig_1, low_1, region=region)
+    on_part = "" if region is None else f" (on this part: above its first {band_2} eigenfunctions)"
+    if theirs > 0 and own > DETAILED_TARGET * theirs:
+        warn(logger, Said(
+            "the target already has detail above band {band}{on_part} ({share:.3g} of the "
+            "source's, above {bound:g}): mode 'add' keeps it and adds the source's on top, which "
+            "exaggerates it; {replace_detail} replaces it instead",
+            {"band": band_1, "on_part": on_part, "share": own / theirs, "bound": DETAILED_TARGET},
+            "detailed_target",
+        ))  # fmt: skip
