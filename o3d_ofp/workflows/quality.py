@@ -465,34 +465,7 @@ def partial_quality(
             p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
         )
     stretch = map_stretch(p2p_21, eig_1.vertices, eig_2.vertices, eig_2.faces)
-    reasons = []
-    if distortion > MAX_DISTORTION:
-        reasons.append(Said(
-            "the map changes geodesic distances by {percent:.0f} % on average (a part matched "
-            "right keeps them within {bound:.0f} %): a region of the target is sent to the "
-            "wrong place, or the target is not a part of the source",
-            {"percent": 100 * distortion, "bound": 100 * MAX_DISTORTION}, "distorted",
-        ))  # fmt: skip
-    if stretch > MAX_STRETCH:
-        reasons.append(Said(
-            "the map stretches the target's edges {stretch:.2f} times on average (a part matched "
-            "right: at most {bound:.1f}): it tears the target apart where a region is sent to "
-            "the wrong place", {"stretch": stretch, "bound": MAX_STRETCH}, "stretched",
-        ))  # fmt: skip
-    if refinement_turned is not None and refinement_turned > MAX_REVERSED:
-        reasons.append(Said(
-            "refining the map by geodesic distances turned {percent:.0f} % of the triangles "
-            "over, so it was kept unrefined: a right start stays oriented when refined, this "
-            "one is wrong on a large region", {"percent": 100 * refinement_turned},
-            "refinement_turned",
-        ))  # fmt: skip
-    # The restriction map's orthogonality is reported, not judged: right partial maps reach
-    # 0.44 (above MAX_ORTHOGONALITY); wrong ones are flagged by the measures above.
-    if incons > MAX_INCONSISTENCY:
-        reasons.append(Said(
-            "the point map disagrees with the functional map (inconsistency {incons:.2f})",
-            {"incons": incons}, "inconsistent",
-        ))  # fmt: skip
+    reasons = _partial_reasons(distortion, stretch, refinement_turned, incons)
     measured_wrong = bool(reasons)
     small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
     lifted = landmarks and landmarks_spread
@@ -533,6 +506,41 @@ def partial_quality(
         distortion=float(distortion),
         stretch=float(stretch),
     )
+
+
+def _partial_reasons(
+    distortion: float, stretch: float, refinement_turned: float | None, incons: float
+) -> list[Said]:
+    """Return why a partial map is measured wrong (its distortion, stretch, refinement)."""
+    reasons = []
+    if distortion > MAX_DISTORTION:
+        reasons.append(Said(
+            "the map changes geodesic distances by {percent:.0f} % on average (a part matched "
+            "right keeps them within {bound:.0f} %): a region of the target is sent to the "
+            "wrong place, or the target is not a part of the source",
+            {"percent": 100 * distortion, "bound": 100 * MAX_DISTORTION}, "distorted",
+        ))  # fmt: skip
+    if stretch > MAX_STRETCH:
+        reasons.append(Said(
+            "the map stretches the target's edges {stretch:.2f} times on average (a part matched "
+            "right: at most {bound:.1f}): it tears the target apart where a region is sent to "
+            "the wrong place", {"stretch": stretch, "bound": MAX_STRETCH}, "stretched",
+        ))  # fmt: skip
+    if refinement_turned is not None and refinement_turned > MAX_REVERSED:
+        reasons.append(Said(
+            "refining the map by geodesic distances turned {percent:.0f} % of the triangles "
+            "over, so it was kept unrefined: a right start stays oriented when refined, this "
+            "one is wrong on a large region", {"percent": 100 * refinement_turned},
+            "refinement_turned",
+        ))  # fmt: skip
+    # The restriction map's orthogonality is reported, not judged: right partial maps reach
+    # 0.44 (above MAX_ORTHOGONALITY); wrong ones are flagged by the measures above.
+    if incons > MAX_INCONSISTENCY:
+        reasons.append(Said(
+            "the point map disagrees with the functional map (inconsistency {incons:.2f})",
+            {"incons": incons}, "inconsistent",
+        ))  # fmt: skip
+    return reasons
 
 
 def landmarks_advice(given: bool) -> Said:
