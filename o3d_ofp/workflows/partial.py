@@ -748,10 +748,10 @@ def _with_opinions(
         corr = _full_landmarks_kept(corr, V1 / scale)
     if corr.quality.suspect:  # a second opinion would not change it
         return done(corr)
-    second_size = max(200, int(size * SECOND_OPINION_SIZE))
+    sizes = (size, *(max(200, int(size * f)) for f in (SECOND_OPINION_SIZE, THIRD_OPINION_SIZE)))
     logger.info("partial match (dense): second opinion from coarse copies of ~%d vertices",
-                second_size)  # fmt: skip
-    second = again(second_size, (0.55, 0.3), "second opinion: ")
+                sizes[1])  # fmt: skip
+    second = again(sizes[1], (0.55, 0.3), "second opinion: ")
     areas = face_areas_normals(V2, F2)[0]
     weight = np.bincount(np.asarray(F2).ravel(), weights=np.repeat(areas, 3), minlength=len(V2))
 
@@ -760,74 +760,82 @@ def _with_opinions(
         far = np.linalg.norm(V1[a.p2p_21] - V1[b.p2p_21], axis=1) > DISAGREEMENT * scale
         return float(weight @ far / max(weight.sum(), 1e-300))
 
-    def opinion(which: str, n: int, share: float, whose: str = "this map's") -> Said:
-        return Said(
-            "{which} opinion (coarse copies of about {n} vertices): its images are more than "
-            "{apart:g} of the source's size away from {whose} images on {percent:.1f} % of the "
-            "target's area (at most {bound:g} %)",
-            {"which": which, "n": n, "apart": DISAGREEMENT, "whose": whose,
-             "percent": 100 * share, "bound": 100 * MAX_DISAGREEMENT}, "opinion",
-        )  # fmt: skip
-
     disagreement = apart(corr, second)
     logger.info("partial match (dense): the second opinion disagrees on %.1f %% of the target's "
                 "area", 100 * disagreement)  # fmt: skip
     if disagreement <= MAX_DISAGREEMENT:
-        return done(corr, opinion("second", second_size, disagreement))
+        return done(corr, _opinion("second", sizes[1], disagreement))
     # One of the two is wrong on a region: a third match, on smaller copies still, tells which.
-    third_size = max(200, int(size * THIRD_OPINION_SIZE))
     logger.info("partial match (dense): they disagree; third opinion from coarse copies of ~%d "
-                "vertices", third_size)  # fmt: skip
-    third = again(third_size, (0.85, 0.15), "third opinion: ")
+                "vertices", sizes[2])  # fmt: skip
+    third = again(sizes[2], (0.85, 0.15), "third opinion: ")
     with_first, with_second = apart(corr, third), apart(second, third)
     logger.info(
         "partial match (dense): the third opinion disagrees with the first map on %.1f %% and "
         "with the second opinion on %.1f %% of the target's area", 100 * with_first,
         100 * with_second,
     )  # fmt: skip
+    if with_first <= MAX_DISAGREEMENT:  # the second opinion was the odd one out
+        return done(
+            corr, _opinion("second", sizes[1], disagreement),
+            _opinion("third", sizes[2], with_first),
+            Said("the third opinion agrees with this map: the second opinion is set aside"),
+        )  # fmt: skip
+    assert second.quality is not None
+    shares = (disagreement, with_first, with_second)
     fix = Said(
         "{advice}, or match at full resolution (from Python: eigenbases=, slow)",
         {"advice": landmarks_advice(landmarks_given)},
     )
-    if with_first <= MAX_DISAGREEMENT:  # the second opinion was the odd one out
-        return done(
-            corr, opinion("second", second_size, disagreement),
-            opinion("third", third_size, with_first),
-            Said("the third opinion agrees with this map: the second opinion is set aside"),
-        )  # fmt: skip
-    assert second.quality is not None
     if with_second <= MAX_DISAGREEMENT and not second.quality.suspect:
         # The first map is the odd one out: the map the other two agree on is returned (a right
         # map does not depend on the resolution), still flagged, as the three disagree.
         if landmarks_given:
             second = _full_landmarks_kept(second, V1 / scale)
-        first = f"the first map's (coarse copies of about {size} vertices)"
-        return done(
-            second,
-            opinion("second", second_size, disagreement, first),
-            opinion("third", third_size, with_first, first),
-            opinion("third", third_size, with_second),
-            Said("this map is the second opinion's, which the third agrees with; the first map "
-                 "is set aside"),
-            reason=Said(
-                "the matches on coarse copies of about {second} and {third} vertices agree with "
-                "each other, but send {percent:.0f} % of the target's area more than {apart:g} "
-                "of the source's size away from the match on copies of about {first}: their "
-                "map is returned (the second opinion's), and a region may still be wrong; fix: "
-                "{fix}", {"second": second_size, "third": third_size,
-                "percent": 100 * disagreement, "apart": DISAGREEMENT, "first": size, "fix": fix},
-                "opinions_disagree",
-            ),
-        )  # fmt: skip
+        notes, reason = _second_kept(sizes, shares, fix)
+        return done(second, *notes, reason=reason)
     return done(
-        corr, opinion("second", second_size, disagreement),
-        opinion("third", third_size, with_first),
+        corr, _opinion("second", sizes[1], disagreement), _opinion("third", sizes[2], with_first),
         reason=Said(
             "the match on coarse copies of about {second} vertices sends {percent:.0f} % of the "
             "target's area more than {apart:g} of the source's size away from this map's "
             "images, and the match on copies of about {third} agrees with neither (a right map "
             "does not depend on the resolution): a region may be sent to the wrong place; fix: "
-            "{fix}", {"second": second_size, "percent": 100 * disagreement,
-            "apart": DISAGREEMENT, "third": third_size, "fix": fix}, "opinions_disagree",
+            "{fix}", {"second": sizes[1], "percent": 100 * disagreement,
+            "apart": DISAGREEMENT, "third": sizes[2], "fix": fix}, "opinions_disagree",
         ),
     )  # fmt: skip
+
+
+def _opinion(which: str, n: int, share: float, whose: str = "this map's") -> Said:
+    """Return the note of an opinion: how far its images lie from another map's."""
+    return Said(
+        "{which} opinion (coarse copies of about {n} vertices): its images are more than "
+        "{apart:g} of the source's size away from {whose} images on {percent:.1f} % of the "
+        "target's area (at most {bound:g} %)",
+        {"which": which, "n": n, "apart": DISAGREEMENT, "whose": whose,
+         "percent": 100 * share, "bound": 100 * MAX_DISAGREEMENT}, "opinion",
+    )  # fmt: skip
+
+
+def _second_kept(
+    sizes: tuple[int, ...], shares: tuple[float, ...], fix: Said
+) -> tuple[tuple[Said, ...], Said]:
+    """Return the notes and the reason of a second opinion kept (the third agrees with it)."""
+    first = f"the first map's (coarse copies of about {sizes[0]} vertices)"
+    notes = (
+        _opinion("second", sizes[1], shares[0], first),
+        _opinion("third", sizes[2], shares[1], first),
+        _opinion("third", sizes[2], shares[2]),
+        Said("this map is the second opinion's, which the third agrees with; the first map is "
+             "set aside"),
+    )  # fmt: skip
+    reason = Said(
+        "the matches on coarse copies of about {second} and {third} vertices agree with each "
+        "other, but send {percent:.0f} % of the target's area more than {apart:g} of the "
+        "source's size away from the match on copies of about {first}: their map is returned "
+        "(the second opinion's), and a region may still be wrong; fix: {fix}",
+        {"second": sizes[1], "third": sizes[2], "percent": 100 * shares[0],
+         "apart": DISAGREEMENT, "first": sizes[0], "fix": fix}, "opinions_disagree",
+    )  # fmt: skip
+    return notes, reason
