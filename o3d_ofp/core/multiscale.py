@@ -753,23 +753,15 @@ def extend_p2p(
         raise TypeError(f"adjoint must be True or False; got {adjoint!r}")
     a1, a2 = coarse_1.area, coarse_2.area
     if adjoint:  # Φ against Ψ C, both times √A1 (a common factor: left out)
-        phi = np.asarray(
-            _interpolation(coarse_1.vertices, V1, neighbours) @ coarse_1.evecs[:, :cols]
-        )
-        psi = np.asarray(
-            _interpolation(coarse_2.vertices, V2, neighbours) @ (coarse_2.evecs[:, :rows] @ C)
-        )
+        coarse_phi, coarse_psi = coarse_1.evecs[:, :cols], coarse_2.evecs[:, :rows] @ C
         dims, root2 = cols, 1.0
     else:
         Ct = np.ascontiguousarray(C.T) * (a1 / math.sqrt(a2))
         # The source embedding Φ Ĉᵀ is interpolated directly (rows × d instead of cols columns).
-        phi = np.asarray(
-            _interpolation(coarse_1.vertices, V1, neighbours) @ (coarse_1.evecs[:, :cols] @ Ct)
-        )
-        psi = np.asarray(
-            _interpolation(coarse_2.vertices, V2, neighbours) @ coarse_2.evecs[:, :rows]
-        )
+        coarse_phi, coarse_psi = coarse_1.evecs[:, :cols] @ Ct, coarse_2.evecs[:, :rows]
         dims, root2 = rows, math.sqrt(a2)
+    phi = np.asarray(_interpolation(coarse_1.vertices, V1, neighbours) @ coarse_phi)
+    psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_psi)
     t_interp = time.perf_counter() - t0
     with blas_threads(1):
         out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, min(n_samples, n1), 0)
