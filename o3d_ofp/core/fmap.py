@@ -7,6 +7,7 @@ eigenbasis (constant first) to those of its image in the target eigenbasis.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Sequence
@@ -320,11 +321,13 @@ def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | Non
 
 
 class _FitTerms:
-    """The terms of :func:`estimate_fmap`'s energy on two unit-area bases, built once.
+    """The terms of :func:`estimate_fmap`'s energy on unit-area copies of two bases, built once.
 
-    Descriptors are computed from ``k_descriptors`` eigenpairs whatever the map's size, so the
-    coefficients and operator stacks of a smaller map are the leading blocks of a larger one's:
-    :meth:`fit` solves any size up to the one they were built for.
+    On the copies (``eig_1``, ``eig_2``) every term is independent of the shapes' units; a map
+    between them times ``scale`` is the map between the bases given. Descriptors are computed
+    from ``k_descriptors`` eigenpairs whatever the map's size, so the coefficients and
+    operator stacks of a smaller map are the leading blocks of a larger one's: :meth:`fit`
+    solves any size up to the one they were built for.
     """
 
     def __init__(
@@ -337,15 +340,19 @@ class _FitTerms:
         descriptors: str,
         n_descriptors: int,
         k_descriptors: int,
-        landmarks: tuple[np.ndarray | None, np.ndarray | None],
+        landmarks: Any,
         dcomm: bool,
         orient: bool,
         operator_step: int,
     ) -> None:
+        lm1, lm2 = _landmark_pairs(landmarks)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
         operator_step = check_int(operator_step, name="operator_step", minimum=1)
+        self.scale = math.sqrt(eig_2.area / eig_1.area)
+        self.eig_1 = eig_1 = unit_area(eig_1)
+        self.eig_2 = eig_2 = unit_area(eig_2)
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
             D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
@@ -358,7 +365,6 @@ class _FitTerms:
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
-            lm1, lm2 = landmarks
             job = pool.submit(terms, eig_2, k2, lm2)
             self.A, dcomm_1, orient_1 = terms(eig_1, k1, lm1)
             self.B, dcomm_2, orient_2 = job.result()
@@ -538,19 +544,7 @@ def estimate_fmap(
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    check_eigenbasis(eig_1, "eig_1")
-    check_eigenbasis(eig_2, "eig_2")
-    k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
-    k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
-    if solver not in ("direct", "lbfgs"):
-        raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
-    if refine not in ("zoomout", "icp", None):
-        raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
-    lm1, lm2 = _landmark_pairs(landmarks)
-    # Work on unit-area copies: every term below is then independent of the shapes' units,
-    # and the map between the unit-area bases is converted back at the end.
-    scale = math.sqrt(eig_2.area / eig_1.area)
-    eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
+    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver=solver, refine=refine)
     terms = _FitTerms(
         eig_1,
         eig_2,
@@ -559,34 +553,54 @@ def estimate_fmap(
         descriptors=descriptors,
         n_descriptors=n_descriptors,
         k_descriptors=k_descriptors,
-        landmarks=(lm1, lm2),
+        landmarks=landmarks,
         dcomm=max(np.atleast_1d(w_dcomm)) > 0,
         orient=w_orient > 0,
         operator_step=operator_step,
     )
-    fits = [
-        terms.fit(
-            k1,
-            k2,
-            weights=(w_descr, w_lap, float(wc), w_orient),
-            solver=solver,
-            maxiter=maxiter,
-            ftol=ftol,
-        )
-        for wc in np.atleast_1d(w_dcomm)
-    ]
+    fit = functools.partial(terms.fit, k1, k2, solver=solver, maxiter=maxiter, ftol=ftol)
+    fits = [fit(weights=(w_descr, w_lap, float(wc), w_orient)) for wc in np.atleast_1d(w_dcomm)]
     if len(fits) > 1:
         if refine is not None:
             raise ValueError("several w_dcomm weights give several maps: use refine=None")
-        return [C * scale for C in fits]
-    C = fits[0]
+        return [C * terms.scale for C in fits]
+    C = _refined(fits[0], terms.eig_1, terms.eig_2, k1, k2, refine, zoomout_to, icp_iterations)
+    return C * terms.scale
+
+
+def _checked_sizes(
+    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, *, solver: str, refine: str | None
+) -> tuple[int, int]:
+    """Check :func:`estimate_fmap`'s bases, solver and refinement; return the map's sizes."""
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
+    k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
+    k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
+    if solver not in ("direct", "lbfgs"):
+        raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
+    if refine not in ("zoomout", "icp", None):
+        raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
+    return k1, k2
+
+
+def _refined(
+    C: np.ndarray,
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    k1: int,
+    k2: int,
+    refine: str | None,
+    zoomout_to: int | None,
+    icp_iterations: int,
+) -> np.ndarray:
+    """Refine a fitted map as :func:`estimate_fmap`'s ``refine`` says (ZoomOut: cut back)."""
     if refine == "icp":
-        C = icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
-    elif refine == "zoomout":
+        return icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
+    if refine == "zoomout":
         target = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
         if target > max(k1, k2):
-            C = zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
-    return C * scale
+            return zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
+    return C
 
 
 @one_blas_thread
@@ -635,18 +649,16 @@ def estimate_fmaps(
     weights = [float(w) for w in w_dcomm]
     if not sizes or not weights:
         raise ValueError("sizes and w_dcomm must name at least one fit each")
-    scale = math.sqrt(eig_2.area / eig_1.area)
-    u1, u2 = unit_area(eig_1), unit_area(eig_2)
     k = max(sizes)
     terms = _FitTerms(
-        u1,
-        u2,
+        eig_1,
+        eig_2,
         k,
         k,
         descriptors=descriptors,
         n_descriptors=n_descriptors,
         k_descriptors=k_descriptors,
-        landmarks=_landmark_pairs(landmarks),
+        landmarks=landmarks,
         dcomm=max(weights) > 0,
         orient=w_orient > 0,
         operator_step=operator_step,
@@ -656,7 +668,7 @@ def estimate_fmaps(
         maps = pool.map(
             lambda f: terms.fit(f[0], f[0], weights=(w_descr, w_lap, f[1], w_orient)), fits
         )
-        return [(size, wc, scale * C) for (size, wc), C in zip(fits, maps, strict=True)]
+        return [(size, wc, terms.scale * C) for (size, wc), C in zip(fits, maps, strict=True)]
 
 
 @one_blas_thread
