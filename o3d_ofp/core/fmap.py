@@ -270,6 +270,26 @@ def _energy(
     return float(energy), grad
 
 
+def _orientation_weighted(
+    ref: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    sqdiff: np.ndarray,
+    ops: _Commutator | None,
+    orient: _Commutator,
+    weights: tuple[float, float, float, float],
+    w_orient: float,
+) -> tuple[float, float, float, float]:
+    """Return ``weights`` with an orientation weight relative to the other terms.
+
+    At the reference map ``ref``, the orientation term weighs ``w_orient`` times the other
+    terms of the :func:`_energy` (with ``weights``, whose orientation weight is ignored).
+    """
+    native = _energy(ref, A, B, sqdiff, ops, None, weights)[0]
+    o_energy = _energy(ref, A, B, sqdiff, None, orient, (0.0, 0.0, 0.0, 1.0))[0]
+    return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
+
+
 def _minimize_quadratic(
     C0: np.ndarray,
     A: np.ndarray,
@@ -407,10 +427,9 @@ class _FitTerms:
 
         weights = (w_descr, w_lap, wc, 0.0)
         if orient:
-            eye = np.eye(b, a)
-            native = terms(eye, weights)[0]
-            o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
-            weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
+            weights = _orientation_weighted(
+                np.eye(b, a), A, B, sqdiff, ops, orient, weights, w_orient
+            )
         C0 = np.zeros((b, a))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
         if solver == "direct":
