@@ -24,7 +24,7 @@ Method (what :func:`fit_partial_fmap`, :func:`partial_zoomout` and :func:`partia
    slanted diagonal: it plays the role of Rodolà's slanted mask), descriptor commutativity,
    the orientation-preserving term of Ren et al. 2018 (all hold for a restriction) and
    ``‖C Cᵀ − I‖²`` (a restriction has orthonormal rows; without it the row of the constant
-   grew unboundedly).
+   grows unboundedly).
 3. A *partial ZoomOut*: alternate the point map (each target point to its nearest row of
    ``Φ Cᵀ``; the rows of source points outside the part are near zero, so they are not
    chosen) and the least-squares map of that point map, growing the target size by one and
@@ -77,6 +77,7 @@ from .fmap import (
     _energy,
     _minimize_quadratic,
     _orientation_ops,
+    _orientation_weighted,
     _projection,
     farthest_points,
 )
@@ -648,6 +649,45 @@ def fit_partial_fmap(
     if solver not in ("lbfgs", "direct"):
         raise ValueError(f"solver must be 'lbfgs' or 'direct'; got {solver!r}")
     k1 = slant(eig_1.evals, eig_2.evals, k2)
+    D1, D2 = _fit_descriptors(
+        eig_1,
+        eig_2,
+        descriptors,
+        landmarks=landmarks,
+        n_descriptors=n_descriptors,
+        k_descriptors=k_descriptors,
+    )
+    A, B, sqdiff, ops, orient = _partial_terms(
+        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
+    )
+    root_r = math.sqrt(eig_2.area / eig_1.area)
+    C0 = np.zeros((k2 + 1, k1 + 1))
+    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
+    fits = []
+    for wc in w_dcomm:
+        weights = (w_descr, w_lap, float(wc), 0.0)
+        if orient is not None:
+            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
+            ref[0, 0] = root_r
+            weights = _orientation_weighted(ref, A, B, sqdiff, ops, orient, weights, w_orient)
+        if solver == "direct":
+            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
+            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
+        else:
+            fits.append(_lbfgs_fit(C0, A, B, sqdiff, ops, orient, weights, w_rows, maxiter))
+    return fits
+
+
+def _fit_descriptors(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    descriptors: tuple[np.ndarray, np.ndarray] | None,
+    *,
+    landmarks: Any,
+    n_descriptors: int,
+    k_descriptors: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the given ``descriptors`` checked against both shapes, or compute them."""
     if descriptors is None:
         descriptors = partial_descriptors(
             eig_1,
@@ -667,58 +707,80 @@ def fit_partial_fmap(
             f"descriptors must be (n1, p) and (n2, p) arrays for shapes of {eig_1.n_vertices} "
             f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
         )
+    return D1, D2
+
+
+def _partial_terms(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    k1: int,
+    k2: int,
+    D1: np.ndarray,
+    D2: np.ndarray,
+    *,
+    dcomm: bool,
+    orient: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Commutator | None, _Commutator | None]:
+    """Build the terms of :func:`fit_partial_fmap`'s energy for a (k2+1, k1+1) map.
+
+    Returns the descriptors' coefficients A and B, the Laplacian term's normalized weights
+    ``(λ¹_a − λ²_b)²``, and the descriptor-commutativity and orientation terms (``None``
+    when not wanted; no orientation term without both shapes' faces).
+    """
     A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
     ops = (
         _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if max(w_dcomm) > 0
+        if dcomm
         else None
     )
     sqdiff = (eig_1.evals[None, : k1 + 1] - eig_2.evals[: k2 + 1, None]) ** 2
     sqdiff /= sqdiff.sum()
-    orient = None
-    if w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None:
-        orient = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    root_r = math.sqrt(eig_2.area / eig_1.area)
-    C0 = np.zeros((k2 + 1, k1 + 1))
-    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
-    fits = []
-    eye = np.eye(k2 + 1)
-    for wc in w_dcomm:
-        weights = (w_descr, w_lap, float(wc), 0.0)
-        if orient is not None:
-            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
-            ref[0, 0] = root_r
-            native = _energy(ref, A, B, sqdiff, ops, None, weights)[0]
-            o_energy = _energy(ref, A, B, sqdiff, None, orient, (0.0, 0.0, 0.0, 1.0))[0]
-            weights = (w_descr, w_lap, float(wc), w_orient * native / max(o_energy, 1e-300))
-        if solver == "direct":
-            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
-            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
-            continue
+    orient_term = None
+    if orient and eig_1.faces is not None and eig_2.faces is not None:
+        orient_term = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
+    return A, B, sqdiff, ops, orient_term
 
-        def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
-            C = x.reshape(k2 + 1, k1 + 1)
-            e, g = _energy(C, A, B, sqdiff, ops, orient, weights)
-            if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
-                R = C @ C.T - eye
-                e += 0.5 * w_rows * float(np.sum(R * R))
-                g = g + 2.0 * w_rows * (R @ C)
-            g[:, 0] = 0.0  # the first column stays fixed
-            return e, g.ravel()
 
-        res = scipy.optimize.minimize(
-            fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
-        )
-        logger.debug(
-            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
-            k2 + 1,
-            k1 + 1,
-            res.message,
-            res.nit,
-            wc,
-        )
-        fits.append(res.x.reshape(k2 + 1, k1 + 1))
-    return fits
+def _lbfgs_fit(
+    C0: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    sqdiff: np.ndarray,
+    ops: _Commutator | None,
+    orient: _Commutator | None,
+    weights: tuple[float, float, float, float],
+    w_rows: float,
+    maxiter: int,
+) -> np.ndarray:
+    """Minimize the :func:`_energy` plus ``½ w_rows ‖C Cᵀ − I‖²`` by L-BFGS-B from C0.
+
+    The first column stays C0's.
+    """
+    b, a = C0.shape
+    eye = np.eye(b)
+
+    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+        C = x.reshape(b, a)
+        e, g = _energy(C, A, B, sqdiff, ops, orient, weights)
+        if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
+            R = C @ C.T - eye
+            e += 0.5 * w_rows * float(np.sum(R * R))
+            g = g + 2.0 * w_rows * (R @ C)
+        g[:, 0] = 0.0  # the first column stays fixed
+        return e, g.ravel()
+
+    res = scipy.optimize.minimize(
+        fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
+    )
+    logger.debug(
+        "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
+        b,
+        a,
+        res.message,
+        res.nit,
+        weights[2],
+    )
+    return res.x.reshape(b, a)
 
 
 @one_blas_thread
@@ -774,11 +836,10 @@ def partial_zoomout(
 
 #: Source size, as a fraction of the final one, at which :func:`partial_polish` starts.
 #: Measured on the final maps of the 12 cuts of scripts/eval_partial.py --remeshed (99
-#: eigenfunctions per shape; stop 34, a machine-local experiment before the polish was part of
-#: the match, with all 99 target functions): from 60 of 99, every one of the 9 right maps as
-#: precise or more (errors 0.0166-0.0436 -> 0.0161-0.0399; with twice the slant's target
-#: functions 0.0156-0.0400); with the single size 99, less gain (0.0162-0.0418); from 30,
-#: worse on 3 of the 9.
+#: eigenfunctions per shape; the polish applied to the match's maps, with all 99 target
+#: functions): from 60 of 99, every one of the 9 right maps as precise or more (errors
+#: 0.0166-0.0436 -> 0.0161-0.0399; with twice the slant's target functions 0.0156-0.0400);
+#: with the single size 99, less gain (0.0162-0.0418); from 30, worse on 3 of the 9.
 POLISH_FROM = 0.6
 #: Target functions of :func:`partial_polish`'s fits, as a multiple of those the slant gives
 #: (at most all of the target's). Measured on the same maps: with twice the slant, or all 99
