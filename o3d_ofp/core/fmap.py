@@ -882,12 +882,8 @@ def zoomout_refine(
             s1 = farthest_points(eig_1.vertices, subsample)
             s2 = farthest_points(eig_2.vertices, subsample)
         phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
-        # The least-squares fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns
-        # of one matrix, whose QR factors are nested: factor it once, then each fit is a
-        # GEMM and a triangular solve (when the samples give full column rank).
-        Q, R = np.linalg.qr(psi2)
-        diag = np.abs(np.diag(R))
-        nested_qr = bool(diag.min() > 1e-10 * diag.max())
+        # The fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns of Ψ_s.
+        fits = _LeadingFits(psi2)
     while k < k_final:
         k = min(k + step, k_final)
         if subsample is None:
@@ -896,12 +892,29 @@ def zoomout_refine(
             continue
         kc = C.shape[0]
         p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
-        target = phi1[p2p_sub, : k + 1]
-        if nested_qr:
-            C = scipy.linalg.solve_triangular(R[: k + 1, : k + 1], Q[:, : k + 1].T @ target)
-        else:
-            C = np.linalg.lstsq(psi2[:, : k + 1], target, rcond=None)[0]
+        C = fits.solve(k + 1, phi1[p2p_sub, : k + 1])
     return C * scale
+
+
+class _LeadingFits:
+    """Least-squares fits ``X[:, :m] C ≈ Y`` on leading columns of one matrix ``X``.
+
+    The QR factors of leading columns are nested: ``X`` is factored once, and each fit is a
+    GEMM and a triangular solve; when ``X`` does not have full column rank, each fit is a
+    ``lstsq`` instead.
+    """
+
+    def __init__(self, X: np.ndarray) -> None:
+        self.X = X
+        self.Q, self.R = np.linalg.qr(X)
+        diag = np.abs(np.diag(self.R))
+        self.nested = bool(diag.min() > 1e-10 * diag.max())
+
+    def solve(self, m: int, Y: np.ndarray) -> np.ndarray:
+        """Return the least-squares solution C of ``X[:, :m] C ≈ Y``."""
+        if self.nested:
+            return scipy.linalg.solve_triangular(self.R[:m, :m], self.Q[:, :m].T @ Y)
+        return np.linalg.lstsq(self.X[:, :m], Y, rcond=None)[0]
 
 
 def lift_fmap(

@@ -65,7 +65,6 @@ import math
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
 
 from ._threads import one_blas_thread
@@ -75,6 +74,7 @@ from .fmap import (
     _Commutator,
     _descriptor_ops,
     _energy,
+    _LeadingFits,
     _minimize_quadratic,
     _orientation_ops,
     _orientation_weighted,
@@ -950,18 +950,10 @@ def partial_polish_fit(
         current = nearest_neighbors(eig_1.vertices[s1], eig_1.vertices[p2p[s2]])
     phi = eig_1.evecs[s1, : k1_final + 1]
     psi = eig_2.evecs[s2, : k2_max + 1]
-    # The fits use leading columns of one matrix: factor it once (nested QR, as in ZoomOut).
-    Q, R = np.linalg.qr(psi)
-    diag = np.abs(np.diag(R))
-    nested = bool(diag.min() > 1e-10 * diag.max())
+    fits = _LeadingFits(psi)  # the fits use leading columns of psi (as in ZoomOut)
     for k1 in range(max(1, round(POLISH_FROM * k1_final)), k1_final + 1):
         size = polish_target_size(eig_1.evals, eig_2.evals, k1)
-        target = phi[current, : k1 + 1]
-        if nested:
-            rows = slice(0, size + 1)
-            C = scipy.linalg.solve_triangular(R[rows, rows], Q[:, rows].T @ target)
-        else:
-            C = np.linalg.lstsq(psi[:, : size + 1], target, rcond=None)[0]
+        C = fits.solve(size + 1, phi[current, : k1 + 1])
         current = nearest_neighbors(phi[:, : k1 + 1], psi[:, : size + 1] @ C)
     return C
 
