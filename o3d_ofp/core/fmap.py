@@ -76,9 +76,17 @@ def unit_area(eig: EigenBasis) -> EigenBasis:
     EigenBasis
         A new basis (no digest, the same cleaning map).
     """
-    area = eig.area
+    return _scaled(eig, eig.area)
+
+
+def _scaled(eig: EigenBasis, area: float) -> EigenBasis:
+    """Return the basis on the shape centred and divided by ``sqrt(area)``.
+
+    Eigenvalues times ``area``, eigenfunctions times ``sqrt(area)``, mass divided by ``area``;
+    no digest (:func:`unit_area` and :func:`o3d_ofp.core.partial.rescaled`).
+    """
     root = math.sqrt(area)
-    centre = (eig.mass @ eig.vertices) / area
+    centre = (eig.mass @ eig.vertices) / eig.area
     return dataclasses.replace(
         eig,
         evals=eig.evals * area,

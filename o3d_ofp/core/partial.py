@@ -59,7 +59,6 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from typing import Any
@@ -79,6 +78,7 @@ from .fmap import (
     _orientation_ops,
     _orientation_weighted,
     _projection,
+    _scaled,
     farthest_points,
 )
 from .geometry import edge_graph
@@ -126,16 +126,7 @@ def rescaled(eig: EigenBasis, area: float) -> EigenBasis:
     """
     if not (area > 0 and math.isfinite(area)):
         raise ValueError(f"area must be positive and finite; got {area}")
-    root = math.sqrt(area)
-    centre = (eig.mass @ eig.vertices) / eig.area
-    return dataclasses.replace(
-        eig,
-        evals=eig.evals * area,
-        evecs=eig.evecs * root,
-        mass=eig.mass / area,
-        vertices=(eig.vertices - centre) / root,
-        digest="",
-    )
+    return _scaled(eig, area)
 
 
 def slant(evals_1: np.ndarray, evals_2: np.ndarray, k2: int) -> int:
@@ -178,9 +169,7 @@ def boundary_length(
     """
     if faces is None or len(faces) == 0:
         return 0.0
-    F = np.asarray(faces, dtype=np.int64)
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, counts = _edges(np.asarray(faces, dtype=np.int64))
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
     lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
@@ -193,6 +182,12 @@ def boundary_length(
     graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
     _, piece = csgraph.connected_components(graph, directed=False)
     return float(np.bincount(piece[single[:, 0]], weights=lengths).max())
+
+
+def _edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)
 
 
 def map_stretch(
@@ -224,10 +219,7 @@ def map_stretch(
     """
     if faces_2 is None or len(faces_2) == 0:
         return math.nan
-    F = np.asarray(faces_2, dtype=np.int64)
-    edges = np.unique(
-        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
-    )
+    edges = _edges(np.asarray(faces_2, dtype=np.int64))[0]
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
     p2p = np.asarray(p2p_21, dtype=np.int64)
@@ -519,8 +511,7 @@ def curvature_descriptors(
             cos /= np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
             np.add.at(angles, F[:, i], np.arccos(np.clip(cos, -1.0, 1.0)))
         K = (2 * np.pi - angles) / safe
-        edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-        unique, counts = np.unique(edges, axis=0, return_counts=True)
+        unique, counts = _edges(F)
         border = np.unique(unique[counts == 1])
         H[border] = 0.0
         K[border] = 0.0
