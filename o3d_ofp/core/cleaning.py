@@ -509,11 +509,11 @@ def clean_shape(
     )
     V, F_in, group, first = topo.V, topo.F_in, topo.group, topo.first
     counts = dict(topo.counts)
-    n_in, Vg = V.shape[0], V[first]
+    n_in = V.shape[0]
     if F_in is not None:
         assert topo.keep_v is not None and topo.new_index is not None and topo.F is not None
         keep_v, new_index, F = topo.keep_v, topo.new_index, topo.F
-        Vc = Vg[keep_v]
+        Vc = V[first][keep_v]
         try:
             stiffness, mass = laplacian(Vc, F, mollify_factor=mollify_factor)
         except RuntimeError as exc:  # geometry-central's assertions on impossible connectivity
@@ -521,12 +521,7 @@ def clean_shape(
         jittered = False
     else:
         Vc, stiffness, mass, keep_v, jittered = _cloud_laplacian(
-            Vg,
-            group,
-            counts,
-            components=components,
-            mollify_factor=mollify_factor,
-            n_neighbors=n_neighbors,
+            topo, counts, components, mollify_factor, n_neighbors
         )
         new_index = np.cumsum(keep_v) - 1
         F = None
@@ -561,33 +556,23 @@ def clean_shape(
 
 
 def _cloud_laplacian(
-    Vg: np.ndarray,
-    group: np.ndarray,
-    counts: dict[str, Any],
-    *,
-    components: str,
-    mollify_factor: float,
-    n_neighbors: int,
+    topo: _Topology, counts: dict[str, Any], components: str, mollify: float, n_neighbors: int
 ) -> tuple[np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray, bool]:
     """Build a point cloud's Laplacian, on jittered points if need be, and pick its component.
 
-    ``Vg`` are the welded points and ``group`` the welded point of every input point. Returns
-    the kept points, their stiffness and mass, the mask of the kept points of ``Vg`` and
+    Returns the kept points, their stiffness and mass, the mask of the kept welded points and
     whether the points were jittered; the components found and dropped go into ``counts``.
     """
+    Vg = topo.V[topo.first]
     n_g = Vg.shape[0]
     Vc, jittered = Vg, False
     try:
-        stiffness, mass = laplacian(
-            Vc, None, mollify_factor=mollify_factor, n_neighbors=n_neighbors
-        )
+        stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
     except (RuntimeError, ValueError) as exc:
         logger.warning("point-cloud Laplacian failed (%s); retrying on jittered points", exc)
         Vc, jittered = _jitter(Vg), True
         try:
-            stiffness, mass = laplacian(
-                Vc, None, mollify_factor=mollify_factor, n_neighbors=n_neighbors
-            )
+            stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
         except (RuntimeError, ValueError) as exc2:
             raise ValueError(
                 f"no Laplacian for this point cloud of {n_g} distinct points, even after "
@@ -606,7 +591,7 @@ def _cloud_laplacian(
         stiffness = sp.csr_matrix(stiffness[idx][:, idx])
         mass = mass[idx]
         Vc = Vc[idx]
-        counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[group]))
+        counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[topo.group]))
         if Vc.shape[0] < 4:
             raise ValueError(
                 f"the largest of {n_comp} point-cloud components has only {Vc.shape[0]} points"
