@@ -12,7 +12,7 @@ import logging
 import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -278,26 +278,6 @@ def _energy(
     return float(energy), grad
 
 
-def _orientation_weighted(
-    ref: np.ndarray,
-    A: np.ndarray,
-    B: np.ndarray,
-    sqdiff: np.ndarray,
-    ops: _Commutator | None,
-    orient: _Commutator,
-    weights: tuple[float, float, float, float],
-    w_orient: float,
-) -> tuple[float, float, float, float]:
-    """Return ``weights`` with an orientation weight relative to the other terms.
-
-    At the reference map ``ref``, the orientation term weighs ``w_orient`` times the other
-    terms of the :func:`_energy` (with ``weights``, whose orientation weight is ignored).
-    """
-    native = _energy(ref, A, B, sqdiff, ops, None, weights)[0]
-    o_energy = _energy(ref, A, B, sqdiff, None, orient, (0.0, 0.0, 0.0, 1.0))[0]
-    return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
-
-
 def _minimize_quadratic(
     C0: np.ndarray,
     A: np.ndarray,
@@ -334,6 +314,61 @@ def _minimize_quadratic(
     c = C0.ravel().copy()
     c[free] = x
     return c.reshape(b, a)
+
+
+class _Energy(NamedTuple):
+    """The terms of a map's :func:`_energy`, and its minimizers over the maps C.
+
+    Both keep the first column of their start C0 (the constant's image).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    sqdiff: np.ndarray
+    ops: _Commutator | None
+    orient: _Commutator | None
+
+    def orientation_weighted(
+        self, ref: np.ndarray, weights: tuple[float, float, float, float], w_orient: float
+    ) -> tuple[float, float, float, float]:
+        """Return ``weights`` with an orientation weight relative to the other terms.
+
+        At the reference map ``ref``, the orientation term weighs ``w_orient`` times the other
+        terms (with ``weights``, whose orientation weight is ignored).
+        """
+        native = _energy(ref, self.A, self.B, self.sqdiff, self.ops, None, weights)[0]
+        unit = (0.0, 0.0, 0.0, 1.0)
+        o_energy = _energy(ref, self.A, self.B, self.sqdiff, None, self.orient, unit)[0]
+        return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
+
+    def minimize(self, C0: np.ndarray, weights: tuple[float, float, float, float]) -> np.ndarray:
+        """Return the exact minimizer (:func:`_minimize_quadratic`)."""
+        return _minimize_quadratic(C0, *self, weights)
+
+    def lbfgs(
+        self,
+        C0: np.ndarray,
+        weights: tuple[float, float, float, float],
+        options: dict[str, Any],
+        w_rows: float = 0.0,
+    ) -> scipy.optimize.OptimizeResult:
+        """Run L-BFGS-B from C0 on the energy plus ``½ w_rows ‖C Cᵀ − I‖²``."""
+        b, a = C0.shape
+        eye = np.eye(b)
+
+        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+            C = x.reshape(b, a)
+            e, g = _energy(C, *self, weights)
+            if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
+                R = C @ C.T - eye
+                e += 0.5 * w_rows * float(np.sum(R * R))
+                g = g + 2.0 * w_rows * (R @ C)
+            g[:, 0] = 0.0  # the first column stays fixed
+            return e, g.ravel()
+
+        return scipy.optimize.minimize(
+            fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options
+        )
 
 
 def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -428,41 +463,23 @@ class _FitTerms:
 
         w_descr, w_lap, wc, w_orient = weights
         ops = block(self.dcomm) if wc > 0 else None
-        orient = block(self.orient) if w_orient > 0 else None
-
-        def terms(C: np.ndarray, w: tuple[float, float, float, float]) -> tuple[float, np.ndarray]:
-            return _energy(C, A, B, sqdiff, ops, orient, w)
-
+        energy = _Energy(A, B, sqdiff, ops, block(self.orient) if w_orient > 0 else None)
         weights = (w_descr, w_lap, wc, 0.0)
-        if orient:
-            weights = _orientation_weighted(
-                np.eye(b, a), A, B, sqdiff, ops, orient, weights, w_orient
-            )
+        if energy.orient:
+            weights = energy.orientation_weighted(np.eye(b, a), weights, w_orient)
         C0 = np.zeros((b, a))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
         if solver == "direct":
-            C = _minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights)
+            C = energy.minimize(C0, weights)
             logger.debug(
                 "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
                 b,
                 a,
-                terms(C, weights)[0],
+                _energy(C, *energy, weights)[0],
                 wc,
             )
             return C
-
-        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-            e, g = terms(x.reshape(b, a), weights)
-            g[:, 0] = 0.0  # the first column stays fixed
-            return e, g.ravel()
-
-        res = scipy.optimize.minimize(
-            fun,
-            C0.ravel(),
-            jac=True,
-            method="L-BFGS-B",
-            options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
-        )
+        res = energy.lbfgs(C0, weights, {"maxiter": maxiter, "ftol": ftol, "gtol": ftol})
         logger.debug(
             "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
             res.message,

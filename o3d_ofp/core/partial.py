@@ -64,7 +64,6 @@ import math
 from typing import Any
 
 import numpy as np
-import scipy.optimize
 
 from ._threads import one_blas_thread
 from ._validation import check_int
@@ -72,11 +71,9 @@ from .correspondence import check_p2p, nearest_neighbors
 from .fmap import (
     _Commutator,
     _descriptor_ops,
-    _energy,
+    _Energy,
     _LeadingFits,
-    _minimize_quadratic,
     _orientation_ops,
-    _orientation_weighted,
     _projection,
     _scaled,
     farthest_points,
@@ -640,45 +637,6 @@ def fit_partial_fmap(
     if solver not in ("lbfgs", "direct"):
         raise ValueError(f"solver must be 'lbfgs' or 'direct'; got {solver!r}")
     k1 = slant(eig_1.evals, eig_2.evals, k2)
-    D1, D2 = _fit_descriptors(
-        eig_1,
-        eig_2,
-        descriptors,
-        landmarks=landmarks,
-        n_descriptors=n_descriptors,
-        k_descriptors=k_descriptors,
-    )
-    A, B, sqdiff, ops, orient = _partial_terms(
-        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
-    )
-    root_r = math.sqrt(eig_2.area / eig_1.area)
-    C0 = np.zeros((k2 + 1, k1 + 1))
-    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
-    fits = []
-    for wc in w_dcomm:
-        weights = (w_descr, w_lap, float(wc), 0.0)
-        if orient is not None:
-            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
-            ref[0, 0] = root_r
-            weights = _orientation_weighted(ref, A, B, sqdiff, ops, orient, weights, w_orient)
-        if solver == "direct":
-            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
-            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
-        else:
-            fits.append(_lbfgs_fit(C0, A, B, sqdiff, ops, orient, weights, w_rows, maxiter))
-    return fits
-
-
-def _fit_descriptors(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    descriptors: tuple[np.ndarray, np.ndarray] | None,
-    *,
-    landmarks: Any,
-    n_descriptors: int,
-    k_descriptors: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Return the given ``descriptors`` checked against both shapes, or compute them."""
     if descriptors is None:
         descriptors = partial_descriptors(
             eig_1,
@@ -687,6 +645,41 @@ def _fit_descriptors(
             n_descriptors=n_descriptors,
             k_descriptors=k_descriptors,
         )
+    D1, D2 = _checked_descriptors(descriptors, eig_1, eig_2)
+    energy = _partial_energy(
+        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
+    )
+    root_r = math.sqrt(eig_2.area / eig_1.area)
+    C0 = np.zeros((k2 + 1, k1 + 1))
+    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
+    fits = []
+    for wc in w_dcomm:
+        weights = (w_descr, w_lap, float(wc), 0.0)
+        if energy.orient is not None:
+            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
+            ref[0, 0] = root_r
+            weights = energy.orientation_weighted(ref, weights, w_orient)
+        if solver == "direct":
+            fits.append(energy.minimize(C0, weights))
+            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
+            continue
+        res = energy.lbfgs(C0, weights, {"maxiter": maxiter}, w_rows)
+        logger.debug(
+            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
+            k2 + 1,
+            k1 + 1,
+            res.message,
+            res.nit,
+            wc,
+        )
+        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+    return fits
+
+
+def _checked_descriptors(
+    descriptors: tuple[np.ndarray, np.ndarray], eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the descriptors ``(D1, D2)`` as float arrays, checked against both shapes."""
     D1, D2 = (np.asarray(D, dtype=np.float64) for D in descriptors)
     if (
         D1.ndim != 2
@@ -701,7 +694,7 @@ def _fit_descriptors(
     return D1, D2
 
 
-def _partial_terms(
+def _partial_energy(
     eig_1: EigenBasis,
     eig_2: EigenBasis,
     k1: int,
@@ -711,12 +704,11 @@ def _partial_terms(
     *,
     dcomm: bool,
     orient: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Commutator | None, _Commutator | None]:
+) -> _Energy:
     """Build the terms of :func:`fit_partial_fmap`'s energy for a (k2+1, k1+1) map.
 
-    Returns the descriptors' coefficients A and B, the Laplacian term's normalized weights
-    ``(λ¹_a − λ²_b)²``, and the descriptor-commutativity and orientation terms (``None``
-    when not wanted; no orientation term without both shapes' faces).
+    The descriptor-commutativity and orientation terms are left out when not wanted (the
+    orientation term also without both shapes' faces).
     """
     A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
     ops = (
@@ -729,49 +721,7 @@ def _partial_terms(
     orient_term = None
     if orient and eig_1.faces is not None and eig_2.faces is not None:
         orient_term = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    return A, B, sqdiff, ops, orient_term
-
-
-def _lbfgs_fit(
-    C0: np.ndarray,
-    A: np.ndarray,
-    B: np.ndarray,
-    sqdiff: np.ndarray,
-    ops: _Commutator | None,
-    orient: _Commutator | None,
-    weights: tuple[float, float, float, float],
-    w_rows: float,
-    maxiter: int,
-) -> np.ndarray:
-    """Minimize the :func:`_energy` plus ``½ w_rows ‖C Cᵀ − I‖²`` by L-BFGS-B from C0.
-
-    The first column stays C0's.
-    """
-    b, a = C0.shape
-    eye = np.eye(b)
-
-    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-        C = x.reshape(b, a)
-        e, g = _energy(C, A, B, sqdiff, ops, orient, weights)
-        if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
-            R = C @ C.T - eye
-            e += 0.5 * w_rows * float(np.sum(R * R))
-            g = g + 2.0 * w_rows * (R @ C)
-        g[:, 0] = 0.0  # the first column stays fixed
-        return e, g.ravel()
-
-    res = scipy.optimize.minimize(
-        fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
-    )
-    logger.debug(
-        "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
-        b,
-        a,
-        res.message,
-        res.nit,
-        weights[2],
-    )
-    return res.x.reshape(b, a)
+    return _Energy(A, B, sqdiff, ops, orient_term)
 
 
 @one_blas_thread
