@@ -64,6 +64,9 @@ import math
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg as sla
 
 from ._threads import one_blas_thread
 from ._validation import check_int
@@ -93,7 +96,6 @@ __all__ = [
     "partial_p2p",
     "partial_polish",
     "partial_polish_fit",
-    "partial_residual",
     "partial_zoomout",
     "polish_target_size",
     "rescaled",
@@ -172,9 +174,6 @@ def boundary_length(
     lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
     if not longest or single.size == 0:
         return float(lengths.sum())
-    import scipy.sparse as sp
-    import scipy.sparse.csgraph as csgraph
-
     n = V.shape[0]
     graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
     _, piece = csgraph.connected_components(graph, directed=False)
@@ -256,8 +255,6 @@ def geodesic_distortion(
     -------
     float
     """
-    import scipy.sparse.csgraph as csgraph
-
     if faces_1 is None or faces_2 is None or len(faces_1) == 0 or len(faces_2) == 0:
         return math.nan
     V1 = np.asarray(vertices_1, dtype=np.float64)
@@ -368,8 +365,6 @@ def geodesic_features(
         Distances of every target vertex to the trusted anchors; a target vertex ``i`` goes to
         the source vertex whose column of ``f1`` is nearest to column ``i`` of ``f2``.
     """
-    import scipy.sparse.csgraph as csgraph
-
     if not (0 < keep <= 1):
         raise ValueError(f"keep must be in (0, 1]; got {keep}")
     iterations = check_int(iterations, name="iterations", minimum=1)
@@ -490,9 +485,6 @@ def curvature_descriptors(
     -------
     (n, 2 len(scales)) ndarray
     """
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as sla
-
     V, F, M, L = eig.vertices, eig.faces, eig.mass, eig.stiffness
     n = V.shape[0]
     safe = np.where(M > 0, M, 1.0)
@@ -936,23 +928,6 @@ def partial_p2p(fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> np
     """
     C = np.asarray(fmap_12, dtype=np.float64)
     return nearest_neighbors(eig_1.evecs[:, : C.shape[1]] @ C.T, eig_2.evecs[:, : C.shape[0]])
-
-
-def partial_residual(
-    fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, samples: int = 2000
-) -> float:
-    """Mean distance from each target sample's ``Ψ`` row to its nearest ``Φ Cᵀ`` source row.
-
-    Small when the map aligns the part with a region of the whole (the energy ZoomOut
-    lowers); used to choose between fitted starts.
-    """
-    C = np.asarray(fmap_12, dtype=np.float64)
-    s1 = farthest_points(eig_1.vertices, samples)
-    s2 = farthest_points(eig_2.vertices, samples)
-    mapped = eig_1.evecs[s1, : C.shape[1]] @ C.T
-    psi = eig_2.evecs[s2, : C.shape[0]]
-    nn = nearest_neighbors(mapped, psi)
-    return float(np.linalg.norm(psi - mapped[nn], axis=1).mean())
 
 
 def membership(fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> np.ndarray:
