@@ -215,6 +215,10 @@ def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
 
 
+#: Weights of a map's energy terms: descriptors, Laplacian, commutativity, orientation.
+_Weights = tuple[float, float, float, float]
+
+
 class _Commutator:
     """The term ½ Σᵢ ‖C O1ᵢ − O2ᵢ C‖² for stacks O1 (p, a, a), O2 (p, b, b), as four GEMMs."""
 
@@ -262,7 +266,7 @@ def _energy(
     sqdiff: np.ndarray,
     ops: _Commutator | None,
     orient: _Commutator | None,
-    weights: tuple[float, float, float, float],
+    weights: _Weights,
 ) -> tuple[float, np.ndarray]:
     """Evaluate the map energy of :func:`estimate_fmap` and its gradient with respect to C."""
     wd, wl, wc, wo = weights
@@ -285,7 +289,7 @@ def _minimize_quadratic(
     sqdiff: np.ndarray,
     ops: _Commutator | None,
     orient: _Commutator | None,
-    weights: tuple[float, float, float, float],
+    weights: _Weights,
 ) -> np.ndarray:
     """Exact minimizer of the :func:`_energy` over C with its first column fixed to C0's.
 
@@ -328,9 +332,7 @@ class _Energy(NamedTuple):
     ops: _Commutator | None
     orient: _Commutator | None
 
-    def orientation_weighted(
-        self, ref: np.ndarray, weights: tuple[float, float, float, float], w_orient: float
-    ) -> tuple[float, float, float, float]:
+    def orientation_weighted(self, ref: np.ndarray, weights: _Weights, w_orient: float) -> _Weights:
         """Return ``weights`` with an orientation weight relative to the other terms.
 
         At the reference map ``ref``, the orientation term weighs ``w_orient`` times the other
@@ -341,16 +343,12 @@ class _Energy(NamedTuple):
         o_energy = _energy(ref, self.A, self.B, self.sqdiff, None, self.orient, unit)[0]
         return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
 
-    def minimize(self, C0: np.ndarray, weights: tuple[float, float, float, float]) -> np.ndarray:
+    def minimize(self, C0: np.ndarray, weights: _Weights) -> np.ndarray:
         """Return the exact minimizer (:func:`_minimize_quadratic`)."""
         return _minimize_quadratic(C0, *self, weights)
 
     def lbfgs(
-        self,
-        C0: np.ndarray,
-        weights: tuple[float, float, float, float],
-        options: dict[str, Any],
-        w_rows: float = 0.0,
+        self, C0: np.ndarray, weights: _Weights, options: dict[str, Any], w_rows: float = 0.0
     ) -> scipy.optimize.OptimizeResult:
         """Run L-BFGS-B from C0 on the energy plus ``½ w_rows ‖C Cᵀ − I‖²``."""
         b, a = C0.shape
@@ -440,7 +438,7 @@ class _FitTerms:
         k1: int,
         k2: int,
         *,
-        weights: tuple[float, float, float, float],
+        weights: _Weights,
         solver: str = "direct",
         maxiter: int = 15000,
         ftol: float = 2.2e-9,
@@ -608,8 +606,7 @@ def estimate_fmap(
         if refine is not None:
             raise ValueError("several w_dcomm weights give several maps: use refine=None")
         return [C * terms.scale for C in fits]
-    C = _refined(fits[0], terms.eig_1, terms.eig_2, k1, k2, refine, zoomout_to, icp_iterations)
-    return C * terms.scale
+    return _refined(fits[0], terms, refine, zoomout_to, icp_iterations) * terms.scale
 
 
 def _checked_sizes(
@@ -628,22 +625,19 @@ def _checked_sizes(
 
 
 def _refined(
-    C: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    k1: int,
-    k2: int,
-    refine: str | None,
-    zoomout_to: int | None,
-    icp_iterations: int,
+    C: np.ndarray, terms: _FitTerms, refine: str | None, zoomout_to: int | None, icp_iterations: int
 ) -> np.ndarray:
-    """Refine a fitted map as :func:`estimate_fmap`'s ``refine`` says (ZoomOut: cut back)."""
+    """Refine a map between the unit-area bases as :func:`estimate_fmap`'s ``refine`` says.
+
+    ZoomOut's result is cut back to the map's size.
+    """
+    eig_1, eig_2 = terms.eig_1, terms.eig_2
     if refine == "icp":
         return icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
     if refine == "zoomout":
         target = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
-        if target > max(k1, k2):
-            return zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
+        if target > max(C.shape) - 1:
+            return zoomout_refine(C, eig_1, eig_2, k_final=target)[: C.shape[0], : C.shape[1]]
     return C
 
 
