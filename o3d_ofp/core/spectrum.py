@@ -262,9 +262,7 @@ def check_eigenbasis(eig: Any, name: str = "eig") -> EigenBasis:
 def _dense_eigs(
     stiffness: sp.csr_matrix, mass: np.ndarray, k: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    A = stiffness.toarray()
-    evals, evecs = scipy.linalg.eigh(A, np.diag(mass), subset_by_index=[0, k])
-    return evals, evecs
+    return scipy.linalg.eigh(stiffness.toarray(), np.diag(mass), subset_by_index=[0, k])
 
 
 #: Factorizations of L − σM for shift-invert: "cholmod" (CHOLMOD's supernodal Cholesky from
@@ -616,12 +614,8 @@ def _solve(
                 ncv = min(n - 1, k + 1 + max(20, (k + 1) // 2))
             else:
                 ncv = min(n - 1, max(ncv_factor * (k + 1), 20))
-            plans.append(
-                (
-                    "shift-invert Lanczos",
-                    {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization},
-                )
-            )
+            options = {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization}
+            plans.append(("shift-invert Lanczos", options))
         if n <= _DENSE_FALLBACK_MAX:
             plans.append(("dense", {}))
     last: Exception | None = None
