@@ -81,9 +81,15 @@ def _checked_fmap(
     return check_fmap(C, rows, cols, name=name)
 
 
-def _default_samples(n1: int) -> int:
-    """Source cells: balances the coarse stage (∝ s per query) and the fine one (∝ n1 / s)."""
-    return int(min(n1, max(64, round(2.0 * math.sqrt(n1)))))
+def _cell_count(n_samples: int | None, n1: int) -> int:
+    """Source cells before splitting: ``n_samples`` (checked), at most ``n1``.
+
+    The default ``2 sqrt(n1)`` (at least 64) balances the coarse stage (∝ s per query) and the
+    fine one (∝ n1 / s).
+    """
+    if n_samples is None:
+        return int(min(n1, max(64, round(2.0 * math.sqrt(n1)))))
+    return min(check_int(n_samples, name="n_samples", minimum=1), n1)
 
 
 def _sample(
@@ -308,10 +314,7 @@ def local_p2p_from_fmap(
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
     C = _checked_fmap(fmap_12, eig_1, eig_2, name="fmap_12", bases="eigenbases")
-    n1 = eig_1.n_vertices
-    if n_samples is None:
-        n_samples = _default_samples(n1)
-    n_samples = check_int(n_samples, name="n_samples", minimum=1)
+    count = _cell_count(n_samples, eig_1.n_vertices)
     a1, a2 = eig_1.area, eig_2.area
     # Unit-area embeddings without copying the bases: Φ̂ = Φ√A1, Ψ̂ = Ψ√A2, Ĉ = C√(A1/A2),
     # so Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ (the scales go into the small matrix).
@@ -324,7 +327,7 @@ def local_p2p_from_fmap(
             math.sqrt(a2),
             eig_1.vertices,
             eig_2.vertices,
-            min(n_samples, n1),
+            count,
             seed,
         )
 
@@ -745,9 +748,7 @@ def extend_p2p(
     C = _checked_fmap(fmap_coarse, coarse_1, coarse_2, name="fmap_coarse", bases="coarse bases")
     rows, cols = C.shape
     neighbours = check_int(neighbours, name="neighbours", minimum=1)
-    n1 = V1.shape[0]
-    n_samples = _default_samples(n1) if n_samples is None else n_samples
-    n_samples = check_int(n_samples, name="n_samples", minimum=1)
+    count = _cell_count(n_samples, V1.shape[0])
     t0 = time.perf_counter()
     if not isinstance(adjoint, bool):
         raise TypeError(f"adjoint must be True or False; got {adjoint!r}")
@@ -764,7 +765,7 @@ def extend_p2p(
     psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_psi)
     t_interp = time.perf_counter() - t0
     with blas_threads(1):
-        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, min(n_samples, n1), 0)
+        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, count, 0)
     logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
     return out
 
