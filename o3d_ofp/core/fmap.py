@@ -323,7 +323,7 @@ def _minimize_quadratic(
 class _Energy(NamedTuple):
     """The terms of a map's :func:`_energy`, and its minimizers over the maps C.
 
-    Both keep the first column of their start C0 (the constant's image).
+    Both minimizers keep the first column of their start C0 (the constant's image).
     """
 
     A: np.ndarray
