@@ -58,7 +58,7 @@ logger = logging.getLogger(__name__)
 #: b = 8: 384, 1.06 s; 12: 456, 1.31 s; 16: 512, 1.53 s; 24: 528, 1.52 s. Larger blocks make
 #: faster BLAS and solves per vector but need larger spaces. 8 also holds every copy of the
 #: exact multiplicities of symmetric meshes seen (5 for an icosphere, 8 for a square flat torus)
-#: from the start; larger ones (a review: 48 on a periodic 3D grid) were found through rounding.
+#: from the start; larger ones (48 on a periodic 3D grid) were found through rounding.
 BLOCK = 8
 
 #: Block Lanczos is the first attempt from this many eigenpairs on shapes of at least
@@ -84,7 +84,7 @@ def fits(n: int, count: int) -> bool:
     """Whether the Krylov space of ``count`` pairs is small beside ``n`` (a quarter at most).
 
     Beyond, the projected problem's eigensolves (``krylov_dim``³ each) outgrow the work
-    Lanczos saves (a review: 3100 pairs on 12100 vertices would make 9600² ones).
+    Lanczos saves (3100 pairs on 12100 vertices would make 9600² ones).
     """
     return 4 * krylov_dim(n, count) <= n
 

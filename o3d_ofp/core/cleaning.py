@@ -509,54 +509,20 @@ def clean_shape(
     )
     V, F_in, group, first = topo.V, topo.F_in, topo.group, topo.first
     counts = dict(topo.counts)
-    n_in, Vg = V.shape[0], V[first]
-    n_g = first.shape[0]
+    n_in = V.shape[0]
     if F_in is not None:
         assert topo.keep_v is not None and topo.new_index is not None and topo.F is not None
         keep_v, new_index, F = topo.keep_v, topo.new_index, topo.F
-        Vc = Vg[keep_v]
+        Vc = V[first][keep_v]
         try:
             stiffness, mass = laplacian(Vc, F, mollify_factor=mollify_factor)
         except RuntimeError as exc:  # geometry-central's assertions on impossible connectivity
             raise ValueError(f"robust-laplacian rejected the cleaned mesh: {exc}") from exc
         jittered = False
     else:
-        Vc, jittered = Vg, False
-        try:
-            stiffness, mass = laplacian(
-                Vc, None, mollify_factor=mollify_factor, n_neighbors=n_neighbors
-            )
-        except (RuntimeError, ValueError) as exc:
-            logger.warning("point-cloud Laplacian failed (%s); retrying on jittered points", exc)
-            Vc, jittered = _jitter(Vg), True
-            try:
-                stiffness, mass = laplacian(
-                    Vc, None, mollify_factor=mollify_factor, n_neighbors=n_neighbors
-                )
-            except (RuntimeError, ValueError) as exc2:
-                raise ValueError(
-                    f"no Laplacian for this point cloud of {n_g} distinct points, even after "
-                    f"jittering: {exc2}"
-                ) from exc2
-        n_comp, labels = count_components(stiffness)
-        keep_pts, n_comp, dropped = _pick_component(
-            labels, np.ones(n_g), components, "points", "points"
+        Vc, stiffness, mass, keep_v, jittered = _cloud_laplacian(
+            topo, counts, components, mollify_factor, n_neighbors
         )
-        keep_v = np.ones(n_g, dtype=bool)
-        if keep_pts is not None:
-            keep_v = keep_pts
-            idx = np.flatnonzero(keep_v)
-            # No kNN-graph edge crosses components: the restriction is the component's
-            # Laplacian (rows still sum to zero).
-            stiffness = sp.csr_matrix(stiffness[idx][:, idx])
-            mass = mass[idx]
-            Vc = Vc[idx]
-            counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[group]))
-            if Vc.shape[0] < 4:
-                raise ValueError(
-                    f"the largest of {n_comp} point-cloud components has only {Vc.shape[0]} points"
-                )
-        counts.update(components=n_comp, dropped_fraction=dropped)
         new_index = np.cumsum(keep_v) - 1
         F = None
 
@@ -587,3 +553,48 @@ def clean_shape(
         report=report,
     )
     return CleanShape(vertices=Vc, faces=F, stiffness=stiffness, mass=mass, cleaning=cleaning)
+
+
+def _cloud_laplacian(
+    topo: _Topology, counts: dict[str, Any], components: str, mollify: float, n_neighbors: int
+) -> tuple[np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray, bool]:
+    """Build a point cloud's Laplacian, on jittered points if need be, and pick its component.
+
+    Returns the kept points, their stiffness and mass, the mask of the kept welded points and
+    whether the points were jittered; the components found and dropped go into ``counts``.
+    """
+    Vg = topo.V[topo.first]
+    n_g = Vg.shape[0]
+    Vc, jittered = Vg, False
+    try:
+        stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
+    except (RuntimeError, ValueError) as exc:
+        logger.warning("point-cloud Laplacian failed (%s); retrying on jittered points", exc)
+        Vc, jittered = _jitter(Vg), True
+        try:
+            stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
+        except (RuntimeError, ValueError) as exc2:
+            raise ValueError(
+                f"no Laplacian for this point cloud of {n_g} distinct points, even after "
+                f"jittering: {exc2}"
+            ) from exc2
+    n_comp, labels = count_components(stiffness)
+    keep_pts, n_comp, dropped = _pick_component(
+        labels, np.ones(n_g), components, "points", "points"
+    )
+    keep_v = np.ones(n_g, dtype=bool)
+    if keep_pts is not None:
+        keep_v = keep_pts
+        idx = np.flatnonzero(keep_v)
+        # No kNN-graph edge crosses components: the restriction is the component's
+        # Laplacian (rows still sum to zero).
+        stiffness = sp.csr_matrix(stiffness[idx][:, idx])
+        mass = mass[idx]
+        Vc = Vc[idx]
+        counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[topo.group]))
+        if Vc.shape[0] < 4:
+            raise ValueError(
+                f"the largest of {n_comp} point-cloud components has only {Vc.shape[0]} points"
+            )
+    counts.update(components=n_comp, dropped_fraction=dropped)
+    return Vc, stiffness, mass, keep_v, jittered

@@ -7,11 +7,12 @@ eigenbasis (constant first) to those of its image in the target eigenbasis.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -75,9 +76,17 @@ def unit_area(eig: EigenBasis) -> EigenBasis:
     EigenBasis
         A new basis (no digest, the same cleaning map).
     """
-    area = eig.area
+    return _scaled(eig, eig.area)
+
+
+def _scaled(eig: EigenBasis, area: float) -> EigenBasis:
+    """Return the basis on the shape centred and divided by ``sqrt(area)``.
+
+    Eigenvalues times ``area``, eigenfunctions times ``sqrt(area)``, mass divided by ``area``;
+    no digest (:func:`unit_area` and :func:`o3d_ofp.core.partial.rescaled`).
+    """
     root = math.sqrt(area)
-    centre = (eig.mass @ eig.vertices) / area
+    centre = (eig.mass @ eig.vertices) / eig.area
     return dataclasses.replace(
         eig,
         evals=eig.evals * area,
@@ -206,6 +215,10 @@ def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray
     return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
 
 
+#: Weights of a map's energy terms: descriptors, Laplacian, commutativity, orientation.
+_Weights = tuple[float, float, float, float]
+
+
 class _Commutator:
     """The term ½ Σᵢ ‖C O1ᵢ − O2ᵢ C‖² for stacks O1 (p, a, a), O2 (p, b, b), as four GEMMs."""
 
@@ -253,7 +266,7 @@ def _energy(
     sqdiff: np.ndarray,
     ops: _Commutator | None,
     orient: _Commutator | None,
-    weights: tuple[float, float, float, float],
+    weights: _Weights,
 ) -> tuple[float, np.ndarray]:
     """Evaluate the map energy of :func:`estimate_fmap` and its gradient with respect to C."""
     wd, wl, wc, wo = weights
@@ -276,7 +289,7 @@ def _minimize_quadratic(
     sqdiff: np.ndarray,
     ops: _Commutator | None,
     orient: _Commutator | None,
-    weights: tuple[float, float, float, float],
+    weights: _Weights,
 ) -> np.ndarray:
     """Exact minimizer of the :func:`_energy` over C with its first column fixed to C0's.
 
@@ -307,6 +320,55 @@ def _minimize_quadratic(
     return c.reshape(b, a)
 
 
+class _Energy(NamedTuple):
+    """The terms of a map's :func:`_energy`, and its minimizers over the maps C.
+
+    Both minimizers keep the first column of their start C0 (the constant's image).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    sqdiff: np.ndarray
+    ops: _Commutator | None
+    orient: _Commutator | None
+
+    def orientation_weighted(self, ref: np.ndarray, weights: _Weights, w_orient: float) -> _Weights:
+        """Return ``weights`` with an orientation weight relative to the other terms.
+
+        At the reference map ``ref``, the orientation term weighs ``w_orient`` times the other
+        terms (with ``weights``, whose orientation weight is ignored).
+        """
+        native = _energy(ref, self.A, self.B, self.sqdiff, self.ops, None, weights)[0]
+        unit = (0.0, 0.0, 0.0, 1.0)
+        o_energy = _energy(ref, self.A, self.B, self.sqdiff, None, self.orient, unit)[0]
+        return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
+
+    def minimize(self, C0: np.ndarray, weights: _Weights) -> np.ndarray:
+        """Return the exact minimizer (:func:`_minimize_quadratic`)."""
+        return _minimize_quadratic(C0, *self, weights)
+
+    def lbfgs(
+        self, C0: np.ndarray, weights: _Weights, options: dict[str, Any], w_rows: float = 0.0
+    ) -> scipy.optimize.OptimizeResult:
+        """Run L-BFGS-B from C0 on the energy plus ``½ w_rows ‖C Cᵀ − I‖²``."""
+        b, a = C0.shape
+        eye = np.eye(b)
+
+        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+            C = x.reshape(b, a)
+            e, g = _energy(C, *self, weights)
+            if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
+                R = C @ C.T - eye
+                e += 0.5 * w_rows * float(np.sum(R * R))
+                g = g + 2.0 * w_rows * (R @ C)
+            g[:, 0] = 0.0  # the first column stays fixed
+            return e, g.ravel()
+
+        return scipy.optimize.minimize(
+            fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options
+        )
+
+
 def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Split (p, 2) landmark pairs into source and target vertices (None, None without)."""
     if landmarks is None:
@@ -320,11 +382,13 @@ def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | Non
 
 
 class _FitTerms:
-    """The terms of :func:`estimate_fmap`'s energy on two unit-area bases, built once.
+    """The terms of :func:`estimate_fmap`'s energy on unit-area copies of two bases, built once.
 
-    Descriptors are computed from ``k_descriptors`` eigenpairs whatever the map's size, so the
-    coefficients and operator stacks of a smaller map are the leading blocks of a larger one's:
-    :meth:`fit` solves any size up to the one they were built for.
+    On the copies (``eig_1``, ``eig_2``) every term is independent of the shapes' units; a map
+    between them times ``scale`` is the map between the bases given. Descriptors are computed
+    from ``k_descriptors`` eigenpairs whatever the map's size, so the coefficients and
+    operator stacks of a smaller map are the leading blocks of a larger one's: :meth:`fit`
+    solves any size up to the one they were built for.
     """
 
     def __init__(
@@ -337,15 +401,19 @@ class _FitTerms:
         descriptors: str,
         n_descriptors: int,
         k_descriptors: int,
-        landmarks: tuple[np.ndarray | None, np.ndarray | None],
+        landmarks: Any,
         dcomm: bool,
         orient: bool,
         operator_step: int,
     ) -> None:
+        lm1, lm2 = _landmark_pairs(landmarks)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
         operator_step = check_int(operator_step, name="operator_step", minimum=1)
+        self.scale = math.sqrt(eig_2.area / eig_1.area)
+        self.eig_1 = eig_1 = unit_area(eig_1)
+        self.eig_2 = eig_2 = unit_area(eig_2)
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
             D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
@@ -358,7 +426,6 @@ class _FitTerms:
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
-            lm1, lm2 = landmarks
             job = pool.submit(terms, eig_2, k2, lm2)
             self.A, dcomm_1, orient_1 = terms(eig_1, k1, lm1)
             self.B, dcomm_2, orient_2 = job.result()
@@ -371,7 +438,7 @@ class _FitTerms:
         k1: int,
         k2: int,
         *,
-        weights: tuple[float, float, float, float],
+        weights: _Weights,
         solver: str = "direct",
         maxiter: int = 15000,
         ftol: float = 2.2e-9,
@@ -394,42 +461,23 @@ class _FitTerms:
 
         w_descr, w_lap, wc, w_orient = weights
         ops = block(self.dcomm) if wc > 0 else None
-        orient = block(self.orient) if w_orient > 0 else None
-
-        def terms(C: np.ndarray, w: tuple[float, float, float, float]) -> tuple[float, np.ndarray]:
-            return _energy(C, A, B, sqdiff, ops, orient, w)
-
+        energy = _Energy(A, B, sqdiff, ops, block(self.orient) if w_orient > 0 else None)
         weights = (w_descr, w_lap, wc, 0.0)
-        if orient:
-            eye = np.eye(b, a)
-            native = terms(eye, weights)[0]
-            o_energy = terms(eye, (0.0, 0.0, 0.0, 1.0))[0]
-            weights = (w_descr, w_lap, wc, w_orient * native / max(o_energy, 1e-300))
+        if energy.orient:
+            weights = energy.orientation_weighted(np.eye(b, a), weights, w_orient)
         C0 = np.zeros((b, a))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
         if solver == "direct":
-            C = _minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights)
+            C = energy.minimize(C0, weights)
             logger.debug(
                 "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
                 b,
                 a,
-                terms(C, weights)[0],
+                _energy(C, *energy, weights)[0],
                 wc,
             )
             return C
-
-        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-            e, g = terms(x.reshape(b, a), weights)
-            g[:, 0] = 0.0  # the first column stays fixed
-            return e, g.ravel()
-
-        res = scipy.optimize.minimize(
-            fun,
-            C0.ravel(),
-            jac=True,
-            method="L-BFGS-B",
-            options={"maxiter": maxiter, "ftol": ftol, "gtol": ftol},
-        )
+        res = energy.lbfgs(C0, weights, {"maxiter": maxiter, "ftol": ftol, "gtol": ftol})
         logger.debug(
             "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
             res.message,
@@ -538,19 +586,7 @@ def estimate_fmap(
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    check_eigenbasis(eig_1, "eig_1")
-    check_eigenbasis(eig_2, "eig_2")
-    k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
-    k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
-    if solver not in ("direct", "lbfgs"):
-        raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
-    if refine not in ("zoomout", "icp", None):
-        raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
-    lm1, lm2 = _landmark_pairs(landmarks)
-    # Work on unit-area copies: every term below is then independent of the shapes' units,
-    # and the map between the unit-area bases is converted back at the end.
-    scale = math.sqrt(eig_2.area / eig_1.area)
-    eig_1, eig_2 = unit_area(eig_1), unit_area(eig_2)
+    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver=solver, refine=refine)
     terms = _FitTerms(
         eig_1,
         eig_2,
@@ -559,34 +595,50 @@ def estimate_fmap(
         descriptors=descriptors,
         n_descriptors=n_descriptors,
         k_descriptors=k_descriptors,
-        landmarks=(lm1, lm2),
+        landmarks=landmarks,
         dcomm=max(np.atleast_1d(w_dcomm)) > 0,
         orient=w_orient > 0,
         operator_step=operator_step,
     )
-    fits = [
-        terms.fit(
-            k1,
-            k2,
-            weights=(w_descr, w_lap, float(wc), w_orient),
-            solver=solver,
-            maxiter=maxiter,
-            ftol=ftol,
-        )
-        for wc in np.atleast_1d(w_dcomm)
-    ]
+    fit = functools.partial(terms.fit, k1, k2, solver=solver, maxiter=maxiter, ftol=ftol)
+    fits = [fit(weights=(w_descr, w_lap, float(wc), w_orient)) for wc in np.atleast_1d(w_dcomm)]
     if len(fits) > 1:
         if refine is not None:
             raise ValueError("several w_dcomm weights give several maps: use refine=None")
-        return [C * scale for C in fits]
-    C = fits[0]
+        return [C * terms.scale for C in fits]
+    return _refined(fits[0], terms, refine, zoomout_to, icp_iterations) * terms.scale
+
+
+def _checked_sizes(
+    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, *, solver: str, refine: str | None
+) -> tuple[int, int]:
+    """Check :func:`estimate_fmap`'s bases, solver and refinement; return the map's sizes."""
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
+    k1 = min(eig_1.k, 30) if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
+    k2 = min(eig_2.k, 30) if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
+    if solver not in ("direct", "lbfgs"):
+        raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
+    if refine not in ("zoomout", "icp", None):
+        raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
+    return k1, k2
+
+
+def _refined(
+    C: np.ndarray, terms: _FitTerms, refine: str | None, zoomout_to: int | None, icp_iterations: int
+) -> np.ndarray:
+    """Refine a map between the unit-area bases as :func:`estimate_fmap`'s ``refine`` says.
+
+    ZoomOut's result is cut back to the map's size.
+    """
+    eig_1, eig_2 = terms.eig_1, terms.eig_2
     if refine == "icp":
-        C = icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
-    elif refine == "zoomout":
+        return icp_refine(C, eig_1, eig_2, iterations=icp_iterations)
+    if refine == "zoomout":
         target = min(eig_1.k, eig_2.k) if zoomout_to is None else zoomout_to
-        if target > max(k1, k2):
-            C = zoomout_refine(C, eig_1, eig_2, k_final=target)[: k2 + 1, : k1 + 1]
-    return C * scale
+        if target > max(C.shape) - 1:
+            return zoomout_refine(C, eig_1, eig_2, k_final=target)[: C.shape[0], : C.shape[1]]
+    return C
 
 
 @one_blas_thread
@@ -635,18 +687,16 @@ def estimate_fmaps(
     weights = [float(w) for w in w_dcomm]
     if not sizes or not weights:
         raise ValueError("sizes and w_dcomm must name at least one fit each")
-    scale = math.sqrt(eig_2.area / eig_1.area)
-    u1, u2 = unit_area(eig_1), unit_area(eig_2)
     k = max(sizes)
     terms = _FitTerms(
-        u1,
-        u2,
+        eig_1,
+        eig_2,
         k,
         k,
         descriptors=descriptors,
         n_descriptors=n_descriptors,
         k_descriptors=k_descriptors,
-        landmarks=_landmark_pairs(landmarks),
+        landmarks=landmarks,
         dcomm=max(weights) > 0,
         orient=w_orient > 0,
         operator_step=operator_step,
@@ -656,7 +706,7 @@ def estimate_fmaps(
         maps = pool.map(
             lambda f: terms.fit(f[0], f[0], weights=(w_descr, w_lap, f[1], w_orient)), fits
         )
-        return [(size, wc, scale * C) for (size, wc), C in zip(fits, maps, strict=True)]
+        return [(size, wc, terms.scale * C) for (size, wc), C in zip(fits, maps, strict=True)]
 
 
 @one_blas_thread
@@ -851,12 +901,8 @@ def zoomout_refine(
             s1 = farthest_points(eig_1.vertices, subsample)
             s2 = farthest_points(eig_2.vertices, subsample)
         phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
-        # The least-squares fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns
-        # of one matrix, whose QR factors are nested: factor it once, then each fit is a
-        # GEMM and a triangular solve (when the samples give full column rank).
-        Q, R = np.linalg.qr(psi2)
-        diag = np.abs(np.diag(R))
-        nested_qr = bool(diag.min() > 1e-10 * diag.max())
+        # The fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns of Ψ_s.
+        fits = _LeadingFits(psi2)
     while k < k_final:
         k = min(k + step, k_final)
         if subsample is None:
@@ -865,12 +911,29 @@ def zoomout_refine(
             continue
         kc = C.shape[0]
         p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
-        target = phi1[p2p_sub, : k + 1]
-        if nested_qr:
-            C = scipy.linalg.solve_triangular(R[: k + 1, : k + 1], Q[:, : k + 1].T @ target)
-        else:
-            C = np.linalg.lstsq(psi2[:, : k + 1], target, rcond=None)[0]
+        C = fits.solve(k + 1, phi1[p2p_sub, : k + 1])
     return C * scale
+
+
+class _LeadingFits:
+    """Least-squares fits ``X[:, :m] C ≈ Y`` on leading columns of one matrix ``X``.
+
+    The QR factors of leading columns are nested: ``X`` is factored once, and each fit is a
+    GEMM and a triangular solve; when ``X`` does not have full column rank, each fit is a
+    ``lstsq`` instead.
+    """
+
+    def __init__(self, X: np.ndarray) -> None:
+        self.X = X
+        self.Q, self.R = np.linalg.qr(X)
+        diag = np.abs(np.diag(self.R))
+        self.nested = bool(diag.min() > 1e-10 * diag.max())
+
+    def solve(self, m: int, Y: np.ndarray) -> np.ndarray:
+        """Return the least-squares solution C of ``X[:, :m] C ≈ Y``."""
+        if self.nested:
+            return scipy.linalg.solve_triangular(self.R[:m, :m], self.Q[:, :m].T @ Y)
+        return np.linalg.lstsq(self.X[:, :m], Y, rcond=None)[0]
 
 
 def lift_fmap(

@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -81,9 +81,15 @@ def _checked_fmap(
     return check_fmap(C, rows, cols, name=name)
 
 
-def _default_samples(n1: int) -> int:
-    """Source cells: balances the coarse stage (∝ s per query) and the fine one (∝ n1 / s)."""
-    return int(min(n1, max(64, round(2.0 * math.sqrt(n1)))))
+def _cell_count(n_samples: int | None, n1: int) -> int:
+    """Source cells before splitting: ``n_samples`` (checked), at most ``n1``.
+
+    The default ``2 sqrt(n1)`` (at least 64) balances the coarse stage (∝ s per query) and the
+    fine one (∝ n1 / s).
+    """
+    if n_samples is None:
+        return int(min(n1, max(64, round(2.0 * math.sqrt(n1)))))
+    return min(check_int(n_samples, name="n_samples", minimum=1), n1)
 
 
 def _sample(
@@ -171,8 +177,9 @@ class _Cells:
 
     With s cells, n1 vertices, d dimensions and p = ``_SLAB``: ``order`` (n1,) lists the source
     vertices by cell, ``starts`` and ``sizes`` (s,) index into it; ``centre`` (s, d) float64
-    holds the samples' embeddings (globally centred); ``offsets`` (n1, d) float32 each member
-    minus its cell's centre, in cell order, and ``norms`` (n1,) their squared norms;
+    holds the samples' embeddings (globally centred) and ``centre2`` (s,) float32 their squared
+    norms; ``offsets`` (n1, d) float32 each member minus its cell's centre, in cell order, and
+    ``norms`` (n1,) their squared norms;
     ``radius`` (s,) the largest offset norm; ``basis`` (s, d, p) orthonormal directions along
     which the cell spreads (the embedding's differential along the cell's 3-D extent),
     ``flat`` (s,) the largest offset component in their span and ``thick`` (s,) off it.
@@ -194,6 +201,7 @@ class _Cells:
         self.sizes = np.bincount(cell, minlength=s).astype(np.int64)
         self.starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
         self.centre = phi[samples, :cols] @ Ct - shift
+        self.centre2 = np.einsum("ij,ij->i", self.centre, self.centre).astype(np.float32)
         self.offsets = np.empty((n1, d), dtype=np.float32)
         self.norms = np.empty(n1, dtype=np.float32)
         self.basis = np.zeros((s, d, _SLAB))
@@ -306,10 +314,7 @@ def local_p2p_from_fmap(
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
     C = _checked_fmap(fmap_12, eig_1, eig_2, name="fmap_12", bases="eigenbases")
-    n1 = eig_1.n_vertices
-    if n_samples is None:
-        n_samples = _default_samples(n1)
-    n_samples = check_int(n_samples, name="n_samples", minimum=1)
+    count = _cell_count(n_samples, eig_1.n_vertices)
     a1, a2 = eig_1.area, eig_2.area
     # Unit-area embeddings without copying the bases: Φ̂ = Φ√A1, Ψ̂ = Ψ√A2, Ĉ = C√(A1/A2),
     # so Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ (the scales go into the small matrix).
@@ -322,7 +327,7 @@ def local_p2p_from_fmap(
             math.sqrt(a2),
             eig_1.vertices,
             eig_2.vertices,
-            min(n_samples, n1),
+            count,
             seed,
         )
 
@@ -339,11 +344,49 @@ def _local_search(
 ) -> np.ndarray:
     """Nearest row of ``phi[:, :cols] @ Ct`` for every row of ``root2 * psi[:, :rows]``."""
     t0 = time.perf_counter()
-    cols, rows = Ct.shape
     n1, n2 = phi.shape[0], psi.shape[0]
-    d = rows
-    # The source embedding in float32 (to shape the cells) and its mean: the global centre,
-    # for smaller norms (and rounding errors) in the float32 products.
+    emb, shift = _source_embedding(phi, Ct)
+    samples, cell = _sample(vertices_1, n_samples, seed)
+    samples, cell = _split(emb, samples, cell)
+    del emb
+    cells = _Cells(phi, Ct, shift, vertices_1, samples, cell)
+    target = _Target(psi, Ct.shape[1], root2, shift)
+    t_cells = time.perf_counter() - t0
+    best_cell, pairs, n_looked = _coarse_stage(cells, target, vertices_2)
+    t_coarse = time.perf_counter() - t0
+    best, upper2, certain, searched = _fine_stage(cells, target, best_cell, pairs)
+    out = cells.order[best]
+    # Queries whose float32 winner is not certain: float64 on the same cells, ties to the
+    # smallest source index.
+    unsure = np.flatnonzero(~certain)
+    if unsure.size:
+        _redo64(unsure, best_cell, pairs, upper2, cells, phi, psi, Ct, shift, root2, out)
+    logger.debug(
+        "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), coarse %.2fs (%.0f cells per "
+        "query), "
+        "%.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
+        n1,
+        n2,
+        samples.shape[0],
+        t_cells,
+        t_coarse - t_cells,
+        n_looked / n2,
+        searched / n2,
+        100.0 * searched / (n1 * n2),
+        unsure.size,
+        time.perf_counter() - t0,
+    )
+    return out
+
+
+def _source_embedding(phi: np.ndarray, Ct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the source embedding ``phi[:, :cols] @ Ct`` in float32, centred, and its mean.
+
+    The cells are shaped on the embedding; the mean (float64) is the global centre of both
+    embeddings, for smaller norms (and rounding errors) in the float32 products.
+    """
+    cols, d = Ct.shape
+    n1 = phi.shape[0]
     emb = np.empty((n1, d), dtype=np.float32)
     shift = np.zeros(d)
     for b in range(0, n1, _CHUNK):
@@ -352,43 +395,67 @@ def _local_search(
         emb[b : b + _CHUNK] = X
     shift /= n1
     emb -= shift.astype(np.float32)
-    samples, cell = _sample(vertices_1, n_samples, seed)
-    samples, cell = _split(emb, samples, cell)
-    del emb
-    cells = _Cells(phi, Ct, shift, vertices_1, samples, cell)
-    s = samples.shape[0]
+    return emb, shift
+
+
+class _Target:
+    """The target embedding ``root2 * psi[:, :rows] − shift`` in float32, with its norms.
+
+    float32 halves the memory traffic of float64 in the products; its rounding, at most
+    u‖y‖ (``round``), enters every error bound of the search. ``norm`` (n2,) holds the
+    float64 norms of the rows.
+    """
+
+    def __init__(self, psi: np.ndarray, rows: int, root2: float, shift: np.ndarray) -> None:
+        n2 = psi.shape[0]
+        self.Y32 = np.empty((n2, rows), dtype=np.float32)
+        self.norm = np.empty(n2)
+        for b in range(0, n2, _CHUNK):
+            Y = psi[b : b + _CHUNK, :rows] * root2
+            Y -= shift
+            self.norm[b : b + _CHUNK] = np.sqrt(np.einsum("ij,ij->i", Y, Y))
+            self.Y32[b : b + _CHUNK] = Y
+        self.round = 1.01 * _U32 * self.norm  # ‖Y32 − y‖
+
+
+class _Pairs(NamedTuple):
+    """(query, cell) pairs of the coarse stage, by cell, with a lower bound on the distance.
+
+    Compact (a few per query): int32 indices, float32 bounds rounded down.
+    """
+
+    query: np.ndarray
+    cell: np.ndarray
+    lower: np.ndarray
+
+
+def _coarse_stage(
+    cells: _Cells, target: _Target, vertices_2: np.ndarray
+) -> tuple[np.ndarray, _Pairs, int]:
+    """Bound the distance of every query to every cell; keep the cells that may hold its nearest.
+
+    Blocks of queries close on the target (runs of a Z-order curve: their candidate cells
+    overlap) are compared with all the samples at once. Returns the cell of every query's
+    nearest sample (searched first), the other candidate cells and the (query, cell)
+    comparisons made.
+    """
+    s, d = cells.centre.shape
+    n2 = target.Y32.shape[0]
     p = _SLAB
     gamma = d * _U32 / (1.0 - d * _U32)
     # Distances to the samples by float32 GEMMs: [−2y, 1, ‖y‖²] · [x_c; ‖x_c‖²; 1] is
     # ‖y − x_c‖², within ±err (the dot product's rounding-error bound).
     samples_t = np.empty((d + 2, s), dtype=np.float32)
     samples_t[:d] = cells.centre.T
-    samples_t[d] = np.einsum("ij,ij->i", cells.centre, cells.centre)
+    samples_t[d] = cells.centre2
     samples_t[d + 1] = 1.0
     basis_rows = np.ascontiguousarray(
         cells.basis.transpose(0, 2, 1).reshape(s * p, d), dtype=np.float32
     )  # row c·p + k: direction k of cell c
     centre_in = np.einsum("sd,sdp->sp", cells.centre, cells.basis)  # Bᵀ x_c
-    c_max = math.sqrt(float(samples_t[d].max()))
+    c_max = math.sqrt(float(cells.centre2.max()))
     radius32 = cells.radius.astype(np.float32)
     gamma2 = (d + 2) * _U32 / (1.0 - (d + 2) * _U32)
-    centre32 = cells.centre.astype(np.float32)
-    centre_norm = np.sqrt(samples_t[d].astype(np.float64))
-    # The target embedding, centred, in float32 (half the memory traffic of float64 in the
-    # products; its rounding, at most u‖y‖, enters every error bound below).
-    Y32 = np.empty((n2, d), dtype=np.float32)
-    y_norm_all = np.empty(n2)
-    for b in range(0, n2, _CHUNK):
-        Y = psi[b : b + _CHUNK, :rows] * root2
-        Y -= shift
-        y_norm_all[b : b + _CHUNK] = np.sqrt(np.einsum("ij,ij->i", Y, Y))
-        Y32[b : b + _CHUNK] = Y
-    y_round = 1.01 * _U32 * y_norm_all  # ‖Y32 − y‖
-    t_cells = time.perf_counter() - t0
-
-    # --- Coarse stage, on blocks of queries close on the target (runs of a Z-order curve:
-    # their candidate cells overlap): bounds per (query, cell); keep the cells that may hold
-    # the nearest neighbour.
     by_z = _morton_order(vertices_2)
     best_cell = np.empty(n2, dtype=np.int64)
     pair_q: list[np.ndarray] = []
@@ -401,13 +468,13 @@ def _local_search(
         qb = by_z[b : b + _BLOCK]
         m = qb.shape[0]
         r = np.arange(m)
-        y_norm = y_norm_all[qb]
+        y_norm = target.norm[qb]
         qa = q_buf[:m]
-        np.multiply(Y32[qb], -2.0, out=qa[:, :d])
+        np.multiply(target.Y32[qb], -2.0, out=qa[:, :d])
         qa[:, d] = 1.0
         qa[:, d + 1] = y_norm**2
         # GEMM rounding, and Y32 for y in the cross term
-        err = (gamma2 + 2.0 * _U32) * (y_norm + c_max) ** 2 + 2.0 * y_round[qb] * c_max
+        err = (gamma2 + 2.0 * _U32) * (y_norm + c_max) ** 2 + 2.0 * target.round[qb] * c_max
         dist2 = np.matmul(qa, samples_t, out=prod_buf[:m])
         n_looked += m * s
         near = np.argmin(dist2, axis=1)
@@ -432,25 +499,38 @@ def _local_search(
         cols_p = pos[:, None] * p + np.arange(p)
         par = -0.5 * proj[qi[:, None], cols_p].astype(np.float64) - centre_in[ci]
         par_norm = np.sqrt(np.einsum("ij,ij->i", par, par))
-        par_err = math.sqrt(p) * (gamma + 3.0 * _U32) * y_norm[qi] + y_round[qb[qi]]
+        par_err = math.sqrt(p) * (gamma + 3.0 * _U32) * y_norm[qi] + target.round[qb[qi]]
         low_par = np.maximum(par_norm - par_err - cells.flat[ci], 0.0)
         perp2 = w2_low - (par_norm + par_err) ** 2
         low_perp = np.maximum(np.sqrt(np.maximum(perp2, 0.0)) - cells.thick[ci], 0.0)
         lower = np.sqrt(low_par**2 + low_perp**2)
         keep = lower <= upper[qi]
-        # Compact pairs (a few per query): int32 indices, float32 bounds rounded down.
         pair_q.append(qb[qi[keep]].astype(np.int32))
         pair_c.append(ci[keep].astype(np.int32))
         pair_lb.append((lower[keep] * (1.0 - 1e-6)).astype(np.float32))
     pq = np.concatenate(pair_q) if pair_q else np.empty(0, dtype=np.int32)
     pc = np.concatenate(pair_c) if pair_c else np.empty(0, dtype=np.int32)
     plb = np.concatenate(pair_lb) if pair_lb else np.empty(0, dtype=np.float32)
-    t_coarse = time.perf_counter() - t0
+    by_cell = np.argsort(pc, kind="stable")
+    return best_cell, _Pairs(pq[by_cell], pc[by_cell], plb[by_cell]), n_looked
 
-    # --- Fine stage: the cell of the nearest sample, then every cell still possible. For
-    # each query: the best value (float32 products, float64 sums) and its error bound, and
-    # the smallest "value − error" of every other candidate (the winner is certain when
-    # that floor stays above "best + error").
+
+def _fine_stage(
+    cells: _Cells, target: _Target, best_cell: np.ndarray, pairs: _Pairs
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Search the cell of every query's nearest sample, then every cell still possible.
+
+    For each query: the best value (float32 products, float64 sums) and its error bound, and
+    the smallest "value − error" of every other candidate (the winner is certain when that
+    floor stays above "best + error"). Returns the winner's position in cell order, the upper
+    bound "best + error" on its squared distance, whether it is certain, and the candidates
+    compared.
+    """
+    s, d = cells.centre.shape
+    n2 = target.Y32.shape[0]
+    gamma = d * _U32 / (1.0 - d * _U32)
+    centre32 = cells.centre.astype(np.float32)
+    centre_norm = np.sqrt(cells.centre2.astype(np.float64))
     best_val = np.full(n2, np.inf)
     best_err = np.zeros(n2)
     floor = np.full(n2, np.inf)
@@ -459,7 +539,7 @@ def _local_search(
 
     def search(c: int, q: np.ndarray) -> None:
         sl = cells.members(c)
-        W = Y32[q]
+        W = target.Y32[q]
         W -= centre32[c]
         w2 = np.einsum("ij,ij->i", W, W, dtype=np.float64)
         W *= -2.0
@@ -478,7 +558,7 @@ def _local_search(
         e = 2.0 * _U32 * rc * rc + (2.0 * gamma + 6.0 * _U32) * w_norm * rc
         e += 4.0 * _U32 * (w2 + rc * rc)  # the float64 sum of float32 terms
         # W (float32) is y − x_c within ``shift_w``; the offsets are within u·R of theirs.
-        shift_w = y_round[q] + _U32 * (centre_norm[c] + w_norm + rc)
+        shift_w = target.round[q] + _U32 * (centre_norm[c] + w_norm + rc)
         e += 2.0 * shift_w * (w_norm + rc) + shift_w**2
         old, old_e = best_val[q], best_err[q]
         better = val < old
@@ -494,65 +574,24 @@ def _local_search(
         if q.size:
             search(c, q)
             searched += q.size * int(cells.sizes[c])
-    by_cell = np.argsort(pc, kind="stable")
-    pq, pc, plb = pq[by_cell], pc[by_cell], plb[by_cell]
-    bounds = np.searchsorted(pc, np.arange(s + 1))
+    bounds = np.searchsorted(pairs.cell, np.arange(s + 1))
     for c in range(s):
         sl = slice(bounds[c], bounds[c + 1])
-        q = pq[sl]
+        q = pairs.query[sl]
         if q.size == 0:
             continue
-        q = q[plb[sl] ** 2 <= best_val[q] + best_err[q]]
+        q = q[pairs.lower[sl] ** 2 <= best_val[q] + best_err[q]]
         if q.size:
             search(c, q)
             searched += q.size * int(cells.sizes[c])
-    out = cells.order[best]
-
-    # --- Queries whose float32 winner is not certain: float64 on the same cells, ties to the
-    # smallest source index.
-    unsure = np.flatnonzero(~(floor > best_val + best_err))
-    if unsure.size:
-        _redo64(
-            unsure,
-            best_cell,
-            pq,
-            pc,
-            plb,
-            best_val + best_err,
-            cells,
-            phi,
-            psi,
-            Ct,
-            shift,
-            root2,
-            rows,
-            cols,
-            out,
-        )
-    logger.debug(
-        "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), coarse %.2fs (%.0f cells per "
-        "query), "
-        "%.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
-        n1,
-        n2,
-        s,
-        t_cells,
-        t_coarse - t_cells,
-        n_looked / n2,
-        searched / n2,
-        100.0 * searched / (n1 * n2),
-        unsure.size,
-        time.perf_counter() - t0,
-    )
-    return out
+    upper2 = best_val + best_err
+    return best, upper2, floor > upper2, searched
 
 
 def _redo64(
     queries: np.ndarray,
     best_cell: np.ndarray,
-    pq: np.ndarray,
-    pc: np.ndarray,
-    plb: np.ndarray,
+    pairs: _Pairs,
     upper2: np.ndarray,
     cells: _Cells,
     phi: np.ndarray,
@@ -560,11 +599,11 @@ def _redo64(
     Ct: np.ndarray,
     shift: np.ndarray,
     root2: float,
-    rows: int,
-    cols: int,
     out: np.ndarray,
 ) -> None:
     """Exact float64 search of ``queries`` over their possible cells (writes into ``out``)."""
+    cols, rows = Ct.shape
+    pq, pc, plb = pairs
     n2 = psi.shape[0]
     flag = np.zeros(n2, dtype=bool)
     flag[queries] = True
@@ -709,34 +748,24 @@ def extend_p2p(
     C = _checked_fmap(fmap_coarse, coarse_1, coarse_2, name="fmap_coarse", bases="coarse bases")
     rows, cols = C.shape
     neighbours = check_int(neighbours, name="neighbours", minimum=1)
-    n1 = V1.shape[0]
-    n_samples = _default_samples(n1) if n_samples is None else n_samples
-    n_samples = check_int(n_samples, name="n_samples", minimum=1)
+    count = _cell_count(n_samples, V1.shape[0])
     t0 = time.perf_counter()
     if not isinstance(adjoint, bool):
         raise TypeError(f"adjoint must be True or False; got {adjoint!r}")
     a1, a2 = coarse_1.area, coarse_2.area
     if adjoint:  # Φ against Ψ C, both times √A1 (a common factor: left out)
-        phi = np.asarray(
-            _interpolation(coarse_1.vertices, V1, neighbours) @ coarse_1.evecs[:, :cols]
-        )
-        psi = np.asarray(
-            _interpolation(coarse_2.vertices, V2, neighbours) @ (coarse_2.evecs[:, :rows] @ C)
-        )
+        coarse_phi, coarse_psi = coarse_1.evecs[:, :cols], coarse_2.evecs[:, :rows] @ C
         dims, root2 = cols, 1.0
     else:
         Ct = np.ascontiguousarray(C.T) * (a1 / math.sqrt(a2))
         # The source embedding Φ Ĉᵀ is interpolated directly (rows × d instead of cols columns).
-        phi = np.asarray(
-            _interpolation(coarse_1.vertices, V1, neighbours) @ (coarse_1.evecs[:, :cols] @ Ct)
-        )
-        psi = np.asarray(
-            _interpolation(coarse_2.vertices, V2, neighbours) @ coarse_2.evecs[:, :rows]
-        )
+        coarse_phi, coarse_psi = coarse_1.evecs[:, :cols] @ Ct, coarse_2.evecs[:, :rows]
         dims, root2 = rows, math.sqrt(a2)
+    phi = np.asarray(_interpolation(coarse_1.vertices, V1, neighbours) @ coarse_phi)
+    psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_psi)
     t_interp = time.perf_counter() - t0
     with blas_threads(1):
-        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, min(n_samples, n1), 0)
+        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, count, 0)
     logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
     return out
 

@@ -24,7 +24,7 @@ Method (what :func:`fit_partial_fmap`, :func:`partial_zoomout` and :func:`partia
    slanted diagonal: it plays the role of Rodolà's slanted mask), descriptor commutativity,
    the orientation-preserving term of Ren et al. 2018 (all hold for a restriction) and
    ``‖C Cᵀ − I‖²`` (a restriction has orthonormal rows; without it the row of the constant
-   grew unboundedly).
+   grows unboundedly).
 3. A *partial ZoomOut*: alternate the point map (each target point to its nearest row of
    ``Φ Cᵀ``; the rows of source points outside the part are near zero, so they are not
    chosen) and the least-squares map of that point map, growing the target size by one and
@@ -59,14 +59,14 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from typing import Any
 
 import numpy as np
-import scipy.linalg
-import scipy.optimize
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg as sla
 
 from ._threads import one_blas_thread
 from ._validation import check_int
@@ -74,10 +74,11 @@ from .correspondence import check_p2p, nearest_neighbors
 from .fmap import (
     _Commutator,
     _descriptor_ops,
-    _energy,
-    _minimize_quadratic,
+    _Energy,
+    _LeadingFits,
     _orientation_ops,
     _projection,
+    _scaled,
     farthest_points,
 )
 from .geometry import edge_graph
@@ -95,7 +96,6 @@ __all__ = [
     "partial_p2p",
     "partial_polish",
     "partial_polish_fit",
-    "partial_residual",
     "partial_zoomout",
     "polish_target_size",
     "rescaled",
@@ -125,16 +125,7 @@ def rescaled(eig: EigenBasis, area: float) -> EigenBasis:
     """
     if not (area > 0 and math.isfinite(area)):
         raise ValueError(f"area must be positive and finite; got {area}")
-    root = math.sqrt(area)
-    centre = (eig.mass @ eig.vertices) / eig.area
-    return dataclasses.replace(
-        eig,
-        evals=eig.evals * area,
-        evecs=eig.evecs * root,
-        mass=eig.mass / area,
-        vertices=(eig.vertices - centre) / root,
-        digest="",
-    )
+    return _scaled(eig, area)
 
 
 def slant(evals_1: np.ndarray, evals_2: np.ndarray, k2: int) -> int:
@@ -177,21 +168,22 @@ def boundary_length(
     """
     if faces is None or len(faces) == 0:
         return 0.0
-    F = np.asarray(faces, dtype=np.int64)
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, counts = _edges(np.asarray(faces, dtype=np.int64))
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
     lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
     if not longest or single.size == 0:
         return float(lengths.sum())
-    import scipy.sparse as sp
-    import scipy.sparse.csgraph as csgraph
-
     n = V.shape[0]
     graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
     _, piece = csgraph.connected_components(graph, directed=False)
     return float(np.bincount(piece[single[:, 0]], weights=lengths).max())
+
+
+def _edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)
 
 
 def map_stretch(
@@ -223,10 +215,7 @@ def map_stretch(
     """
     if faces_2 is None or len(faces_2) == 0:
         return math.nan
-    F = np.asarray(faces_2, dtype=np.int64)
-    edges = np.unique(
-        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
-    )
+    edges = _edges(np.asarray(faces_2, dtype=np.int64))[0]
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
     p2p = np.asarray(p2p_21, dtype=np.int64)
@@ -266,8 +255,6 @@ def geodesic_distortion(
     -------
     float
     """
-    import scipy.sparse.csgraph as csgraph
-
     if faces_1 is None or faces_2 is None or len(faces_1) == 0 or len(faces_2) == 0:
         return math.nan
     V1 = np.asarray(vertices_1, dtype=np.float64)
@@ -378,8 +365,6 @@ def geodesic_features(
         Distances of every target vertex to the trusted anchors; a target vertex ``i`` goes to
         the source vertex whose column of ``f1`` is nearest to column ``i`` of ``f2``.
     """
-    import scipy.sparse.csgraph as csgraph
-
     if not (0 < keep <= 1):
         raise ValueError(f"keep must be in (0, 1]; got {keep}")
     iterations = check_int(iterations, name="iterations", minimum=1)
@@ -500,9 +485,6 @@ def curvature_descriptors(
     -------
     (n, 2 len(scales)) ndarray
     """
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as sla
-
     V, F, M, L = eig.vertices, eig.faces, eig.mass, eig.stiffness
     n = V.shape[0]
     safe = np.where(M > 0, M, 1.0)
@@ -518,8 +500,7 @@ def curvature_descriptors(
             cos /= np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
             np.add.at(angles, F[:, i], np.arccos(np.clip(cos, -1.0, 1.0)))
         K = (2 * np.pi - angles) / safe
-        edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-        unique, counts = np.unique(edges, axis=0, return_counts=True)
+        unique, counts = _edges(F)
         border = np.unique(unique[counts == 1])
         H[border] = 0.0
         K[border] = 0.0
@@ -656,6 +637,41 @@ def fit_partial_fmap(
             n_descriptors=n_descriptors,
             k_descriptors=k_descriptors,
         )
+    D1, D2 = _checked_descriptors(descriptors, eig_1, eig_2)
+    energy = _partial_energy(
+        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
+    )
+    root_r = math.sqrt(eig_2.area / eig_1.area)
+    C0 = np.zeros((k2 + 1, k1 + 1))
+    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
+    fits = []
+    for wc in w_dcomm:
+        weights = (w_descr, w_lap, float(wc), 0.0)
+        if energy.orient is not None:
+            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
+            ref[0, 0] = root_r
+            weights = energy.orientation_weighted(ref, weights, w_orient)
+        if solver == "direct":
+            fits.append(energy.minimize(C0, weights))
+            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
+            continue
+        res = energy.lbfgs(C0, weights, {"maxiter": maxiter}, w_rows)
+        logger.debug(
+            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
+            k2 + 1,
+            k1 + 1,
+            res.message,
+            res.nit,
+            wc,
+        )
+        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+    return fits
+
+
+def _checked_descriptors(
+    descriptors: tuple[np.ndarray, np.ndarray], eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the descriptors ``(D1, D2)`` as float arrays, checked against both shapes."""
     D1, D2 = (np.asarray(D, dtype=np.float64) for D in descriptors)
     if (
         D1.ndim != 2
@@ -667,58 +683,37 @@ def fit_partial_fmap(
             f"descriptors must be (n1, p) and (n2, p) arrays for shapes of {eig_1.n_vertices} "
             f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
         )
+    return D1, D2
+
+
+def _partial_energy(
+    eig_1: EigenBasis,
+    eig_2: EigenBasis,
+    k1: int,
+    k2: int,
+    D1: np.ndarray,
+    D2: np.ndarray,
+    *,
+    dcomm: bool,
+    orient: bool,
+) -> _Energy:
+    """Build the terms of :func:`fit_partial_fmap`'s energy for a (k2+1, k1+1) map.
+
+    The descriptor-commutativity and orientation terms are left out when not wanted (the
+    orientation term also without both shapes' faces).
+    """
     A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
     ops = (
         _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if max(w_dcomm) > 0
+        if dcomm
         else None
     )
     sqdiff = (eig_1.evals[None, : k1 + 1] - eig_2.evals[: k2 + 1, None]) ** 2
     sqdiff /= sqdiff.sum()
-    orient = None
-    if w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None:
-        orient = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    root_r = math.sqrt(eig_2.area / eig_1.area)
-    C0 = np.zeros((k2 + 1, k1 + 1))
-    C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
-    fits = []
-    eye = np.eye(k2 + 1)
-    for wc in w_dcomm:
-        weights = (w_descr, w_lap, float(wc), 0.0)
-        if orient is not None:
-            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
-            ref[0, 0] = root_r
-            native = _energy(ref, A, B, sqdiff, ops, None, weights)[0]
-            o_energy = _energy(ref, A, B, sqdiff, None, orient, (0.0, 0.0, 0.0, 1.0))[0]
-            weights = (w_descr, w_lap, float(wc), w_orient * native / max(o_energy, 1e-300))
-        if solver == "direct":
-            fits.append(_minimize_quadratic(C0, A, B, sqdiff, ops, orient, weights))
-            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
-            continue
-
-        def fun(x: np.ndarray, weights: tuple[float, float, float, float] = weights):
-            C = x.reshape(k2 + 1, k1 + 1)
-            e, g = _energy(C, A, B, sqdiff, ops, orient, weights)
-            if w_rows > 0:  # a restriction has orthonormal rows: C Cᵀ = I
-                R = C @ C.T - eye
-                e += 0.5 * w_rows * float(np.sum(R * R))
-                g = g + 2.0 * w_rows * (R @ C)
-            g[:, 0] = 0.0  # the first column stays fixed
-            return e, g.ravel()
-
-        res = scipy.optimize.minimize(
-            fun, C0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": maxiter}
-        )
-        logger.debug(
-            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
-            k2 + 1,
-            k1 + 1,
-            res.message,
-            res.nit,
-            wc,
-        )
-        fits.append(res.x.reshape(k2 + 1, k1 + 1))
-    return fits
+    orient_term = None
+    if orient and eig_1.faces is not None and eig_2.faces is not None:
+        orient_term = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
+    return _Energy(A, B, sqdiff, ops, orient_term)
 
 
 @one_blas_thread
@@ -774,11 +769,10 @@ def partial_zoomout(
 
 #: Source size, as a fraction of the final one, at which :func:`partial_polish` starts.
 #: Measured on the final maps of the 12 cuts of scripts/eval_partial.py --remeshed (99
-#: eigenfunctions per shape; stop 34, a machine-local experiment before the polish was part of
-#: the match, with all 99 target functions): from 60 of 99, every one of the 9 right maps as
-#: precise or more (errors 0.0166-0.0436 -> 0.0161-0.0399; with twice the slant's target
-#: functions 0.0156-0.0400); with the single size 99, less gain (0.0162-0.0418); from 30,
-#: worse on 3 of the 9.
+#: eigenfunctions per shape; the polish applied to the match's maps, with all 99 target
+#: functions): from 60 of 99, every one of the 9 right maps as precise or more (errors
+#: 0.0166-0.0436 -> 0.0161-0.0399; with twice the slant's target functions 0.0156-0.0400);
+#: with the single size 99, less gain (0.0162-0.0418); from 30, worse on 3 of the 9.
 POLISH_FROM = 0.6
 #: Target functions of :func:`partial_polish`'s fits, as a multiple of those the slant gives
 #: (at most all of the target's). Measured on the same maps: with twice the slant, or all 99
@@ -889,18 +883,10 @@ def partial_polish_fit(
         current = nearest_neighbors(eig_1.vertices[s1], eig_1.vertices[p2p[s2]])
     phi = eig_1.evecs[s1, : k1_final + 1]
     psi = eig_2.evecs[s2, : k2_max + 1]
-    # The fits use leading columns of one matrix: factor it once (nested QR, as in ZoomOut).
-    Q, R = np.linalg.qr(psi)
-    diag = np.abs(np.diag(R))
-    nested = bool(diag.min() > 1e-10 * diag.max())
+    fits = _LeadingFits(psi)  # the fits use leading columns of psi (as in ZoomOut)
     for k1 in range(max(1, round(POLISH_FROM * k1_final)), k1_final + 1):
         size = polish_target_size(eig_1.evals, eig_2.evals, k1)
-        target = phi[current, : k1 + 1]
-        if nested:
-            rows = slice(0, size + 1)
-            C = scipy.linalg.solve_triangular(R[rows, rows], Q[:, rows].T @ target)
-        else:
-            C = np.linalg.lstsq(psi[:, : size + 1], target, rcond=None)[0]
+        C = fits.solve(size + 1, phi[current, : k1 + 1])
         current = nearest_neighbors(phi[:, : k1 + 1], psi[:, : size + 1] @ C)
     return C
 
@@ -942,23 +928,6 @@ def partial_p2p(fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> np
     """
     C = np.asarray(fmap_12, dtype=np.float64)
     return nearest_neighbors(eig_1.evecs[:, : C.shape[1]] @ C.T, eig_2.evecs[:, : C.shape[0]])
-
-
-def partial_residual(
-    fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, samples: int = 2000
-) -> float:
-    """Mean distance from each target sample's ``Ψ`` row to its nearest ``Φ Cᵀ`` source row.
-
-    Small when the map aligns the part with a region of the whole (the energy ZoomOut
-    lowers); used to choose between fitted starts.
-    """
-    C = np.asarray(fmap_12, dtype=np.float64)
-    s1 = farthest_points(eig_1.vertices, samples)
-    s2 = farthest_points(eig_2.vertices, samples)
-    mapped = eig_1.evecs[s1, : C.shape[1]] @ C.T
-    psi = eig_2.evecs[s2, : C.shape[0]]
-    nn = nearest_neighbors(mapped, psi)
-    return float(np.linalg.norm(psi - mapped[nn], axis=1).mean())
 
 
 def membership(fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> np.ndarray:

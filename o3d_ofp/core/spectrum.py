@@ -262,9 +262,7 @@ def check_eigenbasis(eig: Any, name: str = "eig") -> EigenBasis:
 def _dense_eigs(
     stiffness: sp.csr_matrix, mass: np.ndarray, k: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    A = stiffness.toarray()
-    evals, evecs = scipy.linalg.eigh(A, np.diag(mass), subset_by_index=[0, k])
-    return evals, evecs
+    return scipy.linalg.eigh(stiffness.toarray(), np.diag(mass), subset_by_index=[0, k])
 
 
 #: Factorizations of L − σM for shift-invert: "cholmod" (CHOLMOD's supernodal Cholesky from
@@ -562,8 +560,8 @@ _DENSE_FALLBACK_MAX = 4000
 
 #: Above this share of the vertices, eigenpairs are computed densely (LAPACK) when the shape
 #: has at most :data:`_DENSE_LARGE_K_MAX` vertices: Lanczos then needs nearly n vectors and
-#: restarts (a new-user trial's k = 5001 on 6890 vertices ran over 14 minutes before it was
-#: stopped; the dense solve takes 280 s there, one BLAS thread).
+#: restarts (measured, k = 5001 on 6890 vertices: Lanczos unfinished after 14 minutes, the
+#: dense solve 280 s on one BLAS thread).
 _DENSE_K_SHARE = 0.25
 _DENSE_LARGE_K_MAX = 12_000
 
@@ -616,12 +614,8 @@ def _solve(
                 ncv = min(n - 1, k + 1 + max(20, (k + 1) // 2))
             else:
                 ncv = min(n - 1, max(ncv_factor * (k + 1), 20))
-            plans.append(
-                (
-                    "shift-invert Lanczos",
-                    {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization},
-                )
-            )
+            options = {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization}
+            plans.append(("shift-invert Lanczos", options))
         if n <= _DENSE_FALLBACK_MAX:
             plans.append(("dense", {}))
     last: Exception | None = None
@@ -694,9 +688,9 @@ def _finish(
 
 
 def _expand(
-    shape: CleanShape, evecs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix, np.ndarray | None]:
-    """Carry a cleaned shape's eigenvectors, mass, stiffness and faces to the input vertices.
+    shape: CleanShape, evals: np.ndarray, evecs: np.ndarray, vertices: np.ndarray, digest: str
+) -> EigenBasis:
+    """Carry a cleaned shape's eigenpairs, mass, stiffness and faces to the input vertices.
 
     A welded vertex gets its representative's values and an equal share of its mass; a removed
     vertex gets the nearest kept vertex's values and zero mass. With ``A`` the (n_c, n_in)
@@ -705,16 +699,26 @@ def _expand(
     """
     c = shape.cleaning
     faces = None if shape.faces is None else c.representative[shape.faces]
-    if not c.report.changed:
-        return evecs, shape.mass, shape.stiffness, faces
-    idx, kept = c.index, c.kept
-    mult = c.multiplicity.astype(np.float64)
-    share = np.where(kept, 1.0 / mult[idx], 0.0)
-    mass = shape.mass[idx] * share
-    A = sp.csr_matrix((share, (idx, np.arange(c.n_input))), shape=(c.n_vertices, c.n_input))
-    stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
-    stiffness.sum_duplicates()
-    return c.extend(evecs), mass, stiffness, faces
+    mass, stiffness = shape.mass, shape.stiffness
+    if c.report.changed:
+        idx, kept = c.index, c.kept
+        mult = c.multiplicity.astype(np.float64)
+        share = np.where(kept, 1.0 / mult[idx], 0.0)
+        mass = shape.mass[idx] * share
+        A = sp.csr_matrix((share, (idx, np.arange(c.n_input))), shape=(c.n_vertices, c.n_input))
+        stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
+        stiffness.sum_duplicates()
+        evecs = c.extend(evecs)
+    return EigenBasis(
+        evals=np.ascontiguousarray(evals),
+        evecs=np.ascontiguousarray(evecs),
+        mass=mass,
+        stiffness=stiffness,
+        vertices=vertices,
+        faces=faces,
+        cleaning=c if c.report.changed else None,
+        digest=digest,
+    )
 
 
 #: Options of :func:`eigenbasis` that change the basis of a given input (besides ``k``).
@@ -894,6 +898,14 @@ def eigenbasis(
         mollify_factor=mollify_factor,
         n_neighbors=n_neighbors,
     )
+    k = _fitted_k(k, shape, clamp_k)
+    evals, evecs = _eigenpairs(shape, k, maxiter=maxiter, factorization=factorization)
+    digest = _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
+    return _expand(shape, evals, evecs, vertices, digest)
+
+
+def _fitted_k(k: int, shape: CleanShape, clamp_k: bool) -> int:
+    """Check ``k`` against the cleaned shape's vertices (reduced to n − 1 with ``clamp_k``)."""
     n = shape.mass.shape[0]
     if k >= n and clamp_k and n >= 2:
         logger.warning("k=%d reduced to %d: the shape has %d vertices", k, n - 1, n)
@@ -903,6 +915,14 @@ def eigenbasis(
             f"k must be smaller than the number of vertices: k={k} but the shape has {n} "
             f"vertices{' after cleaning' if shape.cleaning.report.changed else ''}, so k <= {n - 1}"
         )
+    return k
+
+
+def _eigenpairs(
+    shape: CleanShape, k: int, *, maxiter: int, factorization: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenpairs of the cleaned shape by :func:`_solve`, once the memory they need is checked."""
+    n = shape.mass.shape[0]
     ncv = min(n, max(2 * (k + 1) + 1, 20))
     check_memory(
         8.0 * n * (ncv + 3 * (k + 1))
@@ -927,17 +947,7 @@ def eigenbasis(
         evals[-1],
         res.max(),
     )
-    evecs, mass, stiffness, used_faces = _expand(shape, evecs)
-    return EigenBasis(
-        evals=np.ascontiguousarray(evals),
-        evecs=np.ascontiguousarray(evecs),
-        mass=mass,
-        stiffness=stiffness,
-        vertices=vertices,
-        faces=used_faces,
-        cleaning=None if not shape.cleaning.report.changed else shape.cleaning,
-        digest=_digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors),
-    )
+    return evals, evecs
 
 
 def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]:
@@ -983,4 +993,3 @@ def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]
         faces=None if eig.faces is None else idx[eig.faces],
     )
     return basis, rep
-
