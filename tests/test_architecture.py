@@ -289,10 +289,15 @@ def test_the_checks_of_decisions_catch_a_re_decision(tmp_path):
 
 
 def test_the_defaults_of_the_bases_are_written_once():
-    """k1 = 29 and k2 = 39 (the paper's K = 30 / 40) as literals only in workflows.options."""
-    found = []
+    """k = 29 and k2 = 39 (the paper's K = 30 / 40) as literals in one place each.
+
+    29 is core.spectrum.DEFAULT_K; 39 is BasisOptions.k2 (and the full match's second fit
+    size, WIDE_FIT_K, a measured constant of its own).
+    """
+    found: dict[int, set[str]] = {29: set(), 39: set()}
     for module, path in _modules().items():
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Constant) and type(node.value) is int and node.value == 39:
-                found.append(module)
-    assert set(found) <= {"o3d_ofp.workflows.options", "o3d_ofp.workflows.matching"}, found
+            if isinstance(node, ast.Constant) and type(node.value) is int and node.value in found:
+                found[node.value].add(module)
+    assert found[29] <= {"o3d_ofp.core.spectrum"}, found
+    assert found[39] <= {"o3d_ofp.workflows.options", "o3d_ofp.workflows.matching"}, found

@@ -27,7 +27,7 @@ from ..core.filtering import (
     smooth_coordinates,
     spectral_filter,
 )
-from ..core.spectrum import EigenBasis
+from ..core.spectrum import DEFAULT_K, EigenBasis
 from ..core.wording import OptionError, Said
 from ..workflows import cache
 from ..workflows.detail import check_coordinates_area, transfer_detail_frames
@@ -114,7 +114,7 @@ def eigenbasis(
     mesh_or_vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     weld_tolerance: float | None = 1e-9,
     components: str = "auto",
     mollify_factor: float = 1e-5,
@@ -202,7 +202,7 @@ def cached_basis(
     mesh_or_vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     order: int = 2,
     tol: float | None = None,
     preset: str | None = None,

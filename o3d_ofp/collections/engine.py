@@ -35,6 +35,7 @@ from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
+from ..core.spectrum import DEFAULT_K
 from ..core.wording import AdvisedError, OptionError, Said
 from ..workflows.options import ESTIMATION_K, BasisOptions, DetailOptions
 from ..workflows.plan import plan_pair, prepare_source
@@ -790,7 +791,7 @@ def bases_many(
     *,
     cache_dir: str | os.PathLike[str],
     client: Any = None,
-    k: int = 29,
+    k: int = DEFAULT_K,
     order: int = 2,
     preset: str | None = "ours",
     tol: float | None = None,

@@ -27,7 +27,7 @@ from ..core._validation import check_int
 from ..core._warnings import OFPWarning, collected_warnings, warn
 from ..core.basis import OFPBasis
 from ..core.orthogonalize import resolve_tol
-from ..core.spectrum import EigenBasis
+from ..core.spectrum import DEFAULT_K, EigenBasis
 from ..core.texture import MAX_TEXTURE_SIZE
 from ..core.wording import AdvisedError, OptionError, Said
 from ..workflows.cache import basis_cache_path, fetch_basis, fetch_eigenbasis
@@ -146,7 +146,7 @@ class BasisJob:
     """Options of :func:`~o3d_ofp.collections.bases_many`, checked here."""
 
     cache_dir: str
-    k: int = 29
+    k: int = DEFAULT_K
     order: int = 2
     tol: float | None = None
     preset: str | None = "ours"

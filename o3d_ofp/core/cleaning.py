@@ -46,6 +46,7 @@ from ._validation import as_faces, as_signal, as_vertices, check_int
 from ._warnings import warn
 from .geometry import face_areas_normals
 from .laplacian import count_components, laplacian
+from .wording import AdvisedError, Said
 
 __all__ = [
     "AUTO_KEEP_FRACTION",
@@ -134,8 +135,12 @@ class CleaningReport:
         )
 
     def __str__(self) -> str:
+        return self.said().text()
+
+    def said(self) -> Said:
+        """Return what the cleaning did, as a message (its fix worded for its reader)."""
         if not self.changed:
-            return f"clean input: {self.vertices} vertices, {self.faces} faces, 1 component"
+            return Said(f"clean input: {self.vertices} vertices, {self.faces} faces, 1 component")
         parts = []
         if self.merged_vertices:
             parts.append(f"welded {self.merged_vertices} duplicated vertices")
@@ -151,13 +156,14 @@ class CleaningReport:
                 f"out {self.dropped_vertices} vertices ({100 * self.dropped_fraction:.2g} % "
                 f"of the {'area' if self.faces else 'points'}), which stay in the results with "
                 "the values of their nearest kept vertex (a map, colors or detail there are "
-                "not estimated: remove the small pieces, or pass components='error' to refuse "
+                "not estimated: remove the small pieces, or pass {components_error} to refuse "
                 "such shapes)"
             )
         if self.jittered:
             parts.append("jittered the points (degenerate neighbourhoods)")
         faces = f", {self.input_faces} -> {self.faces} faces" if self.input_faces else ""
-        return f"{'; '.join(parts)}: {self.input_vertices} -> {self.vertices} vertices{faces}"
+        text = f"{'; '.join(parts)}: {self.input_vertices} -> {self.vertices} vertices{faces}"
+        return Said(text, {}, "cleaned")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -290,17 +296,18 @@ def _pick_component(
         f"{sizes[i]} {unit} ({100 * totals[i] / total:.3g} %)" for i in order[:5]
     ) + (", ..." if count > 5 else "")
     if policy == "error" or (policy == "auto" and share < AUTO_KEEP_FRACTION):
-        raise ValueError(
-            f"the shape has {count} connected components ({summary} of the {what}); a basis "
-            "needs one surface (its zero eigenvalue would have multiplicity "
-            f"{count}). Pass components='largest' to keep the largest, or split the shape"
-            + (
-                f" (components='auto' keeps the largest only when it holds at least "
-                f"{100 * AUTO_KEEP_FRACTION:g} % of the {what})"
-                if policy == "auto"
-                else ""
-            )
-        )
+        auto = (
+            " ({components_auto} keeps the largest only when it holds at least {share:g} % of "
+            "the {what})"
+        )  # fmt: skip
+        raise AdvisedError(Said(
+            "the shape has {count} connected components ({summary} of the {what}); a basis needs "
+            "one surface (its zero eigenvalue would have multiplicity {count}). Pass "
+            "{components_largest} to keep the largest, or split the shape"
+            + (auto if policy == "auto" else ""),
+            {"count": count, "summary": summary, "what": what, "share": 100 * AUTO_KEEP_FRACTION},
+            "components",
+        ))  # fmt: skip
     keep = labels == best
     return keep, count, 1.0 - share
 
@@ -543,7 +550,7 @@ def clean_shape(
         **counts,
     )
     if report.dropped_vertices:
-        warn(logger, str(report))
+        warn(logger, report.said())
     elif report.changed:
         logger.info("%s", report)
     cleaning = Cleaning(

@@ -48,6 +48,7 @@ from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleaningReport, CleanShape, clean_shape
 
 __all__ = [
+    "DEFAULT_K",
     "DIGEST_OPTIONS",
     "FACTORIZATIONS",
     "EigenBasis",
@@ -59,6 +60,10 @@ __all__ = [
     "on_cleaned_vertices",
     "shape_digest",
 ]
+
+
+#: Non-constant eigenfunctions of a basis by default: the paper's K = 30 with the constant.
+DEFAULT_K = 29
 
 logger = logging.getLogger(__name__)
 
@@ -805,7 +810,7 @@ def eigenbasis(
     vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     weld_tolerance: float | None = 1e-9,
     components: str = "auto",
     mollify_factor: float = 1e-5,

@@ -22,7 +22,7 @@ import numpy as np
 from ..core._atomic import atomic_path
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.orthogonalize import resolve_tol
-from ..core.spectrum import DIGEST_OPTIONS, EigenBasis, eigenbasis, shape_digest
+from ..core.spectrum import DEFAULT_K, DIGEST_OPTIONS, EigenBasis, eigenbasis, shape_digest
 
 __all__ = [
     "basis_cache_path",
@@ -203,7 +203,7 @@ def basis_cache_path(
     vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     order: int = 2,
     tol: float | None = None,
     preset: str | None = None,
@@ -230,7 +230,7 @@ def fetch_basis(
     vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     order: int = 2,
     tol: float | None = None,
     preset: str | None = None,
@@ -284,7 +284,7 @@ def cached_basis(
     vertices: Any,
     faces: Any = None,
     *,
-    k: int = 29,
+    k: int = DEFAULT_K,
     order: int = 2,
     tol: float | None = None,
     preset: str | None = None,

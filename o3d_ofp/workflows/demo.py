@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.basis import approximation_error, ofp_basis
 from ..core.shapes import blob
-from ..core.spectrum import eigenbasis
+from ..core.spectrum import DEFAULT_K, eigenbasis
 from .options import BasisOptions
 from .pipeline import carry
 from .plan import plan_pair, prepare
@@ -71,7 +71,9 @@ class DemoResult:
     transfer_seconds: float
 
 
-def run_demo(*, subdivisions: int = 5, seed: int = 0, k: int = 29, order: int = 2) -> DemoResult:
+def run_demo(
+    *, subdivisions: int = 5, seed: int = 0, k: int = DEFAULT_K, order: int = 2
+) -> DemoResult:
     """Approximate a blob's colors with K eigenfunctions and both OFP bases; transfer them.
 
     Parameters

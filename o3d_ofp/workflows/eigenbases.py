@@ -18,6 +18,7 @@ from ..core._memory import basis_job_bytes
 from ..core._processes import side_by_side
 from ..core.cleaning import check_shape
 from ..core.spectrum import EigenBasis, eigenbasis
+from ..core.wording import AdvisedError, Said
 
 __all__ = [
     "SIDE_BY_SIDE_VERTICES",
@@ -116,6 +117,9 @@ def check_shapes(
             check_shape(V, F, components=components, weld_tolerance=weld_tolerance)
         except (TypeError, ValueError) as exc:
             name = names[i] if names is not None else f"shape {i + 1} of {len(shapes)}"
+            if isinstance(exc, AdvisedError):  # its fix stays data
+                raise AdvisedError(Said("{name}: {said}", {"name": name, "said": exc.said},
+                                        exc.said.code)) from exc  # fmt: skip
             raise type(exc)(f"{name}: {exc}") from exc
 
 

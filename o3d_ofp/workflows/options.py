@@ -18,6 +18,7 @@ import numpy as np
 
 from ..core._validation import check_int
 from ..core.orthogonalize import resolve_tol
+from ..core.spectrum import DEFAULT_K
 from ..core.wording import OptionError
 
 __all__ = [
@@ -40,7 +41,7 @@ __all__ = [
 #: pipeline refines 30 -> 100 with the constant).
 ESTIMATION_K = 99
 #: Size of the map optimized from descriptors before ZoomOut (the paper's K = 30).
-FIT_K = 29
+FIT_K = DEFAULT_K
 #: Policies for several connected components (see :func:`o3d_ofp.eigenbasis`).
 COMPONENTS = ("auto", "largest", "error")
 #: Default low band (non-constant eigenfunctions) the detail is measured from. A count of
@@ -243,7 +244,7 @@ class BasisOptions:
         needs a functional map).
     """
 
-    k1: int = 29
+    k1: int = DEFAULT_K
     k2: int = 39
     order: int = 2
     preset: str | None = None
