@@ -1,48 +1,48 @@
-"""What the commands share: reading inputs, checking outputs, bases, maps, result lines.
+"""What the commands share: result lines, stages, checked inputs and outputs, flags and options.
 
 Every check that can fail is made before the expensive work, and every message names the
-file or the flag.
+file or the flag. The library's messages reach the command line in its own words: a
+:class:`~o3d_ofp.core.wording.Said` is worded for flags (:func:`text_of` with ``cli=True``)
+and an :class:`~o3d_ofp.core.wording.OptionError` is said of the flag that sets its option
+(:data:`FLAGS`, the one table).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import glob
 import logging
-import math
 import os
-import re
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
+from ..core.wording import OptionError, Said, text_of
+
 __all__ = [
     "CLOUD_OUT",
+    "FLAGS",
     "MESH_HELP",
     "MESH_OUT",
+    "OUT",
     "UsageError",
-    "about",
     "add_basis_options",
-    "basis_for",
+    "basis_options",
     "check_cache_dir",
-    "check_folder_to_make",
-    "check_job_memory",
     "check_output",
-    "eig_options",
-    "eigenbases_of",
-    "in_flags",
+    "flag_of",
     "load_npy",
+    "option_message",
     "read_shape",
+    "renamed",
     "report",
-    "same_file",
     "stage",
-    "tol_options",
 ]
 
 logger = logging.getLogger(__name__)
@@ -51,20 +51,61 @@ MESH_HELP = "mesh or point cloud (any format Open3D reads: PLY, OBJ, OFF, STL, G
 MESH_OUT = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 
+#: The flags that set each option an :class:`OptionError` may name (the library's keyword or
+#: options field): the error is said of those of them given (all of them when none was).
+_SAME = ("k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components",
+         "mode", "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")
+FLAGS: dict[str, tuple[str, ...]] = {
+    **{name: (f"--{name}",) for name in _SAME},
+    "k": ("-k",),
+    "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
+    "bases": ("--basis-1", "--basis-2"),
+    "eigenbases": ("--basis-1", "--basis-2"),
+    "method": ("--map",),
+    "map": ("--map",),
+    "via_basis": ("--via-basis",),
+    "atlas": ("--uv-atlas",),
+    "size": ("--texture-size",),
+    "texture_size": ("--texture-size",),
+    "client": ("--scheduler",),
+    "cache_dir": ("--cache",),
+    "output_dir": ("-o",),
+}
+
+#: Deprecated flags and flag values, the one place they are mapped: (dest, old value, or None
+#: for any) -> (what was given, the dest it sets, its value there, or None: the same).
+DEPRECATED = {
+    ("k_low", None): ("--k-low", "band", None),
+    ("mode", "replace"): ("--mode replace", "mode", "coordinates"),
+}
+
+#: TEMPORARY, until core/cleaning.py refuses several components with a Said: the keywords of
+#: that one message (a plain ValueError), in flags.
+_UNSAID_KEYWORDS = {
+    "components='largest'": "--components largest",
+    "components='auto'": "--components auto",
+}
+
 
 class UsageError(Exception):
-    """Bad input or arguments: reported in one line, exit code 2."""
+    """Bad input or arguments: one line, exit code 2 (a Said is worded for the command line)."""
+
+    def __init__(self, message: str | Said) -> None:
+        super().__init__(text_of(message, cli=True))
 
 
 class _Output:
-    """The command's result lines on stdout; nothing with ``-q``.
+    """The result lines on stdout (nothing with ``-q``); what the run said about its options.
 
     ``reports_quality``: the command prints a map's quality report itself (a run over one
-    pair), so the library's own log record of it is left out of stderr (``main``).
+    pair), so the library's log records of it are left out (``main``). ``renamed``: the flag
+    a deprecated one was given as (``{"--band": "--k-low"}``), for the messages.
     """
 
     quiet = False
     reports_quality = False
+    args: Any = None
+    renamed: dict[str, str] = {}  # noqa: RUF012 (set anew by each run)
 
     def write(self, text: str) -> None:
         if not self.quiet:
@@ -74,52 +115,100 @@ class _Output:
 OUT = _Output()
 
 
-#: Library keywords that error messages mention, and the flags that set them.
-KEYWORD_FLAGS = {
-    "components='largest'": "--components largest",
-    "components='auto'": "--components auto",
-    "components='error'": "--components error",
-    "landmarks=[[source, target], ...] / ": "",
-    ", or ofp.transfer_colors(..., landmarks=...))": ")",
-    "colormap must be one of": "--colormap must be one of",
-}
+def error_text(exc: BaseException) -> str:
+    """Return the one line an error is said in on the command line (flags, not keywords)."""
+    if isinstance(exc, OptionError):
+        return option_message(exc)
+    text = text_of(exc, cli=True)
+    for keyword, flag in _UNSAID_KEYWORDS.items():
+        text = text.replace(keyword, flag)
+    return text
 
 
-#: Library messages name a keyword and its flag together, "align=True (--align)" or
-#: "partial=True / --partial" (either order): the command line says the flag alone.
-_KEYWORD_THEN_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/]|\(\))* \((--[a-z][^)]*)\)")
-_KEYWORD_OR_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/,;]|\(\))* / (?=--[a-z])")
-_FLAG_OR_KEYWORD = re.compile(r"(--[a-z][a-z-]*(?: [A-Z]+)?) / [a-z_]+=(?:\.\.\.|[^\s),;]*)")
+def flag_of(option: str, args: Any = None) -> str:
+    """Return the flag(s) of a library option: those given of :data:`FLAGS`'s, else all."""
+    args = OUT.args if args is None else args
+    flags = [OUT.renamed.get(f, f) for f in FLAGS.get(option, ())]
+    given = [f for f in flags if getattr(args, _dest(f), None) not in (None, False)]
+    return "/".join(given or flags)
 
 
-#: Library messages tell a target in other units to be scaled with Open3D: the command line
-#: has a flag for it.
-_TARGET_SCALE = re.compile(r"(?:Open3D's )?target\.scale\(([^,()]+), center=\(0, 0, 0\)\)")
+def _dest(flag: str) -> str:
+    return flag.lstrip("-").replace("-", "_")
 
 
-def in_flags(message: str) -> str:
-    """Say the command line's flags where a library message names its keywords."""
-    for keyword, flag in KEYWORD_FLAGS.items():
-        message = message.replace(keyword, flag)
-    message = _TARGET_SCALE.sub(lambda m: f"--target-scale {m.group(1)}", message)
-    message = _KEYWORD_THEN_FLAG.sub(lambda m: m.group(1), message)
-    message = _KEYWORD_OR_FLAG.sub("", message)
-    return _FLAG_OR_KEYWORD.sub(lambda m: m.group(1), message)
+def option_message(exc: OptionError, args: Any = None) -> str:
+    """``<flag> <problem>`` for an option the library refused (its keyword when it has no flag)."""
+    if exc.option not in FLAGS:
+        return str(exc)
+    joint = "" if exc.problem.startswith((":", ",")) else " "
+    return flag_of(exc.option, args) + joint + exc.problem
 
 
-def report(lines: Sequence[str]) -> None:
-    """Print result lines (silenced by ``-q``), with the flags the library's messages name."""
+def renamed(args: argparse.Namespace) -> None:
+    """Map the deprecated flags and values given to their new ones (a warning says which)."""
+    OUT.renamed = {}
+    for (dest, old), (given, new, value) in DEPRECATED.items():
+        found = getattr(args, dest, None)
+        if found is None or (old is not None and found != old):
+            continue
+        now = f"--{new.replace('_', '-')}" + (f" {value}" if value else "")
+        logger.warning("%s is deprecated; use %s", given, now)
+        if value is None:
+            other = getattr(args, new, None)
+            if other is not None and other != found:
+                raise UsageError(f"{given} {found} and {now} {other} disagree: give {now}")
+            OUT.renamed[now] = given
+        setattr(args, new, found if value is None else value)
+
+
+def report(lines: Sequence[str | Said]) -> None:
+    """Print result lines (silenced by ``-q``), a Said in the command line's words."""
     for line in lines:
-        OUT.write(in_flags(line) + "\n")
+        OUT.write(text_of(line, cli=True) + "\n")
+
+
+#: Seconds between a long stage's "still running" lines (it has no progress of its own).
+TICK_SECONDS = 15.0
 
 
 @contextlib.contextmanager
-def stage(what: str) -> Iterator[None]:
-    """Log a long stage at INFO: its start and its duration."""
+def stage(what: str, *, ticking: bool = True) -> Iterator[None]:
+    """Log a long stage at INFO: its start, that it still runs, and its duration.
+
+    "Still running" every :data:`TICK_SECONDS` when ``ticking`` (a stage with no progress of
+    its own); nothing for ``what`` empty.
+    """
+    if not what:
+        yield
+        return
     logger.info("%s ...", what)
     t0 = time.perf_counter()
-    yield
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(TICK_SECONDS):
+            logger.info("%s: still running (%.0f s)", what, time.perf_counter() - t0)
+
+    ticker = threading.Thread(target=tick, daemon=True) if ticking else None
+    if ticker is not None:
+        ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
     logger.info("%s: done in %.2f s", what, time.perf_counter() - t0)
+
+
+@contextlib.contextmanager
+def about(path: str) -> Iterator[None]:
+    """Name ``path`` in a ValueError raised inside: a refusal of that shape (size, parts)."""
+    try:
+        yield
+    except OptionError:
+        raise
+    except ValueError as exc:
+        raise UsageError(f"{path}: {text_of(exc, cli=True)}") from exc
 
 
 # --------------------------------------------------------------------------- inputs
@@ -150,10 +239,8 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     with open(path, "rb") as fh:
         magic = fh.read(6)
     if magic != b"\x93NUMPY":  # NumPy's own message speaks of pickles for any other file
-        raise UsageError(
-            f"{flag} {path}: not a NumPy .npy file ({what}): it does not start with the .npy "
-            "header (write it with numpy.save)"
-        )
+        raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): it does not start "
+                         "with the .npy header (write it with numpy.save)")  # fmt: skip
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
@@ -165,35 +252,7 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     return arr
 
 
-def tol_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``tol``/``preset`` keywords from ``--tol``/``--preset``."""
-    if args.tol is not None:
-        return {"tol": args.tol, "preset": None}
-    return {"tol": None, "preset": args.preset}
-
-
-def eig_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keywords of the eigenbasis that the flags set."""
-    return {"components": args.components}
-
-
-def eigenbases_of(
-    args: argparse.Namespace, shapes: Sequence[tuple[str, Any, Any, int]], *, clamp_k: bool
-) -> list[Any]:
-    """Eigenbases of ``(path, V, F, k)`` shapes, side by side; a refusal names its file."""
-    from ..core.spectrum import eigenbasis
-    from ..workflows.eigenbases import eigenbasis_bytes, run_per_shape
-
-    def job(path: str, V: Any, F: Any, k: int) -> Any:
-        with about(path):
-            return eigenbasis(V, F, k=k, clamp_k=clamp_k, **eig_options(args))
-
-    return run_per_shape(
-        [functools.partial(job, *shape) for shape in shapes],
-        [V.shape[0] for _, V, _, _ in shapes],
-        [eigenbasis_bytes(V.shape[0], k) for _, V, _, k in shapes],
-        what="eigenbases",
-    )
+# --------------------------------------------------------------------------- outputs
 
 
 def written_beside(path: str) -> list[str]:
@@ -204,12 +263,8 @@ def written_beside(path: str) -> list[str]:
     lets a command refuse before any work.
     """
     stem, ext = os.path.splitext(path)
-    ext = ext.lower()
-    if ext == ".obj":
-        return [stem + ".mtl", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
-    if ext == ".gltf":
-        return [stem + ".bin", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
-    return []
+    ext = {".obj": ".mtl", ".gltf": ".bin"}.get(ext.lower())
+    return [stem + ext, *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))] if ext else []
 
 
 def check_output(
@@ -229,33 +284,28 @@ def check_output(
     """
     ext = os.path.splitext(path)[1].lower()
     if os.path.isdir(path) or path.endswith(("/", os.sep)):
-        raise UsageError(
-            f"{flag} {path}: is a directory{'' if os.path.isdir(path) else ' name'}; give a file "
-            "name (a folder is the output of several targets)"
-        )
+        name = "" if os.path.isdir(path) else " name"
+        raise UsageError(f"{flag} {path}: is a directory{name}; give a file name (a folder is the "
+                         "output of several targets)")  # fmt: skip
     if ext not in allowed:
         raise UsageError(
             f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"
         )
-    folder = os.path.dirname(os.path.abspath(path))
-    check_writable_folder(folder, path, flag=flag)
-    for other in (*side, *written_beside(path)):  # (found by a trial only after the work)
+    check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
+    beside = (*side, *written_beside(path))
+    for other in beside:  # (found by a trial only after the work)
         if os.path.isdir(other):
-            raise UsageError(
-                f"{flag} {path}: writing it may also write {other} (a file Open3D writes "
-                "beside it), which is a folder; choose another output name"
-            )
+            raise UsageError(f"{flag} {path}: writing it may also write {other} (a file Open3D "
+                             "writes beside it), which is a folder; choose another output name")
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):
             continue
         if same_file(path, source):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
-        for other in (*side, *written_beside(path)):
+        for other in beside:
             if same_file(other, source):
-                raise UsageError(
-                    f"{flag} {path}: writing it would also write {other}, an input of this "
-                    "command; choose another output name"
-                )
+                raise UsageError(f"{flag} {path}: writing it would also write {other}, an input "
+                                 "of this command; choose another output name")  # fmt: skip
 
 
 def same_file(a: str, b: str) -> bool:
@@ -265,63 +315,40 @@ def same_file(a: str, b: str) -> bool:
     return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
 
 
-@contextlib.contextmanager
-def about(path: str) -> Iterator[None]:
-    """Name ``path`` in a ValueError raised inside: a refusal of that shape (size, parts)."""
-    try:
-        yield
-    except ValueError as exc:
-        raise UsageError(f"{path}: {exc}") from exc
-
-
 def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     """Refuse, before any work, an output whose folder is missing or cannot be written."""
     if not os.path.isdir(folder):
         raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
-    # permission bits, so only the write itself can tell then (it still fails cleanly).
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise UsageError(
-            f"{flag} {path}: the folder {folder} cannot be written (read-only or no "
-            f"permission); choose another folder for {flag}"
-        )
-    # Nor where the file system refuses files of any kind (/sys, /proc): a trial's
-    # "-o /sys/x.ply" failed after the work, naming a temporary file. A file made and removed.
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
-    except OSError as exc:
-        raise UsageError(
-            f"{flag} {path}: the folder {folder} cannot be written ({exc.strerror or exc}); "
-            f"choose another folder for {flag}"
-        ) from None
-    os.close(fd)
-    os.remove(probe)
+    # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
+    # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
+    why = None if os.access(folder, os.W_OK | os.X_OK) else "read-only or no permission"
+    if why is None:
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
+            os.close(fd)
+            os.remove(probe)
+        except OSError as exc:
+            why = exc.strerror or str(exc)
+    if why is not None:
+        raise UsageError(f"{flag} {path}: the folder {folder} cannot be written ({why}); "
+                         f"choose another folder for {flag}")  # fmt: skip
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
-    """Refuse, once the input is read and before any work, a point cloud to a mesh format.
-
-    ``faces`` are those of the geometry the output copies (None for a point cloud).
-    """
+    """Refuse, once the input is read and before any work, a point cloud to a mesh format."""
     from ..boundary.io import CLOUD_ONLY, MESH_ONLY
 
     ext = os.path.splitext(path)[1].lower()
     if faces is None and ext in MESH_ONLY:
-        raise UsageError(
-            f"{flag} {path}: the result is a point cloud (no faces) and cannot be written as "
-            f"{ext}; use {', '.join(('.ply', *CLOUD_ONLY))}"
-        )
+        raise UsageError(f"{flag} {path}: the result is a point cloud (no faces) and cannot be "
+                         f"written as {ext}; use {', '.join(('.ply', *CLOUD_ONLY))}")  # fmt: skip
 
 
 def check_cache_dir(path: str | None) -> None:
-    """Refuse, before any work, a ``--cache DIR`` that is a file or cannot be written.
-
-    A missing folder is created later (its nearest existing parent must be writable). A
-    trial's read-only cache failed after the eigensolve, naming a temporary file.
-    """
-    if not path:
-        return
-    check_folder_to_make(path, "--cache")
+    """Refuse, before any work, a ``--cache DIR`` that is a file or cannot be written."""
+    if path:
+        check_folder_to_make(path, "--cache")
 
 
 def check_folder_to_make(path: str, flag: str) -> None:
@@ -335,7 +362,7 @@ def check_folder_to_make(path: str, flag: str) -> None:
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
-        if parent == existing or (os.path.exists(existing) and not os.path.isdir(existing)):
+        if parent == existing or os.path.exists(existing):
             raise UsageError(f"{flag} {path}: {existing} is a file, not a folder")
         existing = parent
     check_writable_folder(existing, path, flag=flag)
@@ -344,50 +371,64 @@ def check_folder_to_make(path: str, flag: str) -> None:
 # --------------------------------------------------------------------------- bases
 
 
-def check_job_memory(
-    jobs: Sequence[tuple[str, int, int, int, int]], *, advice: str, limit: float | None = None
-) -> None:
-    """Refuse, before any eigensolve, bases whose estimated peak memory exceeds what is free.
+def add_basis_options(p: argparse.ArgumentParser, *, k: bool = True, preset: str = "ours") -> None:
+    """Add the flags of the commands that build bases (``-k``: one shape's size).
 
-    Parameters
-    ----------
-    jobs : sequence of (path, n_vertices, k, eig_k, order)
-        The bases the command will compute (the peaks are added up: a conservative bound when
-        a pair's bases are computed one after the other and both are kept).
-    advice : str
-        How to lower the estimate, naming the flags (e.g. ``"lower -k or --order, or use a
-        simplified mesh"``), for the message.
-    limit : float, optional
-        Bytes allowed (default: the memory available now, from psutil).
+    The defaults are :class:`~o3d_ofp.BasisOptions`'; ``preset``: the command's, for the help.
     """
-    from ..core import _memory
+    from ..workflows.options import COMPONENTS, BasisOptions
+    from ._types import positive_int, unit_float
 
-    if not jobs:
-        return
-    need = sum(
-        _memory.basis_job_bytes(n, k=k, order=order, eig_k=eig_k) for _, n, k, eig_k, order in jobs
-    )
-    if limit is None:
-        limit = _memory.available_memory()
-        if limit is None:
-            return
-    what = " and ".join(
-        f"{path} ({n} vertices, k={max(k, eig_k)}, order {order})"
-        for path, n, k, eig_k, order in jobs
-    )
-    if need > limit:
+    default = BasisOptions()
+    if k:
+        p.add_argument("-k", "--k", type=positive_int,
+                       help=f"non-constant eigenfunctions ({default.k1})")  # fmt: skip
+    p.add_argument("--order", type=positive_int, help=f"product order N ({default.order})")
+    p.add_argument("--preset", choices=("ours", "ours*"),
+                   help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})")
+    p.add_argument("--tol", type=unit_float, help="explicit threshold in (0, 1) (over --preset)")
+    p.add_argument(
+        "--components", choices=COMPONENTS, default="auto",
+        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
+        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
+    )  # fmt: skip
+    p.add_argument("--cache", metavar="DIR",
+                   help="reuse bases cached in DIR (computed and stored there the first time)")
+
+
+def basis_options(args: argparse.Namespace, **sizes: int | None) -> Any:
+    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given).
+
+    ``sizes``: ``k1``/``k2`` of a one-shape command (its ``-k``); ``--tol`` is over
+    ``--preset``.
+    """
+    from ..workflows.options import BasisOptions
+
+    given = {"k1": getattr(args, "k1", None), "k2": getattr(args, "k2", None), **sizes,
+             "order": args.order, "preset": None if args.tol is not None else args.preset,
+             "tol": args.tol}  # fmt: skip
+    given = {name: value for name, value in given.items() if value is not None}
+    return BasisOptions(**given) if given else None
+
+
+def check_memory(path: str, n: int, *, k: int, order: int, advice: str) -> None:
+    """Refuse, before its eigensolve, a one-shape job that cannot fit in the free memory.
+
+    A pair's job is checked by :func:`o3d_ofp.workflows.plan.prepare`.
+    """
+    from ..core._memory import available_memory, basis_job_bytes, format_bytes
+
+    need, limit = basis_job_bytes(n, k=k, order=order), available_memory()
+    if limit is not None and need > limit:
         raise UsageError(
-            f"the basis of {what} needs about {_memory.format_bytes(need)} of memory, more than "
-            f"the {_memory.format_bytes(limit)} available: {advice}"
+            f"the basis of {path} ({n} vertices, k={k}, order {order}) needs about "
+            f"{format_bytes(need)} of memory, more than the {format_bytes(limit)} available: "
+            f"{advice}"
         )
-    logger.debug("memory estimate for %s: %s of %s", what, _memory.format_bytes(need),
-                 _memory.format_bytes(limit))  # fmt: skip
 
 
-def load_basis_file(
-    path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str
-) -> Any:
-    """Read the OFP basis file given as ``flag path``, checked to be ``mesh_path``'s."""
+def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) -> Any:
+    """Read the OFP basis file given as ``flag path``, checked to be ``mesh``'s."""
     from ..core.basis import OFPBasis
     from ..core.spectrum import shape_digest
 
@@ -397,200 +438,53 @@ def load_basis_file(
         B = OFPBasis.load(path)
     except ValueError as exc:
         raise UsageError(f"{flag} {path}: {exc}") from exc
-    if B.eig.digest != shape_digest(V, F, **eig_options(args)):
-        raise UsageError(
-            f"{flag} {path}: this basis was computed for another mesh than {mesh_path} (or "
-            "with other cleaning options); recompute it with: o3d-ofp basis " + mesh_path
-        )
+    if B.eig.digest != shape_digest(V, F, components=args.components):
+        raise UsageError(f"{flag} {path}: this basis was computed for another mesh than {mesh} (or "
+                         f"with other cleaning options); recompute it with: o3d-ofp basis {mesh}")
     return B
 
 
-def _in_cache(V: Any, F: Any, k: int, args: argparse.Namespace) -> bool:
-    """Tell whether ``--cache`` holds a (non-empty) entry for this basis."""
-    from ..workflows.cache import basis_cache_path
+def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> Any:
+    """Return the OFP basis of one shape: from ``--basis``, the ``--cache`` folder, or computed.
 
-    entry = basis_cache_path(
-        V, F, k=k, order=args.order, cache_dir=args.cache, **tol_options(args), **eig_options(args)
-    )
-    return os.path.isfile(entry) and os.path.getsize(entry) > 0
-
-
-def basis_for(
-    V: Any,
-    F: Any,
-    path: str,
-    args: argparse.Namespace,
-    *,
-    k: int | None,
-    default_k: int = 29,
-    k_flag: str = "-k",
-    eig_k: int | None = None,
-    file: str | None = None,
-    file_flag: str = "--basis",
-) -> tuple[Any, Any]:
-    """(OFP basis on ``k`` eigenfunctions, its eigenbasis with ``eig_k`` >= k).
-
-    From ``file`` (checked against the mesh and, when the k flag was given, ``k``), the
-    ``--cache`` folder, or computed (``k`` None: ``default_k``).
+    A basis file is checked against the flags given; sizes and threshold: :func:`basis_options`.
     """
     from ..core.basis import ofp_basis
     from ..core.spectrum import eigenbasis
-    from ..workflows.cache import cached_basis
+    from ..workflows.cache import basis_cache_path, cached_basis
+    from ..workflows.options import BasisOptions
 
+    file = getattr(args, "basis", None)
+    options = basis_options(args, k1=args.k) or BasisOptions()
     if file:
-        B = load_basis_file(file, V, F, path, args, file_flag)
-        if k is not None and B.k != k:
-            raise UsageError(
-                f"{file_flag} {file}: holds a basis on k={B.k} eigenfunctions, but {k_flag} {k} "
-                f"was given; drop {k_flag} or recompute the basis"
-            )
-        check_basis_file_options(args, B, file_flag, file)
-        return B, B.eig
-    k = default_k if k is None else k
-    if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
-        raise UsageError(
-            f"{k_flag} {k}: must be smaller than the number of vertices of {path} minus one "
-            f"({V.shape[0]} vertices: at most {V.shape[0] - 2})"
-        )
-    tol = tol_options(args)
-    cached = getattr(args, "cache", None) and eig_k is None
-    if not (cached and _in_cache(V, F, k, args)):  # a cache hit only reads its file
-        check_job_memory(
-            [(path, V.shape[0], k, eig_k or k, args.order)],
-            advice=f"lower {k_flag} or --order, or use a simplified mesh (fewer vertices)",
-        )
-    if cached:
-        with stage(f"basis of {path} (cache {args.cache})"):
-            B = cached_basis(
-                V, F, k=k, order=args.order, cache_dir=args.cache, **tol, **eig_options(args)
-            )
-        return B, B.eig
-    eig_k = max(k, eig_k or 0)
-    with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={eig_k})"):
-        eig = eigenbasis(V, F, k=eig_k, clamp_k=eig_k > k, **eig_options(args))
-    with stage(f"orthogonalized products of {path} (order {args.order})"):
-        return ofp_basis(eig, order=args.order, k=min(k, eig.k), **tol), eig
-
-
-class _Given(argparse.Action):
-    """Store the value and note that the flag was given (``args.given``: the flags' dests)."""
-
-    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
-        setattr(namespace, self.dest, values)
-        given = set(getattr(namespace, "given", ()) or ())
-        namespace.given = given | {self.dest}
-
-
-def check_basis_file_options(args: argparse.Namespace, B: Any, file_flag: str, file: str) -> None:
-    """Refuse --order / --preset / --tol that disagree with a basis read from a file.
-
-    Found by a trial: ``--basis FILE --order 3`` ran with the file's order 2, silently.
-    """
-    from ..core.orthogonalize import resolve_tol
-
-    given = getattr(args, "given", set()) or set()
-    if "order" in given and args.order != B.order:
-        raise UsageError(
-            f"{file_flag} {file}: holds a basis of order {B.order}, but --order {args.order} "
-            "was given; drop --order or recompute the basis"
-        )
-    if given & {"tol", "preset"}:
-        tol = resolve_tol(args.tol, None if args.tol is not None else args.preset)
-        if not math.isclose(tol, B.tol, rel_tol=1e-9):
+        B = load_basis_file(file, V, F, path, args, "--basis")
+        tol = options.threshold("ours")
+        for flag, given, what, held in (("-k", args.k, f"on k={B.k} eigenfunctions", B.k),
+                                         ("--order", args.order, f"of order {B.order}", B.order)):
+            if given is not None and given != held:
+                raise UsageError(f"--basis {file}: holds a basis {what}, but {flag} {given} was "
+                                 f"given; drop {flag} or recompute the basis")  # fmt: skip
+        if (args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9):
             flag = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
-            raise UsageError(
-                f"{file_flag} {file}: holds a basis orthogonalized with threshold {B.tol:g}, "
-                f"but {flag} (threshold {tol:g}) was given; drop it or recompute the basis"
-            )
-
-
-def _file_tol(path: str) -> float | None:
-    """Read the threshold of a basis file alone (None when unreadable: its full read says why)."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return float(data["tol"])
-    except Exception:  # any damage is reported by OFPBasis.load, later
-        return None
-
-
-def check_basis_files_agree(args: argparse.Namespace) -> None:
-    """Refuse, before any work, two OFP bases orthogonalized with different thresholds.
-
-    A basis file keeps its own threshold; the other side's basis is read from its file or
-    made with the command's ``--preset`` / ``--tol`` (given or the command's default). A
-    trial's ``detail --mode coordinates --basis-1`` with an "ours" file ran the target with
-    the command's default "ours*": a transfer between bases of two thresholds, unsaid.
-    """
-    from ..core.orthogonalize import resolve_tol
-
-    own = resolve_tol(args.tol, None if args.tol is not None else args.preset)
-    files = [(i, f) for i, f in ((1, args.basis_1), (2, args.basis_2)) if f]
-    tols = {i: _file_tol(f) for i, f in files}
-    if not files or any(t is None for t in tols.values()):
-        return
-    t1, t2 = tols.get(1, own), tols.get(2, own)
-    if math.isclose(t1, t2, rel_tol=1e-9):
-        return
-    preset = {1e-2: "ours", 1e-9: "ours*"}
-    if len(files) == 2:
-        raise UsageError(
-            f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were orthogonalized with "
-            f"thresholds {t1:g} and {t2:g}: the two bases must share one; recompute one of them"
-        )
-    side, file = files[0]
-    t = tols[side]
-    name = next((n for v, n in preset.items() if math.isclose(v, t, rel_tol=1e-9)), None)
-    how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
-    given = getattr(args, "given", set()) or set()
-    yours = (
-        f"--tol {args.tol:g}" if args.tol is not None
-        else f"--preset {args.preset}" + ("" if "preset" in given else ", this command's default")
-    )  # fmt: skip
-    raise UsageError(
-        f"--basis-{side} {file}: holds a basis orthogonalized with threshold {t:g}, but the "
-        f"{'target' if side == 1 else 'source'}'s basis would be made with {own:g} ({yours}): "
-        f"the two bases must share one; pass {how}, or recompute the basis file"
-    )
-
-
-def add_basis_options(
-    p: argparse.ArgumentParser,
-    *,
-    k: int | None = 29,
-    preset: str = "ours",
-    order: int = 2,
-) -> None:
-    """Add the flags every basis-building command has (``-k`` only when ``k`` is given)."""
-    from ._types import positive_int, unit_float
-
-    if k is not None:
-        p.add_argument("-k", "--k", type=positive_int, help=f"non-constant eigenfunctions ({k})")
-    p.add_argument(
-        "--order",
-        type=positive_int,
-        default=order,
-        action=_Given,
-        help=f"product order N ({order})",
-    )
-    p.add_argument(
-        "--preset",
-        choices=("ours", "ours*"),
-        default=preset,
-        action=_Given,
-        help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})",
-    )
-    p.add_argument(
-        "--tol", type=unit_float, action=_Given, help="explicit threshold in (0, 1) (over --preset)"
-    )
-    p.add_argument(
-        "--components",
-        choices=("auto", "largest", "error"),
-        default="auto",
-        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
-        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
-    )
-    p.add_argument(
-        "--cache",
-        metavar="DIR",
-        help="reuse bases cached in DIR (computed and stored there the first time)",
-    )
+            raise UsageError(f"--basis {file}: holds a basis orthogonalized with threshold "
+                             f"{B.tol:g}, but {flag} (threshold {tol:g}) was given; drop it or "
+                             "recompute the basis")  # fmt: skip
+        return B
+    k, order, tol = options.k1, options.order, options.threshold("ours")
+    if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
+        raise UsageError(f"-k {k}: must be smaller than the number of vertices of {path} minus one "
+                         f"({V.shape[0]} vertices: at most {V.shape[0] - 2})")  # fmt: skip
+    entry = args.cache and basis_cache_path(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
+                                            components=args.components)  # fmt: skip
+    if not (entry and os.path.isfile(entry) and os.path.getsize(entry) > 0):  # a hit only reads
+        check_memory(path, V.shape[0], k=k, order=order,
+                     advice="lower -k or --order, or use a simplified mesh (fewer vertices)")
+    with about(path):
+        if args.cache:
+            with stage(f"basis of {path} (cache {args.cache})"):
+                return cached_basis(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
+                                    components=args.components)  # fmt: skip
+        with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={k})"):
+            eig = eigenbasis(V, F, k=k, components=args.components)
+        with stage(f"orthogonalized products of {path} (order {order})"):
+            return ofp_basis(eig, order=order, k=min(k, eig.k), tol=tol)

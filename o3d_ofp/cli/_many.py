@@ -11,11 +11,11 @@ and ``DIR/summary.json``; the exit code is 1 when any target failed.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from ..core.wording import text_of
 from ._common import OUT, UsageError, report
 from ._progress import ENABLED
 from ._types import nonnegative_int
@@ -149,7 +149,7 @@ def report_records(records: Sequence[Any]) -> int:
     lines = []
     for r in records:
         if r.status == "failed":
-            lines.append(f"failed   {r.name}: {r.error}")
+            lines.append(f"failed   {r.name}: {text_of(r.error, cli=True)}")
         elif r.status == "skipped":
             sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
             lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
@@ -169,23 +169,17 @@ def report_records(records: Sequence[Any]) -> int:
 
 
 def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:
-    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``."""
+    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``.
+
+    ``options``: the command's own keywords of :func:`o3d_ofp.transfer_many`; the map, basis
+    and run flags are added here (those not given are left to its defaults).
+    """
     from ..collections import transfer_many, write_summary
-    from ._common import check_cache_dir, in_flags
+    from ._common import check_cache_dir
 
     _check_output_dir(args.output)
     check_cache_dir(args.cache)
-    if args.scheduler or args.workers != 0:  # a cluster: Dask must be there, said first
-        import importlib.util
-
-        if importlib.util.find_spec("distributed") is None:
-            raise UsageError(
-                "several targets run on a Dask cluster, and Dask is not installed: pip "
-                "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
-                "'.[dask]'), or give --workers 0 to run them one after the other here"
-            )
-    if args.scheduler:
-        _check_scheduler(args.scheduler)
+    _check_cluster(args)
     if args.map not in ("estimate", "identity"):
         raise UsageError(
             f"--map {args.map}: with several targets the map is 'estimate' or 'identity'"
@@ -195,40 +189,30 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     for target in args.target:  # a typo is said before any work (a trial's ran every other)
         if not os.path.exists(target):
             raise UsageError(f"{target}: no such target file or folder")
-    try:
-        records = transfer_many(
-            args.source,
-            args.target,
-            kind=kind,
-            client=args.scheduler,
-            output_dir=args.output,
-            cache_dir=args.cache,
-            workers=args.workers,
-            skip_existing=not args.force,
-            progress=ENABLED.on,
-            map=args.map,
-            components=args.components,
-            strict=args.strict,
-            order=args.order,
-            tol=args.tol,
-            preset=None if args.tol is not None else args.preset,
-            **{k: v for k, v in options.items() if v is not None},
-        )
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise UsageError(in_flags(str(exc))) from exc
-    # the records' messages in the command line's words (the flags, not the keywords)
-    records = [
-        dataclasses.replace(
-            r,
-            warnings=tuple(in_flags(w) for w in r.warnings),
-            notes=tuple(in_flags(n) for n in r.notes),
-            error=in_flags(r.error),
-        )
-        if r.warnings or r.notes or r.error
-        else r
-        for r in records
-    ]
+    given = {"k1": args.k1, "k2": args.k2, "order": args.order, "tol": args.tol,
+             "preset": None if args.tol is not None else args.preset, **options}  # fmt: skip
+    records = transfer_many(
+        args.source, args.target, kind=kind, client=args.scheduler, output_dir=args.output,
+        cache_dir=args.cache, workers=args.workers, skip_existing=not args.force,
+        progress=ENABLED.on, map=args.map, components=args.components, strict=args.strict,
+        **{name: value for name, value in given.items() if value is not None},
+    )  # fmt: skip
     csv_path, json_path = write_summary(records, args.output)
     code = report_records(records)
     report([f"summary: {csv_path}, {json_path}"])
     return code
+
+
+def _check_cluster(args: argparse.Namespace) -> None:
+    """Refuse, before any work, a cluster run without Dask, or a scheduler nobody answers at."""
+    if args.scheduler or args.workers != 0:  # a cluster: Dask must be there, said first
+        import importlib.util
+
+        if importlib.util.find_spec("distributed") is None:
+            raise UsageError(
+                "several targets run on a Dask cluster, and Dask is not installed: pip install "
+                "'dask[distributed]' (from a clone of o3d_ofp: pip install -e '.[dask]'), or give "
+                "--workers 0 to run them one after the other here"
+            )
+    if args.scheduler:
+        _check_scheduler(args.scheduler)

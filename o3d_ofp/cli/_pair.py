@@ -1,40 +1,53 @@
-"""What ``transfer`` and ``detail`` share: two shapes, a map (given, read or estimated)."""
+"""What ``transfer`` and ``detail`` share: two shapes, their map, the plan and its run.
+
+The flags become the library's options (:class:`~o3d_ofp.MatchOptions`,
+:class:`~o3d_ofp.BasisOptions`); :func:`o3d_ofp.workflows.plan.plan_pair` decides what the job
+computes (how the map is made, the eigenbasis sizes, the dense path, the bases) and
+:func:`o3d_ofp.workflows.plan.prepare` runs it. What is read here is checked before it.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
-import functools
 import logging
 import os
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from ..core.wording import AdvisedError, Said, text_of
 from ._common import (
     CLOUD_OUT,
+    FLAGS,
     MESH_HELP,
     MESH_OUT,
     UsageError,
-    about,
     add_basis_options,
-    basis_for,
-    check_basis_files_agree,
-    eig_options,
+    basis_options,
+    check_cache_dir,
+    check_writable_folder,
+    load_basis_file,
+    read_shape,
+    report,
     same_file,
     stage,
 )
 from ._types import positive_float, positive_int
 
 __all__ = [
+    "SUSPECT_EXIT",
     "Pair",
+    "SuspectMap",
     "add_pair_options",
-    "estimate_or_use_map",
-    "map_first",
+    "map_name",
+    "plan",
+    "prepare_pair",
     "read_pair",
 ]
-
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +61,7 @@ class SuspectMap(Exception):
 
 @dataclasses.dataclass
 class Pair:
-    """Two shapes and what the flags say about their map."""
+    """Two shapes, the map the flags give (None: made by the plan) and the match options."""
 
     source: Any
     target: Any
@@ -56,8 +69,11 @@ class Pair:
     F1: np.ndarray | None
     V2: np.ndarray
     F2: np.ndarray | None
-    correspondence: Any  # Correspondence or None (estimate)
-    landmarks: np.ndarray | None
+    given: Any
+    match: Any
+    names: tuple[str, str]
+    #: ``--basis-1`` / ``--basis-2``: the OFP bases read (None: none)
+    files: tuple[Any, Any] = (None, None)
     #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
     target_scale: float | None = None
     #: The target as read, before ``--target-scale`` (None: ``target`` is)
@@ -82,130 +98,106 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
 
     With ``several``, ``target`` is a list (files and folders: see :mod:`._many`).
     """
+    from ..workflows.options import BasisOptions
+
     p.add_argument("source", help="source " + MESH_HELP)
     if several:
-        p.add_argument(
-            "target", nargs="+", help="target " + MESH_HELP + "; several, or a folder of them"
-        )
+        p.add_argument("target", nargs="+",
+                       help="target " + MESH_HELP + "; several, or a folder of them")  # fmt: skip
     else:
         p.add_argument("target", help="target " + MESH_HELP)
-    p.add_argument("--k1", type=positive_int, help="source eigenfunctions (29)")
-    p.add_argument("--k2", type=positive_int, help="target eigenfunctions (39)")
-    add_basis_options(p, k=None, preset=preset)
+    default = BasisOptions()
+    p.add_argument("--k1", type=positive_int, help=f"source eigenfunctions ({default.k1})")
+    p.add_argument("--k2", type=positive_int, help=f"target eigenfunctions ({default.k2})")
+    add_basis_options(p, k=False, preset=preset)
     p.add_argument(
-        "--map",
-        default="estimate",
-        help="estimate (default: WKS fit + ZoomOut to 100), closest (closest points on the "
-        "source surface, for shapes already aligned in space; --align for nearly aligned "
-        "ones), identity (same vertices), MAP.npz "
-        "(from --save-map), a file with one source vertex per target vertex (.vts 1-based / "
-        ".npy 0-based), or SRC.vts,TGT.vts matching both shapes to a template",
-    )
+        "--map", default="estimate",
+        help="estimate (default: WKS fit + ZoomOut), closest (closest points on the source "
+        "surface, for shapes already aligned in space; --align for nearly aligned ones), identity "
+        "(same vertices), MAP.npz (from --save-map), a file with one source vertex per target "
+        "vertex (.vts 1-based / .npy 0-based), or SRC.vts,TGT.vts matching both shapes to a "
+        "template",
+    )  # fmt: skip
+    p.add_argument("--align", action="store_true",
+                   help="with --map closest: rigid ICP pre-alignment first")  # fmt: skip
     p.add_argument(
-        "--align", action="store_true", help="with --map closest: rigid ICP pre-alignment first"
-    )
+        "--partial", action="store_true",
+        help="with --map estimate: the target is a part of the source (a one-sided scan, a cut) "
+        "in the same units (else --target-scale): partial functional maps; the report gives the "
+        "overlap",
+    )  # fmt: skip
     p.add_argument(
-        "--partial",
-        action="store_true",
-        help="with --map estimate: the target is a part of the source (a one-sided scan, a "
-        "cut) in the same units (else --target-scale): partial functional maps; the report "
-        "gives the overlap",
-    )
-    p.add_argument(
-        "--target-scale",
-        type=positive_float,
-        metavar="FACTOR",
-        help="one target: multiply its coordinates by FACTOR for the run (a target in other "
-        "units than the source: 0.001 for millimetres onto metres), as if its file were in "
-        "the source's units; the result is written in the target's own units",
-    )
+        "--target-scale", type=positive_float, metavar="FACTOR",
+        help="one target: multiply its coordinates by FACTOR for the run (a target in other units "
+        "than the source: 0.001 for millimetres onto metres), as if its file were in the source's "
+        "units; the result is written in the target's own units",
+    )  # fmt: skip
     p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
-    p.add_argument(
-        "--strict",
-        action="store_true",
-        help="a suspect map (estimated, closest, or a map file that collapses) is an error "
-        "(exit 3, nothing written)",
-    )
+    p.add_argument("--strict", action="store_true",
+                   help="a suspect map (estimated, closest, or a map file that collapses) is an "
+                   "error (exit 3, nothing written)")  # fmt: skip
     p.add_argument(
         "--landmarks",
-        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611 "
-        "(or 12:40;500:611), "
-        "a 2-column file (spaces, commas or semicolons apart), or 'pick' (pick them on both "
-        "shapes in Open3D's vertex-selection window; needs a display)",
-    )
-    p.add_argument(
-        "--save-landmarks",
-        metavar="FILE",
-        help="write the landmark pairs used (e.g. picked) as a 2-column file (to reuse: "
-        "--landmarks FILE)",
-    )
+        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611 (or "
+        "12:40;500:611), a 2-column file (spaces, commas or semicolons apart), or 'pick' (pick "
+        "them on both shapes in Open3D's vertex-selection window; needs a display)",
+    )  # fmt: skip
+    p.add_argument("--save-landmarks", metavar="FILE",
+                   help="write the landmark pairs used (e.g. picked) as a 2-column file (to "
+                   "reuse: --landmarks FILE)")  # fmt: skip
     p.add_argument("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
     p.add_argument("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")
 
 
+# --------------------------------------------------------------------------- reading
+
+
 def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
+    """Return the pairs of ``--landmarks`` (a file or inline), checked to lie in both shapes."""
     if not spec:
         return None
-    if os.path.isfile(spec):
+    is_file = os.path.isfile(spec)
+    where = f" {spec}" if is_file else ""
+    if is_file:
         try:
             # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
             with open(spec, encoding="utf-8-sig") as fh, warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "no data": said below
                 pairs = np.loadtxt(  # whitespace, commas or semicolons (CSVs) apart
-                    (line.replace(",", " ").replace(";", " ") for line in fh),
-                    dtype=np.float64,
-                    ndmin=2,
+                    (line.replace(",", " ").replace(";", " ") for line in fh), ndmin=2
                 )
         except (ValueError, UnicodeDecodeError) as exc:
             # numpy's message for a ragged file ends with advice for its own API ("; use
             # `usecols` to select a subset ..."): only what precedes it is about the file
             said = str(exc).split("; use `usecols`")[0]
-            raise UsageError(
-                f"--landmarks {spec}: not a text file of two integer columns (source vertex, "
-                f"target vertex; '#' starts a comment): {said}"
-            ) from exc
+            raise UsageError(f"--landmarks {spec}: not a text file of two integer columns (source "
+                             f"vertex, target vertex; '#' starts a comment): {said}") from exc
         if pairs.size and pairs.shape[1] != 2:
-            raise UsageError(
-                f"--landmarks {spec}: {pairs.shape[1]} column{'s' * (pairs.shape[1] > 1)}; the "
-                "file needs two (source vertex, target vertex, 0-based) on each line"
-            )
+            raise UsageError(f"--landmarks {spec}: {pairs.shape[1]} column"
+                             f"{'s' * (pairs.shape[1] > 1)}; the file needs two (source vertex, "
+                             "target vertex, 0-based) on each line")  # fmt: skip
         if not pairs.size:
             raise UsageError(f"--landmarks {spec}: no pairs in the file")
+    elif ":" not in spec or os.sep in spec:
+        raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
     else:
-        if ":" not in spec or os.sep in spec:
-            raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
-        try:
-            pairs = np.array(
-                # commas or semicolons apart, as in a file
-                [[float(x) for x in item.split(":")] for item in spec.replace(";", ",").split(",")],
-                dtype=float,
-            )
+        try:  # commas or semicolons apart, as in a file
+            pairs = np.array([[float(x) for x in item.split(":")]
+                              for item in spec.replace(";", ",").split(",")])  # fmt: skip
         except ValueError as exc:
             raise UsageError(
                 f"--landmarks must be a file or pairs like 12:40,500:611; got {spec!r}"
             ) from exc
-    if (
-        pairs.ndim != 2
-        or pairs.shape[1] != 2
-        or not np.all(np.isfinite(pairs))
-        or np.any(pairs != np.round(pairs))
-    ):
-        raise UsageError(
-            f"--landmarks {spec}: the values must be integer vertex indices"
-            if os.path.isfile(spec)
-            else f"--landmarks must be integer (source, target) pairs; got {spec!r}"
-        )
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.all(np.isfinite(pairs)) or np.any(
+        pairs != np.round(pairs)
+    ):  # fmt: skip
+        raise UsageError(f"--landmarks {spec}: the values must be integer vertex indices" if is_file
+                         else f"--landmarks must be integer (source, target) pairs; got {spec!r}")
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
-            where = f" {spec}" if os.path.isfile(spec) else ""
             raise UsageError(f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)")
-    from ..workflows.matching import check_landmarks
-
-    try:
-        return check_landmarks(pairs, n1, n2)
-    except ValueError as exc:
-        raise UsageError(f"--landmarks {spec}: {exc}") from exc
+    return pairs
 
 
 def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
@@ -216,36 +208,32 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
     """
     from ._common import written_beside
+    from ._signal import signal_sides
 
-    inputs = [
-        ("an input of this command", getattr(args, name, None))
-        for name in ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
-    ]
-    inputs += [("the --map file read", f) for f in getattr(args, "map", "").split(",")]
+    inputs = [("an input of this command", getattr(args, name, None))
+              for name in ("source", "target", "signal", "texture", "landmarks", "basis_1",
+                           "basis_2")]  # fmt: skip
+    inputs += [("the --map file read", f) for f in args.map.split(",")]
     output = getattr(args, "output", None)
     outputs = [("the -o output", output)]
     if output:
-        from ._signal import signal_sides
-
-        outputs += [("written with -o", f) for f in written_beside(output)]
-        outputs += [("written with -o", f) for f in signal_sides(args)]  # a .npy signal's
+        outputs += [("written with -o", f) for f in (*written_beside(output), *signal_sides(args))]
     others = {"--save-map": "save_map", "--save-landmarks": "save_landmarks"}
     outputs += [(f"the {o} file", getattr(args, n, None)) for o, n in others.items() if o != flag]
     for what, other in (*inputs, *outputs):
         if isinstance(other, str) and other and same_file(path, other):
             raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
-    cache = getattr(args, "cache", None)
-    if cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(cache):
-        raise UsageError(f"{flag} {path}: is in the --cache folder {cache}; choose another")
+    if args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache):
+        raise UsageError(f"{flag} {path}: is in the --cache folder {args.cache}; choose another")
 
 
-def _check_landmark_flags(args: argparse.Namespace) -> None:
-    """Refuse ``--landmarks pick`` without a display, and a bad ``--save-landmarks``, early."""
+def _check_flags(args: argparse.Namespace) -> None:
+    """Refuse flags that contradict each other, and bad side outputs, before reading."""
     if args.landmarks == "":
         raise UsageError(
             "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or 'pick'"
         )
-    save = getattr(args, "save_landmarks", None)
+    save = args.save_landmarks
     if save:
         if not args.landmarks:
             raise UsageError("--save-landmarks needs --landmarks (pick, pairs or a file)")
@@ -254,35 +242,43 @@ def _check_landmark_flags(args: argparse.Namespace) -> None:
         if not os.path.isdir(os.path.dirname(os.path.abspath(save))):
             raise UsageError(f"--save-landmarks {save}: the folder does not exist")
         _check_extra_output(args, save, "--save-landmarks")
-    if args.landmarks != "pick":
-        return
-    from ..boundary.pick import has_display
+    if args.landmarks == "pick":
+        from ..boundary.pick import has_display
 
-    if args.map != "estimate":
-        raise UsageError("--landmarks pick applies to --map estimate")
-    if not has_display():
+        if args.map != "estimate":
+            raise UsageError("--landmarks pick applies to --map estimate")
+        if not has_display():
+            raise UsageError(
+                "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
+                "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
+                "(two columns: source vertex, target vertex)"
+            )
+    if args.save_map:
+        if not args.save_map.endswith(".npz"):
+            raise UsageError(f"--save-map {args.save_map}: must end with .npz")
+        _check_extra_output(args, args.save_map, "--save-map")
+        check_writable_folder(os.path.dirname(os.path.abspath(args.save_map)), args.save_map,
+                              flag="--save-map")  # fmt: skip
+    if args.align and args.map != "closest":
+        raise UsageError("--align applies to --map closest")
+    if args.partial and args.map != "estimate":
         raise UsageError(
-            "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
-            "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
-            "(two columns: source vertex, target vertex)"
-        )
-
-
-def _pick(source: Any, target: Any) -> np.ndarray:
-    """Pick the landmark pairs in Open3D's window (``--landmarks pick``)."""
-    from ..boundary.pick import pick_landmarks
-
-    try:
-        return pick_landmarks(source, target)
-    except (ValueError, RuntimeError) as exc:
-        raise UsageError(f"--landmarks pick: {exc}") from exc
+            f"--partial applies to --map estimate (the partial match), not to --map {args.map}"
+            + ("" if args.map in ("closest", "identity") else
+               ", a map used as it is (a map saved from a run with --partial is partial already)")
+            + ": drop --partial"
+        )  # fmt: skip
+    if args.map == "closest" and args.landmarks:
+        raise UsageError("--landmarks apply to --map estimate, not --map closest")
+    if args.landmarks and args.map != "estimate":
+        raise UsageError("--landmarks only apply with --map estimate")
 
 
 def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
-    """Read the Correspondence named by ``--map`` (None: estimate), checked for both shapes."""
+    """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both."""
     from ..core.correspondence import p2p_from_template
     from ..core.io import read_vts
-    from ..workflows.matching import Correspondence
+    from ..workflows.maps import Correspondence
 
     n1, n2 = V1.shape[0], V2.shape[0]
     if spec in ("estimate", "closest"):
@@ -304,388 +300,290 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     files = spec.split(",")
     for f in files:
         if not os.path.isfile(f):
-            raise UsageError(
-                f"--map {f}: no such map file (--map estimate|closest|identity|MAP.npz|FILE[,FILE])"
-            )
-    if len(files) == 2:  # correspondences of both shapes to a common template
-        try:
-            p2p = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2)
-        except (ValueError, TypeError) as exc:
-            raise UsageError(f"--map {spec}: {exc}") from exc
-        if p2p.max() >= n1:
-            raise UsageError(f"--map {files[0]}: source indices must lie in [1, {n1}] (1-based)")
-        return Correspondence(p2p_21=p2p, n_source=n1, method="template")
-    if len(files) != 1:
+            raise UsageError(f"--map {f}: no such map file "
+                             "(--map estimate|closest|identity|MAP.npz|FILE[,FILE])")  # fmt: skip
+    if len(files) > 2:
         raise UsageError(f"--map takes one file or two comma-separated .vts files; got {spec!r}")
-    path = files[0]
-    if path.endswith(".npz"):
-        try:
+    path, method = files[0], "given"
+    try:
+        if len(files) == 2:  # correspondences of both shapes to a common template
+            p2p, method = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2), "template"
+        elif path.endswith(".npz"):
             corr = Correspondence.load(path)
-            corr.check(n1, n2, name=f"--map {path}")  # the shapes: _check_given_map
-        except (ValueError, TypeError) as exc:
-            raise UsageError(f"--map {exc}" if str(exc).startswith(path) else str(exc)) from exc
-        return corr
-    if path.endswith(".npy"):
-        from ._common import load_npy
+            corr.check(n1, n2, name=f"--map {path}")
+            return corr
+        elif path.endswith(".npy"):
+            from ._common import load_npy
 
-        p2p = load_npy(path, "0-based target->source map", flag="--map")
-    else:
-        if os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT):
-            raise UsageError(
-                f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|closest|"
-                "identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes are the "
-                "positional arguments"
-            )
-        try:
+            p2p = load_npy(path, "0-based target->source map", flag="--map")
+        elif os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT):
+            raise UsageError(f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|"
+                             "closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the "
+                             "shapes are the positional arguments")  # fmt: skip
+        else:
             p2p = read_vts(path)
-        except ValueError as exc:
-            raise UsageError(f"--map {exc}") from exc
+    except (ValueError, TypeError) as exc:
+        said = str(exc) if len(files) == 1 else f"{spec}: {exc}"
+        raise UsageError(said if said.startswith("--map") else f"--map {said}") from exc
     p2p = np.asarray(p2p)
     if p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer):
-        raise UsageError(
-            f"--map {path}: a map file lists one source vertex per target vertex ({n2} "
-            f"integers); got shape {p2p.shape} and dtype {p2p.dtype}"
-        )
+        raise UsageError(f"--map {path}: a map file lists one source vertex per target vertex "
+                         f"({n2} integers); got shape {p2p.shape} and dtype {p2p.dtype}")
     if p2p.min() < 0 or p2p.max() >= n1:
-        raise UsageError(
-            f"--map {path}: source indices must lie in [0, {n1}) (1-based in .vts); got "
-            f"[{p2p.min()}, {p2p.max()}]"
-        )
-    return Correspondence(p2p_21=p2p, n_source=n1, method="given")
+        raise UsageError(f"--map {path}: source indices must lie in [0, {n1}) (1-based in .vts); "
+                         f"got [{p2p.min()}, {p2p.max()}]")  # fmt: skip
+    return Correspondence(p2p_21=p2p, n_source=n1, method=method)
 
 
-def _check_components(
-    args: argparse.Namespace, V1: np.ndarray, F1: Any, V2: np.ndarray, F2: Any
-) -> None:
-    """Refuse a shape the eigensolves would refuse (``--components``) before either runs.
+def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray) -> None:
+    """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
 
-    The shapes whose bases are computed (not read with ``--basis-1``/``--basis-2``), and not
-    with ``--map closest``, which builds no basis before its map.
+    A map that collapses (:func:`o3d_ofp.workflows.maps.given_map_collapse`: a few flat
+    values), one saved by ``--save-map`` whose stored quality is suspect or that was made for
+    other shapes (source and target swapped, another pair with the same vertex counts). The
+    library warns of the first and the last when the map is used; the stored verdict is
+    warned here.
     """
-    from ..workflows.eigenbases import check_shapes
+    from ..workflows.maps import given_map_collapse
 
-    if args.map == "closest":
-        return
-    sides = [
-        (path, (V, F))
-        for path, V, F, file in (
-            (args.source, V1, F1, args.basis_1),
-            (args.target, V2, F2, args.basis_2),
-        )
-        if not file
-    ]
-    try:  # its messages begin with the name given: here the file's
-        check_shapes(
-            [shape for _, shape in sides],
-            names=[path for path, _ in sides],
-            components=getattr(args, "components", "auto"),
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from exc
+    reasons: list[Any] = []
+    collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
+    if collapse is not None:
+        reasons.append(Said("--map {map}: {why}", {"map": args.map, "why": collapse}))
+    quality = corr.quality
+    if args.map.endswith(".npz"):
+        reasons += [m for m in (corr.mismatch(V1, V2, name=f"--map {args.map}"),) if m]
+        if quality is not None:
+            report([f"stored with --map {args.map}: {quality.summary()}"])
+    if quality is not None and quality.suspect:
+        values = {f"r{i}": r for i, r in enumerate(quality.reasons)}
+        stored = Said("--map {map} was saved with a suspect quality: "
+                      + "; ".join(f"{{{name}}}" for name in values), {"map": args.map, **values})
+        reasons.append(stored)
+        if not args.strict:
+            logger.warning("%s", stored.text(cli=True))
+    if reasons and args.strict:
+        raise SuspectMap("; ".join(text_of(r, cli=True) for r in reasons))
+    report([Said("map quality SUSPECT: {r}", {"r": r}) for r in reasons])
 
 
 def read_pair(args: argparse.Namespace) -> Pair:
-    """Read both shapes, the map and the landmarks: everything that can fail fast."""
-    from ._common import check_cache_dir, check_writable_folder, read_shape
+    """Read both shapes, the map, the landmarks and basis files: everything that fails fast."""
+    from ..workflows.options import MatchOptions
 
-    check_cache_dir(getattr(args, "cache", None))
-    _check_landmark_flags(args)
-    if args.save_map:
-        if not args.save_map.endswith(".npz"):
-            raise UsageError(f"--save-map {args.save_map}: must end with .npz")
-        _check_extra_output(args, args.save_map, "--save-map")
-        check_writable_folder(
-            os.path.dirname(os.path.abspath(args.save_map)), args.save_map, flag="--save-map"
-        )
-    if args.align and args.map != "closest":
-        raise UsageError("--align applies to --map closest")
-    if getattr(args, "partial", False) and args.map != "estimate":
-        raise UsageError(
-            f"--partial applies to --map estimate (the partial match), not to --map {args.map}"
-            + ("" if args.map in ("closest", "identity") else
-               ", a map used as it is (a map saved from a run with --partial is partial "
-               "already)")
-            + ": drop --partial"
-        )  # fmt: skip
+    check_cache_dir(args.cache)
+    _check_flags(args)
     source, V1, F1 = read_shape(args.source)
     target, V2, F2 = read_shape(args.target)
-    target_as_read, factor, V2_read = None, getattr(args, "target_scale", None), V2
-    if factor is not None and getattr(args, "basis_2", None):
+    factor, as_read = args.target_scale, None
+    if factor is not None and args.basis_2:
         raise UsageError(
             f"--basis-2 {args.basis_2} holds the basis of {args.target} in its own units, and "
-            "--target-scale changes them: drop --basis-2 (--cache DIR keeps the scaled "
-            "target's basis apart)"
+            "--target-scale changes them: drop --basis-2 (--cache DIR keeps the scaled target's "
+            "basis apart)"
         )
     if factor is not None:  # every step below sees the target in the source's units
         from ..boundary.convert import scaled_copy
 
-        target_as_read, target, V2 = target, scaled_copy(target, factor), V2 * factor
-    corr = _read_map(args.map, V1, V2)
-    if corr is not None and args.map != "closest":
-        _check_given_map(args, corr, V1, V2)
-    if getattr(args, "partial", False):
-        for F, path in ((F1, args.source), (F2, args.target)):
-            if F is None:
-                raise UsageError(
-                    f"--partial needs triangle meshes: {path} is a point cloud (no faces); "
-                    "mesh it first or match without --partial"
-                )
-        from ..workflows.partial import check_partial_areas
-
-        scaled_name = args.target if factor is None else f"{args.target} scaled by {factor:g}"
-        try:
-            check_partial_areas(V1, F1, V2, F2, names=(args.source, scaled_name))
-        except ValueError as exc:
-            if factor is None:
-                raise UsageError(str(exc)) from exc
-            # the advice for the file as it is, whose factor is the one to give
-            try:
-                check_partial_areas(V1, F1, V2_read, F2, names=(args.source, args.target))
-            except ValueError as own:
-                said = f"--target-scale {factor:g} does not fix the units: {own}"
-                raise UsageError(said) from exc
-            raise UsageError(
-                f"--target-scale {factor:g}: {exc}; {args.target} as it is would be admitted: "
-                "drop --target-scale"
-            ) from exc
-    _check_components(args, V1, F1, V2, F2)
-    if args.map == "closest" and args.landmarks:
-        raise UsageError("--landmarks apply to --map estimate, not --map closest")
-    if args.landmarks and corr is not None:
-        raise UsageError("--landmarks only apply with --map estimate")
-    if corr is None and args.map == "estimate" and not _dense(args, V1, F1, V2, F2):
-        # the eigenbases of the estimation must fit (the dense path computes none of them)
-        from ..workflows.matching import ESTIMATION_K, required_k
-        from ._common import check_job_memory
-
-        check_job_memory(
-            [(p, V.shape[0], 1, required_k(V.shape[0], ESTIMATION_K), 1)
-             for p, V in ((args.source, V1), (args.target, V2))],
-            advice="the map estimation needs 99 eigenfunctions per shape: use simplified "
-            "meshes (fewer vertices), or give the map with --map FILE",
-        )  # fmt: skip
+        as_read, target, V2 = target, scaled_copy(target, factor), V2 * factor
+    given = _read_map(args.map, V1, V2)
+    if given is not None:
+        _judge_given(args, given, V1, V2)
     if args.landmarks == "pick":
-        landmarks = _pick(source, target)
+        from ..boundary.pick import pick_landmarks
+
+        try:
+            landmarks = pick_landmarks(source, target)
+        except (ValueError, RuntimeError) as exc:
+            raise UsageError(f"--landmarks pick: {exc}") from exc
     else:
         landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    if landmarks is not None and getattr(args, "save_landmarks", None):
+    match = MatchOptions(
+        method="closest" if args.map == "closest" else "estimate", partial=args.partial,
+        align=args.align, landmarks=landmarks, components=args.components,
+    )  # fmt: skip
+    if match.landmarks is not None and args.save_landmarks:
         from ..core._atomic import atomic_path
 
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
-            np.savetxt(tmp, landmarks, fmt="%d", header="source_vertex target_vertex (0-based)")
-        from ._common import report
-
-        report([f"wrote {landmarks.shape[0]} landmark pairs to {args.save_landmarks}"])
-    return Pair(source, target, V1, F1, V2, F2, corr, landmarks, factor, target_as_read)
-
-
-def bases_for_pair(args: argparse.Namespace, pair: Pair) -> tuple[Any, Any, Any, Any]:
-    """(B1, B2, eig_1, eig_2): the OFP bases and the eigenbases the map needs."""
-    from ..core._memory import basis_job_bytes
-    from ..core.products import n_eigenproducts
-    from ..core.spectrum import eigenbasis
-    from ..workflows.eigenbases import answer_bytes, run_per_shape
-    from ..workflows.matching import ESTIMATION_K, required_k
-    from ._common import check_job_memory
-
-    check_basis_files_agree(args)  # before either basis is made (a dense map comes first)
-    estimate = pair.correspondence is None
-    for side, path, V, k, file in ((1, args.source, pair.V1, args.k1, args.basis_1),
-                                   (2, args.target, pair.V2, args.k2, args.basis_2)):  # fmt: skip
-        if k is not None and not file and k > V.shape[0] - 2:  # before the memory estimate
-            raise UsageError(
-                f"--k{side} {k}: must be smaller than the number of vertices of {path} minus "
-                f"one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"
-            )
-    jobs = [
-        (path, V.shape[0], k or default, required_k(V.shape[0], ESTIMATION_K) if estimate else 0,
-         args.order)
-        for path, V, k, default, file in (
-            (args.source, pair.V1, args.k1, 29, args.basis_1),
-            (args.target, pair.V2, args.k2, 39, args.basis_2),
-        )
-        if not file
-    ]  # fmt: skip
-    check_job_memory(
-        jobs, advice="lower --k1/--k2 or --order, or use simplified meshes (fewer vertices)"
-    )
-
-    def side_job(side: int, k: Any, default: int, file: Any) -> tuple[Any, Any]:
-        V, F = (pair.V1, pair.F1) if side == 1 else (pair.V2, pair.F2)
-        path = args.source if side == 1 else args.target
-        want = required_k(V.shape[0], ESTIMATION_K) if estimate else None
-        with about(path):
-            B, eig = basis_for(
-                V,
-                F,
-                path,
-                args,
-                k=k,
-                default_k=default,
-                k_flag=f"--k{side}",
-                eig_k=want,
-                file=file,
-                file_flag=f"--basis-{side}",
-            )
-            if estimate and eig.k < want:  # a basis file with fewer eigenfunctions
-                with stage(f"eigenbasis of {path} for map estimation (k={want})"):
-                    eig = eigenbasis(V, F, k=want, clamp_k=True, **eig_options(args))
-        return B, eig
-
-    sides = ((1, args.k1, 29, args.basis_1), (2, args.k2, 39, args.basis_2))
-    # Both sides at once, one per core, when both are computed (a basis file is only read).
-    vertices, memory = [], []
-    for (_, k, default, file), V in zip(sides, (pair.V1, pair.V2), strict=True):
-        n, k = V.shape[0], k or default
-        eig_k = max(k, required_k(n, ESTIMATION_K)) if estimate else k
-        vertices.append(0 if file else n)
-        kept = min(n_eigenproducts(min(k, n - 1), args.order), n)  # at most, "ours" keeps fewer
-        memory.append(
-            basis_job_bytes(n, k=k, order=args.order, eig_k=eig_k)
-            + answer_bytes(n, eig_k + 1 + kept)
-        )
-    out = run_per_shape(
-        [functools.partial(side_job, *side) for side in sides],
-        vertices,
-        memory,
-        what="bases of both shapes",
-    )
-    (B1, e1), (B2, e2) = out
-    return B1, B2, e1, e2
+            np.savetxt(tmp, match.landmarks, fmt="%d",
+                       header="source_vertex target_vertex (0-based)")  # fmt: skip
+        report([f"wrote {len(match.landmarks)} landmark pairs to {args.save_landmarks}"])
+    scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
+    return Pair(source, target, V1, F1, V2, F2, given, match, (args.source, scaled), (None, None),
+                factor, as_read)  # fmt: skip
 
 
-def _dense(args: argparse.Namespace, V1: Any, F1: Any, V2: Any, F2: Any) -> bool:
-    """Whether the estimated map of this pair takes the dense path (coarse meshes)."""
-    from ..workflows.matching import uses_dense_path
-
-    meshes = F1 is not None and F2 is not None
-    return uses_dense_path(V1.shape[0], V2.shape[0], meshes)
+# --------------------------------------------------------------------------- planning
 
 
+def plan(
+    args: argparse.Namespace,
+    pair: Pair,
+    task: str,
+    *,
+    unused: Callable[[list[str]], str],
+    files: bool = False,
+    **options: Any,
+) -> Any:
+    """Return the plan of the job (:func:`o3d_ofp.workflows.plan.plan_pair`) for the flags.
 
-
-def _check_given_map(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray) -> None:
-    """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
-
-    A map file of the right length and range can still be garbage (another pair's map, a
-    broken export): when fewer distinct source vertices than
-    :data:`o3d_ofp.workflows.matching.GIVEN_MAP_COLLAPSE` of the smaller shape are hit, the
-    result would be a few flat colors. A map saved by
-    ``--save-map`` (.npz) also carries its quality, printed here, and the signatures of the
-    shapes it was made for: a map saved suspect, or made for other shapes (source and target
-    swapped, another pair with the same vertex counts), is doubtful too.
+    The OFP basis flags given to a job the plan makes without OFP bases (and, with ``files``,
+    the basis files) are refused with ``unused(flags given)``, in the command line's words;
+    basis files orthogonalized with another threshold than the bases made here, too.
+    ``options``: ``detail``, ``via_basis`` of :func:`plan_pair`.
     """
-    from ..workflows.matching import given_map_collapse
-    from ._common import report
+    planned = _planned(pair, task=task, **options)
+    named = [f for f in (*FLAGS["options"], *FLAGS["bases"][: 2 * files])
+             if getattr(args, f.lstrip("-").replace("-", "_")) is not None]  # fmt: skip
+    if planned.basis_k is None and named:
+        raise UsageError(unused(named))
+    pair.files = tuple(  # type: ignore[assignment]
+        load_basis_file(f, V, F, path, args, flag) if f else None
+        for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
+                                    (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
+    )  # fmt: skip
+    bases = basis_options(args)
+    if planned.basis_k is not None and bases is not None:
+        planned = _planned(pair, task=task, bases=bases, **options)
+    if planned.basis_k is not None:
+        _check_thresholds(args, pair, planned.tol)
+    return planned
 
-    n1, n2 = V1.shape[0], V2.shape[0]
-    reasons = []
-    collapse = given_map_collapse(corr.p2p_21, n1, n2)
-    if collapse is not None:
-        reasons.append(f"--map {args.map}: {collapse}")
-    if args.map.endswith(".npz"):
-        other = corr.mismatch(V1, V2, name=f"--map {args.map}")
-        if other is not None:
-            reasons.append(other)
-        if corr.quality is not None:
-            report([f"stored with --map {args.map}: {corr.quality.summary()}"])
-            if corr.quality.suspect:
-                reasons.append(
-                    f"--map {args.map} was saved with a suspect quality: "
-                    + "; ".join(corr.quality.reasons)
-                )
-    if not reasons:
+
+def _planned(pair: Pair, **options: Any) -> Any:
+    """Return :func:`plan_pair`'s plan.
+
+    A part refused for its area with ``--target-scale`` says the factor that would admit the
+    file itself.
+    """
+    from ..workflows.partial import check_partial_areas
+    from ..workflows.plan import plan_pair
+
+    try:
+        return plan_pair(pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match, given=pair.given,
+                         names=pair.names, **options)  # fmt: skip
+    except AdvisedError as exc:
+        factor = pair.target_scale
+        if factor is None or exc.said.code not in ("part_larger", "part_too_small"):
+            raise
+        target = pair.names[1].rpartition(" scaled by ")[0]
+        try:  # the advice for the file as it is, whose factor is the one to give
+            check_partial_areas(pair.V1, pair.F1, pair.V2 / factor, pair.F2,
+                                names=(pair.names[0], target))  # fmt: skip
+        except AdvisedError as own:
+            raise UsageError(Said("--target-scale {factor:g} does not fix the units: {own}",
+                                  {"factor": factor, "own": own.said})) from exc  # fmt: skip
+        raise UsageError(Said(
+            "--target-scale {factor:g}: {said}; {target} as it is would be admitted: drop "
+            "--target-scale", {"factor": factor, "said": exc.said, "target": target},
+        )) from exc  # fmt: skip
+
+
+def _check_thresholds(args: argparse.Namespace, pair: Pair, tol: float) -> None:
+    """Refuse, before any work, basis files of two orthogonalization thresholds.
+
+    A file's against the other file's, or against the plan's threshold ``tol`` of the basis
+    made for the other side.
+
+    A trial's ``detail --mode coordinates --basis-1`` with an "ours" file ran the target with
+    the command's default "ours*": a transfer between bases of two thresholds, unsaid.
+    """
+    from ..core.orthogonalize import PRESETS
+
+    files = zip((args.basis_1, args.basis_2), pair.files, strict=True)
+    held = [(i, f, B.tol) for i, (f, B) in enumerate(files) if B is not None]
+    if len(held) == 2 and not np.isclose(held[0][2], held[1][2], rtol=1e-9):
+        raise UsageError(
+            f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were orthogonalized with "
+            f"thresholds {held[0][2]:g} and {held[1][2]:g}: the two bases must share one; "
+            "recompute one of them"
+        )
+    if len(held) != 1 or np.isclose(held[0][2], tol, rtol=1e-9):
         return
-    if args.strict:
-        raise SuspectMap("; ".join(reasons))
-    for reason in reasons:
-        logger.warning("%s", reason)
-    report([f"map quality SUSPECT: {reason}" for reason in reasons])
+    side, file, t = held[0]
+    name = next((n for n, v in PRESETS.items() if np.isclose(v, t, rtol=1e-9)), None)
+    own = next((n for n, v in PRESETS.items() if np.isclose(v, tol, rtol=1e-9)), f"{tol:g}")
+    how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
+    yours = (f"--tol {args.tol:g}" if args.tol is not None else f"--preset {args.preset}"
+             if args.preset else f"--preset {own}, this command's default")  # fmt: skip
+    raise UsageError(
+        f"--basis-{side + 1} {file}: holds a basis orthogonalized with threshold {t:g}, but the "
+        f"{('target', 'source')[side]}'s basis would be made with {tol:g} ({yours}): the two "
+        f"bases must share one; pass {how}, or recompute the basis file"
+    )
 
 
-def _report_quality(args: argparse.Namespace, corr: Any) -> None:
-    """Print the quality of an estimated map; ``--strict`` turns a suspect one into an error."""
-    from ._common import report
-
-    report([corr.quality.summary(), *corr.quality.notes])
-    if corr.quality.suspect and args.strict:
-        raise SuspectMap("; ".join(corr.quality.reasons))
+# --------------------------------------------------------------------------- running
 
 
-def _closest_map(args: argparse.Namespace, pair: Pair) -> Pair:
-    """Return the pair with its closest-point map (``--map closest``), its quality printed."""
-    from ..boundary.closest import closest_correspondence
+def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Any) -> Any:
+    """Run the plan (:func:`o3d_ofp.workflows.plan.prepare`), a closest-point map first.
 
-    with stage("closest points on the source surface"):
-        try:
-            corr = closest_correspondence(
-                pair.V1, pair.F1, pair.V2, faces_2=pair.F2, align=args.align
-            )
-        except ValueError as exc:
-            raise UsageError(f"--map closest: {exc}") from exc
-    _report_quality(args, corr)
-    return dataclasses.replace(pair, correspondence=corr)
-
-
-def map_first(args: argparse.Namespace, pair: Pair) -> Pair:
-    """Compute the maps that need no basis: closest points, or the dense path's estimate.
-
-    Called once the inputs (and the signal) have been read and checked, so that a bad input
-    is refused before this work. Returns the pair with its map for ``--map closest`` and for
-    two large meshes (estimated on coarse copies, no full-size eigenbasis), the pair
-    unchanged otherwise (the map is then estimated from the eigenbases the bases are built
-    from).
+    Its eigenbases, estimated map and OFP bases; the map's quality printed (``--strict``), the
+    map saved (``--save-map``).
     """
-    if pair.correspondence is None and args.map == "closest":
-        return _closest_map(args, pair)
-    if pair.correspondence is not None or args.map != "estimate":
-        return pair
-    if not _dense(args, pair.V1, pair.F1, pair.V2, pair.F2):
-        return pair
-    from ..workflows.matching import match_arrays
+    from ..boundary.api import match
+    from ..workflows.plan import prepare
     from ._progress import stage_progress
 
-    n = max(pair.V1.shape[0], pair.V2.shape[0])
-    with (
-        stage(f"map estimation on coarse copies ({n} vertices: dense path)"),
-        stage_progress("matching") as progress,
-    ):
-        match = match_arrays
-        if getattr(args, "partial", False):
-            from ..workflows.partial import match_partial_arrays as match
-        corr = match(
-            pair.V1,
-            pair.F1,
-            pair.V2,
-            pair.F2,
-            landmarks=pair.landmarks,
-            progress=progress,
-            **eig_options(args),
-        )
-    _report_quality(args, corr)
-    return dataclasses.replace(pair, correspondence=corr)
-
-
-def estimate_or_use_map(args: argparse.Namespace, pair: Pair, eig_1: Any, eig_2: Any) -> Any:
-    """Return the pair's map: the given one, or estimated (quality printed, --strict)."""
-    from ..workflows.matching import match_eigenbases
-    from ._common import report
-    from ._progress import stage_progress
-
-    corr = pair.correspondence
-    if corr is None:
-        partial = getattr(args, "partial", False)
-        what = (
-            "partial map estimation (descriptor fits, partial ZoomOut, geodesic refinement, "
-            "checks)" if partial else "map estimation (descriptor fit, ZoomOut, point map)"
-        )  # fmt: skip
-        with stage(what), stage_progress("matching") as progress:
-            match = match_eigenbases
-            if partial:
-                from ..workflows.partial import match_partial_eigenbases as match
-            corr = match(eig_1, eig_2, landmarks=pair.landmarks, progress=progress)
-        _report_quality(args, corr)
+    given = pair.given
+    if planned.estimator == "closest":
+        with stage("closest points on the source surface"):
+            given = match(pair.source, pair.target, options=pair.match)
+        report_quality(args, given)
+    progress = stage_progress("matching") if planned.estimated else contextlib.nullcontext()
+    with stage(_describe(planned, pair), ticking=not planned.estimated), progress as tell:
+        try:
+            prepared = prepare(
+                planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match, given=given,
+                bases=pair.files, cache_dir=args.cache, progress=tell, names=pair.names,
+            )  # fmt: skip
+        except AdvisedError as exc:  # the estimation's eigenbases are the plan's, not the flags'
+            if exc.said.code != "memory" or not planned.estimated:
+                raise
+            raise UsageError(Said("{said}; or give the map with --map FILE",
+                                  {"said": exc.said})) from exc  # fmt: skip
+    corr = prepared.correspondence
+    if planned.estimated:
+        report_quality(args, corr)
     if args.save_map:
         corr.save(args.save_map)
         report([f"wrote the map to {args.save_map}"])
-    return corr
+    return prepared
+
+
+def _describe(planned: Any, pair: Pair) -> str:
+    """Say what :func:`prepare` computes for the plan, for its stage line ("" for nothing)."""
+    parts = []
+    eig = [f"{name} (k={k})" for name, k, B in zip(pair.names, planned.eig_k, pair.files,
+                                                   strict=True) if k and (B is None or B.eig.k < k)]
+    if eig:
+        parts.append("eigenbases of " + " and ".join(eig))
+    if planned.basis_k and None in pair.files:
+        k1, k2 = planned.basis_k
+        parts.append(f"OFP bases (k={k1} and {k2}, order {planned.order})")
+    if planned.dense:
+        n = max(pair.V1.shape[0], pair.V2.shape[0])
+        parts.append(f"map estimation on coarse copies ({n} vertices: dense path)")
+    elif planned.estimator == "full":
+        parts.append("map estimation (descriptor fit, ZoomOut, point map)")
+    elif planned.estimator == "partial":
+        parts.append("partial map estimation (descriptor fits, partial ZoomOut, geodesic "
+                     "refinement, checks)")  # fmt: skip
+    return ", ".join(parts)
+
+
+def report_quality(args: argparse.Namespace, corr: Any) -> None:
+    """Print a made map's quality report; ``--strict`` turns a suspect one into an error."""
+    quality = corr.quality
+    report([quality.summary(), *quality.notes])
+    if quality.suspect and args.strict:
+        raise SuspectMap("; ".join(r.text(cli=True) for r in quality.reasons))
+
+
+def map_name(args: argparse.Namespace, corr: Any) -> str:
+    """How the map was made, and from which file when it was read (``ab.npz (estimate)``)."""
+    if args.map in ("estimate", "closest", "identity") or corr.method == args.map:
+        return str(corr.method)
+    return f"{args.map} ({corr.method})"

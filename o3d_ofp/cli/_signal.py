@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.wording import text_of
 from ._common import UsageError, check_output, load_npy
 
 __all__ = ["read_signal", "side_outputs", "signal_sides", "write_result"]
@@ -53,7 +54,8 @@ def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
     from ..boundary.texture import no_texture_message
 
     if texture is not None:  # the given image, not the source, is at fault
-        return UsageError(f"--texture {texture}: {str(exc).removeprefix(f'{texture}: ')}")
+        said = text_of(exc, cli=True).removeprefix(f"{texture}: ")
+        return UsageError(f"--texture {texture}: {said}")
     return UsageError(no_texture_message(path, exc))
 
 

@@ -9,12 +9,12 @@ from ._common import (
     MESH_HELP,
     MESH_OUT,
     add_basis_options,
-    basis_for,
     check_cache_dir,
     check_output,
     check_output_kind,
     read_shape,
     report,
+    shape_basis,
 )
 from ._signal import read_signal, signal_sides, write_result
 
@@ -25,11 +25,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("approximate", help="approximate a signal in the basis; print the error")
     p.add_argument("mesh", help=MESH_HELP)
-    p.add_argument(
-        "--signal",
-        default="colors",
-        help="colors (vertex colors), texture (UV texture), xyz (coordinates) or FILE.npy",
-    )
+    p.add_argument("--signal", default="colors",
+                   help="colors (vertex colors), texture (UV texture), xyz (coordinates) or "
+                   "FILE.npy")  # fmt: skip
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
     add_basis_options(p)
     p.add_argument("--basis", help="cached basis of MESH (.npz)")
@@ -40,24 +38,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
     inputs = (args.mesh, args.signal, args.texture, args.basis)
-    outputs = (*MESH_OUT, *CLOUD_OUT, ".npy")
-    check_output(args.output, outputs, inputs=inputs, side=signal_sides(args))
+    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=inputs,
+                 side=signal_sides(args))  # fmt: skip
     check_cache_dir(args.cache)
     geometry, V, F = read_shape(args.mesh)
     if not args.output.lower().endswith(".npy"):
         check_output_kind(args.output, F)
-    f, kind = read_signal(
-        geometry, V, args.mesh, args.signal, args.texture, output=args.output
-    )
-    B, _ = basis_for(V, F, args.mesh, args, k=args.k, file=args.basis)
-    approx = B.approximate(f)
-    err = B.approximation_error(f)
-    written = write_result(args.output, geometry, approx, kind, protect=inputs)
-    report(
-        [
-            f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
-            f"relative error ‖f − f̃‖_M / ‖f‖_M = {err:.4%}",
-            "wrote " + ", ".join(written),
-        ]
-    )
+    f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture, output=args.output)
+    B = shape_basis(V, F, args.mesh, args)
+    written = write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)
+    report([
+        f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
+        f"relative error ‖f − f̃‖_M / ‖f‖_M = {B.approximation_error(f):.4%}",
+        "wrote " + ", ".join(written),
+    ])  # fmt: skip
     return 0

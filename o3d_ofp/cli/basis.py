@@ -8,11 +8,11 @@ from ._common import (
     MESH_HELP,
     UsageError,
     add_basis_options,
-    basis_for,
     check_cache_dir,
     check_output,
     read_shape,
     report,
+    shape_basis,
 )
 from ._many import add_collection_options, check_single, is_collection, report_records
 from ._progress import ENABLED
@@ -23,8 +23,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser(
-        "basis",
-        help="compute a basis once and store it (.npz), or cache the bases of a collection",
+        "basis", help="compute a basis once and store it (.npz), or cache the bases of a collection"
     )
     p.add_argument(
         "mesh", nargs="+", help=MESH_HELP + "; several, or folders of them, with --cache DIR"
@@ -50,17 +49,15 @@ def run(args: argparse.Namespace) -> int:
     (mesh,) = args.mesh
     check_output(args.output, (".npz",), inputs=(mesh,))
     _, V, F = read_shape(mesh)
-    B, _ = basis_for(V, F, mesh, args, k=args.k)
+    B = shape_basis(V, F, mesh, args)
     B.save(args.output)
     cleaning = B.eig.cleaning.report if B.eig.cleaning is not None else None
-    report(
-        [
-            f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: "
-            f"kept {B.size} of {n_eigenproducts(B.k, B.order)} products",
-            *([f"cleaning: {cleaning}"] if cleaning is not None else []),
-            f"wrote {args.output}",
-        ]
-    )
+    report([
+        f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept {B.size} "
+        f"of {n_eigenproducts(B.k, B.order)} products",
+        *([f"cleaning: {cleaning}"] if cleaning is not None else []),
+        f"wrote {args.output}",
+    ])  # fmt: skip
     return 0
 
 
@@ -76,19 +73,11 @@ def _run_many(args: argparse.Namespace) -> int:
         raise UsageError("give -o FILE.npz (one shape) or --cache DIR (any number of shapes)")
     if args.force:
         raise UsageError("--force does not apply to basis (cached entries are checked)")
-    try:
-        records = bases_many(
-            args.mesh,
-            cache_dir=args.cache,
-            client=args.scheduler,
-            k=args.k or 29,
-            order=args.order,
-            preset=None if args.tol is not None else args.preset,
-            tol=args.tol,
-            components=args.components,
-            workers=args.workers,
-            progress=ENABLED.on,
-        )
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise UsageError(str(exc)) from exc
+    given = {"k": args.k, "order": args.order, "tol": args.tol,
+             "preset": None if args.tol is not None else args.preset}  # fmt: skip
+    records = bases_many(
+        args.mesh, cache_dir=args.cache, client=args.scheduler, components=args.components,
+        workers=args.workers, progress=ENABLED.on,
+        **{name: value for name, value in given.items() if value is not None},
+    )  # fmt: skip
     return report_records(records)

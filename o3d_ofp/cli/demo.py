@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from ..workflows.options import BasisOptions
 from ._common import UsageError, check_folder_to_make, report, stage
 from ._types import bounded_int, nonnegative_int, positive_int
 
@@ -21,8 +22,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "estimated map, write the meshes as PLY and a picture, and print the errors.",
     )
     p.add_argument("-o", "--output", default="demo_out", help="output folder (demo_out)")
-    p.add_argument("-k", "--k", type=positive_int, default=29, help="eigenfunctions (29)")
-    p.add_argument("--order", type=positive_int, default=2, help="product order N (2)")
+    default = BasisOptions()
+    p.add_argument("-k", "--k", type=positive_int, default=default.k1,
+                   help=f"eigenfunctions ({default.k1})")  # fmt: skip
+    p.add_argument("--order", type=positive_int, default=default.order,
+                   help=f"product order N ({default.order})")  # fmt: skip
     p.add_argument(
         "--subdivisions",
         type=bounded_int(2, 9),

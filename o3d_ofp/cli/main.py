@@ -19,8 +19,9 @@ from typing import Any
 
 from ..core._version import __version__
 from ..core._warnings import OFPWarning, warnings_logged
+from ..core.wording import text_of
 from . import approximate, basis, demo, detail, filter, render, transfer
-from ._common import OUT, UsageError, in_flags
+from ._common import OUT, UsageError, error_text
 from ._pair import SUSPECT_EXIT, SuspectMap
 from ._progress import ENABLED
 
@@ -30,22 +31,44 @@ logger = logging.getLogger(__name__)
 
 COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
 
-class _FlagsFormatter(logging.Formatter):
-    """Log lines with the flags where the library's messages name its keywords."""
+class _Words(logging.Formatter):
+    """Log lines in the command line's words.
+
+    A record carrying a Said (``record.said``, see :func:`o3d_ofp.core._warnings.warn`) is
+    worded for flags.
+    """
 
     def format(self, record: logging.LogRecord) -> str:
-        return in_flags(super().format(record))
+        said = getattr(record, "said", None)
+        if said is not None:
+            record = logging.makeLogRecord({**record.__dict__, "msg": text_of(said, cli=True),
+                                            "args": None})  # fmt: skip
+        return super().format(record)
 
 
-class _NoQualityRecords(logging.Filter):
-    """Leave out the library's log records of a map's quality report when the command prints it.
+class _Shown(logging.Filter):
+    """Each warning once per command; a map's quality report left out when the command prints it.
+
+    The library may say a warning again (of a map it is given twice).
 
     A run over one pair prints the report (``OUT.reports_quality``); a collection's records
     keep the lines of each target in the log.
     """
 
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[str] = set()
+
     def filter(self, record: logging.LogRecord) -> bool:
-        return not (getattr(record, "quality_report", False) and OUT.reports_quality)
+        if getattr(record, "quality_report", False) and OUT.reports_quality:
+            return False
+        if record.levelno < logging.WARNING:
+            return True
+        said = getattr(record, "said", None)
+        text = text_of(said, cli=True) if said is not None else record.getMessage()
+        fresh = text not in self.seen
+        self.seen.add(text)
+        return fresh
 
 
 class _Parser(argparse.ArgumentParser):
@@ -96,14 +119,15 @@ def build_parser() -> argparse.ArgumentParser:
 def _logging_to_stderr(level: int) -> Iterator[None]:
     """Send the package's log records to the current stderr for the duration of a command.
 
-    Below DEBUG, the records of a map's quality report are left out where the command prints
-    the report (:data:`o3d_ofp.workflows.matching.QUALITY_RECORD`, :class:`_NoQualityRecords`).
+    Above DEBUG, the records of a map's quality report are left out where the command prints
+    the report (:data:`o3d_ofp.workflows.quality.QUALITY_RECORD`) and a warning is said once
+    (:class:`_Shown`).
     """
     root = logging.getLogger("o3d_ofp")
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_FlagsFormatter("o3d-ofp: %(message)s"))
+    handler.setFormatter(_Words("o3d-ofp: %(message)s"))
     if level > logging.DEBUG:
-        handler.addFilter(_NoQualityRecords())
+        handler.addFilter(_Shown())
     saved = (root.level, root.propagate)
     root.addHandler(handler)
     root.setLevel(level)
@@ -186,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         level = logging.INFO  # the long stages say what they do
     prog = f"o3d-ofp {args.command}"
-    OUT.quiet = bool(args.quiet)
+    OUT.quiet, OUT.args, OUT.renamed = bool(args.quiet), args, {}
     OUT.reports_quality = False  # set by a run over one pair (check_single)
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (logged at WARNING here).
@@ -195,24 +219,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return args.func(args)
         except SuspectMap as exc:
-            sys.stderr.write(
-                f"{prog}: error: the map is suspect (--strict): {in_flags(str(exc))}; "
-                "nothing written\n"
-            )
+            sys.stderr.write(f"{prog}: error: the map is suspect (--strict): {exc}; nothing "
+                             "written\n")  # fmt: skip
             return SUSPECT_EXIT
-        except (
-            UsageError,
-            ValueError,
-            TypeError,
-            FileNotFoundError,
-            FileExistsError,
-            IsADirectoryError,
-            PermissionError,
-        ) as exc:
-            sys.stderr.write(f"{prog}: error: {in_flags(str(exc))}\n")
+        except (UsageError, ValueError, TypeError, FileNotFoundError, FileExistsError,
+                IsADirectoryError, PermissionError) as exc:  # fmt: skip
+            sys.stderr.write(f"{prog}: error: {error_text(exc)}\n")
             return 2
         except (ImportError, ConnectionError) as exc:
-            sys.stderr.write(f"{prog}: error: {in_flags(str(exc))}\n")
+            sys.stderr.write(f"{prog}: error: {error_text(exc)}\n")
             return 1
         except OSError as exc:  # a full disk, a file system gone read-only during the run
             where = f" ({exc.filename})" if exc.filename else ""

@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read the meshes (and scalars), render, write the PNG."""
-    from ..render.panel import View, geometry_items, render_panel
+    from ..render.panel import View, colormap, geometry_items, render_panel
 
     check_output(args.output, (".png",), inputs=args.mesh)
     if args.label and not args.scalars:
@@ -50,6 +50,10 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         up, front = (",".join(f"{x:g}" for x in v) for v in (args.up, args.front))
         raise UsageError(f"--up {up} is parallel to --front {front}; give another --up") from exc
+    try:  # an unknown colormap, named by its flag before any work
+        colormap(np.zeros(1), args.colormap)
+    except ValueError as exc:
+        raise UsageError(f"--colormap {args.colormap}: {exc}") from exc
     titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
     if len(titles) != len(args.mesh):
         raise UsageError(f"--titles has {len(titles)} entries for {len(args.mesh)} meshes")
