@@ -221,3 +221,21 @@ def test_the_version_is_the_projects():
 
     with open(ROOT.parent / "pyproject.toml", "rb") as fh:
         assert tomllib.load(fh)["project"]["version"] == __version__
+
+
+#: What the planner (o3d_ofp.workflows.plan) decides, by the names it decides it with: the
+#: eigenbasis sizes, the dense path, the estimator. The front ends build options and call it.
+PLANNER_NAMES = ("ESTIMATION_K", "required_k", "uses_dense_path", "DENSE_VERTICES",
+                 "match_eigenbases", "estimate_dense", "strategy_of")  # fmt: skip
+
+
+@pytest.mark.parametrize("layer", ["cli", "collections"])
+def test_front_ends_do_not_redecide_the_plan(layer):
+    found = [
+        f"{path.relative_to(ROOT.parent)}:{number}: {name}"
+        for path in sorted((ROOT / layer).rglob("*.py"))
+        for number, line in enumerate(path.read_text().splitlines(), start=1)
+        for name in PLANNER_NAMES
+        if name in line
+    ]
+    assert not found, "decided outside the planner:\n" + "\n".join(found)
