@@ -23,27 +23,19 @@ from typing import Any
 
 import numpy as np
 
+from ..boundary.convert import geometry_to_arrays, require_open3d
+from ..boundary.io import CLOUD_ONLY, MESH_ONLY, read_geometry
+from ..core import _memory
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.spectrum import eigenbasis, shape_digest
 from ..core.wording import OptionError, Said, text_of
+from ..workflows.cache import basis_cache_path, cached_basis
+from ..workflows.options import COMPONENTS, BasisOptions
+from ._types import positive_int, unit_float
 
-__all__ = [
-    "CLOUD_OUT",
-    "FLAGS",
-    "MESH_HELP",
-    "MESH_OUT",
-    "OUT",
-    "UsageError",
-    "add_basis_options",
-    "basis_options",
-    "check_cache_dir",
-    "check_output",
-    "flag_of",
-    "load_npy",
-    "option_message",
-    "read_shape",
-    "renamed",
-    "report",
-    "stage",
-]
+__all__ = ["CLOUD_OUT", "FLAGS", "MESH_HELP", "MESH_OUT", "OUT", "UsageError", "add_basis_options",
+           "basis_options", "check_output", "error_text", "flag_of", "load_npy", "read_shape",
+           "renamed", "report", "shape_basis", "stage"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -53,38 +45,26 @@ CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 
 #: The flags that set each option an :class:`OptionError` may name (the library's keyword or
 #: options field): the error is said of those of them given (all of them when none was).
-_SAME = ("k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components",
-         "mode", "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")
 FLAGS: dict[str, tuple[str, ...]] = {
-    **{name: (f"--{name}",) for name in _SAME},
-    "k": ("-k",),
-    "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
-    "bases": ("--basis-1", "--basis-2"),
-    "eigenbases": ("--basis-1", "--basis-2"),
-    "method": ("--map",),
-    "map": ("--map",),
-    "via_basis": ("--via-basis",),
-    "atlas": ("--uv-atlas",),
-    "size": ("--texture-size",),
-    "texture_size": ("--texture-size",),
-    "client": ("--scheduler",),
-    "cache_dir": ("--cache",),
-    "output_dir": ("-o",),
-}
+    **{name: (f"--{name}",) for name in (
+        "k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components", "mode",
+        "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")},
+    "k": ("-k",), "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
+    "bases": ("--basis-1", "--basis-2"), "eigenbases": ("--basis-1", "--basis-2"),
+    "method": ("--map",), "map": ("--map",), "via_basis": ("--via-basis",),
+    "atlas": ("--uv-atlas",), "size": ("--texture-size",), "texture_size": ("--texture-size",),
+    "client": ("--scheduler",), "cache_dir": ("--cache",), "output_dir": ("-o",),
+}  # fmt: skip
 
 #: Deprecated flags and flag values, the one place they are mapped: (dest, old value, or None
 #: for any) -> (what was given, the dest it sets, its value there, or None: the same).
-DEPRECATED = {
-    ("k_low", None): ("--k-low", "band", None),
-    ("mode", "replace"): ("--mode replace", "mode", "coordinates"),
-}
+DEPRECATED = {("k_low", None): ("--k-low", "band", None),
+              ("mode", "replace"): ("--mode replace", "mode", "coordinates")}  # fmt: skip
 
 #: TEMPORARY, until core/cleaning.py refuses several components with a Said: the keywords of
 #: that one message (a plain ValueError), in flags.
-_UNSAID_KEYWORDS = {
-    "components='largest'": "--components largest",
-    "components='auto'": "--components auto",
-}
+_UNSAID_KEYWORDS = {"components='largest'": "--components largest",
+                    "components='auto'": "--components auto"}  # fmt: skip
 
 
 class UsageError(Exception):
@@ -95,11 +75,11 @@ class UsageError(Exception):
 
 
 class _Output:
-    """The result lines on stdout (nothing with ``-q``); what the run said about its options.
+    """The result lines on stdout (nothing with ``-q``) and what the run's messages need.
 
     ``reports_quality``: the command prints a map's quality report itself (a run over one
-    pair), so the library's log records of it are left out (``main``). ``renamed``: the flag
-    a deprecated one was given as (``{"--band": "--k-low"}``), for the messages.
+    pair), so the library's log records of it are left out (``main``). ``args``: the flags
+    given. ``renamed``: the flag a deprecated one was given as (``{"--band": "--k-low"}``).
     """
 
     quiet = False
@@ -117,49 +97,40 @@ OUT = _Output()
 
 def error_text(exc: BaseException) -> str:
     """Return the one line an error is said in on the command line (flags, not keywords)."""
-    if isinstance(exc, OptionError):
-        return option_message(exc)
+    if isinstance(exc, OptionError) and exc.option in FLAGS:
+        joint = "" if exc.problem.startswith((":", ",")) else " "
+        return flag_of(exc.option) + joint + exc.problem
     text = text_of(exc, cli=True)
     for keyword, flag in _UNSAID_KEYWORDS.items():
         text = text.replace(keyword, flag)
     return text
 
 
-def flag_of(option: str, args: Any = None) -> str:
+def flag_of(option: str) -> str:
     """Return the flag(s) of a library option: those given of :data:`FLAGS`'s, else all."""
-    args = OUT.args if args is None else args
     flags = [OUT.renamed.get(f, f) for f in FLAGS.get(option, ())]
-    given = [f for f in flags if getattr(args, _dest(f), None) not in (None, False)]
+    given = [f for f in flags if getattr(OUT.args, dest(f), None) not in (None, False)]
     return "/".join(given or flags)
 
 
-def _dest(flag: str) -> str:
+def dest(flag: str) -> str:
+    """Return the argparse name of a flag (``--basis-1``: ``basis_1``)."""
     return flag.lstrip("-").replace("-", "_")
-
-
-def option_message(exc: OptionError, args: Any = None) -> str:
-    """``<flag> <problem>`` for an option the library refused (its keyword when it has no flag)."""
-    if exc.option not in FLAGS:
-        return str(exc)
-    joint = "" if exc.problem.startswith((":", ",")) else " "
-    return flag_of(exc.option, args) + joint + exc.problem
 
 
 def renamed(args: argparse.Namespace) -> None:
     """Map the deprecated flags and values given to their new ones (a warning says which)."""
-    OUT.renamed = {}
-    for (dest, old), (given, new, value) in DEPRECATED.items():
-        found = getattr(args, dest, None)
-        if found is None or (old is not None and found != old):
+    for (old, value), (given, new, now) in DEPRECATED.items():
+        found = getattr(args, old, None)
+        if found is None or (value is not None and found != value):
             continue
-        now = f"--{new.replace('_', '-')}" + (f" {value}" if value else "")
-        logger.warning("%s is deprecated; use %s", given, now)
-        if value is None:
-            other = getattr(args, new, None)
-            if other is not None and other != found:
-                raise UsageError(f"{given} {found} and {now} {other} disagree: give {now}")
-            OUT.renamed[now] = given
-        setattr(args, new, found if value is None else value)
+        flag = f"--{new.replace('_', '-')}" + (f" {now}" if now else "")
+        logger.warning("%s is deprecated; use %s", given, flag)
+        other = getattr(args, new, None)
+        if now is None and other is not None and other != found:
+            raise UsageError(f"{given} {found} and {flag} {other} disagree: give {flag}")
+        OUT.renamed.update({} if now else {flag: given})
+        setattr(args, new, now or found)
 
 
 def report(lines: Sequence[str | Said]) -> None:
@@ -183,16 +154,14 @@ def stage(what: str, *, ticking: bool = True) -> Iterator[None]:
         yield
         return
     logger.info("%s ...", what)
-    t0 = time.perf_counter()
-    done = threading.Event()
+    t0, done = time.perf_counter(), threading.Event()
 
     def tick() -> None:
         while not done.wait(TICK_SECONDS):
             logger.info("%s: still running (%.0f s)", what, time.perf_counter() - t0)
 
-    ticker = threading.Thread(target=tick, daemon=True) if ticking else None
-    if ticker is not None:
-        ticker.start()
+    if ticking:
+        threading.Thread(target=tick, daemon=True).start()
     try:
         yield
     finally:
@@ -211,14 +180,8 @@ def about(path: str) -> Iterator[None]:
         raise UsageError(f"{path}: {text_of(exc, cli=True)}") from exc
 
 
-# --------------------------------------------------------------------------- inputs
-
-
 def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
     """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
-    from ..boundary.convert import geometry_to_arrays, require_open3d
-    from ..boundary.io import read_geometry
-
     require_open3d()
     if not os.path.exists(path):
         raise UsageError(f"{path}: no such file")
@@ -226,10 +189,9 @@ def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
         raise UsageError(f"{path}: is a directory, not a mesh file")
     try:
         geometry = read_geometry(path)
-        V, F = geometry_to_arrays(geometry)
+        return (geometry, *geometry_to_arrays(geometry))
     except ValueError as exc:
         raise UsageError(f"{path}: cannot read a mesh or point cloud ({exc})") from exc
-    return geometry, V, F
 
 
 def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
@@ -237,10 +199,9 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     if not os.path.isfile(path):
         raise UsageError(f"{flag} {path}: no such file")
     with open(path, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":  # NumPy's own message speaks of pickles for any other file
-        raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): it does not start "
-                         "with the .npy header (write it with numpy.save)")  # fmt: skip
+        if fh.read(6) != b"\x93NUMPY":  # NumPy's own message speaks of pickles for other files
+            raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): it does not start "
+                             "with the .npy header (write it with numpy.save)")  # fmt: skip
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
@@ -255,6 +216,11 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
 # --------------------------------------------------------------------------- outputs
 
 
+def geometry_file(path: str) -> bool:
+    """Whether a file name is one of a mesh or point-cloud format written here."""
+    return os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT)
+
+
 def written_beside(path: str) -> list[str]:
     """Existing files that writing ``path`` may replace besides it.
 
@@ -267,14 +233,8 @@ def written_beside(path: str) -> list[str]:
     return [stem + ext, *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))] if ext else []
 
 
-def check_output(
-    path: str,
-    allowed: Sequence[str],
-    *,
-    inputs: Sequence[str | None] = (),
-    flag: str = "-o",
-    side: Sequence[str] = (),
-) -> None:
+def check_output(path: str, allowed: Sequence[str], *, inputs: Sequence[str | None] = (),
+                 flag: str = "-o", side: Sequence[str] = ()) -> None:  # fmt: skip
     """Refuse a bad output path before any work.
 
     Wrong extension, missing folder, a directory, or one of the inputs (which would be
@@ -282,15 +242,13 @@ def check_output(
     :func:`written_beside`). ``inputs`` may hold flag values that are not files (``None``,
     ``"colors"``): only existing files are compared.
     """
-    ext = os.path.splitext(path)[1].lower()
     if os.path.isdir(path) or path.endswith(("/", os.sep)):
         name = "" if os.path.isdir(path) else " name"
         raise UsageError(f"{flag} {path}: is a directory{name}; give a file name (a folder is the "
                          "output of several targets)")  # fmt: skip
-    if ext not in allowed:
-        raise UsageError(
-            f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"
-        )
+    if os.path.splitext(path)[1].lower() not in allowed:
+        raise UsageError(f"{flag} {path}: the output must end with one of "
+                         f"{', '.join(dict.fromkeys(allowed))}")  # fmt: skip
     check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
     beside = (*side, *written_beside(path))
     for other in beside:  # (found by a trial only after the work)
@@ -302,10 +260,9 @@ def check_output(
             continue
         if same_file(path, source):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
-        for other in beside:
-            if same_file(other, source):
-                raise UsageError(f"{flag} {path}: writing it would also write {other}, an input "
-                                 "of this command; choose another output name")  # fmt: skip
+        for other in (o for o in beside if same_file(o, source)):
+            raise UsageError(f"{flag} {path}: writing it would also write {other}, an input of "
+                             "this command; choose another output name")  # fmt: skip
 
 
 def same_file(a: str, b: str) -> bool:
@@ -323,13 +280,13 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
     # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
     why = None if os.access(folder, os.W_OK | os.X_OK) else "read-only or no permission"
-    if why is None:
-        try:
+    try:
+        if why is None:
             fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
             os.close(fd)
             os.remove(probe)
-        except OSError as exc:
-            why = exc.strerror or str(exc)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
     if why is not None:
         raise UsageError(f"{flag} {path}: the folder {folder} cannot be written ({why}); "
                          f"choose another folder for {flag}")  # fmt: skip
@@ -337,26 +294,21 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
     """Refuse, once the input is read and before any work, a point cloud to a mesh format."""
-    from ..boundary.io import CLOUD_ONLY, MESH_ONLY
-
     ext = os.path.splitext(path)[1].lower()
     if faces is None and ext in MESH_ONLY:
         raise UsageError(f"{flag} {path}: the result is a point cloud (no faces) and cannot be "
                          f"written as {ext}; use {', '.join(('.ply', *CLOUD_ONLY))}")  # fmt: skip
 
 
-def check_cache_dir(path: str | None) -> None:
-    """Refuse, before any work, a ``--cache DIR`` that is a file or cannot be written."""
-    if path:
-        check_folder_to_make(path, "--cache")
-
-
-def check_folder_to_make(path: str, flag: str) -> None:
+def check_folder_to_make(path: str | None, flag: str) -> None:
     """Refuse, before any work, an output folder that is a file or cannot be made or written.
 
     Missing folders are made later, with their parents: the nearest one that exists is
-    written into and must be writable.
+    written into and must be writable (``--cache``: a trial's read-only cache failed after the
+    eigensolve, naming a temporary file). Nothing for ``path`` None.
     """
+    if not path:
+        return
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"{flag} {path}: is a file, not a folder")
     existing = os.path.abspath(path)
@@ -376,9 +328,6 @@ def add_basis_options(p: argparse.ArgumentParser, *, k: bool = True, preset: str
 
     The defaults are :class:`~o3d_ofp.BasisOptions`'; ``preset``: the command's, for the help.
     """
-    from ..workflows.options import COMPONENTS, BasisOptions
-    from ._types import positive_int, unit_float
-
     default = BasisOptions()
     if k:
         p.add_argument("-k", "--k", type=positive_int,
@@ -387,23 +336,25 @@ def add_basis_options(p: argparse.ArgumentParser, *, k: bool = True, preset: str
     p.add_argument("--preset", choices=("ours", "ours*"),
                    help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})")
     p.add_argument("--tol", type=unit_float, help="explicit threshold in (0, 1) (over --preset)")
-    p.add_argument(
-        "--components", choices=COMPONENTS, default="auto",
-        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
-        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
-    )  # fmt: skip
+    add_components_option(p)
     p.add_argument("--cache", metavar="DIR",
                    help="reuse bases cached in DIR (computed and stored there the first time)")
 
 
-def basis_options(args: argparse.Namespace, **sizes: int | None) -> Any:
+def add_components_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--components``, the policy for a shape of several connected components."""
+    p.add_argument("--components", choices=COMPONENTS, default="auto",
+                   help="several connected components: auto keeps the largest if it holds >= 90%% "
+                   "of the area (else refuses), largest always keeps it, error always refuses "
+                   "(default: auto)")  # fmt: skip
+
+
+def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
     """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given).
 
     ``sizes``: ``k1``/``k2`` of a one-shape command (its ``-k``); ``--tol`` is over
     ``--preset``.
     """
-    from ..workflows.options import BasisOptions
-
     given = {"k1": getattr(args, "k1", None), "k2": getattr(args, "k2", None), **sizes,
              "order": args.order, "preset": None if args.tol is not None else args.preset,
              "tol": args.tol}  # fmt: skip
@@ -416,22 +367,15 @@ def check_memory(path: str, n: int, *, k: int, order: int, advice: str) -> None:
 
     A pair's job is checked by :func:`o3d_ofp.workflows.plan.prepare`.
     """
-    from ..core._memory import available_memory, basis_job_bytes, format_bytes
-
-    need, limit = basis_job_bytes(n, k=k, order=order), available_memory()
+    need, limit = _memory.basis_job_bytes(n, k=k, order=order), _memory.available_memory()
     if limit is not None and need > limit:
-        raise UsageError(
-            f"the basis of {path} ({n} vertices, k={k}, order {order}) needs about "
-            f"{format_bytes(need)} of memory, more than the {format_bytes(limit)} available: "
-            f"{advice}"
-        )
+        need, limit = _memory.format_bytes(need), _memory.format_bytes(limit)
+        raise UsageError(f"the basis of {path} ({n} vertices, k={k}, order {order}) needs about "
+                         f"{need} of memory, more than the {limit} available: {advice}")
 
 
-def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) -> Any:
+def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) -> OFPBasis:
     """Read the OFP basis file given as ``flag path``, checked to be ``mesh``'s."""
-    from ..core.basis import OFPBasis
-    from ..core.spectrum import shape_digest
-
     if not os.path.isfile(path):
         raise UsageError(f"{flag} {path}: no such basis file")
     try:
@@ -444,33 +388,26 @@ def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) 
     return B
 
 
-def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> Any:
+def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis:
     """Return the OFP basis of one shape: from ``--basis``, the ``--cache`` folder, or computed.
 
     A basis file is checked against the flags given; sizes and threshold: :func:`basis_options`.
     """
-    from ..core.basis import ofp_basis
-    from ..core.spectrum import eigenbasis
-    from ..workflows.cache import basis_cache_path, cached_basis
-    from ..workflows.options import BasisOptions
-
-    file = getattr(args, "basis", None)
     options = basis_options(args, k1=args.k) or BasisOptions()
-    if file:
-        B = load_basis_file(file, V, F, path, args, "--basis")
-        tol = options.threshold("ours")
+    k, order, tol = options.k1, options.order, options.threshold("ours")
+    if getattr(args, "basis", None):
+        B = load_basis_file(args.basis, V, F, path, args, "--basis")
         for flag, given, what, held in (("-k", args.k, f"on k={B.k} eigenfunctions", B.k),
                                          ("--order", args.order, f"of order {B.order}", B.order)):
             if given is not None and given != held:
-                raise UsageError(f"--basis {file}: holds a basis {what}, but {flag} {given} was "
-                                 f"given; drop {flag} or recompute the basis")  # fmt: skip
+                raise UsageError(f"--basis {args.basis}: holds a basis {what}, but {flag} {given} "
+                                 f"was given; drop {flag} or recompute the basis")  # fmt: skip
         if (args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9):
             flag = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
-            raise UsageError(f"--basis {file}: holds a basis orthogonalized with threshold "
+            raise UsageError(f"--basis {args.basis}: holds a basis orthogonalized with threshold "
                              f"{B.tol:g}, but {flag} (threshold {tol:g}) was given; drop it or "
                              "recompute the basis")  # fmt: skip
         return B
-    k, order, tol = options.k1, options.order, options.threshold("ours")
     if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
         raise UsageError(f"-k {k}: must be smaller than the number of vertices of {path} minus one "
                          f"({V.shape[0]} vertices: at most {V.shape[0] - 2})")  # fmt: skip

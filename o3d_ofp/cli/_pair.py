@@ -19,35 +19,26 @@ from typing import Any
 
 import numpy as np
 
+from ..boundary.api import match
+from ..boundary.convert import scaled_copy
+from ..boundary.pick import has_display, pick_landmarks
+from ..core._atomic import atomic_path
+from ..core.correspondence import p2p_from_template
+from ..core.io import read_vts
+from ..core.orthogonalize import PRESETS
 from ..core.wording import AdvisedError, Said, text_of
-from ._common import (
-    CLOUD_OUT,
-    FLAGS,
-    MESH_HELP,
-    MESH_OUT,
-    UsageError,
-    add_basis_options,
-    basis_options,
-    check_cache_dir,
-    check_writable_folder,
-    load_basis_file,
-    read_shape,
-    report,
-    same_file,
-    stage,
-)
+from ..workflows.maps import Correspondence, given_map_collapse
+from ..workflows.options import BasisOptions, MatchOptions
+from ..workflows.partial import check_partial_areas
+from ..workflows.plan import Plan, Prepared, plan_pair, prepare
+from . import _common as common
+from ._common import UsageError, report, stage
+from ._progress import stage_progress
+from ._signal import signal_sides
 from ._types import positive_float, positive_int
 
-__all__ = [
-    "SUSPECT_EXIT",
-    "Pair",
-    "SuspectMap",
-    "add_pair_options",
-    "map_name",
-    "plan",
-    "prepare_pair",
-    "read_pair",
-]
+__all__ = ["SUSPECT_EXIT", "Pair", "SuspectMap", "add_pair_options", "map_name", "plan",
+           "prepare_pair", "read_pair"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -69,15 +60,15 @@ class Pair:
     F1: np.ndarray | None
     V2: np.ndarray
     F2: np.ndarray | None
-    given: Any
-    match: Any
+    given: Correspondence | None
+    match: MatchOptions
     names: tuple[str, str]
-    #: ``--basis-1`` / ``--basis-2``: the OFP bases read (None: none)
-    files: tuple[Any, Any] = (None, None)
     #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
     target_scale: float | None = None
     #: The target as read, before ``--target-scale`` (None: ``target`` is)
     target_as_read: Any = None
+    #: ``--basis-1`` / ``--basis-2``: the OFP bases read, once the plan uses them
+    files: tuple[Any, Any] = (None, None)
 
     @property
     def own_target(self) -> Any:
@@ -86,11 +77,8 @@ class Pair:
 
     def in_target_units(self, geometry: Any) -> Any:
         """Return ``geometry``, made from the scaled target, in the target file's own units."""
-        if self.target_scale is None:
-            return geometry
-        from ..boundary.convert import scaled_copy
-
-        return scaled_copy(geometry, 1.0 / self.target_scale)
+        scale = self.target_scale
+        return geometry if scale is None else scaled_copy(geometry, 1.0 / scale)
 
 
 def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool = False) -> None:
@@ -98,55 +86,36 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
 
     With ``several``, ``target`` is a list (files and folders: see :mod:`._many`).
     """
-    from ..workflows.options import BasisOptions
-
-    p.add_argument("source", help="source " + MESH_HELP)
-    if several:
-        p.add_argument("target", nargs="+",
-                       help="target " + MESH_HELP + "; several, or a folder of them")  # fmt: skip
-    else:
-        p.add_argument("target", help="target " + MESH_HELP)
-    default = BasisOptions()
-    p.add_argument("--k1", type=positive_int, help=f"source eigenfunctions ({default.k1})")
-    p.add_argument("--k2", type=positive_int, help=f"target eigenfunctions ({default.k2})")
-    add_basis_options(p, k=False, preset=preset)
-    p.add_argument(
-        "--map", default="estimate",
-        help="estimate (default: WKS fit + ZoomOut), closest (closest points on the source "
-        "surface, for shapes already aligned in space; --align for nearly aligned ones), identity "
-        "(same vertices), MAP.npz (from --save-map), a file with one source vertex per target "
-        "vertex (.vts 1-based / .npy 0-based), or SRC.vts,TGT.vts matching both shapes to a "
-        "template",
-    )  # fmt: skip
-    p.add_argument("--align", action="store_true",
-                   help="with --map closest: rigid ICP pre-alignment first")  # fmt: skip
-    p.add_argument(
-        "--partial", action="store_true",
-        help="with --map estimate: the target is a part of the source (a one-sided scan, a cut) "
-        "in the same units (else --target-scale): partial functional maps; the report gives the "
-        "overlap",
-    )  # fmt: skip
-    p.add_argument(
-        "--target-scale", type=positive_float, metavar="FACTOR",
-        help="one target: multiply its coordinates by FACTOR for the run (a target in other units "
-        "than the source: 0.001 for millimetres onto metres), as if its file were in the source's "
-        "units; the result is written in the target's own units",
-    )  # fmt: skip
-    p.add_argument("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
-    p.add_argument("--strict", action="store_true",
-                   help="a suspect map (estimated, closest, or a map file that collapses) is an "
-                   "error (exit 3, nothing written)")  # fmt: skip
-    p.add_argument(
-        "--landmarks",
-        help="known (source, target) vertex pairs for the estimation, 0-based: 12:40,500:611 (or "
-        "12:40;500:611), a 2-column file (spaces, commas or semicolons apart), or 'pick' (pick "
-        "them on both shapes in Open3D's vertex-selection window; needs a display)",
-    )  # fmt: skip
-    p.add_argument("--save-landmarks", metavar="FILE",
-                   help="write the landmark pairs used (e.g. picked) as a 2-column file (to "
-                   "reuse: --landmarks FILE)")  # fmt: skip
-    p.add_argument("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
-    p.add_argument("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")
+    default, a = BasisOptions(), p.add_argument
+    a("source", help="source " + common.MESH_HELP)
+    a("target", nargs="+" if several else None,
+      help="target " + common.MESH_HELP + ("; several, or a folder of them" if several else ""))
+    a("--k1", type=positive_int, help=f"source eigenfunctions ({default.k1})")
+    a("--k2", type=positive_int, help=f"target eigenfunctions ({default.k2})")
+    common.add_basis_options(p, k=False, preset=preset)
+    a("--map", default="estimate", help="estimate (default: WKS fit + ZoomOut), closest (closest "
+      "points on the source surface, for shapes already aligned in space; --align for nearly "
+      "aligned ones), identity (same vertices), MAP.npz (from --save-map), a file with one source "
+      "vertex per target vertex (.vts 1-based / .npy 0-based), or SRC.vts,TGT.vts matching both "
+      "shapes to a template")
+    a("--align", action="store_true", help="with --map closest: rigid ICP pre-alignment first")
+    a("--partial", action="store_true", help="with --map estimate: the target is a part of the "
+      "source (a one-sided scan, a cut) in the same units (else --target-scale): partial "
+      "functional maps; the report gives the overlap")
+    a("--target-scale", type=positive_float, metavar="FACTOR", help="one target: multiply its "
+      "coordinates by FACTOR for the run (a target in other units than the source: 0.001 for "
+      "millimetres onto metres), as if its file were in the source's units; the result is "
+      "written in the target's own units")
+    a("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
+    a("--strict", action="store_true", help="a suspect map (estimated, closest, or a map file that "
+      "collapses) is an error (exit 3, nothing written)")
+    a("--landmarks", help="known (source, target) vertex pairs for the estimation, 0-based: "
+      "12:40,500:611 (or 12:40;500:611), a 2-column file (spaces, commas or semicolons apart), or "
+      "'pick' (pick them on both shapes in Open3D's vertex-selection window; needs a display)")
+    a("--save-landmarks", metavar="FILE", help="write the landmark pairs used (e.g. picked) as a "
+      "2-column file (to reuse: --landmarks FILE)")
+    a("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
+    a("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- reading
@@ -157,37 +126,33 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     if not spec:
         return None
     is_file = os.path.isfile(spec)
-    where = f" {spec}" if is_file else ""
     if is_file:
-        try:
-            # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
+        try:  # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
             with open(spec, encoding="utf-8-sig") as fh, warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "no data": said below
-                pairs = np.loadtxt(  # whitespace, commas or semicolons (CSVs) apart
-                    (line.replace(",", " ").replace(";", " ") for line in fh), ndmin=2
-                )
+                pairs = np.loadtxt((line.replace(",", " ").replace(";", " ") for line in fh),
+                                   ndmin=2)  # fmt: skip
         except (ValueError, UnicodeDecodeError) as exc:
             # numpy's message for a ragged file ends with advice for its own API ("; use
             # `usecols` to select a subset ..."): only what precedes it is about the file
             said = str(exc).split("; use `usecols`")[0]
             raise UsageError(f"--landmarks {spec}: not a text file of two integer columns (source "
                              f"vertex, target vertex; '#' starts a comment): {said}") from exc
-        if pairs.size and pairs.shape[1] != 2:
-            raise UsageError(f"--landmarks {spec}: {pairs.shape[1]} column"
-                             f"{'s' * (pairs.shape[1] > 1)}; the file needs two (source vertex, "
-                             "target vertex, 0-based) on each line")  # fmt: skip
+        columns = pairs.shape[1] if pairs.size else 2
+        if columns != 2:
+            raise UsageError(f"--landmarks {spec}: {columns} column{'s' * (columns > 1)}; the file "
+                             "needs two (source vertex, target vertex, 0-based) on each line")
         if not pairs.size:
             raise UsageError(f"--landmarks {spec}: no pairs in the file")
     elif ":" not in spec or os.sep in spec:
         raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
     else:
         try:  # commas or semicolons apart, as in a file
-            pairs = np.array([[float(x) for x in item.split(":")]
-                              for item in spec.replace(";", ",").split(",")])  # fmt: skip
+            items = spec.replace(";", ",").split(",")
+            pairs = np.array([[float(x) for x in item.split(":")] for item in items])
         except ValueError as exc:
-            raise UsageError(
-                f"--landmarks must be a file or pairs like 12:40,500:611; got {spec!r}"
-            ) from exc
+            raise UsageError(f"--landmarks must be a file or pairs like 12:40,500:611; got "
+                             f"{spec!r}") from exc  # fmt: skip
     if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.all(np.isfinite(pairs)) or np.any(
         pairs != np.round(pairs)
     ):  # fmt: skip
@@ -196,6 +161,7 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
+            where = f" {spec}" if is_file else ""
             raise UsageError(f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)")
     return pairs
 
@@ -207,21 +173,15 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     Found by a trial: ``--save-landmarks`` replaced the ``--signal`` file it was about to read,
     or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
     """
-    from ._common import written_beside
-    from ._signal import signal_sides
-
-    inputs = [("an input of this command", getattr(args, name, None))
-              for name in ("source", "target", "signal", "texture", "landmarks", "basis_1",
-                           "basis_2")]  # fmt: skip
-    inputs += [("the --map file read", f) for f in args.map.split(",")]
-    output = getattr(args, "output", None)
-    outputs = [("the -o output", output)]
-    if output:
-        outputs += [("written with -o", f) for f in (*written_beside(output), *signal_sides(args))]
-    others = {"--save-map": "save_map", "--save-landmarks": "save_landmarks"}
-    outputs += [(f"the {o} file", getattr(args, n, None)) for o, n in others.items() if o != flag]
-    for what, other in (*inputs, *outputs):
-        if isinstance(other, str) and other and same_file(path, other):
+    names = ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
+    files = [("an input of this command", getattr(args, name, None)) for name in names]
+    files += [("the --map file read", f) for f in args.map.split(",")]
+    beside = (*common.written_beside(args.output), *signal_sides(args))
+    files += [("the -o output", args.output), *(("written with -o", f) for f in beside)]
+    files += [(f"the {o} file", getattr(args, common.dest(o)))
+              for o in ("--save-map", "--save-landmarks") if o != flag]  # fmt: skip
+    for what, other in files:
+        if isinstance(other, str) and other and common.same_file(path, other):
             raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
     if args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache):
         raise UsageError(f"{flag} {path}: is in the --cache folder {args.cache}; choose another")
@@ -229,36 +189,32 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
 
 def _check_flags(args: argparse.Namespace) -> None:
     """Refuse flags that contradict each other, and bad side outputs, before reading."""
-    if args.landmarks == "":
-        raise UsageError(
-            "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or 'pick'"
-        )
-    save = args.save_landmarks
+    lm, save = args.landmarks, args.save_landmarks
+    if lm == "":
+        raise UsageError("--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
+                         "'pick'")  # fmt: skip
+    if save and not lm:
+        raise UsageError("--save-landmarks needs --landmarks (pick, pairs or a file)")
+    if save and os.path.isdir(save):
+        raise UsageError(f"--save-landmarks {save}: is a directory")
+    if save and not os.path.isdir(os.path.dirname(os.path.abspath(save))):
+        raise UsageError(f"--save-landmarks {save}: the folder does not exist")
     if save:
-        if not args.landmarks:
-            raise UsageError("--save-landmarks needs --landmarks (pick, pairs or a file)")
-        if os.path.isdir(save):
-            raise UsageError(f"--save-landmarks {save}: is a directory")
-        if not os.path.isdir(os.path.dirname(os.path.abspath(save))):
-            raise UsageError(f"--save-landmarks {save}: the folder does not exist")
         _check_extra_output(args, save, "--save-landmarks")
-    if args.landmarks == "pick":
-        from ..boundary.pick import has_display
-
-        if args.map != "estimate":
-            raise UsageError("--landmarks pick applies to --map estimate")
-        if not has_display():
-            raise UsageError(
-                "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
-                "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
-                "(two columns: source vertex, target vertex)"
-            )
+    if lm == "pick" and args.map != "estimate":
+        raise UsageError("--landmarks pick applies to --map estimate")
+    if lm == "pick" and not has_display():
+        raise UsageError(
+            "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
+            "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
+            "(two columns: source vertex, target vertex)"
+        )
+    if args.save_map and not args.save_map.endswith(".npz"):
+        raise UsageError(f"--save-map {args.save_map}: must end with .npz")
     if args.save_map:
-        if not args.save_map.endswith(".npz"):
-            raise UsageError(f"--save-map {args.save_map}: must end with .npz")
         _check_extra_output(args, args.save_map, "--save-map")
-        check_writable_folder(os.path.dirname(os.path.abspath(args.save_map)), args.save_map,
-                              flag="--save-map")  # fmt: skip
+        folder = os.path.dirname(os.path.abspath(args.save_map))
+        common.check_writable_folder(folder, args.save_map, flag="--save-map")
     if args.align and args.map != "closest":
         raise UsageError("--align applies to --map closest")
     if args.partial and args.map != "estimate":
@@ -268,35 +224,32 @@ def _check_flags(args: argparse.Namespace) -> None:
                ", a map used as it is (a map saved from a run with --partial is partial already)")
             + ": drop --partial"
         )  # fmt: skip
-    if args.map == "closest" and args.landmarks:
+    if args.map == "closest" and lm:
         raise UsageError("--landmarks apply to --map estimate, not --map closest")
-    if args.landmarks and args.map != "estimate":
+    if lm and args.map != "estimate":
         raise UsageError("--landmarks only apply with --map estimate")
 
 
-def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
-    """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both."""
-    from ..core.correspondence import p2p_from_template
-    from ..core.io import read_vts
-    from ..workflows.maps import Correspondence
-
-    n1, n2 = V1.shape[0], V2.shape[0]
-    if spec in ("estimate", "closest"):
-        return None
-    if spec == "identity":
-        if n1 != n2:
-            copies = [
-                f"{extra} of the {name}'s are copies at the same position as another (e.g. an "
-                "OBJ's along its UV seams)"
-                for name, V in (("source", V1), ("target", V2))
-                if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])
-            ]
-            raise UsageError(
-                f"--map identity needs shapes with the same vertices; got {n1} and {n2}"
-                + (f" ({'; '.join(copies)})" if copies else "")
-                + ": --map closest maps shapes in the same place whatever their vertices"
-            )
+def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondence:
+    """Return the map of ``--map identity`` (refused between other vertex counts)."""
+    if n1 == n2:
         return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
+    copies = [
+        f"{extra} of the {name}'s are copies at the same position as another (e.g. an OBJ's "
+        "along its UV seams)"
+        for name, V in (("source", V1), ("target", V2))
+        if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])
+    ]
+    raise UsageError(f"--map identity needs shapes with the same vertices; got {n1} and {n2}"
+                     + (f" ({'; '.join(copies)})" if copies else "")
+                     + ": --map closest maps shapes in the same place whatever their vertices")
+
+
+def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | None:
+    """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both."""
+    n1, n2 = V1.shape[0], V2.shape[0]
+    if spec in ("estimate", "closest", "identity"):
+        return _identity(n1, n2, V1, V2) if spec == "identity" else None
     files = spec.split(",")
     for f in files:
         if not os.path.isfile(f):
@@ -305,6 +258,10 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
     if len(files) > 2:
         raise UsageError(f"--map takes one file or two comma-separated .vts files; got {spec!r}")
     path, method = files[0], "given"
+    if len(files) == 1 and common.geometry_file(path):
+        raise UsageError(f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|"
+                         "closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes "
+                         "are the positional arguments")  # fmt: skip
     try:
         if len(files) == 2:  # correspondences of both shapes to a common template
             p2p, method = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2), "template"
@@ -313,13 +270,7 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Any:
             corr.check(n1, n2, name=f"--map {path}")
             return corr
         elif path.endswith(".npy"):
-            from ._common import load_npy
-
-            p2p = load_npy(path, "0-based target->source map", flag="--map")
-        elif os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT):
-            raise UsageError(f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|"
-                             "closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the "
-                             "shapes are the positional arguments")  # fmt: skip
+            p2p = common.load_npy(path, "0-based target->source map", flag="--map")
         else:
             p2p = read_vts(path)
     except (ValueError, TypeError) as exc:
@@ -344,8 +295,6 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     library warns of the first and the last when the map is used; the stored verdict is
     warned here.
     """
-    from ..workflows.maps import given_map_collapse
-
     reasons: list[Any] = []
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
     if collapse is not None:
@@ -353,113 +302,92 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     quality = corr.quality
     if args.map.endswith(".npz"):
         reasons += [m for m in (corr.mismatch(V1, V2, name=f"--map {args.map}"),) if m]
-        if quality is not None:
-            report([f"stored with --map {args.map}: {quality.summary()}"])
+    if quality is not None:
+        report([f"stored with --map {args.map}: {quality.summary()}"])
     if quality is not None and quality.suspect:
         values = {f"r{i}": r for i, r in enumerate(quality.reasons)}
-        stored = Said("--map {map} was saved with a suspect quality: "
-                      + "; ".join(f"{{{name}}}" for name in values), {"map": args.map, **values})
-        reasons.append(stored)
+        template = "; ".join(f"{{{name}}}" for name in values)
+        reasons.append(Said("--map {map} was saved with a suspect quality: " + template,
+                            {"map": args.map, **values}))
         if not args.strict:
-            logger.warning("%s", stored.text(cli=True))
+            logger.warning("%s", reasons[-1].text(cli=True))
     if reasons and args.strict:
         raise SuspectMap("; ".join(text_of(r, cli=True) for r in reasons))
     report([Said("map quality SUSPECT: {r}", {"r": r}) for r in reasons])
 
 
 def read_pair(args: argparse.Namespace) -> Pair:
-    """Read both shapes, the map, the landmarks and basis files: everything that fails fast."""
-    from ..workflows.options import MatchOptions
-
-    check_cache_dir(args.cache)
+    """Read both shapes, the map and the landmarks: everything that fails fast."""
+    common.check_folder_to_make(args.cache, "--cache")
     _check_flags(args)
-    source, V1, F1 = read_shape(args.source)
-    target, V2, F2 = read_shape(args.target)
+    source, V1, F1 = common.read_shape(args.source)
+    target, V2, F2 = common.read_shape(args.target)
     factor, as_read = args.target_scale, None
     if factor is not None and args.basis_2:
-        raise UsageError(
-            f"--basis-2 {args.basis_2} holds the basis of {args.target} in its own units, and "
-            "--target-scale changes them: drop --basis-2 (--cache DIR keeps the scaled target's "
-            "basis apart)"
-        )
+        raise UsageError(f"--basis-2 {args.basis_2} holds the basis of {args.target} in its own "
+                         "units, and --target-scale changes them: drop --basis-2 (--cache DIR "
+                         "keeps the scaled target's basis apart)")  # fmt: skip
     if factor is not None:  # every step below sees the target in the source's units
-        from ..boundary.convert import scaled_copy
-
         as_read, target, V2 = target, scaled_copy(target, factor), V2 * factor
     given = _read_map(args.map, V1, V2)
     if given is not None:
         _judge_given(args, given, V1, V2)
     if args.landmarks == "pick":
-        from ..boundary.pick import pick_landmarks
-
         try:
             landmarks = pick_landmarks(source, target)
         except (ValueError, RuntimeError) as exc:
             raise UsageError(f"--landmarks pick: {exc}") from exc
     else:
         landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    match = MatchOptions(
-        method="closest" if args.map == "closest" else "estimate", partial=args.partial,
-        align=args.align, landmarks=landmarks, components=args.components,
-    )  # fmt: skip
-    if match.landmarks is not None and args.save_landmarks:
-        from ..core._atomic import atomic_path
-
+    options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
+                           partial=args.partial, align=args.align, landmarks=landmarks,
+                           components=args.components)  # fmt: skip
+    if options.landmarks is not None and args.save_landmarks:
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
-            np.savetxt(tmp, match.landmarks, fmt="%d",
+            np.savetxt(tmp, options.landmarks, fmt="%d",
                        header="source_vertex target_vertex (0-based)")  # fmt: skip
-        report([f"wrote {len(match.landmarks)} landmark pairs to {args.save_landmarks}"])
+        report([f"wrote {len(options.landmarks)} landmark pairs to {args.save_landmarks}"])
     scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
-    return Pair(source, target, V1, F1, V2, F2, given, match, (args.source, scaled), (None, None),
-                factor, as_read)  # fmt: skip
+    return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), factor,
+                as_read)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- planning
 
 
-def plan(
-    args: argparse.Namespace,
-    pair: Pair,
-    task: str,
-    *,
-    unused: Callable[[list[str]], str],
-    files: bool = False,
-    **options: Any,
-) -> Any:
+def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[list[str]], str],
+         files: bool = False, **options: Any) -> Plan:  # fmt: skip
     """Return the plan of the job (:func:`o3d_ofp.workflows.plan.plan_pair`) for the flags.
 
     The OFP basis flags given to a job the plan makes without OFP bases (and, with ``files``,
     the basis files) are refused with ``unused(flags given)``, in the command line's words;
-    basis files orthogonalized with another threshold than the bases made here, too.
-    ``options``: ``detail``, ``via_basis`` of :func:`plan_pair`.
+    then the basis files are read, and refused when orthogonalized with another threshold
+    than the other side's basis. ``options``: ``detail``, ``via_basis`` of :func:`plan_pair`.
     """
     planned = _planned(pair, task=task, **options)
-    named = [f for f in (*FLAGS["options"], *FLAGS["bases"][: 2 * files])
-             if getattr(args, f.lstrip("-").replace("-", "_")) is not None]  # fmt: skip
+    named = [f for f in (*common.FLAGS["options"], *common.FLAGS["bases"][: 2 * files])
+             if getattr(args, common.dest(f)) is not None]  # fmt: skip
     if planned.basis_k is None and named:
         raise UsageError(unused(named))
+    bases = common.basis_options(args)
+    if planned.basis_k is not None and bases is not None:
+        planned = _planned(pair, task=task, bases=bases, **options)
     pair.files = tuple(  # type: ignore[assignment]
-        load_basis_file(f, V, F, path, args, flag) if f else None
+        common.load_basis_file(f, V, F, path, args, flag) if f else None
         for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
                                     (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
     )  # fmt: skip
-    bases = basis_options(args)
-    if planned.basis_k is not None and bases is not None:
-        planned = _planned(pair, task=task, bases=bases, **options)
     if planned.basis_k is not None:
         _check_thresholds(args, pair, planned.tol)
     return planned
 
 
-def _planned(pair: Pair, **options: Any) -> Any:
+def _planned(pair: Pair, **options: Any) -> Plan:
     """Return :func:`plan_pair`'s plan.
 
     A part refused for its area with ``--target-scale`` says the factor that would admit the
     file itself.
     """
-    from ..workflows.partial import check_partial_areas
-    from ..workflows.plan import plan_pair
-
     try:
         return plan_pair(pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match, given=pair.given,
                          names=pair.names, **options)  # fmt: skip
@@ -474,31 +402,25 @@ def _planned(pair: Pair, **options: Any) -> Any:
         except AdvisedError as own:
             raise UsageError(Said("--target-scale {factor:g} does not fix the units: {own}",
                                   {"factor": factor, "own": own.said})) from exc  # fmt: skip
-        raise UsageError(Said(
-            "--target-scale {factor:g}: {said}; {target} as it is would be admitted: drop "
-            "--target-scale", {"factor": factor, "said": exc.said, "target": target},
-        )) from exc  # fmt: skip
+        raise UsageError(Said("--target-scale {factor:g}: {said}; {target} as it is would be "
+                              "admitted: drop --target-scale",
+                              {"factor": factor, "said": exc.said, "target": target})) from exc
 
 
 def _check_thresholds(args: argparse.Namespace, pair: Pair, tol: float) -> None:
     """Refuse, before any work, basis files of two orthogonalization thresholds.
 
     A file's against the other file's, or against the plan's threshold ``tol`` of the basis
-    made for the other side.
-
-    A trial's ``detail --mode coordinates --basis-1`` with an "ours" file ran the target with
-    the command's default "ours*": a transfer between bases of two thresholds, unsaid.
+    made for the other side. A trial's ``detail --mode coordinates --basis-1`` with an "ours"
+    file ran the target with the command's default "ours*": a transfer between bases of two
+    thresholds, unsaid.
     """
-    from ..core.orthogonalize import PRESETS
-
     files = zip((args.basis_1, args.basis_2), pair.files, strict=True)
     held = [(i, f, B.tol) for i, (f, B) in enumerate(files) if B is not None]
     if len(held) == 2 and not np.isclose(held[0][2], held[1][2], rtol=1e-9):
-        raise UsageError(
-            f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were orthogonalized with "
-            f"thresholds {held[0][2]:g} and {held[1][2]:g}: the two bases must share one; "
-            "recompute one of them"
-        )
+        raise UsageError(f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were "
+                         f"orthogonalized with thresholds {held[0][2]:g} and {held[1][2]:g}: the "
+                         "two bases must share one; recompute one of them")  # fmt: skip
     if len(held) != 1 or np.isclose(held[0][2], tol, rtol=1e-9):
         return
     side, file, t = held[0]
@@ -517,16 +439,12 @@ def _check_thresholds(args: argparse.Namespace, pair: Pair, tol: float) -> None:
 # --------------------------------------------------------------------------- running
 
 
-def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Any) -> Any:
+def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepared:
     """Run the plan (:func:`o3d_ofp.workflows.plan.prepare`), a closest-point map first.
 
     Its eigenbases, estimated map and OFP bases; the map's quality printed (``--strict``), the
     map saved (``--save-map``).
     """
-    from ..boundary.api import match
-    from ..workflows.plan import prepare
-    from ._progress import stage_progress
-
     given = pair.given
     if planned.estimator == "closest":
         with stage("closest points on the source surface"):
@@ -535,34 +453,30 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Any) -> Any:
     progress = stage_progress("matching") if planned.estimated else contextlib.nullcontext()
     with stage(_describe(planned, pair), ticking=not planned.estimated), progress as tell:
         try:
-            prepared = prepare(
-                planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match, given=given,
-                bases=pair.files, cache_dir=args.cache, progress=tell, names=pair.names,
-            )  # fmt: skip
+            prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
+                               given=given, bases=pair.files, cache_dir=args.cache,
+                               progress=tell, names=pair.names)  # fmt: skip
         except AdvisedError as exc:  # the estimation's eigenbases are the plan's, not the flags'
             if exc.said.code != "memory" or not planned.estimated:
                 raise
             raise UsageError(Said("{said}; or give the map with --map FILE",
                                   {"said": exc.said})) from exc  # fmt: skip
-    corr = prepared.correspondence
     if planned.estimated:
-        report_quality(args, corr)
+        report_quality(args, prepared.correspondence)
     if args.save_map:
-        corr.save(args.save_map)
+        prepared.correspondence.save(args.save_map)
         report([f"wrote the map to {args.save_map}"])
     return prepared
 
 
-def _describe(planned: Any, pair: Pair) -> str:
+def _describe(planned: Plan, pair: Pair) -> str:
     """Say what :func:`prepare` computes for the plan, for its stage line ("" for nothing)."""
-    parts = []
     eig = [f"{name} (k={k})" for name, k, B in zip(pair.names, planned.eig_k, pair.files,
                                                    strict=True) if k and (B is None or B.eig.k < k)]
-    if eig:
-        parts.append("eigenbases of " + " and ".join(eig))
+    parts = ["eigenbases of " + " and ".join(eig)] if eig else []
     if planned.basis_k and None in pair.files:
-        k1, k2 = planned.basis_k
-        parts.append(f"OFP bases (k={k1} and {k2}, order {planned.order})")
+        parts.append(f"OFP bases (k={planned.basis_k[0]} and {planned.basis_k[1]}, order "
+                     f"{planned.order})")  # fmt: skip
     if planned.dense:
         n = max(pair.V1.shape[0], pair.V2.shape[0])
         parts.append(f"map estimation on coarse copies ({n} vertices: dense path)")
@@ -574,15 +488,16 @@ def _describe(planned: Any, pair: Pair) -> str:
     return ", ".join(parts)
 
 
-def report_quality(args: argparse.Namespace, corr: Any) -> None:
+def report_quality(args: argparse.Namespace, corr: Correspondence) -> None:
     """Print a made map's quality report; ``--strict`` turns a suspect one into an error."""
     quality = corr.quality
+    assert quality is not None
     report([quality.summary(), *quality.notes])
     if quality.suspect and args.strict:
         raise SuspectMap("; ".join(r.text(cli=True) for r in quality.reasons))
 
 
-def map_name(args: argparse.Namespace, corr: Any) -> str:
+def map_name(args: argparse.Namespace, corr: Correspondence) -> str:
     """How the map was made, and from which file when it was read (``ab.npz (estimate)``)."""
     if args.map in ("estimate", "closest", "identity") or corr.method == args.map:
         return str(corr.method)

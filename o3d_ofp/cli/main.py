@@ -1,9 +1,9 @@
 """The ``o3d-ofp`` parser and entry point: global flags, logging, exit codes.
 
 Exit codes: 0 success; 2 bad usage or bad input (one line on stderr naming the file or the
-flag, no traceback); 3 a suspect estimated map under ``--strict`` (nothing written); 1 an
-internal error (``-v`` adds the traceback). Long stages log at INFO on stderr (``-q``
-silences everything but warnings and errors); a progress bar is drawn when stderr is a terminal.
+flag, no traceback); 3 a suspect map under ``--strict`` (nothing written); 1 an internal
+error (``-v`` adds the traceback). Long stages log at INFO on stderr (``-q`` silences
+everything but warnings and errors); a progress bar is drawn when stderr is a terminal.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ logger = logging.getLogger(__name__)
 
 COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
 
+
 class _Words(logging.Formatter):
     """Log lines in the command line's words.
 
@@ -49,10 +50,9 @@ class _Words(logging.Formatter):
 class _Shown(logging.Filter):
     """Each warning once per command; a map's quality report left out when the command prints it.
 
-    The library may say a warning again (of a map it is given twice).
-
-    A run over one pair prints the report (``OUT.reports_quality``); a collection's records
-    keep the lines of each target in the log.
+    The library may say a warning again (of a map it is given twice). A run over one pair
+    prints the report (``OUT.reports_quality``); a collection's records keep the lines of each
+    target in the log.
     """
 
     def __init__(self) -> None:
@@ -80,38 +80,25 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the parser of every command."""
-    parser = _Parser(
-        prog="o3d-ofp",
-        description="Orthogonalized Fourier Polynomials (Maggioli et al., EG 2021) for Open3D: "
-        "bases, approximation, filtering and transfer of signals between shapes.",
-    )
-    parser.add_argument(
-        "-v",
-        "--verbose",
-        action="count",
-        default=0,
-        help="-v: an internal error shows its traceback; -vv: the debug log too (every step's "
-        "details; the long stages are logged without -v)",
-    )
+    parser = _Parser(prog="o3d-ofp", description="Orthogonalized Fourier Polynomials (Maggioli et "
+                     "al., EG 2021) for Open3D: bases, approximation, filtering and transfer of "
+                     "signals between shapes.")  # fmt: skip
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="-v: an internal error shows its traceback; -vv: the debug log too "
+                        "(every step's details; the long stages are logged without -v)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    parser.add_argument(
-        "-q",
-        "--quiet",
-        action="store_true",
-        help="print nothing but warnings and errors (files are written)",
-    )
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="print nothing but warnings and errors (files are written)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
     # -q / -v also after the command (o3d-ofp transfer ... -q); there they override the
     # values given before it (SUPPRESS: absent flags leave those alone).
     for command_parser in sub.choices.values():
-        command_parser.add_argument(
-            "-v", "--verbose", action="count", default=argparse.SUPPRESS, help=argparse.SUPPRESS
-        )
-        command_parser.add_argument(
-            "-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
-        )
+        command_parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                                    help=argparse.SUPPRESS)  # fmt: skip
+        command_parser.add_argument("-q", "--quiet", action="store_true",
+                                    default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parser
 
 
@@ -175,6 +162,18 @@ def joined_dash_values(words: Sequence[str], options: set[str]) -> list[str]:
     return out
 
 
+def _parse(parser: argparse.ArgumentParser, words: list[str]) -> argparse.Namespace:
+    """Parse the words; unknown ones are said by the parser they were given to."""
+    args, extra = parser.parse_known_args(words)
+    if extra:  # said by the parser they were given to: its name and its --help
+        before = words[: words.index(args.command)] if args.command in words else []
+        if any(e in before for e in extra):
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line.
 
@@ -191,27 +190,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         internal error.
     """
     parser = build_parser()
-    words = joined_dash_values(sys.argv[1:] if argv is None else argv, _value_options(parser))
     try:
-        args, extra = parser.parse_known_args(words)
-        if extra:  # said by the parser they were given to: its name and its --help
-            before = words[: words.index(args.command)] if args.command in words else []
-            if any(e in before for e in extra):
-                parser.error(f"unrecognized arguments: {' '.join(extra)}")
-            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-            sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+        args = _parse(parser, joined_dash_values(sys.argv[1:] if argv is None else argv,
+                                                 _value_options(parser)))  # fmt: skip
     except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help
         return int(exc.code or 0)
-    if args.quiet:
-        # Warnings stay: a suspect map or a refused option is said even under -q.
-        level = logging.WARNING
-    elif args.verbose > 1:
-        level = logging.DEBUG
-    else:
-        level = logging.INFO  # the long stages say what they do
+    # -q: warnings stay (a suspect map or a refused option is said even then)
+    level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose > 1 else logging.INFO
     prog = f"o3d-ofp {args.command}"
-    OUT.quiet, OUT.args, OUT.renamed = bool(args.quiet), args, {}
-    OUT.reports_quality = False  # set by a run over one pair (check_single)
+    OUT.quiet, OUT.args, OUT.renamed, OUT.reports_quality = bool(args.quiet), args, {}, False
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (logged at WARNING here).
     with _logging_to_stderr(level), warnings.catch_warnings(), warnings_logged():

@@ -5,20 +5,18 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-from typing import Any
 
+from ..boundary import texture as tex
+from ..boundary.bake import transfer_texture
+from ..boundary.convert import vertex_colors
+from ..boundary.io import read_geometry, write_geometry
 from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ..core.wording import Said
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, check_output, check_output_kind, report, stage
-from ._many import (
-    PAIR_ONLY,
-    add_collection_options,
-    check_single,
-    is_collection,
-    refuse_flags,
-    run_transfers,
-)
-from ._pair import add_pair_options, map_name, plan, prepare_pair, read_pair
+from ..workflows.pipeline import carry, pull_back
+from . import _common as common
+from ._common import CLOUD_OUT, MESH_OUT, UsageError, report, stage
+from ._many import add_collection_options, run_transfers, single
+from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 from ._signal import check_colors_output, read_signal, signal_sides, texture_error, write_result
 from ._types import bounded_int
 
@@ -33,41 +31,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("transfer", help="transfer a signal from a source to a target shape")
     add_pair_options(p, preset="ours", several=True)
-    p.add_argument(
-        "--signal",
-        help="colors, texture (as vertex colors), xyz or FILE.npy of the source; default: the "
-        "source's texture (or, for a source without UVs, its vertex colors) baked into the "
-        "target's own UV layout when the target has UVs and the output is .obj/.glb/.gltf, else "
-        "its colors on the target's vertices",
-    )
-    p.add_argument("--texture", help="the source's texture image, for a bake or --signal texture "
-                   "(default: the one its material names)")  # fmt: skip
-    p.add_argument(
-        "--via-basis", action="store_true",
-        help="with a closest map (--map closest, or its saved map): transfer through the OFP bases "
-        "(the paper's transfer: smoother where the map is noisy) instead of the exact pull-back; "
-        "then --k1/--k2/--order/--preset/--tol apply",
-    )  # fmt: skip
-    p.add_argument(
-        "--pull-back", action="store_true",
-        help="with an estimated or given map: each target vertex takes its source vertex's value, "
-        "with no OFP basis (sharper colors where the map is right, noisier where it is not); a "
-        "closest map does this by default, at the exact surface point",
-    )  # fmt: skip
-    p.add_argument(
-        "--uv-atlas", action="store_true",
-        help="a textured or vertex-colored source onto a mesh target WITHOUT UVs: give the target "
-        "a new UV atlas (Open3D's compute_uvatlas) and bake the colors into it (output "
-        ".obj/.glb/.gltf)",
-    )  # fmt: skip
-    p.add_argument(
-        "--texture-size", type=bounded_int(1, MAX_TEXTURE_SIZE),
-        help=f"size of the baked texture image in pixels ({TEXTURE_SIZE}; at most "
-        f"{MAX_TEXTURE_SIZE}); for a bake only (a source mesh onto a target with UVs, or "
-        "--uv-atlas)",
-    )  # fmt: skip
-    p.add_argument("-o", "--output", required=True, help="colored target (mesh/cloud), or .npy "
-                   "values; with several targets a folder")  # fmt: skip
+    a = p.add_argument
+    a("--signal", help="colors, texture (as vertex colors), xyz or FILE.npy of the source; "
+      "default: the source's texture (or, for a source without UVs, its vertex colors) baked into "
+      "the target's own UV layout when the target has UVs and the output is .obj/.glb/.gltf, else "
+      "its colors on the target's vertices")
+    a("--texture", help="the source's texture image, for a bake or --signal texture (default: the "
+      "one its material names)")
+    a("--via-basis", action="store_true", help="with a closest map (--map closest, or its saved "
+      "map): transfer through the OFP bases (the paper's transfer: smoother where the map is "
+      "noisy) instead of the exact pull-back; then --k1/--k2/--order/--preset/--tol apply")
+    a("--pull-back", action="store_true", help="with an estimated or given map: each target vertex "
+      "takes its source vertex's value, with no OFP basis (sharper colors where the map is right, "
+      "noisier where it is not); a closest map does this by default, at the exact surface point")
+    a("--uv-atlas", action="store_true", help="a textured or vertex-colored source onto a mesh "
+      "target WITHOUT UVs: give the target a new UV atlas (Open3D's compute_uvatlas) and bake the "
+      "colors into it (output .obj/.glb/.gltf)")
+    a("--texture-size", type=bounded_int(1, MAX_TEXTURE_SIZE), help="size of the baked texture "
+      f"image in pixels ({TEXTURE_SIZE}; at most {MAX_TEXTURE_SIZE}); for a bake only (a source "
+      "mesh onto a target with UVs, or --uv-atlas)")
+    a("-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values; with "
+      "several targets a folder")  # fmt: skip
     add_collection_options(p)
     p.set_defaults(func=run)
 
@@ -78,8 +62,11 @@ def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
             args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
 
 
-def _check_flags(args: argparse.Namespace) -> None:
-    """Refuse, before reading anything, flags that exclude each other."""
+def run(args: argparse.Namespace) -> int:
+    """Read, make (or read) the map, transfer, write (for each target)."""
+    if not single(args, args.target):
+        return _run_many(args)
+    args.target = args.target[0]
     if args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)):
         raise UsageError("--uv-atlas bakes the source's colors into a new atlas: it needs an "
                          ".obj/.glb/.gltf output (-o) and no --signal")  # fmt: skip
@@ -90,36 +77,23 @@ def _check_flags(args: argparse.Namespace) -> None:
     ):  # fmt: skip
         if args.via_basis and getattr(args, other):
             raise UsageError(f"--via-basis {why}: give one of them")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Read, make (or read) the map, transfer, write (for each target)."""
-    from ..boundary.texture import has_uvs
-
-    if is_collection(args.target):
-        return _run_many(args)
-    check_single(args)
-    args.target = args.target[0]
-    _check_flags(args)
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=_inputs(args),
-                 side=signal_sides(args))  # fmt: skip
+    common.check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=_inputs(args),
+                        side=signal_sides(args))  # fmt: skip
     pair = read_pair(args)
-    check_output_kind(args.output, pair.F2)
+    common.check_output_kind(args.output, pair.F2)
     closest = args.map == "closest" or getattr(pair.given, "method", None) == "closest"
     if args.via_basis and not closest:
         raise UsageError("--via-basis applies to a closest map (--map closest or its saved map): "
                          "other maps go through the OFP bases already")  # fmt: skip
     if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
-        if args.uv_atlas and has_uvs(pair.target):
+        if args.uv_atlas and tex.has_uvs(pair.target):
             logger.warning("%s has its own UVs: the texture is baked into them (--uv-atlas makes "
                            "an atlas for a target without UVs only)", args.target)  # fmt: skip
         return _bake(args, pair, closest)
     if args.texture_size is not None:
-        raise UsageError(
-            "--texture-size applies to a bake (a textured or vertex-colored source mesh onto a "
-            "mesh target with UVs, or --uv-atlas, written as .obj/.glb/.gltf); here the colors go "
-            "to the vertices"
-        )
+        raise UsageError("--texture-size applies to a bake (a textured or vertex-colored source "
+                         "mesh onto a mesh target with UVs, or --uv-atlas, written as "
+                         ".obj/.glb/.gltf); here the colors go to the vertices")  # fmt: skip
     if args.uv_atlas:
         raise UsageError("--uv-atlas needs a source mesh with a texture or vertex colors, a mesh "
                          "target and an .obj/.glb/.gltf output")  # fmt: skip
@@ -141,50 +115,40 @@ def run(args: argparse.Namespace) -> int:
     via_basis = True if args.via_basis else False if args.pull_back else None
     planned = plan(args, pair, "colors", unused=unused, files=True, via_basis=via_basis)
     prepared = prepare_pair(args, pair, planned)
-    corr = prepared.correspondence
-    name = map_name(args, corr)
+    corr, name = prepared.correspondence, map_name(args, prepared.correspondence)
+    surface = corr.barycentric_21 is not None
+    with stage("transfer" if not planned.exact else "pull-back through the surface map" if surface
+               else "pull-back"):  # fmt: skip
+        if not planned.exact:
+            g = carry(f, planned, prepared)
+        elif spec == "texture" and surface:  # the texture itself at the surface point, not the
+            # source's per-vertex samples interpolated there (a trial: error 0.022)
+            image = tex.mesh_texture(pair.source, args.texture)
+            g = image.sample(corr.faces_21, corr.barycentric_21)
+        else:
+            g = pull_back(f, corr, pair.F1)
     if planned.exact:
-        from ..workflows.pipeline import pull_back
-
-        surface = corr.barycentric_21 is not None
-        with stage("pull-back through the surface map" if surface else "pull-back"):
-            if spec == "texture" and surface:
-                # the texture itself at each target vertex's point on the source surface, not
-                # the source's per-vertex samples interpolated there (a trial: error 0.022)
-                from ..boundary.texture import mesh_texture
-
-                texture = mesh_texture(pair.source, args.texture)
-                g = texture.sample(corr.faces_21, corr.barycentric_21)
-            else:
-                g = pull_back(f, corr, pair.F1)
         said = f"{args.source} -> {args.target}: {'exact ' * closest}pull-back, map {name}"
     else:
-        from ..workflows.pipeline import carry
-
-        with stage("transfer"):
-            g = carry(f, planned, prepared)
         B1, B2 = prepared.bases
         said = f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map {name}"
     # positions sent to the target are written in its own units, as a detail is
-    if kind == "xyz" and pair.target_scale is not None:
-        g = g / pair.target_scale
-    written = write_result(args.output, pair.own_target, g, kind, protect=_inputs(args))
+    scale = pair.target_scale if kind == "xyz" and pair.target_scale is not None else 1.0
+    written = write_result(args.output, pair.own_target, g / scale, kind, protect=_inputs(args))
     report([said, "wrote " + ", ".join(written)])
     return 0
 
 
-def _warn_lost_texture(args: argparse.Namespace, pair: Any, spec: str) -> None:
+def _warn_lost_texture(args: argparse.Namespace, pair: Pair, spec: str) -> None:
     """Warn when the target's UVs or texture are not written with the colors sent to it."""
-    from ..boundary.texture import has_uvs
-
-    if pair.F2 is None or not has_uvs(pair.target):
+    if pair.F2 is None or not tex.has_uvs(pair.target):
         return
     if pair.F1 is None:
         logger.warning("%s is a point cloud: its colors go to the vertices of %s (a cloud has no "
                        "surface to bake from) and the file written has no texture", args.source,
                        args.target)  # fmt: skip
     elif args.signal in ("colors", "texture"):
-        own = "the source's texture" if has_uvs(pair.source) else "them"
+        own = "the source's texture" if tex.has_uvs(pair.source) else "them"
         logger.warning("%s has UVs: --signal %s puts the source's colors on its vertices (blurrier)"
                        " and the file written has no texture; leave out --signal to bake %s into "
                        "its UV layout (output .obj/.glb/.gltf)", args.target, args.signal, own)
@@ -203,28 +167,23 @@ def _run_many(args: argparse.Namespace) -> int:
     otherwise its colors go to the targets' vertices, in the targets' own formats (a target's
     texture image is then not written, with a warning in its record).
     """
-    from ..boundary.io import read_geometry
-    from ..boundary.texture import has_uvs, mesh_texture, no_texture_message, surface_colors
-
-    refuse_flags(args, PAIR_ONLY)
     if args.texture is not None and not os.path.isfile(args.texture):
         raise UsageError(f"--texture {args.texture}: no such image file")
     if args.signal not in (None, "colors", "texture"):
-        raise UsageError(
-            f"--signal {args.signal}: with several targets the signal is colors or texture"
-        )
+        raise UsageError(f"--signal {args.signal}: with several targets the signal is colors or "
+                         "texture")  # fmt: skip
     kind, why = "colors", f"--signal {args.signal} sends the colors to the targets' vertices"
     if args.signal is None:
         source = read_geometry(args.source)
         try:  # a textured source: baked into the targets' own UV layouts, as for one target
-            mesh_texture(source, args.texture)
+            tex.mesh_texture(source, args.texture)
             kind = "texture"
         except (TypeError, ValueError, FileNotFoundError) as exc:
-            why = no_texture_message(args.source, exc)
+            why = tex.no_texture_message(args.source, exc)
             asked = args.texture_size is not None or args.uv_atlas
-            if asked and not has_uvs(source) and args.texture is None:
+            if asked and not tex.has_uvs(source) and args.texture is None:
                 try:  # vertex colors, baked when asked (else the targets keep their formats)
-                    surface_colors(source)
+                    tex.surface_colors(source)
                     kind = "texture"
                 except (TypeError, ValueError) as colors_exc:
                     why = f"{args.source}: {colors_exc}"
@@ -233,72 +192,52 @@ def _run_many(args: argparse.Namespace) -> int:
                               {"why": why}))  # fmt: skip
     return run_transfers(args, kind=kind, options={
         "signal": args.signal or "auto", "texture_size": args.texture_size,
-        "atlas": args.uv_atlas, "texture": args.texture,
-    })  # fmt: skip
+        "atlas": args.uv_atlas, "texture": args.texture})  # fmt: skip
 
 
-def _bakeable(pair: Any, output: str, *, atlas: bool = False) -> bool:
+def _bakeable(pair: Pair, output: str, *, atlas: bool = False) -> bool:
     """Tell whether to bake into the target's UVs.
 
     Yes for a source mesh with a texture or (without UVs) vertex colors, a target with UVs (or
     an atlas), and an OBJ/glTF output.
     """
-    from ..boundary.convert import vertex_colors
-    from ..boundary.texture import has_uvs
-
-    return bool(
-        pair.F1 is not None
-        and pair.F2 is not None
-        and (has_uvs(pair.source) or vertex_colors(pair.source) is not None)
-        and (atlas or has_uvs(pair.target))
-        and output.lower().endswith(_BAKED)
-    )
+    colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
+    return bool(pair.F1 is not None and pair.F2 is not None and colored
+                and (atlas or tex.has_uvs(pair.target)) and output.lower().endswith(_BAKED))
 
 
-def _default_signal(source: Any) -> str:
+def _default_signal(source: object) -> str:
     """``colors``, or ``texture`` for a textured source without vertex colors.
 
     The texture is then carried as vertex colors (a target without UVs, or an output that
     cannot hold a texture), as the README promises.
     """
-    from ..boundary.convert import vertex_colors
-    from ..boundary.texture import has_texture_image, has_uvs
-
-    if vertex_colors(source) is None and has_uvs(source):
-        if has_texture_image(source):  # (else the image is asked for next: --texture FILE)
-            logger.info("the source has a texture and no vertex colors: its texture is "
-                        "transferred")  # fmt: skip
-        return "texture"
-    return "colors"
+    if vertex_colors(source) is not None or not tex.has_uvs(source):
+        return "colors"
+    if tex.has_texture_image(source):  # (else the image is asked for next: --texture FILE)
+        logger.info("the source has a texture and no vertex colors: its texture is transferred")
+    return "texture"
 
 
-def _bake(args: argparse.Namespace, pair: Any, closest: bool) -> int:
+def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     """Bake the source's texture (or vertex colors) into the target's UV layout and write it."""
-    from ..boundary.bake import transfer_texture
-    from ..boundary.io import write_geometry
-    from ..boundary.texture import has_uvs, surface_colors
-
     if args.via_basis:
-        raise UsageError(
-            "--via-basis sends colors through the OFP bases to the target's vertices; a bake "
-            "reads the source through the map: add --signal colors, or drop --via-basis"
-        )
+        raise UsageError("--via-basis sends colors through the OFP bases to the target's vertices; "
+                         "a bake reads the source through the map: add --signal colors, or drop "
+                         "--via-basis")  # fmt: skip
     if args.pull_back:
-        raise UsageError(
-            "--pull-back puts values on the target's vertices; this run bakes the source's colors "
-            "into the target's UVs, which reads them through the map with no OFP basis already: "
-            "drop --pull-back, or add --signal colors for per-vertex colors"
-        )
-    instead = "" if args.uv_atlas else (
-        f", or add --signal colors{' --via-basis' * closest} to transfer the colors to the "
-        "target's vertices through the bases"
-    )  # fmt: skip
+        raise UsageError("--pull-back puts values on the target's vertices; this run bakes the "
+                         "source's colors into the target's UVs, which reads them through the map "
+                         "with no OFP basis already: drop --pull-back, or add --signal colors for "
+                         "per-vertex colors")  # fmt: skip
+    instead = "" if args.uv_atlas else (f", or add --signal colors{' --via-basis' * closest} to "
+                                        "transfer the colors to the target's vertices through the "
+                                        "bases")  # fmt: skip
     planned = plan(args, pair, "texture", unused=lambda named: (
         f"{'/'.join(named)} does not apply here: a bake reads the source's colors through the "
-        f"map, with no OFP basis; drop it{instead}"
-    ))  # fmt: skip
+        f"map, with no OFP basis; drop it{instead}"))  # fmt: skip
     try:  # a bake whose colors cannot be read is refused before any work (named: file or flag)
-        surface_colors(pair.source, args.texture)
+        tex.surface_colors(pair.source, args.texture)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         raise texture_error(args.source, args.texture, exc) from exc
     corr = prepare_pair(args, pair, planned).correspondence
@@ -307,8 +246,8 @@ def _bake(args: argparse.Namespace, pair: Any, closest: bool) -> int:
         out = transfer_texture(pair.source, pair.target, correspondence=corr, size=size,
                                texture=args.texture, atlas=args.uv_atlas)  # fmt: skip
     write_geometry(args.output, pair.in_target_units(out), protect=_inputs(args))
-    layout = "new UV atlas" if args.uv_atlas and not has_uvs(pair.target) else "UV layout"
-    what = "texture" if has_uvs(pair.source) else "vertex colors"
+    layout = "new UV atlas" if args.uv_atlas and not tex.has_uvs(pair.target) else "UV layout"
+    what = "texture" if tex.has_uvs(pair.source) else "vertex colors"
     report([f"{args.source} -> {args.target}: {what} baked in the target's {layout} ({size} px), "
             f"map {map_name(args, corr)}",
             f"wrote {args.output} (with its material and texture image)"])  # fmt: skip
