@@ -1,4 +1,4 @@
-"""What the commands share: result lines, stages, checked inputs and outputs, flags and options.
+"""What the commands share: result lines, stages, checked flags, inputs and outputs, options.
 
 Every check that can fail is made before the expensive work, and every message names the
 file or the flag. The library's messages reach the command line in its own words: a
@@ -13,12 +13,13 @@ import argparse
 import contextlib
 import glob
 import logging
+import math
 import os
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,11 +32,6 @@ from ..core.spectrum import eigenbasis, shape_digest
 from ..core.wording import OptionError, Said, text_of
 from ..workflows.cache import basis_cache_path, cached_basis
 from ..workflows.options import COMPONENTS, BasisOptions
-from ._types import positive_int, unit_float
-
-__all__ = ["CLOUD_OUT", "FLAGS", "MESH_HELP", "MESH_OUT", "OUT", "UsageError", "add_basis_options",
-           "basis_options", "check_output", "error_text", "flag_of", "load_npy", "read_shape",
-           "renamed", "report", "shape_basis", "stage"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -72,6 +68,13 @@ class UsageError(Exception):
 
     def __init__(self, message: str | Said) -> None:
         super().__init__(text_of(message, cli=True))
+
+
+def refuse(*checks: tuple[Any, str | Said]) -> None:
+    """Raise the :class:`UsageError` of the first ``(wrong, message)`` whose ``wrong`` holds."""
+    for wrong, said in checks:
+        if wrong:
+            raise UsageError(said)
 
 
 class _Output:
@@ -180,13 +183,54 @@ def about(path: str) -> Iterator[None]:
         raise UsageError(f"{path}: {text_of(exc, cli=True)}") from exc
 
 
+def _number(cast: type, ok: Callable[[Any], bool], expected: str) -> Callable[[str], Any]:
+    """Make an argparse ``type``: ``cast(text)``, which must satisfy ``ok`` ("expected ...")."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
+        return value
+
+    return parse
+
+
+positive_int = _number(int, lambda v: v >= 1, "a positive integer")
+nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
+unit_float = _number(float, lambda v: 0.0 < v < 1.0, "a number in (0, 1)")
+positive_float = _number(float, lambda v: math.isfinite(v) and v > 0.0, "a finite number > 0")
+
+
+def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
+    """Make an argparse type: an integer in ``[lo, hi]``."""
+    return _number(int, lambda v: lo <= v <= hi, f"an integer in [{lo}, {hi}]")
+
+
+def bounded_float(lo: float, hi: float) -> Callable[[str], float]:
+    """Make an argparse type: a float in ``[lo, hi]``."""
+    return _number(float, lambda v: lo <= v <= hi, f"a number in [{lo:g}, {hi:g}]")
+
+
+def vector3(text: str) -> tuple[float, float, float]:
+    """Parse three comma-separated numbers, not all zero."""
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not any(values) or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, not all 0; got "
+                                         f"{text!r}")  # fmt: skip
+    return values  # type: ignore[return-value]
+
+
 def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
     """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
     require_open3d()
-    if not os.path.exists(path):
-        raise UsageError(f"{path}: no such file")
-    if os.path.isdir(path):
-        raise UsageError(f"{path}: is a directory, not a mesh file")
+    refuse((not os.path.exists(path), f"{path}: no such file"),
+           (os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
     try:
         geometry = read_geometry(path)
         return (geometry, *geometry_to_arrays(geometry))
@@ -206,10 +250,12 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): {exc}") from exc
-    if not isinstance(arr, np.ndarray):
-        raise UsageError(f"{flag} {path}: expected one array ({what}), got an archive")
-    if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
-        raise UsageError(f"{flag} {path}: must hold real numbers ({what}); got dtype {arr.dtype}")
+    array = isinstance(arr, np.ndarray)
+    real = array and (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_)
+    dtype = getattr(arr, "dtype", None)
+    refuse((not array, f"{flag} {path}: expected one array ({what}), got an archive"),
+           (np.iscomplexobj(arr) or not real,
+            f"{flag} {path}: must hold real numbers ({what}); got dtype {dtype}"))
     return arr
 
 
@@ -242,13 +288,11 @@ def check_output(path: str, allowed: Sequence[str], *, inputs: Sequence[str | No
     :func:`written_beside`). ``inputs`` may hold flag values that are not files (``None``,
     ``"colors"``): only existing files are compared.
     """
-    if os.path.isdir(path) or path.endswith(("/", os.sep)):
-        name = "" if os.path.isdir(path) else " name"
-        raise UsageError(f"{flag} {path}: is a directory{name}; give a file name (a folder is the "
-                         "output of several targets)")  # fmt: skip
-    if os.path.splitext(path)[1].lower() not in allowed:
-        raise UsageError(f"{flag} {path}: the output must end with one of "
-                         f"{', '.join(dict.fromkeys(allowed))}")  # fmt: skip
+    name = "" if os.path.isdir(path) else " name"
+    refuse((os.path.isdir(path) or path.endswith(("/", os.sep)), f"{flag} {path}: is a directory"
+            f"{name}; give a file name (a folder is the output of several targets)"),
+           (os.path.splitext(path)[1].lower() not in allowed, f"{flag} {path}: the output must end "
+            f"with one of {', '.join(dict.fromkeys(allowed))}"))  # fmt: skip
     check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
     beside = (*side, *written_beside(path))
     for other in beside:  # (found by a trial only after the work)
@@ -376,15 +420,14 @@ def check_memory(path: str, n: int, *, k: int, order: int, advice: str) -> None:
 
 def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) -> OFPBasis:
     """Read the OFP basis file given as ``flag path``, checked to be ``mesh``'s."""
-    if not os.path.isfile(path):
-        raise UsageError(f"{flag} {path}: no such basis file")
+    refuse((not os.path.isfile(path), f"{flag} {path}: no such basis file"))
     try:
         B = OFPBasis.load(path)
     except ValueError as exc:
         raise UsageError(f"{flag} {path}: {exc}") from exc
-    if B.eig.digest != shape_digest(V, F, components=args.components):
-        raise UsageError(f"{flag} {path}: this basis was computed for another mesh than {mesh} (or "
-                         f"with other cleaning options); recompute it with: o3d-ofp basis {mesh}")
+    refuse((B.eig.digest != shape_digest(V, F, components=args.components), f"{flag} {path}: "
+            f"this basis was computed for another mesh than {mesh} (or with other cleaning "
+            f"options); recompute it with: o3d-ofp basis {mesh}"))  # fmt: skip
     return B
 
 
@@ -399,18 +442,16 @@ def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis
         B = load_basis_file(args.basis, V, F, path, args, "--basis")
         for flag, given, what, held in (("-k", args.k, f"on k={B.k} eigenfunctions", B.k),
                                          ("--order", args.order, f"of order {B.order}", B.order)):
-            if given is not None and given != held:
-                raise UsageError(f"--basis {args.basis}: holds a basis {what}, but {flag} {given} "
-                                 f"was given; drop {flag} or recompute the basis")  # fmt: skip
-        if (args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9):
-            flag = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
-            raise UsageError(f"--basis {args.basis}: holds a basis orthogonalized with threshold "
-                             f"{B.tol:g}, but {flag} (threshold {tol:g}) was given; drop it or "
-                             "recompute the basis")  # fmt: skip
+            refuse((given is not None and given != held, f"--basis {args.basis}: holds a basis "
+                    f"{what}, but {flag} {given} was given; drop {flag} or recompute the basis"))
+        threshold = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
+        refuse(((args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9),
+                f"--basis {args.basis}: holds a basis orthogonalized with threshold {B.tol:g}, but "
+                f"{threshold} (threshold {tol:g}) was given; drop it or recompute the basis"))
         return B
-    if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
-        raise UsageError(f"-k {k}: must be smaller than the number of vertices of {path} minus one "
-                         f"({V.shape[0]} vertices: at most {V.shape[0] - 2})")  # fmt: skip
+    refuse((k > V.shape[0] - 2, f"-k {k}: must be smaller than the number of vertices of {path} "
+            f"minus one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"))  # (before the memory
+    # estimate, whose message it would be otherwise)
     entry = args.cache and basis_cache_path(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
                                             components=args.components)  # fmt: skip
     if not (entry and os.path.isfile(entry) and os.path.getsize(entry) > 0):  # a hit only reads

@@ -21,11 +21,8 @@ from urllib.parse import urlsplit
 from ..collections import transfer_many, write_summary
 from ..core.wording import text_of
 from . import _common as common
-from ._common import UsageError, report
+from ._common import UsageError, nonnegative_int, report
 from ._progress import ENABLED
-from ._types import nonnegative_int
-
-__all__ = ["add_collection_options", "report_records", "run_transfers", "single"]
 
 #: Flags of the two-shape commands that make no sense for a collection, and why.
 PAIR_ONLY = {

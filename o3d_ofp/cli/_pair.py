@@ -32,13 +32,9 @@ from ..workflows.options import BasisOptions, MatchOptions
 from ..workflows.partial import check_partial_areas
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from . import _common as common
-from ._common import UsageError, report, stage
+from ._common import UsageError, positive_float, positive_int, report, stage
 from ._progress import stage_progress
 from ._signal import signal_sides
-from ._types import positive_float, positive_int
-
-__all__ = ["SUSPECT_EXIT", "Pair", "SuspectMap", "add_pair_options", "map_name", "plan",
-           "prepare_pair", "read_pair"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -189,45 +185,34 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
 
 def _check_flags(args: argparse.Namespace) -> None:
     """Refuse flags that contradict each other, and bad side outputs, before reading."""
-    lm, save = args.landmarks, args.save_landmarks
-    if lm == "":
-        raise UsageError("--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
-                         "'pick'")  # fmt: skip
-    if save and not lm:
-        raise UsageError("--save-landmarks needs --landmarks (pick, pairs or a file)")
-    if save and os.path.isdir(save):
-        raise UsageError(f"--save-landmarks {save}: is a directory")
-    if save and not os.path.isdir(os.path.dirname(os.path.abspath(save))):
-        raise UsageError(f"--save-landmarks {save}: the folder does not exist")
-    if save:
-        _check_extra_output(args, save, "--save-landmarks")
-    if lm == "pick" and args.map != "estimate":
-        raise UsageError("--landmarks pick applies to --map estimate")
-    if lm == "pick" and not has_display():
-        raise UsageError(
-            "--landmarks pick needs a display to open Open3D's picking window (DISPLAY and "
-            "WAYLAND_DISPLAY are not set); give the pairs in a file instead: --landmarks FILE "
-            "(two columns: source vertex, target vertex)"
-        )
-    if args.save_map and not args.save_map.endswith(".npz"):
-        raise UsageError(f"--save-map {args.save_map}: must end with .npz")
-    if args.save_map:
-        _check_extra_output(args, args.save_map, "--save-map")
-        folder = os.path.dirname(os.path.abspath(args.save_map))
-        common.check_writable_folder(folder, args.save_map, flag="--save-map")
-    if args.align and args.map != "closest":
-        raise UsageError("--align applies to --map closest")
-    if args.partial and args.map != "estimate":
-        raise UsageError(
-            f"--partial applies to --map estimate (the partial match), not to --map {args.map}"
-            + ("" if args.map in ("closest", "identity") else
-               ", a map used as it is (a map saved from a run with --partial is partial already)")
-            + ": drop --partial"
-        )  # fmt: skip
-    if args.map == "closest" and lm:
-        raise UsageError("--landmarks apply to --map estimate, not --map closest")
-    if lm and args.map != "estimate":
-        raise UsageError("--landmarks only apply with --map estimate")
+    lm, save, kind = args.landmarks, args.save_landmarks, args.map
+    folder = os.path.dirname(os.path.abspath(save or ""))
+    partial = "" if kind in ("closest", "identity") else (
+        ", a map used as it is (a map saved from a run with --partial is partial already)")
+    for wrong, said in (
+        (lm == "", "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
+         "'pick'"),
+        (save and not lm, "--save-landmarks needs --landmarks (pick, pairs or a file)"),
+        (save and os.path.isdir(save), f"--save-landmarks {save}: is a directory"),
+        (save and not os.path.isdir(folder), f"--save-landmarks {save}: the folder does not exist"),
+        (lm == "pick" and kind != "estimate", "--landmarks pick applies to --map estimate"),
+        (lm == "pick" and not has_display(), "--landmarks pick needs a display to open Open3D's "
+         "picking window (DISPLAY and WAYLAND_DISPLAY are not set); give the pairs in a file "
+         "instead: --landmarks FILE (two columns: source vertex, target vertex)"),
+        (args.save_map and not args.save_map.endswith(".npz"),
+         f"--save-map {args.save_map}: must end with .npz"),
+        (args.align and kind != "closest", "--align applies to --map closest"),
+        (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
+         f"match), not to --map {kind}{partial}: drop --partial"),
+        (kind == "closest" and lm, "--landmarks apply to --map estimate, not --map closest"),
+        (lm and kind != "estimate", "--landmarks only apply with --map estimate"),
+    ):  # fmt: skip
+        if wrong:
+            raise UsageError(said)
+    for path, flag in ((save, "--save-landmarks"), (args.save_map, "--save-map")):
+        if path:
+            _check_extra_output(args, path, flag)
+            common.check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
 
 
 def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondence:

@@ -16,8 +16,6 @@ from collections.abc import Callable, Iterator
 
 from ..core import _progress
 
-__all__ = ["ENABLED", "stage_progress"]
-
 logger = logging.getLogger(__name__)
 
 

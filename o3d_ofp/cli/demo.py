@@ -10,8 +10,8 @@ from ..boundary.io import write_geometry
 from ..core._atomic import output_folder
 from ..render.panel import RenderError, render_panel
 from ..workflows.options import BasisOptions
-from ._common import UsageError, check_folder_to_make, report, stage
-from ._types import bounded_int, nonnegative_int, positive_int
+from . import _common as common
+from ._common import UsageError, report, stage
 
 __all__ = ["add_parser", "run"]
 
@@ -26,14 +26,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     default = BasisOptions()
     p.add_argument("-o", "--output", default="demo_out", help="output folder (demo_out)")
-    p.add_argument("-k", "--k", type=positive_int, default=default.k1,
+    p.add_argument("-k", "--k", type=common.positive_int, default=default.k1,
                    help=f"eigenfunctions ({default.k1})")  # fmt: skip
-    p.add_argument("--order", type=positive_int, default=default.order,
+    p.add_argument("--order", type=common.positive_int, default=default.order,
                    help=f"product order N ({default.order})")  # fmt: skip
-    p.add_argument("--subdivisions", type=bounded_int(2, 9), default=5, help="icosphere "
+    p.add_argument("--subdivisions", type=common.bounded_int(2, 9), default=5, help="icosphere "
                    "subdivisions of the shape, 2-9 (5: 10242 vertices; the map estimate needs the "
                    "162 of 2)")  # fmt: skip
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="shape seed (0)")
+    p.add_argument("--seed", type=common.nonnegative_int, default=0, help="shape seed (0)")
     p.set_defaults(func=run)
 
 
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo workflow, print its table, write its meshes and picture."""
     require_open3d()
     out = os.path.abspath(args.output)
-    check_folder_to_make(args.output, "-o")  # made with its parents after the checks
+    common.check_folder_to_make(args.output, "-o")  # made with its parents after the checks
     n_vertices = 10 * 4**args.subdivisions + 2  # the icosphere the blob is made from
     if args.k > n_vertices - 1:
         raise UsageError(f"-k {args.k}: the shape of --subdivisions {args.subdivisions} has "

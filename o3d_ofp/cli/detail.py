@@ -8,10 +8,9 @@ from ..boundary.api import transfer_detail
 from ..boundary.io import write_geometry
 from ..workflows.options import DETAIL_MODES, MAX_AMOUNT, DetailOptions
 from . import _common as common
-from ._common import UsageError, report, stage
+from ._common import UsageError, bounded_float, positive_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import add_pair_options, plan, prepare_pair, read_pair
-from ._types import bounded_float, positive_int
 
 __all__ = ["add_parser", "run"]
 

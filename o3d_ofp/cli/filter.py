@@ -12,8 +12,7 @@ from ..boundary.api import filter_geometry
 from ..boundary.io import write_geometry
 from ..core.filtering import DEFAULT_SMOOTH, MAX_SHARPEN, MAX_SMOOTH
 from . import _common as common
-from ._common import MESH_HELP, UsageError
-from ._types import bounded_float
+from ._common import MESH_HELP, UsageError, bounded_float
 
 __all__ = ["add_parser", "run"]
 

@@ -32,41 +32,27 @@ logger = logging.getLogger(__name__)
 COMMANDS = (basis, approximate, transfer, detail, filter, render, demo)
 
 
-class _Words(logging.Formatter):
-    """Log lines in the command line's words.
+class _Shown(logging.Filter):
+    """The log in the command line's words: what is shown, and how it is worded.
 
     A record carrying a Said (``record.said``, see :func:`o3d_ofp.core._warnings.warn`) is
-    worded for flags.
+    worded for flags; each warning is said once per command (the library may say one again,
+    of a map it is given twice); with ``quiet_reports``, a map's quality report is left out
+    when the command prints it (a run over one pair, ``OUT.reports_quality``; a collection's
+    records keep the lines of each target in the log).
     """
 
-    def format(self, record: logging.LogRecord) -> str:
-        said = getattr(record, "said", None)
-        if said is not None:
-            record = logging.makeLogRecord({**record.__dict__, "msg": text_of(said, cli=True),
-                                            "args": None})  # fmt: skip
-        return super().format(record)
-
-
-class _Shown(logging.Filter):
-    """Each warning once per command; a map's quality report left out when the command prints it.
-
-    The library may say a warning again (of a map it is given twice). A run over one pair
-    prints the report (``OUT.reports_quality``); a collection's records keep the lines of each
-    target in the log.
-    """
-
-    def __init__(self) -> None:
+    def __init__(self, quiet_reports: bool) -> None:
         super().__init__()
-        self.seen: set[str] = set()
+        self.quiet_reports, self.seen = quiet_reports, set()
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if getattr(record, "quality_report", False) and OUT.reports_quality:
+        if self.quiet_reports and getattr(record, "quality_report", False) and OUT.reports_quality:
             return False
-        if record.levelno < logging.WARNING:
-            return True
-        said = getattr(record, "said", None)
-        text = text_of(said, cli=True) if said is not None else record.getMessage()
-        fresh = text not in self.seen
+        if getattr(record, "said", None) is not None:
+            record.msg, record.args = text_of(record.said, cli=True), None
+        text = record.getMessage()
+        fresh = record.levelno < logging.WARNING or text not in self.seen
         self.seen.add(text)
         return fresh
 
@@ -107,14 +93,11 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
     """Send the package's log records to the current stderr for the duration of a command.
 
     Above DEBUG, the records of a map's quality report are left out where the command prints
-    the report (:data:`o3d_ofp.workflows.quality.QUALITY_RECORD`) and a warning is said once
-    (:class:`_Shown`).
+    the report (:data:`o3d_ofp.workflows.quality.QUALITY_RECORD`); see :class:`_Shown`.
     """
-    root = logging.getLogger("o3d_ofp")
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_Words("o3d-ofp: %(message)s"))
-    if level > logging.DEBUG:
-        handler.addFilter(_Shown())
+    root, handler = logging.getLogger("o3d_ofp"), logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("o3d-ofp: %(message)s"))
+    handler.addFilter(_Shown(quiet_reports=level > logging.DEBUG))
     saved = (root.level, root.propagate)
     root.addHandler(handler)
     root.setLevel(level)
@@ -123,8 +106,7 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
         yield
     finally:
         root.removeHandler(handler)
-        root.setLevel(saved[0])
-        root.propagate = saved[1]
+        root.level, root.propagate = saved
 
 
 #: A value argparse reads as an option: a dash, a digit, then more than a plain number has.
@@ -206,25 +188,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return args.func(args)
         except SuspectMap as exc:
-            sys.stderr.write(f"{prog}: error: the map is suspect (--strict): {exc}; nothing "
-                             "written\n")  # fmt: skip
-            return SUSPECT_EXIT
+            code = SUSPECT_EXIT
+            said = f"error: the map is suspect (--strict): {exc}; nothing written"
         except (UsageError, ValueError, TypeError, FileNotFoundError, FileExistsError,
                 IsADirectoryError, PermissionError) as exc:  # fmt: skip
-            sys.stderr.write(f"{prog}: error: {error_text(exc)}\n")
-            return 2
+            code, said = 2, f"error: {error_text(exc)}"
         except (ImportError, ConnectionError) as exc:
-            sys.stderr.write(f"{prog}: error: {error_text(exc)}\n")
-            return 1
+            code, said = 1, f"error: {error_text(exc)}"
         except OSError as exc:  # a full disk, a file system gone read-only during the run
             where = f" ({exc.filename})" if exc.filename else ""
-            sys.stderr.write(f"{prog}: error: cannot read or write{where}: {exc.strerror or exc}\n")
-            return 1
+            code, said = 1, f"error: cannot read or write{where}: {exc.strerror or exc}"
         except KeyboardInterrupt:
-            sys.stderr.write(f"{prog}: interrupted\n")
-            return 130
+            code, said = 130, "interrupted"
         except Exception as exc:
             if args.verbose:
                 logger.exception("internal error")
-            sys.stderr.write(f"{prog}: internal error: {type(exc).__name__}: {exc}\n")
-            return 1
+            code, said = 1, f"internal error: {type(exc).__name__}: {exc}"
+    sys.stderr.write(f"{prog}: {said}\n")
+    return code

@@ -8,8 +8,8 @@ import os
 import numpy as np
 
 from ..render.panel import MAX_SIDE, MIN_SIDE, View, colormap, geometry_items, render_panel
-from ._common import MESH_HELP, UsageError, check_output, load_npy, read_shape, report, stage
-from ._types import bounded_int, positive_int, unit_float, vector3
+from . import _common as common
+from ._common import UsageError, report, stage
 
 __all__ = ["add_parser", "run"]
 
@@ -17,25 +17,25 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("render", help="render meshes side by side into a PNG (headless)")
-    a, side = p.add_argument, bounded_int(MIN_SIDE, MAX_SIDE)
-    a("mesh", nargs="+", help=MESH_HELP)
+    a, side = p.add_argument, common.bounded_int(MIN_SIDE, MAX_SIDE)
+    a("mesh", nargs="+", help=common.MESH_HELP)
     a("--titles", help="comma-separated titles (default: the file names)")
     a("--scalars", nargs="+", help="one .npy of per-vertex scalars per mesh ('-' for none)")
     a("--colormap", default="viridis", help="matplotlib colormap (viridis)")
     a("--label", help="label of the color bar (with --scalars)")
     a("--width", type=side, help=f"tile width in pixels ({MIN_SIDE}-{MAX_SIDE})")
     a("--height", type=side, help=f"tile height in pixels ({MIN_SIDE}-{MAX_SIDE})")
-    a("--columns", type=positive_int, help="tiles per row (default: all, up to 6 per row)")
-    a("--front", type=vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
-    a("--up", type=vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
-    a("--zoom", type=unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
+    a("--columns", type=common.positive_int, help="tiles per row (default: all, up to 6 per row)")
+    a("--front", type=common.vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
+    a("--up", type=common.vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
+    a("--zoom", type=common.unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
     a("-o", "--output", required=True, help="PNG file")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Read the meshes (and scalars), render, write the PNG."""
-    check_output(args.output, (".png",), inputs=args.mesh)
+    common.check_output(args.output, (".png",), inputs=args.mesh)
     if args.label and not args.scalars:
         raise UsageError("--label names the color bar of --scalars: give --scalars too")
     view = View(front=args.front, up=args.up, zoom=args.zoom)
@@ -57,10 +57,10 @@ def run(args: argparse.Namespace) -> int:
                          "for none)")  # fmt: skip
     items, textures = [], []
     for path, npy in zip(args.mesh, scalars, strict=True):
-        geometry, V, F = read_shape(path)
+        geometry, V, F = common.read_shape(path)
         ((_, _, colors),), (texture,) = geometry_items([geometry])  # colors, or its own texture
         if npy != "-":
-            values = load_npy(npy, "per-vertex scalars", flag="--scalars")
+            values = common.load_npy(npy, "per-vertex scalars", flag="--scalars")
             values = values[:, 0] if values.ndim == 2 and values.shape[1] == 1 else values
             if values.shape != (V.shape[0],):
                 raise UsageError(f"--scalars {npy}: shape {values.shape}, expected ({V.shape[0]},) "

@@ -14,11 +14,10 @@ from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ..core.wording import Said
 from ..workflows.pipeline import carry, pull_back
 from . import _common as common
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, report, stage
+from ._common import CLOUD_OUT, MESH_OUT, UsageError, bounded_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 from ._signal import check_colors_output, read_signal, signal_sides, texture_error, write_result
-from ._types import bounded_int
 
 __all__ = ["add_parser", "run"]
 
@@ -173,20 +172,14 @@ def _run_many(args: argparse.Namespace) -> int:
         raise UsageError(f"--signal {args.signal}: with several targets the signal is colors or "
                          "texture")  # fmt: skip
     kind, why = "colors", f"--signal {args.signal} sends the colors to the targets' vertices"
-    if args.signal is None:
-        source = read_geometry(args.source)
-        try:  # a textured source: baked into the targets' own UV layouts, as for one target
-            tex.mesh_texture(source, args.texture)
-            kind = "texture"
+    if args.signal is None:  # a textured source is baked into the targets' own UV layouts, as
+        try:  # for one target; one colored per vertex when --texture-size or --uv-atlas asks
+            surface = tex.surface_colors(read_geometry(args.source), args.texture)
+            asked = args.texture_size is not None or args.uv_atlas
+            kind = "texture" if asked or isinstance(surface, tex.MeshTexture) else "colors"
+            why = f"{args.source} has no texture coordinates (UVs)"
         except (TypeError, ValueError, FileNotFoundError) as exc:
             why = tex.no_texture_message(args.source, exc)
-            asked = args.texture_size is not None or args.uv_atlas
-            if asked and not tex.has_uvs(source) and args.texture is None:
-                try:  # vertex colors, baked when asked (else the targets keep their formats)
-                    tex.surface_colors(source)
-                    kind = "texture"
-                except (TypeError, ValueError) as colors_exc:
-                    why = f"{args.source}: {colors_exc}"
     if kind != "texture" and args.texture_size is not None:
         raise UsageError(Said("--texture-size applies to a bake, and nothing is baked here: {why}",
                               {"why": why}))  # fmt: skip
