@@ -1081,7 +1081,6 @@ def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, c
     "expected one argument" (a word starting with a dash is taken for an option).
     """
     import o3d_ofp.cli._pair as pair_module
-    from o3d_ofp.cli.main import joined_dash_values
 
     seen, real = [], pair_module._landmarks
     monkeypatch.setattr(pair_module, "_landmarks", lambda *a: seen.append(real(*a)) or seen[-1])
@@ -1092,14 +1091,13 @@ def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, c
     for value in ("-1:40", "-1:40,3:5"):
         assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", value]) == 2
         _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
-    # only such values are joined, after an option that takes one: numbers, flags without a
-    # value, short options, "--" and joined options stay as given
-    options = {"--smooth", "--k1", "--landmarks", "--a"}
-    words = ["--smooth", "-0.5", "--k1", "-3", "-v", "-1:4", "--", "-2:3", "--a=1", "-1:2",
-             "--strict", "-1.ply"]  # fmt: skip
-    assert joined_dash_values(words, options) == words
-    got = joined_dash_values(["--landmarks", "-1:40", "-q"], options)
-    assert got == ["--landmarks=-1:40", "-q"]
+    # negative numbers reach their options' checks as before; -q after such a value is a flag
+    assert main([*argv, str(tmp_path / "b.ply"), "--k1", "-3"]) == 2
+    _one_line_error(capsys, "--k1: expected a positive integer, got -3")
+    assert main(["filter", files["src"], "--smooth", "-0.5", "-o", str(tmp_path / "f.ply")]) == 2
+    _one_line_error(capsys, "--smooth: expected a number in [0, 0.25], got -0.5")
+    assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", "-1:40", "-q"]) == 2
+    _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
     # a flag without a value followed by such a word: argparse's own message, as before
     assert main([*argv[:3], "--strict", "-1.ply", "-o", str(tmp_path / "c.ply")]) == 2
     assert "ignored explicit argument" not in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""What the commands share: result lines, stages, checked flags, inputs and outputs, options.
+"""What the commands share: result lines, stages, checked flags, inputs, signals and outputs.
 
 Every check that can fail is made before the expensive work, and every message names the
 file or the flag. The library's messages reach the command line in its own words: a
@@ -19,17 +19,21 @@ import sys
 import tempfile
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
-from ..boundary.convert import geometry_to_arrays, require_open3d
-from ..boundary.io import CLOUD_ONLY, MESH_ONLY, read_geometry
+from ..boundary.convert import geometry_to_arrays, like_target, require_open3d, vertex_colors
+from ..boundary.io import CLOUD_ONLY, MESH_ONLY, NO_COLORS, read_geometry, write_geometry
+from ..boundary.texture import has_uvs, no_texture_message, texture_colors, without_texture
 from ..core import _memory
+from ..core._atomic import atomic_path
 from ..core.basis import OFPBasis, ofp_basis
 from ..core.spectrum import eigenbasis, shape_digest
 from ..core.wording import OptionError, Said, text_of
+from ..render.panel import colormap
 from ..workflows.cache import basis_cache_path, cached_basis
 from ..workflows.options import COMPONENTS, BasisOptions
 
@@ -77,25 +81,11 @@ def refuse(*checks: tuple[Any, str | Said]) -> None:
             raise UsageError(said)
 
 
-class _Output:
-    """The result lines on stdout (nothing with ``-q``) and what the run's messages need.
-
-    ``reports_quality``: the command prints a map's quality report itself (a run over one
-    pair), so the library's log records of it are left out (``main``). ``args``: the flags
-    given. ``renamed``: the flag a deprecated one was given as (``{"--band": "--k-low"}``).
-    """
-
-    quiet = False
-    reports_quality = False
-    args: Any = None
-    renamed: dict[str, str] = {}  # noqa: RUF012 (set anew by each run)
-
-    def write(self, text: str) -> None:
-        if not self.quiet:
-            sys.stdout.write(text)
-
-
-OUT = _Output()
+#: What a run's output and messages need (set by ``main``): ``quiet`` (``-q``: no result
+#: lines); ``reports_quality``: the command prints a map's quality report itself (a run over
+#: one pair), so the library's log records of it are left out; ``args``: the flags given;
+#: ``renamed``: the flag a deprecated one was given as (``{"--band": "--k-low"}``).
+OUT = types.SimpleNamespace(quiet=False, reports_quality=False, args=None, renamed={})
 
 
 def error_text(exc: BaseException) -> str:
@@ -138,8 +128,8 @@ def renamed(args: argparse.Namespace) -> None:
 
 def report(lines: Sequence[str | Said]) -> None:
     """Print result lines (silenced by ``-q``), a Said in the command line's words."""
-    for line in lines:
-        OUT.write(text_of(line, cli=True) + "\n")
+    for line in lines if not OUT.quiet else ():
+        sys.stdout.write(text_of(line, cli=True) + "\n")
 
 
 #: Seconds between a long stage's "still running" lines (it has no progress of its own).
@@ -240,12 +230,10 @@ def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
 
 def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     """Load a real-valued ``.npy`` array; one-line errors name the file and the flag."""
-    if not os.path.isfile(path):
-        raise UsageError(f"{flag} {path}: no such file")
-    with open(path, "rb") as fh:
-        if fh.read(6) != b"\x93NUMPY":  # NumPy's own message speaks of pickles for other files
-            raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): it does not start "
-                             "with the .npy header (write it with numpy.save)")  # fmt: skip
+    refuse((not os.path.isfile(path), f"{flag} {path}: no such file"))
+    with open(path, "rb") as fh:  # NumPy's own message speaks of pickles for other files
+        refuse((fh.read(6) != b"\x93NUMPY", f"{flag} {path}: not a NumPy .npy file ({what}): it "
+                "does not start with the .npy header (write it with numpy.save)"))
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
@@ -318,8 +306,7 @@ def same_file(a: str, b: str) -> bool:
 
 def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     """Refuse, before any work, an output whose folder is missing or cannot be written."""
-    if not os.path.isdir(folder):
-        raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
+    refuse((not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
     # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
     # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
@@ -339,9 +326,8 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
     """Refuse, once the input is read and before any work, a point cloud to a mesh format."""
     ext = os.path.splitext(path)[1].lower()
-    if faces is None and ext in MESH_ONLY:
-        raise UsageError(f"{flag} {path}: the result is a point cloud (no faces) and cannot be "
-                         f"written as {ext}; use {', '.join(('.ply', *CLOUD_ONLY))}")  # fmt: skip
+    refuse((faces is None and ext in MESH_ONLY, f"{flag} {path}: the result is a point cloud (no "
+            f"faces) and cannot be written as {ext}; use {', '.join(('.ply', *CLOUD_ONLY))}"))
 
 
 def check_folder_to_make(path: str | None, flag: str) -> None:
@@ -353,8 +339,8 @@ def check_folder_to_make(path: str | None, flag: str) -> None:
     """
     if not path:
         return
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise UsageError(f"{flag} {path}: is a file, not a folder")
+    refuse((os.path.exists(path) and not os.path.isdir(path), f"{flag} {path}: is a file, not a "
+            "folder"))  # fmt: skip
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
@@ -466,3 +452,106 @@ def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis
             eig = eigenbasis(V, F, k=k, components=args.components)
         with stage(f"orthogonalized products of {path} (order {order})"):
             return ofp_basis(eig, order=order, k=min(k, eig.k), tol=tol)
+
+
+# --------------------------------------------------------------------------- signals
+
+
+def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None,
+                output: str | None = None) -> tuple[np.ndarray, str]:  # fmt: skip
+    """(values (n,) or (n, d), kind) of ``--signal`` on the geometry read from ``path``.
+
+    With ``output`` (the ``-o`` path), colors bound for a format that holds none (STL, XYZ)
+    are refused here, before any work: they would be dropped without a word.
+    """
+    other = texture is not None and spec != "texture"
+    refuse((other and not has_uvs(geometry), f"--texture {texture}: {path} has no texture "
+            "coordinates (UVs) to map an image onto; drop --texture"),
+           (other, "--texture applies to --signal texture"),
+           (texture is not None and not os.path.isfile(texture),
+            f"--texture {texture}: no such image file"))  # fmt: skip
+    if spec == "xyz":
+        return V, "xyz"
+    if spec.endswith(".npy"):
+        f = load_npy(spec, "per-vertex signal", flag="--signal")
+        refuse((f.ndim not in (1, 2) or f.shape[0] != V.shape[0], f"--signal {spec}: has shape "
+                f"{f.shape} but {path} has {V.shape[0]} vertices (expected (n,) or (n, d))"),
+               (not np.all(np.isfinite(f)), f"--signal {spec}: must hold finite numbers"))
+        return f.astype(np.float64), "array"
+    colors = vertex_colors(geometry) if spec == "colors" else None
+    hint = ("it has texture coordinates: use --signal texture" if has_uvs(geometry) else
+            "transfer its coordinates with --signal xyz, or a per-vertex signal with --signal "
+            "FILE.npy")  # fmt: skip
+    refuse((spec not in ("colors", "texture"),
+            f"--signal must be colors, texture, xyz or a FILE.npy; got {spec!r}"),
+           (spec == "colors" and colors is None, f"{path}: has no vertex colors ({hint})"))
+    try:
+        colors = texture_colors(geometry, texture) if colors is None else colors
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        raise texture_error(path, texture, exc) from exc
+    check_colors_output(output)
+    return colors, "colors"
+
+
+def check_colors_output(output: str | None) -> None:
+    """Refuse colors bound for an ``-o`` format that holds none (STL, XYZ), before any work."""
+    ext = os.path.splitext(output or "")[1].lower()
+    if ext in NO_COLORS:
+        raise UsageError(f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; "
+                         "write .ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts "
+                         "(points)")  # fmt: skip
+
+
+def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
+    """Return the error of a texture that cannot be read (``--texture FILE``, or the source's).
+
+    The source's own names the files its material lacks.
+    """
+    if texture is not None:  # the given image, not the source, is at fault
+        return UsageError(f"--texture {texture}: "
+                          + text_of(exc, cli=True).removeprefix(f"{texture}: "))  # fmt: skip
+    return UsageError(no_texture_message(path, exc))
+
+
+def _save_npy(path: str, values: np.ndarray) -> None:
+    with atomic_path(path, suffix=".npy") as tmp:
+        np.save(tmp, values)
+
+
+def side_outputs(path: str, kind: str) -> list[str]:
+    """Files besides ``path`` that :func:`write_result` writes for a signal of ``kind``."""
+    if kind == "array" and not path.lower().endswith(".npy"):
+        return [os.path.splitext(path)[0] + ".npy"]
+    return []
+
+
+def signal_sides(args: Any) -> list[str]:
+    """Side files of ``-o`` known from the flags: the ``.npy`` of a ``--signal FILE.npy``."""
+    signal = getattr(args, "signal", None)
+    npy = isinstance(signal, str) and signal.lower().endswith(".npy")
+    return side_outputs(args.output, "array") if npy else []
+
+
+def write_result(path: str, like: Any, values: np.ndarray, kind: str,
+                 protect: Sequence[str | None] = ()) -> list[str]:  # fmt: skip
+    """Write ``values`` on a copy of the geometry ``like``: colored, moved, or a ``.npy``.
+
+    A colored copy has no texture image (its UVs are kept): the colors replace it. Returns
+    the files written. A general signal goes to a ``.npy`` beside the geometry, which
+    shows its first channel through a colormap. Nothing is written when a file would replace
+    one of ``protect`` (the command's inputs).
+    """
+    sides = side_outputs(path, kind)
+    for side in sides:
+        check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
+    if path.lower().endswith(".npy"):
+        _save_npy(path, values)
+        return [path]
+    rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
+    colors = np.clip(values, 0.0, 1.0) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
+    out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
+        like_target(like, colors=colors))  # fmt: skip
+    for npy in sides:
+        _save_npy(npy, values)
+    write_geometry(path, out, protect=protect)
+    return [path, *sides]

@@ -11,6 +11,7 @@ and ``DIR/summary.json``; the exit code is 1 when any target failed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import os
 import socket
@@ -65,11 +66,9 @@ def single(args: argparse.Namespace, shapes: Sequence[str]) -> bool:
 
 def _check_scheduler(address: str) -> None:
     """Refuse, before any work, a scheduler address where nothing listens."""
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    try:
+    parts, port = urlsplit(address if "://" in address else f"tcp://{address}"), None
+    with contextlib.suppress(ValueError):  # a port that is not a number
         port = parts.port
-    except ValueError:
-        port = None
     if parts.scheme not in ("tcp", "tls", "ws", "wss", "ucx") or not parts.hostname or not port:
         raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT (or tls, ws, wss, ucx)")
     if parts.scheme == "ucx":  # no plain socket to try: Dask will say
@@ -93,11 +92,9 @@ def _check_run(args: argparse.Namespace) -> None:
     common.check_folder_to_make(path, "-o")  # written into, or made in its nearest folder
     common.check_folder_to_make(args.cache, "--cache")
     if (args.scheduler or args.workers != 0) and importlib.util.find_spec("distributed") is None:
-        raise UsageError(
-            "several targets run on a Dask cluster, and Dask is not installed: pip install "
-            "'dask[distributed]' (from a clone of o3d_ofp: pip install -e '.[dask]'), or give "
-            "--workers 0 to run them one after the other here"
-        )
+        raise UsageError("several targets run on a Dask cluster, and Dask is not installed: pip "
+                         "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
+                         "'.[dask]'), or give --workers 0 to run them one after the other here")
     if args.scheduler:
         _check_scheduler(args.scheduler)
 
@@ -148,12 +145,11 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
             raise UsageError(f"{target}: no such target file or folder")
     given = {"k1": args.k1, "k2": args.k2, "order": args.order, "tol": args.tol,
              "preset": None if args.tol is not None else args.preset, **options}  # fmt: skip
-    records = transfer_many(
-        args.source, args.target, kind=kind, client=args.scheduler, output_dir=args.output,
-        cache_dir=args.cache, workers=args.workers, skip_existing=not args.force,
-        progress=ENABLED.on, map=args.map, components=args.components, strict=args.strict,
-        **{name: value for name, value in given.items() if value is not None},
-    )  # fmt: skip
+    records = transfer_many(args.source, args.target, kind=kind, client=args.scheduler,
+                            output_dir=args.output, cache_dir=args.cache, workers=args.workers,
+                            skip_existing=not args.force, progress=ENABLED.on, map=args.map,
+                            components=args.components, strict=args.strict,
+                            **{name: value for name, value in given.items() if value is not None})
     csv_path, json_path = write_summary(records, args.output)
     code = report_records(records)
     report([f"summary: {csv_path}, {json_path}"])

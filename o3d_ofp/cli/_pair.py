@@ -26,7 +26,7 @@ from ..core._atomic import atomic_path
 from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
 from ..core.orthogonalize import PRESETS
-from ..core.wording import AdvisedError, Said, text_of
+from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, given_map_collapse
 from ..workflows.options import BasisOptions, MatchOptions
 from ..workflows.partial import check_partial_areas
@@ -34,12 +34,14 @@ from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from . import _common as common
 from ._common import UsageError, positive_float, positive_int, report, stage
 from ._progress import stage_progress
-from ._signal import signal_sides
 
 logger = logging.getLogger(__name__)
 
 #: Exit code of a suspect map under --strict (nothing is written).
 SUSPECT_EXIT = 3
+#: How the stage line names the estimation of each estimator.
+_ESTIMATION = {"full": "map estimation (descriptor fit, ZoomOut, point map)", "partial": "partial "
+               "map estimation (descriptor fits, partial ZoomOut, geodesic refinement, checks)"}
 
 
 class SuspectMap(Exception):
@@ -59,17 +61,12 @@ class Pair:
     given: Correspondence | None
     match: MatchOptions
     names: tuple[str, str]
+    #: The target as read: results that keep its coordinates are made like it
+    own_target: Any
     #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
     target_scale: float | None = None
-    #: The target as read, before ``--target-scale`` (None: ``target`` is)
-    target_as_read: Any = None
     #: ``--basis-1`` / ``--basis-2``: the OFP bases read, once the plan uses them
     files: tuple[Any, Any] = (None, None)
-
-    @property
-    def own_target(self) -> Any:
-        """The target as read: results that keep its coordinates are made like it."""
-        return self.target if self.target_as_read is None else self.target_as_read
 
     def in_target_units(self, geometry: Any) -> Any:
         """Return ``geometry``, made from the scaled target, in the target file's own units."""
@@ -90,24 +87,20 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     a("--k2", type=positive_int, help=f"target eigenfunctions ({default.k2})")
     common.add_basis_options(p, k=False, preset=preset)
     a("--map", default="estimate", help="estimate (default: WKS fit + ZoomOut), closest (closest "
-      "points on the source surface, for shapes already aligned in space; --align for nearly "
-      "aligned ones), identity (same vertices), MAP.npz (from --save-map), a file with one source "
-      "vertex per target vertex (.vts 1-based / .npy 0-based), or SRC.vts,TGT.vts matching both "
-      "shapes to a template")
+      "points on the source surface: shapes aligned in space; --align: nearly aligned), identity "
+      "(same vertices), MAP.npz (--save-map), one source vertex per target vertex (FILE.vts "
+      "1-based, FILE.npy 0-based), or SRC.vts,TGT.vts (both shapes' template matches)")
     a("--align", action="store_true", help="with --map closest: rigid ICP pre-alignment first")
     a("--partial", action="store_true", help="with --map estimate: the target is a part of the "
-      "source (a one-sided scan, a cut) in the same units (else --target-scale): partial "
-      "functional maps; the report gives the overlap")
-    a("--target-scale", type=positive_float, metavar="FACTOR", help="one target: multiply its "
-      "coordinates by FACTOR for the run (a target in other units than the source: 0.001 for "
-      "millimetres onto metres), as if its file were in the source's units; the result is "
-      "written in the target's own units")
+      "source (a scan, a cut) in its units (else --target-scale); the report gives the overlap")
+    a("--target-scale", type=positive_float, metavar="FACTOR", help="one target in other units "
+      "than the source: its coordinates times FACTOR for the run (0.001: millimetres onto "
+      "metres); the result is written in its own units")
     a("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     a("--strict", action="store_true", help="a suspect map (estimated, closest, or a map file that "
       "collapses) is an error (exit 3, nothing written)")
-    a("--landmarks", help="known (source, target) vertex pairs for the estimation, 0-based: "
-      "12:40,500:611 (or 12:40;500:611), a 2-column file (spaces, commas or semicolons apart), or "
-      "'pick' (pick them on both shapes in Open3D's vertex-selection window; needs a display)")
+    a("--landmarks", help="known (source, target) vertex pairs, 0-based: 12:40,500:611 (or ;), a "
+      "2-column file (spaces, commas or semicolons apart), or 'pick' (in Open3D's window)")
     a("--save-landmarks", metavar="FILE", help="write the landmark pairs used (e.g. picked) as a "
       "2-column file (to reuse: --landmarks FILE)")
     a("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
@@ -122,43 +115,36 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     if not spec:
         return None
     is_file = os.path.isfile(spec)
-    if is_file:
-        try:  # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
-            with open(spec, encoding="utf-8-sig") as fh, warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # "no data": said below
-                pairs = np.loadtxt((line.replace(",", " ").replace(";", " ") for line in fh),
-                                   ndmin=2)  # fmt: skip
-        except (ValueError, UnicodeDecodeError) as exc:
-            # numpy's message for a ragged file ends with advice for its own API ("; use
-            # `usecols` to select a subset ..."): only what precedes it is about the file
-            said = str(exc).split("; use `usecols`")[0]
-            raise UsageError(f"--landmarks {spec}: not a text file of two integer columns (source "
-                             f"vertex, target vertex; '#' starts a comment): {said}") from exc
-        columns = pairs.shape[1] if pairs.size else 2
-        if columns != 2:
-            raise UsageError(f"--landmarks {spec}: {columns} column{'s' * (columns > 1)}; the file "
-                             "needs two (source vertex, target vertex, 0-based) on each line")
-        if not pairs.size:
-            raise UsageError(f"--landmarks {spec}: no pairs in the file")
-    elif ":" not in spec or os.sep in spec:
-        raise UsageError(f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)")
-    else:
-        try:  # commas or semicolons apart, as in a file
-            items = spec.replace(";", ",").split(",")
-            pairs = np.array([[float(x) for x in item.split(":")] for item in items])
-        except ValueError as exc:
-            raise UsageError(f"--landmarks must be a file or pairs like 12:40,500:611; got "
-                             f"{spec!r}") from exc  # fmt: skip
-    if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.all(np.isfinite(pairs)) or np.any(
-        pairs != np.round(pairs)
-    ):  # fmt: skip
-        raise UsageError(f"--landmarks {spec}: the values must be integer vertex indices" if is_file
-                         else f"--landmarks must be integer (source, target) pairs; got {spec!r}")
+    where = f" {spec}" if is_file else ""
+    common.refuse((not is_file and (":" not in spec or os.sep in spec),
+                   f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)"))
+    try:  # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
+        with open(spec, encoding="utf-8-sig") if is_file else contextlib.nullcontext(
+            spec.replace(":", " ").replace(";", ",").split(",")
+        ) as lines, warnings.catch_warnings():  # fmt: skip
+            warnings.simplefilter("ignore", UserWarning)  # "no data": said below
+            apart = (line.replace(",", " ").replace(";", " ") for line in lines)  # (CSVs too)
+            pairs = np.loadtxt(apart, ndmin=2)
+    except (ValueError, UnicodeDecodeError) as exc:
+        # numpy's message for a ragged file ends with advice for its own API ("; use `usecols`
+        # to select a subset ..."): only what precedes it is about the file
+        said = str(exc).split("; use `usecols`")[0]
+        raise UsageError(f"--landmarks {spec}: not {'a text file of ' * is_file}two integer "
+                         "columns (source vertex, target vertex; '#' starts a comment): "
+                         f"{said}") from exc  # fmt: skip
+    columns = pairs.shape[1] if pairs.size else 2
+    common.refuse(
+        (columns != 2, f"--landmarks {spec}: {columns} column{'s' * (columns > 1)}; the "
+         f"{'file' if is_file else 'value'} needs two (source vertex, target vertex, 0-based) on "
+         "each line"),
+        (not pairs.size, f"--landmarks {spec}: no pairs in the file"),
+        (not np.all(np.isfinite(pairs)) or np.any(pairs != np.round(pairs)),
+         f"--landmarks{where}: the values must be integer vertex indices"),
+    )  # fmt: skip
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
-        if pairs[:, col].min() < 0 or pairs[:, col].max() >= n:
-            where = f" {spec}" if is_file else ""
-            raise UsageError(f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)")
+        common.refuse((pairs[:, col].min() < 0 or pairs[:, col].max() >= n,
+                       f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)"))
     return pairs
 
 
@@ -172,7 +158,7 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
     names = ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
     files = [("an input of this command", getattr(args, name, None)) for name in names]
     files += [("the --map file read", f) for f in args.map.split(",")]
-    beside = (*common.written_beside(args.output), *signal_sides(args))
+    beside = (*common.written_beside(args.output), *common.signal_sides(args))
     files += [("the -o output", args.output), *(("written with -o", f) for f in beside)]
     files += [(f"the {o} file", getattr(args, common.dest(o)))
               for o in ("--save-map", "--save-landmarks") if o != flag]  # fmt: skip
@@ -206,6 +192,9 @@ def _check_flags(args: argparse.Namespace) -> None:
          f"match), not to --map {kind}{partial}: drop --partial"),
         (kind == "closest" and lm, "--landmarks apply to --map estimate, not --map closest"),
         (lm and kind != "estimate", "--landmarks only apply with --map estimate"),
+        (args.target_scale is not None and args.basis_2, f"--basis-2 {args.basis_2} holds the "
+         f"basis of {args.target} in its own units, and --target-scale changes them: drop "
+         "--basis-2 (--cache DIR keeps the scaled target's basis apart)"),
     ):  # fmt: skip
         if wrong:
             raise UsageError(said)
@@ -219,12 +208,9 @@ def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondenc
     """Return the map of ``--map identity`` (refused between other vertex counts)."""
     if n1 == n2:
         return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
-    copies = [
-        f"{extra} of the {name}'s are copies at the same position as another (e.g. an OBJ's "
-        "along its UV seams)"
-        for name, V in (("source", V1), ("target", V2))
-        if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])
-    ]
+    copies = [f"{extra} of the {name}'s are copies at the same position as another (e.g. an "
+              "OBJ's along its UV seams)" for name, V in (("source", V1), ("target", V2))
+              if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])]
     raise UsageError(f"--map identity needs shapes with the same vertices; got {n1} and {n2}"
                      + (f" ({'; '.join(copies)})" if copies else "")
                      + ": --map closest maps shapes in the same place whatever their vertices")
@@ -280,25 +266,21 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     library warns of the first and the last when the map is used; the stored verdict is
     warned here.
     """
-    reasons: list[Any] = []
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
-    if collapse is not None:
-        reasons.append(Said("--map {map}: {why}", {"map": args.map, "why": collapse}))
-    quality = corr.quality
+    reasons = [f"--map {args.map}: {collapse.text(cli=True)}"] if collapse else []
     if args.map.endswith(".npz"):
         reasons += [m for m in (corr.mismatch(V1, V2, name=f"--map {args.map}"),) if m]
+    quality = corr.quality
     if quality is not None:
         report([f"stored with --map {args.map}: {quality.summary()}"])
     if quality is not None and quality.suspect:
-        values = {f"r{i}": r for i, r in enumerate(quality.reasons)}
-        template = "; ".join(f"{{{name}}}" for name in values)
-        reasons.append(Said("--map {map} was saved with a suspect quality: " + template,
-                            {"map": args.map, **values}))
+        said = "; ".join(r.text(cli=True) for r in quality.reasons)
+        reasons.append(f"--map {args.map} was saved with a suspect quality: {said}")
         if not args.strict:
-            logger.warning("%s", reasons[-1].text(cli=True))
+            logger.warning("%s", reasons[-1])
     if reasons and args.strict:
-        raise SuspectMap("; ".join(text_of(r, cli=True) for r in reasons))
-    report([Said("map quality SUSPECT: {r}", {"r": r}) for r in reasons])
+        raise SuspectMap("; ".join(reasons))
+    report([f"map quality SUSPECT: {reason}" for reason in reasons])
 
 
 def read_pair(args: argparse.Namespace) -> Pair:
@@ -307,13 +289,9 @@ def read_pair(args: argparse.Namespace) -> Pair:
     _check_flags(args)
     source, V1, F1 = common.read_shape(args.source)
     target, V2, F2 = common.read_shape(args.target)
-    factor, as_read = args.target_scale, None
-    if factor is not None and args.basis_2:
-        raise UsageError(f"--basis-2 {args.basis_2} holds the basis of {args.target} in its own "
-                         "units, and --target-scale changes them: drop --basis-2 (--cache DIR "
-                         "keeps the scaled target's basis apart)")  # fmt: skip
+    factor, own = args.target_scale, target
     if factor is not None:  # every step below sees the target in the source's units
-        as_read, target, V2 = target, scaled_copy(target, factor), V2 * factor
+        target, V2 = scaled_copy(target, factor), V2 * factor
     given = _read_map(args.map, V1, V2)
     if given is not None:
         _judge_given(args, given, V1, V2)
@@ -324,17 +302,17 @@ def read_pair(args: argparse.Namespace) -> Pair:
             raise UsageError(f"--landmarks pick: {exc}") from exc
     else:
         landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
-                           partial=args.partial, align=args.align, landmarks=landmarks,
-                           components=args.components)  # fmt: skip
+    method = "closest" if args.map == "closest" else "estimate"
+    options = MatchOptions(method=method, partial=args.partial, align=args.align,
+                           landmarks=landmarks, components=args.components)  # fmt: skip
     if options.landmarks is not None and args.save_landmarks:
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
             np.savetxt(tmp, options.landmarks, fmt="%d",
                        header="source_vertex target_vertex (0-based)")  # fmt: skip
         report([f"wrote {len(options.landmarks)} landmark pairs to {args.save_landmarks}"])
     scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
-    return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), factor,
-                as_read)  # fmt: skip
+    return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), own,
+                factor)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- planning
@@ -414,11 +392,10 @@ def _check_thresholds(args: argparse.Namespace, pair: Pair, tol: float) -> None:
     how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
     yours = (f"--tol {args.tol:g}" if args.tol is not None else f"--preset {args.preset}"
              if args.preset else f"--preset {own}, this command's default")  # fmt: skip
-    raise UsageError(
-        f"--basis-{side + 1} {file}: holds a basis orthogonalized with threshold {t:g}, but the "
-        f"{('target', 'source')[side]}'s basis would be made with {tol:g} ({yours}): the two "
-        f"bases must share one; pass {how}, or recompute the basis file"
-    )
+    raise UsageError(f"--basis-{side + 1} {file}: holds a basis orthogonalized with threshold "
+                     f"{t:g}, but the {('target', 'source')[side]}'s basis would be made with "
+                     f"{tol:g} ({yours}): the two bases must share one; pass {how}, or recompute "
+                     "the basis file")
 
 
 # --------------------------------------------------------------------------- running
@@ -462,15 +439,10 @@ def _describe(planned: Plan, pair: Pair) -> str:
     if planned.basis_k and None in pair.files:
         parts.append(f"OFP bases (k={planned.basis_k[0]} and {planned.basis_k[1]}, order "
                      f"{planned.order})")  # fmt: skip
-    if planned.dense:
-        n = max(pair.V1.shape[0], pair.V2.shape[0])
-        parts.append(f"map estimation on coarse copies ({n} vertices: dense path)")
-    elif planned.estimator == "full":
-        parts.append("map estimation (descriptor fit, ZoomOut, point map)")
-    elif planned.estimator == "partial":
-        parts.append("partial map estimation (descriptor fits, partial ZoomOut, geodesic "
-                     "refinement, checks)")  # fmt: skip
-    return ", ".join(parts)
+    n = max(pair.V1.shape[0], pair.V2.shape[0])
+    parts.append(f"map estimation on coarse copies ({n} vertices: dense path)" if planned.dense
+                 else _ESTIMATION.get(planned.estimator, ""))  # fmt: skip
+    return ", ".join(p for p in parts if p)
 
 
 def report_quality(args: argparse.Namespace, corr: Correspondence) -> None:

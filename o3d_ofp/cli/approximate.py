@@ -6,7 +6,6 @@ import argparse
 
 from . import _common as common
 from ._common import report
-from ._signal import read_signal, signal_sides, write_result
 
 __all__ = ["add_parser", "run"]
 
@@ -28,14 +27,14 @@ def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
     inputs = (args.mesh, args.signal, args.texture, args.basis)
     common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT, ".npy"), inputs=inputs,
-                 side=signal_sides(args))  # fmt: skip
+                 side=common.signal_sides(args))  # fmt: skip
     common.check_folder_to_make(args.cache, "--cache")
     geometry, V, F = common.read_shape(args.mesh)
     if not args.output.lower().endswith(".npy"):
         common.check_output_kind(args.output, F)
-    f, kind = read_signal(geometry, V, args.mesh, args.signal, args.texture, output=args.output)
+    f, kind = common.read_signal(geometry, V, args.mesh, args.signal, args.texture, args.output)
     B = common.shape_basis(V, F, args.mesh, args)
-    written = write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)
+    written = common.write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)
     report([f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
             f"relative error ‖f − f̃‖_M / ‖f‖_M = {B.approximation_error(f):.4%}",
             "wrote " + ", ".join(written)])  # fmt: skip

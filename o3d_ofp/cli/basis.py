@@ -7,7 +7,7 @@ import argparse
 from ..collections import bases_many
 from ..core.products import n_eigenproducts
 from . import _common as common
-from ._common import UsageError, report
+from ._common import report
 from ._many import add_collection_options, report_records, single
 from ._progress import ENABLED
 
@@ -48,18 +48,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_many(args: argparse.Namespace) -> int:
     """Cache the eigenbasis (for map estimation) and the OFP basis of every shape."""
-    if args.output is not None:
-        raise UsageError("-o names the basis file of ONE shape; for several shapes give --cache "
-                         "DIR")  # fmt: skip
-    if args.cache is None:
-        raise UsageError("give -o FILE.npz (one shape) or --cache DIR (any number of shapes)")
-    if args.force:
-        raise UsageError("--force does not apply to basis (cached entries are checked)")
+    common.refuse(
+        (args.output is not None, "-o names the basis file of ONE shape; for several shapes give "
+         "--cache DIR"),
+        (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
+        (args.force, "--force does not apply to basis (cached entries are checked)"),
+    )  # fmt: skip
     given = {"k": args.k, "order": args.order, "tol": args.tol,
              "preset": None if args.tol is not None else args.preset}  # fmt: skip
-    records = bases_many(
-        args.mesh, cache_dir=args.cache, client=args.scheduler, components=args.components,
-        workers=args.workers, progress=ENABLED.on,
-        **{name: value for name, value in given.items() if value is not None},
-    )  # fmt: skip
+    records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
+                         components=args.components, workers=args.workers, progress=ENABLED.on,
+                         **{name: value for name, value in given.items() if value is not None})
     return report_records(records)

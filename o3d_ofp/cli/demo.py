@@ -24,16 +24,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "its RGB colors and coordinates, transfer the colors to a deformed copy with an estimated "
         "map, write the meshes as PLY and a picture, and print the errors.",
     )  # fmt: skip
-    default = BasisOptions()
-    p.add_argument("-o", "--output", default="demo_out", help="output folder (demo_out)")
-    p.add_argument("-k", "--k", type=common.positive_int, default=default.k1,
-                   help=f"eigenfunctions ({default.k1})")  # fmt: skip
-    p.add_argument("--order", type=common.positive_int, default=default.order,
-                   help=f"product order N ({default.order})")  # fmt: skip
-    p.add_argument("--subdivisions", type=common.bounded_int(2, 9), default=5, help="icosphere "
-                   "subdivisions of the shape, 2-9 (5: 10242 vertices; the map estimate needs the "
-                   "162 of 2)")  # fmt: skip
-    p.add_argument("--seed", type=common.nonnegative_int, default=0, help="shape seed (0)")
+    default, a = BasisOptions(), p.add_argument
+    a("-o", "--output", default="demo_out", help="output folder (demo_out)")
+    a("-k", "--k", type=common.positive_int, default=default.k1,
+      help=f"eigenfunctions ({default.k1})")
+    a("--order", type=common.positive_int, default=default.order,
+      help=f"product order N ({default.order})")
+    a("--subdivisions", type=common.bounded_int(2, 9), default=5, help="icosphere subdivisions of "
+      "the shape, 2-9 (5: 10242 vertices; the map estimate needs the 162 of 2)")
+    a("--seed", type=common.nonnegative_int, default=0, help="shape seed (0)")  # fmt: skip
     p.set_defaults(func=run)
 
 

@@ -8,7 +8,7 @@ from ..boundary.api import transfer_detail
 from ..boundary.io import write_geometry
 from ..workflows.options import DETAIL_MODES, MAX_AMOUNT, DetailOptions
 from . import _common as common
-from ._common import UsageError, bounded_float, positive_int, report, stage
+from ._common import bounded_float, positive_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import add_pair_options, plan, prepare_pair, read_pair
 
@@ -21,15 +21,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("detail", help="give the target the source's geometric detail")
     add_pair_options(p, preset="ours*", several=True)
     p.add_argument("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: "
-                   "the target keeps its pose, shape and own detail and gains the source's detail "
-                   "(above --band eigenfunctions) in its local frames; replace-detail: the "
-                   "target's own detail is replaced by the source's; coordinates: the paper's Fig. "
-                   "13, the source's coordinates transferred with OFP bases replace the target's "
-                   "(the target takes the source's pose; uses --k1/--k2/--order/--preset); "
-                   f"replace: deprecated name of coordinates. Default: {default.mode}")
-    p.add_argument("--band", type=positive_int, help="the detail is what lies above this many "
-                   "eigenfunctions, the same at every resolution and scale "
-                   f"({default.band}); lower takes more of the source's shape")
+                   "the target gains the source's detail in its local frames; replace-detail: its "
+                   "own detail is replaced; coordinates (Fig. 13): the source's coordinates "
+                   "through the OFP bases (--k1/--k2/--order/--preset) replace the target's; "
+                   f"replace: deprecated name of coordinates ({default.mode})")
+    p.add_argument("--band", type=positive_int, help="the detail lies above this many "
+                   f"eigenfunctions, at any resolution ({default.band}); lower takes more shape")
     p.add_argument("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the "
                    f"transferred detail, in [0, {MAX_AMOUNT:g}] ({default.amount:g})")
     p.add_argument("--k-low", type=positive_int, help="deprecated name of --band")
@@ -42,9 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Check the flags, then transfer the detail to the target (or to each target)."""
     common.renamed(args)  # --k-low, --mode replace
-    if args.band is not None and args.mode == "coordinates":
-        band = common.flag_of("band")
-        raise UsageError(f"{band} does not apply to --mode coordinates (it has no detail band)")
+    common.refuse((args.band is not None and args.mode == "coordinates",
+                   f"{common.flag_of('band')} does not apply to --mode coordinates (it has no "
+                   "detail band)"))  # fmt: skip
     given = {n: getattr(args, n) for n in ("mode", "band", "amount")}
     given = {name: value for name, value in given.items() if value is not None}
     if not single(args, args.target):
@@ -65,11 +62,10 @@ def run(args: argparse.Namespace) -> int:
     planned = plan(args, pair, "detail", unused=unused, detail=detail)
     prepared = prepare_pair(args, pair, planned)
     with stage(f"detail transfer ({detail.mode})"):
-        moved = transfer_detail(
-            pair.source, pair.target, correspondence=prepared.correspondence, mode=detail.mode,
-            band=detail.band, amount=detail.amount, options=common.basis_options(args),
-            bases=prepared.bases or (prepared.eig_1, prepared.eig_2),
-        )  # fmt: skip
+        moved = transfer_detail(pair.source, pair.target, correspondence=prepared.correspondence,
+                                mode=detail.mode, band=detail.band, amount=detail.amount,
+                                options=common.basis_options(args),
+                                bases=prepared.bases or (prepared.eig_1, prepared.eig_2))
     write_geometry(args.output, pair.in_target_units(moved), protect=inputs)
     what = detail.mode if detail.mode == "coordinates" else f"{detail.mode}, band {detail.band}"
     report([f"{args.source} -> {args.target}: detail ({what})", f"wrote {args.output}"])

@@ -22,13 +22,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("filter", help="smooth or sharpen a shape (volume kept)")
     a = p.add_argument
     a("mesh", help=MESH_HELP)
-    a("--smooth", type=bounded_float(0.0, MAX_SMOOTH), help="smoothing radius as a fraction of "
-      f"sqrt(surface area), in [0, {MAX_SMOOTH:g}]: detail smaller than about SMOOTH * sqrt(area) "
-      f"is removed, the same at every scale and resolution (e.g. {DEFAULT_SMOOTH:g}); with "
-      f"--sharpen: the size of the detail enhanced ({DEFAULT_SMOOTH:g})")
-    a("--sharpen", type=bounded_float(0.0, MAX_SHARPEN), help=f"detail gain in [0, {MAX_SHARPEN:g}]"
-      ": the detail smaller than --smooth is multiplied by 1 + SHARPEN (beyond 2 triangles turn "
-      "over)")
+    a("--smooth", type=bounded_float(0.0, MAX_SMOOTH), help="radius in [0, "
+      f"{MAX_SMOOTH:g}] times sqrt(area): smaller detail is removed at any scale (e.g. "
+      f"{DEFAULT_SMOOTH:g}); with --sharpen, the size of the detail enhanced ({DEFAULT_SMOOTH:g})")
+    a("--sharpen", type=bounded_float(0.0, MAX_SHARPEN), help=f"gain in [0, {MAX_SHARPEN:g}]: "
+      "multiplies the detail smaller than --smooth by 1 + SHARPEN (beyond 2, triangles turn over)")
     a("--keep-size", choices=("volume", "none"), default="volume", help="rescale the result to the "
       "input's enclosed volume (a cloud: its spread) (volume)")
     common.add_components_option(p)
@@ -49,11 +47,11 @@ def run(args: argparse.Namespace) -> int:
     geometry, V, F = common.read_shape(args.mesh)
     common.check_output_kind(args.output, F)
     n, points, basis = V.shape[0], "vertices" if F is not None else "points", None
-    if args.basis:
+    if args.basis:  # its eigenbasis: the Laplacian is used
         basis = common.load_basis_file(args.basis, V, F, args.mesh, args, "--basis").eig
-    else:
-        common.check_memory(args.mesh, n, k=1, order=1,
-                            advice="use a simplified mesh (fewer vertices)")  # fmt: skip
+    else:  # the Laplacian only: an eigenbasis of one function
+        common.check_memory(args.mesh, n, k=1, order=1, advice="use a simplified mesh (fewer "
+                            "vertices)")  # fmt: skip
     size = DEFAULT_SMOOTH if args.smooth is None else args.smooth
     what, detail = ((f"smooth {size:g}", f"radius {size:g} sqrt(area)") if args.sharpen is None
                     else (f"sharpen {args.sharpen:g}", f"detail smaller than {size:g} sqrt(area)"))

@@ -69,22 +69,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="o3d-ofp", description="Orthogonalized Fourier Polynomials (Maggioli et "
                      "al., EG 2021) for Open3D: bases, approximation, filtering and transfer of "
                      "signals between shapes.")  # fmt: skip
-    parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="-v: an internal error shows its traceback; -vv: the debug log too "
-                        "(every step's details; the long stages are logged without -v)")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    parser.add_argument("-q", "--quiet", action="store_true",
-                        help="print nothing but warnings and errors (files are written)")
+    a = parser.add_argument
+    a("-v", "--verbose", action="count", default=0, help="-v: an internal error's traceback; -vv: "
+      "the debug log too (every step's details; the long stages are logged without -v)")
+    a("--version", action="version", version=f"%(prog)s {__version__}")
+    a("-q", "--quiet", action="store_true", help="print nothing but warnings and errors (files "
+      "are written)")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
     # -q / -v also after the command (o3d-ofp transfer ... -q); there they override the
-    # values given before it (SUPPRESS: absent flags leave those alone).
+    # values given before it (SUPPRESS: absent flags leave those alone). A word such as "-1:40"
+    # is a value, not an option (no option starts with a dash and a digit): argparse takes only
+    # plain negative numbers for values, so "--landmarks -1:40" stopped at "expected one
+    # argument" (a trial); as a value it reaches the option's own check, which says what is wrong.
+    hidden = {"default": argparse.SUPPRESS, "help": argparse.SUPPRESS}
     for command_parser in sub.choices.values():
-        command_parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
-                                    help=argparse.SUPPRESS)  # fmt: skip
-        command_parser.add_argument("-q", "--quiet", action="store_true",
-                                    default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+        command_parser._negative_number_matcher = re.compile(r"^-\d")
+        command_parser.add_argument("-v", "--verbose", action="count", **hidden)
+        command_parser.add_argument("-q", "--quiet", action="store_true", **hidden)
     return parser
 
 
@@ -109,53 +112,6 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
         root.level, root.propagate = saved
 
 
-#: A value argparse reads as an option: a dash, a digit, then more than a plain number has.
-_DASH_VALUE = re.compile(r"-\d")
-_NUMBER = re.compile(r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
-
-
-def _value_options(parser: argparse.ArgumentParser) -> set[str]:
-    """Return the long options of ``parser`` and of its commands that take a value."""
-    found = set()
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                found |= _value_options(sub)
-        elif action.nargs != 0:
-            found |= {o for o in action.option_strings if o.startswith("--")}
-    return found
-
-
-def joined_dash_values(words: Sequence[str], options: set[str]) -> list[str]:
-    """Join a long option of ``options`` and a value such as ``-1:40`` (``--landmarks=-1:40``).
-
-    argparse takes a word that starts with a dash for an option unless it is a plain number,
-    so ``--landmarks -1:40`` stopped at "expected one argument" (a trial); joined, the value
-    reaches the option's own check, which says what is wrong with it. No option starts with
-    a dash and a digit; a flag that takes no value (``--strict``) is not joined.
-    """
-    out: list[str] = []
-    for word in words:
-        last = out[-1] if out else ""
-        if _DASH_VALUE.match(word) and not _NUMBER.fullmatch(word) and last in options:
-            out[-1] = f"{last}={word}"
-        else:
-            out.append(word)
-    return out
-
-
-def _parse(parser: argparse.ArgumentParser, words: list[str]) -> argparse.Namespace:
-    """Parse the words; unknown ones are said by the parser they were given to."""
-    args, extra = parser.parse_known_args(words)
-    if extra:  # said by the parser they were given to: its name and its --help
-        before = words[: words.index(args.command)] if args.command in words else []
-        if any(e in before for e in extra):
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
-        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
-    return args
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line.
 
@@ -172,9 +128,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         internal error.
     """
     parser = build_parser()
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        args = _parse(parser, joined_dash_values(sys.argv[1:] if argv is None else argv,
-                                                 _value_options(parser)))  # fmt: skip
+        args, extra = parser.parse_known_args(words)
+        if extra:  # said by the parser they were given to: its name and its --help
+            before = words[: words.index(args.command)] if args.command in words else []
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            said = parser if any(e in before for e in extra) else sub.choices[args.command]
+            said.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # argparse exits 2 on bad usage, 0 on --help
         return int(exc.code or 0)
     # -q: warnings stay (a suspect map or a refused option is said even then)

@@ -36,8 +36,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the meshes (and scalars), render, write the PNG."""
     common.check_output(args.output, (".png",), inputs=args.mesh)
-    if args.label and not args.scalars:
-        raise UsageError("--label names the color bar of --scalars: give --scalars too")
+    n = len(args.mesh)
+    titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
+    scalars = args.scalars or ["-"] * n
+    common.refuse(
+        (args.label and not args.scalars, "--label names the color bar of --scalars: give "
+         "--scalars too"),
+        (len(titles) != n, f"--titles has {len(titles)} entries for {n} meshes"),
+        (len(scalars) != n, f"--scalars has {len(scalars)} entries for {n} meshes ('-' for none)"),
+    )  # fmt: skip
     view = View(front=args.front, up=args.up, zoom=args.zoom)
     try:
         view.check()
@@ -48,13 +55,6 @@ def run(args: argparse.Namespace) -> int:
         colormap(np.zeros(1), args.colormap)
     except ValueError as exc:
         raise UsageError(f"--colormap {args.colormap}: {exc}") from exc
-    titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
-    if len(titles) != len(args.mesh):
-        raise UsageError(f"--titles has {len(titles)} entries for {len(args.mesh)} meshes")
-    scalars = args.scalars or ["-"] * len(args.mesh)
-    if len(scalars) != len(args.mesh):
-        raise UsageError(f"--scalars has {len(scalars)} entries for {len(args.mesh)} meshes ('-' "
-                         "for none)")  # fmt: skip
     items, textures = [], []
     for path, npy in zip(args.mesh, scalars, strict=True):
         geometry, V, F = common.read_shape(path)

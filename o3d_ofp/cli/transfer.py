@@ -17,7 +17,6 @@ from . import _common as common
 from ._common import CLOUD_OUT, MESH_OUT, UsageError, bounded_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
-from ._signal import check_colors_output, read_signal, signal_sides, texture_error, write_result
 
 __all__ = ["add_parser", "run"]
 
@@ -31,34 +30,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("transfer", help="transfer a signal from a source to a target shape")
     add_pair_options(p, preset="ours", several=True)
     a = p.add_argument
-    a("--signal", help="colors, texture (as vertex colors), xyz or FILE.npy of the source; "
-      "default: the source's texture (or, for a source without UVs, its vertex colors) baked into "
-      "the target's own UV layout when the target has UVs and the output is .obj/.glb/.gltf, else "
+    a("--signal", help="colors, texture (as vertex colors), xyz or FILE.npy; default: the source's "
+      "texture (or vertex colors) baked into a target's UVs for an .obj/.glb/.gltf output, else "
       "its colors on the target's vertices")
     a("--texture", help="the source's texture image, for a bake or --signal texture (default: the "
       "one its material names)")
-    a("--via-basis", action="store_true", help="with a closest map (--map closest, or its saved "
-      "map): transfer through the OFP bases (the paper's transfer: smoother where the map is "
-      "noisy) instead of the exact pull-back; then --k1/--k2/--order/--preset/--tol apply")
-    a("--pull-back", action="store_true", help="with an estimated or given map: each target vertex "
-      "takes its source vertex's value, with no OFP basis (sharper colors where the map is right, "
-      "noisier where it is not); a closest map does this by default, at the exact surface point")
-    a("--uv-atlas", action="store_true", help="a textured or vertex-colored source onto a mesh "
-      "target WITHOUT UVs: give the target a new UV atlas (Open3D's compute_uvatlas) and bake the "
-      "colors into it (output .obj/.glb/.gltf)")
-    a("--texture-size", type=bounded_int(1, MAX_TEXTURE_SIZE), help="size of the baked texture "
-      f"image in pixels ({TEXTURE_SIZE}; at most {MAX_TEXTURE_SIZE}); for a bake only (a source "
-      "mesh onto a target with UVs, or --uv-atlas)")
+    a("--via-basis", action="store_true", help="a closest map's values through the OFP bases "
+      "(smoother where the map is noisy) instead of the exact pull-back")
+    a("--pull-back", action="store_true", help="an estimated or given map's values pulled back "
+      "with no OFP basis (sharper where the map is right; a closest map's default)")
+    a("--uv-atlas", action="store_true", help="a target WITHOUT UVs gets a new UV atlas (Open3D's "
+      "compute_uvatlas) the colors are baked into (output .obj/.glb/.gltf)")
+    a("--texture-size", type=bounded_int(1, MAX_TEXTURE_SIZE), help="side of a baked texture in "
+      f"pixels ({TEXTURE_SIZE}; at most {MAX_TEXTURE_SIZE})")
     a("-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values; with "
       "several targets a folder")  # fmt: skip
     add_collection_options(p)
     p.set_defaults(func=run)
-
-
-def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
-    """Return the files this command reads (flag values that are not files are skipped)."""
-    return (args.source, args.target, args.signal, args.texture, *args.map.split(","),
-            args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,18 +54,20 @@ def run(args: argparse.Namespace) -> int:
     if not single(args, args.target):
         return _run_many(args)
     args.target = args.target[0]
-    if args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)):
-        raise UsageError("--uv-atlas bakes the source's colors into a new atlas: it needs an "
-                         ".obj/.glb/.gltf output (-o) and no --signal")  # fmt: skip
-    for other, why in (
-        ("pull_back", "transfers through the OFP bases and --pull-back without them"),
-        ("uv_atlas", "sends the colors to the target's vertices and --uv-atlas bakes them into a "
-         "new atlas"),
-    ):  # fmt: skip
-        if args.via_basis and getattr(args, other):
-            raise UsageError(f"--via-basis {why}: give one of them")
-    common.check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=_inputs(args),
-                        side=signal_sides(args))  # fmt: skip
+    # the files this command reads (flag values that are not files are skipped)
+    args.inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
+                   args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
+    common.refuse(
+        (args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)),
+         "--uv-atlas bakes the source's colors into a new atlas: it needs an .obj/.glb/.gltf "
+         "output (-o) and no --signal"),
+        (args.via_basis and args.pull_back, "--via-basis transfers through the OFP bases and "
+         "--pull-back without them: give one of them"),
+        (args.via_basis and args.uv_atlas, "--via-basis sends the colors to the target's vertices "
+         "and --uv-atlas bakes them into a new atlas: give one of them"),
+    )  # fmt: skip
+    common.check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=args.inputs,
+                        side=common.signal_sides(args))  # fmt: skip
     pair = read_pair(args)
     common.check_output_kind(args.output, pair.F2)
     closest = args.map == "closest" or getattr(pair.given, "method", None) == "closest"
@@ -89,18 +79,18 @@ def run(args: argparse.Namespace) -> int:
             logger.warning("%s has its own UVs: the texture is baked into them (--uv-atlas makes "
                            "an atlas for a target without UVs only)", args.target)  # fmt: skip
         return _bake(args, pair, closest)
-    if args.texture_size is not None:
-        raise UsageError("--texture-size applies to a bake (a textured or vertex-colored source "
-                         "mesh onto a mesh target with UVs, or --uv-atlas, written as "
-                         ".obj/.glb/.gltf); here the colors go to the vertices")  # fmt: skip
-    if args.uv_atlas:
-        raise UsageError("--uv-atlas needs a source mesh with a texture or vertex colors, a mesh "
-                         "target and an .obj/.glb/.gltf output")  # fmt: skip
+    common.refuse(
+        (args.texture_size is not None, "--texture-size applies to a bake (a textured or "
+         "vertex-colored source mesh onto a mesh target with UVs, or --uv-atlas, written as "
+         ".obj/.glb/.gltf); here the colors go to the vertices"),
+        (args.uv_atlas, "--uv-atlas needs a source mesh with a texture or vertex colors, a mesh "
+         "target and an .obj/.glb/.gltf output"),
+    )  # fmt: skip
     spec = args.signal or _default_signal(pair.source)
     if spec in ("colors", "texture"):  # refused before the warnings below (which contradicted)
-        check_colors_output(args.output)
+        common.check_colors_output(args.output)
     _warn_lost_texture(args, pair, spec)
-    f, kind = read_signal(pair.source, pair.V1, args.source, spec, args.texture, output=args.output)
+    f, kind = common.read_signal(pair.source, pair.V1, args.source, spec, args.texture, args.output)
 
     def unused(named: list[str]) -> str:
         why = ("the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
@@ -126,15 +116,13 @@ def run(args: argparse.Namespace) -> int:
             g = image.sample(corr.faces_21, corr.barycentric_21)
         else:
             g = pull_back(f, corr, pair.F1)
-    if planned.exact:
-        said = f"{args.source} -> {args.target}: {'exact ' * closest}pull-back, map {name}"
-    else:
-        B1, B2 = prepared.bases
-        said = f"{args.source} -> {args.target}: {B1.size} -> {B2.size} basis functions, map {name}"
+    how = f"{'exact ' * closest}pull-back"
+    if not planned.exact:
+        how = f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions"
     # positions sent to the target are written in its own units, as a detail is
-    scale = pair.target_scale if kind == "xyz" and pair.target_scale is not None else 1.0
-    written = write_result(args.output, pair.own_target, g / scale, kind, protect=_inputs(args))
-    report([said, "wrote " + ", ".join(written)])
+    g = g / (pair.target_scale or 1.0) if kind == "xyz" else g
+    written = common.write_result(args.output, pair.own_target, g, kind, args.inputs)
+    report([f"{args.source} -> {args.target}: {how}, map {name}", "wrote " + ", ".join(written)])
     return 0
 
 
@@ -166,11 +154,10 @@ def _run_many(args: argparse.Namespace) -> int:
     otherwise its colors go to the targets' vertices, in the targets' own formats (a target's
     texture image is then not written, with a warning in its record).
     """
-    if args.texture is not None and not os.path.isfile(args.texture):
-        raise UsageError(f"--texture {args.texture}: no such image file")
-    if args.signal not in (None, "colors", "texture"):
-        raise UsageError(f"--signal {args.signal}: with several targets the signal is colors or "
-                         "texture")  # fmt: skip
+    common.refuse((args.texture is not None and not os.path.isfile(args.texture),
+                   f"--texture {args.texture}: no such image file"),
+                  (args.signal not in (None, "colors", "texture"),
+                   f"--signal {args.signal}: with several targets the signal is colors or texture"))
     kind, why = "colors", f"--signal {args.signal} sends the colors to the targets' vertices"
     if args.signal is None:  # a textured source is baked into the targets' own UV layouts, as
         try:  # for one target; one colored per vertex when --texture-size or --uv-atlas asks
@@ -214,31 +201,29 @@ def _default_signal(source: object) -> str:
 
 def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     """Bake the source's texture (or vertex colors) into the target's UV layout and write it."""
-    if args.via_basis:
-        raise UsageError("--via-basis sends colors through the OFP bases to the target's vertices; "
-                         "a bake reads the source through the map: add --signal colors, or drop "
-                         "--via-basis")  # fmt: skip
-    if args.pull_back:
-        raise UsageError("--pull-back puts values on the target's vertices; this run bakes the "
-                         "source's colors into the target's UVs, which reads them through the map "
-                         "with no OFP basis already: drop --pull-back, or add --signal colors for "
-                         "per-vertex colors")  # fmt: skip
-    instead = "" if args.uv_atlas else (f", or add --signal colors{' --via-basis' * closest} to "
-                                        "transfer the colors to the target's vertices through the "
-                                        "bases")  # fmt: skip
+    common.refuse(
+        (args.via_basis, "--via-basis sends colors through the OFP bases to the target's vertices; "
+         "a bake reads the source through the map: add --signal colors, or drop --via-basis"),
+        (args.pull_back, "--pull-back puts values on the target's vertices; this run bakes the "
+         "source's colors into the target's UVs, which reads them through the map with no OFP "
+         "basis already: drop --pull-back, or add --signal colors for per-vertex colors"),
+    )  # fmt: skip
+    instead = "" if args.uv_atlas else (f", or add --signal colors{' --via-basis' * closest} "
+                                        "to transfer the colors to the target's vertices through "
+                                        "the bases")  # fmt: skip
     planned = plan(args, pair, "texture", unused=lambda named: (
         f"{'/'.join(named)} does not apply here: a bake reads the source's colors through the "
         f"map, with no OFP basis; drop it{instead}"))  # fmt: skip
     try:  # a bake whose colors cannot be read is refused before any work (named: file or flag)
         tex.surface_colors(pair.source, args.texture)
     except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise texture_error(args.source, args.texture, exc) from exc
+        raise common.texture_error(args.source, args.texture, exc) from exc
     corr = prepare_pair(args, pair, planned).correspondence
     size = args.texture_size or TEXTURE_SIZE
     with stage(f"texture bake ({size} x {size})"):
         out = transfer_texture(pair.source, pair.target, correspondence=corr, size=size,
                                texture=args.texture, atlas=args.uv_atlas)  # fmt: skip
-    write_geometry(args.output, pair.in_target_units(out), protect=_inputs(args))
+    write_geometry(args.output, pair.in_target_units(out), protect=args.inputs)
     layout = "new UV atlas" if args.uv_atlas and not tex.has_uvs(pair.target) else "UV layout"
     what = "texture" if tex.has_uvs(pair.source) else "vertex colors"
     report([f"{args.source} -> {args.target}: {what} baked in the target's {layout} ({size} px), "
