@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import glob
 import logging
 import math
@@ -93,10 +94,8 @@ def error_text(exc: BaseException) -> str:
     if isinstance(exc, OptionError) and exc.option in FLAGS:
         joint = "" if exc.problem.startswith((":", ",")) else " "
         return flag_of(exc.option) + joint + exc.problem
-    text = text_of(exc, cli=True)
-    for keyword, flag in _UNSAID_KEYWORDS.items():
-        text = text.replace(keyword, flag)
-    return text
+    return functools.reduce(lambda text, keyword: text.replace(*keyword),  # (temporary)
+                            _UNSAID_KEYWORDS.items(), text_of(exc, cli=True))
 
 
 def flag_of(option: str) -> str:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
+import functools
 import importlib.util
 import os
 import socket
@@ -150,6 +152,9 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
                             skip_existing=not args.force, progress=ENABLED.on, map=args.map,
                             components=args.components, strict=args.strict,
                             **{name: value for name, value in given.items() if value is not None})
+    words = functools.partial(text_of, cli=True)  # what was said of each target, for flags
+    records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),
+                                   notes=tuple(map(words, r.notes))) for r in records]
     csv_path, json_path = write_summary(records, args.output)
     code = report_records(records)
     report([f"summary: {csv_path}, {json_path}"])

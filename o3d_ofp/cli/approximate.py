@@ -30,8 +30,7 @@ def run(args: argparse.Namespace) -> int:
                  side=common.signal_sides(args))  # fmt: skip
     common.check_folder_to_make(args.cache, "--cache")
     geometry, V, F = common.read_shape(args.mesh)
-    if not args.output.lower().endswith(".npy"):
-        common.check_output_kind(args.output, F)
+    common.check_output_kind(args.output, F)  # (a .npy output holds values, no faces)
     f, kind = common.read_signal(geometry, V, args.mesh, args.signal, args.texture, args.output)
     B = common.shape_basis(V, F, args.mesh, args)
     written = common.write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)

@@ -109,7 +109,8 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
         yield
     finally:
         root.removeHandler(handler)
-        root.level, root.propagate = saved
+        root.setLevel(saved[0])  # (setLevel: the loggers' cached levels are cleared)
+        root.propagate = saved[1]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -86,7 +86,12 @@ def run(args: argparse.Namespace) -> int:
         (args.uv_atlas, "--uv-atlas needs a source mesh with a texture or vertex colors, a mesh "
          "target and an .obj/.glb/.gltf output"),
     )  # fmt: skip
-    spec = args.signal or _default_signal(pair.source)
+    # default: the colors, or the texture of a textured source without vertex colors (as vertex
+    # colors: a target without UVs, or an output that cannot hold a texture)
+    textured = vertex_colors(pair.source) is None and tex.has_uvs(pair.source)
+    spec = args.signal or ("texture" if textured else "colors")
+    if args.signal is None and textured and tex.has_texture_image(pair.source):  # (else asked)
+        logger.info("the source has a texture and no vertex colors: its texture is transferred")
     if spec in ("colors", "texture"):  # refused before the warnings below (which contradicted)
         common.check_colors_output(args.output)
     _warn_lost_texture(args, pair, spec)
@@ -184,19 +189,6 @@ def _bakeable(pair: Pair, output: str, *, atlas: bool = False) -> bool:
     colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
     return bool(pair.F1 is not None and pair.F2 is not None and colored
                 and (atlas or tex.has_uvs(pair.target)) and output.lower().endswith(_BAKED))
-
-
-def _default_signal(source: object) -> str:
-    """``colors``, or ``texture`` for a textured source without vertex colors.
-
-    The texture is then carried as vertex colors (a target without UVs, or an output that
-    cannot hold a texture), as the README promises.
-    """
-    if vertex_colors(source) is not None or not tex.has_uvs(source):
-        return "colors"
-    if tex.has_texture_image(source):  # (else the image is asked for next: --texture FILE)
-        logger.info("the source has a texture and no vertex colors: its texture is transferred")
-    return "texture"
 
 
 def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
