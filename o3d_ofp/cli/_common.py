@@ -83,10 +83,11 @@ def refuse(*checks: tuple[Any, str | Said]) -> None:
 
 
 #: What a run's output and messages need (set by ``main``): ``quiet`` (``-q``: no result
-#: lines); ``reports_quality``: the command prints a map's quality report itself (a run over
-#: one pair), so the library's log records of it are left out; ``args``: the flags given;
-#: ``renamed``: the flag a deprecated one was given as (``{"--band": "--k-low"}``).
-OUT = types.SimpleNamespace(quiet=False, reports_quality=False, args=None, renamed={})
+#: lines); ``one_pair``: a run over one pair (or one shape), which prints its map's quality
+#: report itself (the library's log records of it are left out) and says each warning once;
+#: ``args``: the flags given; ``renamed``: the flag a deprecated one was given as
+#: (``{"--band": "--k-low"}``).
+OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 
 
 def error_text(exc: BaseException) -> str:

@@ -62,7 +62,7 @@ def single(args: argparse.Namespace, shapes: Sequence[str]) -> bool:
     for flag in ("--scheduler", "--workers", "--force"):
         if getattr(args, flag[2:]) not in (None, False):
             raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
-    common.OUT.reports_quality = True  # one pair: its quality report is printed, not logged
+    common.OUT.one_pair = True  # its quality report is printed, not logged; a warning said once
     return True
 
 

@@ -136,7 +136,7 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     common.refuse(
         (columns != 2, f"--landmarks {spec}: {columns} column{'s' * (columns > 1)}; the "
          f"{'file' if is_file else 'value'} needs two (source vertex, target vertex, 0-based) on "
-         "each line"),
+         f"each {'line' if is_file else 'pair'}"),
         (not pairs.size, f"--landmarks {spec}: no pairs in the file"),
         (not np.all(np.isfinite(pairs)) or np.any(pairs != np.round(pairs)),
          f"--landmarks{where}: the values must be integer vertex indices"),

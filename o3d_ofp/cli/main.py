@@ -36,10 +36,10 @@ class _Shown(logging.Filter):
     """The log in the command line's words: what is shown, and how it is worded.
 
     A record carrying a Said (``record.said``, see :func:`o3d_ofp.core._warnings.warn`) is
-    worded for flags; each warning is said once per command (the library may say one again,
-    of a map it is given twice); with ``quiet_reports``, a map's quality report is left out
-    when the command prints it (a run over one pair, ``OUT.reports_quality``; a collection's
-    records keep the lines of each target in the log).
+    worded for flags. A run over one pair (``OUT.one_pair``) says each warning once (the
+    library may say one again, of a map it is given twice) and, with ``quiet_reports``, leaves
+    out the records of the map's quality report, which it prints (a collection's records keep
+    the lines of each target, and a warning of each, in the log).
     """
 
     def __init__(self, quiet_reports: bool) -> None:
@@ -47,12 +47,12 @@ class _Shown(logging.Filter):
         self.quiet_reports, self.seen = quiet_reports, set()
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if self.quiet_reports and getattr(record, "quality_report", False) and OUT.reports_quality:
+        if self.quiet_reports and getattr(record, "quality_report", False) and OUT.one_pair:
             return False
         if getattr(record, "said", None) is not None:
             record.msg, record.args = text_of(record.said, cli=True), None
         text = record.getMessage()
-        fresh = record.levelno < logging.WARNING or text not in self.seen
+        fresh = record.levelno < logging.WARNING or not OUT.one_pair or text not in self.seen
         self.seen.add(text)
         return fresh
 
@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # -q: warnings stay (a suspect map or a refused option is said even then)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose > 1 else logging.INFO
     prog = f"o3d-ofp {args.command}"
-    OUT.quiet, OUT.args, OUT.renamed, OUT.reports_quality = bool(args.quiet), args, {}, False
+    OUT.quiet, OUT.args, OUT.renamed, OUT.one_pair = bool(args.quiet), args, {}, False
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (logged at WARNING here).
     with _logging_to_stderr(level), warnings.catch_warnings(), warnings_logged():
