@@ -1354,7 +1354,9 @@ def test_closest_map_goes_through_the_bases_only_with_via_basis(files, tmp_path,
          "use o3d_ofp.transfer_texture(source, target, correspondence=...)"),  # no flag: kept
     ],
 )  # fmt: skip
-def test_library_messages_name_only_the_flag_on_the_command_line(said, command_line, capsys):
+def test_library_messages_name_only_the_flag_on_the_command_line(
+    said, command_line, capsys, monkeypatch
+):
     """A trial: the CLI printed 'align=True (--align)', Python's syntax beside its own.
 
     What the library says as data reaches the command line worded for flags: a log record
@@ -1371,7 +1373,8 @@ def test_library_messages_name_only_the_flag_on_the_command_line(said, command_l
         warn(logging.getLogger("o3d_ofp.test"), said)
     assert capsys.readouterr().err == f"o3d-ofp: {command_line}\n"
     assert error_text(AdvisedError(said)) == command_line
-    OUT.args = argparse.Namespace(k1=12, k2=None, order=3, preset=None, tol=None)
+    monkeypatch.setattr(OUT, "args", argparse.Namespace(k1=12, k2=None, order=3, preset=None,
+                                                        tol=None))  # fmt: skip
     assert error_text(OptionError("k1", "must be >= 1; got 0")) == "--k1 must be >= 1; got 0"
     assert error_text(OptionError("landmarks", ": source vertex 5 is paired")) == (
         "--landmarks: source vertex 5 is paired"
