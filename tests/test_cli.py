@@ -10,6 +10,7 @@ import pytest
 
 from o3d_ofp.cli import main
 from o3d_ofp.core.shapes import blob
+from o3d_ofp.core.wording import Said
 
 o3d = pytest.importorskip("open3d", reason="the command line reads and writes with Open3D")
 
@@ -221,27 +222,29 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
 def test_transfer_and_detail_of_a_dense_pair_match_on_coarse_copies(
     files, monkeypatch, capsys, tmp_path
 ):
-    from o3d_ofp.workflows import matching
+    import o3d_ofp as ofp
+    from o3d_ofp.workflows import estimate, plan
 
     # The 642-vertex blob made "dense" (above 500 vertices, coarse copies of 400): the
     # commands must estimate on the coarse copies, never with ~100 full-size eigenfunctions.
-    monkeypatch.setattr(matching, "DENSE_VERTICES", 500)
-    monkeypatch.setattr(matching, "COARSE_VERTICES", 400)
+    monkeypatch.setattr(plan, "DENSE_VERTICES", 500)
+    monkeypatch.setattr(estimate, "COARSE_VERTICES", 400)
     asked: list[int] = []
-    real = matching.match_eigenbases
+    real = estimate.estimate
 
     def spy(eig_1, eig_2, **options):
         asked.append(eig_1.n_vertices)
         return real(eig_1, eig_2, **options)
 
-    monkeypatch.setattr(matching, "match_eigenbases", spy)
+    monkeypatch.setattr(estimate, "estimate", spy)  # between the coarse copies
+    monkeypatch.setattr(plan, "estimate", spy)  # between full-resolution eigenbases
     out, saved = tmp_path / "t.ply", tmp_path / "map.npz"
     args = ["transfer", files["src"], files["tgt"], "--k1", "12", "--k2", "12"]
     assert main([*args, "-o", str(out), "--save-map", str(saved)]) == 0
     assert "dense path" in capsys.readouterr().err
     assert asked and max(asked) < len(files["V"])  # estimated between the coarse copies only
     # the map is the library's dense-path map (its accuracy is tested in test_dense.py)
-    dense = matching.match_arrays(files["V"], files["F"], files["bent"], files["F"])
+    dense = ofp.match((files["V"], files["F"]), (files["bent"], files["F"]))
     assert dense.options["dense"] is True
     np.testing.assert_array_equal(np.load(saved)["p2p_21"], dense.p2p_21)
     assert o3d.io.read_triangle_mesh(str(out)).has_vertex_colors()
@@ -673,13 +676,15 @@ def test_memory_estimate_refuses_before_any_eigensolve(
     files, capsys, tmp_path, monkeypatch, no_eigensolve, argv, flags
 ):
     from o3d_ofp.core import _memory
+    from o3d_ofp.workflows import plan
 
     # 1 MB "available": far below any basis of the 642-vertex blob (the estimate is ~4 MB
-    # for k=8; see test_memory_estimate_bounds_the_real_peak).
+    # for k=8; see test_memory_estimate_bounds_the_real_peak). The planner checks a pair's job.
     monkeypatch.setattr(_memory, "available_memory", lambda: 1_000_000)
+    monkeypatch.setattr(plan, "available_memory", lambda: 1_000_000)
     argv = [a.format(tmp=tmp_path, src=files["src"], tgt=files["tgt"]) for a in argv]
     assert main(argv) == 2
-    _one_line_error(capsys, "needs about", "more than the 1 MB available", flags, "simplified")
+    _one_line_error(capsys, "of memory, more than the 1 MB available", flags, "simplified")
     assert not any(p.name.startswith(("x.", ".")) for p in tmp_path.iterdir())
 
 
@@ -970,8 +975,8 @@ def test_unknown_method_or_mode_in_python_is_refused(files):
     mesh = triangle_mesh_from_arrays(files["V"], files["F"], colors=files["colors"])
     with pytest.raises(ValueError, match=r"method must be .*'closest'.*; got 'zzz'"):
         ofp.match(mesh, mesh, method="zzz")
-    with pytest.raises(ValueError, match=r"method selects the transfer matrix, 'p2p'.*; got 'zzz'"):
-        ofp.transfer_colors(mesh, mesh, method="zzz")
+    with pytest.raises(ValueError, match=r"matrix must be one of 'p2p', 'analytic'; got 'zzz'"):
+        ofp.transfer_colors(mesh, mesh, options=ofp.BasisOptions(matrix="zzz"))
     with pytest.raises(ValueError, match=r"mode must be .*'add'.*; got 'zzz'"):
         ofp.transfer_detail(mesh, mesh, mode="zzz")
 
@@ -987,30 +992,29 @@ def test_python_mistakes_name_the_keyword_before_any_eigensolve(files, no_eigens
         ofp.transfer_colors(mesh, mesh, correspondence=np.arange(n))
     with pytest.raises(TypeError, match=r"correspondence must be an o3d_ofp Correspondence"):
         ofp.transfer_detail(mesh, mesh, correspondence=np.arange(n))
+    identity = ofp.Correspondence.from_p2p(np.arange(n), mesh, mesh)
     with pytest.raises(ValueError, match=r"k1 must be >= 1"):
-        ofp.transfer_colors(mesh, mesh, k1=-1, p2p_21=np.arange(n))
-    with pytest.raises(ValueError, match=rf"k2 must be >= 1 and <= {n - 2}; got 7000"):
-        ofp.transfer_colors(mesh, mesh, k2=7000, p2p_21=np.arange(n))
-    with pytest.raises(ValueError, match=rf"band must be >= 1 and <= {n - 2}; got 10000"):
-        ofp.transfer_detail(mesh, mesh, band=10000, p2p_21=np.arange(n))
+        ofp.transfer_colors(mesh, mesh, options=ofp.BasisOptions(k1=-1), correspondence=identity)
+    with pytest.raises(ValueError, match=rf"k2 \(7000\): the target has {n} vertices, too few "
+                       rf"for 7000 eigenfunctions \(at most {n - 2}\)"):  # fmt: skip
+        ofp.transfer_colors(mesh, mesh, options=ofp.BasisOptions(k2=7000), correspondence=identity)
+    with pytest.raises(ValueError, match=rf"band \(10000\): the source has {n} vertices, too few"):
+        ofp.transfer_detail(mesh, mesh, band=10000, correspondence=identity)
     with pytest.raises(FileNotFoundError, match=r"source: .*nope\.ply: no such file"):
         ofp.match("nope.ply", mesh)
     # The basis options of an estimated transfer: refused before its eigensolves and map (they
     # were refused by the basis, after both)
+    # (the map's method is match()'s: transfer_colors takes no method= now)
     for options, message in (
-        ({"method": "zzz"}, "'p2p' or 'analytic'; got"),
-        # a trial's method="closest": the map's method, not the transfer's, and where it goes
-        ({"method": "closest"}, r"o3d_ofp\.match\(source, target, method='closest', align=True"),
-        ({"method": "estimate"}, r"o3d_ofp\.match\(source, target, method='estimate'\), then"),
+        ({"matrix": "zzz"}, "'p2p', 'analytic'; got"),
         ({"order": 0}, "order must be >= 1"),
         ({"preset": "foo"}, "preset must be one of"),
         ({"tol": 2.0}, "tol must lie strictly between 0 and 1"),
     ):
         with pytest.raises(ValueError, match=message):
-            ofp.transfer_colors(mesh, mesh, **options)
-        if "method" not in options:
-            with pytest.raises(ValueError, match=message):
-                ofp.transfer_detail(mesh, mesh, mode="coordinates", **options)
+            ofp.transfer_colors(mesh, mesh, options=ofp.BasisOptions(**options))
+        with pytest.raises(ValueError, match=message):
+            ofp.transfer_detail(mesh, mesh, mode="coordinates", options=ofp.BasisOptions(**options))
 
 
 def test_python_functions_take_file_paths(files):
@@ -1018,7 +1022,9 @@ def test_python_functions_take_file_paths(files):
 
     corr = ofp.match(files["src"], files["tgt"], method="closest")
     assert corr.p2p_21.shape == (len(files["V"]),)
-    colored = ofp.transfer_colors(files["src"], files["tgt"], p2p_21=np.arange(len(files["V"])))
+    n = len(files["V"])
+    identity = ofp.Correspondence.from_p2p(np.arange(n), n, n)
+    colored = ofp.transfer_colors(files["src"], files["tgt"], correspondence=identity)
     assert np.asarray(colored.vertex_colors).shape == (len(files["V"]), 3)
     smoothed = ofp.filter_geometry(files["tgt"], smooth=0.02)
     assert len(smoothed.vertices) == len(files["V"])
@@ -1075,7 +1081,6 @@ def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, c
     "expected one argument" (a word starting with a dash is taken for an option).
     """
     import o3d_ofp.cli._pair as pair_module
-    from o3d_ofp.cli.main import joined_dash_values
 
     seen, real = [], pair_module._landmarks
     monkeypatch.setattr(pair_module, "_landmarks", lambda *a: seen.append(real(*a)) or seen[-1])
@@ -1086,14 +1091,13 @@ def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, c
     for value in ("-1:40", "-1:40,3:5"):
         assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", value]) == 2
         _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
-    # only such values are joined, after an option that takes one: numbers, flags without a
-    # value, short options, "--" and joined options stay as given
-    options = {"--smooth", "--k1", "--landmarks", "--a"}
-    words = ["--smooth", "-0.5", "--k1", "-3", "-v", "-1:4", "--", "-2:3", "--a=1", "-1:2",
-             "--strict", "-1.ply"]  # fmt: skip
-    assert joined_dash_values(words, options) == words
-    got = joined_dash_values(["--landmarks", "-1:40", "-q"], options)
-    assert got == ["--landmarks=-1:40", "-q"]
+    # negative numbers reach their options' checks as before; -q after such a value is a flag
+    assert main([*argv, str(tmp_path / "b.ply"), "--k1", "-3"]) == 2
+    _one_line_error(capsys, "--k1: expected a positive integer, got -3")
+    assert main(["filter", files["src"], "--smooth", "-0.5", "-o", str(tmp_path / "f.ply")]) == 2
+    _one_line_error(capsys, "--smooth: expected a number in [0, 0.25], got -0.5")
+    assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", "-1:40", "-q"]) == 2
+    _one_line_error(capsys, "--landmarks", "source indices must lie in [0, 642)")
     # a flag without a value followed by such a word: argparse's own message, as before
     assert main([*argv[:3], "--strict", "-1.ply", "-o", str(tmp_path / "c.ply")]) == 2
     assert "ignored explicit argument" not in capsys.readouterr().err
@@ -1135,18 +1139,19 @@ def fake_display(monkeypatch):
 def test_landmarks_pick_are_used_saved_and_reusable(
     files, capsys, tmp_path, monkeypatch, fake_display
 ):
-    from o3d_ofp.workflows import matching
+    from o3d_ofp.workflows import plan
 
     answers, shown = fake_display
     answers += [[0, 100, 300], [0, 100, 300]]  # same vertex order in source and target
     seen = []
-    real = matching.match_eigenbases
+    real = plan.estimate
 
-    def spy(*args, landmarks=None, **kwargs):
+    def spy(*args, options=None, **kwargs):
+        landmarks = None if options is None else options.landmarks
         seen.append(None if landmarks is None else np.array(landmarks))
-        return real(*args, landmarks=landmarks, **kwargs)
+        return real(*args, options=options, **kwargs)
 
-    monkeypatch.setattr(matching, "match_eigenbases", spy)
+    monkeypatch.setattr(plan, "estimate", spy)
     saved = tmp_path / "pairs.txt"
     argv = ["transfer", files["src"], files["tgt"], "--k1", "8", "--k2", "8"]
     code = main([*argv, "--landmarks", "pick", "--save-landmarks", str(saved), "-o",
@@ -1234,7 +1239,7 @@ def test_messages_a_trial_found_unclear(files, tmp_path, capsys, no_eigensolve):
         (["approximate", src, "--signal", str(junk), "-o", out],
          "does not start with the .npy header"),
         (["transfer", src, files["tgt"], "--signal", "xyz", "--k1", "700", "-o", out],
-         "--k1 700: must be smaller than the number of vertices"),
+         f"--k1 (700): {src} has 642 vertices, too few for 700 eigenfunctions"),
         (["render", src, "--width", "1", "-o", str(tmp_path / "r.png")],
          "--width: expected an integer in [16, 8192]"),
         (["render", src, "--front", "0,0,1", "--up", "0,0,2", "-o", str(tmp_path / "r.png")],
@@ -1331,29 +1336,50 @@ def test_closest_map_goes_through_the_bases_only_with_via_basis(files, tmp_path,
 
 
 @pytest.mark.parametrize(
-    ("library", "command_line"),
+    ("said", "command_line"),
     [
-        ("pass align=True (--align) if they are almost aligned; otherwise",
+        (Said("pass {align} if they are almost aligned; otherwise"),
          "pass --align if they are almost aligned; otherwise"),
-        ("match without align=True (--align); otherwise", "match without --align; otherwise"),
-        ("of the other shape (partial=True / --partial); aligned copies match by closest "
-         "points (method='closest' / --map closest)",
-         "of the other shape (--partial); aligned copies match by closest points "
+        (Said("match {no_align}; otherwise"), "match without --align; otherwise"),
+        (Said("a part of the other shape ({partial}); aligned copies match by closest points "
+              "({closest})"),
+         "a part of the other shape (--partial); aligned copies match by closest points "
          "(--map closest)"),
-        ("give landmarks (landmarks= / --landmarks), or", "give landmarks (--landmarks), or"),
-        ("(landmarks=[[source, target], ...] / --landmarks 12:40,500:611)",
-         "(--landmarks 12:40,500:611)"),
-        ("it; mode='replace-detail' (--mode replace-detail) replaces it",
-         "it; --mode replace-detail replaces it"),
-        ("pass the image (--texture FILE / texture=...)", "pass the image (--texture FILE)"),
-        ("the image explicitly (texture=... / --texture FILE)",
-         "the image explicitly (--texture FILE)"),
-        ("use o3d_ofp.transfer_texture(source, target, correspondence=...)",
+        (Said("give landmarks ({landmarks})"), "give landmarks (--landmarks 12:40,500:611)"),
+        (Said("it; {replace_detail} replaces it"), "it; --mode replace-detail replaces it"),
+        (Said("pass the image ({texture})"), "pass the image (--texture FILE)"),
+        (Said("the same units: {target_scale}", {"factor": 0.001}),
+         "the same units: --target-scale 0.001"),
+        (Said("use o3d_ofp.transfer_texture(source, target, correspondence=...)"),
          "use o3d_ofp.transfer_texture(source, target, correspondence=...)"),  # no flag: kept
     ],
 )  # fmt: skip
-def test_library_messages_name_only_the_flag_on_the_command_line(library, command_line):
-    """A trial: the CLI printed 'align=True (--align)', Python's syntax beside its own."""
-    from o3d_ofp.cli._common import in_flags
+def test_library_messages_name_only_the_flag_on_the_command_line(
+    said, command_line, capsys, monkeypatch
+):
+    """A trial: the CLI printed 'align=True (--align)', Python's syntax beside its own.
 
-    assert in_flags(library) == command_line
+    What the library says as data reaches the command line worded for flags: a log record
+    carrying a Said, an error carrying one, and an option refused (said of its flag).
+    """
+    import argparse
+
+    from o3d_ofp.cli._common import OUT, error_text
+    from o3d_ofp.cli.main import _logging_to_stderr
+    from o3d_ofp.core._warnings import warn, warnings_logged
+    from o3d_ofp.core.wording import AdvisedError, OptionError
+
+    with _logging_to_stderr(logging.INFO), warnings_logged():
+        warn(logging.getLogger("o3d_ofp.test"), said)
+    assert capsys.readouterr().err == f"o3d-ofp: {command_line}\n"
+    assert error_text(AdvisedError(said)) == command_line
+    monkeypatch.setattr(OUT, "args", argparse.Namespace(k1=12, k2=None, order=3, preset=None,
+                                                        tol=None))  # fmt: skip
+    assert error_text(OptionError("k1", "must be >= 1; got 0")) == "--k1 must be >= 1; got 0"
+    assert error_text(OptionError("landmarks", ": source vertex 5 is paired")) == (
+        "--landmarks: source vertex 5 is paired"
+    )
+    assert error_text(OptionError("options", "(sizes) does not apply")).startswith(
+        "--k1/--order (sizes)"  # the flags given of those that set the option
+    )
+    assert error_text(OptionError("k_fit", "must be >= 1")) == "k_fit must be >= 1"  # no flag

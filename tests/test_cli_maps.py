@@ -178,7 +178,7 @@ def test_cloud_source_with_the_closest_map_copies_the_colors(shapes, tmp_path, c
 
 def test_python_closest_map_refuses_landmarks(shapes):
     _d, _p, V, F, _ = shapes
-    with pytest.raises(ValueError, match="landmarks apply to method='estimate'"):
+    with pytest.raises(ValueError, match="landmarks applies to method='estimate'"):
         ofp.match((V, F), (V, F), method="closest", landmarks=[[0, 0]])
 
 

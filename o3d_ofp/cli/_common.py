@@ -1,7 +1,10 @@
-"""What the commands share: reading inputs, checking outputs, bases, maps, result lines.
+"""What the commands share: result lines, stages, checked flags, inputs, signals and outputs.
 
 Every check that can fail is made before the expensive work, and every message names the
-file or the flag.
+file or the flag. The library's messages reach the command line in its own words: a
+:class:`~o3d_ofp.core.wording.Said` is worded for flags (:func:`text_of` with ``cli=True``)
+and an :class:`~o3d_ofp.core.wording.OptionError` is said of the flag that sets its option
+(:data:`FLAGS`, the one table).
 """
 
 from __future__ import annotations
@@ -13,37 +16,27 @@ import glob
 import logging
 import math
 import os
-import re
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Iterator, Sequence
+import types
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "CLOUD_OUT",
-    "MESH_HELP",
-    "MESH_OUT",
-    "UsageError",
-    "about",
-    "add_basis_options",
-    "basis_for",
-    "check_cache_dir",
-    "check_folder_to_make",
-    "check_job_memory",
-    "check_output",
-    "eig_options",
-    "eigenbases_of",
-    "in_flags",
-    "load_npy",
-    "read_shape",
-    "report",
-    "same_file",
-    "stage",
-    "tol_options",
-]
+from ..boundary.convert import geometry_to_arrays, like_target, require_open3d, vertex_colors
+from ..boundary.io import CLOUD_ONLY, MESH_ONLY, NO_COLORS, read_geometry, write_geometry
+from ..boundary.texture import has_uvs, no_texture_message, texture_colors, without_texture
+from ..core import _memory
+from ..core._atomic import atomic_path
+from ..core.basis import OFPBasis, ofp_basis
+from ..core.spectrum import eigenbasis, shape_digest
+from ..core.wording import OptionError, Said, text_of
+from ..render.panel import colormap
+from ..workflows.cache import basis_cache_path, cached_basis
+from ..workflows.options import COMPONENTS, BasisOptions
 
 logger = logging.getLogger(__name__)
 
@@ -51,149 +44,215 @@ MESH_HELP = "mesh or point cloud (any format Open3D reads: PLY, OBJ, OFF, STL, G
 MESH_OUT = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 
+#: The flags that set each option an :class:`OptionError` may name (the library's keyword or
+#: options field): the error is said of those of them given (all of them when none was).
+FLAGS: dict[str, tuple[str, ...]] = {
+    **{name: (f"--{name}",) for name in (
+        "k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components", "mode",
+        "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")},
+    "k": ("-k",), "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
+    "bases": ("--basis-1", "--basis-2"), "eigenbases": ("--basis-1", "--basis-2"),
+    "method": ("--map",), "map": ("--map",), "via_basis": ("--via-basis",),
+    "atlas": ("--uv-atlas",), "size": ("--texture-size",), "texture_size": ("--texture-size",),
+    "client": ("--scheduler",), "cache_dir": ("--cache",), "output_dir": ("-o",),
+}  # fmt: skip
+
+#: Deprecated flags and flag values, the one place they are mapped: (dest, old value, or None
+#: for any) -> (what was given, the dest it sets, its value there, or None: the same).
+DEPRECATED = {("k_low", None): ("--k-low", "band", None),
+              ("mode", "replace"): ("--mode replace", "mode", "coordinates")}  # fmt: skip
+
+#: TEMPORARY, until core/cleaning.py refuses several components with a Said: the keywords of
+#: that one message (a plain ValueError), in flags.
+_UNSAID_KEYWORDS = {"components='largest'": "--components largest",
+                    "components='auto'": "--components auto"}  # fmt: skip
+
 
 class UsageError(Exception):
-    """Bad input or arguments: reported in one line, exit code 2."""
+    """Bad input or arguments: one line, exit code 2 (a Said is worded for the command line)."""
+
+    def __init__(self, message: str | Said) -> None:
+        super().__init__(text_of(message, cli=True))
 
 
-class _Output:
-    """The command's result lines on stdout; nothing with ``-q``.
-
-    ``reports_quality``: the command prints a map's quality report itself (a run over one
-    pair), so the library's own log record of it is left out of stderr (``main``).
-    """
-
-    quiet = False
-    reports_quality = False
-
-    def write(self, text: str) -> None:
-        if not self.quiet:
-            sys.stdout.write(text)
+def refuse(*checks: tuple[Any, str | Said]) -> None:
+    """Raise the :class:`UsageError` of the first ``(wrong, message)`` whose ``wrong`` holds."""
+    for wrong, said in checks:
+        if wrong:
+            raise UsageError(said)
 
 
-OUT = _Output()
+#: What a run's output and messages need (set by ``main``): ``quiet`` (``-q``: no result
+#: lines); ``one_pair``: a run over one pair (or one shape), which prints its map's quality
+#: report itself (the library's log records of it are left out) and says each warning once;
+#: ``args``: the flags given; ``renamed``: the flag a deprecated one was given as
+#: (``{"--band": "--k-low"}``).
+OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 
 
-#: Library keywords that error messages mention, and the flags that set them.
-KEYWORD_FLAGS = {
-    "components='largest'": "--components largest",
-    "components='auto'": "--components auto",
-    "components='error'": "--components error",
-    "landmarks=[[source, target], ...] / ": "",
-    ", or ofp.transfer_colors(..., landmarks=...))": ")",
-    "colormap must be one of": "--colormap must be one of",
-}
+def error_text(exc: BaseException) -> str:
+    """Return the one line an error is said in on the command line (flags, not keywords)."""
+    if isinstance(exc, OptionError) and exc.option in FLAGS:
+        joint = "" if exc.problem.startswith((":", ",")) else " "
+        return flag_of(exc.option) + joint + exc.problem
+    return functools.reduce(lambda text, keyword: text.replace(*keyword),  # (temporary)
+                            _UNSAID_KEYWORDS.items(), text_of(exc, cli=True))
 
 
-#: Library messages name a keyword and its flag together, "align=True (--align)" or
-#: "partial=True / --partial" (either order): the command line says the flag alone.
-_KEYWORD_THEN_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/]|\(\))* \((--[a-z][^)]*)\)")
-_KEYWORD_OR_FLAG = re.compile(r"\b[a-z_]+=(?:[^\s()/,;]|\(\))* / (?=--[a-z])")
-_FLAG_OR_KEYWORD = re.compile(r"(--[a-z][a-z-]*(?: [A-Z]+)?) / [a-z_]+=(?:\.\.\.|[^\s),;]*)")
+def flag_of(option: str) -> str:
+    """Return the flag(s) of a library option: those given of :data:`FLAGS`'s, else all."""
+    flags = [OUT.renamed.get(f, f) for f in FLAGS.get(option, ())]
+    given = [f for f in flags if getattr(OUT.args, dest(f), None) not in (None, False)]
+    return "/".join(given or flags)
 
 
-#: Library messages tell a target in other units to be scaled with Open3D: the command line
-#: has a flag for it.
-_TARGET_SCALE = re.compile(r"(?:Open3D's )?target\.scale\(([^,()]+), center=\(0, 0, 0\)\)")
+def dest(flag: str) -> str:
+    """Return the argparse name of a flag (``--basis-1``: ``basis_1``)."""
+    return flag.lstrip("-").replace("-", "_")
 
 
-def in_flags(message: str) -> str:
-    """Say the command line's flags where a library message names its keywords."""
-    for keyword, flag in KEYWORD_FLAGS.items():
-        message = message.replace(keyword, flag)
-    message = _TARGET_SCALE.sub(lambda m: f"--target-scale {m.group(1)}", message)
-    message = _KEYWORD_THEN_FLAG.sub(lambda m: m.group(1), message)
-    message = _KEYWORD_OR_FLAG.sub("", message)
-    return _FLAG_OR_KEYWORD.sub(lambda m: m.group(1), message)
+def renamed(args: argparse.Namespace) -> None:
+    """Map the deprecated flags and values given to their new ones (a warning says which)."""
+    for (old, value), (given, new, now) in DEPRECATED.items():
+        found = getattr(args, old, None)
+        if found is None or (value is not None and found != value):
+            continue
+        flag = f"--{new.replace('_', '-')}" + (f" {now}" if now else "")
+        logger.warning("%s is deprecated; use %s", given, flag)
+        other = getattr(args, new, None)
+        if now is None and other is not None and other != found:
+            raise UsageError(f"{given} {found} and {flag} {other} disagree: give {flag}")
+        OUT.renamed.update({} if now else {flag: given})
+        setattr(args, new, now or found)
 
 
-def report(lines: Sequence[str]) -> None:
-    """Print result lines (silenced by ``-q``), with the flags the library's messages name."""
-    for line in lines:
-        OUT.write(in_flags(line) + "\n")
+def report(lines: Sequence[str | Said]) -> None:
+    """Print result lines (silenced by ``-q``), a Said in the command line's words."""
+    for line in lines if not OUT.quiet else ():
+        sys.stdout.write(text_of(line, cli=True) + "\n")
+
+
+#: Seconds between a long stage's "still running" lines (it has no progress of its own).
+TICK_SECONDS = 15.0
 
 
 @contextlib.contextmanager
-def stage(what: str) -> Iterator[None]:
-    """Log a long stage at INFO: its start and its duration."""
+def stage(what: str, *, ticking: bool = True) -> Iterator[None]:
+    """Log a long stage at INFO: its start, that it still runs, and its duration.
+
+    "Still running" every :data:`TICK_SECONDS` when ``ticking`` (a stage with no progress of
+    its own); nothing for ``what`` empty.
+    """
+    if not what:
+        yield
+        return
     logger.info("%s ...", what)
-    t0 = time.perf_counter()
-    yield
+    t0, done = time.perf_counter(), threading.Event()
+
+    def tick() -> None:
+        while not done.wait(TICK_SECONDS):
+            logger.info("%s: still running (%.0f s)", what, time.perf_counter() - t0)
+
+    if ticking:
+        threading.Thread(target=tick, daemon=True).start()
+    try:
+        yield
+    finally:
+        done.set()
     logger.info("%s: done in %.2f s", what, time.perf_counter() - t0)
 
 
-# --------------------------------------------------------------------------- inputs
+@contextlib.contextmanager
+def about(path: str) -> Iterator[None]:
+    """Name ``path`` in a ValueError raised inside: a refusal of that shape (size, parts)."""
+    try:
+        yield
+    except OptionError:
+        raise
+    except ValueError as exc:
+        raise UsageError(f"{path}: {text_of(exc, cli=True)}") from exc
+
+
+def _number(cast: type, ok: Callable[[Any], bool], expected: str) -> Callable[[str], Any]:
+    """Make an argparse ``type``: ``cast(text)``, which must satisfy ``ok`` ("expected ...")."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
+        return value
+
+    return parse
+
+
+positive_int = _number(int, lambda v: v >= 1, "a positive integer")
+nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
+unit_float = _number(float, lambda v: 0.0 < v < 1.0, "a number in (0, 1)")
+positive_float = _number(float, lambda v: math.isfinite(v) and v > 0.0, "a finite number > 0")
+
+
+def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
+    """Make an argparse type: an integer in ``[lo, hi]``."""
+    return _number(int, lambda v: lo <= v <= hi, f"an integer in [{lo}, {hi}]")
+
+
+def bounded_float(lo: float, hi: float) -> Callable[[str], float]:
+    """Make an argparse type: a float in ``[lo, hi]``."""
+    return _number(float, lambda v: lo <= v <= hi, f"a number in [{lo:g}, {hi:g}]")
+
+
+def vector3(text: str) -> tuple[float, float, float]:
+    """Parse three comma-separated numbers, not all zero."""
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not any(values) or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, not all 0; got "
+                                         f"{text!r}")  # fmt: skip
+    return values  # type: ignore[return-value]
 
 
 def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
     """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
-    from ..boundary.convert import geometry_to_arrays, require_open3d
-    from ..boundary.io import read_geometry
-
     require_open3d()
-    if not os.path.exists(path):
-        raise UsageError(f"{path}: no such file")
-    if os.path.isdir(path):
-        raise UsageError(f"{path}: is a directory, not a mesh file")
+    refuse((not os.path.exists(path), f"{path}: no such file"),
+           (os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
     try:
         geometry = read_geometry(path)
-        V, F = geometry_to_arrays(geometry)
+        return (geometry, *geometry_to_arrays(geometry))
     except ValueError as exc:
         raise UsageError(f"{path}: cannot read a mesh or point cloud ({exc})") from exc
-    return geometry, V, F
 
 
 def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
     """Load a real-valued ``.npy`` array; one-line errors name the file and the flag."""
-    if not os.path.isfile(path):
-        raise UsageError(f"{flag} {path}: no such file")
-    with open(path, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":  # NumPy's own message speaks of pickles for any other file
-        raise UsageError(
-            f"{flag} {path}: not a NumPy .npy file ({what}): it does not start with the .npy "
-            "header (write it with numpy.save)"
-        )
+    refuse((not os.path.isfile(path), f"{flag} {path}: no such file"))
+    with open(path, "rb") as fh:  # NumPy's own message speaks of pickles for other files
+        refuse((fh.read(6) != b"\x93NUMPY", f"{flag} {path}: not a NumPy .npy file ({what}): it "
+                "does not start with the .npy header (write it with numpy.save)"))
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): {exc}") from exc
-    if not isinstance(arr, np.ndarray):
-        raise UsageError(f"{flag} {path}: expected one array ({what}), got an archive")
-    if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
-        raise UsageError(f"{flag} {path}: must hold real numbers ({what}); got dtype {arr.dtype}")
+    array = isinstance(arr, np.ndarray)
+    real = array and (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_)
+    dtype = getattr(arr, "dtype", None)
+    refuse((not array, f"{flag} {path}: expected one array ({what}), got an archive"),
+           (np.iscomplexobj(arr) or not real,
+            f"{flag} {path}: must hold real numbers ({what}); got dtype {dtype}"))
     return arr
 
 
-def tol_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``tol``/``preset`` keywords from ``--tol``/``--preset``."""
-    if args.tol is not None:
-        return {"tol": args.tol, "preset": None}
-    return {"tol": None, "preset": args.preset}
+# --------------------------------------------------------------------------- outputs
 
 
-def eig_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keywords of the eigenbasis that the flags set."""
-    return {"components": args.components}
-
-
-def eigenbases_of(
-    args: argparse.Namespace, shapes: Sequence[tuple[str, Any, Any, int]], *, clamp_k: bool
-) -> list[Any]:
-    """Eigenbases of ``(path, V, F, k)`` shapes, side by side; a refusal names its file."""
-    from ..core.spectrum import eigenbasis
-    from ..workflows.eigenbases import eigenbasis_bytes, run_per_shape
-
-    def job(path: str, V: Any, F: Any, k: int) -> Any:
-        with about(path):
-            return eigenbasis(V, F, k=k, clamp_k=clamp_k, **eig_options(args))
-
-    return run_per_shape(
-        [functools.partial(job, *shape) for shape in shapes],
-        [V.shape[0] for _, V, _, _ in shapes],
-        [eigenbasis_bytes(V.shape[0], k) for _, V, _, k in shapes],
-        what="eigenbases",
-    )
+def geometry_file(path: str) -> bool:
+    """Whether a file name is one of a mesh or point-cloud format written here."""
+    return os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT)
 
 
 def written_beside(path: str) -> list[str]:
@@ -204,22 +263,12 @@ def written_beside(path: str) -> list[str]:
     lets a command refuse before any work.
     """
     stem, ext = os.path.splitext(path)
-    ext = ext.lower()
-    if ext == ".obj":
-        return [stem + ".mtl", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
-    if ext == ".gltf":
-        return [stem + ".bin", *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))]
-    return []
+    ext = {".obj": ".mtl", ".gltf": ".bin"}.get(ext.lower())
+    return [stem + ext, *sorted(glob.glob(glob.escape(stem) + "_[0-9]*.*"))] if ext else []
 
 
-def check_output(
-    path: str,
-    allowed: Sequence[str],
-    *,
-    inputs: Sequence[str | None] = (),
-    flag: str = "-o",
-    side: Sequence[str] = (),
-) -> None:
+def check_output(path: str, allowed: Sequence[str], *, inputs: Sequence[str | None] = (),
+                 flag: str = "-o", side: Sequence[str] = ()) -> None:  # fmt: skip
     """Refuse a bad output path before any work.
 
     Wrong extension, missing folder, a directory, or one of the inputs (which would be
@@ -227,35 +276,25 @@ def check_output(
     :func:`written_beside`). ``inputs`` may hold flag values that are not files (``None``,
     ``"colors"``): only existing files are compared.
     """
-    ext = os.path.splitext(path)[1].lower()
-    if os.path.isdir(path) or path.endswith(("/", os.sep)):
-        raise UsageError(
-            f"{flag} {path}: is a directory{'' if os.path.isdir(path) else ' name'}; give a file "
-            "name (a folder is the output of several targets)"
-        )
-    if ext not in allowed:
-        raise UsageError(
-            f"{flag} {path}: the output must end with one of {', '.join(dict.fromkeys(allowed))}"
-        )
-    folder = os.path.dirname(os.path.abspath(path))
-    check_writable_folder(folder, path, flag=flag)
-    for other in (*side, *written_beside(path)):  # (found by a trial only after the work)
+    name = "" if os.path.isdir(path) else " name"
+    refuse((os.path.isdir(path) or path.endswith(("/", os.sep)), f"{flag} {path}: is a directory"
+            f"{name}; give a file name (a folder is the output of several targets)"),
+           (os.path.splitext(path)[1].lower() not in allowed, f"{flag} {path}: the output must end "
+            f"with one of {', '.join(dict.fromkeys(allowed))}"))  # fmt: skip
+    check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
+    beside = (*side, *written_beside(path))
+    for other in beside:  # (found by a trial only after the work)
         if os.path.isdir(other):
-            raise UsageError(
-                f"{flag} {path}: writing it may also write {other} (a file Open3D writes "
-                "beside it), which is a folder; choose another output name"
-            )
+            raise UsageError(f"{flag} {path}: writing it may also write {other} (a file Open3D "
+                             "writes beside it), which is a folder; choose another output name")
     for source in inputs:  # names that are not files ("colors", "estimate") are skipped
         if not (isinstance(source, str) and os.path.exists(source)):
             continue
         if same_file(path, source):
             raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
-        for other in (*side, *written_beside(path)):
-            if same_file(other, source):
-                raise UsageError(
-                    f"{flag} {path}: writing it would also write {other}, an input of this "
-                    "command; choose another output name"
-                )
+        for other in (o for o in beside if same_file(o, source)):
+            raise UsageError(f"{flag} {path}: writing it would also write {other}, an input of "
+                             "this command; choose another output name")  # fmt: skip
 
 
 def same_file(a: str, b: str) -> bool:
@@ -265,77 +304,47 @@ def same_file(a: str, b: str) -> bool:
     return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
 
 
-@contextlib.contextmanager
-def about(path: str) -> Iterator[None]:
-    """Name ``path`` in a ValueError raised inside: a refusal of that shape (size, parts)."""
-    try:
-        yield
-    except ValueError as exc:
-        raise UsageError(f"{path}: {exc}") from exc
-
-
 def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     """Refuse, before any work, an output whose folder is missing or cannot be written."""
-    if not os.path.isdir(folder):
-        raise UsageError(f"{flag} {path}: the folder {folder} does not exist")
+    refuse((not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
-    # permission bits, so only the write itself can tell then (it still fails cleanly).
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise UsageError(
-            f"{flag} {path}: the folder {folder} cannot be written (read-only or no "
-            f"permission); choose another folder for {flag}"
-        )
-    # Nor where the file system refuses files of any kind (/sys, /proc): a trial's
-    # "-o /sys/x.ply" failed after the work, naming a temporary file. A file made and removed.
+    # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
+    # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
+    why = None if os.access(folder, os.W_OK | os.X_OK) else "read-only or no permission"
     try:
-        fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
+        if why is None:
+            fd, probe = tempfile.mkstemp(prefix=".o3d-ofp-check-", dir=folder)
+            os.close(fd)
+            os.remove(probe)
     except OSError as exc:
-        raise UsageError(
-            f"{flag} {path}: the folder {folder} cannot be written ({exc.strerror or exc}); "
-            f"choose another folder for {flag}"
-        ) from None
-    os.close(fd)
-    os.remove(probe)
+        why = exc.strerror or str(exc)
+    if why is not None:
+        raise UsageError(f"{flag} {path}: the folder {folder} cannot be written ({why}); "
+                         f"choose another folder for {flag}")  # fmt: skip
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
-    """Refuse, once the input is read and before any work, a point cloud to a mesh format.
-
-    ``faces`` are those of the geometry the output copies (None for a point cloud).
-    """
-    from ..boundary.io import CLOUD_ONLY, MESH_ONLY
-
+    """Refuse, once the input is read and before any work, a point cloud to a mesh format."""
     ext = os.path.splitext(path)[1].lower()
-    if faces is None and ext in MESH_ONLY:
-        raise UsageError(
-            f"{flag} {path}: the result is a point cloud (no faces) and cannot be written as "
-            f"{ext}; use {', '.join(('.ply', *CLOUD_ONLY))}"
-        )
+    refuse((faces is None and ext in MESH_ONLY, f"{flag} {path}: the result is a point cloud (no "
+            f"faces) and cannot be written as {ext}; use {', '.join(('.ply', *CLOUD_ONLY))}"))
 
 
-def check_cache_dir(path: str | None) -> None:
-    """Refuse, before any work, a ``--cache DIR`` that is a file or cannot be written.
-
-    A missing folder is created later (its nearest existing parent must be writable). A
-    trial's read-only cache failed after the eigensolve, naming a temporary file.
-    """
-    if not path:
-        return
-    check_folder_to_make(path, "--cache")
-
-
-def check_folder_to_make(path: str, flag: str) -> None:
+def check_folder_to_make(path: str | None, flag: str) -> None:
     """Refuse, before any work, an output folder that is a file or cannot be made or written.
 
     Missing folders are made later, with their parents: the nearest one that exists is
-    written into and must be writable.
+    written into and must be writable (``--cache``: a trial's read-only cache failed after the
+    eigensolve, naming a temporary file). Nothing for ``path`` None.
     """
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise UsageError(f"{flag} {path}: is a file, not a folder")
+    if not path:
+        return
+    refuse((os.path.exists(path) and not os.path.isdir(path), f"{flag} {path}: is a file, not a "
+            "folder"))  # fmt: skip
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
-        if parent == existing or (os.path.exists(existing) and not os.path.isdir(existing)):
+        if parent == existing or os.path.exists(existing):
             raise UsageError(f"{flag} {path}: {existing} is a file, not a folder")
         existing = parent
     check_writable_folder(existing, path, flag=flag)
@@ -344,253 +353,205 @@ def check_folder_to_make(path: str, flag: str) -> None:
 # --------------------------------------------------------------------------- bases
 
 
-def check_job_memory(
-    jobs: Sequence[tuple[str, int, int, int, int]], *, advice: str, limit: float | None = None
-) -> None:
-    """Refuse, before any eigensolve, bases whose estimated peak memory exceeds what is free.
+def add_basis_options(p: argparse.ArgumentParser, *, k: bool = True, preset: str = "ours") -> None:
+    """Add the flags of the commands that build bases (``-k``: one shape's size).
 
-    Parameters
-    ----------
-    jobs : sequence of (path, n_vertices, k, eig_k, order)
-        The bases the command will compute (the peaks are added up: a conservative bound when
-        a pair's bases are computed one after the other and both are kept).
-    advice : str
-        How to lower the estimate, naming the flags (e.g. ``"lower -k or --order, or use a
-        simplified mesh"``), for the message.
-    limit : float, optional
-        Bytes allowed (default: the memory available now, from psutil).
+    The defaults are :class:`~o3d_ofp.BasisOptions`'; ``preset``: the command's, for the help.
     """
-    from ..core import _memory
-
-    if not jobs:
-        return
-    need = sum(
-        _memory.basis_job_bytes(n, k=k, order=order, eig_k=eig_k) for _, n, k, eig_k, order in jobs
-    )
-    if limit is None:
-        limit = _memory.available_memory()
-        if limit is None:
-            return
-    what = " and ".join(
-        f"{path} ({n} vertices, k={max(k, eig_k)}, order {order})"
-        for path, n, k, eig_k, order in jobs
-    )
-    if need > limit:
-        raise UsageError(
-            f"the basis of {what} needs about {_memory.format_bytes(need)} of memory, more than "
-            f"the {_memory.format_bytes(limit)} available: {advice}"
-        )
-    logger.debug("memory estimate for %s: %s of %s", what, _memory.format_bytes(need),
-                 _memory.format_bytes(limit))  # fmt: skip
+    default = BasisOptions()
+    if k:
+        p.add_argument("-k", "--k", type=positive_int,
+                       help=f"non-constant eigenfunctions ({default.k1})")  # fmt: skip
+    p.add_argument("--order", type=positive_int, help=f"product order N ({default.order})")
+    p.add_argument("--preset", choices=("ours", "ours*"),
+                   help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})")
+    p.add_argument("--tol", type=unit_float, help="explicit threshold in (0, 1) (over --preset)")
+    add_components_option(p)
+    p.add_argument("--cache", metavar="DIR",
+                   help="reuse bases cached in DIR (computed and stored there the first time)")
 
 
-def load_basis_file(
-    path: str, V: Any, F: Any, mesh_path: str, args: argparse.Namespace, flag: str
-) -> Any:
-    """Read the OFP basis file given as ``flag path``, checked to be ``mesh_path``'s."""
-    from ..core.basis import OFPBasis
-    from ..core.spectrum import shape_digest
+def add_components_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--components``, the policy for a shape of several connected components."""
+    p.add_argument("--components", choices=COMPONENTS, default="auto",
+                   help="several connected components: auto keeps the largest if it holds >= 90%% "
+                   "of the area (else refuses), largest always keeps it, error always refuses "
+                   "(default: auto)")  # fmt: skip
 
-    if not os.path.isfile(path):
-        raise UsageError(f"{flag} {path}: no such basis file")
+
+def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
+    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given).
+
+    ``sizes``: ``k1``/``k2`` of a one-shape command (its ``-k``); ``--tol`` is over
+    ``--preset``.
+    """
+    given = {"k1": getattr(args, "k1", None), "k2": getattr(args, "k2", None), **sizes,
+             "order": args.order, "preset": None if args.tol is not None else args.preset,
+             "tol": args.tol}  # fmt: skip
+    given = {name: value for name, value in given.items() if value is not None}
+    return BasisOptions(**given) if given else None
+
+
+def check_memory(path: str, n: int, *, k: int, order: int, advice: str) -> None:
+    """Refuse, before its eigensolve, a one-shape job that cannot fit in the free memory.
+
+    A pair's job is checked by :func:`o3d_ofp.workflows.plan.prepare`.
+    """
+    need, limit = _memory.basis_job_bytes(n, k=k, order=order), _memory.available_memory()
+    if limit is not None and need > limit:
+        need, limit = _memory.format_bytes(need), _memory.format_bytes(limit)
+        raise UsageError(f"the basis of {path} ({n} vertices, k={k}, order {order}) needs about "
+                         f"{need} of memory, more than the {limit} available: {advice}")
+
+
+def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) -> OFPBasis:
+    """Read the OFP basis file given as ``flag path``, checked to be ``mesh``'s."""
+    refuse((not os.path.isfile(path), f"{flag} {path}: no such basis file"))
     try:
         B = OFPBasis.load(path)
     except ValueError as exc:
         raise UsageError(f"{flag} {path}: {exc}") from exc
-    if B.eig.digest != shape_digest(V, F, **eig_options(args)):
-        raise UsageError(
-            f"{flag} {path}: this basis was computed for another mesh than {mesh_path} (or "
-            "with other cleaning options); recompute it with: o3d-ofp basis " + mesh_path
-        )
+    refuse((B.eig.digest != shape_digest(V, F, components=args.components), f"{flag} {path}: "
+            f"this basis was computed for another mesh than {mesh} (or with other cleaning "
+            f"options); recompute it with: o3d-ofp basis {mesh}"))  # fmt: skip
     return B
 
 
-def _in_cache(V: Any, F: Any, k: int, args: argparse.Namespace) -> bool:
-    """Tell whether ``--cache`` holds a (non-empty) entry for this basis."""
-    from ..workflows.cache import basis_cache_path
+def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis:
+    """Return the OFP basis of one shape: from ``--basis``, the ``--cache`` folder, or computed.
 
-    entry = basis_cache_path(
-        V, F, k=k, order=args.order, cache_dir=args.cache, **tol_options(args), **eig_options(args)
-    )
-    return os.path.isfile(entry) and os.path.getsize(entry) > 0
-
-
-def basis_for(
-    V: Any,
-    F: Any,
-    path: str,
-    args: argparse.Namespace,
-    *,
-    k: int | None,
-    default_k: int = 29,
-    k_flag: str = "-k",
-    eig_k: int | None = None,
-    file: str | None = None,
-    file_flag: str = "--basis",
-) -> tuple[Any, Any]:
-    """(OFP basis on ``k`` eigenfunctions, its eigenbasis with ``eig_k`` >= k).
-
-    From ``file`` (checked against the mesh and, when the k flag was given, ``k``), the
-    ``--cache`` folder, or computed (``k`` None: ``default_k``).
+    A basis file is checked against the flags given; sizes and threshold: :func:`basis_options`.
     """
-    from ..core.basis import ofp_basis
-    from ..core.spectrum import eigenbasis
-    from ..workflows.cache import cached_basis
-
-    if file:
-        B = load_basis_file(file, V, F, path, args, file_flag)
-        if k is not None and B.k != k:
-            raise UsageError(
-                f"{file_flag} {file}: holds a basis on k={B.k} eigenfunctions, but {k_flag} {k} "
-                f"was given; drop {k_flag} or recompute the basis"
-            )
-        check_basis_file_options(args, B, file_flag, file)
-        return B, B.eig
-    k = default_k if k is None else k
-    if k > V.shape[0] - 2:  # before the memory estimate, which would be the message otherwise
-        raise UsageError(
-            f"{k_flag} {k}: must be smaller than the number of vertices of {path} minus one "
-            f"({V.shape[0]} vertices: at most {V.shape[0] - 2})"
-        )
-    tol = tol_options(args)
-    cached = getattr(args, "cache", None) and eig_k is None
-    if not (cached and _in_cache(V, F, k, args)):  # a cache hit only reads its file
-        check_job_memory(
-            [(path, V.shape[0], k, eig_k or k, args.order)],
-            advice=f"lower {k_flag} or --order, or use a simplified mesh (fewer vertices)",
-        )
-    if cached:
-        with stage(f"basis of {path} (cache {args.cache})"):
-            B = cached_basis(
-                V, F, k=k, order=args.order, cache_dir=args.cache, **tol, **eig_options(args)
-            )
-        return B, B.eig
-    eig_k = max(k, eig_k or 0)
-    with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={eig_k})"):
-        eig = eigenbasis(V, F, k=eig_k, clamp_k=eig_k > k, **eig_options(args))
-    with stage(f"orthogonalized products of {path} (order {args.order})"):
-        return ofp_basis(eig, order=args.order, k=min(k, eig.k), **tol), eig
+    options = basis_options(args, k1=args.k) or BasisOptions()
+    k, order, tol = options.k1, options.order, options.threshold("ours")
+    if getattr(args, "basis", None):
+        B = load_basis_file(args.basis, V, F, path, args, "--basis")
+        for flag, given, what, held in (("-k", args.k, f"on k={B.k} eigenfunctions", B.k),
+                                         ("--order", args.order, f"of order {B.order}", B.order)):
+            refuse((given is not None and given != held, f"--basis {args.basis}: holds a basis "
+                    f"{what}, but {flag} {given} was given; drop {flag} or recompute the basis"))
+        threshold = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
+        refuse(((args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9),
+                f"--basis {args.basis}: holds a basis orthogonalized with threshold {B.tol:g}, but "
+                f"{threshold} (threshold {tol:g}) was given; drop it or recompute the basis"))
+        return B
+    refuse((k > V.shape[0] - 2, f"-k {k}: must be smaller than the number of vertices of {path} "
+            f"minus one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"))  # (before the memory
+    # estimate, whose message it would be otherwise)
+    entry = args.cache and basis_cache_path(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
+                                            components=args.components)  # fmt: skip
+    if not (entry and os.path.isfile(entry) and os.path.getsize(entry) > 0):  # a hit only reads
+        check_memory(path, V.shape[0], k=k, order=order,
+                     advice="lower -k or --order, or use a simplified mesh (fewer vertices)")
+    with about(path):
+        if args.cache:
+            with stage(f"basis of {path} (cache {args.cache})"):
+                return cached_basis(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
+                                    components=args.components)  # fmt: skip
+        with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={k})"):
+            eig = eigenbasis(V, F, k=k, components=args.components)
+        with stage(f"orthogonalized products of {path} (order {order})"):
+            return ofp_basis(eig, order=order, k=min(k, eig.k), tol=tol)
 
 
-class _Given(argparse.Action):
-    """Store the value and note that the flag was given (``args.given``: the flags' dests)."""
-
-    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
-        setattr(namespace, self.dest, values)
-        given = set(getattr(namespace, "given", ()) or ())
-        namespace.given = given | {self.dest}
+# --------------------------------------------------------------------------- signals
 
 
-def check_basis_file_options(args: argparse.Namespace, B: Any, file_flag: str, file: str) -> None:
-    """Refuse --order / --preset / --tol that disagree with a basis read from a file.
+def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str | None,
+                output: str | None = None) -> tuple[np.ndarray, str]:  # fmt: skip
+    """(values (n,) or (n, d), kind) of ``--signal`` on the geometry read from ``path``.
 
-    Found by a trial: ``--basis FILE --order 3`` ran with the file's order 2, silently.
+    With ``output`` (the ``-o`` path), colors bound for a format that holds none (STL, XYZ)
+    are refused here, before any work: they would be dropped without a word.
     """
-    from ..core.orthogonalize import resolve_tol
-
-    given = getattr(args, "given", set()) or set()
-    if "order" in given and args.order != B.order:
-        raise UsageError(
-            f"{file_flag} {file}: holds a basis of order {B.order}, but --order {args.order} "
-            "was given; drop --order or recompute the basis"
-        )
-    if given & {"tol", "preset"}:
-        tol = resolve_tol(args.tol, None if args.tol is not None else args.preset)
-        if not math.isclose(tol, B.tol, rel_tol=1e-9):
-            flag = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
-            raise UsageError(
-                f"{file_flag} {file}: holds a basis orthogonalized with threshold {B.tol:g}, "
-                f"but {flag} (threshold {tol:g}) was given; drop it or recompute the basis"
-            )
-
-
-def _file_tol(path: str) -> float | None:
-    """Read the threshold of a basis file alone (None when unreadable: its full read says why)."""
+    other = texture is not None and spec != "texture"
+    refuse((other and not has_uvs(geometry), f"--texture {texture}: {path} has no texture "
+            "coordinates (UVs) to map an image onto; drop --texture"),
+           (other, "--texture applies to --signal texture"),
+           (texture is not None and not os.path.isfile(texture),
+            f"--texture {texture}: no such image file"))  # fmt: skip
+    if spec == "xyz":
+        return V, "xyz"
+    if spec.endswith(".npy"):
+        f = load_npy(spec, "per-vertex signal", flag="--signal")
+        refuse((f.ndim not in (1, 2) or f.shape[0] != V.shape[0], f"--signal {spec}: has shape "
+                f"{f.shape} but {path} has {V.shape[0]} vertices (expected (n,) or (n, d))"),
+               (not np.all(np.isfinite(f)), f"--signal {spec}: must hold finite numbers"))
+        return f.astype(np.float64), "array"
+    colors = vertex_colors(geometry) if spec == "colors" else None
+    hint = ("it has texture coordinates: use --signal texture" if has_uvs(geometry) else
+            "transfer its coordinates with --signal xyz, or a per-vertex signal with --signal "
+            "FILE.npy")  # fmt: skip
+    refuse((spec not in ("colors", "texture"),
+            f"--signal must be colors, texture, xyz or a FILE.npy; got {spec!r}"),
+           (spec == "colors" and colors is None, f"{path}: has no vertex colors ({hint})"))
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return float(data["tol"])
-    except Exception:  # any damage is reported by OFPBasis.load, later
-        return None
+        colors = texture_colors(geometry, texture) if colors is None else colors
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        raise texture_error(path, texture, exc) from exc
+    check_colors_output(output)
+    return colors, "colors"
 
 
-def check_basis_files_agree(args: argparse.Namespace) -> None:
-    """Refuse, before any work, two OFP bases orthogonalized with different thresholds.
+def check_colors_output(output: str | None) -> None:
+    """Refuse colors bound for an ``-o`` format that holds none (STL, XYZ), before any work."""
+    ext = os.path.splitext(output or "")[1].lower()
+    if ext in NO_COLORS:
+        raise UsageError(f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; "
+                         "write .ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts "
+                         "(points)")  # fmt: skip
 
-    A basis file keeps its own threshold; the other side's basis is read from its file or
-    made with the command's ``--preset`` / ``--tol`` (given or the command's default). A
-    trial's ``detail --mode coordinates --basis-1`` with an "ours" file ran the target with
-    the command's default "ours*": a transfer between bases of two thresholds, unsaid.
+
+def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
+    """Return the error of a texture that cannot be read (``--texture FILE``, or the source's).
+
+    The source's own names the files its material lacks.
     """
-    from ..core.orthogonalize import resolve_tol
-
-    own = resolve_tol(args.tol, None if args.tol is not None else args.preset)
-    files = [(i, f) for i, f in ((1, args.basis_1), (2, args.basis_2)) if f]
-    tols = {i: _file_tol(f) for i, f in files}
-    if not files or any(t is None for t in tols.values()):
-        return
-    t1, t2 = tols.get(1, own), tols.get(2, own)
-    if math.isclose(t1, t2, rel_tol=1e-9):
-        return
-    preset = {1e-2: "ours", 1e-9: "ours*"}
-    if len(files) == 2:
-        raise UsageError(
-            f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were orthogonalized with "
-            f"thresholds {t1:g} and {t2:g}: the two bases must share one; recompute one of them"
-        )
-    side, file = files[0]
-    t = tols[side]
-    name = next((n for v, n in preset.items() if math.isclose(v, t, rel_tol=1e-9)), None)
-    how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
-    given = getattr(args, "given", set()) or set()
-    yours = (
-        f"--tol {args.tol:g}" if args.tol is not None
-        else f"--preset {args.preset}" + ("" if "preset" in given else ", this command's default")
-    )  # fmt: skip
-    raise UsageError(
-        f"--basis-{side} {file}: holds a basis orthogonalized with threshold {t:g}, but the "
-        f"{'target' if side == 1 else 'source'}'s basis would be made with {own:g} ({yours}): "
-        f"the two bases must share one; pass {how}, or recompute the basis file"
-    )
+    if texture is not None:  # the given image, not the source, is at fault
+        return UsageError(f"--texture {texture}: "
+                          + text_of(exc, cli=True).removeprefix(f"{texture}: "))  # fmt: skip
+    return UsageError(no_texture_message(path, exc))
 
 
-def add_basis_options(
-    p: argparse.ArgumentParser,
-    *,
-    k: int | None = 29,
-    preset: str = "ours",
-    order: int = 2,
-) -> None:
-    """Add the flags every basis-building command has (``-k`` only when ``k`` is given)."""
-    from ._types import positive_int, unit_float
+def _save_npy(path: str, values: np.ndarray) -> None:
+    with atomic_path(path, suffix=".npy") as tmp:
+        np.save(tmp, values)
 
-    if k is not None:
-        p.add_argument("-k", "--k", type=positive_int, help=f"non-constant eigenfunctions ({k})")
-    p.add_argument(
-        "--order",
-        type=positive_int,
-        default=order,
-        action=_Given,
-        help=f"product order N ({order})",
-    )
-    p.add_argument(
-        "--preset",
-        choices=("ours", "ours*"),
-        default=preset,
-        action=_Given,
-        help=f"orthogonalization threshold: ours = 1e-2, ours* = 1e-9 ({preset})",
-    )
-    p.add_argument(
-        "--tol", type=unit_float, action=_Given, help="explicit threshold in (0, 1) (over --preset)"
-    )
-    p.add_argument(
-        "--components",
-        choices=("auto", "largest", "error"),
-        default="auto",
-        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
-        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
-    )
-    p.add_argument(
-        "--cache",
-        metavar="DIR",
-        help="reuse bases cached in DIR (computed and stored there the first time)",
-    )
+
+def side_outputs(path: str, kind: str) -> list[str]:
+    """Files besides ``path`` that :func:`write_result` writes for a signal of ``kind``."""
+    if kind == "array" and not path.lower().endswith(".npy"):
+        return [os.path.splitext(path)[0] + ".npy"]
+    return []
+
+
+def signal_sides(args: Any) -> list[str]:
+    """Side files of ``-o`` known from the flags: the ``.npy`` of a ``--signal FILE.npy``."""
+    signal = getattr(args, "signal", None)
+    npy = isinstance(signal, str) and signal.lower().endswith(".npy")
+    return side_outputs(args.output, "array") if npy else []
+
+
+def write_result(path: str, like: Any, values: np.ndarray, kind: str,
+                 protect: Sequence[str | None] = ()) -> list[str]:  # fmt: skip
+    """Write ``values`` on a copy of the geometry ``like``: colored, moved, or a ``.npy``.
+
+    A colored copy has no texture image (its UVs are kept): the colors replace it. Returns
+    the files written. A general signal goes to a ``.npy`` beside the geometry, which
+    shows its first channel through a colormap. Nothing is written when a file would replace
+    one of ``protect`` (the command's inputs).
+    """
+    sides = side_outputs(path, kind)
+    for side in sides:
+        check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
+    if path.lower().endswith(".npy"):
+        _save_npy(path, values)
+        return [path]
+    rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
+    colors = np.clip(values, 0.0, 1.0) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
+    out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
+        like_target(like, colors=colors))  # fmt: skip
+    for npy in sides:
+        _save_npy(npy, values)
+    write_geometry(path, out, protect=protect)
+    return [path, *sides]

@@ -11,132 +11,94 @@ and ``DIR/summary.json``; the exit code is 1 when any target failed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import functools
+import importlib.util
 import os
+import socket
 from collections.abc import Mapping, Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
-from ._common import OUT, UsageError, report
+from ..collections import transfer_many, write_summary
+from ..core.wording import text_of
+from . import _common as common
+from ._common import UsageError, nonnegative_int, report
 from ._progress import ENABLED
-from ._types import nonnegative_int
-
-__all__ = [
-    "add_collection_options",
-    "check_single",
-    "is_collection",
-    "refuse_flags",
-    "report_records",
-    "run_transfers",
-]
 
 #: Flags of the two-shape commands that make no sense for a collection, and why.
 PAIR_ONLY = {
     "landmarks": "--landmarks (vertex pairs belong to one pair of shapes)",
-    "save_map": "--save-map (one map per pair)",
-    "basis_1": "--basis-1 (use --cache DIR)",
-    "basis_2": "--basis-2 (use --cache DIR)",
-    "align": "--align (--map closest is for one pair)",
+    "save_map": "--save-map (one map per pair)", "basis_1": "--basis-1 (use --cache DIR)",
+    "basis_2": "--basis-2 (use --cache DIR)", "align": "--align (--map closest is for one pair)",
     "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
-    "partial": "--partial (for one pair of shapes)",
-    "via_basis": "--via-basis (for one pair of shapes)",
-    "pull_back": "--pull-back (for one pair of shapes)",
-    "target_scale": "--target-scale (for one pair of shapes)",
-}
+    **{name: f"--{name.replace('_', '-')} (for one pair of shapes)"
+       for name in ("partial", "via_basis", "pull_back", "target_scale")},
+}  # fmt: skip
 
 
-def add_collection_options(
-    p: argparse.ArgumentParser,
-    *,
-    description: str = (
-        "give several targets or a folder of them; -o is then a folder (created if missing), "
-        "with summary.csv and summary.json"
-    ),
-) -> None:
+def add_collection_options(p: argparse.ArgumentParser, *, description: str = (
+    "give several targets or a folder of them; -o is then a folder (created if missing), with "
+    "summary.csv and summary.json")) -> None:  # fmt: skip
     """Add the flags of runs over several shapes (``description``: what such a run writes)."""
     g = p.add_argument_group("several shapes", description)
-    g.add_argument(
-        "--scheduler",
-        metavar="tcp://HOST:PORT",
-        help="run on this Dask cluster (default: a local cluster, one worker process per core)",
-    )
-    g.add_argument(
-        "--workers",
-        type=nonnegative_int,
-        help="worker processes of the local cluster (default: the cores; 0: in this process)",
-    )
-    g.add_argument(
-        "--force",
-        action="store_true",
-        help="redo targets whose output is newer than both inputs (default: skip them)",
-    )
+    g.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster "
+                   "(default: a local cluster, one worker process per core)")
+    g.add_argument("--workers", type=nonnegative_int, help="worker processes of the local cluster "
+                   "(default: the cores; 0: in this process)")
+    g.add_argument("--force", action="store_true", help="redo targets whose output is newer than "
+                   "both inputs (default: skip them)")  # fmt: skip
 
 
-def is_collection(targets: Sequence[str]) -> bool:
-    """Whether a command runs over several shapes: several targets, or a folder of them.
+def single(args: argparse.Namespace, shapes: Sequence[str]) -> bool:
+    """Whether a command runs over one pair (or one shape); its collection flags refused then.
 
-    One target file is the two-shape form, whose ``-o`` names a file (an existing folder is
-    refused as such).
+    Several shapes, or a folder of them, are a collection; one file is the two-shape form,
+    whose ``-o`` names a file (an existing folder is refused as such).
     """
-    return len(targets) > 1 or any(os.path.isdir(t) for t in targets)
-
-
-def check_single(args: argparse.Namespace) -> None:
-    """Refuse the collection flags on a run over one pair of shapes."""
-    for name, flag in (("scheduler", "--scheduler"), ("workers", "--workers")):
-        if getattr(args, name, None) is not None:
+    if len(shapes) > 1 or any(os.path.isdir(t) for t in shapes):
+        return False
+    for flag in ("--scheduler", "--workers", "--force"):
+        if getattr(args, flag[2:]) not in (None, False):
             raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
-    if getattr(args, "force", False):
-        raise UsageError("--force applies to several targets (TARGET... or a folder)")
-    OUT.reports_quality = True  # one pair: its quality report is printed, not logged
-
-
-def refuse_flags(args: argparse.Namespace, flags: Mapping[str, str]) -> None:
-    """Refuse flags given (not None / not False) that a collection run cannot honour."""
-    for name, flag in flags.items():
-        value = getattr(args, name, None)
-        if value not in (None, False):
-            raise UsageError(f"{flag} does not apply to several targets")
+    common.OUT.one_pair = True  # its quality report is printed, not logged; a warning said once
+    return True
 
 
 def _check_scheduler(address: str) -> None:
     """Refuse, before any work, a scheduler address where nothing listens."""
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    try:
+    parts, port = urlsplit(address if "://" in address else f"tcp://{address}"), None
+    with contextlib.suppress(ValueError):  # a port that is not a number
         port = parts.port
-    except ValueError:
-        port = None
-    schemes = ("tcp", "tls", "ws", "wss", "ucx")
-    if parts.scheme not in schemes or not parts.hostname or port is None:
+    if parts.scheme not in ("tcp", "tls", "ws", "wss", "ucx") or not parts.hostname or not port:
         raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT (or tls, ws, wss, ucx)")
     if parts.scheme == "ucx":  # no plain socket to try: Dask will say
         return
     try:
         socket.create_connection((parts.hostname, port), timeout=5).close()
     except OSError as exc:
-        raise UsageError(
-            f"--scheduler {address}: nothing answers there ({exc.strerror or exc}); start the "
-            "scheduler (dask scheduler) or leave --scheduler out for a local cluster"
-        ) from exc
+        raise UsageError(f"--scheduler {address}: nothing answers there ({exc.strerror or exc}); "
+                         "start the scheduler (dask scheduler) or leave --scheduler out for a "
+                         "local cluster") from exc  # fmt: skip
 
 
-def _check_output_dir(path: str) -> None:
-    from ._common import CLOUD_OUT, MESH_OUT, check_writable_folder
-
+def _check_run(args: argparse.Namespace) -> None:
+    """Refuse, before any work, a bad ``-o DIR``, a cluster without Dask, a bad scheduler."""
+    path, ext = args.output, os.path.splitext(args.output)[1].lower()
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
-    ext = os.path.splitext(path)[1].lower()
-    if not os.path.exists(path) and ext in (*MESH_OUT, *CLOUD_OUT, ".npy"):
-        raise UsageError(
-            f"-o {path}: with several targets -o names a folder (the results keep the targets' "
-            f"names); {ext} looks like one output file"
-        )
-    if os.path.isdir(path):  # written into: it must be writable
-        check_writable_folder(path, path)
-        return
-    check_writable_folder(os.path.dirname(os.path.abspath(path)), path)  # it is made there
+    if not os.path.exists(path) and ext in (*common.MESH_OUT, *common.CLOUD_OUT, ".npy"):
+        raise UsageError(f"-o {path}: with several targets -o names a folder (the results keep the "
+                         f"targets' names); {ext} looks like one output file")  # fmt: skip
+    common.check_folder_to_make(path, "-o")  # written into, or made in its nearest folder
+    common.check_folder_to_make(args.cache, "--cache")
+    if (args.scheduler or args.workers != 0) and importlib.util.find_spec("distributed") is None:
+        raise UsageError("several targets run on a Dask cluster, and Dask is not installed: pip "
+                         "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
+                         "'.[dask]'), or give --workers 0 to run them one after the other here")
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
 
 
 def report_records(records: Sequence[Any]) -> int:
@@ -149,85 +111,50 @@ def report_records(records: Sequence[Any]) -> int:
     lines = []
     for r in records:
         if r.status == "failed":
-            lines.append(f"failed   {r.name}: {r.error}")
+            lines.append(f"failed   {r.name}: {text_of(r.error, cli=True)}")
         elif r.status == "skipped":
             sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
             lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
         else:
-            cov = (
-                ""
-                if r.coverage != r.coverage
-                else f", map coverage {r.coverage:.2f} of the source's vertices"
-            )
+            cov = "" if r.coverage != r.coverage else (
+                f", map coverage {r.coverage:.2f} of the source's vertices")  # fmt: skip
             sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
             where = f" -> {r.output}" if r.output else ""
             lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
-    lines.append(", ".join(f"{n} {s}" for s, n in counts.items()))
-    report(lines)
+    report([*lines, ", ".join(f"{n} {s}" for s, n in counts.items())])
     return 1 if counts["failed"] else 0
 
 
 def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:
-    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``."""
-    from ..collections import transfer_many, write_summary
-    from ._common import check_cache_dir, in_flags
+    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``.
 
-    _check_output_dir(args.output)
-    check_cache_dir(args.cache)
-    if args.scheduler or args.workers != 0:  # a cluster: Dask must be there, said first
-        import importlib.util
-
-        if importlib.util.find_spec("distributed") is None:
-            raise UsageError(
-                "several targets run on a Dask cluster, and Dask is not installed: pip "
-                "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
-                "'.[dask]'), or give --workers 0 to run them one after the other here"
-            )
-    if args.scheduler:
-        _check_scheduler(args.scheduler)
+    ``options``: the command's own keywords of :func:`o3d_ofp.transfer_many`; the map, basis
+    and run flags are added here (those not given are left to its defaults). The flags for
+    one pair (:data:`PAIR_ONLY`) are refused.
+    """
+    for name, flag in PAIR_ONLY.items():
+        if getattr(args, name, None) not in (None, False):
+            raise UsageError(f"{flag} does not apply to several targets")
+    _check_run(args)
     if args.map not in ("estimate", "identity"):
-        raise UsageError(
-            f"--map {args.map}: with several targets the map is 'estimate' or 'identity'"
-        )
+        raise UsageError(f"--map {args.map}: with several targets the map is 'estimate' or "
+                         "'identity'")  # fmt: skip
     if not os.path.isfile(args.source):
         raise UsageError(f"{args.source}: no such source file")
     for target in args.target:  # a typo is said before any work (a trial's ran every other)
         if not os.path.exists(target):
             raise UsageError(f"{target}: no such target file or folder")
-    try:
-        records = transfer_many(
-            args.source,
-            args.target,
-            kind=kind,
-            client=args.scheduler,
-            output_dir=args.output,
-            cache_dir=args.cache,
-            workers=args.workers,
-            skip_existing=not args.force,
-            progress=ENABLED.on,
-            map=args.map,
-            components=args.components,
-            strict=args.strict,
-            order=args.order,
-            tol=args.tol,
-            preset=None if args.tol is not None else args.preset,
-            **{k: v for k, v in options.items() if v is not None},
-        )
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise UsageError(in_flags(str(exc))) from exc
-    # the records' messages in the command line's words (the flags, not the keywords)
-    records = [
-        dataclasses.replace(
-            r,
-            warnings=tuple(in_flags(w) for w in r.warnings),
-            notes=tuple(in_flags(n) for n in r.notes),
-            error=in_flags(r.error),
-        )
-        if r.warnings or r.notes or r.error
-        else r
-        for r in records
-    ]
+    given = {"k1": args.k1, "k2": args.k2, "order": args.order, "tol": args.tol,
+             "preset": None if args.tol is not None else args.preset, **options}  # fmt: skip
+    records = transfer_many(args.source, args.target, kind=kind, client=args.scheduler,
+                            output_dir=args.output, cache_dir=args.cache, workers=args.workers,
+                            skip_existing=not args.force, progress=ENABLED.on, map=args.map,
+                            components=args.components, strict=args.strict,
+                            **{name: value for name, value in given.items() if value is not None})
+    words = functools.partial(text_of, cli=True)  # what was said of each target, for flags
+    records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),
+                                   notes=tuple(map(words, r.notes))) for r in records]
     csv_path, json_path = write_summary(records, args.output)
     code = report_records(records)
     report([f"summary: {csv_path}, {json_path}"])

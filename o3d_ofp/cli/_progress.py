@@ -12,22 +12,16 @@ from __future__ import annotations
 import contextlib
 import logging
 import sys
+import types
 from collections.abc import Callable, Iterator
 
 from ..core import _progress
 
-__all__ = ["ENABLED", "stage_progress"]
-
 logger = logging.getLogger(__name__)
 
 
-class _Switch:
-    """Whether progress is shown (set by ``main`` from ``-q``)."""
-
-    on = False
-
-
-ENABLED = _Switch()
+#: Whether progress is shown (``on``, set by ``main`` from ``-q``).
+ENABLED = types.SimpleNamespace(on=False)
 
 
 @contextlib.contextmanager

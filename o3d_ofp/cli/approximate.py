@@ -4,19 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import (
-    CLOUD_OUT,
-    MESH_HELP,
-    MESH_OUT,
-    add_basis_options,
-    basis_for,
-    check_cache_dir,
-    check_output,
-    check_output_kind,
-    read_shape,
-    report,
-)
-from ._signal import read_signal, signal_sides, write_result
+from . import _common as common
+from ._common import report
 
 __all__ = ["add_parser", "run"]
 
@@ -24,14 +13,11 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("approximate", help="approximate a signal in the basis; print the error")
-    p.add_argument("mesh", help=MESH_HELP)
-    p.add_argument(
-        "--signal",
-        default="colors",
-        help="colors (vertex colors), texture (UV texture), xyz (coordinates) or FILE.npy",
-    )
+    p.add_argument("mesh", help=common.MESH_HELP)
+    p.add_argument("--signal", default="colors", help="colors (vertex colors), texture (UV "
+                   "texture), xyz (coordinates) or FILE.npy")  # fmt: skip
     p.add_argument("--texture", help="texture image for --signal texture (default: the mesh's)")
-    add_basis_options(p)
+    common.add_basis_options(p)
     p.add_argument("--basis", help="cached basis of MESH (.npz)")
     p.add_argument("-o", "--output", required=True, help="output mesh, cloud or .npy")
     p.set_defaults(func=run)
@@ -40,24 +26,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
     inputs = (args.mesh, args.signal, args.texture, args.basis)
-    outputs = (*MESH_OUT, *CLOUD_OUT, ".npy")
-    check_output(args.output, outputs, inputs=inputs, side=signal_sides(args))
-    check_cache_dir(args.cache)
-    geometry, V, F = read_shape(args.mesh)
-    if not args.output.lower().endswith(".npy"):
-        check_output_kind(args.output, F)
-    f, kind = read_signal(
-        geometry, V, args.mesh, args.signal, args.texture, output=args.output
-    )
-    B, _ = basis_for(V, F, args.mesh, args, k=args.k, file=args.basis)
-    approx = B.approximate(f)
-    err = B.approximation_error(f)
-    written = write_result(args.output, geometry, approx, kind, protect=inputs)
-    report(
-        [
-            f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
-            f"relative error ‖f − f̃‖_M / ‖f‖_M = {err:.4%}",
-            "wrote " + ", ".join(written),
-        ]
-    )
+    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT, ".npy"), inputs=inputs,
+                 side=common.signal_sides(args))  # fmt: skip
+    common.check_folder_to_make(args.cache, "--cache")
+    geometry, V, F = common.read_shape(args.mesh)
+    common.check_output_kind(args.output, F)  # (a .npy output holds values, no faces)
+    f, kind = common.read_signal(geometry, V, args.mesh, args.signal, args.texture, args.output)
+    B = common.shape_basis(V, F, args.mesh, args)
+    written = common.write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)
+    report([f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
+            f"relative error ‖f − f̃‖_M / ‖f‖_M = {B.approximation_error(f):.4%}",
+            "wrote " + ", ".join(written)])  # fmt: skip
     return 0

@@ -4,17 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import (
-    MESH_HELP,
-    UsageError,
-    add_basis_options,
-    basis_for,
-    check_cache_dir,
-    check_output,
-    read_shape,
-    report,
-)
-from ._many import add_collection_options, check_single, is_collection, report_records
+from ..collections import bases_many
+from ..core.products import n_eigenproducts
+from . import _common as common
+from ._common import report
+from ._many import add_collection_options, report_records, single
 from ._progress import ENABLED
 
 __all__ = ["add_parser", "run"]
@@ -22,73 +16,47 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
-    p = sub.add_parser(
-        "basis",
-        help="compute a basis once and store it (.npz), or cache the bases of a collection",
-    )
-    p.add_argument(
-        "mesh", nargs="+", help=MESH_HELP + "; several, or folders of them, with --cache DIR"
-    )
-    add_basis_options(p)
+    p = sub.add_parser("basis", help="compute a basis once and store it (.npz), or cache the bases "
+                       "of a collection")  # fmt: skip
+    p.add_argument("mesh", nargs="+",
+                   help=common.MESH_HELP + "; several, or folders of them, with --cache DIR")
+    common.add_basis_options(p)
     p.add_argument("-o", "--output", help="basis file (.npz) of one shape")
-    add_collection_options(
-        p,
-        description="give several shapes, or folders of them, with --cache DIR and no -o: each "
-        "shape's bases are stored in DIR (a line per shape printed; --force does not apply)",
-    )
+    add_collection_options(p, description="give several shapes, or folders of them, with --cache "
+                           "DIR and no -o: each shape's bases are stored in DIR (a line per shape "
+                           "printed; --force does not apply)")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Compute the basis of ``args.mesh`` and write it to ``args.output`` (or to the cache)."""
-    from ..core.products import n_eigenproducts
-
-    check_cache_dir(args.cache)
-    if args.output is None or is_collection(args.mesh):
+    common.check_folder_to_make(args.cache, "--cache")
+    if args.output is None or not single(args, args.mesh):
         return _run_many(args)
-    check_single(args)
     (mesh,) = args.mesh
-    check_output(args.output, (".npz",), inputs=(mesh,))
-    _, V, F = read_shape(mesh)
-    B, _ = basis_for(V, F, mesh, args, k=args.k)
+    common.check_output(args.output, (".npz",), inputs=(mesh,))
+    _, V, F = common.read_shape(mesh)
+    B = common.shape_basis(V, F, mesh, args)
     B.save(args.output)
     cleaning = B.eig.cleaning.report if B.eig.cleaning is not None else None
-    report(
-        [
-            f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: "
-            f"kept {B.size} of {n_eigenproducts(B.k, B.order)} products",
+    report([f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept "
+            f"{B.size} of {n_eigenproducts(B.k, B.order)} products",
             *([f"cleaning: {cleaning}"] if cleaning is not None else []),
-            f"wrote {args.output}",
-        ]
-    )
+            f"wrote {args.output}"])  # fmt: skip
     return 0
 
 
 def _run_many(args: argparse.Namespace) -> int:
     """Cache the eigenbasis (for map estimation) and the OFP basis of every shape."""
-    from ..collections import bases_many
-
-    if args.output is not None:
-        raise UsageError(
-            "-o names the basis file of ONE shape; for several shapes give --cache DIR"
-        )
-    if args.cache is None:
-        raise UsageError("give -o FILE.npz (one shape) or --cache DIR (any number of shapes)")
-    if args.force:
-        raise UsageError("--force does not apply to basis (cached entries are checked)")
-    try:
-        records = bases_many(
-            args.mesh,
-            cache_dir=args.cache,
-            client=args.scheduler,
-            k=args.k or 29,
-            order=args.order,
-            preset=None if args.tol is not None else args.preset,
-            tol=args.tol,
-            components=args.components,
-            workers=args.workers,
-            progress=ENABLED.on,
-        )
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        raise UsageError(str(exc)) from exc
+    common.refuse(
+        (args.output is not None, "-o names the basis file of ONE shape; for several shapes give "
+         "--cache DIR"),
+        (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
+        (args.force, "--force does not apply to basis (cached entries are checked)"),
+    )  # fmt: skip
+    given = {"k": args.k, "order": args.order, "tol": args.tol,
+             "preset": None if args.tol is not None else args.preset}  # fmt: skip
+    records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
+                         components=args.components, workers=args.workers, progress=ENABLED.on,
+                         **{name: value for name, value in given.items() if value is not None})
     return report_records(records)

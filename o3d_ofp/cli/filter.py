@@ -8,98 +8,58 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import (
-    CLOUD_OUT,
-    MESH_HELP,
-    MESH_OUT,
-    UsageError,
-    about,
-    basis_for,
-    check_job_memory,
-    check_output,
-    check_output_kind,
-    eig_options,
-    read_shape,
-    report,
-    stage,
-)
-from ._types import bounded_float
+from ..boundary.api import filter_geometry
+from ..boundary.io import write_geometry
+from ..core.filtering import DEFAULT_SMOOTH, MAX_SHARPEN, MAX_SMOOTH
+from . import _common as common
+from ._common import MESH_HELP, UsageError, bounded_float
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
-    from ..core.filtering import DEFAULT_SMOOTH, MAX_SHARPEN, MAX_SMOOTH
-
     p = sub.add_parser("filter", help="smooth or sharpen a shape (volume kept)")
-    p.add_argument("mesh", help=MESH_HELP)
-    p.add_argument(
-        "--smooth",
-        type=bounded_float(0.0, MAX_SMOOTH),
-        help=f"smoothing radius as a fraction of sqrt(surface area), in [0, {MAX_SMOOTH:g}]: "
-        "detail smaller than about SMOOTH * sqrt(area) is removed, the same at every scale and "
-        f"resolution (e.g. {DEFAULT_SMOOTH:g}); with --sharpen: the size of the detail "
-        f"enhanced ({DEFAULT_SMOOTH:g})",
-    )
-    p.add_argument(
-        "--sharpen",
-        type=bounded_float(0.0, MAX_SHARPEN),
-        help=f"detail gain in [0, {MAX_SHARPEN:g}]: the detail smaller than --smooth is "
-        "multiplied by 1 + SHARPEN (beyond 2 triangles turn over)",
-    )
-    p.add_argument(
-        "--keep-size",
-        choices=("volume", "none"),
-        default="volume",
-        help="rescale the result to the input's enclosed volume (a cloud: its spread) (volume)",
-    )
-    p.add_argument(
-        "--components",
-        choices=("auto", "largest", "error"),
-        default="auto",
-        help="several connected components: auto keeps the largest if it holds >= 90%% of the "
-        "area (else refuses), largest always keeps it, error always refuses (default: auto)",
-    )
-    p.add_argument("--basis", help="cached basis of MESH (.npz; its Laplacian is used)")
-    p.add_argument("-o", "--output", required=True, help="filtered mesh or cloud")
+    a = p.add_argument
+    a("mesh", help=MESH_HELP)
+    a("--smooth", type=bounded_float(0.0, MAX_SMOOTH), help="radius in [0, "
+      f"{MAX_SMOOTH:g}] times sqrt(area): smaller detail is removed at any scale (e.g. "
+      f"{DEFAULT_SMOOTH:g}); with --sharpen, the size of the detail enhanced ({DEFAULT_SMOOTH:g})")
+    a("--sharpen", type=bounded_float(0.0, MAX_SHARPEN), help=f"gain in [0, {MAX_SHARPEN:g}]: "
+      "multiplies the detail smaller than --smooth by 1 + SHARPEN (beyond 2, triangles turn over)")
+    a("--keep-size", choices=("volume", "none"), default="volume", help="rescale the result to the "
+      "input's enclosed volume (a cloud: its spread) (volume)")
+    common.add_components_option(p)
+    a("--basis", help="cached basis of MESH (.npz; its Laplacian is used)")
+    a("-o", "--output", required=True, help="filtered mesh or cloud")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Filter the coordinates and write the shape."""
-    from ..boundary.api import filter_geometry
-    from ..boundary.io import write_geometry
-    from ..core.filtering import DEFAULT_SMOOTH
-    from ..core.spectrum import eigenbasis
+    """Filter the coordinates and write the shape.
 
-    check_output(args.output, (*MESH_OUT, *CLOUD_OUT), inputs=(args.mesh,))
+    The low-pass is two complex sparse factorizations of the whole mesh (no eigenfunctions):
+    its stage says so, and that it still runs (the library reports no progress inside them).
+    """
+    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT), inputs=(args.mesh,))
     if args.smooth is None and args.sharpen is None:
         raise UsageError("give --smooth RADIUS and/or --sharpen GAIN")
-    geometry, V, F = read_shape(args.mesh)
-    check_output_kind(args.output, F)
-    if args.basis:
-        B, _ = basis_for(V, F, args.mesh, args, k=None, file=args.basis)
-    else:
-        check_job_memory(
-            [(args.mesh, V.shape[0], 1, 1, 1)], advice="use a simplified mesh (fewer vertices)"
-        )
-        what = "vertices" if F is not None else "points"
-        with stage(f"Laplacian of {args.mesh} ({V.shape[0]} {what})"), about(args.mesh):
-            B = eigenbasis(V, F, k=1, **eig_options(args))
-    with stage("low-pass filter"):
-        out = filter_geometry(
-            geometry,
-            smooth=args.smooth,
-            sharpen=args.sharpen,
-            keep_volume=args.keep_size == "volume",
-            basis=B.eig if hasattr(B, "eig") else B,
-        )
+    geometry, V, F = common.read_shape(args.mesh)
+    common.check_output_kind(args.output, F)
+    n, points, basis = V.shape[0], "vertices" if F is not None else "points", None
+    if args.basis:  # its eigenbasis: the Laplacian is used
+        basis = common.load_basis_file(args.basis, V, F, args.mesh, args, "--basis").eig
+    else:  # the Laplacian only: an eigenbasis of one function
+        common.check_memory(args.mesh, n, k=1, order=1, advice="use a simplified mesh (fewer "
+                            "vertices)")  # fmt: skip
+    size = DEFAULT_SMOOTH if args.smooth is None else args.smooth
+    what, detail = ((f"smooth {size:g}", f"radius {size:g} sqrt(area)") if args.sharpen is None
+                    else (f"sharpen {args.sharpen:g}", f"detail smaller than {size:g} sqrt(area)"))
+    laplacian = "" if basis is not None else "its Laplacian, then "
+    with common.stage(f"{what} of {args.mesh} ({n} {points}: {laplacian}two complex sparse "
+                      "factorizations)"), common.about(args.mesh):  # fmt: skip
+        out = filter_geometry(geometry, smooth=args.smooth, sharpen=args.sharpen, basis=basis,
+                              keep_volume=args.keep_size == "volume", components=args.components)
     write_geometry(args.output, out, protect=(args.mesh,))
-    if args.sharpen is None:
-        what = f"smooth {args.smooth:g} (radius {args.smooth:g} sqrt(area))"
-    else:
-        size = DEFAULT_SMOOTH if args.smooth is None else args.smooth
-        what = f"sharpen {args.sharpen:g} (detail smaller than {size:g} sqrt(area))"
-    report([f"{args.mesh}: {what}", f"wrote {args.output}"])
+    common.report([f"{args.mesh}: {what} ({detail})", f"wrote {args.output}"])
     return 0

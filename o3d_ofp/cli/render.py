@@ -7,9 +7,9 @@ import os
 
 import numpy as np
 
-from ..render.panel import MAX_SIDE, MIN_SIDE
-from ._common import MESH_HELP, UsageError, check_output, load_npy, read_shape, report, stage
-from ._types import bounded_int, positive_int, unit_float, vector3
+from ..render.panel import MAX_SIDE, MIN_SIDE, View, colormap, geometry_items, render_panel
+from . import _common as common
+from ._common import UsageError, report, stage
 
 __all__ = ["add_parser", "run"]
 
@@ -17,80 +17,61 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("render", help="render meshes side by side into a PNG (headless)")
-    p.add_argument("mesh", nargs="+", help=MESH_HELP)
-    p.add_argument("--titles", help="comma-separated titles (default: the file names)")
-    p.add_argument(
-        "--scalars", nargs="+", help="one .npy of per-vertex scalars per mesh ('-' for none)"
-    )
-    p.add_argument("--colormap", default="viridis", help="matplotlib colormap (viridis)")
-    p.add_argument("--label", help="label of the color bar (with --scalars)")
-    side = bounded_int(MIN_SIDE, MAX_SIDE)
-    p.add_argument("--width", type=side, help=f"tile width in pixels ({MIN_SIDE}-{MAX_SIDE})")
-    p.add_argument("--height", type=side, help=f"tile height in pixels ({MIN_SIDE}-{MAX_SIDE})")
-    p.add_argument(
-        "--columns", type=positive_int, help="tiles per row (default: all, up to 6 per row)"
-    )
-    p.add_argument("--front", type=vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
-    p.add_argument("--up", type=vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
-    p.add_argument("--zoom", type=unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
-    p.add_argument("-o", "--output", required=True, help="PNG file")
+    a, side = p.add_argument, common.bounded_int(MIN_SIDE, MAX_SIDE)
+    a("mesh", nargs="+", help=common.MESH_HELP)
+    a("--titles", help="comma-separated titles (default: the file names)")
+    a("--scalars", nargs="+", help="one .npy of per-vertex scalars per mesh ('-' for none)")
+    a("--colormap", default="viridis", help="matplotlib colormap (viridis)")
+    a("--label", help="label of the color bar (with --scalars)")
+    a("--width", type=side, help=f"tile width in pixels ({MIN_SIDE}-{MAX_SIDE})")
+    a("--height", type=side, help=f"tile height in pixels ({MIN_SIDE}-{MAX_SIDE})")
+    a("--columns", type=common.positive_int, help="tiles per row (default: all, up to 6 per row)")
+    a("--front", type=common.vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
+    a("--up", type=common.vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
+    a("--zoom", type=common.unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
+    a("-o", "--output", required=True, help="PNG file")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Read the meshes (and scalars), render, write the PNG."""
-    from ..render.panel import View, geometry_items, render_panel
-
-    check_output(args.output, (".png",), inputs=args.mesh)
-    if args.label and not args.scalars:
-        raise UsageError("--label names the color bar of --scalars: give --scalars too")
+    common.check_output(args.output, (".png",), inputs=args.mesh)
+    n = len(args.mesh)
+    titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
+    scalars = args.scalars or ["-"] * n
+    common.refuse(
+        (args.label and not args.scalars, "--label names the color bar of --scalars: give "
+         "--scalars too"),
+        (len(titles) != n, f"--titles has {len(titles)} entries for {n} meshes"),
+        (len(scalars) != n, f"--scalars has {len(scalars)} entries for {n} meshes ('-' for none)"),
+    )  # fmt: skip
     view = View(front=args.front, up=args.up, zoom=args.zoom)
     try:
         view.check()
     except ValueError as exc:
         up, front = (",".join(f"{x:g}" for x in v) for v in (args.up, args.front))
         raise UsageError(f"--up {up} is parallel to --front {front}; give another --up") from exc
-    titles = args.titles.split(",") if args.titles else [os.path.basename(p) for p in args.mesh]
-    if len(titles) != len(args.mesh):
-        raise UsageError(f"--titles has {len(titles)} entries for {len(args.mesh)} meshes")
-    scalars = args.scalars or []
-    if scalars and len(scalars) != len(args.mesh):
-        raise UsageError(
-            f"--scalars has {len(scalars)} entries for {len(args.mesh)} meshes ('-' for none)"
-        )
+    try:  # an unknown colormap, named by its flag before any work
+        colormap(np.zeros(1), args.colormap)
+    except ValueError as exc:
+        raise UsageError(f"--colormap {args.colormap}: {exc}") from exc
     items, textures = [], []
-    for i, path in enumerate(args.mesh):
-        geometry, V, F = read_shape(path)
-        (item,), (texture,) = geometry_items([geometry])  # colors, or the mesh's own texture
-        colors = item[2]
-        if scalars and scalars[i] != "-":
-            values = load_npy(scalars[i], "per-vertex scalars", flag="--scalars")
-            if values.ndim == 2 and values.shape[1] == 1:
-                values = values[:, 0]
+    for path, npy in zip(args.mesh, scalars, strict=True):
+        geometry, V, F = common.read_shape(path)
+        ((_, _, colors),), (texture,) = geometry_items([geometry])  # colors, or its own texture
+        if npy != "-":
+            values = common.load_npy(npy, "per-vertex scalars", flag="--scalars")
+            values = values[:, 0] if values.ndim == 2 and values.shape[1] == 1 else values
             if values.shape != (V.shape[0],):
-                raise UsageError(
-                    f"--scalars {scalars[i]}: shape {values.shape}, expected ({V.shape[0]},) "
-                    f"for {path}"
-                )
+                raise UsageError(f"--scalars {npy}: shape {values.shape}, expected ({V.shape[0]},) "
+                                 f"for {path}")  # fmt: skip
             colors, texture = values.astype(np.float64), None
         items.append((V, F, colors))
         textures.append(texture)
-    options = {k: v for k, v in (("width", args.width), ("height", args.height)) if v}
-    if args.label:
-        options["colorbar_label"] = args.label
+    options = {k: v for k, v in (("width", args.width), ("height", args.height),
+                                 ("colorbar_label", args.label)) if v}  # fmt: skip
     with stage(f"rendering {len(items)} views"):
-        try:
-            panel = render_panel(
-                items,
-                args.output,
-                titles=titles,
-                textures=textures,
-                columns=args.columns,
-                view=view,
-                cmap=args.colormap,
-                **options,
-            )
-        except ValueError as exc:
-            raise UsageError(str(exc)) from exc
+        panel = render_panel(items, args.output, titles=titles, textures=textures,
+                             columns=args.columns, view=view, cmap=args.colormap, **options)
     report([f"wrote {args.output} ({panel.shape[1]}x{panel.shape[0]} pixels)"])
     return 0
