@@ -37,7 +37,7 @@ from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
 from ..core.spectrum import DEFAULT_K
 from ..core.wording import AdvisedError, OptionError, Said
-from ..workflows.options import ESTIMATION_K, BasisOptions, DetailOptions
+from ..workflows.options import BasisOptions, DetailOptions, MatchOptions
 from ..workflows.plan import plan_pair, prepare_source
 from .results import TargetResult
 from .tasks import BasisJob, ShapeSpec, SharedSource, TransferJob, basis_task, failed, transfer_task
@@ -796,7 +796,7 @@ def bases_many(
     preset: str | None = "ours",
     tol: float | None = None,
     components: str = "auto",
-    eigenbasis_k: int | None = ESTIMATION_K,
+    eigenbasis_k: int | None = MatchOptions.zoomout_to,
     workers: int | None = None,
     progress: bool = True,
 ) -> list[TargetResult]:

@@ -35,13 +35,11 @@ from ..workflows.dense import CoarseShape
 from ..workflows.maps import Correspondence
 from ..workflows.options import (
     COMPONENTS,
-    ESTIMATION_K,
     BasisOptions,
     DetailOptions,
     MatchOptions,
     check_bool,
     check_choice,
-    required_k,
 )
 from ..workflows.pipeline import carry
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
@@ -151,7 +149,7 @@ class BasisJob:
     tol: float | None = None
     preset: str | None = "ours"
     components: str = "auto"
-    eigenbasis_k: int | None = ESTIMATION_K
+    eigenbasis_k: int | None = MatchOptions.zoomout_to
 
     def __post_init__(self) -> None:
         for name in ("k", "order", "eigenbasis_k"):
@@ -413,12 +411,17 @@ def basis_task(job: BasisJob, spec: ShapeSpec) -> TargetResult:
         _, V, F = _read(spec)
         n = V.shape[0]
         eig, cached = None, True
-        if job.eigenbasis_k is not None:
-            eig, cached = fetch_eigenbasis(
-                V, F, k=required_k(n, job.eigenbasis_k), clamp_k=True, cache_dir=job.cache_dir,
-                components=job.components,
-            )  # fmt: skip
-            if eig.k < job.k:
+        if job.eigenbasis_k is not None:  # the eigenbasis a map estimation plans for this shape
+            k = job.eigenbasis_k
+            match = MatchOptions(zoomout_to=k, k_fit=min(k, MatchOptions.k_fit),
+                                 components=job.components)  # fmt: skip
+            plan = plan_pair(V, F, None, None, task="map", match=match)
+            if plan.eig_k[0]:  # (none on the dense path)
+                eig, cached = fetch_eigenbasis(
+                    V, F, k=plan.eig_k[0], clamp_k=plan.clamp[0], cache_dir=job.cache_dir,
+                    components=job.components,
+                )  # fmt: skip
+            if eig is not None and eig.k < job.k:
                 eig = None  # smaller than the basis needs: fetch_basis solves again
         cached &= fetch_basis(
             V, F, **basis, cache_dir=job.cache_dir, eig=eig, components=job.components
