@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import glob
 import logging
 import math
@@ -62,12 +61,6 @@ FLAGS: dict[str, tuple[str, ...]] = {
 DEPRECATED = {("k_low", None): ("--k-low", "band", None),
               ("mode", "replace"): ("--mode replace", "mode", "coordinates")}  # fmt: skip
 
-#: TEMPORARY, until core/cleaning.py refuses several components with a Said: the keywords of
-#: that one message (a plain ValueError), in flags.
-_UNSAID_KEYWORDS = {"components='largest'": "--components largest",
-                    "components='auto'": "--components auto"}  # fmt: skip
-
-
 class UsageError(Exception):
     """Bad input or arguments: one line, exit code 2 (a Said is worded for the command line)."""
 
@@ -93,10 +86,10 @@ OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 def error_text(exc: BaseException) -> str:
     """Return the one line an error is said in on the command line (flags, not keywords)."""
     if isinstance(exc, OptionError) and exc.option in FLAGS:
-        joint = "" if exc.problem.startswith((":", ",")) else " "
-        return flag_of(exc.option) + joint + exc.problem
-    return functools.reduce(lambda text, keyword: text.replace(*keyword),  # (temporary)
-                            _UNSAID_KEYWORDS.items(), text_of(exc, cli=True))
+        problem = text_of(exc.problem, cli=True)
+        joint = "" if problem.startswith((":", ",", "=")) else " "
+        return flag_of(exc.option) + joint + problem
+    return text_of(exc, cli=True)
 
 
 def flag_of(option: str) -> str:

@@ -25,7 +25,6 @@ from ..boundary.pick import has_display, pick_landmarks
 from ..core._atomic import atomic_path
 from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
-from ..core.orthogonalize import PRESETS
 from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, given_map_collapse
 from ..workflows.options import BasisOptions, MatchOptions
@@ -324,24 +323,22 @@ def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[l
 
     The OFP basis flags given to a job the plan makes without OFP bases (and, with ``files``,
     the basis files) are refused with ``unused(flags given)``, in the command line's words;
-    then the basis files are read, and refused when orthogonalized with another threshold
-    than the other side's basis. ``options``: ``detail``, ``via_basis`` of :func:`plan_pair`.
+    then the basis files are read and planned with (the plan refuses two thresholds).
+    ``options``: ``detail``, ``via_basis`` of :func:`plan_pair`.
     """
     planned = _planned(pair, task=task, **options)
     named = [f for f in (*common.FLAGS["options"], *common.FLAGS["bases"][: 2 * files])
              if getattr(args, common.dest(f)) is not None]  # fmt: skip
     if planned.basis_k is None and named:
         raise UsageError(unused(named))
-    bases = common.basis_options(args)
-    if planned.basis_k is not None and bases is not None:
-        planned = _planned(pair, task=task, bases=bases, **options)
     pair.files = tuple(  # type: ignore[assignment]
         common.load_basis_file(f, V, F, path, args, flag) if f else None
         for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
                                     (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
     )  # fmt: skip
-    if planned.basis_k is not None:
-        _check_thresholds(args, pair, planned.tol)
+    bases = common.basis_options(args)
+    if planned.basis_k is not None and (bases is not None or any(pair.files)):
+        planned = _planned(pair, task=task, bases=bases, given_bases=pair.files, **options)
     return planned
 
 
@@ -370,34 +367,6 @@ def _planned(pair: Pair, **options: Any) -> Plan:
                               {"factor": factor, "said": exc.said, "target": target})) from exc
 
 
-def _check_thresholds(args: argparse.Namespace, pair: Pair, tol: float) -> None:
-    """Refuse, before any work, basis files of two orthogonalization thresholds.
-
-    A file's against the other file's, or against the plan's threshold ``tol`` of the basis
-    made for the other side. A trial's ``detail --mode coordinates --basis-1`` with an "ours"
-    file ran the target with the command's default "ours*": a transfer between bases of two
-    thresholds, unsaid.
-    """
-    files = zip((args.basis_1, args.basis_2), pair.files, strict=True)
-    held = [(i, f, B.tol) for i, (f, B) in enumerate(files) if B is not None]
-    if len(held) == 2 and not np.isclose(held[0][2], held[1][2], rtol=1e-9):
-        raise UsageError(f"--basis-1 {args.basis_1} and --basis-2 {args.basis_2} were "
-                         f"orthogonalized with thresholds {held[0][2]:g} and {held[1][2]:g}: the "
-                         "two bases must share one; recompute one of them")  # fmt: skip
-    if len(held) != 1 or np.isclose(held[0][2], tol, rtol=1e-9):
-        return
-    side, file, t = held[0]
-    name = next((n for n, v in PRESETS.items() if np.isclose(v, t, rtol=1e-9)), None)
-    own = next((n for n, v in PRESETS.items() if np.isclose(v, tol, rtol=1e-9)), f"{tol:g}")
-    how = f"--preset {name}" if name and args.tol is None else f"--tol {t:g}"  # --tol rules
-    yours = (f"--tol {args.tol:g}" if args.tol is not None else f"--preset {args.preset}"
-             if args.preset else f"--preset {own}, this command's default")  # fmt: skip
-    raise UsageError(f"--basis-{side + 1} {file}: holds a basis orthogonalized with threshold "
-                     f"{t:g}, but the {('target', 'source')[side]}'s basis would be made with "
-                     f"{tol:g} ({yours}): the two bases must share one; pass {how}, or recompute "
-                     "the basis file")
-
-
 # --------------------------------------------------------------------------- running
 
 
@@ -418,11 +387,8 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepare
             prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
                                given=given, bases=pair.files, cache_dir=args.cache,
                                progress=tell, names=pair.names)  # fmt: skip
-        except AdvisedError as exc:  # the estimation's eigenbases are the plan's, not the flags'
-            if exc.said.code != "memory" or not planned.estimated:
-                raise
-            raise UsageError(Said("{said}; or give the map with --map FILE",
-                                  {"said": exc.said})) from exc  # fmt: skip
+        except AdvisedError as exc:
+            raise UsageError(exc.said) from exc
     if planned.estimated:
         report_quality(args, prepared.correspondence)
     if args.save_map:

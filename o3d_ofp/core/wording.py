@@ -43,6 +43,10 @@ FIXES: Mapping[str, tuple[str, str]] = {
     ),
     "identity": ("map='identity'", "--map identity"),
     "texture_size": ("kind='texture'", "--texture-size N"),
+    "threshold": ("options=BasisOptions({setting})", "{flag}"),
+    "via_basis": ("via_basis=True", "--via-basis"),
+    "pull_back": ("via_basis=False", "--pull-back"),
+    "give_map": ("give the map (correspondence=)", "give the map with --map FILE"),
     "lower": (
         "lower k1, k2 or order (options=BasisOptions(...)) or band",
         "lower --k1/--k2, --order or --band",
@@ -146,11 +150,14 @@ class OptionError(ValueError, TypeError):
     ----------
     option : str
         The keyword (a field of an options object, or a function's parameter).
-    problem : str
-        What is wrong with its value, after the name: ``"must be >= 1; got 0"``.
+    problem : str or Said
+        What is wrong with its value, after the name: ``"must be >= 1; got 0"`` (a Said when it
+        advises a fix: :func:`text_of` words it for its reader).
     """
 
-    def __init__(self, option: str, problem: str) -> None:
-        super().__init__(option + ("" if problem.startswith((":", ",", "=")) else " ") + problem)
+    def __init__(self, option: str, problem: str | Said) -> None:
+        joint = "" if text_of(problem).startswith((":", ",", "=")) else " "
+        self.said = Said(option + joint + "{problem}", {"problem": problem}, "option")
+        super().__init__(self.said.text())
         self.option = option
         self.problem = problem

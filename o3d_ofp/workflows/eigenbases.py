@@ -7,9 +7,10 @@ block Lanczos, o3d_ofp.core._lanczos: 0.73 / 0.50 s and 3.2 / 2.0 s).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -18,7 +19,7 @@ from ..core._memory import basis_job_bytes
 from ..core._processes import side_by_side
 from ..core.cleaning import check_shape
 from ..core.spectrum import EigenBasis, eigenbasis
-from ..core.wording import AdvisedError, Said
+from ..core.wording import AdvisedError, OptionError, Said
 
 __all__ = [
     "SIDE_BY_SIDE_VERTICES",
@@ -27,6 +28,7 @@ __all__ = [
     "eigenbases",
     "eigenbasis_bytes",
     "run_per_shape",
+    "said_of",
 ]
 
 logger = logging.getLogger(__name__)
@@ -113,14 +115,23 @@ def check_shapes(
         The cleaning's message, after the shape's name.
     """
     for i, (V, F) in enumerate(shapes):
-        try:
+        name = names[i] if names is not None else f"shape {i + 1} of {len(shapes)}"
+        with said_of(name):
             check_shape(V, F, components=components, weld_tolerance=weld_tolerance)
-        except (TypeError, ValueError) as exc:
-            name = names[i] if names is not None else f"shape {i + 1} of {len(shapes)}"
-            if isinstance(exc, AdvisedError):  # its fix stays data
-                raise AdvisedError(Said("{name}: {said}", {"name": name, "said": exc.said},
-                                        exc.said.code)) from exc  # fmt: skip
-            raise type(exc)(f"{name}: {exc}") from exc
+
+
+@contextlib.contextmanager
+def said_of(name: str) -> Iterator[None]:
+    """Put ``name`` (a shape's) before the message of a refusal raised in the block."""
+    try:
+        yield
+    except AdvisedError as exc:  # its fix stays data
+        said = Said("{name}: {said}", {"name": name, "said": exc.said}, exc.said.code)
+        raise AdvisedError(said) from exc
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, OptionError) or str(exc).startswith(f"{name}: "):
+            raise
+        raise type(exc)(f"{name}: {exc}") from exc
 
 
 def eigenbases(

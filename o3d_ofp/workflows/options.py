@@ -19,7 +19,7 @@ import numpy as np
 from ..core._validation import check_int
 from ..core.orthogonalize import resolve_tol
 from ..core.spectrum import DEFAULT_K
-from ..core.wording import OptionError
+from ..core.wording import OptionError, Said
 
 __all__ = [
     "COMPONENTS",
@@ -197,8 +197,9 @@ class MatchOptions:
             ("align", self.align and not closest),
         ):
             if wrong:
-                applies = "method='closest'" if name == "align" else "method='estimate'"
-                raise OptionError(name, f"applies to {applies}; method is {self.method!r}")
+                applies = "{closest}" if name == "align" else "{estimate}"
+                raise OptionError(name, Said(f"applies to {applies}; method is {{method!r}}",
+                                             {"method": self.method}))  # fmt: skip
 
     @property
     def estimation(self) -> dict[str, Any]:

@@ -25,11 +25,12 @@ from ..core._memory import available_memory, basis_job_bytes, format_bytes
 from ..core._threads import PARALLEL_ROWS
 from ..core._warnings import warn
 from ..core.basis import OFPBasis, ofp_basis
+from ..core.orthogonalize import PRESETS
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import AdvisedError, OptionError, Said
 from .cache import fetch_basis, fetch_eigenbasis
 from .dense import COARSE_VERTICES, DENSE_VERTICES, CoarseShape, coarse_shape
-from .eigenbases import answer_bytes, check_shapes, run_per_shape
+from .eigenbases import answer_bytes, check_shapes, run_per_shape, said_of
 from .estimate import estimate, estimate_dense, strategy_of
 from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
 from .options import BasisOptions, DetailOptions, MatchOptions
@@ -176,8 +177,12 @@ def plan_pair(
     with_bases = (task == "colors" and not exact) or coordinates
     if explicit and not with_bases:
         why = _no_bases(task, detail, closest)
-        raise OptionError("options", f"(the OFP bases' sizes and threshold) does not apply: {why}")
+        raise OptionError("options", Said(
+            "(the OFP bases' sizes and threshold) does not apply: {why}", {"why": why}
+        ))  # fmt: skip
     need = _task_needs(task, (n1, n2), bases, detail, given, given_bases, with_bases, names)
+    if with_bases:
+        _check_thresholds(given_bases, bases.threshold(preset), names)
     no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
     if bases.matrix == "analytic" and with_bases and no_fmap:
         raise OptionError(
@@ -219,19 +224,19 @@ def _estimator(
         if not match.partial:
             return "full"
         if F1 is None or (V2 is not None and F2 is None):
-            raise OptionError(
-                "partial", f"=True needs triangle meshes: {names[F1 is not None]} is a point "
-                "cloud (no faces); mesh it first or match without partial=True",
-            )  # fmt: skip
+            raise OptionError("partial", Said(
+                "=True needs triangle meshes: {name} is a point cloud (no faces); mesh it first "
+                "or match without {partial}", {"name": names[F1 is not None]},
+            ))  # fmt: skip
         if V2 is not None:
             check_partial_areas(V1, F1, V2, F2, names=names)
         return "partial"
     for name, wrong in (("partial", match.partial), ("landmarks", match.landmarks is not None)):
         if wrong:
-            raise OptionError(
-                name, "applies to a map estimated here; the given map is used as it is (a map "
-                "from o3d_ofp.match(..., partial=True) is partial already)",
-            )  # fmt: skip
+            raise OptionError(name, Said(
+                "applies to a map estimated here; the given map is used as it is (a map made "
+                "with {partial} is partial already)",
+            ))  # fmt: skip
     return "given"
 
 
@@ -261,26 +266,24 @@ def _task_needs(
         if count is not None and name and k > max(1, count - 2):
             raise OptionError(
                 name, f"({k}): {names[side]} has {count} vertices, too few for {k} "
-                f"eigenfunctions (at most {max(1, count - 2)}); lower {name}",
+                f"eigenfunctions (at most {max(1, count - 2)}); lower it",
             )  # fmt: skip
     return need
 
 
-def _no_bases(task: str, detail: DetailOptions, closest: bool) -> str:
-    """Why a task builds no OFP basis (for the refusal of basis options given to it)."""
+def _no_bases(task: str, detail: DetailOptions, closest: bool) -> Said:
+    """Return why a task builds no OFP basis (for the refusal of basis options given to it)."""
     if task == "detail":
-        return f"mode {detail.mode!r} reads each shape's eigenfunctions up to band ({detail.band})"
-    if task == "colors" and closest:
-        return (
-            "the exact pull-back (the default with a closest-point map) carries the colors with "
-            "no OFP basis; drop it, or pass via_basis=True to transfer through the OFP bases"
-        )
+        return Said("mode {mode!r} reads each shape's eigenfunctions up to band ({band})",
+                    {"mode": detail.mode, "band": detail.band})  # fmt: skip
     if task == "colors":
-        return (
-            "the exact pull-back (via_basis=False) carries the colors with no OFP basis; drop "
-            "it, or pass via_basis=True to transfer through the OFP bases"
-        )
-    return f"task {task!r} reads the source through the map, with no OFP basis"
+        return Said(
+            "the exact pull-back ({why}) carries the colors with no OFP basis; drop it, or pass "
+            "{via_basis} to transfer through the OFP bases",
+            {"why": "the default with a closest-point map" if closest else Said("{pull_back}")},
+        )  # fmt: skip
+    return Said("task {task!r} reads the source through the map, with no OFP basis",
+                {"task": task})  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -380,7 +383,7 @@ def prepare(
     if plan.dense:
         corr = estimate_dense(V1, F1, V2, F2, options=match, coarse_source=coarse_source,
                               progress=progress)  # fmt: skip
-    eigs, cached = _eigenbases(plan, shapes, have, todo, components, cache_dir)
+    eigs, cached = _eigenbases(plan, shapes, have, todo, components, cache_dir, names)
     with _Ahead(plan, eigs, bases, cache_dir, shapes, components) as ahead:
         if plan.estimated and not plan.dense:
             ahead.start()
@@ -466,7 +469,8 @@ def _check_memory(
     what = " and ".join(f"{name} ({n} vertices, k={max(k, e)})" for name, n, k, e, _ in jobs)
     raise AdvisedError(Said(
         "the bases of {what} need about {need} of memory, more than the {limit} available: "
-        "{lower}, or use simplified meshes (fewer vertices)",
+        "{lower}, or use simplified meshes (fewer vertices)" + ("; or {give_map}" if
+        plan.estimated and not plan.dense else ""),  # the estimation's size: no option of theirs
         {"what": what, "need": format_bytes(need), "limit": format_bytes(limit)}, "memory",
     ))  # fmt: skip
 
@@ -478,6 +482,7 @@ def _eigenbases(
     todo: list[int],
     components: Sequence[str],
     cache_dir: Any,
+    names: tuple[str, str] = ("the source", "the target"),
 ) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:
     """Return the plan's eigenbases and whether each was read from the cache.
 
@@ -490,9 +495,10 @@ def _eigenbases(
     def job(i: int) -> tuple[EigenBasis, bool]:
         V, F = shapes[i]
         options = {"k": plan.eig_k[i], "clamp_k": plan.clamp[i], "components": components[i]}
-        if cache_dir is not None:
-            return fetch_eigenbasis(V, F, cache_dir=cache_dir, **options)
-        return eigenbasis(V, F, **options), False
+        with said_of(names[i]):
+            if cache_dir is not None:
+                return fetch_eigenbasis(V, F, cache_dir=cache_dir, **options)
+            return eigenbasis(V, F, **options), False
 
     sizes = [shapes[i][0].shape[0] for i in todo]
     memory = [
@@ -530,8 +536,6 @@ class _Ahead:
         self.cache_dir, self.shapes, self.components = cache_dir, shapes, components
         self._pool: ThreadPoolExecutor | None = None
         self._target: Future[OFPBasis] | None = None
-        if plan.basis_k is not None:
-            _check_thresholds(self.given, plan.tol)
 
     def __enter__(self) -> _Ahead:
         return self
@@ -578,18 +582,26 @@ class _Ahead:
         return self._basis(0), self._basis(1)
 
 
-def _check_thresholds(given: Sequence[OFPBasis | None], tol: float) -> None:
+def _check_thresholds(
+    given: Sequence[OFPBasis | None], tol: float, names: tuple[str, str]
+) -> None:
     """Refuse OFP bases of two thresholds: a given one against the other given one or the plan's."""
-    tols = [b.tol for b in given if b is not None]
-    if len(tols) == 2 and not np.isclose(tols[0], tols[1], rtol=1e-9):
-        raise OptionError(
-            "bases", f": the source's basis was orthogonalized with threshold {tols[0]:g} and the "
-            f"target's with {tols[1]:g}: the two bases must share one; recompute one of them",
-        )  # fmt: skip
-    if len(tols) == 1 and not np.isclose(tols[0], tol, rtol=1e-9):
-        side = "source" if given[0] is not None else "target"
-        raise OptionError(
-            "bases", f": the {side}'s basis was orthogonalized with threshold {tols[0]:g}, but "
-            f"the other basis would be made with {tol:g}: the two bases must share one; pass "
-            f"options=BasisOptions(tol={tols[0]:g}), or recompute the basis",
-        )  # fmt: skip
+    held = [(i, b.tol) for i, b in enumerate(given) if b is not None]
+    if len(held) == 2 and not np.isclose(held[0][1], held[1][1], rtol=1e-9):
+        raise OptionError("bases", Said(
+            ": the given bases of {source} and {target} were orthogonalized with thresholds "
+            "{t1:g} and {t2:g}: the two bases must share one; recompute one of them",
+            {"source": names[0], "target": names[1], "t1": held[0][1], "t2": held[1][1]},
+        ))  # fmt: skip
+    if len(held) != 1 or np.isclose(held[0][1], tol, rtol=1e-9):
+        return
+    side, t = held[0]
+    preset = next((n for n, v in PRESETS.items() if np.isclose(v, t, rtol=1e-9)), None)
+    setting = f"preset={preset!r}" if preset else f"tol={t:g}"
+    flag = f"--preset {preset}" if preset else f"--tol {t:g}"
+    raise OptionError("bases", Said(
+        ": the given basis of {name} was orthogonalized with threshold {t:g}, but the other "
+        "shape's would be made with {tol:g}: the two bases must share one; pass {threshold}, or "
+        "recompute the given basis",
+        {"name": names[side], "t": t, "tol": tol, "setting": setting, "flag": flag},
+    ))  # fmt: skip
