@@ -285,15 +285,12 @@ def render_images(
     front, up, zoom = (view or View())._checked()
     if point_size is None:
         point_size = max(3.0, 3.0 * min(width, height) / 400.0)
-    # Rendered at twice the size and reduced (smooth edges), up to 3200 x 3200 pixels.
-    supersample = 2 if max(width, height) <= 1600 else 1
     with tempfile.TemporaryDirectory(prefix="o3d_ofp_render.") as tmp:
         inp, out = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
         arrays: dict[str, Any] = {
             "count": np.int64(len(payload)),
             "width": np.int64(width),
             "height": np.int64(height),
-            "supersample": np.int64(supersample),
             "front": front,
             "up": up,
             "fill": np.float64(0.9 * 0.6 / zoom),
