@@ -27,12 +27,14 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
+from subprocess import DEVNULL, PIPE
 from typing import Any
 
 import numpy as np
 
 from ..core._atomic import atomic_path
-from ..core._validation import as_faces, as_signal, as_vertices
+from ..core._validation import as_faces, as_signal, as_vertices, check_int
+from . import _worker
 
 __all__ = [
     "MAX_SIDE",
@@ -51,8 +53,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-_WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_worker.py")
-_NO_CONTEXT, _NO_OPEN3D = 3, 4  # the worker's exit statuses
+_WORKER = os.path.abspath(_worker.__file__)
 #: Tile sides accepted, in pixels.
 MIN_SIDE, MAX_SIDE = 16, 8192
 
@@ -185,7 +186,7 @@ def _texture(texture: Any, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
     img = np.asarray(image)
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.size == 0:
         raise ValueError(f"texture image must be (H, W, 3), (H, W, 4) or (H, W); got {img.shape}")
     img = img[:, :, :3]
     if img.dtype != np.uint8:
@@ -195,39 +196,32 @@ def _texture(texture: Any, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.ascontiguousarray(img)
 
 
-def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[str, Any]:
+def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[str, np.ndarray]:
+    """Check an item; return v, c (RGB, or scalars to map), f (mesh), uv and tex (texture)."""
     V = as_vertices(vertices)
-    F = None if faces is None else as_faces(faces, V.shape[0])
-    if colors is None:
-        C = np.full((V.shape[0], 3), 0.7)
-    else:
+    item = {"v": V, "c": np.full((V.shape[0], 3), 0.7)}
+    if faces is not None:
+        item["f"] = as_faces(faces, V.shape[0])
+    if colors is not None:
         C = as_signal(colors, V.shape[0], name="colors")
-        if C.ndim == 1:
-            C = colormap(C)
-        if C.shape[1] != 3:
+        if C.ndim == 2 and C.shape[1] != 3:
             raise ValueError(f"colors must have shape (n, 3) or (n,); got {C.shape}")
-        C = np.clip(C, 0.0, 1.0)
-    item: dict[str, Any] = {"vertices": V, "faces": F, "colors": C}
+        item["c"] = C if C.ndim == 1 else np.clip(C, 0.0, 1.0)
     if texture is not None:
-        if F is None:
+        if faces is None:
             raise ValueError("a texture needs a mesh (faces), not a point cloud")
-        item["uv"], item["texture"] = _texture(texture, F.shape[0])
+        item["uv"], item["tex"] = _texture(texture, item["f"].shape[0])
     return item
 
 
-def _checked_size(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not MIN_SIDE <= value <= MAX_SIDE:
-        raise ValueError(f"{name} must be an integer in [{MIN_SIDE}, {MAX_SIDE}]; got {value!r}")
-    return value
-
-
-def _textures_for(textures: Sequence[Any] | None, n: int) -> list[Any]:
-    if textures is None:
-        return [None] * n
-    textures = list(textures)
-    if len(textures) != n:
-        raise ValueError(f"textures has {len(textures)} entries for {n} items")
-    return textures
+def _items(items: Sequence[Any], textures: Sequence[Any] | None) -> list[dict[str, np.ndarray]]:
+    items = list(items)
+    if not items:
+        raise ValueError("items is empty: nothing to render")
+    textures = [None] * len(items) if textures is None else list(textures)
+    if len(textures) != len(items):
+        raise ValueError(f"textures has {len(textures)} entries for {len(items)} items")
+    return [_item(*it, tex) for it, tex in zip(items, textures, strict=True)]
 
 
 def render_images(
@@ -276,64 +270,54 @@ def render_images(
     RenderError
         When the renderer crashes or hangs.
     """
-    items = list(items)
-    if not items:
-        raise ValueError("items is empty: nothing to render")
-    texs = _textures_for(textures, len(items))
-    payload = [_item(*it, tex) for it, tex in zip(items, texs, strict=True)]
-    width, height = _checked_size("width", width), _checked_size("height", height)
+    return _render(_items(items, textures), width, height, view, point_size, timeout)
+
+
+def _render(
+    items: list[dict[str, np.ndarray]],
+    width: int,
+    height: int,
+    view: View | None,
+    point_size: float | None,
+    timeout: float,
+) -> list[np.ndarray]:
+    """Render checked items (:func:`_item`; scalars left are mapped with "viridis")."""
+    width = check_int(width, name="width", minimum=MIN_SIDE, maximum=MAX_SIDE)
+    height = check_int(height, name="height", minimum=MIN_SIDE, maximum=MAX_SIDE)
     front, up, zoom = (view or View())._checked()
     if point_size is None:
         point_size = max(3.0, 3.0 * min(width, height) / 400.0)
+    arrays: dict[str, Any] = dict(count=len(items), width=width, height=height, front=front, up=up)
+    # fill: the fraction of the tile the shape spans, 0.9 at the default zoom 0.6
+    arrays.update(fill=0.9 * 0.6 / zoom, point_size=float(point_size))
+    arrays.update({f"{key}{i}": a for i, item in enumerate(items) for key, a in item.items()})
+    for i, item in enumerate(items):
+        if item["c"].ndim == 1:
+            arrays[f"c{i}"] = colormap(item["c"])
     with tempfile.TemporaryDirectory(prefix="o3d_ofp_render.") as tmp:
         inp, out = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
-        arrays: dict[str, Any] = {
-            "count": np.int64(len(payload)),
-            "width": np.int64(width),
-            "height": np.int64(height),
-            "front": front,
-            "up": up,
-            "fill": np.float64(0.9 * 0.6 / zoom),
-            "point_size": np.float64(point_size),
-        }
-        for i, item in enumerate(payload):
-            arrays[f"v{i}"], arrays[f"c{i}"] = item["vertices"], item["colors"]
-            if item["faces"] is not None:
-                arrays[f"f{i}"] = item["faces"]
-            if "texture" in item:
-                arrays[f"uv{i}"], arrays[f"tex{i}"] = item["uv"], item["texture"]
         np.savez(inp, **arrays)
-        try:
-            proc = subprocess.run(
-                [sys.executable, _WORKER, inp, out],
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,  # Open3D's and EGL's console chatter
-                stderr=subprocess.PIPE,
-                timeout=timeout,
-                check=False,
-            )
+        cmd = [sys.executable, _WORKER, inp, out]
+        try:  # stdout: Open3D's and EGL's console chatter
+            proc = subprocess.run(cmd, stdin=DEVNULL, stdout=DEVNULL, stderr=PIPE, timeout=timeout)
         except subprocess.TimeoutExpired:
             raise RenderError(f"the renderer did not answer within {timeout:g} s") from None
         tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:]
-        if proc.returncode == _NO_CONTEXT:
+        if proc.returncode == _worker.NO_CONTEXT:
             raise RenderUnavailable(
                 "no OpenGL context: create_window failed (on Debian: apt-get install libgl1 "
                 "libegl1)"
             )
-        if proc.returncode == _NO_OPEN3D:
+        if proc.returncode == _worker.NO_OPEN3D:
             from ..boundary.convert import OPEN3D_INSTALL_HINT
 
-            raise RenderUnavailable(
-                f"{tail[0] if tail else 'open3d cannot be imported'}; install: "
-                f"{OPEN3D_INSTALL_HINT}"
-            )
+            why = tail[0] if tail else "open3d cannot be imported"
+            raise RenderUnavailable(f"{why}; install: {OPEN3D_INSTALL_HINT}")
         if proc.returncode != 0 or not os.path.isfile(out):
-            raise RenderError(
-                f"the renderer process failed (exit status {proc.returncode})"
-                + (f": {tail[0]}" if tail else "")
-            )
+            why = f": {tail[0]}" if tail else ""
+            raise RenderError(f"the renderer process failed (exit status {proc.returncode}){why}")
         with np.load(out, allow_pickle=False) as images:
-            return [images[f"img{i}"] for i in range(len(payload))]
+            return [images[f"img{i}"] for i in range(len(items))]
 
 
 @functools.lru_cache(maxsize=64)
@@ -476,52 +460,36 @@ def render_panel(
     """
     from PIL import Image, ImageDraw
 
-    items = list(items)
-    if not items:
-        raise ValueError("items is empty: nothing to render")
-    if titles is not None and len(titles) != len(items):
-        raise ValueError(f"titles has {len(titles)} entries for {len(items)} items")
-    texs = _textures_for(textures, len(items))
+    checked = _items(items, textures)
+    if titles is not None and len(titles) != len(checked):
+        raise ValueError(f"titles has {len(titles)} entries for {len(checked)} items")
     _mpl_colormap(cmap)  # an unknown name fails before rendering
-    scalars = [
-        np.asarray(c, dtype=np.float64)
-        for (_, _, c), tex in zip(items, texs, strict=True)
-        if c is not None and tex is None
-    ]
-    scalars = [c for c in scalars if c.ndim == 1 and c.size]
-    if scalar_range is None and scalars:
-        scalar_range = (min(float(c.min()) for c in scalars), max(float(c.max()) for c in scalars))
+    scalars = [item for item in checked if item["c"].ndim == 1 and "tex" not in item]
     if scalar_range is not None:
         lo, hi = (float(x) for x in scalar_range)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
             raise ValueError(f"scalar_range must be finite (low, high); got {scalar_range!r}")
-        scalar_range = (lo, hi)
-    prepared = []
-    for (V, F, C), tex in zip(items, texs, strict=True):
-        if tex is None and C is not None and np.ndim(C) == 1:
-            lo, hi = scalar_range or (None, None)
-            C = colormap(C, cmap, vmin=lo, vmax=hi)
-        prepared.append((V, F, C))
-    tiles = render_images(
-        prepared, textures=texs, width=width, height=height, view=view, point_size=point_size
-    )
+    elif scalars:
+        values = np.concatenate([item["c"] for item in scalars])
+        lo, hi = float(values.min()), float(values.max())
+    for item in scalars:
+        item["c"] = colormap(item["c"], cmap, vmin=lo, vmax=hi)
+    tiles = _render(checked, width, height, view, point_size, 300.0)
+    height, width = tiles[0].shape[:2]
     n = len(tiles)
     cols = min(n, 6) if columns is None else max(1, min(int(columns), n))
-    rows = -(-n // cols)
     size = _title_size(width)
     title_h = round(1.7 * size) if titles else 0
-    canvas = Image.new("RGB", (cols * width, rows * (height + title_h)), (255, 255, 255))
+    canvas = Image.new("RGB", (cols * width, -(-n // cols) * (height + title_h)), (255, 255, 255))
     draw = ImageDraw.Draw(canvas)
     for i, tile in enumerate(tiles):
-        r, c = divmod(i, cols)
-        y0, x0 = r * (height + title_h), c * width
+        y0, x0 = i // cols * (height + title_h), i % cols * width
         if titles:
             _draw_centered(draw, str(titles[i]), (x0, y0, x0 + width, y0 + title_h), size)
         canvas.paste(Image.fromarray(tile), (x0, y0 + title_h))
     panel = np.asarray(canvas, dtype=np.uint8).copy()
     if scalars:
-        bar = _colorbar(panel.shape[1], width, cmap, scalar_range[0], scalar_range[1],
-                        colorbar_label)  # fmt: skip
+        bar = _colorbar(panel.shape[1], width, cmap, lo, hi, colorbar_label)
         panel = np.concatenate([panel, bar], axis=0)
     if path is not None:
         write_png(path, panel)
