@@ -124,7 +124,7 @@ def colormap(
     lo = float(v.min()) if vmin is None else float(vmin)
     hi = float(v.max()) if vmax is None else float(vmax)
     t = np.clip((v - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.full(v.shape, 0.5)
-    return np.asarray(cmap(t), dtype=np.float64)[:, :3].reshape(-1, 3)
+    return np.asarray(cmap(t), dtype=np.float64)[:, :3]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,8 +156,7 @@ class View:
         self._checked()
 
     def _checked(self) -> tuple[np.ndarray, np.ndarray, float]:
-        front = np.asarray(self.front, dtype=np.float64).reshape(-1)
-        up = np.asarray(self.up, dtype=np.float64).reshape(-1)
+        front, up = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (self.front, self.up))
         for name, vec in (("front", front), ("up", up)):
             if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) == 0:
                 raise ValueError(f"View.{name} must be a finite non-zero 3-vector; got {vec}")
@@ -322,40 +321,26 @@ def _render(
 
 @functools.lru_cache(maxsize=64)
 def _font(size: int) -> Any:
-    """DejaVu Sans (shipped with matplotlib) at ``size`` pixels, else Pillow's own font."""
+    """DejaVu Sans (shipped with matplotlib) at ``size`` pixels."""
+    import matplotlib
     from PIL import ImageFont
 
-    try:
-        import matplotlib
-
-        path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSans.ttf")
-        return ImageFont.truetype(path, size)
-    except (ImportError, OSError):
-        logger.debug("DejaVu Sans not found through matplotlib; using Pillow's default font")
-    try:
-        return ImageFont.load_default(size=size)  # scalable from Pillow 10.1
-    except TypeError:
-        return ImageFont.load_default()
-
-
-def _text_size(draw: Any, text: str, font: Any) -> tuple[int, int, int, int]:
-    return draw.textbbox((0, 0), text, font=font)
+    path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSans.ttf")
+    return ImageFont.truetype(path, size)
 
 
 def _draw_centered(draw: Any, text: str, box: tuple[int, int, int, int], size: int) -> None:
     """Draw ``text`` centred in ``box`` (x0, y0, x1, y1), shrinking or cutting it to fit."""
     x0, y0, x1, y1 = box
     room = x1 - x0 - 8
-    font = _font(size)
-    while size > 9 and _text_size(draw, text, font)[2] > room:
+    while size > 9 and draw.textbbox((0, 0), text, font=_font(size))[2] > room:
         size -= 1
-        font = _font(size)
-    while len(text) > 1 and _text_size(draw, text, font)[2] > room:
+    while len(text) > 1 and draw.textbbox((0, 0), text, font=_font(size))[2] > room:
         text = text[:-2] + "…"
-    left, top, right, bottom = _text_size(draw, text, font)
+    left, top, right, bottom = draw.textbbox((0, 0), text, font=_font(size))
     x = x0 + (x1 - x0 - (right - left)) // 2 - left
     y = y0 + (y1 - y0 - (bottom - top)) // 2 - top
-    draw.text((x, y), text, font=font, fill=(20, 20, 20))
+    draw.text((x, y), text, font=_font(size), fill=(20, 20, 20))
 
 
 def _title_size(width: int) -> int:
@@ -363,12 +348,7 @@ def _title_size(width: int) -> int:
 
 
 def _colorbar(
-    width: int,
-    tile: int,
-    cmap: Any,
-    vmin: float,
-    vmax: float,
-    label: str | None,
+    width: int, tile: int, cmap: Any, vmin: float, vmax: float, label: str | None
 ) -> np.ndarray:
     """Draw a horizontal color bar with tick values (and ``label`` below), ``width`` wide."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -382,22 +362,15 @@ def _colorbar(
     font_px = 0.8 * _title_size(tile)
     bar_px = max(12, round(0.3 * font_px + 0.025 * tile))
     pad = round(0.5 * font_px)
-    ticks_px = 2.0 * font_px
-    label_px = 1.6 * font_px if label else 0.0
-    height = round(pad + bar_px + ticks_px + label_px + pad)
+    # rows: pad, the bar, its tick values (2 font heights), the label (1.6), pad
+    height = round(pad + bar_px + 2.0 * font_px + (1.6 * font_px if label else 0.0) + pad)
     length = (0.8 if width <= 2 * tile else 0.6) * width
     length = min(length, width - 4 * font_px) if width > 8 * font_px else 0.9 * width
     dpi = 100.0
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
-    FigureCanvasAgg(fig)
-    cax = fig.add_axes(
-        (
-            (width - length) / 2 / width,
-            1.0 - (pad + bar_px) / height,
-            length / width,
-            bar_px / height,
-        )
-    )
+    canvas = FigureCanvasAgg(fig)
+    box = ((width - length) / 2 / width, 1.0 - (pad + bar_px) / height, length / width)
+    cax = fig.add_axes((*box, bar_px / height))
     mappable = ScalarMappable(norm=Normalize(vmin=vmin, vmax=vmax), cmap=_mpl_colormap(cmap))
     bar = fig.colorbar(mappable, cax=cax, orientation="horizontal")
     points = font_px * 72.0 / dpi
@@ -405,8 +378,8 @@ def _colorbar(
     bar.outline.set_linewidth(0.8)
     if label:
         bar.set_label(label, fontsize=points * 1.15, color="0.1", labelpad=0.25 * font_px)
-    fig.canvas.draw()
-    return np.array(np.asarray(fig.canvas.buffer_rgba())[:, :, :3], copy=True)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
 
 
 def render_panel(
@@ -517,9 +490,8 @@ def write_png(path: str | os.PathLike[str], image: Any) -> None:
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
         raise ValueError(f"image must be (H, W, 3) or (H, W) uint8; got {img.shape} {img.dtype}")
-    data = _png_bytes(np.ascontiguousarray(img))
     with atomic_path(path, suffix=".png") as tmp, open(tmp, "wb") as fh:
-        fh.write(data)
+        fh.write(_png_bytes(img))
 
 
 def read_png(path: str | os.PathLike[str]) -> np.ndarray:
@@ -538,27 +510,17 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
     from PIL import Image
 
     with Image.open(os.fspath(path)) as im:
-        if im.mode in ("1", "L", "LA", "I", "I;16", "I;16B", "I;16L"):
-            im = im.convert("L")
-        elif im.mode != "RGB":
-            im = im.convert("RGB")
-        return np.array(im, dtype=np.uint8)
-
-
-def has_display() -> bool:
-    """Whether a window can be opened (an X11 or Wayland display is set)."""
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        grey = im.mode in ("1", "L", "LA", "I", "I;16", "I;16B", "I;16L")
+        return np.array(im.convert("L" if grey else "RGB"), dtype=np.uint8)
 
 
 def in_notebook() -> bool:
     """Whether the code runs in a Jupyter (IPython kernel) session."""
-    ipython = sys.modules.get("IPython")
-    get = getattr(ipython, "get_ipython", None) if ipython is not None else None
     try:
-        shell = get() if get is not None else None
-    except Exception:  # a broken IPython means "not a notebook"
+        shell = sys.modules["IPython"].get_ipython()
+    except Exception:  # IPython not imported, or broken: not a notebook
         return False
-    return shell is not None and getattr(shell, "kernel", None) is not None
+    return getattr(shell, "kernel", None) is not None
 
 
 def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]], list[Any]]:
@@ -576,24 +538,23 @@ def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]
     textures : list of (uv (3m, 2), image) or None
         As :func:`render_images` takes them (None for an untextured geometry).
     """
-    from ..boundary.convert import geometry_kind, geometry_to_arrays, vertex_colors
-    from ..boundary.texture import mesh_texture, texture_colors
+    from ..boundary.convert import geometry_to_arrays, vertex_colors
+    from ..boundary.texture import mesh_texture
 
     items, textures = [], []
     for g in geometries:
         V, F = geometry_to_arrays(g)
         colors, texture = vertex_colors(g), None
-        if F is not None and geometry_kind(g) in ("legacy_mesh", "tensor_mesh"):
-            try:  # the mesh's own texture, read the way every other function reads it
-                tex = mesh_texture(g)
-            except (TypeError, ValueError):
-                tex = None
-            if tex is not None:
-                used = np.unique(tex.material)
-                if used.size == 1 and used[0] >= 0:
-                    texture = (tex.uvs.reshape(-1, 2), tex.images[int(used[0])])
-                else:  # several images: sample them into vertex colors
-                    colors = texture_colors(g)
+        try:  # a mesh's own texture, read the way every other function reads it
+            tex = None if F is None else mesh_texture(g)
+        except (TypeError, ValueError):  # no UVs or no image
+            tex = None
+        if tex is not None:
+            used = np.unique(tex.material)
+            if used.size == 1 and used[0] >= 0:
+                texture = (tex.uvs.reshape(-1, 2), tex.images[int(used[0])])
+            else:  # several images: sample them into vertex colors
+                colors = tex.vertex_colors()
         items.append((V, F, colors))
         textures.append(texture)
     return items, textures
@@ -612,7 +573,8 @@ def show(
 
     In a Jupyter notebook (an IPython kernel) the geometries are rendered side by side and the
     picture is displayed inline. Elsewhere, with a display (``DISPLAY`` or ``WAYLAND_DISPLAY``
-    set), Open3D's viewer window opens. Otherwise the picture is written to ``fallback_path``.
+    set, or macOS or Windows), Open3D's viewer window opens. Otherwise the picture is written
+    to ``fallback_path``.
 
     Parameters
     ----------
@@ -634,6 +596,7 @@ def show(
         The PNG's path when one was written, else ``None`` (shown inline or in a window).
     """
     from ..boundary.convert import is_open3d_geometry, require_open3d
+    from ..boundary.pick import has_display
 
     geoms = [geometries] if is_open3d_geometry(geometries) else list(geometries)
     notebook = in_notebook()
@@ -650,6 +613,5 @@ def show(
         display(Image(data=_png_bytes(panel), format="png"))
         return None
     write_png(fallback_path, panel)
-    path = os.fspath(fallback_path)
-    logger.warning("no display: wrote %s instead of opening a window", path)
-    return path
+    logger.warning("no display: wrote %s instead of opening a window", os.fspath(fallback_path))
+    return os.fspath(fallback_path)
