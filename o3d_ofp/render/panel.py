@@ -36,14 +36,12 @@ from ..core._atomic import atomic_path
 from ..core._validation import as_faces, as_signal, as_vertices, check_int
 from . import _worker
 
+# The names o3d_ofp.render re-exports; the CLI also imports MIN_SIDE, MAX_SIDE and geometry_items.
 __all__ = [
-    "MAX_SIDE",
-    "MIN_SIDE",
     "RenderError",
     "RenderUnavailable",
     "View",
     "colormap",
-    "geometry_items",
     "read_png",
     "render_images",
     "render_panel",
