@@ -262,6 +262,8 @@ def test_timeout_and_bad_items():
         render_images([(V, F, None)], view=View(zoom=0.0))
     with pytest.raises(ValueError, match="colormap must be one of"):
         render_panel([(V, F, V[:, 0])], cmap="no_such_map")
+    with pytest.raises(ValueError, match="colors holds NaN"):  # said of the colors themselves
+        render_panel([(V, F, np.full(len(V), np.nan))])
 
 
 def _open3d_quad():

@@ -1,25 +1,6 @@
 """Pictures: headless lit renders side by side, colormaps and color bars, notebook display."""
 
-from .panel import (
-    RenderError,
-    RenderUnavailable,
-    View,
-    colormap,
-    read_png,
-    render_images,
-    render_panel,
-    show,
-    write_png,
-)
+from . import panel
+from .panel import *  # noqa: F403 (the names of panel.__all__)
 
-__all__ = [
-    "RenderError",
-    "RenderUnavailable",
-    "View",
-    "colormap",
-    "read_png",
-    "render_images",
-    "render_panel",
-    "show",
-    "write_png",
-]
+__all__ = panel.__all__

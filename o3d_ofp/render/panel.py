@@ -27,21 +27,21 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
+from subprocess import DEVNULL, PIPE
 from typing import Any
 
 import numpy as np
 
 from ..core._atomic import atomic_path
-from ..core._validation import as_faces, as_signal, as_vertices
+from ..core._validation import as_faces, as_signal, as_vertices, check_int
+from . import _worker
 
+# The names o3d_ofp.render re-exports; the CLI also imports MIN_SIDE, MAX_SIDE and geometry_items.
 __all__ = [
-    "MAX_SIDE",
-    "MIN_SIDE",
     "RenderError",
     "RenderUnavailable",
     "View",
     "colormap",
-    "geometry_items",
     "read_png",
     "render_images",
     "render_panel",
@@ -51,8 +51,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-_WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_worker.py")
-_NO_CONTEXT, _NO_OPEN3D = 3, 4  # the worker's exit statuses
+_WORKER = os.path.abspath(_worker.__file__)
 #: Tile sides accepted, in pixels.
 MIN_SIDE, MAX_SIDE = 16, 8192
 
@@ -123,7 +122,7 @@ def colormap(
     lo = float(v.min()) if vmin is None else float(vmin)
     hi = float(v.max()) if vmax is None else float(vmax)
     t = np.clip((v - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.full(v.shape, 0.5)
-    return np.asarray(cmap(t), dtype=np.float64)[:, :3].reshape(-1, 3)
+    return np.asarray(cmap(t), dtype=np.float64)[:, :3]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,8 +154,7 @@ class View:
         self._checked()
 
     def _checked(self) -> tuple[np.ndarray, np.ndarray, float]:
-        front = np.asarray(self.front, dtype=np.float64).reshape(-1)
-        up = np.asarray(self.up, dtype=np.float64).reshape(-1)
+        front, up = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (self.front, self.up))
         for name, vec in (("front", front), ("up", up)):
             if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) == 0:
                 raise ValueError(f"View.{name} must be a finite non-zero 3-vector; got {vec}")
@@ -185,7 +183,7 @@ def _texture(texture: Any, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
     img = np.asarray(image)
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.size == 0:
         raise ValueError(f"texture image must be (H, W, 3), (H, W, 4) or (H, W); got {img.shape}")
     img = img[:, :, :3]
     if img.dtype != np.uint8:
@@ -195,39 +193,32 @@ def _texture(texture: Any, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.ascontiguousarray(img)
 
 
-def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[str, Any]:
+def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[str, np.ndarray]:
+    """Check an item; return v, c (RGB, or scalars to map), f (mesh), uv and tex (texture)."""
     V = as_vertices(vertices)
-    F = None if faces is None else as_faces(faces, V.shape[0])
-    if colors is None:
-        C = np.full((V.shape[0], 3), 0.7)
-    else:
+    item = {"v": V, "c": np.full((V.shape[0], 3), 0.7)}
+    if faces is not None:
+        item["f"] = as_faces(faces, V.shape[0])
+    if colors is not None:
         C = as_signal(colors, V.shape[0], name="colors")
-        if C.ndim == 1:
-            C = colormap(C)
-        if C.shape[1] != 3:
+        if C.ndim == 2 and C.shape[1] != 3:
             raise ValueError(f"colors must have shape (n, 3) or (n,); got {C.shape}")
-        C = np.clip(C, 0.0, 1.0)
-    item: dict[str, Any] = {"vertices": V, "faces": F, "colors": C}
+        item["c"] = C if C.ndim == 1 else np.clip(C, 0.0, 1.0)
     if texture is not None:
-        if F is None:
+        if faces is None:
             raise ValueError("a texture needs a mesh (faces), not a point cloud")
-        item["uv"], item["texture"] = _texture(texture, F.shape[0])
+        item["uv"], item["tex"] = _texture(texture, item["f"].shape[0])
     return item
 
 
-def _checked_size(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not MIN_SIDE <= value <= MAX_SIDE:
-        raise ValueError(f"{name} must be an integer in [{MIN_SIDE}, {MAX_SIDE}]; got {value!r}")
-    return value
-
-
-def _textures_for(textures: Sequence[Any] | None, n: int) -> list[Any]:
-    if textures is None:
-        return [None] * n
-    textures = list(textures)
-    if len(textures) != n:
-        raise ValueError(f"textures has {len(textures)} entries for {n} items")
-    return textures
+def _items(items: Sequence[Any], textures: Sequence[Any] | None) -> list[dict[str, np.ndarray]]:
+    items = list(items)
+    if not items:
+        raise ValueError("items is empty: nothing to render")
+    textures = [None] * len(items) if textures is None else list(textures)
+    if len(textures) != len(items):
+        raise ValueError(f"textures has {len(textures)} entries for {len(items)} items")
+    return [_item(*it, tex) for it, tex in zip(items, textures, strict=True)]
 
 
 def render_images(
@@ -276,105 +267,78 @@ def render_images(
     RenderError
         When the renderer crashes or hangs.
     """
-    items = list(items)
-    if not items:
-        raise ValueError("items is empty: nothing to render")
-    texs = _textures_for(textures, len(items))
-    payload = [_item(*it, tex) for it, tex in zip(items, texs, strict=True)]
-    width, height = _checked_size("width", width), _checked_size("height", height)
+    return _render(_items(items, textures), width, height, view, point_size, timeout)
+
+
+def _render(
+    items: list[dict[str, np.ndarray]],
+    width: int,
+    height: int,
+    view: View | None,
+    point_size: float | None,
+    timeout: float,
+) -> list[np.ndarray]:
+    """Render checked items (:func:`_item`; scalars left are mapped with "viridis")."""
+    width = check_int(width, name="width", minimum=MIN_SIDE, maximum=MAX_SIDE)
+    height = check_int(height, name="height", minimum=MIN_SIDE, maximum=MAX_SIDE)
     front, up, zoom = (view or View())._checked()
     if point_size is None:
         point_size = max(3.0, 3.0 * min(width, height) / 400.0)
-    # Rendered at twice the size and reduced (smooth edges), up to 3200 x 3200 pixels.
-    supersample = 2 if max(width, height) <= 1600 else 1
+    arrays: dict[str, Any] = dict(count=len(items), width=width, height=height, front=front, up=up)
+    # fill: the fraction of the tile the shape spans, 0.9 at the default zoom 0.6
+    arrays.update(fill=0.9 * 0.6 / zoom, point_size=float(point_size))
+    arrays.update({f"{key}{i}": a for i, item in enumerate(items) for key, a in item.items()})
+    for i, item in enumerate(items):
+        if item["c"].ndim == 1:
+            arrays[f"c{i}"] = colormap(item["c"])
     with tempfile.TemporaryDirectory(prefix="o3d_ofp_render.") as tmp:
         inp, out = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
-        arrays: dict[str, Any] = {
-            "count": np.int64(len(payload)),
-            "width": np.int64(width),
-            "height": np.int64(height),
-            "supersample": np.int64(supersample),
-            "front": front,
-            "up": up,
-            "fill": np.float64(0.9 * 0.6 / zoom),
-            "point_size": np.float64(point_size),
-        }
-        for i, item in enumerate(payload):
-            arrays[f"v{i}"], arrays[f"c{i}"] = item["vertices"], item["colors"]
-            if item["faces"] is not None:
-                arrays[f"f{i}"] = item["faces"]
-            if "texture" in item:
-                arrays[f"uv{i}"], arrays[f"tex{i}"] = item["uv"], item["texture"]
         np.savez(inp, **arrays)
-        try:
-            proc = subprocess.run(
-                [sys.executable, _WORKER, inp, out],
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,  # Open3D's and EGL's console chatter
-                stderr=subprocess.PIPE,
-                timeout=timeout,
-                check=False,
-            )
+        cmd = [sys.executable, _WORKER, inp, out]
+        try:  # stdout: Open3D's and EGL's console chatter
+            proc = subprocess.run(cmd, stdin=DEVNULL, stdout=DEVNULL, stderr=PIPE, timeout=timeout)
         except subprocess.TimeoutExpired:
             raise RenderError(f"the renderer did not answer within {timeout:g} s") from None
         tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:]
-        if proc.returncode == _NO_CONTEXT:
+        if proc.returncode == _worker.NO_CONTEXT:
             raise RenderUnavailable(
                 "no OpenGL context: create_window failed (on Debian: apt-get install libgl1 "
                 "libegl1)"
             )
-        if proc.returncode == _NO_OPEN3D:
+        if proc.returncode == _worker.NO_OPEN3D:
             from ..boundary.convert import OPEN3D_INSTALL_HINT
 
-            raise RenderUnavailable(
-                f"{tail[0] if tail else 'open3d cannot be imported'}; install: "
-                f"{OPEN3D_INSTALL_HINT}"
-            )
+            why = tail[0] if tail else "open3d cannot be imported"
+            raise RenderUnavailable(f"{why}; install: {OPEN3D_INSTALL_HINT}")
         if proc.returncode != 0 or not os.path.isfile(out):
-            raise RenderError(
-                f"the renderer process failed (exit status {proc.returncode})"
-                + (f": {tail[0]}" if tail else "")
-            )
+            why = f": {tail[0]}" if tail else ""
+            raise RenderError(f"the renderer process failed (exit status {proc.returncode}){why}")
         with np.load(out, allow_pickle=False) as images:
-            return [images[f"img{i}"] for i in range(len(payload))]
+            return [images[f"img{i}"] for i in range(len(items))]
 
 
 @functools.lru_cache(maxsize=64)
 def _font(size: int) -> Any:
-    """DejaVu Sans (shipped with matplotlib) at ``size`` pixels, else Pillow's own font."""
+    """DejaVu Sans (shipped with matplotlib) at ``size`` pixels."""
+    import matplotlib
     from PIL import ImageFont
 
-    try:
-        import matplotlib
-
-        path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSans.ttf")
-        return ImageFont.truetype(path, size)
-    except (ImportError, OSError):
-        logger.debug("DejaVu Sans not found through matplotlib; using Pillow's default font")
-    try:
-        return ImageFont.load_default(size=size)  # scalable from Pillow 10.1
-    except TypeError:
-        return ImageFont.load_default()
-
-
-def _text_size(draw: Any, text: str, font: Any) -> tuple[int, int, int, int]:
-    return draw.textbbox((0, 0), text, font=font)
+    path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSans.ttf")
+    return ImageFont.truetype(path, size)
 
 
 def _draw_centered(draw: Any, text: str, box: tuple[int, int, int, int], size: int) -> None:
     """Draw ``text`` centred in ``box`` (x0, y0, x1, y1), shrinking or cutting it to fit."""
     x0, y0, x1, y1 = box
     room = x1 - x0 - 8
-    font = _font(size)
-    while size > 9 and _text_size(draw, text, font)[2] > room:
+    while size > 9 and draw.textbbox((0, 0), text, font=_font(size))[2] > room:
         size -= 1
-        font = _font(size)
-    while len(text) > 1 and _text_size(draw, text, font)[2] > room:
+    while len(text) > 1 and draw.textbbox((0, 0), text, font=_font(size))[2] > room:
         text = text[:-2] + "…"
-    left, top, right, bottom = _text_size(draw, text, font)
+    left, top, right, bottom = draw.textbbox((0, 0), text, font=_font(size))
     x = x0 + (x1 - x0 - (right - left)) // 2 - left
     y = y0 + (y1 - y0 - (bottom - top)) // 2 - top
-    draw.text((x, y), text, font=font, fill=(20, 20, 20))
+    draw.text((x, y), text, font=_font(size), fill=(20, 20, 20))
 
 
 def _title_size(width: int) -> int:
@@ -382,12 +346,7 @@ def _title_size(width: int) -> int:
 
 
 def _colorbar(
-    width: int,
-    tile: int,
-    cmap: Any,
-    vmin: float,
-    vmax: float,
-    label: str | None,
+    width: int, tile: int, cmap: Any, vmin: float, vmax: float, label: str | None
 ) -> np.ndarray:
     """Draw a horizontal color bar with tick values (and ``label`` below), ``width`` wide."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -401,22 +360,15 @@ def _colorbar(
     font_px = 0.8 * _title_size(tile)
     bar_px = max(12, round(0.3 * font_px + 0.025 * tile))
     pad = round(0.5 * font_px)
-    ticks_px = 2.0 * font_px
-    label_px = 1.6 * font_px if label else 0.0
-    height = round(pad + bar_px + ticks_px + label_px + pad)
+    # rows: pad, the bar, its tick values (2 font heights), the label (1.6), pad
+    height = round(pad + bar_px + 2.0 * font_px + (1.6 * font_px if label else 0.0) + pad)
     length = (0.8 if width <= 2 * tile else 0.6) * width
     length = min(length, width - 4 * font_px) if width > 8 * font_px else 0.9 * width
     dpi = 100.0
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
-    FigureCanvasAgg(fig)
-    cax = fig.add_axes(
-        (
-            (width - length) / 2 / width,
-            1.0 - (pad + bar_px) / height,
-            length / width,
-            bar_px / height,
-        )
-    )
+    canvas = FigureCanvasAgg(fig)
+    box = ((width - length) / 2 / width, 1.0 - (pad + bar_px) / height, length / width)
+    cax = fig.add_axes((*box, bar_px / height))
     mappable = ScalarMappable(norm=Normalize(vmin=vmin, vmax=vmax), cmap=_mpl_colormap(cmap))
     bar = fig.colorbar(mappable, cax=cax, orientation="horizontal")
     points = font_px * 72.0 / dpi
@@ -424,8 +376,8 @@ def _colorbar(
     bar.outline.set_linewidth(0.8)
     if label:
         bar.set_label(label, fontsize=points * 1.15, color="0.1", labelpad=0.25 * font_px)
-    fig.canvas.draw()
-    return np.array(np.asarray(fig.canvas.buffer_rgba())[:, :, :3], copy=True)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
 
 
 def render_panel(
@@ -479,52 +431,36 @@ def render_panel(
     """
     from PIL import Image, ImageDraw
 
-    items = list(items)
-    if not items:
-        raise ValueError("items is empty: nothing to render")
-    if titles is not None and len(titles) != len(items):
-        raise ValueError(f"titles has {len(titles)} entries for {len(items)} items")
-    texs = _textures_for(textures, len(items))
+    checked = _items(items, textures)
+    if titles is not None and len(titles) != len(checked):
+        raise ValueError(f"titles has {len(titles)} entries for {len(checked)} items")
     _mpl_colormap(cmap)  # an unknown name fails before rendering
-    scalars = [
-        np.asarray(c, dtype=np.float64)
-        for (_, _, c), tex in zip(items, texs, strict=True)
-        if c is not None and tex is None
-    ]
-    scalars = [c for c in scalars if c.ndim == 1 and c.size]
-    if scalar_range is None and scalars:
-        scalar_range = (min(float(c.min()) for c in scalars), max(float(c.max()) for c in scalars))
+    scalars = [item for item in checked if item["c"].ndim == 1 and "tex" not in item]
     if scalar_range is not None:
         lo, hi = (float(x) for x in scalar_range)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
             raise ValueError(f"scalar_range must be finite (low, high); got {scalar_range!r}")
-        scalar_range = (lo, hi)
-    prepared = []
-    for (V, F, C), tex in zip(items, texs, strict=True):
-        if tex is None and C is not None and np.ndim(C) == 1:
-            lo, hi = scalar_range or (None, None)
-            C = colormap(C, cmap, vmin=lo, vmax=hi)
-        prepared.append((V, F, C))
-    tiles = render_images(
-        prepared, textures=texs, width=width, height=height, view=view, point_size=point_size
-    )
+    elif scalars:
+        values = np.concatenate([item["c"] for item in scalars])
+        lo, hi = float(values.min()), float(values.max())
+    for item in scalars:
+        item["c"] = colormap(item["c"], cmap, vmin=lo, vmax=hi)
+    tiles = _render(checked, width, height, view, point_size, 300.0)
+    height, width = tiles[0].shape[:2]
     n = len(tiles)
     cols = min(n, 6) if columns is None else max(1, min(int(columns), n))
-    rows = -(-n // cols)
     size = _title_size(width)
     title_h = round(1.7 * size) if titles else 0
-    canvas = Image.new("RGB", (cols * width, rows * (height + title_h)), (255, 255, 255))
+    canvas = Image.new("RGB", (cols * width, -(-n // cols) * (height + title_h)), (255, 255, 255))
     draw = ImageDraw.Draw(canvas)
     for i, tile in enumerate(tiles):
-        r, c = divmod(i, cols)
-        y0, x0 = r * (height + title_h), c * width
+        y0, x0 = i // cols * (height + title_h), i % cols * width
         if titles:
             _draw_centered(draw, str(titles[i]), (x0, y0, x0 + width, y0 + title_h), size)
         canvas.paste(Image.fromarray(tile), (x0, y0 + title_h))
     panel = np.asarray(canvas, dtype=np.uint8).copy()
     if scalars:
-        bar = _colorbar(panel.shape[1], width, cmap, scalar_range[0], scalar_range[1],
-                        colorbar_label)  # fmt: skip
+        bar = _colorbar(panel.shape[1], width, cmap, lo, hi, colorbar_label)
         panel = np.concatenate([panel, bar], axis=0)
     if path is not None:
         write_png(path, panel)
@@ -552,9 +488,8 @@ def write_png(path: str | os.PathLike[str], image: Any) -> None:
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
         raise ValueError(f"image must be (H, W, 3) or (H, W) uint8; got {img.shape} {img.dtype}")
-    data = _png_bytes(np.ascontiguousarray(img))
     with atomic_path(path, suffix=".png") as tmp, open(tmp, "wb") as fh:
-        fh.write(data)
+        fh.write(_png_bytes(img))
 
 
 def read_png(path: str | os.PathLike[str]) -> np.ndarray:
@@ -573,27 +508,17 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
     from PIL import Image
 
     with Image.open(os.fspath(path)) as im:
-        if im.mode in ("1", "L", "LA", "I", "I;16", "I;16B", "I;16L"):
-            im = im.convert("L")
-        elif im.mode != "RGB":
-            im = im.convert("RGB")
-        return np.array(im, dtype=np.uint8)
-
-
-def has_display() -> bool:
-    """Whether a window can be opened (an X11 or Wayland display is set)."""
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        grey = im.mode in ("1", "L", "LA", "I", "I;16", "I;16B", "I;16L")
+        return np.array(im.convert("L" if grey else "RGB"), dtype=np.uint8)
 
 
 def in_notebook() -> bool:
     """Whether the code runs in a Jupyter (IPython kernel) session."""
-    ipython = sys.modules.get("IPython")
-    get = getattr(ipython, "get_ipython", None) if ipython is not None else None
     try:
-        shell = get() if get is not None else None
-    except Exception:  # a broken IPython means "not a notebook"
+        shell = sys.modules["IPython"].get_ipython()
+    except Exception:  # IPython not imported, or broken: not a notebook
         return False
-    return shell is not None and getattr(shell, "kernel", None) is not None
+    return getattr(shell, "kernel", None) is not None
 
 
 def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]], list[Any]]:
@@ -611,24 +536,23 @@ def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]
     textures : list of (uv (3m, 2), image) or None
         As :func:`render_images` takes them (None for an untextured geometry).
     """
-    from ..boundary.convert import geometry_kind, geometry_to_arrays, vertex_colors
-    from ..boundary.texture import mesh_texture, texture_colors
+    from ..boundary.convert import geometry_to_arrays, vertex_colors
+    from ..boundary.texture import mesh_texture
 
     items, textures = [], []
     for g in geometries:
         V, F = geometry_to_arrays(g)
         colors, texture = vertex_colors(g), None
-        if F is not None and geometry_kind(g) in ("legacy_mesh", "tensor_mesh"):
-            try:  # the mesh's own texture, read the way every other function reads it
-                tex = mesh_texture(g)
-            except (TypeError, ValueError):
-                tex = None
-            if tex is not None:
-                used = np.unique(tex.material)
-                if used.size == 1 and used[0] >= 0:
-                    texture = (tex.uvs.reshape(-1, 2), tex.images[int(used[0])])
-                else:  # several images: sample them into vertex colors
-                    colors = texture_colors(g)
+        try:  # a mesh's own texture, read the way every other function reads it
+            tex = None if F is None else mesh_texture(g)
+        except (TypeError, ValueError):  # no UVs or no image
+            tex = None
+        if tex is not None:
+            used = np.unique(tex.material)
+            if used.size == 1 and used[0] >= 0:
+                texture = (tex.uvs.reshape(-1, 2), tex.images[int(used[0])])
+            else:  # several images: sample them into vertex colors
+                colors = tex.vertex_colors()
         items.append((V, F, colors))
         textures.append(texture)
     return items, textures
@@ -647,7 +571,8 @@ def show(
 
     In a Jupyter notebook (an IPython kernel) the geometries are rendered side by side and the
     picture is displayed inline. Elsewhere, with a display (``DISPLAY`` or ``WAYLAND_DISPLAY``
-    set), Open3D's viewer window opens. Otherwise the picture is written to ``fallback_path``.
+    set, or macOS or Windows), Open3D's viewer window opens. Otherwise the picture is written
+    to ``fallback_path``.
 
     Parameters
     ----------
@@ -669,6 +594,7 @@ def show(
         The PNG's path when one was written, else ``None`` (shown inline or in a window).
     """
     from ..boundary.convert import is_open3d_geometry, require_open3d
+    from ..boundary.pick import has_display
 
     geoms = [geometries] if is_open3d_geometry(geometries) else list(geometries)
     notebook = in_notebook()
@@ -685,6 +611,5 @@ def show(
         display(Image(data=_png_bytes(panel), format="png"))
         return None
     write_png(fallback_path, panel)
-    path = os.fspath(fallback_path)
-    logger.warning("no display: wrote %s instead of opening a window", path)
-    return path
+    logger.warning("no display: wrote %s instead of opening a window", os.fspath(fallback_path))
+    return os.fspath(fallback_path)
