@@ -294,11 +294,6 @@ def test_dense_path_rejects_bad_input(twisted_pair):
         estimate_dense(V1, F1, V2, F2, coarse_vertices=2500.5)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library: estimate_dense no longer refuses a point cloud (faces None) itself; it "
-    "fails in coarse_mesh with a bare TypeError (reported)",
-)
 def test_dense_path_refuses_point_clouds(twisted_pair):
     V1, _, V2, F2 = twisted_pair
     with pytest.raises(ValueError, match="faces"):

@@ -993,13 +993,6 @@ def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     assert not any("landmarks' target vertices" in str(r) for r in kept.quality.reasons)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="library: estimate_dense(opinions=False) skips the full map's landmark check "
-    "(partial._full_landmarks_kept runs in PartialMatch.dense only); second_opinion=False "
-    "kept it (reported)",
-)
 def test_a_dense_partial_map_without_opinions_still_checks_its_landmarks_on_the_full_map(
     whole, cut, monkeypatch, blob_made_dense
 ):
@@ -1228,12 +1221,6 @@ def test_a_dense_partial_map_gets_no_opinion_when_suspect_or_not_asked(
     assert not _said(flagged.quality.notes, "opinion")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=pytest.fail.Exception,
-    reason="library: estimate_dense does not check opinions= (second_opinion= was refused "
-    "unless True or False; reported)",
-)
 def test_a_dense_partial_match_refuses_opinions_that_are_not_true_or_false(
     whole, cut, monkeypatch, blob_made_dense
 ):

@@ -400,12 +400,6 @@ def test_point_clouds_are_refused_before_any_eigensolve(pair, no_eigensolve):
     assert e.value.option == "partial"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="library: OptionError puts a space between the keyword and a problem that starts "
-    "with '=' ('partial =True needs ...'; core/wording.py, reported)",
-)
 @pytest.mark.parametrize("where", ["eigenbases", "shapes"])
 def test_point_cloud_refusals_word_the_keyword_as_written(pair, cloud, where):
     V, F, e1, Vc, _, _, _ = pair
@@ -417,12 +411,6 @@ def test_point_cloud_refusals_word_the_keyword_as_written(pair, cloud, where):
     assert str(e.value).startswith("partial=True needs triangle meshes: the target")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="library: OptionError words it '--partial =True needs ...' (the space before '='; "
-    "core/wording.py, reported)",
-)
 def test_point_clouds_are_refused_by_the_command_line_before_any_eigensolve(
     pair, no_eigensolve, tmp_path, capsys
 ):

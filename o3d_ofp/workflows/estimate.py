@@ -31,7 +31,7 @@ from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
 from .maps import Correspondence, shape_signature, with_signatures
 from .matching import FullMatch
-from .options import MatchOptions
+from .options import MatchOptions, check_bool
 from .partial import PartialMatch
 from .quality import say
 from .strategy import Run, Strategy
@@ -264,6 +264,10 @@ def estimate_dense(
     strategy = strategy_of(options)
     first = COARSE_VERTICES if coarse_vertices is None else coarse_vertices
     check_int(first, name="coarse_vertices", minimum=200)
+    check_bool(opinions, "opinions")
+    if faces_1 is None or faces_2 is None:
+        raise OptionError("faces_1", "and faces_2: the dense path matches two meshes (a point "
+                          "cloud has no coarse copy)")  # fmt: skip
     landmarks = options.landmarks_for(len(vertices_1), len(vertices_2))
 
     whole = progress or StageProgress(logger, strategy.title)
@@ -284,9 +288,8 @@ def estimate_dense(
         )  # fmt: skip
         return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
 
-    if not opinions:
-        return again(first, (0.0, 1.0), "")
-    return strategy.dense(again, first, (vertices_1, faces_1, vertices_2, faces_2), whole)
+    shapes = (vertices_1, faces_1, vertices_2, faces_2)
+    return strategy.dense(again, first, shapes, whole, opinions=opinions)
 
 
 def _match_dense(

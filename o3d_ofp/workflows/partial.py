@@ -537,6 +537,8 @@ class PartialMatch(Strategy):
         size: int,
         shapes: tuple[np.ndarray, ...],
         report: Callable[[str, float], None],
+        *,
+        opinions: bool = True,
     ) -> Correspondence:
         """Return the dense match, with a second and (when they disagree) a third opinion.
 
@@ -550,7 +552,7 @@ class PartialMatch(Strategy):
         second's map is returned, flagged; with neither, the first is flagged. With landmarks
         the full map is checked again (the coarse check read the coarse map).
         """
-        return _with_opinions(again, size, shapes, report)
+        return _with_opinions(again, size, shapes, report, opinions)
 
 
 def _rival(
@@ -721,13 +723,15 @@ def _with_opinions(
     size: int,
     shapes: tuple[np.ndarray, ...],
     report: Callable[[str, float], None],
+    opinions: bool,
 ) -> Correspondence:
     """Return the dense partial match with its opinions (see :meth:`PartialMatch.dense`).
 
     ``again(size, share, prefix)`` matches on coarse copies of ``size`` vertices; ``shapes``
-    are the full meshes' arrays; ``report`` the whole run's progress.
+    are the full meshes' arrays; ``report`` the whole run's progress. Without ``opinions``
+    the map is only checked on the landmarks at full resolution.
     """
-    corr = again(size, (0.0, 0.55), "")
+    corr = again(size, (0.0, 0.55 if opinions else 1.0), "")
     assert corr.quality is not None
     warned = corr.quality.suspect  # (the first match said it)
     V1, F1, V2, F2 = (np.asarray(a) for a in shapes)
@@ -746,7 +750,7 @@ def _with_opinions(
 
     if landmarks_given:
         corr = _full_landmarks_kept(corr, V1 / scale)
-    if corr.quality.suspect:  # a second opinion would not change it
+    if corr.quality.suspect or not opinions:  # a second opinion would not change it
         return done(corr)
     sizes = (size, *(max(200, int(size * f)) for f in (SECOND_OPINION_SIZE, THIRD_OPINION_SIZE)))
     logger.info("partial match (dense): second opinion from coarse copies of ~%d vertices",

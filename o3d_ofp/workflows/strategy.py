@@ -133,10 +133,12 @@ class Strategy:
         size: int,
         shapes: tuple[np.ndarray, ...],
         report: Callable[[str, float], None],
+        *,
+        opinions: bool = True,
     ) -> Correspondence:
         """Run the dense path's match: ``again(size, share, prefix)`` once.
 
         A strategy may check it against matches on other coarse copies of the full meshes
-        ``shapes`` (the partial match's opinions); ``report`` is the whole run's progress.
+        ``shapes`` (the partial match's ``opinions``); ``report`` is the whole run's progress.
         """
         return again(size, (0.0, 1.0), "")
