@@ -22,6 +22,7 @@ mesh's surface for a bake: its texture, or for a mesh without UVs its vertex col
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import os
 from types import ModuleType
@@ -100,10 +101,8 @@ def legacy_texture_image(image: Any) -> Any:
     arr = np.asarray(image)
     if arr.ndim not in (2, 3) or arr.size == 0:
         raise ValueError(f"image must have shape (H, W, C) or (H, W); got {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        arr = np.round(np.clip(arr, 0.0, 1.0) * 255.0)
-    arr = arr.astype(np.uint8)
-    return o3d.geometry.Image(np.ascontiguousarray(arr[::-1]))
+    arr = arr if np.issubdtype(arr.dtype, np.integer) else as_uint8(arr)  # ints: 0-255 as given
+    return o3d.geometry.Image(np.ascontiguousarray(arr.astype(np.uint8)[::-1]))
 
 
 def set_albedo(mesh: Any, image: np.ndarray) -> None:
@@ -446,26 +445,20 @@ def missing_texture_files(path: str | os.PathLike[str]) -> list[str]:
     if not path.lower().endswith(".obj") or not os.path.isfile(path):
         return []
     folder = os.path.dirname(os.path.abspath(path))
-    libraries: list[str] = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            if line.startswith("f "):
-                break
-            if line.startswith("mtllib "):
-                libraries.append(line[len("mtllib "):].strip())
     missing: list[str] = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        head = itertools.takewhile(lambda line: not line.startswith("f "), fh)
+        libraries = [line[len("mtllib ") :].strip() for line in head if line.startswith("mtllib ")]
     for lib in libraries:
         lib_path = os.path.join(folder, lib)
         if not os.path.isfile(lib_path):
             missing.append(lib)
             continue
         with open(lib_path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                words = line.split()
-                if words and words[0] == "map_Kd" and len(words) > 1:
-                    image = words[-1]  # options (-s, -o ...) come before the file name
-                    if not os.path.isfile(os.path.join(os.path.dirname(lib_path), image)):
-                        missing.append(image)
+            # map_Kd's options (-s, -o ...) come before the file name
+            images = [w[-1] for w in map(str.split, fh) if len(w) > 1 and w[0] == "map_Kd"]
+        lib_folder = os.path.dirname(lib_path)
+        missing += [im for im in images if not os.path.isfile(os.path.join(lib_folder, im))]
     return list(dict.fromkeys(missing))
 
 
@@ -488,18 +481,20 @@ def corner_uvs(mesh: Any) -> np.ndarray:
     ValueError
         If the mesh has no UVs (or non-finite ones).
     """
+    return _uv_parts(mesh)[2]
+
+
+def _uv_parts(mesh: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """Return a mesh's vertices, faces, corner UVs, top-down images and image per triangle."""
     kind = geometry_kind(mesh)
     if kind not in ("legacy_mesh", "tensor_mesh"):
         raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
-    _, F = geometry_to_arrays(mesh)
+    V, F = geometry_to_arrays(mesh)
     assert F is not None
-    if kind == "legacy_mesh":
-        uv = _legacy_parts(mesh, F.shape[0])[0]
-    else:
-        uv = _tensor_parts(mesh, F)[0]
-    if not np.all(np.isfinite(uv)):
+    parts = _legacy_parts(mesh, F.shape[0]) if kind == "legacy_mesh" else _tensor_parts(mesh, F)
+    if not np.all(np.isfinite(parts[0])):
         raise ValueError("the mesh's texture coordinates hold NaN or inf")
-    return uv
+    return (V, F, *parts)
 
 
 def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
@@ -525,20 +520,9 @@ def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
     ValueError
         If the mesh has no UVs, or no image is given or loaded.
     """
-    o3d = require_open3d()
-    kind = geometry_kind(mesh)
-    if kind not in ("legacy_mesh", "tensor_mesh"):
-        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
-    V, F = geometry_to_arrays(mesh)
-    assert F is not None
-    if kind == "legacy_mesh":
-        uv, images, material = _legacy_parts(mesh, F.shape[0])
-    else:
-        uv, images, material = _tensor_parts(mesh, F)
-    if not np.all(np.isfinite(uv)):
-        raise ValueError("the mesh's texture coordinates hold NaN or inf")
+    V, F, uv, images, material = _uv_parts(mesh)
     if texture is not None:
-        images = [_image_array(texture, o3d, "texture")]
+        images = [_image_array(texture, require_open3d(), "texture")]
         material = np.zeros(F.shape[0], dtype=np.int64)
     filled = [i for i, im in enumerate(images) if im.ndim >= 2 and im.size > 0]
     if not filled:
