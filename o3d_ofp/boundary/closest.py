@@ -174,6 +174,16 @@ def _units(V2: np.ndarray, diag_1: float) -> Said | str:
     )
 
 
+def _hit_weights(ans: Any) -> np.ndarray:
+    """(q, 3) barycentric weights of Open3D's ray-casting answers, clipped to >= 0, summing to 1.
+
+    Open3D's primitive uv (s, t) is the point (1 - s - t) a + s b + t c.
+    """
+    uv = ans["primitive_uvs"].numpy().astype(np.float64)
+    w = np.clip(np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]]), 0.0, None)
+    return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+
+
 def _frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     """Centre and diagonal of the bounding box of ``vertices`` ((3,) ndarray, float > 0)."""
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
@@ -392,10 +402,7 @@ class _Surface:
         """
         ans = self.scene.compute_closest_points(self._o3d.core.Tensor(Pn.astype(np.float32)))
         face_ids = ans["primitive_ids"].numpy().astype(np.int64)
-        uv = ans["primitive_uvs"].numpy().astype(np.float64)
         found = ans["points"].numpy().astype(np.float64)
-        # RaycastingScene's convention (checked in the tests): point = (1-u-v) A + u B + v C.
-        bary_o3d = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
         corners = self.normalize(self.V[self.F[face_ids]])  # (q, 3, 3), float64
         bary = np.clip(_closest_on_triangles(Pn, *corners.transpose(1, 0, 2)), 0.0, 1.0)
         d64 = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
@@ -403,7 +410,7 @@ class _Surface:
         bad = ~np.isfinite(d64) | (d64 > d32 + 1e-6)  # degenerate triangles: keep Open3D's answer
         if bad.any():
             logger.debug("closest points: %d degenerate triangles kept as found", bad.sum())
-            bary[bad] = np.clip(bary_o3d[bad], 0.0, 1.0)
+            bary[bad] = _hit_weights(ans)[bad]
         bary[bary < _SNAP] = 0.0
         bary /= bary.sum(axis=1, keepdims=True)
         if canonical:
