@@ -19,6 +19,7 @@ source surface point nearest to ``wa P(a) + wb P(b) + wc P(c)``, with P the mapp
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -136,16 +137,14 @@ def _callers_kind(out: Any, target: Any) -> Any:
     """
     if geometry_kind(target) != "tensor_mesh":
         return out
-    o3d = require_open3d()
     images = mesh_texture(out).used_images() if out.has_triangle_uvs() else []
     if len(images) > 1:
         logger.warning(
             "the result uses %d texture images; a tensor mesh holds one (its albedo map): "
-            "returned as a legacy mesh",
-            len(images),
-        )
+            "returned as a legacy mesh", len(images),
+        )  # fmt: skip
         return out
-    result = o3d.t.geometry.TriangleMesh.from_legacy(out)
+    result = require_open3d().t.geometry.TriangleMesh.from_legacy(out)
     if images:
         set_albedo(result, images[0])
     return result
@@ -204,21 +203,17 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
 
 
 def _mapped_points(
-    V1: np.ndarray,
-    F1: np.ndarray,
-    V2: np.ndarray,
-    F2: np.ndarray,
-    correspondence: Correspondence | None,
+    V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray, given: Correspondence | None
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Source surface point of every target vertex (a map estimated when none is given).
 
     Returns the (n2, 3) points, and their source triangles and barycentric weights when the
     map gives them (a surface map, ``faces_21``: a closest-point map), else None.
     """
-    plan = plan_pair(V1, F1, V2, F2, task="texture", given=correspondence)
-    if correspondence is None:
+    plan = plan_pair(V1, F1, V2, F2, task="texture", given=given)
+    if given is None:
         logger.info("texture transfer: no map given, estimating one (eigenbases and ZoomOut)")
-    corr = prepare(plan, V1, F1, V2, F2, given=correspondence).correspondence
+    corr = prepare(plan, V1, F1, V2, F2, given=given).correspondence
     if corr.faces_21 is None:
         return V1[corr.p2p_21], None, None
     tri = np.asarray(corr.faces_21, dtype=np.int64)
@@ -490,17 +485,14 @@ def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
         Weights summing to 1 (NaN for a degenerate triangle).
     """
     a = corners[:, 0]
-    e1, e2 = corners[:, 1] - a, corners[:, 2] - a
-    d = points - a
-    g11 = np.einsum("ij,ij->i", e1, e1)
-    g12 = np.einsum("ij,ij->i", e1, e2)
-    g22 = np.einsum("ij,ij->i", e2, e2)
-    r1 = np.einsum("ij,ij->i", e1, d)
-    r2 = np.einsum("ij,ij->i", e2, d)
+    e1, e2, d = corners[:, 1] - a, corners[:, 2] - a, points - a
+    dot = functools.partial(np.einsum, "ij,ij->i")
+    g11, g12, g22, r1, r2 = dot(e1, e1), dot(e1, e2), dot(e2, e2), dot(e1, d), dot(e2, d)
     det = g11 * g22 - g12**2
+    ok = det > 1e-30 * (g11 + g22) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(det > 1e-30 * (g11 + g22) ** 2, (g22 * r1 - g12 * r2) / det, np.nan)
-        t = np.where(det > 1e-30 * (g11 + g22) ** 2, (g11 * r2 - g12 * r1) / det, np.nan)
+        s = np.where(ok, (g22 * r1 - g12 * r2) / det, np.nan)
+        t = np.where(ok, (g11 * r2 - g12 * r1) / det, np.nan)
     return np.column_stack([1.0 - s - t, s, t])
 
 
