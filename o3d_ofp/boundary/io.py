@@ -66,16 +66,15 @@ def _cut_short(path: str) -> str | None:
         lines = sum(1 for line in fh if line.strip()) if fmt == "ascii" else 0
     size = os.path.getsize(path)
     if fmt.startswith("binary") and size < header + minimal:
-        return (
-            f"the file is cut short ({size} bytes; its header announces at least "
-            f"{header + minimal}): a damaged or incomplete download"
-        )
-    if fmt == "ascii" and lines < sum(counts.values()):
-        return (
-            f"the file is cut short ({lines} data lines; its header announces "
-            f"{sum(counts.values())})"
-        )
-    return None
+        found, announced = f"{size} bytes", f"at least {header + minimal}"
+    elif fmt == "ascii" and lines < sum(counts.values()):
+        found, announced = f"{lines} data lines", str(sum(counts.values()))
+    else:
+        return None
+    return (
+        f"the file is cut short ({found}; its header announces {announced}): a damaged or "
+        "incomplete download"
+    )
 
 
 class _Contents(NamedTuple):
@@ -140,10 +139,8 @@ def _contents(vertices: _Rows, faces: _Rows, base: int) -> _Contents:
         np.array([v for _, v in vertices], dtype=np.float64).reshape(-1, 3),
         np.array([i for f in corners for i in f], dtype=np.int64),
         np.repeat(np.arange(len(corners)), [len(f) for f in corners]),
-        base,
-        [n for n, _ in vertices],
-        [n for n, _ in faces],
-    )
+        base, [n for n, _ in vertices], [n for n, _ in faces],
+    )  # fmt: skip
 
 
 def _off_contents(path: str) -> _Contents:
@@ -192,11 +189,9 @@ def _refuse_bad_contents(path: str, vertices: Any = None, triangles: Any = None)
         if problem is None:
             return
     text_contents = {".off": _off_contents, ".obj": _obj_contents}.get(_ext(path))
-    if text_contents is not None:
-        try:
+    with contextlib.suppress(OSError, ValueError, IndexError):  # a file the reader cannot follow
+        if text_contents is not None:
             problem = _contents_problem(text_contents(path)) or problem
-        except (OSError, ValueError, IndexError):  # a file this reader does not follow
-            pass
     if problem is not None:
         raise ValueError(f"{path}: {problem}")
 
@@ -235,15 +230,12 @@ def _reader_messages() -> Iterator[list[str]]:
             os.dup2(saved, 2)
             os.close(saved)
             tmp.seek(0)
-            others = []
-            for line in tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True):
-                if line.startswith("RPly: "):
-                    said.append(line.removeprefix("RPly: ").strip())
-                else:
-                    others.append(line)
+            lines = tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True)
+            said += [line[len("RPly: ") :].strip() for line in lines if line.startswith("RPly: ")]
+            others = "".join(line for line in lines if not line.startswith("RPly: "))
             if others:
                 with contextlib.suppress(OSError):
-                    os.write(2, "".join(others).encode())
+                    os.write(2, others.encode())
 
 
 def _open3d_read(path: str, read: Callable[[str], Any]) -> Any:
@@ -258,10 +250,9 @@ def _open3d_read(path: str, read: Callable[[str], Any]) -> Any:
     with open3d_errors_only(), _reader_messages() if ply else contextlib.nullcontext([]) as said:
         geometry = read(path)
     if said:
-        try:
+        cut = None
+        with contextlib.suppress(OSError, ValueError):
             cut = _cut_short(path)
-        except (OSError, ValueError):
-            cut = None
         raise ValueError(f"{path}: " + (cut or (
             f'Open3D\'s PLY reader stopped at "{said[0]}": the file is damaged, cut short, or '
             "holds a value its property's type cannot hold"
@@ -352,12 +343,10 @@ def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
 
     size = float(np.ptp(P, axis=0).max()) or 1.0
     distance, new_of_read = cKDTree(P).query(V)  # read vertex -> its v line
-    if distance.max() > 1e-6 * size or np.unique(new_of_read).size != V.shape[0]:
-        return mesh  # not one to one (repeated positions, another reader): left as read
-    if np.array_equal(new_of_read, np.arange(V.shape[0])):
-        return mesh
-    read_of_new = np.empty_like(new_of_read)
-    read_of_new[new_of_read] = np.arange(V.shape[0])
+    in_order = np.array_equal(new_of_read, np.arange(V.shape[0]))
+    if in_order or distance.max() > 1e-6 * size or np.unique(new_of_read).size != V.shape[0]:
+        return mesh  # or not one to one (repeated positions, another reader): left as read
+    read_of_new = np.argsort(new_of_read)  # the inverse permutation
     out = o3d.geometry.TriangleMesh(mesh)
     out.vertices = o3d.utility.Vector3dVector(V[read_of_new])
     out.triangles = o3d.utility.Vector3iVector(new_of_read[np.asarray(mesh.triangles)])
@@ -435,22 +424,20 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         return out, False
     try:
         tex = mesh_texture(mesh)
-    except ValueError:  # UVs without an image: keep the UVs
-        uvs = np.asarray(mesh.triangle_uvs, dtype=np.float32).reshape(-1, 3, 2)
-        if uvs.shape[0] == F.shape[0]:
-            out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs))
-        return out, False
-    out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(tex.uvs, dtype=np.float32))
-    used = tex.used_images()
+    except ValueError:  # UVs without an image: the UVs are kept
+        tex = None
+    uvs = np.asarray(mesh.triangle_uvs).reshape(-1, 3, 2) if tex is None else tex.uvs
+    if uvs.shape[0] == F.shape[0]:
+        out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs, dtype=np.float32))
+    used = [] if tex is None else tex.used_images()
     if len(used) > 1:
         raise ValueError(
             f"this mesh uses {len(used)} texture images; Open3D writes one image per mesh to "
             "glTF: write an .obj (OBJ + MTL + images) instead"
         )
-    if not used:
-        return out, False
-    set_albedo(out, used[0])
-    return out, True
+    if used:
+        set_albedo(out, used[0])
+    return out, bool(used)
 
 
 def _gltf_vertex_counts(mesh: Any) -> set[int]:
