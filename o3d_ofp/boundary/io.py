@@ -27,7 +27,8 @@ import numpy as np
 from ..core._atomic import default_file_mode
 from ..core.cleaning import _MAX_SIZE, _MIN_SIZE
 from ._verbosity import open3d_errors_only
-from .convert import require_open3d
+from .convert import geometry_to_arrays, require_open3d
+from .texture import has_texture_image, mesh_texture, set_albedo
 
 __all__ = ["read_geometry", "read_if_path", "write_geometry"]
 
@@ -407,10 +408,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
     positions, normals, colors, per-corner UVs and one ``albedo`` image correctly (float32).
     """
     if isinstance(mesh, o3d.t.geometry.TriangleMesh):
-        has_image = mesh.has_valid_material() and "albedo" in mesh.material.texture_maps
-        return mesh, bool(has_image and "texture_uvs" in mesh.triangle)
-    from .convert import geometry_to_arrays
-    from .texture import mesh_texture, set_albedo
+        return mesh, has_texture_image(mesh) and "texture_uvs" in mesh.triangle
 
     V, F = geometry_to_arrays(mesh)
     out = o3d.t.geometry.TriangleMesh()
@@ -468,7 +466,7 @@ def _check_gltf(path: str, shown: str, counts: set[int], textured: bool, o3d: An
         problem = (
             f"Open3D wrote a glTF file it cannot read back ({n} vertices read, {written} written)"
         )
-    elif textured and not (back.has_valid_material() and "albedo" in back.material.texture_maps):
+    elif textured and not has_texture_image(back):
         problem = "Open3D did not write the texture into the glTF file"
     else:
         return

@@ -25,7 +25,6 @@ import dataclasses
 import itertools
 import logging
 import os
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -55,8 +54,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
-def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
-    """Read a top-down (H, W[, C]) array from a path, an array or an Open3D image."""
+def _image_array(image: Any) -> np.ndarray:
+    """Read a top-down (H, W[, C]) array from a path, an array or an Open3D image (texture=)."""
+    o3d = require_open3d()
     if isinstance(image, (str, os.PathLike)):
         path = os.fspath(image)
         if not os.path.isfile(path):
@@ -71,7 +71,7 @@ def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
     if arr.ndim not in (2, 3) or arr.size == 0 or arr.dtype == object:
-        raise ValueError(f"{name} must be an (H, W[, C]) image; got shape {arr.shape}")
+        raise ValueError(f"texture must be an (H, W[, C]) image; got shape {arr.shape}")
     return arr
 
 
@@ -210,8 +210,8 @@ class MeshTexture:
 
     def vertex_colors(self) -> np.ndarray:
         """(n, 3) colors in [0, 1] per vertex: the mean of its triangle corners' samples."""
-        corners = self.corner_colors()
-        return np.clip(corner_colors_to_vertices(self.faces, corners, self.vertices.shape[0]), 0, 1)
+        colors = corner_colors_to_vertices(self.faces, self.corner_colors(), self.vertices.shape[0])
+        return np.clip(colors, 0, 1)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -324,11 +324,11 @@ def without_texture(geometry: Any) -> Any:
         out.textures = []
         out.triangle_material_ids = o3d.utility.IntVector()
         return out
-    if kind == "tensor_mesh" and geometry.has_valid_material():
-        if len(geometry.material.texture_maps):
-            out = geometry.clone()
-            out.material = o3d.visualization.Material("defaultLit")
-            return out
+    tensor = kind == "tensor_mesh" and geometry.has_valid_material()
+    if tensor and len(geometry.material.texture_maps):
+        out = geometry.clone()
+        out.material = o3d.visualization.Material("defaultLit")
+        return out
     return geometry
 
 
@@ -341,9 +341,13 @@ def has_texture_image(geometry: Any) -> bool:
     kind = geometry_kind(geometry)
     if kind == "legacy_mesh":
         return any(not _is_empty(image) for image in geometry.textures)
-    if kind == "tensor_mesh":
-        return bool(geometry.has_valid_material() and "albedo" in geometry.material.texture_maps)
-    return False
+    return kind == "tensor_mesh" and _albedo(geometry) is not None
+
+
+def _albedo(mesh: Any) -> Any:
+    """Return a tensor mesh's albedo map (an Open3D image), or None."""
+    maps = mesh.material.texture_maps if mesh.has_valid_material() else {}
+    return maps["albedo"] if "albedo" in maps else None
 
 
 def has_uvs(mesh: Any) -> bool:
@@ -384,23 +388,14 @@ def no_texture_message(path: str, exc: Exception) -> Said:
     )
 
 
-def _no_image() -> AdvisedError:
-    return AdvisedError(Said(
-        "the mesh has UVs but no texture image was loaded (no material file next to it?): pass "
-        "the image explicitly ({texture})", {}, "no_image",
-    ))  # fmt: skip
-
-
 def _legacy_parts(mesh: Any, n_faces: int) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     uv = np.array(mesh.triangle_uvs, dtype=np.float64)
     if uv.shape[0] != 3 * n_faces:
         raise _no_uvs(uv.shape[0], n_faces)
     # Legacy textures are bottom-up: flip them to the file's (top-down) orientation. Empty
     # images (the OBJ reader's default material) stay as placeholders so the ids still match.
-    images = [
-        np.zeros((0, 0)) if _is_empty(t) else np.array(np.asarray(t)[::-1], copy=True)
-        for t in mesh.textures
-    ]
+    images = [np.zeros((0, 0)) if _is_empty(image) else np.asarray(image)[::-1].copy()
+              for image in mesh.textures]  # fmt: skip
     material = np.array(mesh.triangle_material_ids, dtype=np.int64)
     if material.shape[0] != n_faces:
         material = np.zeros(n_faces, dtype=np.int64)
@@ -417,10 +412,8 @@ def _tensor_parts(mesh: Any, faces: np.ndarray) -> tuple[np.ndarray, list[np.nda
         uv = np.array(mesh.vertex["texture_uvs"].cpu().numpy(), dtype=np.float64)[faces]
     else:
         raise _no_uvs(0, n_faces)
-    images = []
-    if mesh.has_valid_material() and "albedo" in mesh.material.texture_maps:
-        albedo = mesh.material.texture_maps["albedo"]
-        images.append(np.array(albedo.as_tensor().cpu().numpy(), copy=True))
+    albedo = _albedo(mesh)
+    images = [] if albedo is None else [np.array(albedo.as_tensor().cpu().numpy())]
     return uv, images, np.zeros(n_faces, dtype=np.int64)
 
 
@@ -522,11 +515,14 @@ def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
     """
     V, F, uv, images, material = _uv_parts(mesh)
     if texture is not None:
-        images = [_image_array(texture, require_open3d(), "texture")]
+        images = [_image_array(texture)]
         material = np.zeros(F.shape[0], dtype=np.int64)
     filled = [i for i, im in enumerate(images) if im.ndim >= 2 and im.size > 0]
     if not filled:
-        raise _no_image()
+        raise AdvisedError(Said(
+            "the mesh has UVs but no texture image was loaded (no material file next to it?): "
+            "pass the image explicitly ({texture})", {}, "no_image",
+        ))  # fmt: skip
     valid = (material >= 0) & (material < len(images))
     valid[valid] = np.isin(material[valid], filled)
     if not np.all(valid):
@@ -536,9 +532,8 @@ def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
         else:
             logger.warning(
                 "texture: %d of %d triangles name no loaded image; they get black",
-                int(np.count_nonzero(~valid)),
-                F.shape[0],
-            )
+                int(np.count_nonzero(~valid)), F.shape[0],
+            )  # fmt: skip
             material = np.where(valid, material, -1)
     return MeshTexture(
         vertices=V, faces=F, uvs=uv, images=tuple(images), material=material.astype(np.int64)
