@@ -253,11 +253,7 @@ def _checked(values: Any, n: int, name: str) -> np.ndarray:
 
 
 def triangle_mesh_from_arrays(
-    vertices: Any,
-    faces: Any,
-    *,
-    colors: Any = None,
-    normals: Any = None,
+    vertices: Any, faces: Any, *, colors: Any = None, normals: Any = None
 ) -> Any:
     """Build a new legacy ``open3d.geometry.TriangleMesh`` from validated arrays.
 
@@ -351,18 +347,27 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
         if F is None:
             return point_cloud_from_arrays(V, colors=colors)
         return triangle_mesh_from_arrays(V, F, colors=colors)
-    o3d = require_open3d()
-    kind = geometry_kind(target)
     n = geometry_to_arrays(target)[0].shape[0]
     V = None if vertices is None else as_vertices(vertices)
     if V is not None and V.shape[0] != n:
         raise ValueError(f"vertices has {V.shape[0]} rows; the target has {n} vertices")
-    C = None if colors is None else _checked(colors, n, "colors")
+    return _copy_with(target, V, None if colors is None else _checked(colors, n, "colors"))
+
+
+def _copy_with(target: Any, V: Any, C: Any, *, new_normals: bool = True) -> Any:
+    """Copy ``target`` (its kind, every attribute) with positions ``V`` and colors ``C``.
+
+    Either may be None (kept). With ``new_normals``, the normals the target has are computed
+    again for the new positions.
+    """
+    o3d = require_open3d()
+    kind = geometry_kind(target)
     if kind in ("legacy_mesh", "legacy_cloud"):
         out = type(target)(target)  # Open3D's copy constructor: every attribute
         mesh = kind == "legacy_mesh"
         if V is not None:
             setattr(out, "vertices" if mesh else "points", o3d.utility.Vector3dVector(V))
+        if V is not None and new_normals:
             if mesh and target.has_triangle_normals():
                 out.compute_triangle_normals()
             if mesh and target.has_vertex_normals():
@@ -376,6 +381,7 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
     attrs = out.vertex if kind == "tensor_mesh" else out.point
     if V is not None:
         attrs["positions"] = o3d.core.Tensor(V).to(attrs["positions"].dtype)
+    if V is not None and new_normals:
         if kind == "tensor_mesh" and "normals" in attrs:
             out.compute_vertex_normals()
         if kind == "tensor_mesh" and "normals" in out.triangle:
@@ -416,16 +422,4 @@ def scaled_copy(geometry: Any, factor: float) -> Any:
     if isinstance(geometry, tuple):
         V, F = geometry
         return as_vertices(V) * factor, F
-    o3d = require_open3d()
-    kind = geometry_kind(geometry)
-    if kind in ("legacy_mesh", "legacy_cloud"):
-        out = type(geometry)(geometry)  # Open3D's copy constructor: every attribute
-        name = "vertices" if kind == "legacy_mesh" else "points"
-        scaled = np.asarray(getattr(out, name), dtype=np.float64) * factor
-        setattr(out, name, o3d.utility.Vector3dVector(scaled))
-        return out
-    out = geometry.clone()
-    attrs = out.vertex if kind == "tensor_mesh" else out.point
-    positions = attrs["positions"]
-    attrs["positions"] = o3d.core.Tensor(positions.numpy() * factor).to(positions.dtype)
-    return out
+    return _copy_with(geometry, geometry_to_arrays(geometry)[0] * factor, None, new_normals=False)
