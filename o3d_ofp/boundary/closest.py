@@ -798,9 +798,9 @@ def _coverage(
     distinct_1 = int(at_1.max()) + 1
     hit = np.unique(at_1[p2p]).size
     smaller = min(distinct_1, int(_positions(V2).max()) + 1)
-    crowded: list[Said] = []
-    if hit < MIN_COVERAGE * smaller:
-        crowded.append(Said(
+    if hit >= MIN_COVERAGE * smaller:
+        return hit / distinct_1, hit / smaller, []
+    return hit / distinct_1, hit / smaller, [Said(
             "the target's vertices crowd onto {hit} source vertices ({share:.2f} of the smaller "
             "shape, < {bound}): the shapes are not in the same place or not the same pose. A "
             "closest-point map ({closest}) is only for shapes in the same place: {retry}"
@@ -808,8 +808,7 @@ def _coverage(
             "is a part of the source)",
             {"hit": hit, "share": hit / smaller, "bound": MIN_COVERAGE, "retry": retry},
             "crowded",
-        ))  # fmt: skip
-    return hit / distinct_1, hit / smaller, crowded
+        )]  # fmt: skip
 
 
 def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[Said]:
@@ -869,8 +868,7 @@ def _area_ratio(
     """Return target area / source area (NaN without both shapes' triangles); a note if far off."""
     if F2 is None or F1 is None:
         return math.nan
-    a1 = face_areas_normals(V1, F1)[0].sum()
-    a2 = face_areas_normals(V2, F2)[0].sum()
+    a1, a2 = (face_areas_normals(V, F)[0].sum() for V, F in ((V1, F1), (V2, F2)))
     area_ratio = float(a2 / a1) if a1 > 0 else math.nan
     if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
         notes.append(Said(
@@ -897,11 +895,10 @@ def _closest_quality(
     max_rel = options["max_distance_rel"] = float(distances.max() / diag)
     facing = math.nan
     if surface is not None and F2 is not None:
-        facing = _facing_away(surface, query, F2)
-        options["facing_away"] = facing
+        facing = options["facing_away"] = _facing_away(surface, query, F2)
     retry = "" if align else Said("pass {align} if they are almost aligned; ")
     reasons = _not_aligned(mean_rel, align, V2, diag, retry)
-    misaligned: list[Said] = []
+    misaligned = []
     if surface is not None and not align:
         misaligned = _misaligned(surface, V2, distances / diag, options, notes)
     coverage, coverage_ratio, crowded = _coverage(V1, V2, p2p, retry)
@@ -924,14 +921,9 @@ def _closest_quality(
 
 
 def closest_correspondence(
-    vertices_1: Any,
-    faces_1: Any,
-    vertices_2: Any,
-    *,
-    faces_2: Any = None,
-    align: bool = False,
+    vertices_1: Any, faces_1: Any, vertices_2: Any, *, faces_2: Any = None, align: bool = False,
     max_icp_distance: float | None = None,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Map every target vertex to the closest point on the source surface (aligned shapes).
 
     For shapes that already occupy the same place (a scan and its simplified or remeshed
@@ -1005,9 +997,7 @@ def closest_correspondence(
     }  # fmt: skip
     notes: list[Said] = []
     surface = None if F1 is None else _Surface(V1, F1)
-    query = V2
-    if align:
-        query = _aligned_query(V1, F1, surface, V2, max_icp_distance, options, notes)
+    query = _aligned_query(V1, F1, surface, V2, max_icp_distance, options, notes) if align else V2
     p2p, faces_21, bary, distances = _closest_on_source(V1, surface, query)
     quality = _closest_quality(V1, F1, V2, F2, surface, query, p2p, distances, options, notes)
     logger.info(

@@ -55,13 +55,9 @@ def _pick_in_window(geometry: Any, title: str) -> list[int]:
 
 
 def validate_picks(
-    picked_source: Sequence[int],
-    picked_target: Sequence[int],
-    n_source: int,
-    n_target: int,
-    *,
-    count: int | None = None,
-) -> np.ndarray:
+    picked_source: Sequence[int], picked_target: Sequence[int], n_source: int, n_target: int,
+    *, count: int | None = None,
+) -> np.ndarray:  # fmt: skip
     """Pair two lists of picked vertices, checked.
 
     Parameters
@@ -110,11 +106,7 @@ def validate_picks(
 
 
 def pick_landmarks(
-    source: Any,
-    target: Any,
-    *,
-    count: int | None = None,
-    picker: Picker | None = None,
+    source: Any, target: Any, *, count: int | None = None, picker: Picker | None = None
 ) -> np.ndarray:
     """Pick landmark pairs by hand: the source's window first, then the target's.
 
