@@ -492,6 +492,11 @@ def _surface_samples(
     return np.einsum("qi,qij->qj", bary, V[F[face]]), face_normals[face]
 
 
+def _subset(n: int, at_most: int, rng: np.random.Generator) -> np.ndarray:
+    """Return the sorted indices of ``at_most`` of ``n`` items drawn at random (all if fewer)."""
+    return np.sort(rng.choice(n, at_most, replace=False)) if n > at_most else np.arange(n)
+
+
 def _rotation(omega: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of the rotation vector ``omega`` (3,) (Rodrigues)."""
     angle = float(np.linalg.norm(omega))
@@ -627,10 +632,7 @@ def _icp(
     if F1 is not None:
         points, normals = _surface_samples(V1, F1, n_samples, rng)
     else:
-        idx = np.arange(V1.shape[0])
-        if idx.size > n_samples:
-            idx = np.sort(rng.choice(idx.size, n_samples, replace=False))
-        points, normals = V1[idx], None
+        points, normals = V1[_subset(V1.shape[0], n_samples, rng)], None
     source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector((points - centre) / diag))
     if normals is not None:
         source.normals = o3d.utility.Vector3dVector(normals)
@@ -690,10 +692,9 @@ def _aligned_query(
     if fitness < ICP_MIN_FITNESS:
         notes.append(Said(
             "ICP fitness {fitness:.2f}: only that fraction of the target lies within "
-            "{distance:.3g} (the shapes' units, {rel:.2g} of the source's bounding-box "
-            "diagonal) of the source after alignment: a partial target, a pose too far from "
-            "the source's for ICP, or shapes in other units (ICP does not scale: rescale the "
-            "target first)",
+            "{distance:.3g} (the shapes' units, {rel:.2g} of the source's bounding-box diagonal) "
+            "of the source after alignment: a partial target, a pose too far from the source's "
+            "for ICP, or shapes in other units (ICP does not scale: rescale the target first)",
             {"fitness": fitness, "distance": max_distance, "rel": max_distance / diag},
             "icp_fitness",
         ))  # fmt: skip
@@ -747,10 +748,7 @@ def _misaligned(
     ``mean_distance_rel_moved``), its ``rotation_degrees`` and ``translation_rel`` (at the
     source's bounding-box centre); a smaller gain (above :data:`MISALIGNED_NOTE`) is a note.
     """
-    sample = np.arange(V2.shape[0])
-    if sample.size > MISALIGNMENT_SAMPLES:
-        rng = np.random.default_rng(0)
-        sample = np.sort(rng.choice(sample.size, MISALIGNMENT_SAMPLES, replace=False))
+    sample = _subset(V2.shape[0], MISALIGNMENT_SAMPLES, np.random.default_rng(0))
     Pn = surface.normalize(V2[sample])
     T = _refine_on_surface(
         surface, Pn, np.eye(4), 3.0 * ICP_DISTANCE,

@@ -449,9 +449,8 @@ def _gltf_vertex_counts(mesh: Any) -> set[int]:
     if "texture_uvs" not in mesh.triangle:
         return {n}
     corners = mesh.triangle.indices.numpy().reshape(-1)
-    uvs = mesh.triangle.texture_uvs.numpy().reshape(-1, 2).astype(np.float32)
-    keys = np.column_stack([corners.astype(np.float64), uvs.astype(np.float64)])
-    split = int(np.unique(keys, axis=0).shape[0])
+    uvs = mesh.triangle.texture_uvs.numpy().reshape(-1, 2).astype(np.float32)  # as written
+    split = int(np.unique(np.column_stack([corners, uvs]).astype(np.float64), axis=0).shape[0])
     unused = n - int(np.unique(corners).size)  # vertices in no triangle: written as they are
     return {n, split + unused}
 
