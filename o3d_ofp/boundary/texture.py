@@ -324,8 +324,8 @@ def without_texture(geometry: Any) -> Any:
         out.textures = []
         out.triangle_material_ids = o3d.utility.IntVector()
         return out
-    tensor = kind == "tensor_mesh" and geometry.has_valid_material()
-    if tensor and len(geometry.material.texture_maps):
+    with_material = kind == "tensor_mesh" and geometry.has_valid_material()
+    if with_material and len(geometry.material.texture_maps):
         out = geometry.clone()
         out.material = o3d.visualization.Material("defaultLit")
         return out
