@@ -37,13 +37,11 @@ def open3d_errors_only() -> Iterator[None]:
     inside such a block is replaced when the last block is left.
     """
     global _depth, _saved
-    o3d = require_open3d()
-    utility = o3d.utility
+    utility = require_open3d().utility
     with _lock:
         if _depth == 0:
             _saved = utility.get_verbosity_level()
-            if _saved != utility.VerbosityLevel.Error:
-                utility.set_verbosity_level(utility.VerbosityLevel.Error)
+            utility.set_verbosity_level(utility.VerbosityLevel.Error)
         _depth += 1
     try:
         yield
@@ -51,6 +49,5 @@ def open3d_errors_only() -> Iterator[None]:
         with _lock:
             _depth -= 1
             if _depth == 0:
-                if utility.get_verbosity_level() != _saved:
-                    utility.set_verbosity_level(_saved)
+                utility.set_verbosity_level(_saved)
                 _saved = None

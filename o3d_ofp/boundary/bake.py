@@ -19,6 +19,7 @@ source surface point nearest to ``wa P(a) + wb P(b) + wc P(c)``, with P the mapp
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -33,6 +34,7 @@ from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, check_correspondence
 from ..workflows.plan import plan_pair, prepare
 from ._verbosity import open3d_errors_only
+from .closest import _hit_weights
 from .convert import geometry_kind, geometry_to_arrays, require_open3d, vertex_colors
 from .io import read_if_path
 from .texture import (
@@ -60,6 +62,8 @@ logger = logging.getLogger(__name__)
 
 #: Queries per call to Open3D's closest-point search (bounds the temporary memory).
 _CHUNK = 1 << 20
+#: What a bake samples: a source's texture, or its vertex colors.
+_Colors = MeshTexture | VertexColorSurface
 
 
 class _Surface:
@@ -74,17 +78,16 @@ class _Surface:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        o3d = require_open3d()
-        self._o3d = o3d
+        self._o3d = require_open3d()
         self.centre = vertices.mean(axis=0)
-        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene = self._o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(
             np.ascontiguousarray(vertices - self.centre, dtype=np.float32),
             np.ascontiguousarray(faces, dtype=np.uint32),
         )
 
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest surface points of ``points`` (p, 3).
+        """Closest surface points of ``points`` (p, 3), :data:`_CHUNK` queries at a time.
 
         Returns
         -------
@@ -96,19 +99,12 @@ class _Surface:
             Distance from the query to it.
         """
         n = points.shape[0]
-        tri = np.empty(n, dtype=np.int64)
-        bary = np.empty((n, 3))
-        dist = np.empty(n)
+        tri, bary, dist = np.empty(n, dtype=np.int64), np.empty((n, 3)), np.empty(n)
         for start in range(0, n, _CHUNK):
-            sl = slice(start, min(start + _CHUNK, n))
+            sl = slice(start, start + _CHUNK)
             q = np.ascontiguousarray(points[sl] - self.centre, dtype=np.float32)
             ans = self.scene.compute_closest_points(self._o3d.core.Tensor(q))
-            tri[sl] = ans["primitive_ids"].numpy().astype(np.int64)
-            uv = ans["primitive_uvs"].numpy().astype(np.float64)
-            # Open3D's primitive uv (s, t): point = (1 - s - t) a + s b + t c.
-            w = np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]])
-            w = np.clip(w, 0.0, None)
-            bary[sl] = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+            tri[sl], bary[sl] = ans["primitive_ids"].numpy(), _hit_weights(ans)
             dist[sl] = np.linalg.norm(ans["points"].numpy().astype(np.float64) - q, axis=1)
         return tri, bary, dist
 
@@ -122,23 +118,13 @@ class _Surface:
         barycentric : (p, 3) ndarray of float64
             The point's barycentric weights in it (undefined where none).
         """
-        n = points.shape[0]
-        tri = np.full(n, -1, dtype=np.int64)
-        bary = np.zeros((n, 3))
-        for start in range(0, n, _CHUNK):
-            sl = slice(start, min(start + _CHUNK, n))
-            rays = np.zeros((sl.stop - start, 6), dtype=np.float32)
-            rays[:, :2] = points[sl, :2] - self.centre[:2]
-            rays[:, 2] = 1.0 - self.centre[2]
-            rays[:, 5] = -1.0
-            ans = self.scene.cast_rays(self._o3d.core.Tensor(rays))
-            found = np.isfinite(ans["t_hit"].numpy())
-            ids = ans["primitive_ids"].numpy().astype(np.int64)
-            tri[sl] = np.where(found, ids, -1)
-            uv = ans["primitive_uvs"].numpy().astype(np.float64)
-            w = np.clip(np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]]), 0, None)
-            bary[sl] = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
-        return tri, bary
+        rays = np.zeros((points.shape[0], 6), dtype=np.float32)
+        rays[:, :2] = points[:, :2] - self.centre[:2]
+        rays[:, 2] = 1.0 - self.centre[2]
+        rays[:, 5] = -1.0
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays))
+        ids = ans["primitive_ids"].numpy().astype(np.int64)
+        return np.where(np.isfinite(ans["t_hit"].numpy()), ids, -1), _hit_weights(ans)
 
 
 def _callers_kind(out: Any, target: Any) -> Any:
@@ -151,16 +137,14 @@ def _callers_kind(out: Any, target: Any) -> Any:
     """
     if geometry_kind(target) != "tensor_mesh":
         return out
-    o3d = require_open3d()
     images = mesh_texture(out).used_images() if out.has_triangle_uvs() else []
     if len(images) > 1:
         logger.warning(
             "the result uses %d texture images; a tensor mesh holds one (its albedo map): "
-            "returned as a legacy mesh",
-            len(images),
-        )
+            "returned as a legacy mesh", len(images),
+        )  # fmt: skip
         return out
-    result = o3d.t.geometry.TriangleMesh.from_legacy(out)
+    result = require_open3d().t.geometry.TriangleMesh.from_legacy(out)
     if images:
         set_albedo(result, images[0])
     return result
@@ -168,13 +152,10 @@ def _callers_kind(out: Any, target: Any) -> Any:
 
 def _legacy_copy(target: Any) -> Any:
     """Copy ``target`` into a new legacy mesh, every attribute kept (tensor meshes converted)."""
-    o3d = require_open3d()
     kind = geometry_kind(target)
-    if kind == "tensor_mesh":
-        return target.to_legacy()
-    if kind != "legacy_mesh":
+    if kind not in ("legacy_mesh", "tensor_mesh"):
         raise TypeError("target must be an Open3D TriangleMesh with texture coordinates")
-    return o3d.geometry.TriangleMesh(target)
+    return target.to_legacy() if kind == "tensor_mesh" else type(target)(target)
 
 
 def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
@@ -222,21 +203,17 @@ def with_uv_atlas(mesh: Any, *, size: int = 1024) -> Any:
 
 
 def _mapped_points(
-    V1: np.ndarray,
-    F1: np.ndarray,
-    V2: np.ndarray,
-    F2: np.ndarray,
-    correspondence: Correspondence | None,
+    V1: np.ndarray, F1: np.ndarray, V2: np.ndarray, F2: np.ndarray, given: Correspondence | None
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Source surface point of every target vertex (a map estimated when none is given).
 
     Returns the (n2, 3) points, and their source triangles and barycentric weights when the
     map gives them (a surface map, ``faces_21``: a closest-point map), else None.
     """
-    plan = plan_pair(V1, F1, V2, F2, task="texture", given=correspondence)
-    if correspondence is None:
+    plan = plan_pair(V1, F1, V2, F2, task="texture", given=given)
+    if given is None:
         logger.info("texture transfer: no map given, estimating one (eigenbases and ZoomOut)")
-    corr = prepare(plan, V1, F1, V2, F2, given=correspondence).correspondence
+    corr = prepare(plan, V1, F1, V2, F2, given=given).correspondence
     if corr.faces_21 is None:
         return V1[corr.p2p_21], None, None
     tri = np.asarray(corr.faces_21, dtype=np.int64)
@@ -275,60 +252,43 @@ def _rasterize(
     inside : (p,) ndarray of bool
         True where a triangle covers the texel centre.
     """
-    m = uv.shape[0]
     shift = np.floor(uv.mean(axis=1))  # bring every triangle next to [0, 1]^2
     local = uv - shift[:, None, :]
-    lo, hi = local.min(axis=1), local.max(axis=1)
     pad = (band + 1.0) / size
-    crosses = np.any(lo < pad, axis=1) | np.any(hi > 1.0 - pad, axis=1)
-    copies = [local]
-    owner = [np.arange(m)]
-    idx = np.flatnonzero(crosses)
-    for du in (-1.0, 0.0, 1.0):
-        for dv in (-1.0, 0.0, 1.0):
-            if (du, dv) != (0.0, 0.0) and idx.size:
-                copies.append(local[idx] + np.array([du, dv]))
-                owner.append(idx)
-    all_uv = np.concatenate(copies)
-    all_owner = np.concatenate(owner)
+    lo, hi = local.min(axis=1), local.max(axis=1)
+    idx = np.flatnonzero(np.any(lo < pad, axis=1) | np.any(hi > 1.0 - pad, axis=1))
+    # the triangles near the square's border are copied into the 8 squares around it
+    shifts = [np.array([du, dv]) for du in (-1.0, 0.0, 1.0) for dv in (-1.0, 0.0, 1.0) if du or dv]
+    all_uv = np.concatenate([local, *(local[idx] + d for d in shifts)])
+    all_owner = np.concatenate([np.arange(uv.shape[0]), *[idx] * len(shifts)])
     k = all_uv.shape[0]
     pts = np.concatenate([all_uv.reshape(-1, 2), np.zeros((3 * k, 1))], axis=1)
     surface = _Surface(pts, np.arange(3 * k).reshape(k, 3))
     n = size * size
     # Centres inside a triangle: one vertical ray each (much cheaper than closest points).
-    hit = np.zeros(n, dtype=bool)
-    hit_idx, hit_tri, hit_bary = [], [], []
+    parts = []
     for start in range(0, n, _CHUNK):
         flat = np.arange(start, min(start + _CHUNK, n))
         tri, bary = surface.covering(_centres(flat, size))
-        found = tri >= 0
-        hit[flat[found]] = True
-        hit_idx.append(flat[found])
-        hit_tri.append(tri[found])
-        hit_bary.append(bary[found])
+        parts.append((flat[tri >= 0], tri[tri >= 0], bary[tri >= 0]))
+    hit_idx, hit_tri, hit_bary = (np.concatenate(part) for part in zip(*parts, strict=True))
+    hit = np.zeros(n, dtype=bool)
+    hit[hit_idx] = True
     # Centres near a triangle: around the hit texels and around every triangle corner (a chart
     # smaller than a texel covers no centre), closest points within ``band`` texels.
-    seeds = hit.copy()
+    seeds = hit.reshape(size, size).copy()
     corner = np.floor(all_uv.reshape(-1, 2) * size).astype(np.int64)
     corner = corner[np.all((corner >= 0) & (corner < size), axis=1)]
-    seeds[(size - 1 - corner[:, 1]) * size + corner[:, 0]] = True
-    near = (
-        ndimage.binary_dilation(
-            seeds.reshape(size, size),
-            structure=np.ones((3, 3), dtype=bool),
-            iterations=math.ceil(band) + 1,
-        ).ravel()
-        & ~hit
-    )
-    near_idx = np.flatnonzero(near)
+    seeds[size - 1 - corner[:, 1], corner[:, 0]] = True
+    grown = ndimage.binary_dilation(seeds, np.ones((3, 3), bool), math.ceil(band) + 1)
+    near_idx = np.flatnonzero(grown.ravel() & ~hit)
     tri, bary, dist = surface.closest(_centres(near_idx, size))
     keep = dist * size <= band
-    n_hit = int(np.count_nonzero(hit))
     return (
-        np.concatenate([*hit_idx, near_idx[keep]]),
-        all_owner[np.concatenate([*hit_tri, tri[keep]])],
-        np.concatenate([*hit_bary, bary[keep]]),
-        np.concatenate([np.ones(n_hit, dtype=bool), dist[keep] * size < 1e-3]),
+        np.concatenate([hit_idx, near_idx[keep]]),
+        all_owner[np.concatenate([hit_tri, tri[keep]])],
+        np.concatenate([hit_bary, bary[keep]]),
+        np.concatenate([np.ones(hit_idx.size, dtype=bool), dist[keep] * size < 1e-3]),
     )
 
 
@@ -445,18 +405,8 @@ def transfer_texture(
     if int(dilate) != dilate or dilate < 0:
         raise ValueError(f"dilate must be a non-negative integer; got {dilate!r}")
     size, dilate = int(size), int(dilate)
-    source, target = read_if_path(source, "source"), read_if_path(target, "target")
-    src: MeshTexture | VertexColorSurface
-    if isinstance(source, (MeshTexture, VertexColorSurface)):
-        if texture is not None:
-            raise ValueError(
-                f"texture= applies to a source mesh; a {type(source).__name__} has its colors"
-            )
-        src = source
-    else:
-        src = surface_colors(source, texture)
-        if isinstance(src, VertexColorSurface):
-            logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
+    src = _bake_source(source, texture)
+    target = read_if_path(target, "target")
     if check_correspondence(correspondence) is not None:  # before an atlas (seconds of work)
         correspondence.check(src.vertices.shape[0], geometry_to_arrays(target)[0].shape[0])
     if not has_uvs(target):
@@ -470,15 +420,38 @@ def transfer_texture(
     V2, F2 = geometry_to_arrays(target)
     assert F2 is not None
     points, _, _ = _mapped_points(src.vertices, src.faces, V2, F2, correspondence)
+    out = _legacy_copy(target)
+    out.textures = [legacy_texture_image(_bake(src, target_uv, points[F2], size, dilate))]
+    out.triangle_material_ids = require_open3d().utility.IntVector(np.zeros(len(F2), np.int32))
+    return _callers_kind(out, target)
 
-    texels, tri2, bary2, inside = _rasterize(target_uv, size, band=math.sqrt(2.0) + 1e-6)
+
+def _bake_source(source: Any, texture: Any) -> _Colors:
+    """Return the colors a bake samples: the source's as given, or read from the source mesh."""
+    if not isinstance(source, _Colors):
+        src = surface_colors(read_if_path(source, "source"), texture)
+        if isinstance(src, VertexColorSurface):
+            logger.info("texture transfer: the source has no UVs; its vertex colors are baked")
+        return src
+    if texture is not None:
+        raise ValueError(
+            f"texture= applies to a source mesh; a {type(source).__name__} has its colors"
+        )
+    return source
+
+
+def _bake(src: _Colors, uv: np.ndarray, corners: np.ndarray, size: int, dilate: int) -> np.ndarray:
+    """Return the (size, size, 3) image of the source's colors in the target's UV layout.
+
+    ``uv`` and ``corners``: (m, 3, 2) UVs and (m, 3, 3) mapped points of the target's triangles.
+    """
+    texels, tri2, bary2, inside = _rasterize(uv, size, band=math.sqrt(2.0) + 1e-6)
+    n_inside = int(np.count_nonzero(inside))
     logger.debug(
         "texture transfer: %d texels inside %d target triangles, %d at their edges",
-        int(np.count_nonzero(inside)),
-        F2.shape[0],
-        int(np.count_nonzero(~inside)),
-    )
-    shared = _uv_overlap(target_uv, int(np.count_nonzero(inside)), size)
+        n_inside, uv.shape[0], inside.size - n_inside,
+    )  # fmt: skip
+    shared = _uv_overlap(uv, n_inside, size)
     if shared > UV_OVERLAP:
         warn(logger, Said(
             "the target's UV triangles overlap: {percent:.0f} % of their UV area shares texels "
@@ -487,22 +460,13 @@ def transfer_texture(
             "target's own (remove its UVs and pass {atlas}), or transfer per-vertex colors "
             "(transfer_colors)", {"percent": 100 * shared}, "uv_overlap",
         ))  # fmt: skip
-    q = np.einsum("pk,pkd->pd", bary2, points[F2[tri2]])
+    q = np.einsum("pk,pkd->pd", bary2, corners[tri2])
     tri1, bary1, _ = _Surface(src.vertices, src.faces).closest(q)
-    colors = src.sample(tri1, bary1)
-
-    image = np.zeros((size * size, 3), dtype=np.float32)
-    image[texels] = colors
-    filled = np.zeros(size * size, dtype=bool)
-    filled[texels] = True
-    image = _dilate(image.reshape(size, size, 3), filled.reshape(size, size), dilate)
-    baked = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
-
-    o3d = require_open3d()
-    out = _legacy_copy(target)
-    out.textures = [legacy_texture_image(baked)]
-    out.triangle_material_ids = o3d.utility.IntVector(np.zeros(F2.shape[0], dtype=np.int32))
-    return _callers_kind(out, target)
+    image = np.zeros((size, size, 3), dtype=np.float32)
+    filled = np.zeros((size, size), dtype=bool)
+    image.reshape(-1, 3)[texels] = src.sample(tri1, bary1)
+    filled.reshape(-1)[texels] = True
+    return _dilate(image, filled, dilate)
 
 
 def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -521,17 +485,14 @@ def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
         Weights summing to 1 (NaN for a degenerate triangle).
     """
     a = corners[:, 0]
-    e1, e2 = corners[:, 1] - a, corners[:, 2] - a
-    d = points - a
-    g11 = np.einsum("ij,ij->i", e1, e1)
-    g12 = np.einsum("ij,ij->i", e1, e2)
-    g22 = np.einsum("ij,ij->i", e2, e2)
-    r1 = np.einsum("ij,ij->i", e1, d)
-    r2 = np.einsum("ij,ij->i", e2, d)
+    e1, e2, d = corners[:, 1] - a, corners[:, 2] - a, points - a
+    dot = functools.partial(np.einsum, "ij,ij->i")
+    g11, g12, g22, r1, r2 = dot(e1, e1), dot(e1, e2), dot(e2, e2), dot(e1, d), dot(e2, d)
     det = g11 * g22 - g12**2
+    ok = det > 1e-30 * (g11 + g22) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(det > 1e-30 * (g11 + g22) ** 2, (g22 * r1 - g12 * r2) / det, np.nan)
-        t = np.where(det > 1e-30 * (g11 + g22) ** 2, (g11 * r2 - g12 * r1) / det, np.nan)
+        s = np.where(ok, (g22 * r1 - g12 * r2) / det, np.nan)
+        t = np.where(ok, (g11 * r2 - g12 * r1) / det, np.nan)
     return np.column_stack([1.0 - s - t, s, t])
 
 

@@ -174,6 +174,16 @@ def _units(V2: np.ndarray, diag_1: float) -> Said | str:
     )
 
 
+def _hit_weights(ans: Any) -> np.ndarray:
+    """(q, 3) barycentric weights of Open3D's ray-casting answers, clipped to >= 0, summing to 1.
+
+    Open3D's primitive uv (s, t) is the point (1 - s - t) a + s b + t c.
+    """
+    uv = ans["primitive_uvs"].numpy().astype(np.float64)
+    w = np.clip(np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]]), 0.0, None)
+    return w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+
+
 def _frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     """Centre and diagonal of the bounding box of ``vertices`` ((3,) ndarray, float > 0)."""
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
@@ -354,8 +364,7 @@ class _Surface:
     """
 
     def __init__(self, V: np.ndarray, F: np.ndarray) -> None:
-        o3d = require_open3d()
-        self._o3d = o3d
+        self._o3d = o3d = require_open3d()
         self.V, self.F = V, F
         self.centre, self.diag = _frame(V)
         self.scene = o3d.t.geometry.RaycastingScene()
@@ -392,25 +401,19 @@ class _Surface:
         """
         ans = self.scene.compute_closest_points(self._o3d.core.Tensor(Pn.astype(np.float32)))
         face_ids = ans["primitive_ids"].numpy().astype(np.int64)
-        uv = ans["primitive_uvs"].numpy().astype(np.float64)
-        found = ans["points"].numpy().astype(np.float64)
-        # RaycastingScene's convention (checked in the tests): point = (1-u-v) A + u B + v C.
-        bary_o3d = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
         corners = self.normalize(self.V[self.F[face_ids]])  # (q, 3, 3), float64
         bary = np.clip(_closest_on_triangles(Pn, *corners.transpose(1, 0, 2)), 0.0, 1.0)
         d64 = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
-        d32 = np.linalg.norm(Pn - found, axis=1)
+        d32 = np.linalg.norm(Pn - ans["points"].numpy().astype(np.float64), axis=1)
         bad = ~np.isfinite(d64) | (d64 > d32 + 1e-6)  # degenerate triangles: keep Open3D's answer
         if bad.any():
             logger.debug("closest points: %d degenerate triangles kept as found", bad.sum())
-            bary[bad] = np.clip(bary_o3d[bad], 0.0, 1.0)
+            bary[bad] = _hit_weights(ans)[bad]
         bary[bary < _SNAP] = 0.0
         bary /= bary.sum(axis=1, keepdims=True)
         if canonical:
-            new_ids, bary = _canonical_faces(self.F, self.V.shape[0], face_ids, bary)
-            if not np.array_equal(new_ids, face_ids):
-                corners = self.normalize(self.V[self.F[new_ids]])
-            face_ids = new_ids
+            face_ids, bary = _canonical_faces(self.F, self.V.shape[0], face_ids, bary)
+            corners = self.normalize(self.V[self.F[face_ids]])
         distances = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
         return face_ids, bary, corners, distances
 
@@ -443,17 +446,16 @@ def _facing_away(surface: _Surface, V2: np.ndarray, F2: np.ndarray) -> float:
     return float(areas_2[usable & (cos < math.sqrt(0.5))].sum() / total)
 
 
-def _check_options(align: Any, max_icp_distance: Any) -> tuple[bool, float | None]:
+def _check_options(align: Any, distance: Any) -> tuple[bool, float | None]:
     if not isinstance(align, (bool, np.bool_)):
         raise TypeError(f"align must be True or False; got {align!r}")
-    if max_icp_distance is None:
-        return bool(align), None
-    if isinstance(max_icp_distance, bool) or not isinstance(max_icp_distance, numbers.Real):
-        raise TypeError(f"max_icp_distance must be a positive number; got {max_icp_distance!r}")
-    value = float(max_icp_distance)
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"max_icp_distance must be a positive finite number; got {value}")
-    return bool(align), value
+    if distance is not None:
+        if isinstance(distance, bool) or not isinstance(distance, numbers.Real):
+            raise TypeError(f"max_icp_distance must be a positive number; got {distance!r}")
+        distance = float(distance)
+        if not (math.isfinite(distance) and distance > 0):
+            raise ValueError(f"max_icp_distance must be a positive finite number; got {distance}")
+    return bool(align), distance
 
 
 def _surface_samples(
@@ -488,6 +490,11 @@ def _surface_samples(
     r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
     bary = np.stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2], axis=1)
     return np.einsum("qi,qij->qj", bary, V[F[face]]), face_normals[face]
+
+
+def _subset(n: int, at_most: int, rng: np.random.Generator) -> np.ndarray:
+    """Return the sorted indices of ``at_most`` of ``n`` items drawn at random (all if fewer)."""
+    return np.sort(rng.choice(n, at_most, replace=False)) if n > at_most else np.arange(n)
 
 
 def _rotation(omega: np.ndarray) -> np.ndarray:
@@ -530,14 +537,9 @@ def _fit(
 
 
 def _refine_on_surface(
-    surface: _Surface,
-    Pn: np.ndarray,
-    T: np.ndarray,
-    distance: float,
-    *,
-    iterations: int = REFINE_ITERATIONS,
-    tolerance: float = REFINE_STEP,
-) -> np.ndarray:
+    surface: _Surface, Pn: np.ndarray, T: np.ndarray, distance: float, *,
+    iterations: int = REFINE_ITERATIONS, tolerance: float = REFINE_STEP,
+) -> np.ndarray:  # fmt: skip
     """Point-to-plane ICP against the exact closest points on the source's triangles.
 
     Open3D's ICP matches sampled points; this last stage matches the surface itself, so a target
@@ -585,61 +587,10 @@ def _rotation_degrees(R: np.ndarray) -> float:
     return math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
 
 
-def _misalignment(
-    surface: _Surface, V2: np.ndarray, distances: np.ndarray
-) -> tuple[float, float, float, float]:
-    """How much a rigid motion would bring the target closer to the source surface.
-
-    Point-to-plane iterations against the exact closest points (:func:`_refine_on_surface`,
-    from the identity, correspondences up to 3x :data:`ICP_DISTANCE`) on at most
-    :data:`MISALIGNMENT_SAMPLES` target vertices, :data:`MISALIGNMENT_ITERATIONS` steps.
-
-    Parameters
-    ----------
-    surface : _Surface
-        The source mesh.
-    V2 : (n2, 3) ndarray
-        Target vertices (shapes' units).
-    distances : (n2,) ndarray
-        Their closest-point distances, as fractions of the diagonal (already computed).
-
-    Returns
-    -------
-    before, after : float
-        Mean closest-point distance of the sampled vertices without and with the motion
-        (fractions of the source's diagonal).
-    degrees : float
-        The motion's rotation angle.
-    shift : float
-        Its translation (fraction of the diagonal) at the source's bounding-box centre.
-    """
-    sample = np.arange(V2.shape[0])
-    if sample.size > MISALIGNMENT_SAMPLES:
-        rng = np.random.default_rng(0)
-        sample = np.sort(rng.choice(sample.size, MISALIGNMENT_SAMPLES, replace=False))
-    Pn = surface.normalize(V2[sample])
-    before = float(distances[sample].mean())
-    T = _refine_on_surface(
-        surface,
-        Pn,
-        np.eye(4),
-        3.0 * ICP_DISTANCE,
-        iterations=MISALIGNMENT_ITERATIONS,
-        tolerance=MISALIGNMENT_STEP,
-    )
-    after = float(surface.query(Pn @ T[:3, :3].T + T[:3, 3], canonical=False)[3].mean())
-    return before, after, _rotation_degrees(T[:3, :3]), float(np.linalg.norm(T[:3, 3]))
-
-
 def _icp(
-    V1: np.ndarray,
-    F1: np.ndarray | None,
-    surface: _Surface | None,
-    V2: np.ndarray,
-    centre: np.ndarray,
-    diag: float,
-    max_distance: float,
-) -> tuple[np.ndarray, float, float, float]:
+    V1: np.ndarray, F1: np.ndarray | None, surface: _Surface | None, V2: np.ndarray,
+    centre: np.ndarray, diag: float, max_distance: float,
+) -> tuple[np.ndarray, float, float, float]:  # fmt: skip
     """Rigid point-to-plane ICP of the target vertices onto the source, from the identity.
 
     Open3D's ICP on points sampled on the source surface (3x the distance, then the distance),
@@ -681,10 +632,7 @@ def _icp(
     if F1 is not None:
         points, normals = _surface_samples(V1, F1, n_samples, rng)
     else:
-        idx = np.arange(V1.shape[0])
-        if idx.size > n_samples:
-            idx = np.sort(rng.choice(idx.size, n_samples, replace=False))
-        points, normals = V1[idx], None
+        points, normals = V1[_subset(V1.shape[0], n_samples, rng)], None
     source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector((points - centre) / diag))
     if normals is not None:
         source.normals = o3d.utility.Vector3dVector(normals)
@@ -694,17 +642,12 @@ def _icp(
     target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Pn))
     distance = max_distance / diag
     T = np.eye(4)
+    criteria = reg.ICPConvergenceCriteria(
+        relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=ICP_ITERATIONS
+    )
+    plane = reg.TransformationEstimationPointToPlane()
     for scale in (3.0, 1.0):  # coarse to fine: 3x the distance, then the distance itself
-        result = reg.registration_icp(
-            target,
-            source,
-            scale * distance,
-            T,
-            reg.TransformationEstimationPointToPlane(),
-            reg.ICPConvergenceCriteria(
-                relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=ICP_ITERATIONS
-            ),
-        )
+        result = reg.registration_icp(target, source, scale * distance, T, plane, criteria)
         T = np.asarray(result.transformation, dtype=np.float64).copy()
     if surface is not None:
         T = _refine_on_surface(surface, Pn, T, distance)
@@ -717,27 +660,17 @@ def _icp(
     if (end[0], -end[1]) < (start[0], -start[1]):
         logger.info(
             "ICP fits worse than the identity (fitness %.3f < %.3f): the identity is kept",
-            end[0],
-            start[0],
-        )
+            end[0], start[0],
+        )  # fmt: skip
         T, end = np.eye(4), start
-    # Back to the shapes' units: x -> R x + (c - R c + diag t).
-    R, t = T[:3, :3], T[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = centre - R @ centre + diag * t
-    return out, end[0], end[1] * diag, start[0]
+    T[:3, 3] = centre - T[:3, :3] @ centre + diag * T[:3, 3]  # back to the shapes' units
+    return T, end[0], end[1] * diag, start[0]
 
 
 def _aligned_query(
-    V1: np.ndarray,
-    F1: np.ndarray | None,
-    surface: _Surface | None,
-    V2: np.ndarray,
-    max_icp_distance: float | None,
-    options: dict[str, Any],
-    notes: list[Said],
-) -> np.ndarray:
+    V1: np.ndarray, F1: np.ndarray | None, surface: _Surface | None, V2: np.ndarray,
+    max_icp_distance: float | None, options: dict[str, Any], notes: list[Said],
+) -> np.ndarray:  # fmt: skip
     """Register the target onto the source (:func:`_icp`); return its vertices moved there.
 
     Records the registration in ``options["icp"]`` and adds a note when its fitness is below
@@ -748,27 +681,20 @@ def _aligned_query(
     transform, fitness, rmse, fitness_0 = _icp(V1, F1, surface, V2, centre, diag, max_distance)
     angle = _rotation_degrees(transform[:3, :3])
     options["icp"] = {
-        "transformation": transform.tolist(),
-        "fitness": fitness,
-        "fitness_identity": fitness_0,
-        "inlier_rmse": rmse,
-        "max_correspondence_distance": max_distance,
-        "rotation_degrees": angle,
-        "translation": float(np.linalg.norm(transform[:3, 3])),
-    }
+        "transformation": transform.tolist(), "fitness": fitness, "fitness_identity": fitness_0,
+        "inlier_rmse": rmse, "max_correspondence_distance": max_distance,
+        "rotation_degrees": angle, "translation": float(np.linalg.norm(transform[:3, 3])),
+    }  # fmt: skip
     logger.info(
         "ICP: rotation %.3g°, fitness %.3f, inlier RMSE %.3g of the diagonal",
-        angle,
-        fitness,
-        rmse / diag,
-    )
+        angle, fitness, rmse / diag,
+    )  # fmt: skip
     if fitness < ICP_MIN_FITNESS:
         notes.append(Said(
             "ICP fitness {fitness:.2f}: only that fraction of the target lies within "
-            "{distance:.3g} (the shapes' units, {rel:.2g} of the source's bounding-box "
-            "diagonal) of the source after alignment: a partial target, a pose too far from "
-            "the source's for ICP, or shapes in other units (ICP does not scale: rescale the "
-            "target first)",
+            "{distance:.3g} (the shapes' units, {rel:.2g} of the source's bounding-box diagonal) "
+            "of the source after alignment: a partial target, a pose too far from the source's "
+            "for ICP, or shapes in other units (ICP does not scale: rescale the target first)",
             {"fitness": fitness, "distance": max_distance, "rel": max_distance / diag},
             "icp_fitness",
         ))  # fmt: skip
@@ -776,7 +702,7 @@ def _aligned_query(
 
 
 def _closest_on_source(
-    V1: np.ndarray, F1: np.ndarray | None, surface: _Surface | None, query: np.ndarray
+    V1: np.ndarray, surface: _Surface | None, query: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]:
     """Return (p2p, faces, barycentric, distances) of the query points on the source.
 
@@ -788,9 +714,8 @@ def _closest_on_source(
 
         distances, p2p = cKDTree(V1).query(query, workers=-1)
         return p2p.astype(np.int64), None, None, distances
-    assert F1 is not None
     faces_21, bary, _, distances = surface.closest(query)
-    return F1[faces_21, np.argmax(bary, axis=1)], faces_21, bary, distances
+    return surface.F[faces_21, np.argmax(bary, axis=1)], faces_21, bary, distances
 
 
 def _not_aligned(
@@ -809,32 +734,37 @@ def _not_aligned(
 
 
 def _misaligned(
-    surface: _Surface,
-    V2: np.ndarray,
-    distances_rel: np.ndarray,
-    options: dict[str, Any],
+    surface: _Surface, V2: np.ndarray, distances_rel: np.ndarray, options: dict[str, Any],
     notes: list[Said],
-) -> list[Said]:
+) -> list[Said]:  # fmt: skip
     """Return the reason (in a list; empty if none) when a rigid motion brings the target closer.
 
-    Records :func:`_misalignment` in ``options["misalignment"]``; a smaller gain (above
-    :data:`MISALIGNED_NOTE`) is a note.
+    The motion: point-to-plane iterations against the exact closest points
+    (:func:`_refine_on_surface`, from the identity, correspondences up to 3x
+    :data:`ICP_DISTANCE`) on at most :data:`MISALIGNMENT_SAMPLES` target vertices,
+    :data:`MISALIGNMENT_ITERATIONS` steps. ``distances_rel`` are the target's closest-point
+    distances (fractions of the diagonal). ``options["misalignment"]`` gets the mean distance
+    of the sampled vertices without and with the motion (``mean_distance_rel``,
+    ``mean_distance_rel_moved``), its ``rotation_degrees`` and ``translation_rel`` (at the
+    source's bounding-box centre); a smaller gain (above :data:`MISALIGNED_NOTE`) is a note.
     """
-    before, after, degrees, shift = _misalignment(surface, V2, distances_rel)
+    sample = _subset(V2.shape[0], MISALIGNMENT_SAMPLES, np.random.default_rng(0))
+    Pn = surface.normalize(V2[sample])
+    T = _refine_on_surface(
+        surface, Pn, np.eye(4), 3.0 * ICP_DISTANCE,
+        iterations=MISALIGNMENT_ITERATIONS, tolerance=MISALIGNMENT_STEP,
+    )  # fmt: skip
+    before = float(distances_rel[sample].mean())
+    after = float(surface.query(Pn @ T[:3, :3].T + T[:3, 3], canonical=False)[3].mean())
+    degrees, shift = _rotation_degrees(T[:3, :3]), float(np.linalg.norm(T[:3, 3]))
     options["misalignment"] = {
-        "mean_distance_rel": before,
-        "mean_distance_rel_moved": after,
-        "rotation_degrees": degrees,
-        "translation_rel": shift,
-    }
+        "mean_distance_rel": before, "mean_distance_rel_moved": after,
+        "rotation_degrees": degrees, "translation_rel": shift,
+    }  # fmt: skip
     logger.debug(
         "closest map: a rigid motion (%.3g°, shift %.3g of the diagonal) takes the mean "
-        "distance from %.3g to %.3g of the diagonal",
-        degrees,
-        shift,
-        before,
-        after,
-    )
+        "distance from %.3g to %.3g of the diagonal", degrees, shift, before, after,
+    )  # fmt: skip
     gain = before - after
     explained = after < MISALIGNED_RATIO * before  # the distance is mostly the motion
     values = {"degrees": degrees, "shift": shift, "before": before, "after": after}
@@ -866,9 +796,9 @@ def _coverage(
     distinct_1 = int(at_1.max()) + 1
     hit = np.unique(at_1[p2p]).size
     smaller = min(distinct_1, int(_positions(V2).max()) + 1)
-    crowded: list[Said] = []
-    if hit < MIN_COVERAGE * smaller:
-        crowded.append(Said(
+    if hit >= MIN_COVERAGE * smaller:
+        return hit / distinct_1, hit / smaller, []
+    return hit / distinct_1, hit / smaller, [Said(
             "the target's vertices crowd onto {hit} source vertices ({share:.2f} of the smaller "
             "shape, < {bound}): the shapes are not in the same place or not the same pose. A "
             "closest-point map ({closest}) is only for shapes in the same place: {retry}"
@@ -876,8 +806,7 @@ def _coverage(
             "is a part of the source)",
             {"hit": hit, "share": hit / smaller, "bound": MIN_COVERAGE, "retry": retry},
             "crowded",
-        ))  # fmt: skip
-    return hit / distinct_1, hit / smaller, crowded
+        )]  # fmt: skip
 
 
 def _icp_doubts(turn: float, mean_rel: float, facing: float) -> list[Said]:
@@ -937,8 +866,7 @@ def _area_ratio(
     """Return target area / source area (NaN without both shapes' triangles); a note if far off."""
     if F2 is None or F1 is None:
         return math.nan
-    a1 = face_areas_normals(V1, F1)[0].sum()
-    a2 = face_areas_normals(V2, F2)[0].sum()
+    a1, a2 = (face_areas_normals(V, F)[0].sum() for V, F in ((V1, F1), (V2, F2)))
     area_ratio = float(a2 / a1) if a1 > 0 else math.nan
     if not 1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE:
         notes.append(Said(
@@ -949,17 +877,10 @@ def _area_ratio(
 
 
 def _closest_quality(
-    V1: np.ndarray,
-    F1: np.ndarray | None,
-    V2: np.ndarray,
-    F2: np.ndarray | None,
-    surface: _Surface | None,
-    query: np.ndarray,
-    p2p: np.ndarray,
-    distances: np.ndarray,
-    options: dict[str, Any],
-    notes: list[Said],
-) -> MapQuality:
+    V1: np.ndarray, F1: np.ndarray | None, V2: np.ndarray, F2: np.ndarray | None,
+    surface: _Surface | None, query: np.ndarray, p2p: np.ndarray, distances: np.ndarray,
+    options: dict[str, Any], notes: list[Said],
+) -> MapQuality:  # fmt: skip
     """Return the quality report of a closest-point map (see :func:`closest_correspondence`).
 
     ``p2p`` and ``distances`` are those of the target's vertices as queried (``query``: after
@@ -968,17 +889,14 @@ def _closest_quality(
     """
     align = bool(options["align"])
     diag = _frame(V1)[1]
-    mean_rel = float(distances.mean() / diag)
-    max_rel = float(distances.max() / diag)
-    options["mean_distance_rel"] = mean_rel
-    options["max_distance_rel"] = max_rel
+    mean_rel = options["mean_distance_rel"] = float(distances.mean() / diag)
+    max_rel = options["max_distance_rel"] = float(distances.max() / diag)
     facing = math.nan
     if surface is not None and F2 is not None:
-        facing = _facing_away(surface, query, F2)
-        options["facing_away"] = facing
+        facing = options["facing_away"] = _facing_away(surface, query, F2)
     retry = "" if align else Said("pass {align} if they are almost aligned; ")
     reasons = _not_aligned(mean_rel, align, V2, diag, retry)
-    misaligned: list[Said] = []
+    misaligned = []
     if surface is not None and not align:
         misaligned = _misaligned(surface, V2, distances / diag, options, notes)
     coverage, coverage_ratio, crowded = _coverage(V1, V2, p2p, retry)
@@ -990,28 +908,20 @@ def _closest_quality(
         reasons.extend([*misaligned, *crowded])
     notes.extend(_distance_notes(mean_rel, max_rel, retry, bool(reasons)))
     area_ratio = _area_ratio(V1, F1, V2, F2, notes)
+    nan = math.nan  # no functional map: no orthogonality, inconsistency or reversed triangles
     return MapQuality(
-        coverage=coverage,
-        coverage_ratio=coverage_ratio,
-        orthogonality=math.nan,
-        inconsistency=math.nan,
-        reversed_fraction=math.nan,
-        area_ratio=area_ratio,
-        suspect=bool(reasons),
-        reasons=tuple(reasons),
-        notes=tuple(notes),
-    )
+        coverage=coverage, coverage_ratio=coverage_ratio, orthogonality=nan, inconsistency=nan,
+        reversed_fraction=nan, area_ratio=area_ratio, suspect=bool(reasons),
+        reasons=tuple(reasons), notes=tuple(notes),
+    )  # fmt: skip
+
+
 
 
 def closest_correspondence(
-    vertices_1: Any,
-    faces_1: Any,
-    vertices_2: Any,
-    *,
-    faces_2: Any = None,
-    align: bool = False,
+    vertices_1: Any, faces_1: Any, vertices_2: Any, *, faces_2: Any = None, align: bool = False,
     max_icp_distance: float | None = None,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Map every target vertex to the closest point on the source surface (aligned shapes).
 
     For shapes that already occupy the same place (a scan and its simplified or remeshed
@@ -1080,34 +990,23 @@ def closest_correspondence(
     F2 = None if faces_2 is None else as_faces(faces_2, V2.shape[0], name="faces_2")
     align, max_icp_distance = _check_options(align, max_icp_distance)
     options: dict[str, Any] = {
-        "align": align,
-        "source": "points" if F1 is None else "mesh",
+        "align": align, "source": "points" if F1 is None else "mesh",
         "max_icp_distance": max_icp_distance,
-    }
+    }  # fmt: skip
     notes: list[Said] = []
     surface = None if F1 is None else _Surface(V1, F1)
-    query = V2
-    if align:
-        query = _aligned_query(V1, F1, surface, V2, max_icp_distance, options, notes)
-    p2p, faces_21, bary, distances = _closest_on_source(V1, F1, surface, query)
+    query = _aligned_query(V1, F1, surface, V2, max_icp_distance, options, notes) if align else V2
+    p2p, faces_21, bary, distances = _closest_on_source(V1, surface, query)
     quality = _closest_quality(V1, F1, V2, F2, surface, query, p2p, distances, options, notes)
     logger.info(
         "closest map: %d target vertices onto %d source vertices in %.2f s, mean distance "
-        "%.3g times the diagonal",
-        V2.shape[0],
-        V1.shape[0],
-        time.perf_counter() - t0,
+        "%.3g times the diagonal", V2.shape[0], V1.shape[0], time.perf_counter() - t0,
         options["mean_distance_rel"],
-    )
+    )  # fmt: skip
     if quality.suspect:
         warn(logger, quality.reasons[0])
     return Correspondence(
-        p2p_21=p2p,
-        n_source=V1.shape[0],
-        method="closest",
-        options=options,
-        quality=quality,
-        faces_21=faces_21,
-        barycentric_21=bary,
+        p2p_21=p2p, n_source=V1.shape[0], method="closest", options=options, quality=quality,
+        faces_21=faces_21, barycentric_21=bary,
         signatures=(shape_signature(vertices_1), shape_signature(vertices_2)),
-    )
+    )  # fmt: skip

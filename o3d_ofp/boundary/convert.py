@@ -99,10 +99,8 @@ def geometry_kind(geometry: Any) -> str:
     )
 
 
-def _tensor_attr(attrs: Any, key: str) -> np.ndarray | None:
-    if key not in attrs:
-        return None
-    return np.array(attrs[key].cpu().numpy(), copy=True)
+def _tensor_attr(attrs: Any, key: str, default: Any = None) -> Any:
+    return np.array(attrs[key].cpu().numpy(), copy=True) if key in attrs else default
 
 
 def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
@@ -134,16 +132,10 @@ def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
     elif kind == "legacy_cloud":
         raw_v, raw_f = np.array(geometry.points, dtype=np.float64, copy=True), None
     elif kind == "tensor_mesh":
-        raw_v = _tensor_attr(geometry.vertex, "positions")
-        raw_f = _tensor_attr(geometry.triangle, "indices")
-        if raw_v is None:
-            raw_v = np.zeros((0, 3))
-        if raw_f is None:
-            raw_f = np.zeros((0, 3), dtype=np.int64)
+        raw_v = _tensor_attr(geometry.vertex, "positions", np.zeros((0, 3)))
+        raw_f = _tensor_attr(geometry.triangle, "indices", np.zeros((0, 3), dtype=np.int64))
     else:
-        raw_v, raw_f = _tensor_attr(geometry.point, "positions"), None
-        if raw_v is None:
-            raw_v = np.zeros((0, 3))
+        raw_v, raw_f = _tensor_attr(geometry.point, "positions", np.zeros((0, 3))), None
     vertices = as_vertices(raw_v.reshape(-1, 3), name="geometry vertices")
     if raw_f is None:
         return vertices, None
@@ -192,19 +184,18 @@ def vertex_colors(geometry: Any) -> np.ndarray | None:
         colors = np.array(geometry.colors, dtype=np.float64) if geometry.has_colors() else None
     else:
         attrs = geometry.vertex if kind == "tensor_mesh" else geometry.point
-        colors = _tensor_attr(attrs, "colors")
-        if colors is not None:
-            if np.issubdtype(colors.dtype, np.integer):  # uint8 colors in the tensor API
-                colors = colors.astype(np.float64) / np.iinfo(colors.dtype).max
-            colors = colors.astype(np.float64)
-            if colors.ndim == 2 and colors.shape[1] == 4 and colors.size:  # RGBA: the RGB
-                logger.info("the geometry's colors are RGBA: their RGB channels are used")
-                colors = colors[:, :3]
-            elif colors.size and (colors.ndim != 2 or colors.shape[1] != 3):
-                raise ValueError(
-                    f"the geometry's colors have shape {colors.shape}: expected (n, 3) RGB "
-                    "(or (n, 4) RGBA) values"
-                )
+        colors = _tensor_attr(attrs, "colors", np.zeros(0))
+        if np.issubdtype(colors.dtype, np.integer):  # uint8 colors in the tensor API
+            colors = colors / np.iinfo(colors.dtype).max
+        colors = colors.astype(np.float64)
+        if colors.ndim == 2 and colors.shape[1] == 4 and colors.size:  # RGBA: the RGB
+            logger.info("the geometry's colors are RGBA: their RGB channels are used")
+            colors = colors[:, :3]
+        elif colors.size and (colors.ndim != 2 or colors.shape[1] != 3):
+            raise ValueError(
+                f"the geometry's colors have shape {colors.shape}: expected (n, 3) RGB "
+                "(or (n, 4) RGBA) values"
+            )
     if colors is None or colors.size == 0:
         return None
     return colors.reshape(-1, 3)
@@ -253,26 +244,16 @@ def point_normals(geometry: Any, points: Any = None) -> np.ndarray:
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
-def _checked_colors(colors: Any, n: int, name: str) -> np.ndarray:
-    arr = as_signal(colors, n, name=name)
+def _checked(values: Any, n: int, name: str) -> np.ndarray:
+    """Return ``values`` checked as (n, 3) finite vectors (``colors``: clipped to [0, 1])."""
+    arr = as_signal(values, n, name=name)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (n, 3) with n = {n}; got {arr.shape}")
-    return np.clip(arr, 0.0, 1.0)
-
-
-def _checked_normals(normals: Any, n: int, name: str) -> np.ndarray:
-    arr = as_signal(normals, n, name=name)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (n, 3) with n = {n}; got {arr.shape}")
-    return arr
+    return np.clip(arr, 0.0, 1.0) if name == "colors" else arr
 
 
 def triangle_mesh_from_arrays(
-    vertices: Any,
-    faces: Any,
-    *,
-    colors: Any = None,
-    normals: Any = None,
+    vertices: Any, faces: Any, *, colors: Any = None, normals: Any = None
 ) -> Any:
     """Build a new legacy ``open3d.geometry.TriangleMesh`` from validated arrays.
 
@@ -305,13 +286,9 @@ def triangle_mesh_from_arrays(
         o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32))
     )
     if colors is not None:
-        mesh.vertex_colors = o3d.utility.Vector3dVector(
-            _checked_colors(colors, v.shape[0], "colors")
-        )
+        mesh.vertex_colors = o3d.utility.Vector3dVector(_checked(colors, len(v), "colors"))
     if normals is not None:
-        mesh.vertex_normals = o3d.utility.Vector3dVector(
-            _checked_normals(normals, v.shape[0], "normals")
-        )
+        mesh.vertex_normals = o3d.utility.Vector3dVector(_checked(normals, len(v), "normals"))
     else:
         mesh.compute_vertex_normals()
     return mesh
@@ -338,9 +315,9 @@ def point_cloud_from_arrays(points: Any, *, colors: Any = None, normals: Any = N
     p = as_vertices(points, name="points")
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
     if colors is not None:
-        cloud.colors = o3d.utility.Vector3dVector(_checked_colors(colors, p.shape[0], "colors"))
+        cloud.colors = o3d.utility.Vector3dVector(_checked(colors, len(p), "colors"))
     if normals is not None:
-        cloud.normals = o3d.utility.Vector3dVector(_checked_normals(normals, p.shape[0], "normals"))
+        cloud.normals = o3d.utility.Vector3dVector(_checked(normals, len(p), "normals"))
     return cloud
 
 
@@ -370,38 +347,41 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
         if F is None:
             return point_cloud_from_arrays(V, colors=colors)
         return triangle_mesh_from_arrays(V, F, colors=colors)
-    o3d = require_open3d()
-    kind = geometry_kind(target)
-    V0, _ = geometry_to_arrays(target)
-    n = V0.shape[0]
+    n = geometry_to_arrays(target)[0].shape[0]
     V = None if vertices is None else as_vertices(vertices)
     if V is not None and V.shape[0] != n:
         raise ValueError(f"vertices has {V.shape[0]} rows; the target has {n} vertices")
-    C = None if colors is None else _checked_colors(colors, n, "colors")
+    return _copy_with(target, V, None if colors is None else _checked(colors, n, "colors"))
+
+
+def _copy_with(target: Any, V: Any, C: Any, *, new_normals: bool = True) -> Any:
+    """Copy ``target`` (its kind, every attribute) with positions ``V`` and colors ``C``.
+
+    Either may be None (kept). With ``new_normals``, the normals the target has are computed
+    again for the new positions.
+    """
+    o3d = require_open3d()
+    kind = geometry_kind(target)
     if kind in ("legacy_mesh", "legacy_cloud"):
         out = type(target)(target)  # Open3D's copy constructor: every attribute
-        if kind == "legacy_mesh":
-            if V is not None:
-                out.vertices = o3d.utility.Vector3dVector(V)
-                if target.has_triangle_normals():
-                    out.compute_triangle_normals()
-                if target.has_vertex_normals():
-                    out.compute_vertex_normals()
-            if C is not None:
-                out.vertex_colors = o3d.utility.Vector3dVector(C)
-        else:
-            if V is not None:
-                out.points = o3d.utility.Vector3dVector(V)
-                if target.has_normals():
-                    out.estimate_normals()
-            if C is not None:
-                out.colors = o3d.utility.Vector3dVector(C)
+        mesh = kind == "legacy_mesh"
+        if V is not None:
+            setattr(out, "vertices" if mesh else "points", o3d.utility.Vector3dVector(V))
+        if V is not None and new_normals:
+            if mesh and target.has_triangle_normals():
+                out.compute_triangle_normals()
+            if mesh and target.has_vertex_normals():
+                out.compute_vertex_normals()
+            if not mesh and target.has_normals():
+                out.estimate_normals()
+        if C is not None:
+            setattr(out, "vertex_colors" if mesh else "colors", o3d.utility.Vector3dVector(C))
         return out
     out = target.clone()
     attrs = out.vertex if kind == "tensor_mesh" else out.point
     if V is not None:
-        dtype = attrs["positions"].dtype
-        attrs["positions"] = o3d.core.Tensor(V).to(dtype)
+        attrs["positions"] = o3d.core.Tensor(V).to(attrs["positions"].dtype)
+    if V is not None and new_normals:
         if kind == "tensor_mesh" and "normals" in attrs:
             out.compute_vertex_normals()
         if kind == "tensor_mesh" and "normals" in out.triangle:
@@ -410,13 +390,11 @@ def like_target(target: Any, *, vertices: Any = None, colors: Any = None) -> Any
             out.estimate_normals()
     if C is not None:
         old = attrs["colors"].numpy() if "colors" in attrs else np.empty((0, 3), np.float32)
-        if old.ndim != 2 or old.shape[1] != 3:  # e.g. RGBA: plain float RGB replaces them
-            old = np.empty((0, 3), np.float32)
-        if np.issubdtype(old.dtype, np.integer):  # the target's integer colors, full scale
-            top = np.iinfo(old.dtype).max
-            attrs["colors"] = o3d.core.Tensor(np.round(C * top).astype(old.dtype))
-        else:
-            attrs["colors"] = o3d.core.Tensor(C.astype(old.dtype))
+        # the target's colors' type (integer: full scale); other than RGB (RGBA): float RGB
+        dtype = old.dtype if old.ndim == 2 and old.shape[1] == 3 else np.float32
+        if np.issubdtype(dtype, np.integer):
+            C = np.round(C * np.iinfo(dtype).max)
+        attrs["colors"] = o3d.core.Tensor(C.astype(dtype))
     return out
 
 
@@ -444,16 +422,4 @@ def scaled_copy(geometry: Any, factor: float) -> Any:
     if isinstance(geometry, tuple):
         V, F = geometry
         return as_vertices(V) * factor, F
-    o3d = require_open3d()
-    kind = geometry_kind(geometry)
-    if kind in ("legacy_mesh", "legacy_cloud"):
-        out = type(geometry)(geometry)  # Open3D's copy constructor: every attribute
-        name = "vertices" if kind == "legacy_mesh" else "points"
-        scaled = np.asarray(getattr(out, name), dtype=np.float64) * factor
-        setattr(out, name, o3d.utility.Vector3dVector(scaled))
-        return out
-    out = geometry.clone()
-    attrs = out.vertex if kind == "tensor_mesh" else out.point
-    positions = attrs["positions"]
-    attrs["positions"] = o3d.core.Tensor(positions.numpy() * factor).to(positions.dtype)
-    return out
+    return _copy_with(geometry, geometry_to_arrays(geometry)[0] * factor, None, new_normals=False)

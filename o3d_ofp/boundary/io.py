@@ -12,6 +12,7 @@ failure leaves nothing behind.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import os
 import shutil
@@ -26,7 +27,8 @@ import numpy as np
 from ..core._atomic import default_file_mode
 from ..core.cleaning import _MAX_SIZE, _MIN_SIZE
 from ._verbosity import open3d_errors_only
-from .convert import require_open3d
+from .convert import geometry_to_arrays, require_open3d
+from .texture import has_texture_image, mesh_texture, set_albedo
 
 __all__ = ["read_geometry", "read_if_path", "write_geometry"]
 
@@ -39,70 +41,41 @@ _PLY_SIZES = {
 }  # fmt: skip
 
 
-def _ply_counts(path: str) -> tuple[str, dict[str, int], int, int] | None:
-    """(format, element counts, header bytes, minimal body bytes) of a PLY file, or None."""
+def _cut_short(path: str) -> str | None:
+    """Say how a PLY file is shorter than its header announces, or None (not cut short).
+
+    A binary body shorter than its properties' sizes (a list: at least its count per element),
+    or an ASCII body with fewer data lines than elements.
+    """
+    fmt, counts, minimal, element = "", {}, 0, ""
     with open(path, "rb") as fh:
-        head = fh.read(5)
-        if not (head.startswith(b"ply\n") or head == b"ply\r\n"):
-            return None
-        fh.seek(0)
-        fmt, counts, minimal, element = "", {}, 0, None
-        lines = 0
-        while True:
-            raw = fh.readline()
-            lines += 1
-            if not raw or lines > 10000:
-                return None
-            words = raw.decode("ascii", errors="replace").split()
-            if not words:
-                continue
+        for raw in itertools.islice(fh, 10000):
+            words = raw.decode("ascii", errors="replace").split() or [""]
             if words[0] == "format" and len(words) > 1:
                 fmt = words[1]
             elif words[0] == "element" and len(words) == 3:
                 element = words[1]
                 counts[element] = int(words[2]) if words[2].isdigit() else 0
-            elif words[0] == "property" and element is not None:
-                n = counts[element]
-                if words[1] == "list" and len(words) >= 5:
-                    # at least the count itself per element (a list may be empty)
-                    minimal += n * _PLY_SIZES.get(words[2], 1)
-                else:
-                    minimal += n * _PLY_SIZES.get(words[1], 1)
+            elif words[0] == "property" and element and len(words) > 1:
+                kind = words[2] if words[1] == "list" and len(words) >= 5 else words[1]
+                minimal += counts[element] * _PLY_SIZES.get(kind, 1)
             elif words[0] == "end_header":
-                return fmt, counts, fh.tell(), minimal
-
-
-def _check_read(path: str, n_vertices: int) -> None:
-    """Refuse a file Open3D read only partly (a PLY whose body is cut short)."""
-    if not path.lower().endswith(".ply"):
-        return
-    try:
-        info = _ply_counts(path)
-    except (OSError, ValueError):
-        info = None
-    if info is None:
-        return
-    fmt, counts, header, minimal = info
-    expected = counts.get("vertex", n_vertices)
+                break
+        else:
+            return None
+        header = fh.tell()
+        lines = sum(1 for line in fh if line.strip()) if fmt == "ascii" else 0
     size = os.path.getsize(path)
     if fmt.startswith("binary") and size < header + minimal:
-        raise ValueError(
-            f"{path}: the file is cut short ({size} bytes; its header announces at least "
-            f"{header + minimal}): a damaged or incomplete download"
-        )
-    if fmt == "ascii":
-        with open(path, "rb") as fh:
-            fh.seek(header)
-            body_lines = sum(1 for line in fh if line.strip())
-        if body_lines < sum(counts.values()):
-            raise ValueError(
-                f"{path}: the file is cut short ({body_lines} data lines; its header announces "
-                f"{sum(counts.values())})"
-            )
-    if n_vertices != expected:
-        raise ValueError(
-            f"{path}: Open3D read {n_vertices} vertices but the header announces {expected}"
-        )
+        found, announced = f"{size} bytes", f"at least {header + minimal}"
+    elif fmt == "ascii" and lines < sum(counts.values()):
+        found, announced = f"{lines} data lines", str(sum(counts.values()))
+    else:
+        return None
+    return (
+        f"the file is cut short ({found}; its header announces {announced}): a damaged or "
+        "incomplete download"
+    )
 
 
 class _Contents(NamedTuple):
@@ -157,62 +130,48 @@ def _numbers(words: Sequence[bytes], n: int, kind: type) -> list[Any]:
     return [kind(w) for w in words[:n]]
 
 
+_Rows = list[tuple[int, list[Any]]]  # (line, numbers) of each vertex or face of a text file
+
+
+def _contents(vertices: _Rows, faces: _Rows, base: int) -> _Contents:
+    """Return the :class:`_Contents` of a text file's vertex and face rows."""
+    corners = [f for _, f in faces]
+    return _Contents(
+        np.array([v for _, v in vertices], dtype=np.float64).reshape(-1, 3),
+        np.array([i for f in corners for i in f], dtype=np.int64),
+        np.repeat(np.arange(len(corners)), [len(f) for f in corners]),
+        base, [n for n, _ in vertices], [n for n, _ in faces],
+    )  # fmt: skip
+
+
 def _off_contents(path: str) -> _Contents:
     """Read the vertices and faces of an OFF file as it numbers them (ValueError if not)."""
     with open(path, "rb") as fh:
-        rows = [(n, line.split(b"#")[0].split()) for n, line in enumerate(fh, start=1)]
-    rows = [(n, words) for n, words in rows if words]
+        rows = [(n, w) for n, line in enumerate(fh, start=1) if (w := line.split(b"#")[0].split())]
     if not rows or not rows[0][1][0].endswith(b"OFF"):
         raise ValueError("no OFF header")
     start = 1 if len(rows[0][1]) > 1 else 2  # the counts on the header's line, or the next
-    counts = rows[0][1][1:] if start == 1 else rows[1][1]
-    n_v, n_f = _numbers(counts, 2, int)
-    vertex_rows = rows[start : start + n_v]
-    face_rows = rows[start + n_v : start + n_v + n_f]
-    faces = [_numbers(words[1:], int(words[0]), int) for _, words in face_rows]
-    return _Contents(
-        np.array([_numbers(w, 3, float) for _, w in vertex_rows], dtype=np.float64).reshape(-1, 3),
-        np.array([i for f in faces for i in f], dtype=np.int64),
-        np.repeat(np.arange(len(faces)), [len(f) for f in faces]),
-        0,
-        [n for n, _ in vertex_rows],
-        [n for n, _ in face_rows],
-    )
+    n_v, n_f = _numbers(rows[0][1][1:] if start == 1 else rows[1][1], 2, int)
+    vertices = [(n, _numbers(w, 3, float)) for n, w in rows[start : start + n_v]]
+    faces = rows[start + n_v : start + n_v + n_f]
+    return _contents(vertices, [(n, _numbers(w[1:], int(w[0]), int)) for n, w in faces], 0)
 
 
-def _obj_contents(path: str) -> _Contents:
-    """Read the ``v`` and ``f`` lines of an OBJ file (ValueError if it cannot)."""
-    vertices: list[list[float]] = []
-    vertex_lines: list[int] = []
-    faces: list[list[int]] = []
-    face_lines: list[int] = []
+def _obj_contents(path: str, faces: bool = True) -> _Contents:
+    """Read the ``v`` and (if ``faces``) ``f`` lines of an OBJ file (ValueError if it cannot)."""
+    vertices: _Rows = []
+    face_rows: _Rows = []
     with open(path, "rb") as fh:
         for n, line in enumerate(fh, start=1):
             words = line.split()
-            if words and words[0] == b"v":
-                vertices.append(_numbers(words[1:], 3, float))
-                vertex_lines.append(n)
-            elif words and words[0] == b"f":
-                written = [int(w.split(b"/")[0]) for w in words[1:]]
+            if words[:1] == [b"v"]:
+                vertices.append((n, _numbers(words[1:], 3, float)))
+            elif words[:1] == [b"f"] and faces:
                 # a negative number counts back from the last v line before the face
-                faces.append([len(vertices) + 1 + i if -len(vertices) <= i < 0 else i
-                              for i in written])  # fmt: skip
-                face_lines.append(n)
-    return _Contents(
-        np.array(vertices, dtype=np.float64).reshape(-1, 3),
-        np.array([i for f in faces for i in f], dtype=np.int64),
-        np.repeat(np.arange(len(faces)), [len(f) for f in faces]),
-        1,
-        vertex_lines,
-        face_lines,
-    )
-
-
-#: Text formats whose contents are read again, line by line, to name what is wrong in them.
-_TEXT_CONTENTS: dict[str, Callable[[str], _Contents]] = {
-    ".off": _off_contents,
-    ".obj": _obj_contents,
-}
+                k = len(vertices)
+                written = [int(w.split(b"/")[0]) for w in words[1:]]
+                face_rows.append((n, [k + 1 + i if -k <= i < 0 else i for i in written]))
+    return _contents(vertices, face_rows, 1)
 
 
 def _refuse_bad_contents(path: str, vertices: Any = None, triangles: Any = None) -> None:
@@ -225,20 +184,21 @@ def _refuse_bad_contents(path: str, vertices: Any = None, triangles: Any = None)
     """
     problem = None
     if vertices is not None:
-        V = np.asarray(vertices, dtype=np.float64)
         T = np.asarray([] if triangles is None else triangles, dtype=np.int64).reshape(-1, 3)
-        face_of = np.repeat(np.arange(T.shape[0]), 3)
-        problem = _contents_problem(_Contents(V, T.reshape(-1), face_of, 0))
+        V = np.asarray(vertices, dtype=np.float64)
+        problem = _contents_problem(_Contents(V, T.reshape(-1), np.repeat(np.arange(len(T)), 3), 0))
         if problem is None:
             return
-    text_contents = _TEXT_CONTENTS.get(os.path.splitext(path)[1].lower())
-    if text_contents is not None:
-        try:
+    text_contents = {".off": _off_contents, ".obj": _obj_contents}.get(_ext(path))
+    with contextlib.suppress(OSError, ValueError, IndexError):  # a file the reader cannot follow
+        if text_contents is not None:
             problem = _contents_problem(text_contents(path)) or problem
-        except (OSError, ValueError, IndexError):  # a file this reader does not follow
-            pass
     if problem is not None:
         raise ValueError(f"{path}: {problem}")
+
+
+def _ext(path: str) -> str:
+    return os.path.splitext(path)[1].lower()
 
 
 _stderr_lock = threading.Lock()
@@ -271,36 +231,34 @@ def _reader_messages() -> Iterator[list[str]]:
             os.dup2(saved, 2)
             os.close(saved)
             tmp.seek(0)
-            others = []
-            for line in tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True):
-                if line.startswith("RPly: "):
-                    said.append(line.removeprefix("RPly: ").strip())
-                else:
-                    others.append(line)
+            lines = tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True)
+            said += [line[len("RPly: ") :].strip() for line in lines if line.startswith("RPly: ")]
+            others = "".join(line for line in lines if not line.startswith("RPly: "))
             if others:
                 with contextlib.suppress(OSError):
-                    os.write(2, "".join(others).encode())
+                    os.write(2, others.encode())
 
 
 def _open3d_read(path: str, read: Callable[[str], Any]) -> Any:
     """Return ``read(path)``, with Open3D's console output held back.
 
     An error Open3D's PLY reader prints is refused instead (as a file cut short when the
-    header tells so), and not printed.
+    header tells so), and not printed: the reader stops at any fault of the body, so a file
+    it reads in silence is whole.
     """
-    ply = path.lower().endswith(".ply")
+    ply = _ext(path) == ".ply"
     # Open3D warns on stdout about a file with points but no triangles: that case is handled.
     with open3d_errors_only(), _reader_messages() if ply else contextlib.nullcontext([]) as said:
         geometry = read(path)
     if said:
-        points = geometry.vertices if hasattr(geometry, "vertices") else geometry.points
-        _check_read(path, len(points))
-        raise ValueError(
-            f'{path}: Open3D\'s PLY reader stopped at "{said[0]}": the file is damaged, cut '
-            "short, or holds a value its property's type cannot hold"
-        )
+        cut = None
+        with contextlib.suppress(OSError, ValueError):
+            cut = _cut_short(path)
+        raise ValueError(f"{path}: " + (cut or (
+            f'Open3D\'s PLY reader stopped at "{said[0]}": the file is damaged, cut short, or '
+            "holds a value its property's type cannot hold"
+        )))  # fmt: skip
     return geometry
-
 
 def read_geometry(path: str | os.PathLike[str]) -> Any:
     """Read a triangle mesh (or, when the file holds no triangles, a point cloud) with Open3D.
@@ -342,35 +300,22 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
             head = fh.read(4)
     except PermissionError as exc:
         raise PermissionError(f"{path}: cannot be read (permission denied)") from exc
-    if path.lower().endswith(".ply") and (head[:3] != b"ply" or not head[3:].isspace()):
+    if _ext(path) == ".ply" and (head[:3] != b"ply" or not head[3:].isspace()):
         raise ValueError(f"{path}: not a PLY file (its first line is not 'ply')")
     mesh = _open3d_read(path, o3d.io.read_triangle_mesh)
     if len(mesh.vertices) and len(mesh.triangles):
-        _check_read(path, len(mesh.vertices))
         _refuse_bad_contents(path, mesh.vertices, mesh.triangles)
-        if path.lower().endswith(".obj"):
-            mesh = _in_file_order(path, mesh, o3d)
-        return mesh
+        return _in_file_order(path, mesh, o3d) if _ext(path) == ".obj" else mesh
     _refuse_bad_contents(path)  # an OFF or OBJ read without triangles: its fault, if any
     cloud = _open3d_read(path, o3d.io.read_point_cloud)
-    if len(cloud.points):
-        _check_read(path, len(cloud.points))
-        _refuse_bad_contents(path, cloud.points)
-        logger.info(
-            "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
-            "read as a point cloud of %d points",
-            path,
-            len(cloud.points),
-        )
-        return cloud
-    raise ValueError(f"{path}: Open3D could not read any vertices from this file")
-
-
-def _obj_positions(path: str) -> np.ndarray:
-    """(m, 3) positions of an OBJ's ``v`` lines, in the file's order."""
-    with open(path, "rb") as fh:
-        rows = [line.split()[1:4] for line in fh if line.startswith(b"v ")]
-    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+    if not len(cloud.points):
+        raise ValueError(f"{path}: Open3D could not read any vertices from this file")
+    _refuse_bad_contents(path, cloud.points)
+    logger.info(
+        "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
+        "read as a point cloud of %d points", path, len(cloud.points),
+    )  # fmt: skip
+    return cloud
 
 
 def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
@@ -385,7 +330,7 @@ def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
     seams) the mesh is left as read.
     """
     try:
-        P = _obj_positions(path)
+        P = _obj_contents(path, faces=False).vertices
     except (OSError, ValueError):
         return mesh
     V = np.asarray(mesh.vertices)
@@ -399,21 +344,17 @@ def _in_file_order(path: str, mesh: Any, o3d: Any) -> Any:
 
     size = float(np.ptp(P, axis=0).max()) or 1.0
     distance, new_of_read = cKDTree(P).query(V)  # read vertex -> its v line
-    if distance.max() > 1e-6 * size or np.unique(new_of_read).size != V.shape[0]:
-        return mesh  # not one to one (repeated positions, another reader): left as read
-    if np.array_equal(new_of_read, np.arange(V.shape[0])):
-        return mesh
-    read_of_new = np.empty_like(new_of_read)
-    read_of_new[new_of_read] = np.arange(V.shape[0])
+    in_order = np.array_equal(new_of_read, np.arange(V.shape[0]))
+    if in_order or distance.max() > 1e-6 * size or np.unique(new_of_read).size != V.shape[0]:
+        return mesh  # or not one to one (repeated positions, another reader): left as read
+    read_of_new = np.argsort(new_of_read)  # the inverse permutation
     out = o3d.geometry.TriangleMesh(mesh)
     out.vertices = o3d.utility.Vector3dVector(V[read_of_new])
     out.triangles = o3d.utility.Vector3iVector(new_of_read[np.asarray(mesh.triangles)])
-    if mesh.has_vertex_normals():
-        out.vertex_normals = o3d.utility.Vector3dVector(
-            np.asarray(mesh.vertex_normals)[read_of_new]
-        )
-    if mesh.has_vertex_colors():
-        out.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.vertex_colors)[read_of_new])
+    for name in ("vertex_normals", "vertex_colors"):
+        if getattr(mesh, f"has_{name}")():
+            values = np.asarray(getattr(mesh, name))[read_of_new]
+            setattr(out, name, o3d.utility.Vector3dVector(values))
     logger.debug("%s: vertices put back in the order of its v lines", path)
     return out
 
@@ -434,28 +375,28 @@ def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
     normals kept); STL needs triangle normals, computed on a copy; a point cloud cannot be
     written to a mesh format (ValueError).
     """
-    ext = os.path.splitext(path)[1].lower()
-    meshes = (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)
-    if isinstance(geometry, meshes) and ext in (*CLOUD_ONLY, ".stl"):
-        tensor = isinstance(geometry, o3d.t.geometry.TriangleMesh)
-        mesh = geometry.to_legacy() if tensor else geometry
-        if ext == ".stl":
-            mesh = o3d.geometry.TriangleMesh(mesh)  # a copy: the caller's mesh is not changed
-            mesh.compute_triangle_normals()
-            return mesh
-        logger.info("%s: the format holds points only: writing the mesh's vertices", path)
-        cloud = o3d.geometry.PointCloud(mesh.vertices)
-        if mesh.has_vertex_colors():
-            cloud.colors = mesh.vertex_colors
-        if mesh.has_vertex_normals():
-            cloud.normals = mesh.vertex_normals
-        return cloud
-    if not isinstance(geometry, meshes) and ext in MESH_ONLY:
-        raise ValueError(
-            f"{path}: a point cloud has no faces and cannot be written as {ext}; write "
-            f"{', '.join(('.ply', *CLOUD_ONLY))}"
-        )
-    return geometry
+    ext = _ext(path)
+    if not isinstance(geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)):
+        if ext in MESH_ONLY:
+            raise ValueError(
+                f"{path}: a point cloud has no faces and cannot be written as {ext}; write "
+                f"{', '.join(('.ply', *CLOUD_ONLY))}"
+            )
+        return geometry
+    if ext not in (*CLOUD_ONLY, ".stl"):
+        return geometry
+    mesh = geometry if isinstance(geometry, o3d.geometry.TriangleMesh) else geometry.to_legacy()
+    if ext == ".stl":
+        mesh = o3d.geometry.TriangleMesh(mesh)  # a copy: the caller's mesh is not changed
+        mesh.compute_triangle_normals()
+        return mesh
+    logger.info("%s: the format holds points only: writing the mesh's vertices", path)
+    cloud = o3d.geometry.PointCloud(mesh.vertices)
+    if mesh.has_vertex_colors():
+        cloud.colors = mesh.vertex_colors
+    if mesh.has_vertex_normals():
+        cloud.normals = mesh.vertex_normals
+    return cloud
 
 
 def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
@@ -467,10 +408,7 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
     positions, normals, colors, per-corner UVs and one ``albedo`` image correctly (float32).
     """
     if isinstance(mesh, o3d.t.geometry.TriangleMesh):
-        has_image = mesh.has_valid_material() and "albedo" in mesh.material.texture_maps
-        return mesh, bool(has_image and "texture_uvs" in mesh.triangle)
-    from .convert import geometry_to_arrays
-    from .texture import mesh_texture, set_albedo
+        return mesh, has_texture_image(mesh) and "texture_uvs" in mesh.triangle
 
     V, F = geometry_to_arrays(mesh)
     out = o3d.t.geometry.TriangleMesh()
@@ -484,22 +422,20 @@ def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:
         return out, False
     try:
         tex = mesh_texture(mesh)
-    except ValueError:  # UVs without an image: keep the UVs
-        uvs = np.asarray(mesh.triangle_uvs, dtype=np.float32).reshape(-1, 3, 2)
-        if uvs.shape[0] == F.shape[0]:
-            out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs))
-        return out, False
-    out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(tex.uvs, dtype=np.float32))
-    used = tex.used_images()
+    except ValueError:  # UVs without an image: the UVs are kept
+        tex = None
+    uvs = np.asarray(mesh.triangle_uvs).reshape(-1, 3, 2) if tex is None else tex.uvs
+    if uvs.shape[0] == F.shape[0]:
+        out.triangle.texture_uvs = o3d.core.Tensor(np.ascontiguousarray(uvs, dtype=np.float32))
+    used = [] if tex is None else tex.used_images()
     if len(used) > 1:
         raise ValueError(
             f"this mesh uses {len(used)} texture images; Open3D writes one image per mesh to "
             "glTF: write an .obj (OBJ + MTL + images) instead"
         )
-    if not used:
-        return out, False
-    set_albedo(out, used[0])
-    return out, True
+    if used:
+        set_albedo(out, used[0])
+    return out, bool(used)
 
 
 def _gltf_vertex_counts(mesh: Any) -> set[int]:
@@ -513,9 +449,8 @@ def _gltf_vertex_counts(mesh: Any) -> set[int]:
     if "texture_uvs" not in mesh.triangle:
         return {n}
     corners = mesh.triangle.indices.numpy().reshape(-1)
-    uvs = mesh.triangle.texture_uvs.numpy().reshape(-1, 2).astype(np.float32)
-    keys = np.column_stack([corners.astype(np.float64), uvs.astype(np.float64)])
-    split = int(np.unique(keys, axis=0).shape[0])
+    uvs = mesh.triangle.texture_uvs.numpy().reshape(-1, 2).astype(np.float32)  # as written
+    split = int(np.unique(np.column_stack([corners, uvs]).astype(np.float64), axis=0).shape[0])
     unused = n - int(np.unique(corners).size)  # vertices in no triangle: written as they are
     return {n, split + unused}
 
@@ -526,16 +461,15 @@ def _check_gltf(path: str, shown: str, counts: set[int], textured: bool, o3d: An
         back = o3d.t.io.read_triangle_mesh(path)
     n = back.vertex.positions.shape[0] if "positions" in back.vertex else 0
     if n not in counts:
-        expected = " or ".join(str(c) for c in sorted(counts))
-        raise OSError(
-            f"{shown}: Open3D wrote a glTF file it cannot read back ({n} vertices read, "
-            f"{expected} written); write .obj instead (OBJ + MTL + PNG keeps a texture)"
+        written = " or ".join(str(c) for c in sorted(counts))
+        problem = (
+            f"Open3D wrote a glTF file it cannot read back ({n} vertices read, {written} written)"
         )
-    if textured and not (back.has_valid_material() and "albedo" in back.material.texture_maps):
-        raise OSError(
-            f"{shown}: Open3D did not write the texture into the glTF file; write an .obj "
-            "(OBJ + MTL + PNG) instead"
-        )
+    elif textured and not has_texture_image(back):
+        problem = "Open3D did not write the texture into the glTF file"
+    else:
+        return
+    raise OSError(f"{shown}: {problem}; write .obj instead (OBJ + MTL + PNG keeps a texture)")
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -590,63 +524,59 @@ def write_geometry(
     """
     o3d = require_open3d()
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    name = os.path.basename(path)
+    folder, name = os.path.dirname(os.path.abspath(path)), os.path.basename(path)
     geometry = _as_writable(path, geometry, o3d)
+    mesh = isinstance(geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh))
+    gltf = mesh and name.lower().endswith(GLTF)
+    if gltf:
+        geometry, textured = _gltf_mesh(geometry, o3d)
+    legacy = isinstance(geometry, (o3d.geometry.TriangleMesh, o3d.geometry.PointCloud))
+    module = o3d.io if legacy else o3d.t.io
     tmpdir = tempfile.mkdtemp(prefix=f".{name}.", dir=folder)
     try:
         tmp = os.path.join(tmpdir, name)
-        gltf = name.lower().endswith(GLTF) and isinstance(
-            geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)
-        )
-        if gltf:
-            geometry, textured = _gltf_mesh(geometry, o3d)
         # Open3D prints warnings (e.g. "OFF cannot include triangle normals") on stdout.
         with open3d_errors_only():
-            if gltf:
-                ok = o3d.t.io.write_triangle_mesh(tmp, geometry)
-            elif isinstance(geometry, o3d.geometry.TriangleMesh):
-                ok = o3d.io.write_triangle_mesh(tmp, geometry)
-            elif isinstance(geometry, o3d.geometry.PointCloud):
-                ok = o3d.io.write_point_cloud(tmp, geometry)
-            elif isinstance(geometry, o3d.t.geometry.TriangleMesh):
-                ok = o3d.t.io.write_triangle_mesh(tmp, geometry)
-            else:
-                ok = o3d.t.io.write_point_cloud(tmp, geometry)
+            ok = (module.write_triangle_mesh if mesh else module.write_point_cloud)(tmp, geometry)
         if not ok or not os.path.isfile(tmp):
             raise OSError(f"{path}: Open3D failed to write the file")
         if gltf:
             _check_gltf(tmp, path, _gltf_vertex_counts(geometry), textured, o3d)
-        mode = default_file_mode()
-        extras = sorted(f for f in os.listdir(tmpdir) if f != name)
-        kept = [os.fspath(p) for p in protect if p is not None]
-        for f in [*extras, name]:
-            dest = os.path.join(folder, f)
-            if any(_same_file(dest, p) for p in kept):
-                raise ValueError(
-                    f"{path}: writing it would replace {dest}, an input: nothing was written; "
-                    "choose another output name"
-                )
-            if os.path.isdir(dest):
-                raise IsADirectoryError(
-                    f"{path}: {dest}, written with it, is a folder: nothing was written"
-                )
-        created: list[str] = []  # files that did not exist: removed again if a move fails
-        try:
-            for f in [*extras, name]:  # the geometry file last: it refers to the others
-                dest = os.path.join(folder, f)
-                new = not os.path.lexists(dest)
-                os.chmod(os.path.join(tmpdir, f), mode)
-                os.replace(os.path.join(tmpdir, f), dest)
-                if new:
-                    created.append(dest)
-        except OSError:
-            for dest in created:
-                with contextlib.suppress(OSError):
-                    os.remove(dest)
-            raise
+        # the geometry file last: it refers to the others
+        files = [*sorted(f for f in os.listdir(tmpdir) if f != name), name]
+        _move_into_place(tmpdir, folder, files, path, [os.fspath(p) for p in protect if p])
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
+
+
+def _move_into_place(tmp: str, folder: str, files: list[str], path: str, kept: list[str]) -> None:
+    """Move ``files`` from ``tmp`` into ``folder``: none if one would replace one of ``kept``."""
+    for f in files:
+        dest = os.path.join(folder, f)
+        if any(_same_file(dest, p) for p in kept):
+            raise ValueError(
+                f"{path}: writing it would replace {dest}, an input: nothing was written; "
+                "choose another output name"
+            )
+        if os.path.isdir(dest):
+            raise IsADirectoryError(
+                f"{path}: {dest}, written with it, is a folder: nothing was written"
+            )
+    mode = default_file_mode()
+    created: list[str] = []  # files that did not exist: removed again if a move fails
+    try:
+        for f in files:
+            dest = os.path.join(folder, f)
+            new = not os.path.lexists(dest)
+            os.chmod(os.path.join(tmp, f), mode)
+            os.replace(os.path.join(tmp, f), dest)
+            if new:
+                created.append(dest)
+    except OSError:
+        for dest in created:
+            with contextlib.suppress(OSError):
+                os.remove(dest)
+        raise
 
 
 class MissingFileError(FileNotFoundError, ValueError):

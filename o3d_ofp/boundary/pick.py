@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core._validation import check_int
-from .convert import geometry_to_arrays, require_open3d, vertex_colors
+from .convert import geometry_to_arrays, like_target, require_open3d, vertex_colors
 
 __all__ = ["has_display", "pick_landmarks", "validate_picks"]
 
@@ -36,15 +36,8 @@ def has_display() -> bool:
 
 def _viewable(geometry: Any) -> Any:
     """Build a legacy geometry whose vertex i is vertex i of ``geometry_to_arrays``."""
-    from .convert import point_cloud_from_arrays, triangle_mesh_from_arrays
-
-    V, F = geometry_to_arrays(geometry)
-    colors = vertex_colors(geometry)
-    if F is None:
-        return point_cloud_from_arrays(V, colors=colors)
-    mesh = triangle_mesh_from_arrays(V, F, colors=colors)
-    mesh.compute_vertex_normals()
-    return mesh
+    # (vertices, faces) give a new mesh with vertex normals, or a cloud when faces is None
+    return like_target(geometry_to_arrays(geometry), colors=vertex_colors(geometry))
 
 
 def _pick_in_window(geometry: Any, title: str) -> list[int]:
@@ -62,13 +55,9 @@ def _pick_in_window(geometry: Any, title: str) -> list[int]:
 
 
 def validate_picks(
-    picked_source: Sequence[int],
-    picked_target: Sequence[int],
-    n_source: int,
-    n_target: int,
-    *,
-    count: int | None = None,
-) -> np.ndarray:
+    picked_source: Sequence[int], picked_target: Sequence[int], n_source: int, n_target: int,
+    *, count: int | None = None,
+) -> np.ndarray:  # fmt: skip
     """Pair two lists of picked vertices, checked.
 
     Parameters
@@ -117,11 +106,7 @@ def validate_picks(
 
 
 def pick_landmarks(
-    source: Any,
-    target: Any,
-    *,
-    count: int | None = None,
-    picker: Picker | None = None,
+    source: Any, target: Any, *, count: int | None = None, picker: Picker | None = None
 ) -> np.ndarray:
     """Pick landmark pairs by hand: the source's window first, then the target's.
 

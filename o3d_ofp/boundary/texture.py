@@ -22,9 +22,9 @@ mesh's surface for a bake: its texture, or for a mesh without UVs its vertex col
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import os
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -54,8 +54,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
-def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
-    """Read a top-down (H, W[, C]) array from a path, an array or an Open3D image."""
+def _image_array(image: Any) -> np.ndarray:
+    """Read a top-down (H, W[, C]) array from a path, an array or an Open3D image (texture=)."""
+    o3d = require_open3d()
     if isinstance(image, (str, os.PathLike)):
         path = os.fspath(image)
         if not os.path.isfile(path):
@@ -70,7 +71,7 @@ def _image_array(image: Any, o3d: ModuleType, name: str) -> np.ndarray:
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
     if arr.ndim not in (2, 3) or arr.size == 0 or arr.dtype == object:
-        raise ValueError(f"{name} must be an (H, W[, C]) image; got shape {arr.shape}")
+        raise ValueError(f"texture must be an (H, W[, C]) image; got shape {arr.shape}")
     return arr
 
 
@@ -100,10 +101,8 @@ def legacy_texture_image(image: Any) -> Any:
     arr = np.asarray(image)
     if arr.ndim not in (2, 3) or arr.size == 0:
         raise ValueError(f"image must have shape (H, W, C) or (H, W); got {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        arr = np.round(np.clip(arr, 0.0, 1.0) * 255.0)
-    arr = arr.astype(np.uint8)
-    return o3d.geometry.Image(np.ascontiguousarray(arr[::-1]))
+    arr = arr if np.issubdtype(arr.dtype, np.integer) else as_uint8(arr)  # ints: 0-255 as given
+    return o3d.geometry.Image(np.ascontiguousarray(arr.astype(np.uint8)[::-1]))
 
 
 def set_albedo(mesh: Any, image: np.ndarray) -> None:
@@ -211,8 +210,8 @@ class MeshTexture:
 
     def vertex_colors(self) -> np.ndarray:
         """(n, 3) colors in [0, 1] per vertex: the mean of its triangle corners' samples."""
-        corners = self.corner_colors()
-        return np.clip(corner_colors_to_vertices(self.faces, corners, self.vertices.shape[0]), 0, 1)
+        colors = corner_colors_to_vertices(self.faces, self.corner_colors(), self.vertices.shape[0])
+        return np.clip(colors, 0, 1)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -325,11 +324,11 @@ def without_texture(geometry: Any) -> Any:
         out.textures = []
         out.triangle_material_ids = o3d.utility.IntVector()
         return out
-    if kind == "tensor_mesh" and geometry.has_valid_material():
-        if len(geometry.material.texture_maps):
-            out = geometry.clone()
-            out.material = o3d.visualization.Material("defaultLit")
-            return out
+    with_material = kind == "tensor_mesh" and geometry.has_valid_material()
+    if with_material and len(geometry.material.texture_maps):
+        out = geometry.clone()
+        out.material = o3d.visualization.Material("defaultLit")
+        return out
     return geometry
 
 
@@ -342,9 +341,13 @@ def has_texture_image(geometry: Any) -> bool:
     kind = geometry_kind(geometry)
     if kind == "legacy_mesh":
         return any(not _is_empty(image) for image in geometry.textures)
-    if kind == "tensor_mesh":
-        return bool(geometry.has_valid_material() and "albedo" in geometry.material.texture_maps)
-    return False
+    return kind == "tensor_mesh" and _albedo(geometry) is not None
+
+
+def _albedo(mesh: Any) -> Any:
+    """Return a tensor mesh's albedo map (an Open3D image), or None."""
+    maps = mesh.material.texture_maps if mesh.has_valid_material() else {}
+    return maps["albedo"] if "albedo" in maps else None
 
 
 def has_uvs(mesh: Any) -> bool:
@@ -385,23 +388,14 @@ def no_texture_message(path: str, exc: Exception) -> Said:
     )
 
 
-def _no_image() -> AdvisedError:
-    return AdvisedError(Said(
-        "the mesh has UVs but no texture image was loaded (no material file next to it?): pass "
-        "the image explicitly ({texture})", {}, "no_image",
-    ))  # fmt: skip
-
-
 def _legacy_parts(mesh: Any, n_faces: int) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     uv = np.array(mesh.triangle_uvs, dtype=np.float64)
     if uv.shape[0] != 3 * n_faces:
         raise _no_uvs(uv.shape[0], n_faces)
     # Legacy textures are bottom-up: flip them to the file's (top-down) orientation. Empty
     # images (the OBJ reader's default material) stay as placeholders so the ids still match.
-    images = [
-        np.zeros((0, 0)) if _is_empty(t) else np.array(np.asarray(t)[::-1], copy=True)
-        for t in mesh.textures
-    ]
+    images = [np.zeros((0, 0)) if _is_empty(image) else np.asarray(image)[::-1].copy()
+              for image in mesh.textures]  # fmt: skip
     material = np.array(mesh.triangle_material_ids, dtype=np.int64)
     if material.shape[0] != n_faces:
         material = np.zeros(n_faces, dtype=np.int64)
@@ -418,10 +412,8 @@ def _tensor_parts(mesh: Any, faces: np.ndarray) -> tuple[np.ndarray, list[np.nda
         uv = np.array(mesh.vertex["texture_uvs"].cpu().numpy(), dtype=np.float64)[faces]
     else:
         raise _no_uvs(0, n_faces)
-    images = []
-    if mesh.has_valid_material() and "albedo" in mesh.material.texture_maps:
-        albedo = mesh.material.texture_maps["albedo"]
-        images.append(np.array(albedo.as_tensor().cpu().numpy(), copy=True))
+    albedo = _albedo(mesh)
+    images = [] if albedo is None else [np.array(albedo.as_tensor().cpu().numpy())]
     return uv, images, np.zeros(n_faces, dtype=np.int64)
 
 
@@ -446,26 +438,20 @@ def missing_texture_files(path: str | os.PathLike[str]) -> list[str]:
     if not path.lower().endswith(".obj") or not os.path.isfile(path):
         return []
     folder = os.path.dirname(os.path.abspath(path))
-    libraries: list[str] = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            if line.startswith("f "):
-                break
-            if line.startswith("mtllib "):
-                libraries.append(line[len("mtllib "):].strip())
     missing: list[str] = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        head = itertools.takewhile(lambda line: not line.startswith("f "), fh)
+        libraries = [line[len("mtllib ") :].strip() for line in head if line.startswith("mtllib ")]
     for lib in libraries:
         lib_path = os.path.join(folder, lib)
         if not os.path.isfile(lib_path):
             missing.append(lib)
             continue
         with open(lib_path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                words = line.split()
-                if words and words[0] == "map_Kd" and len(words) > 1:
-                    image = words[-1]  # options (-s, -o ...) come before the file name
-                    if not os.path.isfile(os.path.join(os.path.dirname(lib_path), image)):
-                        missing.append(image)
+            # map_Kd's options (-s, -o ...) come before the file name
+            images = [w[-1] for w in map(str.split, fh) if len(w) > 1 and w[0] == "map_Kd"]
+        lib_folder = os.path.dirname(lib_path)
+        missing += [im for im in images if not os.path.isfile(os.path.join(lib_folder, im))]
     return list(dict.fromkeys(missing))
 
 
@@ -488,18 +474,20 @@ def corner_uvs(mesh: Any) -> np.ndarray:
     ValueError
         If the mesh has no UVs (or non-finite ones).
     """
+    return _uv_parts(mesh)[2]
+
+
+def _uv_parts(mesh: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """Return a mesh's vertices, faces, corner UVs, top-down images and image per triangle."""
     kind = geometry_kind(mesh)
     if kind not in ("legacy_mesh", "tensor_mesh"):
         raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
-    _, F = geometry_to_arrays(mesh)
+    V, F = geometry_to_arrays(mesh)
     assert F is not None
-    if kind == "legacy_mesh":
-        uv = _legacy_parts(mesh, F.shape[0])[0]
-    else:
-        uv = _tensor_parts(mesh, F)[0]
-    if not np.all(np.isfinite(uv)):
+    parts = _legacy_parts(mesh, F.shape[0]) if kind == "legacy_mesh" else _tensor_parts(mesh, F)
+    if not np.all(np.isfinite(parts[0])):
         raise ValueError("the mesh's texture coordinates hold NaN or inf")
-    return uv
+    return (V, F, *parts)
 
 
 def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
@@ -525,24 +513,16 @@ def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
     ValueError
         If the mesh has no UVs, or no image is given or loaded.
     """
-    o3d = require_open3d()
-    kind = geometry_kind(mesh)
-    if kind not in ("legacy_mesh", "tensor_mesh"):
-        raise TypeError("mesh must be an Open3D TriangleMesh with texture coordinates")
-    V, F = geometry_to_arrays(mesh)
-    assert F is not None
-    if kind == "legacy_mesh":
-        uv, images, material = _legacy_parts(mesh, F.shape[0])
-    else:
-        uv, images, material = _tensor_parts(mesh, F)
-    if not np.all(np.isfinite(uv)):
-        raise ValueError("the mesh's texture coordinates hold NaN or inf")
+    V, F, uv, images, material = _uv_parts(mesh)
     if texture is not None:
-        images = [_image_array(texture, o3d, "texture")]
+        images = [_image_array(texture)]
         material = np.zeros(F.shape[0], dtype=np.int64)
     filled = [i for i, im in enumerate(images) if im.ndim >= 2 and im.size > 0]
     if not filled:
-        raise _no_image()
+        raise AdvisedError(Said(
+            "the mesh has UVs but no texture image was loaded (no material file next to it?): "
+            "pass the image explicitly ({texture})", {}, "no_image",
+        ))  # fmt: skip
     valid = (material >= 0) & (material < len(images))
     valid[valid] = np.isin(material[valid], filled)
     if not np.all(valid):
@@ -552,9 +532,8 @@ def mesh_texture(mesh: Any, texture: Any = None) -> MeshTexture:
         else:
             logger.warning(
                 "texture: %d of %d triangles name no loaded image; they get black",
-                int(np.count_nonzero(~valid)),
-                F.shape[0],
-            )
+                int(np.count_nonzero(~valid)), F.shape[0],
+            )  # fmt: skip
             material = np.where(valid, material, -1)
     return MeshTexture(
         vertices=V, faces=F, uvs=uv, images=tuple(images), material=material.astype(np.int64)
