@@ -693,7 +693,7 @@ def test_match_closest_and_the_exact_pull_back_from_python_and_the_cli(tmp_path,
     out = ofp.transfer_colors(source, target, correspondence=corr)
     expected = np.einsum("ijd,ij->id", colors[F1[corr.faces_21]], corr.barycentric_21)
     np.testing.assert_allclose(np.asarray(out.vertex_colors), np.clip(expected, 0, 1), atol=1e-12)
-    with pytest.raises(ValueError, match="method must be 'estimate' or 'closest'"):
+    with pytest.raises(ValueError, match="method must be one of 'estimate', 'closest'"):
         ofp.match(source, target, method="zzz")
     write_geometry(tmp_path / "src.ply", source)
     write_geometry(tmp_path / "tgt.ply", target)

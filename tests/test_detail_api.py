@@ -317,7 +317,7 @@ BAD = [
     (["detail", "{src}", "{tgt}", "--amount", "11"], "argument --amount"),
     (["detail", "{src}", "{tgt}", "--mode", "swap"], "argument --mode: invalid choice"),
     (["detail", "{src}", "{tgt}", "--mode", "coordinates", "--band", "20"], "--band does not"),
-    (["detail", "{src}", "{tgt}", "--map", "identity", "--band", "700"], "--band 700: "),
+    (["detail", "{src}", "{tgt}", "--map", "identity", "--band", "700"], "--band (700): "),
     (["filter", "{src}"], "give --smooth RADIUS and/or --sharpen GAIN"),
     (["filter", "{src}", "--smooth", "5"], "argument --smooth: expected a number in [0, 0.25]"),
     (["filter", "{src}", "--sharpen", "2.5"], "argument --sharpen: expected a number in [0, 2]"),

@@ -35,8 +35,9 @@ from ..boundary.io import read_geometry, write_geometry
 from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
+from ..core._warnings import about
 from ..core.spectrum import DEFAULT_K
-from ..core.wording import AdvisedError, OptionError, Said
+from ..core.wording import AdvisedError, OptionError, Said, named
 from ..workflows.options import BasisOptions, DetailOptions, MatchOptions
 from ..workflows.plan import plan_pair, prepare_source
 from .results import TargetResult
@@ -274,28 +275,11 @@ def _log_record(r: TargetResult) -> None:
         if r.suspect and (not r.warnings or r.worker == "local"):  # its reasons were not named
             logger.warning("%s: the map is suspect (see its record)", r.name)
     # A worker process's log is not shown here: its warnings are said again, named (in this
-    # process, workers=0, the log said them as they happened, named by _warnings_named).
+    # process, workers=0, the log said them as they happened, named: core._warnings.about).
     if r.worker != "local":
         for message in r.warnings:
-            logger.warning("%s: %s", r.name, message)
-
-
-@contextlib.contextmanager
-def _warnings_named(name: str) -> Iterator[None]:
-    """Start the library's warnings logged meanwhile with ``name`` (a target run in-process)."""
-    previous = logging.getLogRecordFactory()
-
-    def factory(*args: Any, **kwargs: Any) -> logging.LogRecord:
-        record = previous(*args, **kwargs)
-        if record.levelno >= logging.WARNING and record.name.startswith("o3d_ofp."):
-            record.msg, record.args = f"{name}: {record.getMessage()}", ()
-        return record
-
-    logging.setLogRecordFactory(factory)
-    try:
-        yield
-    finally:
-        logging.setLogRecordFactory(previous)
+            said = named(r.name, message)
+            logger.warning("%s", said, extra={"said": said})
 
 
 def _run(
@@ -329,7 +313,7 @@ def _run(
 
         if client is None and workers == 0:
             for spec in specs:
-                with _warnings_named(spec.name):
+                with about(spec.name):
                     r = task(shared, spec)
                 arrived(r)
             return
@@ -473,14 +457,15 @@ class _OutputsRecord:
         if not isinstance(found, dict):
             return {}
         out = {k: found[k] for k, type_ in _FOUND.items() if isinstance(found.get(k), type_)}
-        out.update({k: tuple(map(str, out[k])) for k in ("warnings", "notes") if k in out})
+        out.update({k: tuple(map(_said_of, out[k])) for k in ("warnings", "notes") if k in out})
         return out
 
     def made(self, result: TargetResult) -> None:
         """Record that the output of ``result`` was just made with these options."""
         if self.path is not None and result.output is not None:
-            row = result.row()
-            entry = {"options": self.options, "found": {k: row[k] for k in _FOUND}}
+            row = {**result.row(), "warnings": result.warnings, "notes": result.notes}
+            found = {k: _as_json(row[k]) for k in _FOUND}
+            entry = {"options": self.options, "found": found}
             self.entries = {**(self.entries or {}), result.name: entry}
             self._write()
 
@@ -495,6 +480,18 @@ class _OutputsRecord:
         assert self.path is not None
         with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump({"version": 2, "outputs": self.entries}, fh, indent=1, sort_keys=True)
+
+
+def _as_json(value: Any) -> Any:
+    """Return a record's field for the JSON file (messages as their templates, worded later)."""
+    if isinstance(value, tuple):
+        return [dataclasses.asdict(v) if isinstance(v, Said) else str(v) for v in value]
+    return value
+
+
+def _said_of(item: Any) -> str | Said:
+    """Return a message read back from the JSON file (see :func:`_as_json`)."""
+    return Said.from_dict(item) if isinstance(item, dict) and "template" in item else str(item)
 
 
 def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
@@ -543,7 +540,8 @@ def _source(source: Any, path: str | None, job: TransferJob) -> SharedSource:
     except OptionError as exc:  # transfer_many takes the OFP bases' fields as keywords
         if exc.option != "options":
             raise
-        raise OptionError(", ".join(_BASIS_OPTIONS), exc.problem) from None
+        given = [n for n in _BASIS_OPTIONS if getattr(job.bases, n) != getattr(BasisOptions(), n)]
+        raise OptionError(", ".join(given), exc.problem) from None
     eig, B, cached, coarse = prepare_source(plan, V, F, match=job.match, cache_dir=job.cache_dir)
     COUNTERS["source_bases"] += 1
     logger.info(

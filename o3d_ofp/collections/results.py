@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core._atomic import atomic_path
+from ..core.wording import Said
 
 __all__ = ["STATUSES", "SUMMARY_FIELDS", "TargetResult", "write_summary"]
 
@@ -64,10 +65,10 @@ class TargetResult:
         Whether its eigenbasis came from the cache.
     worker : str
         Address of the Dask worker that ran it (``"local"`` in the calling process).
-    warnings : tuple of str
+    warnings : tuple of str or Said
         What was said about the shape's result (:class:`~o3d_ofp.OFPWarning` messages: a
         suspect map with its reasons and fix, parts left out, ...); empty when nothing was.
-    notes : tuple of str
+    notes : tuple of str or Said
         The notes of its map's quality report (:attr:`~o3d_ofp.MapQuality.notes`: e.g. a
         target whose area says other units or a part, a point cloud's estimated normals);
         empty when there were none or no map.
@@ -84,13 +85,13 @@ class TargetResult:
     seconds: float = 0.0
     coverage: float = math.nan
     suspect: bool | None = None
-    error: str = ""
+    error: str | Said = ""
     kind: str = "colors"
     n_vertices: int = 0
     cached: bool = False
     worker: str = ""
-    warnings: tuple[str, ...] = ()
-    notes: tuple[str, ...] = ()
+    warnings: tuple[str | Said, ...] = ()
+    notes: tuple[str | Said, ...] = ()
     values: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -107,7 +108,8 @@ class TargetResult:
         out = {name: getattr(self, name) for name in SUMMARY_FIELDS}
         nan = isinstance(self.coverage, float) and math.isnan(self.coverage)
         out.update(coverage=None if nan else self.coverage, seconds=round(float(self.seconds), 3))
-        return {**out, "warnings": list(self.warnings), "notes": list(self.notes)}
+        return {**out, "error": str(self.error), "warnings": [str(w) for w in self.warnings],
+                "notes": [str(n) for n in self.notes]}  # fmt: skip
 
 
 #: Columns of summary.csv (and keys of every summary.json row), in order.

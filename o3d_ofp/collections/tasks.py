@@ -233,8 +233,14 @@ def worker_name() -> str:
 
 
 def failed(spec: ShapeSpec, exc: BaseException | str, *, kind: str, **found: Any) -> TargetResult:
-    """Return the failed record of ``spec``: the exception's type and message, or ``exc``."""
-    error = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    """Return the failed record of ``spec``: the exception's type and message, or ``exc``.
+
+    An exception that carries a Said keeps it (a front end words it for its reader).
+    """
+    error: str | Said = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    if isinstance(getattr(exc, "said", None), Said):
+        said = exc.said  # type: ignore[union-attr]
+        error = Said("{kind}: {said}", {"kind": type(exc).__name__, "said": said})
     return TargetResult(spec.index, spec.name, spec.path, "failed", error=error, kind=kind, **found)
 
 
@@ -270,22 +276,26 @@ def _codes(message: Said) -> set[str]:
     return {message.code}.union(*inner)
 
 
-def _for_collections(message: str | Said, kind: str = "colors") -> str:
-    """Word a library message, with the fix a collection cannot apply: the target run alone.
+def _for_collections(message: str | Said, kind: str = "colors") -> str | Said:
+    """Return a library message with the fix a collection cannot apply: the target run alone.
 
     The fixes are read from the message's codes (landmarks, a partial match), never from its
-    words; ``kind`` names the collection's command and Python function.
+    words; ``kind`` names the collection's command and Python function. The message stays a
+    Said (a front end words it for its reader).
     """
     if not isinstance(message, Said):
         return message
     command = "detail" if kind == "detail" else "transfer"
     function = f"transfer_{kind if kind in ('detail', 'texture') else 'colors'}"
-    text = message.text()
+    alone = []
     if {"landmarks", "landmarks_check"} & set(message.fixes):
-        text += f" ({ALONE_WITH_LANDMARKS.format(command=command, function=function)})"
+        alone.append(ALONE_WITH_LANDMARKS.format(command=command, function=function))
     if _codes(message) & _PARTIAL_FIXES:
-        text += f" ({ALONE_PARTIAL.format(command=command)})"
-    return text
+        alone.append(ALONE_PARTIAL.format(command=command))
+    if not alone:
+        return message
+    extra = "".join(f" ({a})" for a in alone).replace("{", "{{").replace("}", "}}")
+    return Said("{message}" + extra, {"message": message}, message.code)
 
 
 def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
@@ -301,7 +311,8 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         warnings.filterwarnings("ignore", category=OFPWarning)
     with collected_warnings() as said:
         result = _transfer_task(source, spec)
-    messages = tuple(dict.fromkeys(_for_collections(m, source.job.kind) for m in said))
+    worded = (_for_collections(m, source.job.kind) for m in said)
+    messages = tuple({str(m): m for m in worded}.values())  # each said once
     return dataclasses.replace(result, warnings=messages) if messages else result
 
 
@@ -317,8 +328,10 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
         corr = prepared.correspondence
         found.update(cached=prepared.cached[1], **_verdict(corr, job.kind))
         if job.strict and found["suspect"]:
-            reasons = "; ".join(_for_collections(r, job.kind) for r in corr.quality.reasons)
-            raise ValueError(f"suspect map (strict): {reasons}")
+            reasons = [_for_collections(r, job.kind) for r in corr.quality.reasons]
+            template = "; ".join(f"{{r{i}}}" for i in range(len(reasons)))
+            raise AdvisedError(Said("suspect map (strict): " + template,
+                                    {f"r{i}": r for i, r in enumerate(reasons)}, "strict"))
         values = _transferred(source, spec, target, plan, prepared)
     except Exception as exc:  # a target's failure is its record, never the run's
         logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it

@@ -20,9 +20,9 @@ import threading
 import warnings
 from collections.abc import Iterator
 
-from .wording import Said
+from .wording import Said, named
 
-__all__ = ["OFPWarning", "collected_warnings", "reissue", "warn", "warnings_logged"]
+__all__ = ["OFPWarning", "about", "collected_warnings", "reissue", "warn", "warnings_logged"]
 
 _COLLECTING = threading.local()
 
@@ -64,9 +64,12 @@ def warn(logger: logging.Logger, message: str | Said, *, stacklevel: int | None 
     :func:`warnings_logged` sets; a :class:`~o3d_ofp.core.wording.Said` rides on it as
     ``record.said`` (a front end words it for its reader).
     """
+    _collect(message)  # (a collection's record is named already)
+    subject = getattr(_COLLECTING, "subject", None)
+    if subject is not None:
+        message = named(subject, message)
     extra = {"said": message} if isinstance(message, Said) else None
     logger.log(_LOG.level, "%s", message, extra=extra)
-    _collect(message)
     if stacklevel is None:
         stacklevel = _outside_the_package()
     warnings.warn(str(message), OFPWarning, stacklevel=stacklevel)
@@ -83,6 +86,16 @@ def _outside_the_package() -> int:
         frame = frame.f_back
         level += 1
     return level
+
+
+@contextlib.contextmanager
+def about(name: str) -> Iterator[None]:
+    """Name ``name`` (a shape's, one of several) in what :func:`warn` says in this thread."""
+    before, _COLLECTING.subject = getattr(_COLLECTING, "subject", None), name
+    try:
+        yield
+    finally:
+        _COLLECTING.subject = before
 
 
 def _collect(message: str | Said) -> None:

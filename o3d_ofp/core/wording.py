@@ -14,7 +14,7 @@ import string
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["FIXES", "AdvisedError", "OptionError", "Said", "text_of"]
+__all__ = ["FIXES", "AdvisedError", "OptionError", "Said", "named", "text_of"]
 
 #: Each fix a message can advise: its Python wording and its command-line wording. A field
 #: ``{partial}`` in a :class:`Said` template becomes one of them; ``{target_scale}`` reads the
@@ -118,6 +118,13 @@ class Said:
     def __contains__(self, words: str) -> bool:
         """Whether its Python wording holds ``words`` (as the plain strings it replaces did)."""
         return words in self.text()
+
+
+def named(name: str, message: str | Said) -> Said:
+    """Return ``"<name>: <message>"`` as a Said (a message about one shape of several)."""
+    if not isinstance(message, Said):
+        message = Said(str(message).replace("{", "{{").replace("}", "}}"))
+    return Said("{name}: {said}", {"name": name, "said": message}, message.code)
 
 
 def text_of(message: Any, *, cli: bool = False) -> str:

@@ -36,7 +36,14 @@ from .partial import PartialMatch
 from .quality import say
 from .strategy import Run, Strategy
 
-__all__ = ["estimate", "estimate_dense", "match_eigenbases", "on_surfaces", "strategy_of"]
+__all__ = [
+    "coarse_source",
+    "estimate",
+    "estimate_dense",
+    "match_eigenbases",
+    "on_surfaces",
+    "strategy_of",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -290,6 +297,14 @@ def estimate_dense(
 
     shapes = (vertices_1, faces_1, vertices_2, faces_2)
     return strategy.dense(again, first, shapes, whole, opinions=opinions)
+
+
+def coarse_source(vertices: np.ndarray, faces: np.ndarray, options: MatchOptions) -> CoarseShape:
+    """Return a source's coarse copy as :func:`estimate_dense` makes it (shared by many targets)."""
+    return coarse_shape(
+        vertices, faces, k=options.zoomout_to, coarse_vertices=COARSE_VERTICES,
+        components=options.components,
+    )  # fmt: skip
 
 
 def _match_dense(

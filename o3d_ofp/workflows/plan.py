@@ -29,9 +29,9 @@ from ..core.orthogonalize import PRESETS
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import AdvisedError, OptionError, Said
 from .cache import fetch_basis, fetch_eigenbasis
-from .dense import COARSE_VERTICES, DENSE_VERTICES, CoarseShape, coarse_shape
+from .dense import DENSE_VERTICES, CoarseShape
 from .eigenbases import answer_bytes, check_shapes, run_per_shape, said_of
-from .estimate import estimate, estimate_dense, strategy_of
+from .estimate import coarse_source, estimate, estimate_dense, strategy_of
 from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
 from .options import BasisOptions, DetailOptions, MatchOptions
 from .partial import check_partial_areas
@@ -416,10 +416,7 @@ def prepare_source(
         basis = ahead._basis(0)
     coarse = None
     if plan.dense:  # every mesh target's map is estimated on coarse copies: the source's, once
-        coarse = coarse_shape(
-            V1, F1, k=match.zoomout_to, coarse_vertices=COARSE_VERTICES,
-            components=match.components,
-        )  # fmt: skip
+        coarse = coarse_source(V1, F1, match)
     assert eigs[0] is not None
     return eigs[0], basis, cached[0], coarse
 
