@@ -12,6 +12,7 @@ import sys
 import textwrap
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -56,6 +57,17 @@ def test_a_setting_that_is_not_a_number_is_said_and_ignored(monkeypatch, caplog)
 def test_more_jobs_than_cores_all_run_in_order():
     jobs = [lambda i=i: i * i for i in range(5)]
     assert side_by_side(jobs, what="squares") == [0, 1, 4, 9, 16]
+    pids = side_by_side([os.getpid] * 5, what="pids")
+    assert pids[0] == os.getpid() and pids[1] != os.getpid()  # the second is a child's always
+
+
+@needs_two
+def test_a_job_own_side_by_side_runs_in_its_child_one_after_the_other():
+    def nested() -> list[int]:
+        return side_by_side([os.getpid, os.getpid], what="nested")
+
+    here, there = side_by_side([os.getpid, nested], what="outer")
+    assert there[0] != here and there == [there[0]] * 2  # no grandchild: the cores are taken
 
 
 def _fail() -> None:
@@ -68,7 +80,7 @@ def test_a_child_exception_is_raised_here_with_its_type_and_message():
         side_by_side([lambda: 1, _fail], what="failing")
     notes = "".join(getattr(raised.value, "__notes__", []))
     if sys.version_info >= (3, 11):  # its traceback there comes along as a note
-        assert "in the side process computing failing" in notes and "in _fail" in notes
+        assert "in a side process" in notes and "in _fail" in notes
 
 
 class _Unpicklable(Exception):
@@ -81,9 +93,12 @@ def _fail_unpicklable() -> None:
 
 
 @needs_two
-def test_an_exception_that_cannot_travel_comes_as_text():
-    with pytest.raises(RuntimeError, match="_Unpicklable: 1 and 2"):
-        side_by_side([lambda: 1, _fail_unpicklable], what="failing")
+def test_an_exception_that_cannot_travel_is_raised_by_its_job_run_here(caplog):
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        with pytest.raises(_Unpicklable, match="1 and 2") as raised:
+            side_by_side([lambda: 1, _fail_unpicklable], what="failing")
+    assert "job 2 ended without an answer" in caplog.text  # the pool could not read it
+    assert not getattr(raised.value, "__notes__", [])  # raised here, not in a child
 
 
 def _warn_and_log() -> int:
@@ -118,6 +133,19 @@ def test_a_child_warnings_and_log_records_reach_this_process(caplog):
     assert (plain.filename, plain.lineno) == (__file__, _PLAIN_LINE)
     assert [r.getMessage() for r in records][:1] == ["from the child 7"]
     assert any(r.levelno == logging.WARNING for r in records)
+
+
+def _warn_and_fail() -> None:
+    warn(logging.getLogger("o3d_ofp.tests.processes"), "said before failing")
+    _fail()
+
+
+@needs_two
+def test_a_failing_child_warnings_are_issued_here_before_its_exception():
+    with collected_warnings() as said, pytest.warns(OFPWarning, match="said before failing"):
+        with pytest.raises(ValueError, match="the child's own message"):
+            side_by_side([lambda: 1, _warn_and_fail], what="failing")
+    assert said == ["said before failing"]
 
 
 @needs_two
@@ -168,7 +196,43 @@ def test_a_child_that_dies_is_said_and_its_job_is_run_here(caplog):
 
     with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
         assert side_by_side([lambda: 1, dies_in_a_child], what="dying") == [1, "here"]
-    assert "ended without an answer (exit code -9" in caplog.text
+    assert "dying: the process of job 2 ended without an answer" in caplog.text
+
+
+@needs_two
+def test_a_child_killed_in_the_middle_of_its_answer_does_not_hang(tmp_path):
+    """The pool reads an answer to its end: a cut one must not keep it waiting forever."""
+    result = _run_script(
+        """
+        import logging, os, signal
+        from multiprocessing import connection
+        from o3d_ofp.core._processes import side_by_side
+
+        logging.basicConfig(level=logging.WARNING)
+        parent = os.getpid()
+
+        def dies_while_it_answers():
+            if os.getpid() != parent:
+                send = connection.Connection._send
+
+                def cut(self, buf, write=os.write):  # the answer's first 100 kB, then killed
+                    if len(buf) > 1_000_000:
+                        write(self._handle, bytes(buf[:100_000]))
+                        os.kill(os.getpid(), signal.SIGKILL)
+                    return send(self, buf, write)
+
+                connection.Connection._send = cut  # in the child only
+            return b"x" * 10_000_000
+
+        values = side_by_side([lambda: 1, dies_while_it_answers], what="cut")
+        print("done", values[0], len(values[1]))
+        """,
+        tmp_path,
+        timeout=60,  # a hang fails here
+    )
+    assert result.returncode == 0, result.stderr
+    assert "done 1 10000000" in result.stdout
+    assert "cut: the process of job 2 ended without an answer" in result.stderr
 
 
 @needs_two
@@ -180,7 +244,7 @@ def test_an_error_here_ends_the_children_at_once():
     with pytest.raises(ValueError, match="the child's own message"):
         side_by_side([_fail, slow], what="ending")
     assert time.perf_counter() - t0 < 20  # not the child's 60 s
-    assert not [p for p in multiprocessing.active_children() if p.name.startswith("o3d_ofp")]
+    assert not multiprocessing.active_children()
 
 
 @needs_two
@@ -210,24 +274,44 @@ def test_eigenbases_side_by_side_equal_those_one_after_the_other(monkeypatch, ca
 
 
 @needs_two
-def test_an_error_here_while_a_child_logs_fast_ends_at_once(caplog):
-    """A child ended while it wrote a record must not block this process (no shared lock)."""
+def test_an_error_here_while_a_child_logs_fast_ends_at_once(tmp_path):
+    """A child ended while it wrote a record must not block this process (no lock taken here)."""
+    result = _run_script(
+        """
+        import logging, time
+        from o3d_ofp.core._processes import side_by_side
 
-    def chatty() -> None:
-        while True:
-            logger.debug("a record from the child")
+        logger = logging.getLogger("o3d_ofp.chatty")
+        logger.setLevel(logging.DEBUG)
+        seen = []
 
-    def fail_soon() -> None:
-        time.sleep(0.3)
-        raise ValueError("stop here")
+        class Keep(logging.Handler):
+            def emit(self, record):
+                seen.append(record.getMessage())
 
-    t0 = time.perf_counter()
-    with caplog.at_level(logging.DEBUG, logger="o3d_ofp"):
+        logger.addHandler(Keep())
+
+        def chatty():
+            while True:
+                logger.debug("a record from the child")
+
+        def fail_soon():
+            time.sleep(0.3)
+            raise ValueError("stop here")
+
         for _ in range(3):
-            with pytest.raises(ValueError, match="stop here"):
+            try:
                 side_by_side([fail_soon, chatty], what="chatty")
-    assert time.perf_counter() - t0 < 30
-    assert "a record from the child" in caplog.text
+            except ValueError as exc:
+                print(exc)
+        print("records from the child:", "a record from the child" in seen)
+        """,
+        tmp_path,
+        timeout=60,  # a hang fails here
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.count("stop here") == 3
+    assert "records from the child: True" in result.stdout
 
 
 @needs_two
@@ -242,11 +326,14 @@ def test_a_process_that_cannot_start_leaves_the_job_here(monkeypatch, caplog):
 
 
 def _run_script(code: str, tmp_path, timeout: float = 120) -> subprocess.CompletedProcess:
+    """Run ``code`` in a new interpreter that imports the o3d_ofp under test (not another copy)."""
     script = tmp_path / "script.py"
     script.write_text(textwrap.dedent(code))
+    root = str(Path(_processes.__file__).resolve().parents[2])  # the directory of o3d_ofp
+    path = os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))
     return subprocess.run(
         [sys.executable, str(script)], capture_output=True, text=True, timeout=timeout,
-        cwd=tmp_path,
+        cwd=tmp_path, env={**os.environ, "PYTHONPATH": path},
     )  # fmt: skip
 
 

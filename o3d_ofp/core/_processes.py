@@ -3,12 +3,14 @@
 The two eigensolves of a pair (and the coarse copies of the dense path) are independent and
 mostly single-threaded: SciPy's ARPACK loop holds the GIL between its steps, so Python
 threads do not overlap them (measured: two 27.5k-vertex eigenbases, k = 99, 6.7 s in two
-threads, 6.8 s one after the other). :func:`side_by_side` runs the first job here and each
-of the others in a child process started with ``fork`` (2 cores: 4.0-4.4 s for the same two).
+threads, 6.8 s one after the other). :func:`side_by_side` runs the first job here and the
+others in a :class:`concurrent.futures.ProcessPoolExecutor` whose processes are forked
+(2 cores: 4.0-4.4 s for the same two).
 
-Only ``fork`` is used, and only where it is the platform's own method (Linux): the child
-starts in a few milliseconds from the parent's memory, and the job needs no pickling.
-``spawn`` and ``forkserver`` re-import the caller's ``__main__`` (a script without the
+Only ``fork`` is used, and only where it is the platform's own method (Linux): a child
+starts in a few milliseconds from the parent's memory, and the jobs reach it without
+pickling (through the pool's initializer; only the answers are pickled). ``spawn`` and
+``forkserver`` re-import the caller's ``__main__`` (a script without the
 ``if __name__ == "__main__":`` guard then fails) and pay the imports again (0.5-1 s); where
 ``fork`` is not available, or in a daemonic process (a Dask worker cannot have children), or
 from a thread other than the main one or while other (non-daemon) threads run (a fork can
@@ -16,13 +18,11 @@ catch them inside OpenBLAS, whose fork handler then waits forever), or on one co
 memory is short, or when a process cannot be started, the jobs run one after the other here.
 ``O3D_OFP_PROCESSES=1`` in the environment does the same (the number of jobs at once).
 
-Each child has one pipe to this process, read by a thread here as it is written: the
-child's log records, handed to this process's logger of the same name as they happen, then
-its answer (its value or its exception, and the warnings it issued, issued here again). No
-lock is shared between the processes, so a child ended at any moment cannot block this one.
-A child that ends without an answer (killed for memory, say) is said and its job is run
-here; an error or an interrupt here ends the children, and a child dies with its parent
-(``PR_SET_PDEATHSIG``) instead of computing on for nobody.
+The children's log records come here through one pipe as they are made and are handed to
+this process's logger of the same name; the warnings a child issued come with its answer and
+are issued here again. A child that ends without an answer (killed for memory, say) breaks
+the pool: that is said, and its job (with any other that the pool's end left without an
+answer) is run here. An error or an interrupt here ends the children.
 """
 
 from __future__ import annotations
@@ -32,13 +32,16 @@ import logging
 import logging.handlers
 import multiprocessing
 import os
-import pickle
 import signal
 import sys
 import threading
 import traceback
 import warnings
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import reduction
+from types import SimpleNamespace
 from typing import Any, TypeVar
 
 from ._memory import available_memory, format_bytes
@@ -52,6 +55,8 @@ T = TypeVar("T")
 
 #: Environment variable: the most jobs run at once (``1``: never a child process).
 ENVIRONMENT = "O3D_OFP_PROCESSES"
+
+_JOBS: Sequence[Callable[[], Any]] = ()  # in a child: the jobs of its pool
 
 
 def _cores() -> int:
@@ -100,93 +105,61 @@ def _other_threads_at_work() -> bool:
     return any(t is not here and not t.daemon and t.is_alive() for t in threading.enumerate())
 
 
-class _Pipe:
-    """The ``put_nowait`` a :class:`logging.handlers.QueueHandler` needs, over the child's pipe."""
-
-    def __init__(self, conn: Any) -> None:
-        self.conn = conn
-        self.lock = threading.Lock()  # a job may log from several threads of the child
-
-    def send(self, message: tuple[Any, ...]) -> None:
-        data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-        with self.lock:
-            self.conn.send_bytes(data)
-
-    def put_nowait(self, record: logging.LogRecord) -> None:
-        self.send(("log", record))
-
-
-def _die_with_parent(parent: int) -> None:
-    """Have the kernel end this child when the process that forked it ends (Linux)."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # pragma: no cover - no prctl: the pipe still breaks
-        pass
+def _start_child(jobs: Sequence[Callable[[], Any]], send: Any, turn: Any, parent: int) -> None:
+    """Set up a forked child of the pool: its jobs, its log records sent here, its end."""
+    global _JOBS
+    _JOBS = jobs
+    # A pool's children keep copies of the ends of its pipes, so a parent killed without its
+    # clean-up (SIGKILL, a batch scheduler's) would leave them waiting for work forever: the
+    # kernel ends each child when the thread that forked it (the main one) ends.
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     if os.getppid() != parent:  # it ended before the call above
         os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's, which ends us
+    os.environ[ENVIRONMENT] = "1"  # a job's own side_by_side runs here: the cores are taken
+    # What this process sends is pickled with protocol 5, an array's data written out once;
+    # the pool's (4, before Python 3.14) copies it first: one more copy of the answer at the
+    # child's peak (measured: 632 MB instead of 441 for a 200 MB answer; +26 ms for 22 MB).
+    dumps = reduction.ForkingPickler.dumps
+    reduction.ForkingPickler.dumps = staticmethod(lambda obj, protocol=None: dumps(obj, 5))
 
+    def put_nowait(record: logging.LogRecord) -> None:
+        with turn:  # the children take turns: a record longer than one write must stay whole
+            send.send(record)
 
-def _child(job: Callable[[], Any], conn: Any, unused: Any, parent: int) -> None:
-    """Run ``job`` in the forked child; send its records, then its answer, through ``conn``."""
-    unused.close()  # our copy of the reading end: the parent's death must break the pipe
-    _die_with_parent(parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent takes Ctrl-C and ends us
-    pipe = _Pipe(conn)
     # Every record leaves at the logger it was made on, before any handler here sees it: the
     # parent hands it to its logger of that name, whose handlers, propagation and filters
     # (the command line's handler on "o3d_ofp", which does not propagate; a caller's on the
     # root) then treat it exactly as a record made there. Patched on the class: this process
-    # is the child's alone and ends with the job.
-    sender = logging.handlers.QueueHandler(pipe)  # type: ignore[arg-type]
+    # is the pool's alone and ends with it.
+    sender = logging.handlers.QueueHandler(SimpleNamespace(put_nowait=put_nowait))  # type: ignore
     logging.Logger.callHandlers = lambda self, record: sender.handle(record)  # type: ignore
+
+
+def _child_job(index: int) -> tuple[Any, Exception | None, list[tuple[Any, ...]]]:
+    """Run job ``index`` in a child: its value or its exception, and the warnings it issued."""
+    value, error = None, None
     with warnings.catch_warnings(record=True) as caught:  # the filters inherited decide
         try:
-            outcome: tuple[Any, ...] = ("ok", job())
-        except BaseException as exc:  # every failure is the parent's to raise
-            outcome = ("error", exc, "".join(traceback.format_exception(exc)))
-    said = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
-    try:
-        data = pickle.dumps(("answer", outcome, said), protocol=pickle.HIGHEST_PROTOCOL)
-        if outcome[0] == "error":
-            pickle.loads(data)  # an exception that cannot be rebuilt there is sent as text
-    except Exception:
-        text = outcome[2] if outcome[0] == "error" else traceback.format_exc()
-        failure = RuntimeError(f"a side process failed and its answer could not be sent:\n{text}")
-        data = pickle.dumps(("answer", ("error", failure, text), said))
-    with pipe.lock:
-        conn.send_bytes(data)
-    conn.close()
+            value = _JOBS[index]()
+        except Exception as exc:  # raised in the parent, with its traceback here as a note
+            if hasattr(exc, "add_note"):  # Python 3.11+
+                exc.add_note(f"in a side process:\n{traceback.format_exc()}")
+            error = exc
+    return value, error, [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
 
 
-def _dispatch(record: logging.LogRecord) -> None:
-    target = logging.getLogger(record.name)
-    if target.isEnabledFor(record.levelno):
-        target.handle(record)
-
-
-class _Reader(threading.Thread):
-    """Read one child's pipe here: log records as they come, then the answer (or the end)."""
-
-    def __init__(self, receive: Any, what: str) -> None:
-        super().__init__(name=f"o3d_ofp {what} reader", daemon=True)
-        self.receive = receive
-        self.answer: tuple[Any, ...] | None = None
-
-    def run(self) -> None:
+def _forward(receive: Any) -> None:
+    """Hand each record a child sends to this process's logger of its name, until all end."""
+    with receive:
         while True:
             try:
-                message = pickle.loads(self.receive.recv_bytes())
-            except (EOFError, OSError):  # the child ended (without an answer if none came)
+                record = receive.recv()
+            except Exception:  # every child has ended (or one was killed within a record)
                 return
-            except Exception as exc:  # a record cut short by a killed child
-                logger.debug("a message from a side process could not be read: %s", exc)
-                return
-            if message[0] == "log":
-                _dispatch(message[1])
-            else:
-                self.answer = message[1:]
-                return
+            target = logging.getLogger(record.name)
+            if target.isEnabledFor(record.levelno):
+                target.handle(record)
 
 
 def _issue(said: list[tuple[str, type[Warning], str, int]]) -> None:
@@ -198,32 +171,54 @@ def _issue(said: list[tuple[str, type[Warning], str, int]]) -> None:
             warnings.warn_explicit(message, category, filename, lineno)
 
 
-def _start(
-    ctx: Any, job: Callable[[], Any], what: str, index: int
-) -> tuple[Any, _Reader] | None:
-    """Fork a child for ``job`` and its reader; None (said) when a process cannot be made."""
+def _end(processes: list[Any], answers: Any) -> None:
+    """End the children now, and let the pool see the end of its pipe of answers.
+
+    The pool reads an answer to its last byte: one cut short by a child's death (killed while
+    it sends a large answer) keeps it, and the future, waiting until every write end of that
+    pipe is closed. The children's close as they die; this process's, which it never writes
+    on, is closed here (the pool has no public handle on it).
+    """
+    for process in processes:
+        process.terminate()
+    answers._writer.close()
+
+
+def _answer(future: Future, processes: list[Any], answers: Any) -> Any:
+    """Return a child's value, its warnings issued here, or raise its exception here."""
+    while not wait([future], timeout=1.0).done:  # and every second, a look at the children
+        if any(process.exitcode is not None for process in processes):
+            _end(processes, answers)  # a dead child: ended, the pool settles every future
+    value, error, said = future.result()
+    _issue(said)
+    if error is not None:
+        raise error
+    return value
+
+
+def _start(ctx: Any, jobs: list[Callable[[], Any]], workers: int, what: str) -> Any:
+    """Start the pool on ``jobs[1:]``: it, their futures and the reader of the children's records.
+
+    None (said) when it cannot start: no process or no memory left for one, no semaphores
+    (no ``/dev/shm``).
+    """
+    pool = None
     try:
         receive, send = ctx.Pipe(duplex=False)
+        with send:  # this process's end closed: the pipe ends when every child has ended
+            start = (jobs, send, ctx.Lock(), os.getpid())
+            pool = ProcessPoolExecutor(workers, ctx, initializer=_start_child, initargs=start)
+            futures = {index: pool.submit(_child_job, index) for index in range(1, len(jobs))}
+        # Every child is forked now (at the submits), while no thread of this module runs.
+        reader = threading.Thread(target=_forward, args=(receive,), name="o3d_ofp log", daemon=True)
+        reader.start()
+        return pool, futures, reader
     except OSError as exc:
-        logger.warning("%s: no pipe for a side process (%s); running here", what, exc)
-        return None
-    process = ctx.Process(
-        target=_child,
-        args=(job, send, receive, os.getpid()),
-        name=f"o3d_ofp {what} {index}",
-        daemon=True,
-    )
-    try:
-        process.start()
-    except OSError as exc:
-        receive.close()
-        send.close()
         logger.warning("%s: a side process could not start (%s); running here", what, exc)
+        if pool is not None:
+            _end(list(pool._processes.values()), pool._result_queue)
+            pool.shutdown(cancel_futures=True)
         return None
-    send.close()  # ours closed: the child's end without an answer is an EOF here
-    reader = _Reader(receive, what)
-    reader.start()
-    return process, reader
 
 
 def side_by_side(
@@ -253,65 +248,55 @@ def side_by_side(
     Raises
     ------
     BaseException
-        The first job's exception, in the order of ``jobs``, raised here (a child's carries
-        its traceback there as a note).
+        A job's exception, raised here: those of the jobs run here first, then the
+        children's in the order of ``jobs`` (a child's carries its traceback there as a
+        note, Python 3.11+).
     """
     jobs = list(jobs)
     at_once = min(len(jobs), processes_available())
     if at_once > 1 and memory_each is not None:
         free = available_memory()
         if free is not None and free < at_once * memory_each:
-            fits = max(1, int(free // max(memory_each, 1.0)))
-            if fits < at_once:
-                logger.info(  # the only sign that memory made the run slower
-                    "%s: %s available, about %s each: %d at once",
-                    what,
-                    format_bytes(free),
-                    format_bytes(memory_each),
-                    fits,
-                )
-                at_once = fits
-    if at_once <= 1:
+            at_once = max(1, int(free // max(memory_each, 1.0)))  # fewer: free < at_once * each
+            logger.info(  # the only sign that memory made the run slower
+                "%s: %s available, about %s each: %d at once",
+                what,
+                format_bytes(free),
+                format_bytes(memory_each),
+                at_once,
+            )
+    started = None
+    if at_once > 1:
+        logger.debug("%s: %d at once (%d in forked processes)", what, at_once, at_once - 1)
+        started = _start(multiprocessing.get_context("fork"), jobs, at_once - 1, what)
+    if started is None:
         return [job() for job in jobs]
-    logger.debug("%s: %d at once (%d in forked processes)", what, at_once, at_once - 1)
-    ctx = multiprocessing.get_context("fork")
-    children: dict[int, tuple[Any, _Reader]] = {}
-    results: dict[int, T] = {}
+    pool, futures, reader = started
+    processes, answers = list(pool._processes.values()), pool._result_queue
+    results: dict[int, Any] = {}
     try:
-        for index in range(1, at_once):
-            started = _start(ctx, jobs[index], what, index)
-            if started is None:
-                break
-            children[index] = started
+        # Jobs 1 to at_once - 1 are the children's; the others wait in the pool's queue, and
+        # this process takes back, after its first job, those no child has begun.
         for index in range(len(jobs)):
-            if index not in children:
+            if index == 0 or (index >= at_once and futures[index].cancel()):
                 results[index] = jobs[index]()
-        for index, (process, reader) in children.items():
-            reader.join()
-            if reader.answer is None:
-                process.join()
+        for index, future in futures.items():
+            if index in results:
+                continue
+            try:
+                results[index] = _answer(future, processes, answers)
+            except BrokenProcessPool:
                 logger.warning(
-                    "%s: the process of job %d ended without an answer (exit code %s: out of "
-                    "memory?); running it here",
+                    "%s: the process of job %d ended without an answer (out of memory?); "
+                    "running it here",
                     what,
                     index + 1,
-                    process.exitcode,
                 )
                 results[index] = jobs[index]()
-                continue
-            outcome, said = reader.answer
-            _issue(said)
-            if outcome[0] == "error":
-                exc = outcome[1]
-                if hasattr(exc, "add_note"):  # Python 3.11+
-                    exc.add_note(f"in the side process computing {what}:\n{outcome[2]}")
-                raise exc
-            results[index] = outcome[1]
+    except BaseException:  # an error or an interrupt here: the children's work is moot
+        _end(processes, answers)
+        raise
     finally:
-        for process, reader in children.values():
-            if reader.answer is None:  # an error or an interrupt here: its work is moot
-                process.terminate()
-            process.join()
-            reader.join()  # at the child's end, its pipe gives EOF
-            reader.receive.close()
+        pool.shutdown(cancel_futures=True)
+        reader.join()  # the children have ended: the pipe of records gives its end
     return [results[i] for i in range(len(jobs))]
