@@ -321,9 +321,9 @@ def _minimize_quadratic(
 
 
 class _Energy(NamedTuple):
-    """The terms of a map's :func:`_energy`, and its minimizers over the maps C.
+    """The terms of a map's :func:`_energy`, and their minimizer over the maps C.
 
-    Both minimizers keep the first column of their start C0 (the constant's image).
+    The minimizer keeps the first column of its start C0 (the constant's image).
     """
 
     A: np.ndarray
@@ -343,15 +343,21 @@ class _Energy(NamedTuple):
         o_energy = _energy(ref, self.A, self.B, self.sqdiff, None, self.orient, unit)[0]
         return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
 
-    def minimize(self, C0: np.ndarray, weights: _Weights) -> np.ndarray:
-        """Return the exact minimizer (:func:`_minimize_quadratic`)."""
-        return _minimize_quadratic(C0, *self, weights)
+    def solve(
+        self, C0: np.ndarray, weights: _Weights, solver: str, options: dict[str, Any], what: str,
+        w_rows: float = 0.0,
+    ) -> np.ndarray:  # fmt: skip
+        """Minimize from C0: exactly (``"direct"``: :func:`_minimize_quadratic`) or by L-BFGS-B.
 
-    def lbfgs(
-        self, C0: np.ndarray, weights: _Weights, options: dict[str, Any], w_rows: float = 0.0
-    ) -> scipy.optimize.OptimizeResult:
-        """Run L-BFGS-B from C0 on the energy plus ``½ w_rows ‖C Cᵀ − I‖²``."""
+        L-BFGS-B (``options``: SciPy's) minimizes the energy plus ``½ w_rows ‖C Cᵀ − I‖²``;
+        ``what`` names the fit in the debug log.
+        """
         b, a = C0.shape
+        if solver == "direct":
+            C = _minimize_quadratic(C0, *self, weights)
+            energy = _energy(C, *self, weights)[0]
+            logger.debug("%s: direct solve %dx%d (energy %.4g)", what, b, a, energy)
+            return C
         eye = np.eye(b)
 
         def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -364,9 +370,46 @@ class _Energy(NamedTuple):
             g[:, 0] = 0.0  # the first column stays fixed
             return e, g.ravel()
 
-        return scipy.optimize.minimize(
-            fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options
-        )
+        res = scipy.optimize.minimize(fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options)
+        logger.debug(
+            "%s: L-BFGS-B %dx%d, %s after %d iterations (energy %.4g)",
+            what, b, a, res.message, res.nit, res.fun,
+        )  # fmt: skip
+        return res.x.reshape(b, a)
+
+
+def _shape_terms(
+    eig: EigenBasis, k: int, D: np.ndarray, Dop: np.ndarray, dcomm: bool, orient: bool
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """One shape's terms: descriptor coefficients (k+1, p) and the operator stacks of ``Dop``.
+
+    The multiplication (``dcomm``) and orientation (``orient``) operators, or None.
+    """
+    return (
+        _projection(eig, k) @ D,
+        _descriptor_ops(eig, k, Dop) if dcomm else None,
+        _orientation_ops(eig, k, Dop) if orient else None,
+    )
+
+
+def _energy_of(
+    eig_1: EigenBasis, eig_2: EigenBasis, terms: tuple, a: int, b: int, wanted: tuple
+) -> _Energy:
+    """Build the energy of (b, a) maps from both shapes' :func:`_shape_terms` (leading blocks).
+
+    ``wanted``: whether the commutativity and the orientation terms are; the Laplacian term is
+    normalized to unit sum.
+    """
+    (A, dcomm_1, orient_1), (B, dcomm_2, orient_2) = terms
+    sqdiff = (eig_1.evals[None, :a] - eig_2.evals[:b, None]) ** 2
+    sqdiff /= sqdiff.sum()
+
+    def block(O1: Any, O2: Any, wanted: bool) -> _Commutator | None:
+        return _Commutator(O1[:, :a, :a], O2[:, :b, :b]) if wanted and O1 is not None else None
+
+    dcomm, orient = wanted
+    return _Energy(A[:a], B[:b], sqdiff, block(dcomm_1, dcomm_2, dcomm),
+                   block(orient_1, orient_2, orient))  # fmt: skip
 
 
 def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -388,24 +431,16 @@ class _FitTerms:
     between them times ``scale`` is the map between the bases given. Descriptors are computed
     from ``k_descriptors`` eigenpairs whatever the map's size, so the coefficients and
     operator stacks of a smaller map are the leading blocks of a larger one's: :meth:`fit`
-    solves any size up to the one they were built for.
+    solves any size up to the one they were built for. ``options`` are :func:`estimate_fmap`'s
+    ``(descriptors, n_descriptors, k_descriptors, landmarks, operator_step)``; ``dcomm`` and
+    ``orient`` say whether the commutativity and orientation operators are wanted.
     """
 
     def __init__(
-        self,
-        eig_1: EigenBasis,
-        eig_2: EigenBasis,
-        k1: int,
-        k2: int,
-        *,
-        descriptors: str,
-        n_descriptors: int,
-        k_descriptors: int,
-        landmarks: Any,
-        dcomm: bool,
+        self, eig_1: EigenBasis, eig_2: EigenBasis, k1: int, k2: int, options: tuple, dcomm: bool,
         orient: bool,
-        operator_step: int,
-    ) -> None:
+    ) -> None:  # fmt: skip
+        descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
         lm1, lm2 = _landmark_pairs(landmarks)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
@@ -417,32 +452,17 @@ class _FitTerms:
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
             D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
-            Dop = D[:, ::operator_step]  # the operators' descriptors
-            return (
-                _projection(eig, k) @ D,
-                _descriptor_ops(eig, k, Dop) if dcomm else None,
-                _orientation_ops(eig, k, Dop) if orient else None,
-            )
+            return _shape_terms(eig, k, D, D[:, ::operator_step], dcomm, orient)
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
             job = pool.submit(terms, eig_2, k2, lm2)
-            self.A, dcomm_1, orient_1 = terms(eig_1, k1, lm1)
-            self.B, dcomm_2, orient_2 = job.result()
-        self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
-        self.dcomm = (dcomm_1, dcomm_2) if dcomm else None
-        self.orient = (orient_1, orient_2) if orient else None
+            self.terms = (terms(eig_1, k1, lm1), job.result())
 
     def fit(
-        self,
-        k1: int,
-        k2: int,
-        *,
-        weights: _Weights,
-        solver: str = "direct",
-        maxiter: int = 15000,
-        ftol: float = 2.2e-9,
-    ) -> np.ndarray:
+        self, k1: int, k2: int, *, weights: _Weights, solver: str = "direct",
+        maxiter: int = 15000, ftol: float = 2.2e-9,
+    ) -> np.ndarray:  # fmt: skip
         """Minimize the energy over (k2+1, k1+1) maps, the constant kept on the constant.
 
         ``weights`` are (descriptors, Laplacian, commutativity, orientation); the orientation
@@ -450,42 +470,15 @@ class _FitTerms:
         others).
         """
         a, b = k1 + 1, k2 + 1
-        A, B = self.A[:a], self.B[:b]
-        sqdiff = (self.lam1[None, :a] - self.lam2[:b, None]) ** 2
-        sqdiff /= sqdiff.sum()
-
-        def block(stacks: tuple[np.ndarray, np.ndarray] | None) -> _Commutator | None:
-            if stacks is None:
-                return None
-            return _Commutator(stacks[0][:, :a, :a], stacks[1][:, :b, :b])
-
         w_descr, w_lap, wc, w_orient = weights
-        ops = block(self.dcomm) if wc > 0 else None
-        energy = _Energy(A, B, sqdiff, ops, block(self.orient) if w_orient > 0 else None)
+        energy = _energy_of(self.eig_1, self.eig_2, self.terms, a, b, (wc > 0, w_orient > 0))
         weights = (w_descr, w_lap, wc, 0.0)
         if energy.orient:
             weights = energy.orientation_weighted(np.eye(b, a), weights, w_orient)
         C0 = np.zeros((b, a))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
-        if solver == "direct":
-            C = energy.minimize(C0, weights)
-            logger.debug(
-                "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
-                b,
-                a,
-                _energy(C, *energy, weights)[0],
-                wc,
-            )
-            return C
-        res = energy.lbfgs(C0, weights, {"maxiter": maxiter, "ftol": ftol, "gtol": ftol})
-        logger.debug(
-            "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
-            res.message,
-            res.nit,
-            res.fun,
-            wc,
-        )
-        return res.x.reshape(b, a)
+        options = {"maxiter": maxiter, "ftol": ftol, "gtol": ftol}
+        return energy.solve(C0, weights, solver, options, f"estimate_fmap (w_dcomm {wc:g})")
 
 
 @one_blas_thread
@@ -587,19 +580,8 @@ def estimate_fmap(
        ACM TOG 38(6), 2019.
     """
     k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver=solver, refine=refine)
-    terms = _FitTerms(
-        eig_1,
-        eig_2,
-        k1,
-        k2,
-        descriptors=descriptors,
-        n_descriptors=n_descriptors,
-        k_descriptors=k_descriptors,
-        landmarks=landmarks,
-        dcomm=max(np.atleast_1d(w_dcomm)) > 0,
-        orient=w_orient > 0,
-        operator_step=operator_step,
-    )
+    options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
+    terms = _FitTerms(eig_1, eig_2, k1, k2, options, max(np.atleast_1d(w_dcomm)) > 0, w_orient > 0)
     fit = functools.partial(terms.fit, k1, k2, solver=solver, maxiter=maxiter, ftol=ftol)
     fits = [fit(weights=(w_descr, w_lap, float(wc), w_orient)) for wc in np.atleast_1d(w_dcomm)]
     if len(fits) > 1:
@@ -688,19 +670,8 @@ def estimate_fmaps(
     if not sizes or not weights:
         raise ValueError("sizes and w_dcomm must name at least one fit each")
     k = max(sizes)
-    terms = _FitTerms(
-        eig_1,
-        eig_2,
-        k,
-        k,
-        descriptors=descriptors,
-        n_descriptors=n_descriptors,
-        k_descriptors=k_descriptors,
-        landmarks=landmarks,
-        dcomm=max(weights) > 0,
-        orient=w_orient > 0,
-        operator_step=operator_step,
-    )
+    options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
+    terms = _FitTerms(eig_1, eig_2, k, k, options, max(weights) > 0, w_orient > 0)
     fits = [(size, wc) for size in sizes for wc in weights]
     with ThreadPoolExecutor(max_workers=2) as pool:
         maps = pool.map(

@@ -71,16 +71,7 @@ import scipy.sparse.linalg as sla
 from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_p2p, nearest_neighbors
-from .fmap import (
-    _Commutator,
-    _descriptor_ops,
-    _Energy,
-    _LeadingFits,
-    _orientation_ops,
-    _projection,
-    _scaled,
-    farthest_points,
-)
+from .fmap import _energy_of, _LeadingFits, _scaled, _shape_terms, farthest_points
 from .geometry import edge_graph
 from .spectrum import EigenBasis
 
@@ -638,33 +629,22 @@ def fit_partial_fmap(
             k_descriptors=k_descriptors,
         )
     D1, D2 = _checked_descriptors(descriptors, eig_1, eig_2)
-    energy = _partial_energy(
-        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
-    )
+    orient = w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None
+    terms = (_shape_terms(eig_1, k1, D1, D1, max(w_dcomm) > 0, orient),
+             _shape_terms(eig_2, k2, D2, D2, max(w_dcomm) > 0, orient))  # fmt: skip
+    energy = _energy_of(eig_1, eig_2, terms, k1 + 1, k2 + 1, (True, True))
     root_r = math.sqrt(eig_2.area / eig_1.area)
     C0 = np.zeros((k2 + 1, k1 + 1))
     C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
+    ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
+    ref[0, 0] = root_r
     fits = []
     for wc in w_dcomm:
         weights = (w_descr, w_lap, float(wc), 0.0)
         if energy.orient is not None:
-            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
-            ref[0, 0] = root_r
             weights = energy.orientation_weighted(ref, weights, w_orient)
-        if solver == "direct":
-            fits.append(energy.minimize(C0, weights))
-            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
-            continue
-        res = energy.lbfgs(C0, weights, {"maxiter": maxiter}, w_rows)
-        logger.debug(
-            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
-            k2 + 1,
-            k1 + 1,
-            res.message,
-            res.nit,
-            wc,
-        )
-        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+        what = f"fit_partial_fmap (w_dcomm {wc:g})"
+        fits.append(energy.solve(C0, weights, solver, {"maxiter": maxiter}, what, w_rows))
     return fits
 
 
@@ -684,36 +664,6 @@ def _checked_descriptors(
             f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
         )
     return D1, D2
-
-
-def _partial_energy(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    k1: int,
-    k2: int,
-    D1: np.ndarray,
-    D2: np.ndarray,
-    *,
-    dcomm: bool,
-    orient: bool,
-) -> _Energy:
-    """Build the terms of :func:`fit_partial_fmap`'s energy for a (k2+1, k1+1) map.
-
-    The descriptor-commutativity and orientation terms are left out when not wanted (the
-    orientation term also without both shapes' faces).
-    """
-    A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
-    ops = (
-        _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if dcomm
-        else None
-    )
-    sqdiff = (eig_1.evals[None, : k1 + 1] - eig_2.evals[: k2 + 1, None]) ** 2
-    sqdiff /= sqdiff.sum()
-    orient_term = None
-    if orient and eig_1.faces is not None and eig_2.faces is not None:
-        orient_term = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    return _Energy(A, B, sqdiff, ops, orient_term)
 
 
 @one_blas_thread
