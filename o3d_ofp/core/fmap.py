@@ -10,7 +10,7 @@ import dataclasses
 import functools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
@@ -149,70 +149,60 @@ def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
 def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     """Stack (p, k+1, k+1) of the reduced operators g ↦ <n × ∇dᵢ, ∇g> (Ren et al. 2018).
 
-    ``O_i[b, a] = Σ_f W[f, b] H[f, a, i]`` with ``H[f, a, i] = ∇φ_a · (n_f × ∇d_i)`` and
-    ``W = to_vertexᵀ Φ`` the area-weighted face sums of Φ (the per-face field spread to the
-    vertices by area, then projected with Φᵀ M): one GEMM per chunk of faces.
+    ``O_i[b, a] = Σ_x W[x, b] H[x, a, i]`` with ``H[x, a, i] = ∇φ_a · (n × ∇d_i)`` and ``W``
+    the weights of Φ: on a mesh, per face, the area-weighted face sums of Φ (``to_vertexᵀ Φ``:
+    the per-face field spread to the vertices by area, then projected with Φᵀ M); on a point
+    cloud, per point, ``M Φ`` (:func:`_point_fields`). One GEMM per chunk.
+    """
+    a, p = k + 1, D.shape[1]
+    T = np.zeros((a, a * p))
+    fields = _face_fields if eig.faces is not None else _point_fields
+    for W, H in fields(eig, eig.evecs[:, :a], D):
+        T += W.T @ H.reshape(H.shape[0], a * p)
+    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+
+
+def _face_fields(eig: EigenBasis, phi: np.ndarray, D: np.ndarray) -> Iterator[tuple[Any, Any]]:
+    """Yield :func:`_orientation_ops`' ``(W, H)`` of a mesh, by chunks of faces.
+
+    Everything per chunk of faces, from the corner values and hat gradients (no sparse
+    products): memory stays ~(chunk · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
+    large the mesh.
     """
     V, F = eig.vertices, eig.faces
-    if F is None:
-        return _point_orientation_ops(eig, k, D)
     areas, normals = face_areas_normals(V, F)
     # Outward normals whatever the winding: a shape whose faces are wound inwards would
     # otherwise make the orientation-preserving term prefer the mirror map (measured: FAUST
     # 093 -> 087 with the target's faces reversed, 0.068 instead of 0.014).
     normals = normals * outward_sign(V, F)
     hats = hat_gradients(V, F)  # (m, 3 corners, 3 coords)
-    phi = eig.evecs[:, : k + 1]
-    a, p = k + 1, D.shape[1]
-    T = np.zeros((a, a * p))
-    # Everything per chunk of faces, from the corner values and hat gradients (no sparse
-    # products): memory stays ~(step · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
-    # large the mesh.
-    step = 2048
-    H_buf = np.empty((min(step, F.shape[0]), a, p))  # reused: no fresh pages per chunk
-    for s in range(0, F.shape[0], step):
-        sl = slice(s, s + step)
+    H_buf = np.empty((min(_CHUNK, F.shape[0]), phi.shape[1], D.shape[1]))  # reused per chunk
+    for s in range(0, F.shape[0], _CHUNK):
+        sl = slice(s, s + _CHUNK)
         f, E = F[sl], hats[sl]
         phi_c = phi[f]  # (c, 3 corners, k+1)
         grad_phi = np.matmul(phi_c.transpose(0, 2, 1), E)  # (c, k+1, 3): ∇φ_a
         gd = np.matmul(E.transpose(0, 2, 1), D[f])  # (c, 3, p): ∇d_i
-        nx, ny, nz = (normals[sl, c][:, None] for c in range(3))
-        rot = np.stack(
-            [
-                ny * gd[:, 2] - nz * gd[:, 1],
-                nz * gd[:, 0] - nx * gd[:, 2],
-                nx * gd[:, 1] - ny * gd[:, 0],
-            ],
-            axis=1,
-        )  # (c, 3, p): n × ∇d_i on each face
+        rot = np.cross(normals[sl, :, None], gd, axis=1)  # (c, 3, p): n × ∇d_i on each face
         W = (areas[sl] / 3.0)[:, None] * phi_c.sum(axis=1)  # area-weighted corner sums
-        H = np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i) per face
-        T += W.T @ H.reshape(H.shape[0], a * p)
-    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+        yield W, np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i)
 
 
-def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
-    """:func:`_orientation_ops` of a point cloud: the same integral, sampled at the points.
+def _point_fields(eig: EigenBasis, phi: np.ndarray, D: np.ndarray) -> Iterator[tuple[Any, Any]]:
+    """Yield :func:`_orientation_ops`' ``(W, H)`` of a point cloud, by chunks of points.
 
-    ``O_i[b, a] = Σ_x m_x φ_b(x) ∇φ_a(x) · (n_x × ∇d_i(x))`` with the outward normals and the
+    The same integral, sampled at the points: ``W = M Φ`` and the outward normals and the
     tangent-plane gradients of :mod:`o3d_ofp.core.geometry` (:func:`point_frames`: the
     gradients of :func:`point_gradient_operator` with the normals of :func:`point_normals`,
     from one neighbour search). In the frame ``(t₁, t₂, n)``, ``n × (g₁t₁ + g₂t₂) =
     g₁t₂ − g₂t₁``, so ``∇φ · (n × ∇d) = ∇₂φ ∇₁d − ∇₁φ ∇₂d``.
     """
-    V = eig.vertices
-    g1, g2 = point_frames(V, eig.mass)
-    phi = eig.evecs[:, : k + 1]
-    a, p = k + 1, D.shape[1]
+    g1, g2 = point_frames(eig.vertices, eig.mass)
     p1, p2, d1, d2 = g1 @ phi, g2 @ phi, g1 @ D, g2 @ D  # (n, a), (n, a), (n, p), (n, p)
     W = eig.mass[:, None] * phi
-    T = np.zeros((a, a * p))
-    step = 2048
-    for s in range(0, V.shape[0], step):
-        sl = slice(s, s + step)
-        H = p2[sl, :, None] * d1[sl, None, :] - p1[sl, :, None] * d2[sl, None, :]  # (c, a, p)
-        T += W[sl].T @ H.reshape(H.shape[0], a * p)
-    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+    for s in range(0, phi.shape[0], _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        yield W[sl], p2[sl, :, None] * d1[sl, None, :] - p1[sl, :, None] * d2[sl, None, :]
 
 
 #: Weights of a map's energy terms: descriptors, Laplacian, commutativity, orientation.
@@ -526,10 +516,8 @@ def estimate_fmap(
         Source and target eigenbases.
     k1, k2 : int, optional
         Size of the optimized map (default: all eigenfunctions, up to 30 on each side).
-    descriptors : {"wks", "hks"}, default "wks"
-        Descriptor family.
-    n_descriptors : int, default 100
-        Energies (times) of the descriptor.
+    descriptors, n_descriptors : {"wks", "hks"}, int
+        Descriptor family (default "wks") and its number of energies (times) (default 100).
     k_descriptors : int, default 100
         Eigenpairs the descriptors are computed from (fewer if a basis has fewer), so the
         result does not depend on how many eigenpairs the caller computed.
@@ -551,19 +539,15 @@ def estimate_fmap(
         The commutativity and orientation terms use every ``operator_step``-th descriptor
         (pyFM's ``subsample_step``); the descriptor term uses all of them.
     refine : {"zoomout", "icp", None}, default "zoomout"
-        Refinement after the optimization.
+        Refinement after the optimization (ICP: ``icp_iterations`` iterations, default 10).
     zoomout_to : int, optional
         Final size of ZoomOut (default: ``min(eig_1.k, eig_2.k)``); the result is then cut
         back to (k2+1, k1+1).
-    icp_iterations : int, default 10
-        Iterations of ICP refinement.
     solver : {"direct", "lbfgs"}, default "direct"
         How the energy is minimized (see above).
-    maxiter : int, default 15000
-        Bound on L-BFGS-B iterations (``solver="lbfgs"``).
-    ftol : float, default 2.2e-9
-        L-BFGS-B's relative energy and gradient tolerances (``solver="lbfgs"``; SciPy's
-        default ftol).
+    maxiter, ftol : int, float
+        L-BFGS-B's bound on iterations (default 15000) and its relative energy and gradient
+        tolerances (default 2.2e-9, SciPy's ftol), with ``solver="lbfgs"``.
 
     Returns
     -------
@@ -579,20 +563,18 @@ def estimate_fmap(
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver=solver, refine=refine)
+    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver, refine, w_dcomm)
     options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
     terms = _FitTerms(eig_1, eig_2, k1, k2, options, max(np.atleast_1d(w_dcomm)) > 0, w_orient > 0)
     fit = functools.partial(terms.fit, k1, k2, solver=solver, maxiter=maxiter, ftol=ftol)
     fits = [fit(weights=(w_descr, w_lap, float(wc), w_orient)) for wc in np.atleast_1d(w_dcomm)]
     if len(fits) > 1:
-        if refine is not None:
-            raise ValueError("several w_dcomm weights give several maps: use refine=None")
         return [C * terms.scale for C in fits]
     return _refined(fits[0], terms, refine, zoomout_to, icp_iterations) * terms.scale
 
 
 def _checked_sizes(
-    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, *, solver: str, refine: str | None
+    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, solver: str, refine: Any, w_dcomm: Any
 ) -> tuple[int, int]:
     """Check :func:`estimate_fmap`'s bases, solver and refinement; return the map's sizes."""
     check_eigenbasis(eig_1, "eig_1")
@@ -603,6 +585,8 @@ def _checked_sizes(
         raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
     if refine not in ("zoomout", "icp", None):
         raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
+    if np.size(w_dcomm) > 1 and refine is not None:
+        raise ValueError("several w_dcomm weights give several maps: use refine=None")
     return k1, k2
 
 
