@@ -71,8 +71,9 @@ import scipy.sparse.linalg as sla
 from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_p2p, nearest_neighbors
-from .fmap import _energy_of, _LeadingFits, _scaled, _shape_terms, farthest_points
-from .geometry import edge_graph
+from .descriptors import _kernel_signature, wks_energies
+from .fmap import _energy_of, _landmark_pairs, _LeadingFits, _scaled, _shape_terms, farthest_points
+from .geometry import edge_graph, unique_edges
 from .spectrum import EigenBasis
 
 __all__ = [
@@ -159,7 +160,7 @@ def boundary_length(
     """
     if faces is None or len(faces) == 0:
         return 0.0
-    unique, counts = _edges(np.asarray(faces, dtype=np.int64))
+    unique, counts = unique_edges(faces)
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
     lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
@@ -169,12 +170,6 @@ def boundary_length(
     graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
     _, piece = csgraph.connected_components(graph, directed=False)
     return float(np.bincount(piece[single[:, 0]], weights=lengths).max())
-
-
-def _edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)
 
 
 def map_stretch(
@@ -206,7 +201,7 @@ def map_stretch(
     """
     if faces_2 is None or len(faces_2) == 0:
         return math.nan
-    edges = _edges(np.asarray(faces_2, dtype=np.int64))[0]
+    edges = unique_edges(faces_2)[0]
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
     p2p = np.asarray(p2p_21, dtype=np.int64)
@@ -406,43 +401,32 @@ def _common_wks(
     """WKS of both shapes at the same energies, unnormalized, scaled by the source's norms."""
     ev1 = eig_1.evals[1 : min(k_descriptors, eig_1.k) + 1]
     ev2 = eig_2.evals[1 : min(k_descriptors, eig_2.k) + 1]
-    lo = math.log(max(ev1[0], ev2[0]))
-    hi = math.log(min(ev1[-1], ev2[-1]))
-    if not hi > lo:
+    common = np.array([max(ev1[0], ev2[0]), min(ev1[-1], ev2[-1])])
+    energies, sigma = wks_energies(common, n_energies)
+    if not sigma > 0:
         ratio = eig_2.area / eig_1.area
         raise ValueError(
             "the two spectra do not overlap: the target cannot be a part of the source in the "
             f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
             "the target to the source's units"
         )
-    sigma = 7.0 * (hi - lo) / n_energies
-    energies = np.linspace(lo + 2 * sigma, hi - 2 * sigma, n_energies)
 
     def signature(eig: EigenBasis, ev: np.ndarray, points: np.ndarray | None) -> np.ndarray:
+        """Return the local wave kernel (equal on a part and on the whole), its maps at points."""
         phi = eig.evecs[:, 1 : ev.shape[0] + 1]
         coefs = np.exp(-((energies[:, None] - np.log(ev)[None, :]) ** 2) / (2 * sigma**2))
-        D = phi**2 @ coefs.T  # the local wave kernel: equal on a part and on the whole
-        if points is not None:
-            w = (phi[points][:, None, :] * coefs[None, :, :]).reshape(-1, phi.shape[1])
-            D = np.concatenate([D, phi @ w.T], axis=1)
-        return D
+        maps = [] if points is None else [_kernel_signature(phi, coefs, points, False)]
+        return np.concatenate([_kernel_signature(phi, coefs, None, False), *maps], axis=1)
 
+    lm1, lm2 = _landmark_pairs(landmarks)
     C1 = curvature_descriptors(eig_1)
-    C2 = curvature_descriptors(eig_2)
-    lm1 = lm2 = None
-    if landmarks is not None:
-        lm1, lm2 = landmarks[:, 0], landmarks[:, 1]
-    D1 = signature(eig_1, ev1, lm1)
-    D2 = signature(eig_2, ev2, lm2)
-    if CURVATURE_WEIGHT > 0:
-        mean = eig_1.mass @ C1  # centred: the constant part carries no information
-        D1 = np.concatenate([D1, C1 - mean], axis=1)
-        D2 = np.concatenate([D2, C2 - mean], axis=1)
+    mean = eig_1.mass @ C1  # centred: the constant part carries no information
+    D1 = np.concatenate([signature(eig_1, ev1, lm1), C1 - mean], axis=1)
+    D2 = np.concatenate([signature(eig_2, ev2, lm2), curvature_descriptors(eig_2) - mean], axis=1)
     norms = np.sqrt(eig_1.mass @ D1**2)  # one scale per column for both shapes
     keep = norms > 0
     w = np.ones(D1.shape[1])
-    if CURVATURE_WEIGHT > 0:
-        w[-C1.shape[1] :] = CURVATURE_WEIGHT
+    w[-C1.shape[1] :] = CURVATURE_WEIGHT
     return D1[:, keep] * (w / norms)[keep], D2[:, keep] * (w / norms)[keep]
 
 
@@ -491,7 +475,7 @@ def curvature_descriptors(
             cos /= np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
             np.add.at(angles, F[:, i], np.arccos(np.clip(cos, -1.0, 1.0)))
         K = (2 * np.pi - angles) / safe
-        unique, counts = _edges(F)
+        unique, counts = unique_edges(F)
         border = np.unique(unique[counts == 1])
         H[border] = 0.0
         K[border] = 0.0
@@ -653,12 +637,8 @@ def _checked_descriptors(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return the descriptors ``(D1, D2)`` as float arrays, checked against both shapes."""
     D1, D2 = (np.asarray(D, dtype=np.float64) for D in descriptors)
-    if (
-        D1.ndim != 2
-        or D2.ndim != 2
-        or D1.shape[1] != D2.shape[1]
-        or (D1.shape[0], D2.shape[0]) != (eig_1.n_vertices, eig_2.n_vertices)
-    ):
+    rows = (D1.shape[0], D2.shape[0]) if D1.ndim == D2.ndim == 2 else None
+    if rows != (eig_1.n_vertices, eig_2.n_vertices) or D1.shape[1] != D2.shape[1]:
         raise ValueError(
             f"descriptors must be (n1, p) and (n2, p) arrays for shapes of {eig_1.n_vertices} "
             f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
