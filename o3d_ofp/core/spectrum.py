@@ -43,7 +43,7 @@ from ._lanczos import (
 from ._lanczos import fits as lanczos_fits
 from ._memory import available_memory, check_memory
 from ._progress import Progress
-from ._threads import blas_threads
+from ._threads import one_blas_thread
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleaningReport, CleanShape, clean_shape
 
@@ -56,7 +56,6 @@ __all__ = [
     "check_eigenbasis",
     "eigenbasis",
     "input_arrays",
-    "input_digest",
     "on_cleaned_vertices",
     "shape_digest",
 ]
@@ -587,40 +586,41 @@ def _dense_for_large_k(n: int, k: int) -> bool:
     return n <= _DENSE_LARGE_K_MAX and (k + 1) > _DENSE_K_SHARE * n
 
 
+@one_blas_thread  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
 def _solve(
-    stiffness: sp.csr_matrix,
-    mass: np.ndarray,
-    k: int,
-    *,
-    maxiter: int,
-    factorization: str = "auto",
-    vertices: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """Eigenpairs with the constant first, checked; retried as documented in ``_ATTEMPTS``."""
+    shape: CleanShape, k: int, maxiter: int, factorization: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return a cleaned shape's eigenpairs, constant first, checked; retried as ``_ATTEMPTS`` says.
+
+    The memory they need is checked first.
+    """
+    stiffness, mass, vertices = shape.stiffness, shape.mass, shape.vertices
     n = mass.shape[0]
+    ncv = min(n, max(2 * (k + 1) + 1, 20))
+    check_memory(
+        8.0 * n * (ncv + 3 * (k + 1))
+        + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
+        + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
+        f"the eigensolver (n={n}, k={k})",
+    )
     plans: list[tuple[str, dict[str, Any]]] = []
     if n <= DENSE_MAX_VERTICES or k + 2 >= n:  # ARPACK needs k + 1 < n - 1 eigenpairs
         plans.append(("dense", {}))
     elif _dense_for_large_k(n, k):
         logger.info(
             "eigenbasis: %d eigenpairs of %d vertices, a large share: dense LAPACK (about "
-            "n³ work: 5001 eigenpairs of a 6890-vertex shape took 4.7 min)",
-            k + 1,
-            n,
-        )
+            "n³ work: 5001 eigenpairs of a 6890-vertex shape took 4.7 min)", k + 1, n,
+        )  # fmt: skip
         plans.append(("dense", {}))
     else:
         if k + 1 >= MIN_PAIRS and n >= MIN_VERTICES and _block_fits(n, k):
             plans.append(("block Lanczos", {"factorization": factorization, "block": True}))
         for shift, ncv_factor, seed in _ATTEMPTS:
-            if ncv_factor == 0:
-                # 1.5 (k+1) Lanczos vectors (ARPACK's default is 2 (k+1) + 1): measured 20 %
-                # less time at k = 99 on FAUST with the same residuals; retries use more.
-                ncv = min(n - 1, k + 1 + max(20, (k + 1) // 2))
-            else:
-                ncv = min(n - 1, max(ncv_factor * (k + 1), 20))
-            options = {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization}
-            plans.append(("shift-invert Lanczos", options))
+            # 1.5 (k+1) Lanczos vectors first (ARPACK's default is 2 (k+1) + 1): measured 20 %
+            # less time at k = 99 on FAUST with the same residuals; retries use more.
+            ncv = max(ncv_factor * (k + 1), 20) if ncv_factor else k + 1 + max(20, (k + 1) // 2)
+            options = {"shift": shift, "ncv": min(n - 1, ncv), "seed": seed}
+            plans.append(("shift-invert Lanczos", {**options, "factorization": factorization}))
         if n <= _DENSE_FALLBACK_MAX:
             plans.append(("dense", {}))
     last: Exception | None = None
@@ -629,13 +629,8 @@ def _solve(
             # the fast path gave up: the usual solver takes over, nothing for the user to do
             logger.info("eigensolver: %s; ARPACK takes over", last)
         elif attempt:
-            logger.warning(
-                "eigensolver attempt %d failed (%s); retrying with %s %s",
-                attempt,
-                last,
-                method,
-                options,
-            )
+            logger.warning("eigensolver attempt %d failed (%s); retrying with %s %s",
+                           attempt, last, method, options)  # fmt: skip
         try:
             if method == "dense":
                 evals, evecs = _dense_eigs(stiffness, mass, k)
@@ -648,7 +643,9 @@ def _solve(
         res = _relative_residuals(stiffness, mass, evals, evecs)
         worst = int(np.argmax(res))
         if res[worst] <= RESIDUAL_TOL:
-            return evals, evecs, res, method
+            logger.debug("eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
+                         n, k, method, evals[-1], res[worst])  # fmt: skip
+            return evals, evecs
         last = EigenSolverError(
             f"eigenpair {worst} (λ={evals[worst]:.6g}) has relative residual {res[worst]:.3g} > "
             f"{RESIDUAL_TOL:g} after {method} on {n} vertices, k={k}: the solver did not converge"
@@ -737,32 +734,6 @@ def input_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray | No
     return vertices, faces
 
 
-def input_digest(vertices: np.ndarray, faces: np.ndarray | None, **options: Any) -> str:
-    """Hex digest identifying a shape and the options its eigenbasis was computed with.
-
-    Parameters
-    ----------
-    vertices : (n, 3) ndarray of float64
-        Validated vertex positions.
-    faces : (m, 3) ndarray of int64 or None
-        Validated triangles.
-    **options
-        Options that change the eigenbasis (their ``repr`` enters the digest).
-
-    Returns
-    -------
-    str
-        32 hexadecimal characters (BLAKE2b-128).
-    """
-    h = hashlib.blake2b(digest_size=16)
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(b"|faces|")
-    if faces is not None:
-        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    h.update(repr(sorted(options.items())).encode())
-    return h.hexdigest()
-
-
 def shape_digest(
     vertices: Any,
     faces: Any = None,
@@ -796,14 +767,18 @@ def _digest(
     mollify_factor: float,
     n_neighbors: int,
 ) -> str:
-    return input_digest(
-        vertices,
-        faces,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=float(mollify_factor),
-        n_neighbors=n_neighbors if faces is None else None,  # only clouds depend on it
-    )
+    """BLAKE2b-128 hex digest of validated arrays and of the options their basis depends on."""
+    # n_neighbors shapes only a cloud's basis
+    options = {"weld_tolerance": weld_tolerance, "components": components,
+               "mollify_factor": float(mollify_factor),
+               "n_neighbors": n_neighbors if faces is None else None}  # fmt: skip
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(b"|faces|")
+    if faces is not None:
+        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    h.update(repr(sorted(options.items())).encode())
+    return h.hexdigest()
 
 
 def eigenbasis(
@@ -837,19 +812,17 @@ def eigenbasis(
         Number of non-constant eigenfunctions (the paper's K = 30 is ``k=29``); ``1 <= k < n``
         with n the number of vertices after cleaning.
     weld_tolerance : float or None, default 1e-9
-        Relative distance (to the bounding-box diagonal) under which vertices are welded.
+        Relative distance (to the bounding box's largest side) under which vertices are welded.
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (:mod:`o3d_ofp.cleaning`): "auto" keeps the
         largest when it holds ≥ 90 % of the area, else raises.
-    mollify_factor : float, default 1e-5
-        Passed to :func:`o3d_ofp.laplacian.laplacian`.
-    n_neighbors : int, default 30
-        Neighbours per point for point clouds.
+    mollify_factor, n_neighbors : float, int
+        Passed to :func:`o3d_ofp.laplacian.laplacian` (default 1e-5; 30 neighbours per point
+        of a point cloud).
     maxiter : int, optional
         Bound on the Lanczos restarts per attempt (default ``max(1000, 10 (k + 1))``).
     clamp_k : bool, default False
-        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning) instead of
-        raising.
+        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning), not raise.
     factorization : {"auto", "cholmod", "superlu"}, default "auto"
         Sparse factorization of ``L − σM`` for shift-invert: CHOLMOD's supernodal Cholesky
         (from the ``cholespy`` wheels; 5-20× faster to factor than SuperLU on 50k-500k
@@ -904,7 +877,7 @@ def eigenbasis(
         n_neighbors=n_neighbors,
     )
     k = _fitted_k(k, shape, clamp_k)
-    evals, evecs = _eigenpairs(shape, k, maxiter=maxiter, factorization=factorization)
+    evals, evecs = _solve(shape, k, maxiter, factorization)
     digest = _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
     return _expand(shape, evals, evecs, vertices, digest)
 
@@ -921,38 +894,6 @@ def _fitted_k(k: int, shape: CleanShape, clamp_k: bool) -> int:
             f"vertices{' after cleaning' if shape.cleaning.report.changed else ''}, so k <= {n - 1}"
         )
     return k
-
-
-def _eigenpairs(
-    shape: CleanShape, k: int, *, maxiter: int, factorization: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenpairs of the cleaned shape by :func:`_solve`, once the memory they need is checked."""
-    n = shape.mass.shape[0]
-    ncv = min(n, max(2 * (k + 1) + 1, 20))
-    check_memory(
-        8.0 * n * (ncv + 3 * (k + 1))
-        + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
-        + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
-        f"the eigensolver (n={n}, k={k})",
-    )
-    with blas_threads(1):  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
-        evals, evecs, res, method = _solve(
-            shape.stiffness,
-            shape.mass,
-            k,
-            maxiter=maxiter,
-            factorization=factorization,
-            vertices=shape.vertices,
-        )
-    logger.debug(
-        "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
-        n,
-        k,
-        method,
-        evals[-1],
-        res.max(),
-    )
-    return evals, evecs
 
 
 def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]:
