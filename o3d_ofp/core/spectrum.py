@@ -85,11 +85,6 @@ def mass_weighted(f: np.ndarray, mass: np.ndarray) -> np.ndarray:
     return mass[:, None] * f if f.ndim == 2 else mass * f
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class EigenBasis:
     """Laplace-Beltrami eigenpairs of one shape, with the operators they came from.
@@ -138,12 +133,11 @@ class EigenBasis:
             )
         if self.stiffness.shape != (n, n) or self.vertices.shape != (n, 3):
             raise ValueError("stiffness and vertices must match the number of vertices of mass")
-        for name in ("evals", "evecs", "mass", "vertices"):
-            _readonly(getattr(self, name))
-        if self.faces is not None:
-            _readonly(self.faces)
-        for arr in (self.stiffness.data, self.stiffness.indices, self.stiffness.indptr):
-            arr.setflags(write=False)
+        L = self.stiffness
+        for arr in (self.evals, self.evecs, self.mass, self.vertices, self.faces, L.data,
+                    L.indices, L.indptr):  # fmt: skip
+            if arr is not None:
+                arr.setflags(write=False)
 
     @property
     def k(self) -> int:
@@ -389,22 +383,12 @@ def _shift_invert_eigs(
     solve = _counted(op.matvec, n, k, round(_SOLVES_PER_PAIR * (k + 1)))
     op = sla.LinearOperator(op.shape, matvec=solve, dtype=op.dtype)
     v0 = np.random.default_rng(seed).standard_normal(n)  # fixed start: reproducible runs
+    # tol=0: machine precision. A looser tol (1e-10) halves the Lanczos work on FAUST but misses
+    # copies of repeated eigenvalues (measured on the sphere: one of the five λ = 6 replaced by
+    # λ = 12), which no residual check can see.
     try:
-        evals, evecs = sla.eigsh(
-            stiffness,
-            k=k + 1,
-            M=M,
-            sigma=sigma,
-            which="LM",
-            OPinv=op,
-            v0=v0,
-            ncv=ncv,
-            maxiter=maxiter,
-            # Machine precision. A looser tol (1e-10) halves the Lanczos work on FAUST but
-            # misses copies of repeated eigenvalues (measured on the sphere: one of the five
-            # λ = 6 replaced by λ = 12), which no residual check can see.
-            tol=0.0,
-        )
+        evals, evecs = sla.eigsh(stiffness, k=k + 1, M=M, sigma=sigma, which="LM", OPinv=op,
+                                 v0=v0, ncv=ncv, maxiter=maxiter, tol=0.0)  # fmt: skip
     except sla.ArpackNoConvergence as exc:
         raise EigenSolverError(
             f"the eigensolver did not converge within maxiter={maxiter} restarts for k={k} on "
