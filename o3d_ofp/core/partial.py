@@ -390,46 +390,6 @@ def geodesic_features(
 CURVATURE_WEIGHT = 5.0
 
 
-def _common_wks(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    n_energies: int,
-    k_descriptors: int,
-    landmarks: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """WKS of both shapes at the same energies, unnormalized, scaled by the source's norms."""
-    ev1 = eig_1.evals[1 : min(k_descriptors, eig_1.k) + 1]
-    ev2 = eig_2.evals[1 : min(k_descriptors, eig_2.k) + 1]
-    common = np.array([max(ev1[0], ev2[0]), min(ev1[-1], ev2[-1])])
-    energies, sigma = wks_energies(common, n_energies)
-    if not sigma > 0:
-        ratio = eig_2.area / eig_1.area
-        raise ValueError(
-            "the two spectra do not overlap: the target cannot be a part of the source in the "
-            f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
-            "the target to the source's units"
-        )
-
-    def signature(eig: EigenBasis, ev: np.ndarray, points: np.ndarray | None) -> np.ndarray:
-        """Return the local wave kernel (equal on a part and on the whole), its maps at points."""
-        phi = eig.evecs[:, 1 : ev.shape[0] + 1]
-        coefs = np.exp(-((energies[:, None] - np.log(ev)[None, :]) ** 2) / (2 * sigma**2))
-        maps = [] if points is None else [_kernel_signature(phi, coefs, points, False)]
-        return np.concatenate([_kernel_signature(phi, coefs, None, False), *maps], axis=1)
-
-    lm1, lm2 = _landmark_pairs(landmarks)
-    C1 = curvature_descriptors(eig_1)
-    mean = eig_1.mass @ C1  # centred: the constant part carries no information
-    D1 = np.concatenate([signature(eig_1, ev1, lm1), C1 - mean], axis=1)
-    D2 = np.concatenate([signature(eig_2, ev2, lm2), curvature_descriptors(eig_2) - mean], axis=1)
-    norms = np.sqrt(eig_1.mass @ D1**2)  # one scale per column for both shapes
-    keep = norms > 0
-    w = np.ones(D1.shape[1])
-    w[-C1.shape[1] :] = CURVATURE_WEIGHT
-    return D1[:, keep] * (w / norms)[keep], D2[:, keep] * (w / norms)[keep]
-
-
 #: Diffusion times (in units of the source's area) of the curvature descriptors: lengths
 #: sqrt(t) from 2 % to 17 % of sqrt(area).
 CURVATURE_SCALES = (0.0005, 0.002, 0.008, 0.03)
@@ -523,15 +483,40 @@ def partial_descriptors(
     Returns
     -------
     D1, D2 : (n1, p), (n2, p) ndarray
-        Curvature descriptors and wave kernels at common energies, one scale per column.
+        Curvature descriptors and wave kernels at common energies (not normalized per shape),
+        one scale per column (the source's norms).
     """
-    return _common_wks(
-        eig_1,
-        eig_2,
-        n_energies=check_int(n_descriptors, name="n_descriptors", minimum=1),
-        k_descriptors=check_int(k_descriptors, name="k_descriptors", minimum=2),
-        landmarks=landmarks,
-    )
+    n_descriptors = check_int(n_descriptors, name="n_descriptors", minimum=1)
+    k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
+    ev1 = eig_1.evals[1 : min(k_descriptors, eig_1.k) + 1]
+    ev2 = eig_2.evals[1 : min(k_descriptors, eig_2.k) + 1]
+    common = np.array([max(ev1[0], ev2[0]), min(ev1[-1], ev2[-1])])
+    energies, sigma = wks_energies(common, n_descriptors)
+    if not sigma > 0:
+        ratio = eig_2.area / eig_1.area
+        raise ValueError(
+            "the two spectra do not overlap: the target cannot be a part of the source in the "
+            f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
+            "the target to the source's units"
+        )
+
+    def signature(eig: EigenBasis, ev: np.ndarray, points: np.ndarray | None) -> np.ndarray:
+        """Return the local wave kernel (equal on a part and on the whole), its maps at points."""
+        phi = eig.evecs[:, 1 : ev.shape[0] + 1]
+        coefs = np.exp(-((energies[:, None] - np.log(ev)[None, :]) ** 2) / (2 * sigma**2))
+        maps = [] if points is None else [_kernel_signature(phi, coefs, points, False)]
+        return np.concatenate([_kernel_signature(phi, coefs, None, False), *maps], axis=1)
+
+    lm1, lm2 = _landmark_pairs(landmarks)
+    C1 = curvature_descriptors(eig_1)
+    mean = eig_1.mass @ C1  # centred: the constant part carries no information
+    D1 = np.concatenate([signature(eig_1, ev1, lm1), C1 - mean], axis=1)
+    D2 = np.concatenate([signature(eig_2, ev2, lm2), curvature_descriptors(eig_2) - mean], axis=1)
+    norms = np.sqrt(eig_1.mass @ D1**2)  # one scale per column for both shapes
+    keep = norms > 0
+    w = np.ones(D1.shape[1])
+    w[-C1.shape[1] :] = CURVATURE_WEIGHT
+    return D1[:, keep] * (w / norms)[keep], D2[:, keep] * (w / norms)[keep]
 
 
 @one_blas_thread

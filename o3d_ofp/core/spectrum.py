@@ -219,23 +219,14 @@ class EigenBasis:
         )
         cleaning = None
         if "clean_index" in data:
+            report = CleaningReport.from_array(data["clean_report"])
             cleaning = Cleaning(
-                index=data["clean_index"],
-                kept=data["clean_kept"],
-                representative=data["clean_representative"],
-                report=CleaningReport.from_array(data["clean_report"]),
+                data["clean_index"], data["clean_kept"], data["clean_representative"], report
             )
-        faces = data["faces"]
-        return cls(
-            evals=data["evals"],
-            evecs=data["evecs"],
-            mass=data["mass"],
-            stiffness=stiffness,
-            vertices=data["vertices"],
-            faces=faces if faces.shape[0] else None,
-            cleaning=cleaning,
-            digest=str(data["digest"]) if "digest" in data else "",
-        )
+        evals, evecs, mass, vertices = (data[a] for a in ("evals", "evecs", "mass", "vertices"))
+        faces = data["faces"] if data["faces"].shape[0] else None
+        digest = str(data["digest"]) if "digest" in data else ""
+        return cls(evals, evecs, mass, stiffness, vertices, faces, cleaning, digest)
 
 
 def check_eigenbasis(eig: Any, name: str = "eig") -> EigenBasis:
@@ -695,16 +686,9 @@ def _expand(
         stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
         stiffness.sum_duplicates()
         evecs = c.extend(evecs)
-    return EigenBasis(
-        evals=np.ascontiguousarray(evals),
-        evecs=np.ascontiguousarray(evecs),
-        mass=mass,
-        stiffness=stiffness,
-        vertices=vertices,
-        faces=faces,
-        cleaning=c if c.report.changed else None,
-        digest=digest,
-    )
+    evals, evecs = np.ascontiguousarray(evals), np.ascontiguousarray(evecs)
+    cleaning = c if c.report.changed else None
+    return EigenBasis(evals, evecs, mass, stiffness, vertices, faces, cleaning, digest)
 
 
 #: Options of :func:`eigenbasis` that change the basis of a given input (besides ``k``).
@@ -914,12 +898,6 @@ def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]
     E = sp.csr_matrix((np.ones(kept.shape[0]), (kept, idx[kept])), shape=(c.n_input, n_c))
     stiffness = sp.csr_matrix(E.T @ eig.stiffness @ E)
     mass = np.bincount(idx[kept], weights=eig.mass[kept], minlength=n_c)
-    basis = EigenBasis(
-        evals=np.array(eig.evals),
-        evecs=np.array(eig.evecs[rep]),
-        mass=mass,
-        stiffness=stiffness,
-        vertices=np.array(eig.vertices[rep]),
-        faces=None if eig.faces is None else idx[eig.faces],
-    )
-    return basis, rep
+    faces = None if eig.faces is None else idx[eig.faces]
+    evals, evecs, vertices = np.array(eig.evals), eig.evecs[rep], eig.vertices[rep]
+    return EigenBasis(evals, evecs, mass, stiffness, vertices, faces), rep
