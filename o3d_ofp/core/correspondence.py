@@ -222,25 +222,16 @@ def nearest_neighbors(data: Any, queries: Any, *, method: str = "auto") -> np.nd
     if method == "kdtree":
         return _tree(X, Y)
     probe = Y[np.linspace(0, Y.shape[0] - 1, min(_PROBE, Y.shape[0])).astype(int)]
+    whole = Y.shape[0] / probe.shape[0]  # the whole search's time over the probe's
     t0 = time.perf_counter()
     tree = cKDTree(X)
-    t_build = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t1 = time.perf_counter()
     _tree(X, probe, tree)
-    t_tree = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t2 = time.perf_counter()
     _brute(X, probe)
-    t_brute = time.perf_counter() - t0
-    use_tree = (
-        t_build + t_tree * Y.shape[0] / probe.shape[0] < t_brute * Y.shape[0] / probe.shape[0]
-    )
-    logger.debug(
-        "nearest_neighbors: %d x %d in %d-D via %s",
-        X.shape[0],
-        Y.shape[0],
-        X.shape[1],
-        "kd-tree" if use_tree else "brute force",
-    )
+    use_tree = (t1 - t0) + (t2 - t1) * whole < (time.perf_counter() - t2) * whole
+    logger.debug("nearest_neighbors: %d x %d in %d-D via %s", X.shape[0], Y.shape[0],
+                 X.shape[1], "kd-tree" if use_tree else "brute force")  # fmt: skip
     return _tree(X, Y, tree) if use_tree else _brute(X, Y)
 
 
