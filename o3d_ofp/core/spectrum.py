@@ -836,18 +836,12 @@ def eigenbasis(
     if maxiter is None:
         maxiter = max(1000, 10 * (k + 1))
     maxiter = check_int(maxiter, name="maxiter", minimum=1)
-    shape = clean_shape(
-        vertices,
-        faces,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=mollify_factor,
-        n_neighbors=n_neighbors,
-    )
+    values = (weld_tolerance, components, mollify_factor, n_neighbors)
+    options = dict(zip(DIGEST_OPTIONS, values, strict=True))  # the cleaning's, and the digest's
+    shape = clean_shape(vertices, faces, **options)
     k = _fitted_k(k, shape, clamp_k)
     evals, evecs = _solve(shape, k, maxiter, factorization)
-    digest = _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
-    return _expand(shape, evals, evecs, vertices, digest)
+    return _expand(shape, evals, evecs, vertices, _digest(vertices, faces, **options))
 
 
 def _fitted_k(k: int, shape: CleanShape, clamp_k: bool) -> int:
