@@ -13,13 +13,7 @@ import numpy as np
 
 from .wording import OptionError
 
-__all__ = [
-    "as_faces",
-    "as_signal",
-    "as_vertices",
-    "check_int",
-    "check_tol",
-]
+__all__ = ["as_faces", "as_signal", "as_vertices", "check_int", "check_tol"]
 
 
 def _array(x: Any, name: str, what: str) -> np.ndarray:

@@ -23,12 +23,7 @@ from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import (
-    face_areas_normals,
-    hat_gradients,
-    outward_sign,
-    point_frames,
-)
+from .geometry import face_areas_normals, hat_gradients, outward_sign, point_frames
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
 

@@ -814,11 +814,7 @@ def coarse_mesh(
     samples = grid_samples(V, count)
     count = samples.shape[0]
     _, _, source = dijkstra(
-        edge_graph(V, F),
-        directed=False,
-        indices=samples,
-        min_only=True,
-        return_predecessors=True,
+        edge_graph(V, F), directed=False, indices=samples, min_only=True, return_predecessors=True
     )
     label = np.full(n, -1, dtype=np.int64)
     label[samples] = np.arange(count)

@@ -33,13 +33,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from ._lanczos import (
-    MIN_PAIRS,
-    MIN_VERTICES,
-    LanczosNoConvergence,
-    block_lanczos,
-    dense_bytes,
-)
+from ._lanczos import MIN_PAIRS, MIN_VERTICES, LanczosNoConvergence, block_lanczos, dense_bytes
 from ._lanczos import fits as lanczos_fits
 from ._memory import available_memory, check_memory
 from ._progress import Progress
