@@ -198,7 +198,9 @@ def _issue(said: list[tuple[str, type[Warning], str, int]]) -> None:
             warnings.warn_explicit(message, category, filename, lineno)
 
 
-def _start(ctx: Any, job: Callable[[], Any], what: str, index: int) -> tuple[Any, _Reader] | None:
+def _start(
+    ctx: Any, job: Callable[[], Any], what: str, index: int
+) -> tuple[Any, _Reader] | None:
     """Fork a child for ``job`` and its reader; None (said) when a process cannot be made."""
     try:
         receive, send = ctx.Pipe(duplex=False)
