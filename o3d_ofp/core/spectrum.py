@@ -565,9 +565,9 @@ def _solve(
     """
     stiffness, mass, vertices = shape.stiffness, shape.mass, shape.vertices
     n = mass.shape[0]
-    ncv = min(n, max(2 * (k + 1) + 1, 20))
+    default_ncv = min(n, max(2 * (k + 1) + 1, 20))  # ARPACK's own Krylov space
     check_memory(
-        8.0 * n * (ncv + 3 * (k + 1))
+        8.0 * n * (default_ncv + 3 * (k + 1))
         + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
         + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
         f"the eigensolver (n={n}, k={k})",
