@@ -56,9 +56,9 @@ class StageProgress:
     """A ``progress(stage, fraction_done)`` callback that logs at INFO every few seconds.
 
     The default of the map estimations' ``progress=``: a library caller with logging at INFO
-    sees what a long estimation is doing (a trial's 44 s partial transfer logged one line, at
-    its end), as the command line's own reporter shows it; runs shorter than
-    :data:`PROGRESS_SECONDS` say nothing.
+    sees what a long estimation is doing while it runs (not one line at its end), as the
+    command line's own reporter shows it; runs shorter than :data:`PROGRESS_SECONDS` say
+    nothing.
 
     Parameters
     ----------

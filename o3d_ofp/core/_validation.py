@@ -13,20 +13,19 @@ import numpy as np
 
 from .wording import OptionError
 
-__all__ = [
-    "as_faces",
-    "as_signal",
-    "as_vertices",
-    "check_int",
-    "check_tol",
-]
+__all__ = ["as_faces", "as_signal", "as_vertices", "check_int", "check_tol"]
 
 
-def _describe(x: Any) -> str:
-    shape = getattr(x, "shape", None)
-    if shape is not None:
-        return f"shape {tuple(shape)} and dtype {getattr(x, 'dtype', '?')}"
-    return f"type {type(x).__name__}"
+def _array(x: Any, name: str, what: str) -> np.ndarray:
+    """Return a copy of ``x``; if numpy cannot take it, a TypeError: ``name`` must be ``what``."""
+    try:
+        return np.array(x, copy=True)
+    except Exception as exc:
+        shape = getattr(x, "shape", None)
+        got = f"type {type(x).__name__}"
+        if shape is not None:
+            got = f"shape {tuple(shape)} and dtype {getattr(x, 'dtype', '?')}"
+        raise TypeError(f"{name} must be {what}; got {got}") from exc
 
 
 def as_vertices(vertices: Any, *, name: str = "vertices") -> np.ndarray:
@@ -39,12 +38,7 @@ def as_vertices(vertices: Any, *, name: str = "vertices") -> np.ndarray:
     ValueError
         If it is not ``(n, 3)`` with ``n >= 1`` or holds NaN/inf.
     """
-    try:
-        arr = np.array(vertices, copy=True)
-    except Exception as exc:  # ragged lists, objects numpy cannot take
-        raise TypeError(
-            f"{name} must be an (n, 3) array of floats; got {_describe(vertices)}"
-        ) from exc
+    arr = _array(vertices, name, "an (n, 3) array of floats")
     if arr.dtype == bool or not (
         np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
     ):
@@ -70,10 +64,7 @@ def as_faces(faces: Any, n_vertices: int, *, name: str = "faces") -> np.ndarray:
     ValueError
         If it is not ``(m, 3)`` with ``m >= 1`` or an index is out of range.
     """
-    try:
-        arr = np.array(faces, copy=True)
-    except Exception as exc:
-        raise TypeError(f"{name} must be an (m, 3) array of ints; got {_describe(faces)}") from exc
+    arr = _array(faces, name, "an (m, 3) array of ints")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (m, 3); got {arr.shape}")
     if arr.shape[0] == 0:
@@ -105,10 +96,7 @@ def as_signal(f: Any, n: int, *, name: str = "f") -> np.ndarray:
     ValueError
         If its first dimension is not ``n``, it has more than 2 dimensions or holds NaN/inf.
     """
-    try:
-        arr = np.array(f, copy=True)
-    except Exception as exc:
-        raise TypeError(f"{name} must be a numeric array; got {_describe(f)}") from exc
+    arr = _array(f, name, "a numeric array")
     if arr.dtype == bool:
         arr = arr.astype(np.float64)
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):

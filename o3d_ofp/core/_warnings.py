@@ -4,8 +4,8 @@ The package logs through :mod:`logging` (a ``NullHandler`` by default: nothing i
 unless the application configures logging). A doubtful result the caller should act on (a
 suspect map, detail added on top of detail, parts of a shape left out) is issued as an
 :class:`OFPWarning` with :func:`warnings.warn`, which Python shows by default (at every
-doubtful call), and logged at DEBUG only: a notebook with logging at INFO (to see the long
-stages) showed every warning twice (two trials). ``logging.captureWarnings(True)`` sends the
+doubtful call), and logged at DEBUG only, so that a notebook with logging at INFO (to see the
+long stages) shows each warning once. ``logging.captureWarnings(True)`` sends the
 warnings to the log. The command line, which prints the log and silences the warnings,
 logs them at WARNING (:func:`warnings_logged`).
 """

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -125,13 +125,8 @@ class CleaningReport:
     @property
     def changed(self) -> bool:
         """Whether the cleaned surface differs from the input."""
-        return bool(
-            self.merged_vertices
-            or self.unreferenced_vertices
-            or self.degenerate_faces
-            or self.duplicate_faces
-            or self.dropped_vertices
-            or self.jittered
+        return (
+            self.vertices != self.input_vertices or self.faces != self.input_faces or self.jittered
         )
 
     def __str__(self) -> str:
@@ -141,15 +136,11 @@ class CleaningReport:
         """Return what the cleaning did, as a message (its fix worded for its reader)."""
         if not self.changed:
             return Said(f"clean input: {self.vertices} vertices, {self.faces} faces, 1 component")
-        parts = []
-        if self.merged_vertices:
-            parts.append(f"welded {self.merged_vertices} duplicated vertices")
-        if self.unreferenced_vertices:
-            parts.append(f"removed {self.unreferenced_vertices} unreferenced vertices")
-        if self.degenerate_faces:
-            parts.append(f"dropped {self.degenerate_faces} degenerate faces")
-        if self.duplicate_faces:
-            parts.append(f"dropped {self.duplicate_faces} duplicated faces")
+        done = {"welded {} duplicated vertices": self.merged_vertices,
+                "removed {} unreferenced vertices": self.unreferenced_vertices,
+                "dropped {} degenerate faces": self.degenerate_faces,
+                "dropped {} duplicated faces": self.duplicate_faces}  # fmt: skip
+        parts = [text.format(count) for text, count in done.items() if count]
         if self.dropped_vertices:
             parts.append(
                 f"kept the largest of {self.components} components: its eigenbasis leaves "
@@ -333,8 +324,7 @@ def _check_spans_surface(vertices: np.ndarray, what: str) -> None:
         )
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class _Topology:
+class _Topology(NamedTuple):
     """What :func:`clean_shape` settles before the Laplacian (see :func:`_topology`)."""
 
     V: np.ndarray  # (n_in, 3) the input positions
@@ -343,13 +333,10 @@ class _Topology:
     first: np.ndarray  # (n_g,) input vertex of each welded vertex
     counts: dict[str, Any]  # CleaningReport fields found so far
     keep_v: np.ndarray | None = None  # (n_g,) kept welded vertices (meshes)
-    new_index: np.ndarray | None = None  # (n_g,) their cleaned index (meshes)
-    F: np.ndarray | None = None  # cleaned faces (meshes)
+    F: np.ndarray | None = None  # cleaned faces, numbered among the kept vertices (meshes)
 
 
-def _topology(
-    vertices: Any, faces: Any, *, weld_tolerance: Any, components: str, n_neighbors: int
-) -> _Topology:
+def _topology(vertices: Any, faces: Any, weld: Any, components: str, n_neighbors: int) -> _Topology:
     """Validate, weld, drop degenerate and duplicated faces, apply the components policy.
 
     Everything :func:`clean_shape` can refuse about a mesh before its Laplacian (the costly
@@ -362,12 +349,12 @@ def _topology(
     F_in = None if faces is None else as_faces(faces, n_in)
     if components not in COMPONENT_POLICIES:
         raise ValueError(f"components must be one of {COMPONENT_POLICIES}; got {components!r}")
-    if weld_tolerance is not None:
-        if isinstance(weld_tolerance, bool) or not np.isscalar(weld_tolerance):
-            raise TypeError(f"weld_tolerance must be a float or None; got {weld_tolerance!r}")
-        weld_tolerance = float(weld_tolerance)
-        if not (0.0 <= weld_tolerance < 1.0):
-            raise ValueError(f"weld_tolerance must lie in [0, 1); got {weld_tolerance}")
+    if weld is not None:  # the weld_tolerance of clean_shape
+        if isinstance(weld, bool) or not np.isscalar(weld):
+            raise TypeError(f"weld_tolerance must be a float or None; got {weld!r}")
+        weld = float(weld)
+        if not (0.0 <= weld < 1.0):
+            raise ValueError(f"weld_tolerance must lie in [0, 1); got {weld}")
     check_int(n_neighbors, name="n_neighbors", minimum=3)
 
     with np.errstate(over="ignore"):  # a span beyond float64's range is refused just below
@@ -378,7 +365,7 @@ def _topology(
             f"the vertices span {size:.3g} units: areas (size²) would {problem} in float64; "
             "rescale the coordinates (the basis does not depend on the scale)"
         )
-    group, first = _weld(V, weld_tolerance)
+    group, first = _weld(V, weld)
     counts: dict[str, Any] = {"merged_vertices": n_in - first.shape[0]}
     Vg = V[first]
     n_g = first.shape[0]
@@ -427,12 +414,8 @@ def _topology(
             keep_v[F.reshape(-1)] = True
             counts["dropped_vertices"] = int(np.count_nonzero(used[group] & ~keep_v[group]))
         counts.update(components=n_comp, dropped_fraction=dropped)
-        new_index = np.cumsum(keep_v) - 1
-        F = new_index[F]
-        Vc = Vg[keep_v]
-        if Vc.shape[0] < 3:
-            raise ValueError(f"the cleaned mesh has only {Vc.shape[0]} vertices")
-        return _Topology(V, F_in, group, first, counts, keep_v, new_index, F)
+        F = (np.cumsum(keep_v) - 1)[F]
+        return _Topology(V, F_in, group, first, counts, keep_v, F)
     if n_g < 4:
         raise ValueError(f"a point cloud needs at least 4 distinct points; got {n_g}")
     _check_spans_surface(Vg, what)
@@ -466,7 +449,7 @@ def check_shape(
     TypeError, ValueError
         With the message :func:`clean_shape` would give.
     """
-    _topology(vertices, faces, weld_tolerance=weld_tolerance, components=components, n_neighbors=3)
+    _topology(vertices, faces, weld_tolerance, components, 3)
 
 
 def clean_shape(
@@ -507,77 +490,51 @@ def clean_shape(
         On malformed arrays, or a shape that is no surface once cleaned (no face left,
         collinear points, too few points, several comparable components under "auto").
     """
-    topo = _topology(
-        vertices,
-        faces,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        n_neighbors=n_neighbors,
-    )
-    V, F_in, group, first = topo.V, topo.F_in, topo.group, topo.first
-    counts = dict(topo.counts)
-    n_in = V.shape[0]
-    if F_in is not None:
-        assert topo.keep_v is not None and topo.new_index is not None and topo.F is not None
-        keep_v, new_index, F = topo.keep_v, topo.new_index, topo.F
+    topo = _topology(vertices, faces, weld_tolerance, components, n_neighbors)
+    V, group, first, counts = topo.V, topo.group, topo.first, dict(topo.counts)
+    if topo.F is not None:
+        keep_v, F = topo.keep_v, topo.F
         Vc = V[first][keep_v]
         try:
             stiffness, mass = laplacian(Vc, F, mollify_factor=mollify_factor)
         except RuntimeError as exc:  # geometry-central's assertions on impossible connectivity
             raise ValueError(f"robust-laplacian rejected the cleaned mesh: {exc}") from exc
-        jittered = False
     else:
-        Vc, stiffness, mass, keep_v, jittered = _cloud_laplacian(
+        Vc, stiffness, mass, keep_v = _cloud_laplacian(
             topo, counts, components, mollify_factor, n_neighbors
         )
-        new_index = np.cumsum(keep_v) - 1
         F = None
-
     kept = keep_v[group]
-    index = new_index[group]
+    index = (np.cumsum(keep_v) - 1)[group]
     representative = first[keep_v]
-    if not np.all(kept):
-        # A removed vertex takes the values of the nearest kept vertex.
-        _, near = cKDTree(V[representative]).query(V[~kept])
-        index = index.copy()
-        index[~kept] = near
-    report = CleaningReport(
-        input_vertices=n_in,
-        input_faces=0 if F_in is None else F_in.shape[0],
-        vertices=Vc.shape[0],
-        faces=0 if F is None else F.shape[0],
-        jittered=jittered,
-        **counts,
-    )
+    if not np.all(kept):  # a removed vertex takes the values of the nearest kept vertex
+        index[~kept] = cKDTree(V[representative]).query(V[~kept])[1]
+    n_faces = 0 if F is None else F.shape[0]
+    input_faces = 0 if topo.F_in is None else topo.F_in.shape[0]
+    report = CleaningReport(V.shape[0], input_faces, Vc.shape[0], n_faces, **counts)
     if report.dropped_vertices:
         warn(logger, report.said())
     elif report.changed:
         logger.info("%s", report)
-    cleaning = Cleaning(
-        index=index.astype(np.int64),
-        kept=kept,
-        representative=representative.astype(np.int64),
-        report=report,
-    )
+    cleaning = Cleaning(index.astype(np.int64), kept, representative.astype(np.int64), report)
     return CleanShape(vertices=Vc, faces=F, stiffness=stiffness, mass=mass, cleaning=cleaning)
 
 
 def _cloud_laplacian(
     topo: _Topology, counts: dict[str, Any], components: str, mollify: float, n_neighbors: int
-) -> tuple[np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray, bool]:
+) -> tuple[np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray]:
     """Build a point cloud's Laplacian, on jittered points if need be, and pick its component.
 
-    Returns the kept points, their stiffness and mass, the mask of the kept welded points and
-    whether the points were jittered; the components found and dropped go into ``counts``.
+    Returns the kept points, their stiffness and mass and the mask of the kept welded points;
+    whether the points were jittered, the components found and dropped go into ``counts``.
     """
-    Vg = topo.V[topo.first]
-    n_g = Vg.shape[0]
-    Vc, jittered = Vg, False
+    Vc = topo.V[topo.first]
+    n_g = Vc.shape[0]
     try:
         stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
     except (RuntimeError, ValueError) as exc:
         logger.warning("point-cloud Laplacian failed (%s); retrying on jittered points", exc)
-        Vc, jittered = _jitter(Vg), True
+        Vc, counts["jittered"] = _jitter(Vc), True
         try:
             stiffness, mass = laplacian(Vc, None, mollify_factor=mollify, n_neighbors=n_neighbors)
         except (RuntimeError, ValueError) as exc2:
@@ -585,23 +542,17 @@ def _cloud_laplacian(
                 f"no Laplacian for this point cloud of {n_g} distinct points, even after "
                 f"jittering: {exc2}"
             ) from exc2
-    n_comp, labels = count_components(stiffness)
-    keep_pts, n_comp, dropped = _pick_component(
-        labels, np.ones(n_g), components, "points", "points"
-    )
-    keep_v = np.ones(n_g, dtype=bool)
-    if keep_pts is not None:
-        keep_v = keep_pts
-        idx = np.flatnonzero(keep_v)
-        # No kNN-graph edge crosses components: the restriction is the component's
-        # Laplacian (rows still sum to zero).
-        stiffness = sp.csr_matrix(stiffness[idx][:, idx])
-        mass = mass[idx]
-        Vc = Vc[idx]
-        counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[topo.group]))
-        if Vc.shape[0] < 4:
-            raise ValueError(
-                f"the largest of {n_comp} point-cloud components has only {Vc.shape[0]} points"
-            )
+    labels = count_components(stiffness)[1]
+    keep_v, n_comp, dropped = _pick_component(labels, np.ones(n_g), components, "points", "points")
     counts.update(components=n_comp, dropped_fraction=dropped)
-    return Vc, stiffness, mass, keep_v, jittered
+    if keep_v is None:
+        return Vc, stiffness, mass, np.ones(n_g, dtype=bool)
+    idx = np.flatnonzero(keep_v)
+    counts["dropped_vertices"] = int(np.count_nonzero(~keep_v[topo.group]))
+    if idx.size < 4:
+        raise ValueError(
+            f"the largest of {n_comp} point-cloud components has only {idx.size} points"
+        )
+    # No kNN-graph edge crosses components: the restriction is the component's Laplacian (rows
+    # still sum to zero).
+    return Vc[idx], sp.csr_matrix(stiffness[idx][:, idx]), mass[idx], keep_v

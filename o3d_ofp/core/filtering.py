@@ -226,11 +226,15 @@ def check_amount(value: Any, name: str, maximum: float) -> float:
     return value
 
 
-def _eigenbasis_of(B: Any) -> EigenBasis:
+def _eigenbasis_of(B: Any, vertices: Any = None) -> tuple[EigenBasis, np.ndarray]:
+    """Return the eigenbasis of ``B`` and, checked against it, ``vertices`` (n, 3) if given."""
     eig = B.eig if isinstance(B, OFPBasis) else B
     if not isinstance(eig, EigenBasis):
         raise TypeError(f"B must be an OFPBasis or an EigenBasis; got {type(B).__name__}")
-    return eig
+    V = None if vertices is None else as_vertices(vertices)
+    if V is not None and V.shape[0] != eig.n_vertices:
+        raise ValueError(f"vertices has {V.shape[0]} rows; the basis has {eig.n_vertices}")
+    return eig, V
 
 
 def _outside(eig: EigenBasis) -> np.ndarray | None:
@@ -281,7 +285,7 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     ndarray, shape of ``f``
         The low-passed signal (constants are kept exactly).
     """
-    eig = _eigenbasis_of(B)
+    eig = _eigenbasis_of(B)[0]
     smooth = check_amount(smooth, "smooth", MAX_SMOOTH)
     x = as_signal(f, eig.n_vertices)
     if smooth == 0.0:
@@ -292,11 +296,8 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     t = smooth * smooth * eig.area
     rhs = mu[:, None] * X
     out = np.zeros_like(X)
-    logger.debug(
-        "low-pass (smooth %.3g): two complex sparse factorizations of %d vertices",
-        smooth,
-        eig.n_vertices,
-    )
+    logger.debug("low-pass (smooth %.3g): two complex sparse factorizations of %d vertices",
+                 smooth, eig.n_vertices)  # fmt: skip
     # 1/(1 + x⁴) = Σ_k (−r_k/4) / (x − r_k) over the roots r_k of 1 + x⁴ (conjugate pairs:
     # the two with positive imaginary part, doubled, real part taken). x ↦ t λ becomes the
     # operator (t L − r M)⁻¹ M.
@@ -310,10 +311,7 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
         # default (COLAMD, partial pivoting), results equal to 3e-15 (timings on the shared
         # machine, load 5 on 2 cores, were 2.1-2.9 s against 3.5-19.8 s, not reliable).
         lu = sla.splu(
-            A,
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
+            A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
         )
         out += 2.0 * np.real((-r / _ORDER) * lu.solve(rhs.astype(np.complex128)))
     out[empty] = X[empty]  # vertices left out of the surface: not filtered
@@ -387,10 +385,7 @@ def smooth_coordinates(
     ValueError
         If ``smooth`` is outside [0, 0.25] (the message names ``smooth``).
     """
-    eig = _eigenbasis_of(B)
-    V = as_vertices(vertices)
-    if V.shape[0] != eig.n_vertices:
-        raise ValueError(f"vertices has {V.shape[0]} rows; the basis has {eig.n_vertices}")
+    eig, V = _eigenbasis_of(B, vertices)
     X = lowpass(eig, V, smooth=smooth)
     return _keep_size(eig, V, X) if keep_volume and smooth > 0 else X
 
@@ -433,9 +428,6 @@ def sharpen_coordinates(
         the keyword).
     """
     sharpen = check_amount(sharpen, "sharpen", MAX_SHARPEN)
-    eig = _eigenbasis_of(B)
-    V = as_vertices(vertices)
-    if V.shape[0] != eig.n_vertices:
-        raise ValueError(f"vertices has {V.shape[0]} rows; the basis has {eig.n_vertices}")
+    eig, V = _eigenbasis_of(B, vertices)
     X = V + sharpen * (V - lowpass(eig, V, smooth=smooth))
     return _keep_size(eig, V, X) if keep_volume and sharpen > 0 and smooth > 0 else X

@@ -10,7 +10,7 @@ import dataclasses
 import functools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
@@ -23,12 +23,7 @@ from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import (
-    face_areas_normals,
-    hat_gradients,
-    outward_sign,
-    point_frames,
-)
+from .geometry import face_areas_normals, hat_gradients, outward_sign, point_frames
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
 
@@ -149,70 +144,60 @@ def _descriptor_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
 def _orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
     """Stack (p, k+1, k+1) of the reduced operators g ↦ <n × ∇dᵢ, ∇g> (Ren et al. 2018).
 
-    ``O_i[b, a] = Σ_f W[f, b] H[f, a, i]`` with ``H[f, a, i] = ∇φ_a · (n_f × ∇d_i)`` and
-    ``W = to_vertexᵀ Φ`` the area-weighted face sums of Φ (the per-face field spread to the
-    vertices by area, then projected with Φᵀ M): one GEMM per chunk of faces.
+    ``O_i[b, a] = Σ_x W[x, b] H[x, a, i]`` with ``H[x, a, i] = ∇φ_a · (n × ∇d_i)`` and ``W``
+    the weights of Φ: on a mesh, per face, the area-weighted face sums of Φ (``to_vertexᵀ Φ``:
+    the per-face field spread to the vertices by area, then projected with Φᵀ M); on a point
+    cloud, per point, ``M Φ`` (:func:`_point_fields`). One GEMM per chunk.
+    """
+    a, p = k + 1, D.shape[1]
+    T = np.zeros((a, a * p))
+    fields = _face_fields if eig.faces is not None else _point_fields
+    for W, H in fields(eig, eig.evecs[:, :a], D):
+        T += W.T @ H.reshape(H.shape[0], a * p)
+    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+
+
+def _face_fields(eig: EigenBasis, phi: np.ndarray, D: np.ndarray) -> Iterator[tuple[Any, Any]]:
+    """Yield :func:`_orientation_ops`' ``(W, H)`` of a mesh, by chunks of faces.
+
+    Everything per chunk of faces, from the corner values and hat gradients (no sparse
+    products): memory stays ~(chunk · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
+    large the mesh.
     """
     V, F = eig.vertices, eig.faces
-    if F is None:
-        return _point_orientation_ops(eig, k, D)
     areas, normals = face_areas_normals(V, F)
     # Outward normals whatever the winding: a shape whose faces are wound inwards would
     # otherwise make the orientation-preserving term prefer the mirror map (measured: FAUST
     # 093 -> 087 with the target's faces reversed, 0.068 instead of 0.014).
     normals = normals * outward_sign(V, F)
     hats = hat_gradients(V, F)  # (m, 3 corners, 3 coords)
-    phi = eig.evecs[:, : k + 1]
-    a, p = k + 1, D.shape[1]
-    T = np.zeros((a, a * p))
-    # Everything per chunk of faces, from the corner values and hat gradients (no sparse
-    # products): memory stays ~(step · (k+1) · p) doubles (50 MB at k = 29, p = 100) however
-    # large the mesh.
-    step = 2048
-    H_buf = np.empty((min(step, F.shape[0]), a, p))  # reused: no fresh pages per chunk
-    for s in range(0, F.shape[0], step):
-        sl = slice(s, s + step)
+    H_buf = np.empty((min(_CHUNK, F.shape[0]), phi.shape[1], D.shape[1]))  # reused per chunk
+    for s in range(0, F.shape[0], _CHUNK):
+        sl = slice(s, s + _CHUNK)
         f, E = F[sl], hats[sl]
         phi_c = phi[f]  # (c, 3 corners, k+1)
         grad_phi = np.matmul(phi_c.transpose(0, 2, 1), E)  # (c, k+1, 3): ∇φ_a
         gd = np.matmul(E.transpose(0, 2, 1), D[f])  # (c, 3, p): ∇d_i
-        nx, ny, nz = (normals[sl, c][:, None] for c in range(3))
-        rot = np.stack(
-            [
-                ny * gd[:, 2] - nz * gd[:, 1],
-                nz * gd[:, 0] - nx * gd[:, 2],
-                nx * gd[:, 1] - ny * gd[:, 0],
-            ],
-            axis=1,
-        )  # (c, 3, p): n × ∇d_i on each face
+        rot = np.cross(normals[sl, :, None], gd, axis=1)  # (c, 3, p): n × ∇d_i on each face
         W = (areas[sl] / 3.0)[:, None] * phi_c.sum(axis=1)  # area-weighted corner sums
-        H = np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i) per face
-        T += W.T @ H.reshape(H.shape[0], a * p)
-    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+        yield W, np.matmul(grad_phi, rot, out=H_buf[: f.shape[0]])  # ∇φ_a · (n × ∇d_i)
 
 
-def _point_orientation_ops(eig: EigenBasis, k: int, D: np.ndarray) -> np.ndarray:
-    """:func:`_orientation_ops` of a point cloud: the same integral, sampled at the points.
+def _point_fields(eig: EigenBasis, phi: np.ndarray, D: np.ndarray) -> Iterator[tuple[Any, Any]]:
+    """Yield :func:`_orientation_ops`' ``(W, H)`` of a point cloud, by chunks of points.
 
-    ``O_i[b, a] = Σ_x m_x φ_b(x) ∇φ_a(x) · (n_x × ∇d_i(x))`` with the outward normals and the
+    The same integral, sampled at the points: ``W = M Φ`` and the outward normals and the
     tangent-plane gradients of :mod:`o3d_ofp.core.geometry` (:func:`point_frames`: the
     gradients of :func:`point_gradient_operator` with the normals of :func:`point_normals`,
     from one neighbour search). In the frame ``(t₁, t₂, n)``, ``n × (g₁t₁ + g₂t₂) =
     g₁t₂ − g₂t₁``, so ``∇φ · (n × ∇d) = ∇₂φ ∇₁d − ∇₁φ ∇₂d``.
     """
-    V = eig.vertices
-    g1, g2 = point_frames(V, eig.mass)
-    phi = eig.evecs[:, : k + 1]
-    a, p = k + 1, D.shape[1]
+    g1, g2 = point_frames(eig.vertices, eig.mass)
     p1, p2, d1, d2 = g1 @ phi, g2 @ phi, g1 @ D, g2 @ D  # (n, a), (n, a), (n, p), (n, p)
     W = eig.mass[:, None] * phi
-    T = np.zeros((a, a * p))
-    step = 2048
-    for s in range(0, V.shape[0], step):
-        sl = slice(s, s + step)
-        H = p2[sl, :, None] * d1[sl, None, :] - p1[sl, :, None] * d2[sl, None, :]  # (c, a, p)
-        T += W[sl].T @ H.reshape(H.shape[0], a * p)
-    return np.ascontiguousarray(T.reshape(a, a, p).transpose(2, 0, 1))
+    for s in range(0, phi.shape[0], _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        yield W[sl], p2[sl, :, None] * d1[sl, None, :] - p1[sl, :, None] * d2[sl, None, :]
 
 
 #: Weights of a map's energy terms: descriptors, Laplacian, commutativity, orientation.
@@ -321,9 +306,9 @@ def _minimize_quadratic(
 
 
 class _Energy(NamedTuple):
-    """The terms of a map's :func:`_energy`, and its minimizers over the maps C.
+    """The terms of a map's :func:`_energy`, and their minimizer over the maps C.
 
-    Both minimizers keep the first column of their start C0 (the constant's image).
+    The minimizer keeps the first column of its start C0 (the constant's image).
     """
 
     A: np.ndarray
@@ -343,15 +328,21 @@ class _Energy(NamedTuple):
         o_energy = _energy(ref, self.A, self.B, self.sqdiff, None, self.orient, unit)[0]
         return (*weights[:3], w_orient * native / max(o_energy, 1e-300))
 
-    def minimize(self, C0: np.ndarray, weights: _Weights) -> np.ndarray:
-        """Return the exact minimizer (:func:`_minimize_quadratic`)."""
-        return _minimize_quadratic(C0, *self, weights)
+    def solve(
+        self, C0: np.ndarray, weights: _Weights, solver: str, options: dict[str, Any], what: str,
+        w_rows: float = 0.0,
+    ) -> np.ndarray:  # fmt: skip
+        """Minimize from C0: exactly (``"direct"``: :func:`_minimize_quadratic`) or by L-BFGS-B.
 
-    def lbfgs(
-        self, C0: np.ndarray, weights: _Weights, options: dict[str, Any], w_rows: float = 0.0
-    ) -> scipy.optimize.OptimizeResult:
-        """Run L-BFGS-B from C0 on the energy plus ``½ w_rows ‖C Cᵀ − I‖²``."""
+        L-BFGS-B (``options``: SciPy's) minimizes the energy plus ``½ w_rows ‖C Cᵀ − I‖²``;
+        ``what`` names the fit in the debug log.
+        """
         b, a = C0.shape
+        if solver == "direct":
+            C = _minimize_quadratic(C0, *self, weights)
+            energy = _energy(C, *self, weights)[0]
+            logger.debug("%s: direct solve %dx%d (energy %.4g)", what, b, a, energy)
+            return C
         eye = np.eye(b)
 
         def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -364,9 +355,46 @@ class _Energy(NamedTuple):
             g[:, 0] = 0.0  # the first column stays fixed
             return e, g.ravel()
 
-        return scipy.optimize.minimize(
-            fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options
-        )
+        res = scipy.optimize.minimize(fun, C0.ravel(), jac=True, method="L-BFGS-B", options=options)
+        logger.debug(
+            "%s: L-BFGS-B %dx%d, %s after %d iterations (energy %.4g)",
+            what, b, a, res.message, res.nit, res.fun,
+        )  # fmt: skip
+        return res.x.reshape(b, a)
+
+
+def _shape_terms(
+    eig: EigenBasis, k: int, D: np.ndarray, Dop: np.ndarray, dcomm: bool, orient: bool
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """One shape's terms: descriptor coefficients (k+1, p) and the operator stacks of ``Dop``.
+
+    The multiplication (``dcomm``) and orientation (``orient``) operators, or None.
+    """
+    return (
+        _projection(eig, k) @ D,
+        _descriptor_ops(eig, k, Dop) if dcomm else None,
+        _orientation_ops(eig, k, Dop) if orient else None,
+    )
+
+
+def _energy_of(
+    eig_1: EigenBasis, eig_2: EigenBasis, terms: tuple, a: int, b: int, wanted: tuple
+) -> _Energy:
+    """Build the energy of (b, a) maps from both shapes' :func:`_shape_terms` (leading blocks).
+
+    ``wanted``: whether the commutativity and the orientation terms are; the Laplacian term is
+    normalized to unit sum.
+    """
+    (A, dcomm_1, orient_1), (B, dcomm_2, orient_2) = terms
+    sqdiff = (eig_1.evals[None, :a] - eig_2.evals[:b, None]) ** 2
+    sqdiff /= sqdiff.sum()
+
+    def block(O1: Any, O2: Any, wanted: bool) -> _Commutator | None:
+        return _Commutator(O1[:, :a, :a], O2[:, :b, :b]) if wanted and O1 is not None else None
+
+    dcomm, orient = wanted
+    return _Energy(A[:a], B[:b], sqdiff, block(dcomm_1, dcomm_2, dcomm),
+                   block(orient_1, orient_2, orient))  # fmt: skip
 
 
 def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -388,24 +416,16 @@ class _FitTerms:
     between them times ``scale`` is the map between the bases given. Descriptors are computed
     from ``k_descriptors`` eigenpairs whatever the map's size, so the coefficients and
     operator stacks of a smaller map are the leading blocks of a larger one's: :meth:`fit`
-    solves any size up to the one they were built for.
+    solves any size up to the one they were built for. ``options`` are :func:`estimate_fmap`'s
+    ``(descriptors, n_descriptors, k_descriptors, landmarks, operator_step)``; ``dcomm`` and
+    ``orient`` say whether the commutativity and orientation operators are wanted.
     """
 
     def __init__(
-        self,
-        eig_1: EigenBasis,
-        eig_2: EigenBasis,
-        k1: int,
-        k2: int,
-        *,
-        descriptors: str,
-        n_descriptors: int,
-        k_descriptors: int,
-        landmarks: Any,
-        dcomm: bool,
+        self, eig_1: EigenBasis, eig_2: EigenBasis, k1: int, k2: int, options: tuple, dcomm: bool,
         orient: bool,
-        operator_step: int,
-    ) -> None:
+    ) -> None:  # fmt: skip
+        descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
         lm1, lm2 = _landmark_pairs(landmarks)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
@@ -417,32 +437,17 @@ class _FitTerms:
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
             D = _descriptors(eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k))
-            Dop = D[:, ::operator_step]  # the operators' descriptors
-            return (
-                _projection(eig, k) @ D,
-                _descriptor_ops(eig, k, Dop) if dcomm else None,
-                _orientation_ops(eig, k, Dop) if orient else None,
-            )
+            return _shape_terms(eig, k, D, D[:, ::operator_step], dcomm, orient)
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
             job = pool.submit(terms, eig_2, k2, lm2)
-            self.A, dcomm_1, orient_1 = terms(eig_1, k1, lm1)
-            self.B, dcomm_2, orient_2 = job.result()
-        self.lam1, self.lam2 = eig_1.evals[: k1 + 1], eig_2.evals[: k2 + 1]
-        self.dcomm = (dcomm_1, dcomm_2) if dcomm else None
-        self.orient = (orient_1, orient_2) if orient else None
+            self.terms = (terms(eig_1, k1, lm1), job.result())
 
     def fit(
-        self,
-        k1: int,
-        k2: int,
-        *,
-        weights: _Weights,
-        solver: str = "direct",
-        maxiter: int = 15000,
-        ftol: float = 2.2e-9,
-    ) -> np.ndarray:
+        self, k1: int, k2: int, *, weights: _Weights, solver: str = "direct",
+        maxiter: int = 15000, ftol: float = 2.2e-9,
+    ) -> np.ndarray:  # fmt: skip
         """Minimize the energy over (k2+1, k1+1) maps, the constant kept on the constant.
 
         ``weights`` are (descriptors, Laplacian, commutativity, orientation); the orientation
@@ -450,42 +455,15 @@ class _FitTerms:
         others).
         """
         a, b = k1 + 1, k2 + 1
-        A, B = self.A[:a], self.B[:b]
-        sqdiff = (self.lam1[None, :a] - self.lam2[:b, None]) ** 2
-        sqdiff /= sqdiff.sum()
-
-        def block(stacks: tuple[np.ndarray, np.ndarray] | None) -> _Commutator | None:
-            if stacks is None:
-                return None
-            return _Commutator(stacks[0][:, :a, :a], stacks[1][:, :b, :b])
-
         w_descr, w_lap, wc, w_orient = weights
-        ops = block(self.dcomm) if wc > 0 else None
-        energy = _Energy(A, B, sqdiff, ops, block(self.orient) if w_orient > 0 else None)
+        energy = _energy_of(self.eig_1, self.eig_2, self.terms, a, b, (wc > 0, w_orient > 0))
         weights = (w_descr, w_lap, wc, 0.0)
         if energy.orient:
             weights = energy.orientation_weighted(np.eye(b, a), weights, w_orient)
         C0 = np.zeros((b, a))
         C0[0, 0] = 1.0  # constant ↦ constant (both φ0 = 1 on unit-area shapes)
-        if solver == "direct":
-            C = energy.minimize(C0, weights)
-            logger.debug(
-                "estimate_fmap: direct solve %dx%d (energy %.4g, w_dcomm %g)",
-                b,
-                a,
-                _energy(C, *energy, weights)[0],
-                wc,
-            )
-            return C
-        res = energy.lbfgs(C0, weights, {"maxiter": maxiter, "ftol": ftol, "gtol": ftol})
-        logger.debug(
-            "estimate_fmap: L-BFGS-B %s after %d iterations (energy %.4g, w_dcomm %g)",
-            res.message,
-            res.nit,
-            res.fun,
-            wc,
-        )
-        return res.x.reshape(b, a)
+        options = {"maxiter": maxiter, "ftol": ftol, "gtol": ftol}
+        return energy.solve(C0, weights, solver, options, f"estimate_fmap (w_dcomm {wc:g})")
 
 
 @one_blas_thread
@@ -533,10 +511,8 @@ def estimate_fmap(
         Source and target eigenbases.
     k1, k2 : int, optional
         Size of the optimized map (default: all eigenfunctions, up to 30 on each side).
-    descriptors : {"wks", "hks"}, default "wks"
-        Descriptor family.
-    n_descriptors : int, default 100
-        Energies (times) of the descriptor.
+    descriptors, n_descriptors : {"wks", "hks"}, int
+        Descriptor family (default "wks") and its number of energies (times) (default 100).
     k_descriptors : int, default 100
         Eigenpairs the descriptors are computed from (fewer if a basis has fewer), so the
         result does not depend on how many eigenpairs the caller computed.
@@ -558,19 +534,15 @@ def estimate_fmap(
         The commutativity and orientation terms use every ``operator_step``-th descriptor
         (pyFM's ``subsample_step``); the descriptor term uses all of them.
     refine : {"zoomout", "icp", None}, default "zoomout"
-        Refinement after the optimization.
+        Refinement after the optimization (ICP: ``icp_iterations`` iterations, default 10).
     zoomout_to : int, optional
         Final size of ZoomOut (default: ``min(eig_1.k, eig_2.k)``); the result is then cut
         back to (k2+1, k1+1).
-    icp_iterations : int, default 10
-        Iterations of ICP refinement.
     solver : {"direct", "lbfgs"}, default "direct"
         How the energy is minimized (see above).
-    maxiter : int, default 15000
-        Bound on L-BFGS-B iterations (``solver="lbfgs"``).
-    ftol : float, default 2.2e-9
-        L-BFGS-B's relative energy and gradient tolerances (``solver="lbfgs"``; SciPy's
-        default ftol).
+    maxiter, ftol : int, float
+        L-BFGS-B's bound on iterations (default 15000) and its relative energy and gradient
+        tolerances (default 2.2e-9, SciPy's ftol), with ``solver="lbfgs"``.
 
     Returns
     -------
@@ -586,31 +558,18 @@ def estimate_fmap(
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
     """
-    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver=solver, refine=refine)
-    terms = _FitTerms(
-        eig_1,
-        eig_2,
-        k1,
-        k2,
-        descriptors=descriptors,
-        n_descriptors=n_descriptors,
-        k_descriptors=k_descriptors,
-        landmarks=landmarks,
-        dcomm=max(np.atleast_1d(w_dcomm)) > 0,
-        orient=w_orient > 0,
-        operator_step=operator_step,
-    )
+    k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver, refine, w_dcomm)
+    options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
+    terms = _FitTerms(eig_1, eig_2, k1, k2, options, max(np.atleast_1d(w_dcomm)) > 0, w_orient > 0)
     fit = functools.partial(terms.fit, k1, k2, solver=solver, maxiter=maxiter, ftol=ftol)
     fits = [fit(weights=(w_descr, w_lap, float(wc), w_orient)) for wc in np.atleast_1d(w_dcomm)]
     if len(fits) > 1:
-        if refine is not None:
-            raise ValueError("several w_dcomm weights give several maps: use refine=None")
         return [C * terms.scale for C in fits]
     return _refined(fits[0], terms, refine, zoomout_to, icp_iterations) * terms.scale
 
 
 def _checked_sizes(
-    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, *, solver: str, refine: str | None
+    eig_1: EigenBasis, eig_2: EigenBasis, k1: Any, k2: Any, solver: str, refine: Any, w_dcomm: Any
 ) -> tuple[int, int]:
     """Check :func:`estimate_fmap`'s bases, solver and refinement; return the map's sizes."""
     check_eigenbasis(eig_1, "eig_1")
@@ -621,6 +580,8 @@ def _checked_sizes(
         raise ValueError(f"solver must be 'direct' or 'lbfgs'; got {solver!r}")
     if refine not in ("zoomout", "icp", None):
         raise ValueError(f"refine must be 'zoomout', 'icp' or None; got {refine!r}")
+    if np.size(w_dcomm) > 1 and refine is not None:
+        raise ValueError("several w_dcomm weights give several maps: use refine=None")
     return k1, k2
 
 
@@ -688,19 +649,8 @@ def estimate_fmaps(
     if not sizes or not weights:
         raise ValueError("sizes and w_dcomm must name at least one fit each")
     k = max(sizes)
-    terms = _FitTerms(
-        eig_1,
-        eig_2,
-        k,
-        k,
-        descriptors=descriptors,
-        n_descriptors=n_descriptors,
-        k_descriptors=k_descriptors,
-        landmarks=landmarks,
-        dcomm=max(weights) > 0,
-        orient=w_orient > 0,
-        operator_step=operator_step,
-    )
+    options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
+    terms = _FitTerms(eig_1, eig_2, k, k, options, max(weights) > 0, w_orient > 0)
     fits = [(size, wc) for size in sizes for wc in weights]
     with ThreadPoolExecutor(max_workers=2) as pool:
         maps = pool.map(

@@ -18,6 +18,7 @@ __all__ = [
     "point_neighbours",
     "point_normals",
     "tangent_frames",
+    "unique_edges",
     "units_change",
     "vertex_normals",
 ]
@@ -150,14 +151,18 @@ def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     vertices) is kept with a tiny positive length, so that it does not read as "no edge".
     """
     n = vertices.shape[0]
-    F = np.asarray(faces, dtype=np.int64)
-    E = np.unique(
-        np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0
-    )
+    E = unique_edges(faces)[0]
     length = np.linalg.norm(vertices[E[:, 0]] - vertices[E[:, 1]], axis=1)
     length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1e-300))
     i, j = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
     return sp.coo_matrix((np.concatenate([length, length]), (i, j)), shape=(n, n)).tocsr()
+
+
+def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
+    F = np.asarray(faces, dtype=np.int64)
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)
 
 
 def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -27,9 +27,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._threads import blas_threads
-from ._validation import check_int
-from .correspondence import check_fmap, fmap_from_p2p
+from ._threads import one_blas_thread
+from ._validation import as_faces, as_vertices, check_int
+from .correspondence import fmap_between, fmap_from_p2p
 from .fmap import farthest_points, grid_samples
 from .geometry import edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
@@ -63,22 +63,6 @@ def _morton_order(vertices: np.ndarray) -> np.ndarray:
         for axis in range(3):
             code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
     return np.argsort(code, kind="stable")
-
-
-def _checked_fmap(
-    fmap: Any, basis_1: EigenBasis, basis_2: EigenBasis, *, name: str, bases: str
-) -> np.ndarray:
-    """Check a functional map (rows: target basis, columns: source basis) against both bases."""
-    C = np.asarray(fmap, dtype=np.float64)
-    if C.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D matrix; got shape {C.shape}")
-    rows, cols = C.shape
-    if not (1 <= rows <= basis_2.k + 1 and 1 <= cols <= basis_1.k + 1):
-        raise ValueError(
-            f"{name} has shape {C.shape} but the {bases} allow at most "
-            f"({basis_2.k + 1}, {basis_1.k + 1}) (target rows, source columns)"
-        )
-    return check_fmap(C, rows, cols, name=name)
 
 
 def _cell_count(n_samples: int | None, n1: int) -> int:
@@ -197,6 +181,7 @@ class _Cells:
         s = samples.shape[0]
         n1, d = phi.shape[0], Ct.shape[1]
         cols = Ct.shape[0]
+        self.phi, self.Ct, self.shift = phi, Ct, shift  # the float64 redo of unsure queries
         self.order = np.argsort(cell, kind="stable").astype(np.int64)
         self.sizes = np.bincount(cell, minlength=s).astype(np.int64)
         self.starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
@@ -313,25 +298,18 @@ def local_p2p_from_fmap(
     """
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
-    C = _checked_fmap(fmap_12, eig_1, eig_2, name="fmap_12", bases="eigenbases")
+    C = fmap_between(fmap_12, eig_1, eig_2)
     count = _cell_count(n_samples, eig_1.n_vertices)
     a1, a2 = eig_1.area, eig_2.area
     # Unit-area embeddings without copying the bases: Φ̂ = Φ√A1, Ψ̂ = Ψ√A2, Ĉ = C√(A1/A2),
     # so Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ (the scales go into the small matrix).
     Ct = np.ascontiguousarray(C.T) * (a1 / math.sqrt(a2))
-    with blas_threads(1):
-        return _local_search(
-            eig_1.evecs,
-            Ct,
-            eig_2.evecs,
-            math.sqrt(a2),
-            eig_1.vertices,
-            eig_2.vertices,
-            count,
-            seed,
-        )
+    return _local_search(
+        eig_1.evecs, Ct, eig_2.evecs, math.sqrt(a2), eig_1.vertices, eig_2.vertices, count, seed
+    )
 
 
+@one_blas_thread
 def _local_search(
     phi: np.ndarray,
     Ct: np.ndarray,
@@ -360,22 +338,13 @@ def _local_search(
     # smallest source index.
     unsure = np.flatnonzero(~certain)
     if unsure.size:
-        _redo64(unsure, best_cell, pairs, upper2, cells, phi, psi, Ct, shift, root2, out)
+        out[unsure] = _redo64(unsure, best_cell, pairs, upper2, cells, target)
     logger.debug(
         "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), coarse %.2fs (%.0f cells per "
-        "query), "
-        "%.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
-        n1,
-        n2,
-        samples.shape[0],
-        t_cells,
-        t_coarse - t_cells,
-        n_looked / n2,
-        searched / n2,
-        100.0 * searched / (n1 * n2),
-        unsure.size,
-        time.perf_counter() - t0,
-    )
+        "query), %.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
+        n1, n2, samples.shape[0], t_cells, t_coarse - t_cells, n_looked / n2, searched / n2,
+        100.0 * searched / (n1 * n2), unsure.size, time.perf_counter() - t0,
+    )  # fmt: skip
     return out
 
 
@@ -408,6 +377,7 @@ class _Target:
 
     def __init__(self, psi: np.ndarray, rows: int, root2: float, shift: np.ndarray) -> None:
         n2 = psi.shape[0]
+        self.psi, self.root2 = psi, root2
         self.Y32 = np.empty((n2, rows), dtype=np.float32)
         self.norm = np.empty(n2)
         for b in range(0, n2, _CHUNK):
@@ -594,14 +564,10 @@ def _redo64(
     pairs: _Pairs,
     upper2: np.ndarray,
     cells: _Cells,
-    phi: np.ndarray,
-    psi: np.ndarray,
-    Ct: np.ndarray,
-    shift: np.ndarray,
-    root2: float,
-    out: np.ndarray,
-) -> None:
-    """Exact float64 search of ``queries`` over their possible cells (writes into ``out``)."""
+    target: _Target,
+) -> np.ndarray:
+    """Return the answers of an exact float64 search of ``queries`` over their possible cells."""
+    phi, Ct, shift, psi, root2 = cells.phi, cells.Ct, cells.shift, target.psi, target.root2
     cols, rows = Ct.shape
     pq, pc, plb = pairs
     n2 = psi.shape[0]
@@ -635,7 +601,7 @@ def _redo64(
         take = (low < cur_v) | ((low == cur_v) & (j < cur_i))
         val[q] = np.where(take, low, cur_v)
         idx[q] = np.where(take, j, cur_i)
-    out[queries] = idx[queries]
+    return idx[queries]
 
 
 def coarse_eigenbasis(
@@ -666,9 +632,7 @@ def coarse_eigenbasis(
     samples : (count,) ndarray of int64
         Indices of the kept vertices.
     """
-    V = np.ascontiguousarray(vertices, dtype=np.float64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"vertices must have shape (n, 3); got {V.shape}")
+    V = as_vertices(vertices)
     count = check_int(count, name="count", minimum=k + 2, maximum=V.shape[0])
     samples, _ = _sample(V, count, seed, assign=False)
     return eigenbasis(V[samples], None, k=k), samples
@@ -740,12 +704,8 @@ def extend_p2p(
     """
     coarse_1 = check_eigenbasis(coarse_1, "coarse_1")
     coarse_2 = check_eigenbasis(coarse_2, "coarse_2")
-    V1 = np.ascontiguousarray(vertices_1, dtype=np.float64)
-    V2 = np.ascontiguousarray(vertices_2, dtype=np.float64)
-    for name, V in (("vertices_1", V1), ("vertices_2", V2)):
-        if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] == 0:
-            raise ValueError(f"{name} must have shape (n, 3) with n >= 1; got {V.shape}")
-    C = _checked_fmap(fmap_coarse, coarse_1, coarse_2, name="fmap_coarse", bases="coarse bases")
+    V1, V2 = as_vertices(vertices_1, name="vertices_1"), as_vertices(vertices_2, name="vertices_2")
+    C = fmap_between(fmap_coarse, coarse_1, coarse_2, "fmap_coarse")
     rows, cols = C.shape
     neighbours = check_int(neighbours, name="neighbours", minimum=1)
     count = _cell_count(n_samples, V1.shape[0])
@@ -764,8 +724,7 @@ def extend_p2p(
     phi = np.asarray(_interpolation(coarse_1.vertices, V1, neighbours) @ coarse_phi)
     psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_psi)
     t_interp = time.perf_counter() - t0
-    with blas_threads(1):
-        out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, count, 0)
+    out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, count, 0)
     logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)
     return out
 
@@ -848,24 +807,14 @@ def coarse_mesh(
     """
     from scipy.sparse.csgraph import dijkstra
 
-    V = np.ascontiguousarray(vertices, dtype=np.float64)
-    F = np.ascontiguousarray(faces, dtype=np.int64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"vertices must have shape (n, 3); got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0:
-        raise ValueError(f"faces must have shape (m, 3) with m >= 1; got {F.shape}")
-    if F.min() < 0 or F.max() >= V.shape[0]:
-        raise ValueError(f"faces index vertices outside [0, {V.shape[0]})")
+    V = as_vertices(vertices)
+    F = as_faces(faces, V.shape[0])
     n = V.shape[0]
     count = check_int(count, name="count", minimum=4, maximum=n)
     samples = grid_samples(V, count)
     count = samples.shape[0]
     _, _, source = dijkstra(
-        edge_graph(V, F),
-        directed=False,
-        indices=samples,
-        min_only=True,
-        return_predecessors=True,
+        edge_graph(V, F), directed=False, indices=samples, min_only=True, return_predecessors=True
     )
     label = np.full(n, -1, dtype=np.int64)
     label[samples] = np.arange(count)

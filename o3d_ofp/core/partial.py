@@ -71,17 +71,9 @@ import scipy.sparse.linalg as sla
 from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_p2p, nearest_neighbors
-from .fmap import (
-    _Commutator,
-    _descriptor_ops,
-    _Energy,
-    _LeadingFits,
-    _orientation_ops,
-    _projection,
-    _scaled,
-    farthest_points,
-)
-from .geometry import edge_graph
+from .descriptors import _kernel_signature, wks_energies
+from .fmap import _energy_of, _landmark_pairs, _LeadingFits, _scaled, _shape_terms, farthest_points
+from .geometry import edge_graph, unique_edges
 from .spectrum import EigenBasis
 
 __all__ = [
@@ -168,7 +160,7 @@ def boundary_length(
     """
     if faces is None or len(faces) == 0:
         return 0.0
-    unique, counts = _edges(np.asarray(faces, dtype=np.int64))
+    unique, counts = unique_edges(faces)
     single = unique[counts == 1]
     V = np.asarray(vertices, dtype=np.float64)
     lengths = np.linalg.norm(V[single[:, 0]] - V[single[:, 1]], axis=1)
@@ -178,12 +170,6 @@ def boundary_length(
     graph = sp.coo_matrix((np.ones(len(single)), (single[:, 0], single[:, 1])), shape=(n, n))
     _, piece = csgraph.connected_components(graph, directed=False)
     return float(np.bincount(piece[single[:, 0]], weights=lengths).max())
-
-
-def _edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)
 
 
 def map_stretch(
@@ -215,7 +201,7 @@ def map_stretch(
     """
     if faces_2 is None or len(faces_2) == 0:
         return math.nan
-    edges = _edges(np.asarray(faces_2, dtype=np.int64))[0]
+    edges = unique_edges(faces_2)[0]
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
     p2p = np.asarray(p2p_21, dtype=np.int64)
@@ -404,57 +390,6 @@ def geodesic_features(
 CURVATURE_WEIGHT = 5.0
 
 
-def _common_wks(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    n_energies: int,
-    k_descriptors: int,
-    landmarks: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """WKS of both shapes at the same energies, unnormalized, scaled by the source's norms."""
-    ev1 = eig_1.evals[1 : min(k_descriptors, eig_1.k) + 1]
-    ev2 = eig_2.evals[1 : min(k_descriptors, eig_2.k) + 1]
-    lo = math.log(max(ev1[0], ev2[0]))
-    hi = math.log(min(ev1[-1], ev2[-1]))
-    if not hi > lo:
-        ratio = eig_2.area / eig_1.area
-        raise ValueError(
-            "the two spectra do not overlap: the target cannot be a part of the source in the "
-            f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
-            "the target to the source's units"
-        )
-    sigma = 7.0 * (hi - lo) / n_energies
-    energies = np.linspace(lo + 2 * sigma, hi - 2 * sigma, n_energies)
-
-    def signature(eig: EigenBasis, ev: np.ndarray, points: np.ndarray | None) -> np.ndarray:
-        phi = eig.evecs[:, 1 : ev.shape[0] + 1]
-        coefs = np.exp(-((energies[:, None] - np.log(ev)[None, :]) ** 2) / (2 * sigma**2))
-        D = phi**2 @ coefs.T  # the local wave kernel: equal on a part and on the whole
-        if points is not None:
-            w = (phi[points][:, None, :] * coefs[None, :, :]).reshape(-1, phi.shape[1])
-            D = np.concatenate([D, phi @ w.T], axis=1)
-        return D
-
-    C1 = curvature_descriptors(eig_1)
-    C2 = curvature_descriptors(eig_2)
-    lm1 = lm2 = None
-    if landmarks is not None:
-        lm1, lm2 = landmarks[:, 0], landmarks[:, 1]
-    D1 = signature(eig_1, ev1, lm1)
-    D2 = signature(eig_2, ev2, lm2)
-    if CURVATURE_WEIGHT > 0:
-        mean = eig_1.mass @ C1  # centred: the constant part carries no information
-        D1 = np.concatenate([D1, C1 - mean], axis=1)
-        D2 = np.concatenate([D2, C2 - mean], axis=1)
-    norms = np.sqrt(eig_1.mass @ D1**2)  # one scale per column for both shapes
-    keep = norms > 0
-    w = np.ones(D1.shape[1])
-    if CURVATURE_WEIGHT > 0:
-        w[-C1.shape[1] :] = CURVATURE_WEIGHT
-    return D1[:, keep] * (w / norms)[keep], D2[:, keep] * (w / norms)[keep]
-
-
 #: Diffusion times (in units of the source's area) of the curvature descriptors: lengths
 #: sqrt(t) from 2 % to 17 % of sqrt(area).
 CURVATURE_SCALES = (0.0005, 0.002, 0.008, 0.03)
@@ -500,7 +435,7 @@ def curvature_descriptors(
             cos /= np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
             np.add.at(angles, F[:, i], np.arccos(np.clip(cos, -1.0, 1.0)))
         K = (2 * np.pi - angles) / safe
-        unique, counts = _edges(F)
+        unique, counts = unique_edges(F)
         border = np.unique(unique[counts == 1])
         H[border] = 0.0
         K[border] = 0.0
@@ -548,15 +483,40 @@ def partial_descriptors(
     Returns
     -------
     D1, D2 : (n1, p), (n2, p) ndarray
-        Curvature descriptors and wave kernels at common energies, one scale per column.
+        Curvature descriptors and wave kernels at common energies (not normalized per shape),
+        one scale per column (the source's norms).
     """
-    return _common_wks(
-        eig_1,
-        eig_2,
-        n_energies=check_int(n_descriptors, name="n_descriptors", minimum=1),
-        k_descriptors=check_int(k_descriptors, name="k_descriptors", minimum=2),
-        landmarks=landmarks,
-    )
+    n_descriptors = check_int(n_descriptors, name="n_descriptors", minimum=1)
+    k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
+    ev1 = eig_1.evals[1 : min(k_descriptors, eig_1.k) + 1]
+    ev2 = eig_2.evals[1 : min(k_descriptors, eig_2.k) + 1]
+    common = np.array([max(ev1[0], ev2[0]), min(ev1[-1], ev2[-1])])
+    energies, sigma = wks_energies(common, n_descriptors)
+    if not sigma > 0:
+        ratio = eig_2.area / eig_1.area
+        raise ValueError(
+            "the two spectra do not overlap: the target cannot be a part of the source in the "
+            f"same units (its area is {ratio:.3g} times the source's in these units); rescale "
+            "the target to the source's units"
+        )
+
+    def signature(eig: EigenBasis, ev: np.ndarray, points: np.ndarray | None) -> np.ndarray:
+        """Return the local wave kernel (equal on a part and on the whole), its maps at points."""
+        phi = eig.evecs[:, 1 : ev.shape[0] + 1]
+        coefs = np.exp(-((energies[:, None] - np.log(ev)[None, :]) ** 2) / (2 * sigma**2))
+        maps = [] if points is None else [_kernel_signature(phi, coefs, points, False)]
+        return np.concatenate([_kernel_signature(phi, coefs, None, False), *maps], axis=1)
+
+    lm1, lm2 = _landmark_pairs(landmarks)
+    C1 = curvature_descriptors(eig_1)
+    mean = eig_1.mass @ C1  # centred: the constant part carries no information
+    D1 = np.concatenate([signature(eig_1, ev1, lm1), C1 - mean], axis=1)
+    D2 = np.concatenate([signature(eig_2, ev2, lm2), curvature_descriptors(eig_2) - mean], axis=1)
+    norms = np.sqrt(eig_1.mass @ D1**2)  # one scale per column for both shapes
+    keep = norms > 0
+    w = np.ones(D1.shape[1])
+    w[-C1.shape[1] :] = CURVATURE_WEIGHT
+    return D1[:, keep] * (w / norms)[keep], D2[:, keep] * (w / norms)[keep]
 
 
 @one_blas_thread
@@ -638,33 +598,22 @@ def fit_partial_fmap(
             k_descriptors=k_descriptors,
         )
     D1, D2 = _checked_descriptors(descriptors, eig_1, eig_2)
-    energy = _partial_energy(
-        eig_1, eig_2, k1, k2, D1, D2, dcomm=max(w_dcomm) > 0, orient=w_orient > 0
-    )
+    orient = w_orient > 0 and eig_1.faces is not None and eig_2.faces is not None
+    terms = (_shape_terms(eig_1, k1, D1, D1, max(w_dcomm) > 0, orient),
+             _shape_terms(eig_2, k2, D2, D2, max(w_dcomm) > 0, orient))  # fmt: skip
+    energy = _energy_of(eig_1, eig_2, terms, k1 + 1, k2 + 1, (True, True))
     root_r = math.sqrt(eig_2.area / eig_1.area)
     C0 = np.zeros((k2 + 1, k1 + 1))
     C0[0, 0] = root_r  # ⟨ψ0, φ0 on the part⟩ = area₂ / √(area₁ area₂)
+    ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
+    ref[0, 0] = root_r
     fits = []
     for wc in w_dcomm:
         weights = (w_descr, w_lap, float(wc), 0.0)
         if energy.orient is not None:
-            ref = _slanted_identity(eig_1.evals, eig_2.evals, k2, k1)
-            ref[0, 0] = root_r
             weights = energy.orientation_weighted(ref, weights, w_orient)
-        if solver == "direct":
-            fits.append(energy.minimize(C0, weights))
-            logger.debug("fit_partial_fmap: %dx%d, direct solve (w_dcomm %g)", k2 + 1, k1 + 1, wc)
-            continue
-        res = energy.lbfgs(C0, weights, {"maxiter": maxiter}, w_rows)
-        logger.debug(
-            "fit_partial_fmap: %dx%d, L-BFGS-B %s after %d iterations (w_dcomm %g)",
-            k2 + 1,
-            k1 + 1,
-            res.message,
-            res.nit,
-            wc,
-        )
-        fits.append(res.x.reshape(k2 + 1, k1 + 1))
+        what = f"fit_partial_fmap (w_dcomm {wc:g})"
+        fits.append(energy.solve(C0, weights, solver, {"maxiter": maxiter}, what, w_rows))
     return fits
 
 
@@ -673,47 +622,13 @@ def _checked_descriptors(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return the descriptors ``(D1, D2)`` as float arrays, checked against both shapes."""
     D1, D2 = (np.asarray(D, dtype=np.float64) for D in descriptors)
-    if (
-        D1.ndim != 2
-        or D2.ndim != 2
-        or D1.shape[1] != D2.shape[1]
-        or (D1.shape[0], D2.shape[0]) != (eig_1.n_vertices, eig_2.n_vertices)
-    ):
+    rows = (D1.shape[0], D2.shape[0]) if D1.ndim == D2.ndim == 2 else None
+    if rows != (eig_1.n_vertices, eig_2.n_vertices) or D1.shape[1] != D2.shape[1]:
         raise ValueError(
             f"descriptors must be (n1, p) and (n2, p) arrays for shapes of {eig_1.n_vertices} "
             f"and {eig_2.n_vertices} vertices; got {D1.shape} and {D2.shape}"
         )
     return D1, D2
-
-
-def _partial_energy(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    k1: int,
-    k2: int,
-    D1: np.ndarray,
-    D2: np.ndarray,
-    *,
-    dcomm: bool,
-    orient: bool,
-) -> _Energy:
-    """Build the terms of :func:`fit_partial_fmap`'s energy for a (k2+1, k1+1) map.
-
-    The descriptor-commutativity and orientation terms are left out when not wanted (the
-    orientation term also without both shapes' faces).
-    """
-    A, B = _projection(eig_1, k1) @ D1, _projection(eig_2, k2) @ D2
-    ops = (
-        _Commutator(_descriptor_ops(eig_1, k1, D1), _descriptor_ops(eig_2, k2, D2))
-        if dcomm
-        else None
-    )
-    sqdiff = (eig_1.evals[None, : k1 + 1] - eig_2.evals[: k2 + 1, None]) ** 2
-    sqdiff /= sqdiff.sum()
-    orient_term = None
-    if orient and eig_1.faces is not None and eig_2.faces is not None:
-        orient_term = _Commutator(_orientation_ops(eig_1, k1, D1), _orientation_ops(eig_2, k2, D2))
-    return _Energy(A, B, sqdiff, ops, orient_term)
 
 
 @one_blas_thread

@@ -33,17 +33,11 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from ._lanczos import (
-    MIN_PAIRS,
-    MIN_VERTICES,
-    LanczosNoConvergence,
-    block_lanczos,
-    dense_bytes,
-)
+from ._lanczos import MIN_PAIRS, MIN_VERTICES, LanczosNoConvergence, block_lanczos, dense_bytes
 from ._lanczos import fits as lanczos_fits
 from ._memory import available_memory, check_memory
 from ._progress import Progress
-from ._threads import blas_threads
+from ._threads import one_blas_thread
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from .cleaning import Cleaning, CleaningReport, CleanShape, clean_shape
 
@@ -56,7 +50,6 @@ __all__ = [
     "check_eigenbasis",
     "eigenbasis",
     "input_arrays",
-    "input_digest",
     "on_cleaned_vertices",
     "shape_digest",
 ]
@@ -84,11 +77,6 @@ class EigenSolverError(RuntimeError):
 def mass_weighted(f: np.ndarray, mass: np.ndarray) -> np.ndarray:
     """``M f`` for a signal of shape (n,) or (n, d), M the diagonal lumped mass."""
     return mass[:, None] * f if f.ndim == 2 else mass * f
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -139,12 +127,11 @@ class EigenBasis:
             )
         if self.stiffness.shape != (n, n) or self.vertices.shape != (n, 3):
             raise ValueError("stiffness and vertices must match the number of vertices of mass")
-        for name in ("evals", "evecs", "mass", "vertices"):
-            _readonly(getattr(self, name))
-        if self.faces is not None:
-            _readonly(self.faces)
-        for arr in (self.stiffness.data, self.stiffness.indices, self.stiffness.indptr):
-            arr.setflags(write=False)
+        L = self.stiffness
+        for arr in (self.evals, self.evecs, self.mass, self.vertices, self.faces, L.data,
+                    L.indices, L.indptr):  # fmt: skip
+            if arr is not None:
+                arr.setflags(write=False)
 
     @property
     def k(self) -> int:
@@ -226,23 +213,14 @@ class EigenBasis:
         )
         cleaning = None
         if "clean_index" in data:
+            report = CleaningReport.from_array(data["clean_report"])
             cleaning = Cleaning(
-                index=data["clean_index"],
-                kept=data["clean_kept"],
-                representative=data["clean_representative"],
-                report=CleaningReport.from_array(data["clean_report"]),
+                data["clean_index"], data["clean_kept"], data["clean_representative"], report
             )
-        faces = data["faces"]
-        return cls(
-            evals=data["evals"],
-            evecs=data["evecs"],
-            mass=data["mass"],
-            stiffness=stiffness,
-            vertices=data["vertices"],
-            faces=faces if faces.shape[0] else None,
-            cleaning=cleaning,
-            digest=str(data["digest"]) if "digest" in data else "",
-        )
+        evals, evecs, mass, vertices = (data[a] for a in ("evals", "evecs", "mass", "vertices"))
+        faces = data["faces"] if data["faces"].shape[0] else None
+        digest = str(data["digest"]) if "digest" in data else ""
+        return cls(evals, evecs, mass, stiffness, vertices, faces, cleaning, digest)
 
 
 def check_eigenbasis(eig: Any, name: str = "eig") -> EigenBasis:
@@ -390,22 +368,12 @@ def _shift_invert_eigs(
     solve = _counted(op.matvec, n, k, round(_SOLVES_PER_PAIR * (k + 1)))
     op = sla.LinearOperator(op.shape, matvec=solve, dtype=op.dtype)
     v0 = np.random.default_rng(seed).standard_normal(n)  # fixed start: reproducible runs
+    # tol=0: machine precision. A looser tol (1e-10) halves the Lanczos work on FAUST but misses
+    # copies of repeated eigenvalues (measured on the sphere: one of the five λ = 6 replaced by
+    # λ = 12), which no residual check can see.
     try:
-        evals, evecs = sla.eigsh(
-            stiffness,
-            k=k + 1,
-            M=M,
-            sigma=sigma,
-            which="LM",
-            OPinv=op,
-            v0=v0,
-            ncv=ncv,
-            maxiter=maxiter,
-            # Machine precision. A looser tol (1e-10) halves the Lanczos work on FAUST but
-            # misses copies of repeated eigenvalues (measured on the sphere: one of the five
-            # λ = 6 replaced by λ = 12), which no residual check can see.
-            tol=0.0,
-        )
+        evals, evecs = sla.eigsh(stiffness, k=k + 1, M=M, sigma=sigma, which="LM", OPinv=op,
+                                 v0=v0, ncv=ncv, maxiter=maxiter, tol=0.0)  # fmt: skip
     except sla.ArpackNoConvergence as exc:
         raise EigenSolverError(
             f"the eigensolver did not converge within maxiter={maxiter} restarts for k={k} on "
@@ -587,40 +555,41 @@ def _dense_for_large_k(n: int, k: int) -> bool:
     return n <= _DENSE_LARGE_K_MAX and (k + 1) > _DENSE_K_SHARE * n
 
 
+@one_blas_thread  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
 def _solve(
-    stiffness: sp.csr_matrix,
-    mass: np.ndarray,
-    k: int,
-    *,
-    maxiter: int,
-    factorization: str = "auto",
-    vertices: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """Eigenpairs with the constant first, checked; retried as documented in ``_ATTEMPTS``."""
+    shape: CleanShape, k: int, maxiter: int, factorization: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return a cleaned shape's eigenpairs, constant first, checked; retried as ``_ATTEMPTS`` says.
+
+    The memory they need is checked first.
+    """
+    stiffness, mass, vertices = shape.stiffness, shape.mass, shape.vertices
     n = mass.shape[0]
+    default_ncv = min(n, max(2 * (k + 1) + 1, 20))  # ARPACK's own Krylov space
+    check_memory(
+        8.0 * n * (default_ncv + 3 * (k + 1))
+        + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
+        + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
+        f"the eigensolver (n={n}, k={k})",
+    )
     plans: list[tuple[str, dict[str, Any]]] = []
     if n <= DENSE_MAX_VERTICES or k + 2 >= n:  # ARPACK needs k + 1 < n - 1 eigenpairs
         plans.append(("dense", {}))
     elif _dense_for_large_k(n, k):
         logger.info(
             "eigenbasis: %d eigenpairs of %d vertices, a large share: dense LAPACK (about "
-            "n³ work: 5001 eigenpairs of a 6890-vertex shape took 4.7 min)",
-            k + 1,
-            n,
-        )
+            "n³ work: 5001 eigenpairs of a 6890-vertex shape took 4.7 min)", k + 1, n,
+        )  # fmt: skip
         plans.append(("dense", {}))
     else:
         if k + 1 >= MIN_PAIRS and n >= MIN_VERTICES and _block_fits(n, k):
             plans.append(("block Lanczos", {"factorization": factorization, "block": True}))
         for shift, ncv_factor, seed in _ATTEMPTS:
-            if ncv_factor == 0:
-                # 1.5 (k+1) Lanczos vectors (ARPACK's default is 2 (k+1) + 1): measured 20 %
-                # less time at k = 99 on FAUST with the same residuals; retries use more.
-                ncv = min(n - 1, k + 1 + max(20, (k + 1) // 2))
-            else:
-                ncv = min(n - 1, max(ncv_factor * (k + 1), 20))
-            options = {"shift": shift, "ncv": ncv, "seed": seed, "factorization": factorization}
-            plans.append(("shift-invert Lanczos", options))
+            # 1.5 (k+1) Lanczos vectors first (ARPACK's default is 2 (k+1) + 1): measured 20 %
+            # less time at k = 99 on FAUST with the same residuals; retries use more.
+            ncv = max(ncv_factor * (k + 1), 20) if ncv_factor else k + 1 + max(20, (k + 1) // 2)
+            options = {"shift": shift, "ncv": min(n - 1, ncv), "seed": seed}
+            plans.append(("shift-invert Lanczos", {**options, "factorization": factorization}))
         if n <= _DENSE_FALLBACK_MAX:
             plans.append(("dense", {}))
     last: Exception | None = None
@@ -629,13 +598,8 @@ def _solve(
             # the fast path gave up: the usual solver takes over, nothing for the user to do
             logger.info("eigensolver: %s; ARPACK takes over", last)
         elif attempt:
-            logger.warning(
-                "eigensolver attempt %d failed (%s); retrying with %s %s",
-                attempt,
-                last,
-                method,
-                options,
-            )
+            logger.warning("eigensolver attempt %d failed (%s); retrying with %s %s",
+                           attempt, last, method, options)  # fmt: skip
         try:
             if method == "dense":
                 evals, evecs = _dense_eigs(stiffness, mass, k)
@@ -648,7 +612,9 @@ def _solve(
         res = _relative_residuals(stiffness, mass, evals, evecs)
         worst = int(np.argmax(res))
         if res[worst] <= RESIDUAL_TOL:
-            return evals, evecs, res, method
+            logger.debug("eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
+                         n, k, method, evals[-1], res[worst])  # fmt: skip
+            return evals, evecs
         last = EigenSolverError(
             f"eigenpair {worst} (λ={evals[worst]:.6g}) has relative residual {res[worst]:.3g} > "
             f"{RESIDUAL_TOL:g} after {method} on {n} vertices, k={k}: the solver did not converge"
@@ -714,16 +680,9 @@ def _expand(
         stiffness = sp.csr_matrix(A.T @ shape.stiffness @ A)
         stiffness.sum_duplicates()
         evecs = c.extend(evecs)
-    return EigenBasis(
-        evals=np.ascontiguousarray(evals),
-        evecs=np.ascontiguousarray(evecs),
-        mass=mass,
-        stiffness=stiffness,
-        vertices=vertices,
-        faces=faces,
-        cleaning=c if c.report.changed else None,
-        digest=digest,
-    )
+    evals, evecs = np.ascontiguousarray(evals), np.ascontiguousarray(evecs)
+    cleaning = c if c.report.changed else None
+    return EigenBasis(evals, evecs, mass, stiffness, vertices, faces, cleaning, digest)
 
 
 #: Options of :func:`eigenbasis` that change the basis of a given input (besides ``k``).
@@ -735,32 +694,6 @@ def input_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray | No
     vertices = as_vertices(vertices)
     faces = None if faces is None else as_faces(faces, vertices.shape[0])
     return vertices, faces
-
-
-def input_digest(vertices: np.ndarray, faces: np.ndarray | None, **options: Any) -> str:
-    """Hex digest identifying a shape and the options its eigenbasis was computed with.
-
-    Parameters
-    ----------
-    vertices : (n, 3) ndarray of float64
-        Validated vertex positions.
-    faces : (m, 3) ndarray of int64 or None
-        Validated triangles.
-    **options
-        Options that change the eigenbasis (their ``repr`` enters the digest).
-
-    Returns
-    -------
-    str
-        32 hexadecimal characters (BLAKE2b-128).
-    """
-    h = hashlib.blake2b(digest_size=16)
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(b"|faces|")
-    if faces is not None:
-        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    h.update(repr(sorted(options.items())).encode())
-    return h.hexdigest()
 
 
 def shape_digest(
@@ -796,14 +729,18 @@ def _digest(
     mollify_factor: float,
     n_neighbors: int,
 ) -> str:
-    return input_digest(
-        vertices,
-        faces,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=float(mollify_factor),
-        n_neighbors=n_neighbors if faces is None else None,  # only clouds depend on it
-    )
+    """BLAKE2b-128 hex digest of validated arrays and of the options their basis depends on."""
+    # n_neighbors shapes only a cloud's basis
+    options = {"weld_tolerance": weld_tolerance, "components": components,
+               "mollify_factor": float(mollify_factor),
+               "n_neighbors": n_neighbors if faces is None else None}  # fmt: skip
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(b"|faces|")
+    if faces is not None:
+        h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    h.update(repr(sorted(options.items())).encode())
+    return h.hexdigest()
 
 
 def eigenbasis(
@@ -837,19 +774,17 @@ def eigenbasis(
         Number of non-constant eigenfunctions (the paper's K = 30 is ``k=29``); ``1 <= k < n``
         with n the number of vertices after cleaning.
     weld_tolerance : float or None, default 1e-9
-        Relative distance (to the bounding-box diagonal) under which vertices are welded.
+        Relative distance (to the bounding box's largest side) under which vertices are welded.
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (:mod:`o3d_ofp.cleaning`): "auto" keeps the
         largest when it holds ≥ 90 % of the area, else raises.
-    mollify_factor : float, default 1e-5
-        Passed to :func:`o3d_ofp.laplacian.laplacian`.
-    n_neighbors : int, default 30
-        Neighbours per point for point clouds.
+    mollify_factor, n_neighbors : float, int
+        Passed to :func:`o3d_ofp.laplacian.laplacian` (default 1e-5; 30 neighbours per point
+        of a point cloud).
     maxiter : int, optional
         Bound on the Lanczos restarts per attempt (default ``max(1000, 10 (k + 1))``).
     clamp_k : bool, default False
-        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning) instead of
-        raising.
+        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning), not raise.
     factorization : {"auto", "cholmod", "superlu"}, default "auto"
         Sparse factorization of ``L − σM`` for shift-invert: CHOLMOD's supernodal Cholesky
         (from the ``cholespy`` wheels; 5-20× faster to factor than SuperLU on 50k-500k
@@ -895,18 +830,12 @@ def eigenbasis(
     if maxiter is None:
         maxiter = max(1000, 10 * (k + 1))
     maxiter = check_int(maxiter, name="maxiter", minimum=1)
-    shape = clean_shape(
-        vertices,
-        faces,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=mollify_factor,
-        n_neighbors=n_neighbors,
-    )
+    values = (weld_tolerance, components, mollify_factor, n_neighbors)
+    options = dict(zip(DIGEST_OPTIONS, values, strict=True))  # the cleaning's, and the digest's
+    shape = clean_shape(vertices, faces, **options)
     k = _fitted_k(k, shape, clamp_k)
-    evals, evecs = _eigenpairs(shape, k, maxiter=maxiter, factorization=factorization)
-    digest = _digest(vertices, faces, weld_tolerance, components, mollify_factor, n_neighbors)
-    return _expand(shape, evals, evecs, vertices, digest)
+    evals, evecs = _solve(shape, k, maxiter, factorization)
+    return _expand(shape, evals, evecs, vertices, _digest(vertices, faces, **options))
 
 
 def _fitted_k(k: int, shape: CleanShape, clamp_k: bool) -> int:
@@ -921,38 +850,6 @@ def _fitted_k(k: int, shape: CleanShape, clamp_k: bool) -> int:
             f"vertices{' after cleaning' if shape.cleaning.report.changed else ''}, so k <= {n - 1}"
         )
     return k
-
-
-def _eigenpairs(
-    shape: CleanShape, k: int, *, maxiter: int, factorization: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenpairs of the cleaned shape by :func:`_solve`, once the memory they need is checked."""
-    n = shape.mass.shape[0]
-    ncv = min(n, max(2 * (k + 1) + 1, 20))
-    check_memory(
-        8.0 * n * (ncv + 3 * (k + 1))
-        + (8.0 * n * n if n <= _DENSE_FALLBACK_MAX else 0.0)
-        + (3 * 8.0 * n * n if _dense_for_large_k(n, k) else 0.0),
-        f"the eigensolver (n={n}, k={k})",
-    )
-    with blas_threads(1):  # Lanczos' many BLAS-2 calls: threads only spin (see _threads)
-        evals, evecs, res, method = _solve(
-            shape.stiffness,
-            shape.mass,
-            k,
-            maxiter=maxiter,
-            factorization=factorization,
-            vertices=shape.vertices,
-        )
-    logger.debug(
-        "eigenbasis: n=%d k=%d via %s, λ_k=%.6g, max relative residual %.2e",
-        n,
-        k,
-        method,
-        evals[-1],
-        res.max(),
-    )
-    return evals, evecs
 
 
 def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]:
@@ -989,12 +886,6 @@ def on_cleaned_vertices(eig: EigenBasis) -> tuple[EigenBasis, np.ndarray | None]
     E = sp.csr_matrix((np.ones(kept.shape[0]), (kept, idx[kept])), shape=(c.n_input, n_c))
     stiffness = sp.csr_matrix(E.T @ eig.stiffness @ E)
     mass = np.bincount(idx[kept], weights=eig.mass[kept], minlength=n_c)
-    basis = EigenBasis(
-        evals=np.array(eig.evals),
-        evecs=np.array(eig.evecs[rep]),
-        mass=mass,
-        stiffness=stiffness,
-        vertices=np.array(eig.vertices[rep]),
-        faces=None if eig.faces is None else idx[eig.faces],
-    )
-    return basis, rep
+    faces = None if eig.faces is None else idx[eig.faces]
+    evals, evecs, vertices = np.array(eig.evals), eig.evecs[rep], eig.vertices[rep]
+    return EigenBasis(evals, evecs, mass, stiffness, vertices, faces), rep
