@@ -139,14 +139,9 @@ def load_eigenbasis(path: str | os.PathLike[str]) -> EigenBasis:
 
 
 def fetch_eigenbasis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int,
-    clamp_k: bool = False,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> tuple[EigenBasis, bool]:
+    vertices: Any, faces: Any = None, *, k: int, clamp_k: bool = False,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> tuple[EigenBasis, bool]:  # fmt: skip
     """Return a shape's eigenbasis from the cache, or compute and cache it.
 
     Parameters
@@ -178,16 +173,10 @@ def fetch_eigenbasis(
 
 
 def basis_cache_path(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> str:
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> str:  # fmt: skip
     """Path under which :func:`cached_basis` keeps this basis (it may not exist).
 
     Parameters
@@ -205,17 +194,11 @@ def basis_cache_path(
 
 
 def fetch_basis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    eig: EigenBasis | None = None,
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, eig: EigenBasis | None = None,
     **eig_options: Any,
-) -> tuple[OFPBasis, bool]:
+) -> tuple[OFPBasis, bool]:  # fmt: skip
     """Return a shape's OFP basis from the cache, or compute (maybe from ``eig``) and cache it.
 
     Parameters
@@ -256,16 +239,10 @@ def fetch_basis(
 
 
 def cached_basis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> OFPBasis:
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> OFPBasis:  # fmt: skip
     """Return the OFP basis of a shape, from the cache when it was computed before.
 
     Parameters

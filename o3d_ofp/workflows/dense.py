@@ -76,13 +76,9 @@ class CoarseShape:
 
 
 def coarse_shape(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    k: int,
-    coarse_vertices: int = COARSE_VERTICES,
+    vertices: np.ndarray, faces: np.ndarray, *, k: int, coarse_vertices: int = COARSE_VERTICES,
     components: str = "auto",
-) -> CoarseShape:
+) -> CoarseShape:  # fmt: skip
     """Build a shape's coarse copy and its eigenbasis (what :func:`match_dense` needs of it).
 
     A source matched onto several dense targets needs this once: pass it to

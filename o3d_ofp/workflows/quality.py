@@ -143,15 +143,9 @@ _LIKELY_CAUSES = {
 
 
 def map_quality(
-    p2p_21: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    fmap_12: np.ndarray | None = None,
-    *,
-    partial: bool = False,
-    overlap: float | None = None,
-    landmarks_given: bool = False,
-) -> MapQuality:
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, fmap_12: np.ndarray | None = None,
+    *, partial: bool = False, overlap: float | None = None, landmarks_given: bool = False,
+) -> MapQuality:  # fmt: skip
     """Judge a point map (and the functional map it came from) without ground truth.
 
     Parameters
@@ -405,17 +399,10 @@ def _reversed_neighbourhoods(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: Eigen
 
 
 def partial_quality(
-    p2p_21: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    fmap_12: np.ndarray,
-    *,
-    overlap: float,
-    distortion: float | None = None,
-    refinement_turned: float | None = None,
-    landmarks: bool = False,
-    landmarks_spread: bool = True,
-) -> MapQuality:
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, fmap_12: np.ndarray, *,
+    overlap: float, distortion: float | None = None, refinement_turned: float | None = None,
+    landmarks: bool = False, landmarks_spread: bool = True,
+) -> MapQuality:  # fmt: skip
     """Quality report of a partial map (target a part of the source, same units).
 
     The measures of :func:`map_quality`, except that the map is a restriction, not an
@@ -498,9 +485,7 @@ def partial_quality(
     )  # fmt: skip
 
 
-def _partial_reasons(
-    distortion: float, stretch: float, refinement_turned: float | None
-) -> list[Said]:
+def _partial_reasons(distortion: float, stretch: float, turned: float | None) -> list[Said]:
     """Return why a partial map is measured wrong (its distortion, stretch, refinement).
 
     The restriction map's orthogonality is reported, not judged: right partial maps reach
@@ -520,11 +505,11 @@ def _partial_reasons(
             "right: at most {bound:.1f}): it tears the target apart where a region is sent to "
             "the wrong place", {"stretch": stretch, "bound": MAX_STRETCH}, "stretched",
         ))  # fmt: skip
-    if refinement_turned is not None and refinement_turned > MAX_REVERSED:
+    if turned is not None and turned > MAX_REVERSED:
         reasons.append(Said(
             "refining the map by geodesic distances turned {percent:.0f} % of the triangles "
             "over, so it was kept unrefined: a right start stays oriented when refined, this "
-            "one is wrong on a large region", {"percent": 100 * refinement_turned},
+            "one is wrong on a large region", {"percent": 100 * turned},
             "refinement_turned",
         ))  # fmt: skip
     return reasons
@@ -570,14 +555,9 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> Said | Non
 
 
 def landmarks_kept(
-    quality: MapQuality,
-    p2p: np.ndarray,
-    landmarks: np.ndarray,
-    vertices_1: np.ndarray,
-    *,
-    subject: str = "the map",
-    spread_note: bool = True,
-) -> MapQuality:
+    quality: MapQuality, p2p: np.ndarray, landmarks: np.ndarray, vertices_1: np.ndarray, *,
+    subject: str = "the map", spread_note: bool = True,
+) -> MapQuality:  # fmt: skip
     """Say how far the map sends the landmarks' target vertices from their given source vertices.
 
     The landmarks enter the descriptor fit only, and the refinements can move them: measured
