@@ -1,4 +1,4 @@
-"""Geometric detail transfer in local frames, on arrays (issue 13).
+"""Geometric detail transfer in local frames, on arrays.
 
 The *detail* of a shape is what its coordinates have above a low band of its spectrum:
 ``D = X − P X`` with ``P`` the projection on the first ``band`` Laplace-Beltrami

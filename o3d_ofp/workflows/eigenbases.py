@@ -91,7 +91,7 @@ def check_shapes(
     :func:`o3d_ofp.core.cleaning.check_shape` on each (the cleaning's cheap steps: welding,
     faces, a mesh's components policy; 0.6 s for 110k vertices, 2.8 s for 440k), so that
     the second of two shapes with several components is refused before the first one's
-    eigensolve (side by side, the error waited for the other solve to end).
+    eigensolve (side by side, the error would wait for the other solve to end).
 
     Parameters
     ----------

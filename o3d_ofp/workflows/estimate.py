@@ -218,9 +218,9 @@ def estimate_dense(
 ) -> Correspondence:  # fmt: skip
     """Estimate a map between two dense meshes on coarse copies (the dense path).
 
-    :func:`o3d_ofp.workflows.dense.match_dense` with the options' strategy, then (``opinions``)
-    the strategy's check against matches on other coarse copies (the partial match's second
-    and third opinions; none for a full match).
+    The match between coarse copies (:mod:`o3d_ofp.workflows.dense`) with the options'
+    strategy, then (``opinions``) the strategy's check against matches on other coarse copies
+    (the partial match's second and third opinions; none for a full match).
 
     Parameters
     ----------
