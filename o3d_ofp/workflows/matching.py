@@ -196,11 +196,6 @@ def geodesic_repair(
 class FullMatch(Strategy):
     """The steps of a full-shape match (see the module notes)."""
 
-    method = "estimate"
-    title = "match"
-    what = "the estimated map"
-    refine_share = (0.1, 0.5)
-
     def scaled(self, eig_1: EigenBasis, eig_2: EigenBasis) -> tuple[EigenBasis, EigenBasis]:
         """Return unit-area copies: the map does not depend on the units."""
         return unit_area(eig_1), unit_area(eig_2)
