@@ -10,6 +10,7 @@ processes of a collection run) never leave a half-written file.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import os
@@ -50,56 +51,38 @@ def default_cache_dir() -> str:
 
 
 def _entry(
-    vertices: Any,
-    faces: Any,
-    key: str,
-    cache_dir: str | os.PathLike[str] | None,
-    eig_options: dict[str, Any],
-    prefix: str = "",
+    vertices: Any, faces: Any, key: str, cache_dir: Any, options: dict[str, Any], prefix: str = ""
 ) -> tuple[str, str]:
     """``(path, digest)`` of a cache entry: the shape digest, ``key`` and the other options."""
     folder = os.fspath(cache_dir) if cache_dir is not None else default_cache_dir()
-    digest = shape_digest(
-        vertices, faces, **{o: v for o, v in eig_options.items() if o in DIGEST_OPTIONS}
-    )
-    rest = sorted((o, v) for o, v in eig_options.items() if o not in DIGEST_OPTIONS)
+    own = {o: v for o, v in options.items() if o in DIGEST_OPTIONS}  # those the digest covers
+    digest = shape_digest(vertices, faces, **own)
+    rest = sorted((o, v) for o, v in options.items() if o not in DIGEST_OPTIONS)
     name = hashlib.blake2b(f"{prefix}{digest}|{key}|{rest!r}".encode(), digest_size=16)
     return os.path.join(folder, f"{'eig-' if prefix else ''}{name.hexdigest()}.npz"), digest
 
 
-def _eig_entry(
-    vertices: Any, faces: Any, k: int, clamp_k: bool, cache_dir: Any, options: dict[str, Any]
-) -> tuple[str, str]:
-    return _entry(vertices, faces, f"k={int(k)}|clamp={bool(clamp_k)}", cache_dir, options, "eig|")
+def _cached(path: str, digest: str, load: Any, compute: Any, save: Any, what: str) -> Any:
+    """Return ``(value, True)`` read from ``path``, else ``(value, False)`` computed and written.
 
-
-def _basis_entry(
-    vertices: Any,
-    faces: Any,
-    k: int,
-    order: int,
-    tol: float,
-    cache_dir: Any,
-    options: dict[str, Any],
-) -> tuple[str, str]:
-    return _entry(vertices, faces, f"k={k}|order={order}|tol={tol!r}", cache_dir, options)
-
-
-def _read_cached(path: str, load: Any, digest: str, what: str) -> Any:
-    """Read the entry at ``path``: None (logged) unless readable and of ``digest``."""
-    if not os.path.exists(path):
-        return None
-    try:
-        value = load(path)
-    except _DAMAGED as exc:
-        logger.warning("damaged cache entry %s, recomputing and rewriting it: %s", path, exc)
-        return None
-    found = value.digest if isinstance(value, EigenBasis) else value.eig.digest
-    if found != digest:
-        logger.warning("cache file %s belongs to another shape; recomputing", path)
-        return None
-    logger.info("%s loaded from cache %s", what, path)
-    return value
+    An entry that cannot be read, or that is not of ``digest`` (another shape), is a miss
+    (logged).
+    """
+    if os.path.exists(path):
+        try:
+            value = load(path)
+        except _DAMAGED as exc:
+            logger.warning("damaged cache entry %s, recomputing and rewriting it: %s", path, exc)
+        else:
+            if (value if isinstance(value, EigenBasis) else value.eig).digest == digest:
+                logger.info("%s loaded from cache %s", what, path)
+                return value, True
+            logger.warning("cache file %s belongs to another shape; recomputing", path)
+    value = compute()
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    save(value, path)
+    logger.info("%s cached in %s", what, path)
+    return value, False
 
 
 def save_eigenbasis(eig: EigenBasis, path: str | os.PathLike[str]) -> None:
@@ -156,14 +139,9 @@ def load_eigenbasis(path: str | os.PathLike[str]) -> EigenBasis:
 
 
 def fetch_eigenbasis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int,
-    clamp_k: bool = False,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> tuple[EigenBasis, bool]:
+    vertices: Any, faces: Any = None, *, k: int, clamp_k: bool = False,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> tuple[EigenBasis, bool]:  # fmt: skip
     """Return a shape's eigenbasis from the cache, or compute and cache it.
 
     Parameters
@@ -188,28 +166,17 @@ def fetch_eigenbasis(
     cached : bool
         Whether it came from the cache.
     """
-    path, digest = _eig_entry(vertices, faces, k, clamp_k, cache_dir, eig_options)
-    eig = _read_cached(path, load_eigenbasis, digest, "eigenbasis")
-    if eig is not None:
-        return eig, True
-    eig = eigenbasis(vertices, faces, k=k, clamp_k=clamp_k, **eig_options)
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    save_eigenbasis(eig, path)
-    logger.info("eigenbasis cached in %s", path)
-    return eig, False
+    key = f"k={int(k)}|clamp={bool(clamp_k)}"
+    path, digest = _entry(vertices, faces, key, cache_dir, eig_options, "eig|")
+    compute = functools.partial(eigenbasis, vertices, faces, k=k, clamp_k=clamp_k, **eig_options)
+    return _cached(path, digest, load_eigenbasis, compute, save_eigenbasis, "eigenbasis")
 
 
 def basis_cache_path(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> str:
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> str:  # fmt: skip
     """Path under which :func:`cached_basis` keeps this basis (it may not exist).
 
     Parameters
@@ -222,22 +189,16 @@ def basis_cache_path(
     str
         ``<cache_dir>/<key>.npz``, the key a digest of the shape and of every option.
     """
-    t = resolve_tol(tol, preset)
-    return _basis_entry(vertices, faces, k, order, t, cache_dir, eig_options)[0]
+    key = f"k={k}|order={order}|tol={resolve_tol(tol, preset)!r}"
+    return _entry(vertices, faces, key, cache_dir, eig_options)[0]
 
 
 def fetch_basis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    eig: EigenBasis | None = None,
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, eig: EigenBasis | None = None,
     **eig_options: Any,
-) -> tuple[OFPBasis, bool]:
+) -> tuple[OFPBasis, bool]:  # fmt: skip
     """Return a shape's OFP basis from the cache, or compute (maybe from ``eig``) and cache it.
 
     Parameters
@@ -262,35 +223,26 @@ def fetch_basis(
         If ``eig`` belongs to another shape or has fewer than ``k`` eigenfunctions.
     """
     t = resolve_tol(tol, preset)
-    path, digest = _basis_entry(vertices, faces, k, order, t, cache_dir, eig_options)
+    key = f"k={k}|order={order}|tol={t!r}"
+    path, digest = _entry(vertices, faces, key, cache_dir, eig_options)
     if eig is not None and (eig.digest != digest or eig.k < k):
         raise ValueError(
             f"eig must be this shape's eigenbasis with at least k={k} eigenfunctions (it has "
             f"{eig.k}{'' if eig.digest == digest else ' and belongs to another shape'})"
         )
-    B = _read_cached(path, OFPBasis.load, digest, "basis")
-    if B is not None:
-        return B, True
-    if eig is None:
-        eig = eigenbasis(vertices, faces, k=k, **eig_options)
-    B = ofp_basis(eig, order=order, tol=t, k=k)
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    B.save(path)
-    logger.info("basis cached in %s", path)
-    return B, False
+
+    def compute() -> OFPBasis:
+        given = eig if eig is not None else eigenbasis(vertices, faces, k=k, **eig_options)
+        return ofp_basis(given, order=order, tol=t, k=k)
+
+    return _cached(path, digest, OFPBasis.load, compute, OFPBasis.save, "basis")
 
 
 def cached_basis(
-    vertices: Any,
-    faces: Any = None,
-    *,
-    k: int = DEFAULT_K,
-    order: int = 2,
-    tol: float | None = None,
-    preset: str | None = None,
-    cache_dir: str | os.PathLike[str] | None = None,
-    **eig_options: Any,
-) -> OFPBasis:
+    vertices: Any, faces: Any = None, *, k: int = DEFAULT_K, order: int = 2,
+    tol: float | None = None, preset: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None, **eig_options: Any,
+) -> OFPBasis:  # fmt: skip
     """Return the OFP basis of a shape, from the cache when it was computed before.
 
     Parameters

@@ -101,30 +101,17 @@ def run_demo(
     xyz = vertices - (eig.mass @ vertices) / eig.area
 
     def row(name: str, size: int, approx_rgb, approx_xyz, seconds: float) -> DemoRow:
-        return DemoRow(
-            name=name,
-            size=size,
-            colors=np.clip(approx_rgb, 0.0, 1.0),
-            rgb_error=approximation_error(colors, approx_rgb, eig.mass),
-            xyz_error=approximation_error(xyz, approx_xyz, eig.mass),
-            seconds=seconds,
-        )
+        rgb_error = approximation_error(colors, approx_rgb, eig.mass)
+        xyz_error = approximation_error(xyz, approx_xyz, eig.mass)
+        return DemoRow(name, size, np.clip(approx_rgb, 0.0, 1.0), rgb_error, xyz_error, seconds)
 
-    rows = [
-        row(
-            "K eigs",
-            k + 1,
-            eig.reconstruct(eig.project(colors)),
-            eig.reconstruct(eig.project(xyz)),
-            t_eig,
-        )
-    ]
+    low = eig.reconstruct(eig.project(colors)), eig.reconstruct(eig.project(xyz))
+    rows = [row("K eigs", k + 1, *low, t_eig)]
     for preset in ("ours", "ours*"):
         t0 = time.perf_counter()
         B = ofp_basis(eig, order=order, preset=preset)
-        rows.append(
-            row(preset, B.size, B.approximate(colors), B.approximate(xyz), time.perf_counter() - t0)
-        )
+        rows.append(row(preset, B.size, B.approximate(colors), B.approximate(xyz),
+                        time.perf_counter() - t0))  # fmt: skip
     target = vertices.copy()
     target[:, 1] += 0.15 * target[:, 0] ** 2
     c, s = np.cos(0.7), np.sin(0.7)
@@ -138,15 +125,8 @@ def run_demo(
     p2p = prepared.correspondence.p2p_21
     map_error = float(np.linalg.norm(vertices[p2p] - vertices, axis=1).mean() / np.sqrt(eig.area))
     return DemoResult(
-        vertices=vertices,
-        faces=faces,
-        colors=colors,
-        k=k,
-        order=order,
-        rows=tuple(rows),
-        target_vertices=target,
-        transferred=np.clip(g, 0.0, 1.0),
-        map_error=map_error,
+        vertices=vertices, faces=faces, colors=colors, k=k, order=order, rows=tuple(rows),
+        target_vertices=target, transferred=np.clip(g, 0.0, 1.0), map_error=map_error,
         transfer_error=approximation_error(colors, g, prepared.eig_2.mass),
         transfer_seconds=t_transfer,
-    )
+    )  # fmt: skip

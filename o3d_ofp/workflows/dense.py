@@ -2,12 +2,12 @@
 
 The direct match of two 110k-vertex meshes spends most of its time on the 100
 full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertices).
-:func:`match_dense` never computes them:
+:func:`o3d_ofp.workflows.estimate.estimate_dense` never computes them:
 
 1. each shape is reduced to a coarse mesh of about :data:`COARSE_VERTICES` (20000) vertices, the
    dual of its geodesic Voronoi cells (:func:`o3d_ofp.core.multiscale.coarse_mesh`, O(n log n));
-2. the whole estimation (``estimate``: :func:`o3d_ofp.workflows.matching.match_eigenbases`,
-   descriptor fit, ZoomOut to 100, quality report) runs between the coarse meshes;
+2. the whole estimation (:func:`o3d_ofp.workflows.estimate.estimate`: descriptor fit,
+   ZoomOut to 100, quality report) runs between the coarse meshes;
 3. the coarse map is carried to every full-resolution vertex by
    :func:`o3d_ofp.core.multiscale.extend_p2p`: the coarse eigenfunctions are interpolated to
    the full vertices and each target vertex gets the exact nearest source vertex in that
@@ -35,24 +35,24 @@ __all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_landmarks
 
 logger = logging.getLogger(__name__)
 
-#: Meshes with more vertices than this (either shape) are matched by :func:`match_dense`
-#: from :func:`o3d_ofp.workflows.matching.match_arrays`. Below it the direct match is faster
-#: or as fast (measured, FAUST subdivided, 27.5k vertices: direct 0.0255 error; the coarse
-#: path gains little time there) and keeps the exact full-resolution spectral map.
+#: Meshes with more vertices than this (either shape) are matched on coarse copies (the dense
+#: path of :func:`o3d_ofp.workflows.plan.plan_pair`). Below it the direct match is faster or
+#: as fast (measured, FAUST subdivided, 27.5k vertices: direct 0.0255 error; the coarse path
+#: gains little time there) and keeps the exact full-resolution spectral map.
 DENSE_VERTICES = 50_000
 #: Vertices of each coarse mesh. Measured (FAUST 093 -> 087 subdivided to 110k vertices, map
 #: error / sqrt(area) with the estimation's chosen start; the direct match of the original
 #: 6890-vertex pair: 0.0166): 15000 coarse vertices 0.0235, 17500 0.0189, 20000 0.0184,
 #: 22500 0.0185, 27000 0.0213 (the coarse meshes' sampling moves the error by ±0.003 around a
 #: floor near 0.018); at 440k, 15000 0.0201 and 20000 0.0176. Coarse meshes and their
-#: eigenpairs take 2.3 s at 15000, 3.7 s at 20000 (110k); earlier, 7000 gave 0.034-0.09 and
-#: 10000 0.033-0.036.
+#: eigenpairs take 2.3 s at 15000, 3.7 s at 20000 (110k); 7000 gave 0.034-0.09 and 10000
+#: 0.033-0.036.
 COARSE_VERTICES = 20_000
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class CoarseShape:
-    """A shape's coarse copy and its eigenbasis, as :func:`match_dense` estimates on them.
+    """A shape's coarse copy and its eigenbasis, as the dense path estimates on them.
 
     Attributes
     ----------
@@ -76,17 +76,13 @@ class CoarseShape:
 
 
 def coarse_shape(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    k: int,
-    coarse_vertices: int = COARSE_VERTICES,
+    vertices: np.ndarray, faces: np.ndarray, *, k: int, coarse_vertices: int = COARSE_VERTICES,
     components: str = "auto",
-) -> CoarseShape:
-    """Build a shape's coarse copy and its eigenbasis (what :func:`match_dense` needs of it).
+) -> CoarseShape:  # fmt: skip
+    """Build a shape's coarse copy and its eigenbasis (what the dense path needs of it).
 
     A source matched onto several dense targets needs this once: pass it to
-    :func:`match_dense` as ``coarse_1``.
+    :func:`o3d_ofp.workflows.estimate.estimate_dense` as ``coarse_source``.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Geometric detail transfer in local frames, on arrays (issue 13).
+"""Geometric detail transfer in local frames, on arrays.
 
 The *detail* of a shape is what its coordinates have above a low band of its spectrum:
 ``D = X − P X`` with ``P`` the projection on the first ``band`` Laplace-Beltrami
@@ -21,6 +21,9 @@ a map and re-applied in the target's local frames:
 * **Carrying.** The detail vectors and the low-pass coordinates are carried to the target
   either by pulling them back through the point map (``carry="p2p"``) or with the OFP transfer
   of the paper (``carry="ofp"``, :func:`o3d_ofp.workflows.pipeline.transfer_function`).
+  Measured with the true map: the OFP transfer loses most of the detail (distance 0.79-0.97x
+  doing nothing and normal angle 0.98-1.16x, against 0.57-0.78x and 0.45-0.59x pulled back).
+  With a wrong map both are the same (the map is not trusted).
 * **Trust in the map.** Where the map is wrong the two low-pass neighbourhoods do not match:
   the fitted rotation then leaves a poor fit (see :func:`local_rotations`). The detail is
   weighted by ``clip((fit − 0.7) / (0.9 − 0.7), 0, 1)``; where it is not trusted, the target
@@ -39,7 +42,9 @@ The result keeps the target's pose and low-frequency shape. Modes (:data:`MODES`
 * ``"add"`` (default): the target keeps its own detail and gains the source's on top (right
   for a smooth target, which is taken as its own low-pass shape).
 * ``"replace-detail"``: the target's own detail above ``band`` is removed and the source's
-  put in its place (a shape given itself as source comes back unchanged).
+  put in its place (a shape given itself as source comes back unchanged). Measured on
+  smoothed targets: 1.18-1.31x doing nothing, as re-projecting an already smoothed target on
+  the eigenfunctions of its own (smoothed) surface removes more of it.
 * ``"coordinates"``: the paper's Fig. 13, the source's coordinates transferred with OFP bases
   replace the target's (the target's pose is lost); ``"replace"`` is its former, deprecated
   name.
@@ -251,16 +256,6 @@ def _normals(eig: EigenBasis, surface: np.ndarray, given: Any, name: str) -> np.
     return None if eig.faces is None else vertex_normals(surface, eig.faces)
 
 
-def _surface_area(
-    eig: EigenBasis, vertices: np.ndarray, *, region: np.ndarray | None = None
-) -> float | None:
-    """Area of the mesh with these vertex positions (of its triangles inside ``region``)."""
-    if eig.faces is None:
-        return None
-    areas = face_areas_normals(vertices, eig.faces)[0]
-    return float(areas.sum() if region is None else areas[region[eig.faces].all(axis=1)].sum())
-
-
 #: A map whose image covers less than this fraction of the source's area (the vertices within
 #: two mean edge lengths of an image vertex), onto a target whose area is also below this
 #: fraction of the source's, maps the target onto a part of the source; a partial map from
@@ -336,14 +331,9 @@ COORDINATES_AREA_RATIO = 2.0
 
 
 def check_coordinates_area(
-    V1: np.ndarray,
-    F1: Any,
-    moved: np.ndarray,
-    F2: Any,
-    *,
-    part: np.ndarray | None = None,
+    V1: np.ndarray, F1: Any, moved: np.ndarray, F2: Any, *, part: np.ndarray | None = None,
     target: np.ndarray | None = None,
-) -> None:
+) -> None:  # fmt: skip
     """Warn (OFPWarning) when transferred coordinates do not have the source's area.
 
     ``V1``, ``F1``: the source; ``moved``: the target's new vertices, ``F2`` its faces (either
@@ -383,20 +373,11 @@ def check_coordinates_area(
 
 
 def transfer_detail_frames(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    p2p_21: Any = None,
-    correspondence: Correspondence | None = None,
-    mode: str = "add",
-    band: int = DETAIL_BAND,
-    amount: float = 1.0,
-    carry: str = "p2p",
-    rotation_k: int = ROTATION_K,
-    fit_range: tuple[float, float] | None = FIT_RANGE,
-    normals_1: Any = None,
-    normals_2: Any = None,
-) -> np.ndarray:
+    eig_1: EigenBasis, eig_2: EigenBasis, *, p2p_21: Any = None,
+    correspondence: Correspondence | None = None, mode: str = "add", band: int = DETAIL_BAND,
+    amount: float = 1.0, carry: str = "p2p", rotation_k: int = ROTATION_K,
+    fit_range: tuple[float, float] | None = FIT_RANGE, normals_1: Any = None, normals_2: Any = None,
+) -> np.ndarray:  # fmt: skip
     """Give the target the source's geometric detail, in local frames; return new positions.
 
     Parameters
@@ -413,10 +394,8 @@ def transfer_detail_frames(
         "add": the target keeps its own detail and the source's is added on top (right for a
         smooth target: it is taken as its own low-pass shape). "replace-detail": the
         target's own detail above ``band`` is replaced by the source's (added to the target's
-        low-pass shape; a shape given itself as source then comes back unchanged). Measured
-        on smoothed targets: "replace-detail" is 1.18-1.31x doing nothing, as re-projecting an
-        already smoothed target on the eigenfunctions of its own (smoothed) surface removes
-        more of it. (Mode "coordinates", the paper's Fig. 13, moves the target through the OFP
+        low-pass shape; a shape given itself as source then comes back unchanged; on a smoothed
+        target, see the module notes). (Mode "coordinates" moves the target through the OFP
         bases: :func:`o3d_ofp.transfer_detail`.)
     band : int, default 30
         Low band, in eigenfunctions: the detail is the part of the coordinates above the
@@ -430,10 +409,8 @@ def transfer_detail_frames(
         Multiplies the transferred detail, in [0, 10] (0 returns the base surface).
     carry : {"p2p", "ofp"}, default "p2p"
         How the detail reaches the target: pulled back through the point map, or transferred
-        with the OFP bases (order 2 on 29 / 39 eigenfunctions, "ours*"). Measured with the
-        true map: the OFP transfer loses most of the detail (distance 0.79-0.97x doing nothing
-        and normal angle 0.98-1.16x, against 0.57-0.78x and 0.45-0.59x pulled back). With a
-        wrong map both are the same (the map is not trusted).
+        with the OFP bases (order 2 on 29 / 39 eigenfunctions, "ours*"; measured: see the
+        module notes).
     rotation_k : int, default 10
         Size of the neighbourhood the local rotations are fitted on (heat kernel at time
         ``1/λ_rotation_k``).
@@ -454,29 +431,11 @@ def transfer_detail_frames(
     Raises
     ------
     ValueError
-        For an unknown ``mode`` or ``carry``, a ``band`` or ``rotation_k`` outside an
-        eigenbasis, an ``amount`` outside [0, 10], a bad ``fit_range``, or no / two maps;
-        each message names the keyword.
+        For a value outside its range, or no / two maps; each message names the keyword.
     """
     options = DetailOptions(mode=mode, band=band, amount=amount)
-    if options.mode == "coordinates":
-        raise OptionError("mode", "'coordinates' moves the target through the OFP bases: "
-                          "o3d_ofp.transfer_detail(..., mode='coordinates')")  # fmt: skip
-    mode, amount = options.mode, options.amount
-    if carry not in _CARRIES:
-        raise OptionError("carry", f"must be 'p2p' or 'ofp'; got {carry!r}")
-    check_eigenbasis(eig_1, "eig_1")
-    check_eigenbasis(eig_2, "eig_2")
-    if (p2p_21 is None) == (correspondence is None):
-        raise OptionError("p2p_21", "and correspondence: give exactly one of them")
-    if check_correspondence(correspondence) is None:
-        correspondence = Correspondence(
-            p2p_21=check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices), n_source=eig_1.n_vertices
-        )
-    correspondence.check(
-        eig_1.n_vertices, eig_2.n_vertices, source=eig_1.vertices, target=eig_2.vertices
-    )
-    p2p = np.asarray(correspondence.p2p_21)
+    correspondence = _checked(eig_1, eig_2, p2p_21, correspondence, options.mode, carry)
+    mode, amount, p2p = options.mode, options.amount, np.asarray(correspondence.p2p_21)
     band_1 = _check_band(band, eig_1, "eig_1")
     _check_band(band, eig_2, "eig_2")
     rotation_k = check_int(rotation_k, name="rotation_k", minimum=1, maximum=eig_2.k)
@@ -493,10 +452,9 @@ def transfer_detail_frames(
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]
     else:
-        both = transfer_function(
-            np.hstack([low_1, detail_1]), eig_1, eig_2, correspondence=correspondence,
-            options=BasisOptions(preset="ours*"),
-        )  # fmt: skip
+        ours = BasisOptions(preset="ours*")
+        both = transfer_function(np.hstack([low_1, detail_1]), eig_1, eig_2,
+                                 correspondence=correspondence, options=ours)  # fmt: skip
         low_at_2, detail_at_2 = both[:, :3], both[:, 3:]
     R, fit = local_rotations(eig_2, low_at_2, base, rotation_k=rotation_k)
     moved = np.einsum("nij,nj->ni", R, detail_at_2)
@@ -509,13 +467,42 @@ def transfer_detail_frames(
             mean_height = float(eig_1.mass @ np.einsum("ij,ij->i", detail_1, n1)) / eig_1.area
             moved += ((1.0 - w) * mean_height)[:, None] * n2
         logger.debug("map trusted at %.1f %% of the target", 100.0 * float(w.mean()))
-    area_base, area_low = _surface_area(eig_2, base), _surface_area(eig_1, low_1, region=region)
-    if area_base is not None and area_low is not None and area_low > 0:
-        scale = math.sqrt(area_base / area_low)
-    else:
-        scale = math.sqrt(eig_2.area / eig_1.area)
+    scale = _detail_scale(eig_1, eig_2, base, low_1, region)
     logger.debug("detail transfer: band %d, scale %.4g, carry %s", band_1, scale, carry)
     return base + (amount * scale) * moved
+
+
+def _checked(
+    eig_1: EigenBasis, eig_2: EigenBasis, p2p_21: Any, correspondence: Any, mode: str, carry: str
+) -> Correspondence:
+    """Refuse what :func:`transfer_detail_frames` cannot do; return its map, checked."""
+    if mode == "coordinates":
+        raise OptionError("mode", "'coordinates' moves the target through the OFP bases: "
+                          "o3d_ofp.transfer_detail(..., mode='coordinates')")  # fmt: skip
+    if carry not in _CARRIES:
+        raise OptionError("carry", f"must be 'p2p' or 'ofp'; got {carry!r}")
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
+    if (p2p_21 is None) == (correspondence is None):
+        raise OptionError("p2p_21", "and correspondence: give exactly one of them")
+    n1, n2 = eig_1.n_vertices, eig_2.n_vertices
+    if check_correspondence(correspondence) is None:
+        correspondence = Correspondence(p2p_21=check_p2p(p2p_21, n2, n1), n_source=n1)
+    correspondence.check(n1, n2, source=eig_1.vertices, target=eig_2.vertices)
+    return correspondence
+
+
+def _detail_scale(
+    eig_1: EigenBasis, eig_2: EigenBasis, base: np.ndarray, low_1: np.ndarray, region: Any
+) -> float:
+    """``sqrt(area(base) / area(P X₁))``, ``P X₁`` on ``region`` (clouds: their total masses)."""
+    if eig_1.faces is None or eig_2.faces is None:
+        return math.sqrt(eig_2.area / eig_1.area)
+    area_base = float(face_areas_normals(base, eig_2.faces)[0].sum())
+    areas = face_areas_normals(low_1, eig_1.faces)[0]
+    inside = slice(None) if region is None else region[eig_1.faces].all(axis=1)
+    area_low = float(areas[inside].sum())
+    return math.sqrt(area_base / area_low) if area_low > 0 else math.sqrt(eig_2.area / eig_1.area)
 
 
 def _onto_part(
@@ -554,13 +541,9 @@ def _onto_part(
 
 
 def _warn_detailed_target(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    low_1: np.ndarray,
-    region: np.ndarray | None,
-    band_1: int,
-    band_2: int,
-) -> None:
+    eig_1: EigenBasis, eig_2: EigenBasis, low_1: np.ndarray, region: np.ndarray | None,
+    band_1: int, band_2: int,
+) -> None:  # fmt: skip
     """Warn (mode "add") when the target already has detail: the source's would go on top."""
     own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
     theirs = _detail_rms(eig_1, low_1, region=region)

@@ -57,11 +57,7 @@ def eigenbasis_bytes(n: int, k: int) -> float:
 
 
 def run_per_shape(
-    jobs: Sequence[Callable[[], T]],
-    vertices: Sequence[int],
-    memory: Sequence[float],
-    *,
-    what: str,
+    jobs: Sequence[Callable[[], T]], vertices: Sequence[int], memory: Sequence[float], *, what: str
 ) -> list[T]:
     """Run one job per shape, side by side when the shapes are large enough.
 
@@ -87,18 +83,15 @@ def run_per_shape(
 
 
 def check_shapes(
-    shapes: Sequence[tuple[Any, Any]],
-    *,
-    names: Sequence[str] | None = None,
-    components: str = "auto",
-    weld_tolerance: float | None = 1e-9,
-) -> None:
+    shapes: Sequence[tuple[Any, Any]], *, names: Sequence[str] | None = None,
+    components: str = "auto", weld_tolerance: float | None = 1e-9,
+) -> None:  # fmt: skip
     """Refuse, before any of them is solved, a shape its eigensolve would refuse.
 
     :func:`o3d_ofp.core.cleaning.check_shape` on each (the cleaning's cheap steps: welding,
     faces, a mesh's components policy; 0.6 s for 110k vertices, 2.8 s for 440k), so that
     the second of two shapes with several components is refused before the first one's
-    eigensolve (side by side, the error waited for the other solve to end).
+    eigensolve (side by side, the error would wait for the other solve to end).
 
     Parameters
     ----------
@@ -135,11 +128,9 @@ def said_of(name: str) -> Iterator[None]:
 
 
 def eigenbases(
-    shapes: Sequence[tuple[np.ndarray, np.ndarray | None, int]],
-    *,
-    names: Sequence[str] | None = None,
-    **options: Any,
-) -> list[EigenBasis]:
+    shapes: Sequence[tuple[np.ndarray, np.ndarray | None, int]], *,
+    names: Sequence[str] | None = None, **options: Any,
+) -> list[EigenBasis]:  # fmt: skip
     """:func:`o3d_ofp.eigenbasis` of every ``(vertices, faces, k)``, side by side.
 
     Every shape is checked (:func:`check_shapes`) before any is solved.
@@ -160,20 +151,13 @@ def eigenbases(
         In the order of ``shapes``.
     """
     if len(shapes) > 1:
-        check_shapes(
-            [(V, F) for V, F, _ in shapes],
-            names=names,
-            components=options.get("components", "auto"),
-            weld_tolerance=options.get("weld_tolerance", 1e-9),
-        )
+        check_shapes([(V, F) for V, F, _ in shapes], names=names,
+                     components=options.get("components", "auto"),
+                     weld_tolerance=options.get("weld_tolerance", 1e-9))  # fmt: skip
     jobs = [functools.partial(eigenbasis, V, F, k=k, **options) for V, F, k in shapes]
     try:
         sizes = [(int(np.shape(V)[0]), int(k)) for V, _, k in shapes]
     except (TypeError, ValueError, IndexError):  # eigenbasis names what is wrong
         return [job() for job in jobs]
-    return run_per_shape(
-        jobs,
-        [n for n, _ in sizes],
-        [eigenbasis_bytes(n, k) for n, k in sizes],
-        what="eigenbases",
-    )
+    memory = [eigenbasis_bytes(n, k) for n, k in sizes]
+    return run_per_shape(jobs, [n for n, _ in sizes], memory, what="eigenbases")

@@ -54,14 +54,10 @@ def strategy_of(options: MatchOptions) -> Strategy:
 
 
 def estimate(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    options: MatchOptions | None = None,
-    strategy: Strategy | None = None,
-    progress: Callable[[str, float], None] | None = None,
+    eig_1: EigenBasis, eig_2: EigenBasis, *, options: MatchOptions | None = None,
+    strategy: Strategy | None = None, progress: Callable[[str, float], None] | None = None,
     warn_suspect: bool = True,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Estimate a map between two eigenbases: the skeleton every estimation runs.
 
     Parameters
@@ -107,12 +103,9 @@ def estimate(
 
 
 def match_eigenbases(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    options: MatchOptions | None = None,
+    eig_1: EigenBasis, eig_2: EigenBasis, *, options: MatchOptions | None = None,
     progress: Callable[[str, float], None] | None = None,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Estimate a map between two shapes from their eigenbases (:func:`o3d_ofp.match` on arrays).
 
     Parameters
@@ -154,14 +147,9 @@ def match_eigenbases(
 
 
 def _estimate(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    strategy: Strategy,
-    landmarks: np.ndarray | None,
-    options: MatchOptions,
-    progress: Callable[[str, float], None] | None,
-    warn_suspect: bool,
-) -> Correspondence:
+    eig_1: EigenBasis, eig_2: EigenBasis, strategy: Strategy, landmarks: np.ndarray | None,
+    options: MatchOptions, progress: Callable[[str, float], None] | None, warn_suspect: bool,
+) -> Correspondence:  # fmt: skip
     """:func:`estimate` between two cleaned surfaces."""
     report = progress or StageProgress(logger, strategy.title)
     run = Run(eig_1, eig_2, *strategy.scaled(eig_1, eig_2), landmarks, options, report)
@@ -179,22 +167,17 @@ def _estimate(
     say(strategy.title, strategy.what, quality, warn_suspect=warn_suspect)
     report("done", 1.0)
     return Correspondence(
-        p2p_21=settled.p2p_21,
-        n_source=eig_1.n_vertices,
-        fmap_12=settled.fmap_12,
-        method=strategy.method,
-        options=strategy.options(run, settled),
-        quality=quality,
+        p2p_21=settled.p2p_21, n_source=eig_1.n_vertices, fmap_12=settled.fmap_12,
+        method=strategy.method, options=strategy.options(run, settled), quality=quality,
         signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
-    )
+    )  # fmt: skip
 
 
 def on_surfaces(
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
+    eig_1: EigenBasis, eig_2: EigenBasis,
     match: Callable[[EigenBasis, EigenBasis, np.ndarray | None], Correspondence],
     landmarks: np.ndarray | None,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Run an estimation on the shapes' cleaned surfaces; its map back on the input vertices.
 
     ``match(s1, s2, landmarks)`` runs between :func:`o3d_ofp.core.spectrum.on_cleaned_vertices`
@@ -221,32 +204,23 @@ def on_surfaces(
     p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
     if rep_2 is not None:
         p2p = p2p[eig_2.cleaning.index]
-    corr = dataclasses.replace(
-        corr,
-        p2p_21=p2p,
-        n_source=eig_1.n_vertices,
-        options={**corr.options, "landmarks": None if landmarks is None else landmarks.tolist()},
-    )
+    given = None if landmarks is None else landmarks.tolist()
+    corr = dataclasses.replace(corr, p2p_21=p2p, n_source=eig_1.n_vertices,
+                               options={**corr.options, "landmarks": given})  # fmt: skip
     return with_signatures(corr, eig_1.vertices, eig_2.vertices)
 
 
 def estimate_dense(
-    vertices_1: np.ndarray,
-    faces_1: np.ndarray,
-    vertices_2: np.ndarray,
-    faces_2: np.ndarray,
-    *,
-    options: MatchOptions | None = None,
-    coarse_vertices: int | None = None,
-    coarse_source: Any = None,
-    progress: Callable[[str, float], None] | None = None,
+    vertices_1: np.ndarray, faces_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray, *,
+    options: MatchOptions | None = None, coarse_vertices: int | None = None,
+    coarse_source: Any = None, progress: Callable[[str, float], None] | None = None,
     opinions: bool = True,
-) -> Correspondence:
+) -> Correspondence:  # fmt: skip
     """Estimate a map between two dense meshes on coarse copies (the dense path).
 
-    :func:`o3d_ofp.workflows.dense.match_dense` with the options' strategy, then (``opinions``)
-    the strategy's check against matches on other coarse copies (the partial match's second
-    and third opinions; none for a full match).
+    The match between coarse copies (:mod:`o3d_ofp.workflows.dense`) with the options'
+    strategy, then (``opinions``) the strategy's check against matches on other coarse copies
+    (the partial match's second and third opinions; none for a full match).
 
     Parameters
     ----------
@@ -308,19 +282,10 @@ def coarse_source(vertices: np.ndarray, faces: np.ndarray, options: MatchOptions
 
 
 def _match_dense(
-    vertices_1: np.ndarray,
-    faces_1: np.ndarray,
-    vertices_2: np.ndarray,
-    faces_2: np.ndarray,
-    *,
-    strategy: Strategy,
-    options: MatchOptions,
-    landmarks: np.ndarray | None,
-    coarse_vertices: int,
-    progress: Callable[[str, float], None] | None,
-    coarse_1: CoarseShape | None,
-    quiet: bool,
-) -> Correspondence:
+    vertices_1: np.ndarray, faces_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray, *,
+    strategy: Strategy, options: MatchOptions, landmarks: np.ndarray | None, coarse_vertices: int,
+    progress: Callable[[str, float], None] | None, coarse_1: CoarseShape | None, quiet: bool,
+) -> Correspondence:  # fmt: skip
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
 
     The strategy's :meth:`~o3d_ofp.workflows.strategy.Strategy.for_coarse` runs between coarse
@@ -344,8 +309,8 @@ def _match_dense(
     report = progress or StageProgress(logger, "match (dense)")
 
     def say(what: str, done: float, *args: Any) -> None:  # a caller's progress: its own shares
-        logger.info("match (dense): " + what + ("" if progress else f" ({round(100 * done)}%)"),
-                    *args)  # fmt: skip
+        logger.info("match (dense): " + what + "%s", *args,
+                    "" if progress else f" ({round(100 * done)}%)")  # fmt: skip
 
     t0 = time.perf_counter()
     c1, c2 = _coarse_copies(
@@ -371,11 +336,10 @@ def _match_dense(
         quality = dataclasses.replace(quality, coverage=hit / n1, coverage_ratio=hit / min(n1, n2))
         quality = quality if left_out is None else quality.noted(left_out)
         # The report logged above is the coarse map's; the result's coverage is the full one.
-        logger.info(
-            "match (dense): the quality above is the coarse meshes'; at full resolution the "
-            "map hits %d source vertices: coverage %.3f of the source's vertices (%.2f of the "
-            "smaller shape's count)", hit, quality.coverage, quality.coverage_ratio,
-        )  # fmt: skip
+        logger.info("match (dense): the quality above is the coarse meshes'; at full resolution "
+                    "the map hits %d source vertices: coverage %.3f of the source's vertices "
+                    "(%.2f of the smaller shape's count)", hit, quality.coverage,
+                    quality.coverage_ratio)  # fmt: skip
     say("done in %.1fs", 1.0, time.perf_counter() - t0)
     report("done", 1.0)
     sizes = [int(c1.vertices.shape[0]), int(c2.vertices.shape[0])]
@@ -387,18 +351,18 @@ def _match_dense(
 
 
 def _coarse_copies(
-    source: tuple[np.ndarray, np.ndarray],
-    target: tuple[np.ndarray, np.ndarray],
-    coarse_1: CoarseShape | None,
-    size: int,
-    options: MatchOptions,
-    say: Callable[..., None],
+    source: tuple[np.ndarray, np.ndarray], target: tuple[np.ndarray, np.ndarray],
+    coarse_1: CoarseShape | None, size: int, options: MatchOptions, say: Callable[..., None],
     report: Callable[[str, float], None],
-) -> tuple[CoarseShape, CoarseShape]:
+) -> tuple[CoarseShape, CoarseShape]:  # fmt: skip
     """Return the coarse copies of both shapes (side by side), or the target's beside one given.
 
-    A shape their eigensolves would refuse is refused before either is built.
+    A source's copy built for another vertex count, or a shape their eigensolves would refuse,
+    is refused before either is built.
     """
+    if coarse_1 is not None and coarse_1.cell.shape[0] != len(source[0]):
+        raise ValueError(f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; "
+                         f"the source has {len(source[0])}")  # fmt: skip
     shapes = [source, target][0 if coarse_1 is None else 1 :]
     check_shapes(shapes, names=("the source", "the target")[2 - len(shapes) :],
                  components=options.components)  # fmt: skip

@@ -8,6 +8,7 @@ or the command line on demand).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -115,17 +116,12 @@ class MapQuality:
         verdict = "SUSPECT" if self.suspect else "ok"
         # Each fraction says of what: the vertices hit, of the source's vertices and of the
         # smaller shape's count; the overlap, of the source's area.
-        parts = [
-            f"coverage {self.coverage:.3f} of the source's vertices ({self.coverage_ratio:.2f} "
-            "of the smaller shape's count)"
-        ]
-        for name, value in (
-            ("orthogonality", self.orthogonality),
-            ("inconsistency", self.inconsistency),
-            (f"reversed {self.reversed_of}", self.reversed_fraction),
-        ):
-            if not math.isnan(value):  # measures a map of this kind does not have are left out
-                parts.append(f"{name} {value:.3f}")
+        parts = [f"coverage {self.coverage:.3f} of the source's vertices "
+                 f"({self.coverage_ratio:.2f} of the smaller shape's count)"]  # fmt: skip
+        measures = (("orthogonality", self.orthogonality), ("inconsistency", self.inconsistency),
+                    (f"reversed {self.reversed_of}", self.reversed_fraction))  # fmt: skip
+        # measures a map of this kind does not have (NaN) are left out
+        parts += [f"{name} {value:.3f}" for name, value in measures if not math.isnan(value)]
         if not math.isnan(self.area_ratio):
             parts.append(f"area ratio {self.area_ratio:.3g}")
         if self.overlap is not None:
@@ -217,36 +213,28 @@ class Correspondence:
     eigenbases: tuple[EigenBasis, EigenBasis] | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        p2p = check_p2p(self.p2p_21, np.shape(self.p2p_21)[0], self.n_source)
-        object.__setattr__(self, "p2p_21", p2p)
-        p2p.setflags(write=False)
+        n2 = np.shape(self.p2p_21)[0]
+        held: dict[str, Any] = {"p2p_21": check_p2p(self.p2p_21, n2, self.n_source)}
         if self.fmap_12 is not None:
-            C = np.array(self.fmap_12, dtype=np.float64)
-            C.setflags(write=False)
-            object.__setattr__(self, "fmap_12", C)
+            held["fmap_12"] = np.array(self.fmap_12, dtype=np.float64)
         if (self.faces_21 is None) != (self.barycentric_21 is None):
             raise ValueError("faces_21 and barycentric_21 go together")
         if self.faces_21 is not None:
-            n2 = p2p.shape[0]
-            faces = np.array(self.faces_21, dtype=np.int64)
-            bary = np.array(self.barycentric_21, dtype=np.float64)
+            faces = held["faces_21"] = np.array(self.faces_21, dtype=np.int64)
+            bary = held["barycentric_21"] = np.array(self.barycentric_21, dtype=np.float64)
             if faces.shape != (n2,) or bary.shape != (n2, 3):
-                raise ValueError(
-                    f"faces_21 and barycentric_21 must have shapes ({n2},) and ({n2}, 3); got "
-                    f"{faces.shape} and {bary.shape}"
-                )
+                raise ValueError(f"faces_21 and barycentric_21 must have shapes ({n2},) and "
+                                 f"({n2}, 3); got {faces.shape} and {bary.shape}")  # fmt: skip
             if not np.all(np.isfinite(bary)) or np.abs(bary.sum(axis=1) - 1).max() > 1e-6:
                 raise ValueError("barycentric_21 rows must be finite and sum to 1")
-            for arr, name in ((faces, "faces_21"), (bary, "barycentric_21")):
-                arr.setflags(write=False)
-                object.__setattr__(self, name, arr)
         if self.signatures is not None:
-            pair = tuple(np.array(s, dtype=np.float64).ravel() for s in self.signatures)
+            pair = held["signatures"] = tuple(np.ravel(np.array(s, float)) for s in self.signatures)
             if len(pair) != 2:
                 raise ValueError("signatures must be (source signature, target signature)")
-            for s in pair:
-                s.setflags(write=False)
-            object.__setattr__(self, "signatures", pair)
+        for name, value in held.items():  # read-only, as the frozen dataclass they are in
+            for array in value if name == "signatures" else (value,):
+                array.setflags(write=False)
+            object.__setattr__(self, name, value)
 
     @property
     def n_target(self) -> int:
@@ -332,9 +320,8 @@ class Correspondence:
         if (self.n_source, self.n_target) != (n_source, n_target):
             raise ValueError(
                 f"{name} maps {self.n_target} target vertices to {self.n_source} source "
-                f"vertices, but the target has {n_target} and the source {n_source}: it "
-                "belongs to "
-                "other shapes, or to these read otherwise (a map saved by o3d-ofp indexes the "
+                f"vertices, but the target has {n_target} and the source {n_source}: it belongs "
+                "to other shapes, or to these read otherwise (a map saved by o3d-ofp indexes the "
                 "vertices as o3d_ofp.read_geometry reads them; Open3D's reader with "
                 "enable_post_processing=True splits an OBJ's vertices, along its UV seams or at "
                 "every corner)"
@@ -401,15 +388,14 @@ class Correspondence:
             "method": np.array(self.method),
             "options": np.array(json.dumps(dict(self.options), sort_keys=True, default=str)),
         }
-        if self.fmap_12 is not None:
-            payload["fmap_12"] = self.fmap_12
+        optional = {
+            "fmap_12": self.fmap_12, "faces_21": self.faces_21,
+            "barycentric_21": self.barycentric_21,
+            **dict(zip(("signature_1", "signature_2"), self.signatures or (), strict=False)),
+        }  # fmt: skip
         if self.quality is not None:
-            payload["quality"] = np.array(json.dumps(self.quality.as_dict(), default=float))
-        if self.faces_21 is not None:
-            payload["faces_21"] = self.faces_21
-            payload["barycentric_21"] = self.barycentric_21
-        if self.signatures is not None:
-            payload["signature_1"], payload["signature_2"] = self.signatures
+            optional["quality"] = np.array(json.dumps(self.quality.as_dict(), default=float))
+        payload.update({key: value for key, value in optional.items() if value is not None})
         path = os.fspath(path)
         if not path.endswith(".npz"):
             raise ValueError(f"{path}: a correspondence is saved as .npz; name it {path}.npz")
@@ -451,22 +437,16 @@ class Correspondence:
             if int(data["format_version"]) not in (1, _FORMAT_VERSION):
                 raise ValueError(f"{name}: unknown correspondence format version")
             try:
-                quality = None
-                if "quality" in data:
-                    quality = MapQuality.from_dict(json.loads(str(data["quality"])))
+                got = {key: data[key] for key in data.files}
+                quality = json.loads(str(got["quality"])) if "quality" in got else None
+                signed = "signature_1" in got
                 return cls(
-                    p2p_21=data["p2p_21"],
-                    n_source=int(data["n_source"]),
-                    fmap_12=data["fmap_12"] if "fmap_12" in data else None,
-                    method=str(data["method"]),
-                    options=json.loads(str(data["options"])),
-                    quality=quality,
-                    faces_21=data["faces_21"] if "faces_21" in data else None,
-                    barycentric_21=data["barycentric_21"] if "barycentric_21" in data else None,
-                    signatures=(data["signature_1"], data["signature_2"])
-                    if "signature_1" in data
-                    else None,
-                )
+                    p2p_21=got["p2p_21"], n_source=int(got["n_source"]), method=str(got["method"]),
+                    fmap_12=got.get("fmap_12"), options=json.loads(str(got["options"])),
+                    quality=None if quality is None else MapQuality.from_dict(quality),
+                    faces_21=got.get("faces_21"), barycentric_21=got.get("barycentric_21"),
+                    signatures=(got["signature_1"], got["signature_2"]) if signed else None,
+                )  # fmt: skip
             except (TypeError, ValueError, KeyError) as exc:
                 raise ValueError(f"{name}: damaged correspondence file ({exc})") from exc
 
@@ -563,16 +543,9 @@ def _vertices_of(shape: Any) -> np.ndarray | int:
         return int(shape)
     if isinstance(shape, tuple):
         shape = shape[0]
-    for get in (
-        lambda s: s.vertex.positions.numpy(),  # Open3D tensor geometries
-        lambda s: s.vertices,  # legacy TriangleMesh
-        lambda s: s.points,  # legacy PointCloud
-    ):
-        try:
-            shape = get(shape)
-            break
-        except AttributeError:
-            continue
+    with contextlib.suppress(AttributeError):
+        shape = shape.vertex.positions.numpy()  # Open3D tensor geometries
+    shape = getattr(shape, "vertices", getattr(shape, "points", shape))  # legacy mesh or cloud
     V = np.asarray(shape, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3:
         raise OptionError(

@@ -67,13 +67,9 @@ SELECT_K = 49
 
 
 def alignment_residual(
-    fmap_12: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    samples: int = 2000,
+    fmap_12: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, samples: int = 2000,
     sample_indices: tuple[np.ndarray, np.ndarray] | None = None,
-) -> float:
+) -> float:  # fmt: skip
     """Mean distance between the target's spectral embedding and its nearest mapped source row.
 
     ``mean_i min_j ‖Ψ_i − (Φ Cᵀ)_j‖`` over farthest-point samples of both shapes, for unit-area
@@ -95,12 +91,7 @@ def alignment_residual(
     float
     """
     k = min(fmap_12.shape) - 1
-    if sample_indices is None:
-        sample_indices = (
-            farthest_points(eig_1.vertices, samples),
-            farthest_points(eig_2.vertices, samples),
-        )
-    s1, s2 = sample_indices
+    s1, s2 = sample_indices or tuple(farthest_points(e.vertices, samples) for e in (eig_1, eig_2))
     mapped = eig_1.evecs[s1, : k + 1] @ fmap_12[: k + 1, : k + 1].T
     psi = eig_2.evecs[s2, : k + 1]
     nn = nearest_neighbors(mapped, psi)
@@ -142,17 +133,10 @@ REPAIR_MAX_PAIRS = 1e9
 
 
 def geodesic_repair(
-    p2p_21: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    k_fit: int,
-    k_final: int,
-    subsample: int | None = None,
-    samples: tuple[np.ndarray, np.ndarray] | None = None,
-    share: float = REPAIR_SHARE,
-    checked: np.ndarray | None = None,
-) -> tuple[np.ndarray | None, float]:
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, k_fit: int, k_final: int,
+    subsample: int | None = None, samples: tuple[np.ndarray, np.ndarray] | None = None,
+    share: float = REPAIR_SHARE, checked: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, float]:  # fmt: skip
     """Re-estimate a map that is wrong on a region from its geodesic refinement.
 
     The geodesic refinement re-maps every target vertex by its distances to the anchors the
@@ -189,10 +173,10 @@ def geodesic_repair(
         The share of the target's area where the map and its geodesic refinement disagree
         (the share of the samples ``checked``).
     """
+    surfaces = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
     f1, f2 = geodesic_features(
-        p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces,
-        anchors=REPAIR_ANCHORS, iterations=REPAIR_ITERATIONS,
-    )  # fmt: skip
+        p2p_21, *surfaces, anchors=REPAIR_ANCHORS, iterations=REPAIR_ITERATIONS
+    )
     # The disagreement is measured on farthest-point samples of the target (about uniform in
     # area; 2000 samples: a share of 0.05 within about 0.005), the whole map only re-estimated.
     if checked is None:
@@ -202,7 +186,7 @@ def geodesic_repair(
     disagreement = float(np.mean(apart > REPAIR_JUMP))
     if disagreement <= share:
         return None, disagreement
-    f1, f2 = geodesic_features(p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces)
+    f1, f2 = geodesic_features(p2p_21, *surfaces)
     geodesic = nearest_neighbors(f1.T, f2.T)
     C = fmap_from_p2p(geodesic, eig_1, eig_2, k1=k_fit, k2=k_fit)
     C = zoomout_refine(C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples)
@@ -211,11 +195,6 @@ def geodesic_repair(
 
 class FullMatch(Strategy):
     """The steps of a full-shape match (see the module notes)."""
-
-    method = "estimate"
-    title = "match"
-    what = "the estimated map"
-    refine_share = (0.1, 0.5)
 
     def scaled(self, eig_1: EigenBasis, eig_2: EigenBasis) -> tuple[EigenBasis, EigenBasis]:
         """Return unit-area copies: the map does not depend on the units."""
@@ -245,8 +224,7 @@ class FullMatch(Strategy):
             )  # fmt: skip
             samples = sampled.result()
         subsampled = o.zoomout_subsample is not None and o.zoomout_subsample < min(
-            u1.n_vertices, u2.n_vertices
-        )
+            u1.n_vertices, u2.n_vertices)  # fmt: skip
         run.state.update(
             samples=samples, zoom=samples if subsampled else None, final=final,
             select=min(final, max(sizes[-1], SELECT_K)),
@@ -323,10 +301,9 @@ class FullMatch(Strategy):
             samples=run.state["zoom"], share=REPAIR_SHARE, checked=run.state["samples"][1],
         )  # fmt: skip
         redo = f" (> {REPAIR_SHARE:g}): re-estimated from the geodesic map"
-        logger.debug(
-            "match: the map and its geodesic refinement disagree on %.3f of the target's area%s",
-            disagreement, redo if REPAIR_SHARE < disagreement <= REPAIR_MAX_SHARE else "",
-        )  # fmt: skip
+        logger.debug("match: the map and its geodesic refinement disagree on %.3f of the target's "
+                     "area%s", disagreement,
+                     redo if REPAIR_SHARE < disagreement <= REPAIR_MAX_SHARE else "")  # fmt: skip
         if disagreement > REPAIR_MAX_SHARE:
             found = Said(
                 "the map and its geodesic refinement disagree on {share:.2f} of the target's "

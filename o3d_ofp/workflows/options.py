@@ -105,14 +105,9 @@ def _landmarks(value: Any) -> np.ndarray | None:
     if value is None:
         return None
     lm = np.asarray(value)
-    if lm.ndim != 2 or lm.shape[1] != 2 or lm.shape[0] == 0 or not np.issubdtype(
-        lm.dtype, np.integer
-    ):
-        raise OptionError(
-            "landmarks",
-            "must be a (p, 2) integer array of (source, target) vertex pairs; got "
-            f"{lm.dtype}{lm.shape}",
-        )
+    if lm.ndim != 2 or lm.shape[1] != 2 or lm.shape[0] == 0 or lm.dtype.kind not in "iu":
+        raise OptionError("landmarks", "must be a (p, 2) integer array of (source, target) vertex "
+                          f"pairs; got {lm.dtype}{lm.shape}")  # fmt: skip
     if lm.min() < 0:
         raise OptionError("landmarks", f": vertex indices must be >= 0; got {lm.min()}")
     first = np.sort(np.unique(lm.astype(np.int64), axis=0, return_index=True)[1])
@@ -122,11 +117,9 @@ def _landmarks(value: Any) -> np.ndarray | None:
         if np.any(counts > 1):
             v = int(values[np.argmax(counts > 1)])
             partners = sorted(int(x) for x in pairs[pairs[:, col] == v, 1 - col])
-            raise OptionError(
-                "landmarks",
-                f": {side} vertex {v} is paired with several {other} vertices "
-                f"({', '.join(map(str, partners))}): give one pair per vertex",
-            )
+            raise OptionError("landmarks", f": {side} vertex {v} is paired with several {other} "
+                              f"vertices ({', '.join(map(str, partners))}): give one pair per "
+                              "vertex")  # fmt: skip
     pairs.setflags(write=False)
     return pairs
 
@@ -179,11 +172,8 @@ class MatchOptions:
         check_int(self.k_fit, name="k_fit", minimum=1)
         check_int(self.zoomout_to, name="zoomout_to", minimum=1)
         if self.zoomout_to < self.k_fit:
-            raise OptionError(
-                "zoomout_to",
-                f"({self.zoomout_to}) must be >= k_fit ({self.k_fit}): ZoomOut refines the fitted "
-                "map to more eigenfunctions",
-            )
+            raise OptionError("zoomout_to", f"({self.zoomout_to}) must be >= k_fit ({self.k_fit}): "
+                              "ZoomOut refines the fitted map to more eigenfunctions")  # fmt: skip
         sub = self.zoomout_subsample
         if sub is not None and (isinstance(sub, bool) or not isinstance(sub, numbers.Integral)
                                 or sub < 2):  # fmt: skip
@@ -215,14 +205,10 @@ class MatchOptions:
     def landmarks_for(self, n_source: int, n_target: int) -> np.ndarray | None:
         """Return the landmarks, checked to lie within shapes of these vertex counts."""
         lm = self.landmarks
-        if lm is not None:
-            for col, (n, side) in enumerate(((n_source, "source"), (n_target, "target"))):
-                if lm[:, col].max() >= n:
-                    raise OptionError(
-                        "landmarks",
-                        f": {side} vertex indices must lie in [0, {n}); got "
-                        f"[{lm[:, col].min()}, {lm[:, col].max()}]",
-                    )
+        for col, (n, side) in enumerate(((n_source, "source"), (n_target, "target"))):
+            if lm is not None and lm[:, col].max() >= n:
+                raise OptionError("landmarks", f": {side} vertex indices must lie in [0, {n}); got "
+                                  f"[{lm[:, col].min()}, {lm[:, col].max()}]")  # fmt: skip
         return lm
 
 

@@ -94,6 +94,7 @@ __all__ = [
     "THIRD_OPINION_SIZE",
     "PartialMatch",
     "check_partial_areas",
+    "refuse_clouds",
 ]
 
 logger = logging.getLogger(__name__)
@@ -173,14 +174,9 @@ def _surfaces(run: Run) -> tuple[np.ndarray, ...]:
 
 
 def _refine(
-    p2p: np.ndarray,
-    u1: EigenBasis,
-    u2: EigenBasis,
-    *,
-    k2_fit: int,
-    k2_final: int,
+    p2p: np.ndarray, u1: EigenBasis, u2: EigenBasis, *, k2_fit: int, k2_final: int,
     subsample: int | None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Geodesic refinement, then a partial ZoomOut from its map; a jump keeps the geodesic map.
 
     Measured on the 8 cuts of scripts/eval_partial.py, the chosen start's map after ZoomOut is
@@ -227,13 +223,9 @@ def _polish(
 
 
 def check_partial_areas(
-    vertices_1: np.ndarray,
-    faces_1: np.ndarray,
-    vertices_2: np.ndarray,
-    faces_2: np.ndarray,
-    *,
+    vertices_1: np.ndarray, faces_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray, *,
     names: tuple[str, str] = ("the source", "the target"),
-) -> None:
+) -> None:  # fmt: skip
     """Refuse, before any eigensolve, a "part" larger than the whole, or far too small.
 
     Raises :class:`~o3d_ofp.core.wording.AdvisedError` when the target's surface area exceeds
@@ -260,6 +252,22 @@ def check_partial_areas(
         {"target": names[1], "source": names[0], "ratio": a2 / a1, "bound": MIN_AREA_RATIO,
          "hint": _units_hint(a2 / a1)}, "part_larger" if larger else "part_too_small",
     ))  # fmt: skip
+
+
+def refuse_clouds(faces: tuple[Any, ...], names: Any = ("the source", "the target")) -> None:
+    """Refuse a partial match of a point cloud (faces None), naming it (``names``).
+
+    A point cloud's cut boundary, orientation and geodesic distances, which the partial match
+    and its check read, are unknown.
+    """
+    for F, name in zip(faces, names, strict=False):
+        if F is None:
+            raise OptionError("partial", Said(
+                "=True needs triangle meshes: {name} is a point cloud (no faces), whose cut "
+                "boundary, orientation and geodesic distances, which the partial match and its "
+                "check read, are unknown; mesh it first (e.g. Open3D's "
+                "create_from_point_cloud_poisson) or match without {partial}", {"name": name},
+            ))  # fmt: skip
 
 
 def _units_hint(ratio: float) -> Said | str:
@@ -334,16 +342,8 @@ class PartialMatch(Strategy):
         return required_k(n1, options.zoomout_to), required_k(n2, options.k_fit)
 
     def check(self, eig_1: EigenBasis, eig_2: EigenBasis) -> None:
-        """Refuse a point cloud: its cut boundary, orientation and geodesics are unknown."""
-        for name, eig in (("source", eig_1), ("target", eig_2)):
-            if eig.faces is None:
-                raise OptionError(
-                    "partial",
-                    f"=True needs triangle meshes: the {name} is a point cloud (no faces), "
-                    "whose cut boundary, orientation and geodesic distances, which the partial "
-                    f"match and its check rely on, are unknown; mesh the {name} first (e.g. "
-                    "Open3D's create_from_point_cloud_poisson) or match without partial=True",
-                )
+        """Refuse a point cloud (:func:`refuse_clouds`)."""
+        refuse_clouds((eig_1.faces, eig_2.faces))
 
     def scaled(self, eig_1: EigenBasis, eig_2: EigenBasis) -> tuple[EigenBasis, EigenBasis]:
         """Return both bases in the source's units (unit source area): the area ratio is kept."""
@@ -417,9 +417,13 @@ class PartialMatch(Strategy):
             "ranking": ranking, "refinements": {chosen: p2p_refined}, "turned_over": set(),
             "rejected": None, "fallback": None, "distortion": None,
         }  # fmt: skip
+
+        def kept(i: int, C: np.ndarray, p2p: np.ndarray, **more: Any) -> Settled:
+            info.update(chosen=i, w_dcomm=starts[i][1], **more)
+            return Settled(C, p2p, info)
+
         if turned <= MAX_REVERSED or chosen_turned:
-            info.update(chosen=chosen, w_dcomm=starts[chosen][1])
-            return Settled(C_refined, p2p_refined, info)
+            return kept(chosen, C_refined, p2p_refined)
         info["rejected"] = turned
         info["turned_over"].add(chosen)
         others = [i for i in ranking if not refined[i][0][0] and i != chosen]
@@ -430,24 +434,21 @@ class PartialMatch(Strategy):
             if turned_next > MAX_REVERSED:
                 info["turned_over"].add(i)
             distortion_next = geodesic_distortion(p2p_next, *_surfaces(run))
-            logger.debug(
-                "partial match: next start (distortion %.3f) refined: %.0f %% turned over, "
-                "distortion %.3f", refined[i][0][1], 100 * turned_next, distortion_next,
-            )  # fmt: skip
+            logger.debug("partial match: next start (distortion %.3f) refined: %.0f %% turned "
+                         "over, distortion %.3f", refined[i][0][1], 100 * turned_next,
+                         distortion_next)  # fmt: skip
             if turned_next <= MAX_REVERSED and distortion_next < chosen_distortion:
-                info["fallback"] = Said(
+                fallback = Said(
                     "the best-ranked start's geodesic refinement turned {percent:.0f} % of the "
                     "triangles over; the start ranked {rank} (of the orientation-preserving "
                     "ones, by geodesic distortion), whose refinement keeps the orientation, is "
                     "kept instead", {"percent": 100 * turned, "rank": rank}, "next_start",
                 )  # fmt: skip
-                logger.info("partial match: %s", info["fallback"])
-                info.update(rejected=None, distortion=distortion_next, chosen=i,
-                            w_dcomm=starts[i][1])  # fmt: skip
-                return Settled(C_next, p2p_next, info)
+                logger.info("partial match: %s", fallback)
+                return kept(i, C_next, p2p_next, rejected=None, distortion=distortion_next,
+                            fallback=fallback)  # fmt: skip
         logger.info("partial match: the refinement turned %.0f %% over; start kept", 100 * turned)
-        info.update(chosen=chosen, w_dcomm=starts[chosen][1])
-        return Settled(C, p2p, info)
+        return kept(chosen, C, p2p)
 
     def judge(self, run: Run, settled: Settled) -> MapQuality:
         """:func:`~o3d_ofp.workflows.quality.partial_quality` with the overlap it covers."""
@@ -532,14 +533,9 @@ class PartialMatch(Strategy):
                                subsample=subsample)  # fmt: skip
 
     def dense(
-        self,
-        again: Callable[..., Correspondence],
-        size: int,
-        shapes: tuple[np.ndarray, ...],
-        report: Callable[[str, float], None],
-        *,
-        opinions: bool = True,
-    ) -> Correspondence:
+        self, again: Callable[..., Correspondence], size: int, shapes: tuple[np.ndarray, ...],
+        report: Callable[[str, float], None], *, opinions: bool = True,
+    ) -> Correspondence:  # fmt: skip
         """Return the dense match, with a second and (when they disagree) a third opinion.
 
         Coarse copies are remeshings, and a partial match can go wrong on one remeshed pair
@@ -556,15 +552,9 @@ class PartialMatch(Strategy):
 
 
 def _rival(
-    indices: list[int],
-    start_maps: list[np.ndarray],
-    refinements: dict[int, np.ndarray],
-    p2p: np.ndarray,
-    distortion: float,
-    run: Run,
-    *,
-    landmarks: np.ndarray | None,
-) -> Said | None:
+    indices: list[int], start_maps: list[np.ndarray], refinements: dict[int, np.ndarray],
+    p2p: np.ndarray, distortion: float, run: Run, *, landmarks: np.ndarray | None,
+) -> Said | None:  # fmt: skip
     """Refine the starts ``indices``; return the reason for a rival of ``p2p``, else None.
 
     A rival (:data:`RIVAL_MARGIN`) keeps the orientation and the distortion and stretch
@@ -576,8 +566,7 @@ def _rival(
     ``start_maps`` are the starts' point maps (all of them, indexed like the starts);
     ``refinements`` the refined point maps of starts refined already (reused).
     """
-    u1, u2 = run.u1, run.u2
-    X = u1.vertices
+    X, u2 = run.u1.vertices, run.u2
 
     def off_landmarks(q: np.ndarray) -> float:
         assert landmarks is not None
@@ -591,32 +580,19 @@ def _rival(
             return None
         if landmarks is not None and off_landmarks(p2p_i) > off_landmarks(p2p) + DISAGREEMENT:
             return None
-        d = geodesic_distortion(p2p_i, u1.vertices, u1.faces, u2.vertices, u2.faces)
-        stretch = map_stretch(p2p_i, u1.vertices, u2.vertices, u2.faces)
-        apart = np.linalg.norm(u1.vertices[p2p] - u1.vertices[p2p_i], axis=1) > DISAGREEMENT
+        d = geodesic_distortion(p2p_i, *_surfaces(run))
+        stretch = map_stretch(p2p_i, X, u2.vertices, u2.faces)
+        apart = np.linalg.norm(X[p2p] - X[p2p_i], axis=1) > DISAGREEMENT
         share = float(u2.mass @ apart / max(float(u2.mass.sum()), 1e-300))
-        logger.debug(
-            "partial match: rival start %d refined: distortion %.3f, stretch %.2f, apart on "
-            "%.1f %% of the target",
-            i + 1,
-            d,
-            stretch,
-            100 * share,
-        )
+        logger.debug("partial match: rival start %d refined: distortion %.3f, stretch %.2f, apart "
+                     "on %.1f %% of the target", i + 1, d, stretch, 100 * share)  # fmt: skip
         return d, stretch, share
 
     with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(refined, indices))
-    for result in results:
-        if result is None:
-            continue
-        d, stretch, share = result
-        if (
-            d <= MAX_DISTORTION
-            and stretch <= MAX_STRETCH
-            and d <= (1.0 + RIVAL_MARGIN) * distortion
-            and share > RIVAL_SHARE
-        ):
+        results = [r for r in pool.map(refined, indices) if r is not None]
+    for d, stretch, share in results:
+        bounds = d <= MAX_DISTORTION and stretch <= MAX_STRETCH
+        if bounds and d <= (1.0 + RIVAL_MARGIN) * distortion and share > RIVAL_SHARE:
             return Said(
                 "another start of the fit ends, refined, at a map that keeps the orientation "
                 "and the distortion and stretch bounds as well (geodesic distortion {d:.3f}, "
@@ -631,15 +607,9 @@ def _rival(
 
 
 def _extend_partial(
-    corr: Correspondence,
-    coarse_1: Any,
-    coarse_2: Any,
-    vertices_1: np.ndarray,
-    vertices_2: np.ndarray,
-    *,
-    polish: bool,
-    subsample: int | None,
-) -> tuple[np.ndarray, Correspondence]:
+    corr: Correspondence, coarse_1: Any, coarse_2: Any, vertices_1: np.ndarray,
+    vertices_2: np.ndarray, *, polish: bool, subsample: int | None,
+) -> tuple[np.ndarray, Correspondence]:  # fmt: skip
     """Extend the checked coarse partial map to every vertex (``extend`` of the dense path).
 
     The coarse point map is its restriction map's read-off except where that jumps more than
@@ -668,11 +638,8 @@ def _extend_partial(
     coarse_map = coarse_1.samples[corr.p2p_21[coarse_2.cell]]  # the coarse map, every vertex
     V1 = np.asarray(vertices_1, dtype=np.float64)
     jump = np.linalg.norm(V1[p2p] - V1[coarse_map], axis=1) > MAX_JUMP * math.sqrt(eig_1.area)
-    logger.debug(
-        "partial match (dense): the extension jumped from the coarse map on %.1f %% of the "
-        "target's vertices",
-        100 * jump.mean(),
-    )
+    logger.debug("partial match (dense): the extension jumped from the coarse map on %.1f %% "
+                 "of the target's vertices", 100 * jump.mean())  # fmt: skip
     note = Said(
         "the full point map is the checked coarse map{polished}, extended to every vertex; on "
         "{percent:.1f} % of the target's vertices the extension lay more than {bound} of "
@@ -719,12 +686,9 @@ def _full_landmarks_kept(corr: Correspondence, vertices_1: np.ndarray) -> Corres
 
 
 def _with_opinions(
-    again: Callable[..., Correspondence],
-    size: int,
-    shapes: tuple[np.ndarray, ...],
-    report: Callable[[str, float], None],
-    opinions: bool,
-) -> Correspondence:
+    again: Callable[..., Correspondence], size: int, shapes: tuple[np.ndarray, ...],
+    report: Callable[[str, float], None], opinions: bool,
+) -> Correspondence:  # fmt: skip
     """Return the dense partial match with its opinions (see :meth:`PartialMatch.dense`).
 
     ``again(size, share, prefix)`` matches on coarse copies of ``size`` vertices; ``shapes``
@@ -767,30 +731,25 @@ def _with_opinions(
     disagreement = apart(corr, second)
     logger.info("partial match (dense): the second opinion disagrees on %.1f %% of the target's "
                 "area", 100 * disagreement)  # fmt: skip
+    second_note = _opinion("second", sizes[1], disagreement)
     if disagreement <= MAX_DISAGREEMENT:
-        return done(corr, _opinion("second", sizes[1], disagreement))
+        return done(corr, second_note)
     # One of the two is wrong on a region: a third match, on smaller copies still, tells which.
     logger.info("partial match (dense): they disagree; third opinion from coarse copies of ~%d "
                 "vertices", sizes[2])  # fmt: skip
     third = again(sizes[2], (0.85, 0.15), "third opinion: ")
     with_first, with_second = apart(corr, third), apart(second, third)
-    logger.info(
-        "partial match (dense): the third opinion disagrees with the first map on %.1f %% and "
-        "with the second opinion on %.1f %% of the target's area", 100 * with_first,
-        100 * with_second,
-    )  # fmt: skip
+    logger.info("partial match (dense): the third opinion disagrees with the first map on %.1f %% "
+                "and with the second opinion on %.1f %% of the target's area", 100 * with_first,
+                100 * with_second)  # fmt: skip
+    third_note = _opinion("third", sizes[2], with_first)
     if with_first <= MAX_DISAGREEMENT:  # the second opinion was the odd one out
-        return done(
-            corr, _opinion("second", sizes[1], disagreement),
-            _opinion("third", sizes[2], with_first),
-            Said("the third opinion agrees with this map: the second opinion is set aside"),
-        )  # fmt: skip
+        return done(corr, second_note, third_note, Said(
+            "the third opinion agrees with this map: the second opinion is set aside"))  # fmt: skip
     assert second.quality is not None
     shares = (disagreement, with_first, with_second)
-    fix = Said(
-        "{advice}, or match at full resolution (from Python: eigenbases=, slow)",
-        {"advice": landmarks_advice(landmarks_given)},
-    )
+    fix = Said("{advice}, or match at full resolution (from Python: eigenbases=, slow)",
+               {"advice": landmarks_advice(landmarks_given)})  # fmt: skip
     if with_second <= MAX_DISAGREEMENT and not second.quality.suspect:
         # The first map is the odd one out: the map the other two agree on is returned (a right
         # map does not depend on the resolution), still flagged, as the three disagree.
@@ -799,8 +758,7 @@ def _with_opinions(
         notes, reason = _second_kept(sizes, shares, fix)
         return done(second, *notes, reason=reason)
     return done(
-        corr, _opinion("second", sizes[1], disagreement), _opinion("third", sizes[2], with_first),
-        reason=Said(
+        corr, second_note, third_note, reason=Said(
             "the match on coarse copies of about {second} vertices sends {percent:.0f} % of the "
             "target's area more than {apart:g} of the source's size away from this map's "
             "images, and the match on copies of about {third} agrees with neither (a right map "

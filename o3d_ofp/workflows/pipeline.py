@@ -30,14 +30,10 @@ logger = logging.getLogger(__name__)
 
 
 def transfer_function(
-    f_1: Any,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    *,
-    correspondence: Correspondence | None = None,
-    bases: tuple[OFPBasis, OFPBasis] | None = None,
+    f_1: Any, eig_1: EigenBasis, eig_2: EigenBasis, *,
+    correspondence: Correspondence | None = None, bases: tuple[OFPBasis, OFPBasis] | None = None,
     options: BasisOptions | None = None,
-) -> np.ndarray:
+) -> np.ndarray:  # fmt: skip
     """Transfer a per-vertex signal from a source to a target shape with OFP bases.
 
     Parameters

@@ -30,11 +30,11 @@ from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import AdvisedError, OptionError, Said
 from .cache import fetch_basis, fetch_eigenbasis
 from .dense import DENSE_VERTICES, CoarseShape
-from .eigenbases import answer_bytes, check_shapes, run_per_shape, said_of
+from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape, said_of
 from .estimate import coarse_source, estimate, estimate_dense, strategy_of
 from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
-from .options import BasisOptions, DetailOptions, MatchOptions
-from .partial import check_partial_areas
+from .options import BasisOptions, DetailOptions, MatchOptions, check_choice
+from .partial import check_partial_areas, refuse_clouds
 
 __all__ = ["ROTATION_K", "TASKS", "Plan", "Prepared", "plan_pair", "prepare", "prepare_source"]
 
@@ -150,8 +150,6 @@ def plan_pair(
     OptionError, AdvisedError
         Naming the option (or the shape) that cannot apply to this job, before any work.
     """
-    from .options import check_choice
-
     check_choice(task, "task", TASKS)
     match = MatchOptions() if match is None else match
     detail = DetailOptions() if detail is None else detail
@@ -176,20 +174,11 @@ def plan_pair(
     )
     with_bases = (task == "colors" and not exact) or coordinates
     if explicit and not with_bases:
-        why = _no_bases(task, detail, closest)
-        raise OptionError("options", Said(
-            "(the OFP bases' sizes and threshold) does not apply: {why}", {"why": why}
-        ))  # fmt: skip
+        _refuse_bases(task, detail, closest)
     need = _task_needs(task, (n1, n2), bases, detail, given, given_bases, with_bases, names)
     if with_bases:
-        _check_thresholds(given_bases, bases.threshold(preset), names)
-    no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
-    if bases.matrix == "analytic" and with_bases and no_fmap:
-        raise OptionError(
-            "matrix", "='analytic' needs a functional map between the eigenbases: a map "
-            "estimated for whole shapes below the dense threshold, or one given with "
-            "Correspondence.from_fmap; use matrix='p2p'",
-        )  # fmt: skip
+        no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
+        _check_bases(bases, given_bases, bases.threshold(preset), bool(no_fmap), names)
     estimation = [0, 0]
     if estimator in ("full", "partial") and not dense:
         estimation = list(strategy_of(match).needs(n1, n2 or n1, match))
@@ -198,17 +187,10 @@ def plan_pair(
     eig_k = tuple(max(a, b) for a, b in zip(need, estimation, strict=True))
     clamp = tuple(bool(e) and e >= k for e, k in zip(estimation, need, strict=True))
     return Plan(
-        task=task,
-        estimator=estimator,
-        dense=dense,
-        eig_k=eig_k,  # type: ignore[arg-type]
-        clamp=clamp,  # type: ignore[arg-type]
-        basis_k=(need[0], need[1]) if with_bases else None,
-        order=bases.order,
-        tol=bases.threshold(preset),
-        matrix=bases.matrix,
-        exact=exact,
-    )
+        task=task, estimator=estimator, dense=dense, eig_k=eig_k, clamp=clamp,  # type: ignore[arg-type]
+        basis_k=(need[0], need[1]) if with_bases else None, order=bases.order,
+        tol=bases.threshold(preset), matrix=bases.matrix, exact=exact,
+    )  # fmt: skip
 
 
 def _estimator(
@@ -223,11 +205,7 @@ def _estimator(
             match.landmarks_for(V1.shape[0], V2.shape[0])
         if not match.partial:
             return "full"
-        if F1 is None or (V2 is not None and F2 is None):
-            raise OptionError("partial", Said(
-                "=True needs triangle meshes: {name} is a point cloud (no faces); mesh it first "
-                "or match without {partial}", {"name": names[F1 is not None]},
-            ))  # fmt: skip
+        refuse_clouds((F1,) if V2 is None else (F1, F2), names)
         if V2 is not None:
             check_partial_areas(V1, F1, V2, F2, names=names)
         return "partial"
@@ -241,15 +219,10 @@ def _estimator(
 
 
 def _task_needs(
-    task: str,
-    n: tuple[int, int | None],
-    bases: BasisOptions,
-    detail: DetailOptions,
-    given: Correspondence | None,
-    given_bases: Sequence[OFPBasis | None],
-    with_bases: bool,
+    task: str, n: tuple[int, int | None], bases: BasisOptions, detail: DetailOptions,
+    given: Correspondence | None, given_bases: Sequence[OFPBasis | None], with_bases: bool,
     names: tuple[str, str],
-) -> list[int]:
+) -> list[int]:  # fmt: skip
     """Eigenfunctions the task itself needs on each side, checked against the vertex counts."""
     if with_bases:
         own = (bases.k1, bases.k2)
@@ -271,19 +244,23 @@ def _task_needs(
     return need
 
 
-def _no_bases(task: str, detail: DetailOptions, closest: bool) -> Said:
-    """Return why a task builds no OFP basis (for the refusal of basis options given to it)."""
+def _refuse_bases(task: str, detail: DetailOptions, closest: bool) -> None:
+    """Refuse basis options given to a task that builds no OFP basis, saying why it builds none."""
     if task == "detail":
-        return Said("mode {mode!r} reads each shape's eigenfunctions up to band ({band})",
-                    {"mode": detail.mode, "band": detail.band})  # fmt: skip
-    if task == "colors":
-        return Said(
+        why = Said("mode {mode!r} reads each shape's eigenfunctions up to band ({band})",
+                   {"mode": detail.mode, "band": detail.band})  # fmt: skip
+    elif task == "colors":
+        why = Said(
             "the exact pull-back ({why}) carries the colors with no OFP basis; drop it, or pass "
             "{via_basis} to transfer through the OFP bases",
             {"why": "the default with a closest-point map" if closest else Said("{pull_back}")},
         )  # fmt: skip
-    return Said("task {task!r} reads the source through the map, with no OFP basis",
-                {"task": task})  # fmt: skip
+    else:
+        why = Said("task {task!r} reads the source through the map, with no OFP basis",
+                   {"task": task})  # fmt: skip
+    raise OptionError("options", Said(
+        "(the OFP bases' sizes and threshold) does not apply: {why}", {"why": why}
+    ))  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -347,19 +324,7 @@ def prepare(
     """
     match = MatchOptions() if match is None else match
     shapes = ((V1, F1), (V2, F2))
-    have = [
-        _given_eig(e, b, given, i, V)
-        for i, (e, b, V) in enumerate(zip(eigenbases, bases, (V1, V2), strict=True))
-    ]
-    for i, eig in enumerate(have):
-        if eig is not None and eig.n_vertices != shapes[i][0].shape[0]:
-            raise OptionError(
-                "eigenbases", f": the {('source', 'target')[i]} eigenbasis has {eig.n_vertices} "
-                f"vertices but {names[i]} has {shapes[i][0].shape[0]}: it belongs to another shape",
-            )  # fmt: skip
-        if eig is not None:
-            warn_other_shape(eig, shapes[i][0], f"the {('source', 'target')[i]} eigenbasis",
-                             names[i])  # fmt: skip
+    have = [_given_eig(eigenbases[i], bases[i], given, i, shapes[i][0], names[i]) for i in (0, 1)]
     todo = [i for i in (0, 1) if plan.eig_k[i] and (have[i] is None or have[i].k < plan.eig_k[i])]
     for i in todo:
         if have[i] is not None:
@@ -422,18 +387,25 @@ def prepare_source(
 
 
 def _given_eig(
-    eig: EigenBasis | None, basis: OFPBasis | None, given: Correspondence | None, side: int, V: Any
-) -> EigenBasis | None:
-    """Return the eigenbasis of a side the caller has: given, a given basis's, or the map's own."""
-    if eig is not None:
-        return eig
-    if basis is not None:
-        return basis.eig
-    if given is not None and given.eigenbases is not None:
-        own = given.eigenbases[side]
-        if own.n_vertices == V.shape[0] and same_shape(own.vertices, V):
-            return own
-    return None
+    eig: EigenBasis | None, basis: OFPBasis | None, given: Correspondence | None, side: int,
+    V: np.ndarray, name: str,
+) -> EigenBasis | None:  # fmt: skip
+    """Return the eigenbasis of a side the caller has: given, a given basis's, or the map's own.
+
+    One given (or a given basis's) of another vertex count is refused, one of another shape
+    warned about; the map's own is used on the very shape it was made on only.
+    """
+    eig = basis.eig if eig is None and basis is not None else eig
+    if eig is None:
+        own = None if given is None or given.eigenbases is None else given.eigenbases[side]
+        same = own is not None and own.n_vertices == V.shape[0] and same_shape(own.vertices, V)
+        return own if same else None
+    what = f"the {('source', 'target')[side]} eigenbasis"
+    if eig.n_vertices != V.shape[0]:
+        raise OptionError("eigenbases", f": {what} has {eig.n_vertices} vertices but {name} has "
+                          f"{V.shape[0]}: it belongs to another shape")  # fmt: skip
+    warn_other_shape(eig, V, what, name)
+    return eig
 
 
 def _check_given(given: Correspondence, V1: np.ndarray, V2: np.ndarray) -> None:
@@ -446,12 +418,9 @@ def _check_given(given: Correspondence, V1: np.ndarray, V2: np.ndarray) -> None:
 
 
 def _check_memory(
-    plan: Plan,
-    shapes: tuple[tuple[Any, Any], ...],
-    todo: list[int],
-    bases: Sequence[OFPBasis | None],
-    names: tuple[str, str],
-) -> None:
+    plan: Plan, shapes: tuple[tuple[Any, Any], ...], todo: list[int],
+    bases: Sequence[OFPBasis | None], names: tuple[str, str],
+) -> None:  # fmt: skip
     """Refuse, before any eigensolve, a job whose estimated peak memory exceeds what is free."""
     jobs = []
     for i in (0, 1):
@@ -473,14 +442,10 @@ def _check_memory(
 
 
 def _eigenbases(
-    plan: Plan,
-    shapes: tuple[tuple[Any, Any], ...],
-    have: list[EigenBasis | None],
-    todo: list[int],
-    components: Sequence[str],
-    cache_dir: Any,
+    plan: Plan, shapes: tuple[tuple[Any, Any], ...], have: list[EigenBasis | None],
+    todo: list[int], components: Sequence[str], cache_dir: Any,
     names: tuple[str, str] = ("the source", "the target"),
-) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:
+) -> tuple[list[EigenBasis | None], tuple[bool, bool]]:  # fmt: skip
     """Return the plan's eigenbases and whether each was read from the cache.
 
     Those the caller has are kept; the others are computed side by side.
@@ -498,10 +463,7 @@ def _eigenbases(
             return eigenbasis(V, F, **options), False
 
     sizes = [shapes[i][0].shape[0] for i in todo]
-    memory = [
-        basis_job_bytes(n, k=1, order=1, eig_k=plan.eig_k[i]) + answer_bytes(n, plan.eig_k[i] + 1)
-        for n, i in zip(sizes, todo, strict=True)
-    ]
+    memory = [eigenbasis_bytes(n, plan.eig_k[i]) for n, i in zip(sizes, todo, strict=True)]
     jobs = [functools.partial(job, i) for i in todo]
     solved = run_per_shape(jobs, sizes, memory, what="eigenbases")
     for i, (eig, hit) in zip(todo, solved, strict=True):
@@ -521,14 +483,9 @@ class _Ahead:
     """
 
     def __init__(
-        self,
-        plan: Plan,
-        eigs: list[EigenBasis | None],
-        given: Sequence[OFPBasis | None],
-        cache_dir: Any,
-        shapes: tuple[tuple[Any, Any], ...],
-        components: Sequence[str],
-    ) -> None:
+        self, plan: Plan, eigs: list[EigenBasis | None], given: Sequence[OFPBasis | None],
+        cache_dir: Any, shapes: tuple[tuple[Any, Any], ...], components: Sequence[str],
+    ) -> None:  # fmt: skip
         self.plan, self.eigs, self.given = plan, eigs, list(given)
         self.cache_dir, self.shapes, self.components = cache_dir, shapes, components
         self._pool: ThreadPoolExecutor | None = None
@@ -565,24 +522,24 @@ class _Ahead:
         self._target = self._pool.submit(self._basis, 1)
 
     def result(self) -> tuple[OFPBasis, OFPBasis] | None:
-        """Return the two bases (None when the plan has none)."""
+        """Return the two bases (None when the plan has none); both built: one per core."""
         if self.plan.basis_k is None:
             return None
-        if self._target is not None:
-            return self._basis(0), self._target.result()
-        small = max(e.n_vertices for e in self.eigs if e is not None) < PARALLEL_ROWS
-        if small and self.given[0] is None and self.given[1] is None:
-            # one basis per core (their BLAS on one thread each below PARALLEL_ROWS)
-            with ThreadPoolExecutor(max_workers=1) as pool:
-                target = pool.submit(self._basis, 1)
-                return self._basis(0), target.result()
-        return self._basis(0), self._basis(1)
+        if self._target is None and self.given[0] is None:
+            self.start()  # (their BLAS on one thread each below PARALLEL_ROWS)
+        source = self._basis(0)
+        return source, self._target.result() if self._target is not None else self._basis(1)
 
 
-def _check_thresholds(
-    given: Sequence[OFPBasis | None], tol: float, names: tuple[str, str]
-) -> None:
-    """Refuse OFP bases of two thresholds: a given one against the other given one or the plan's."""
+def _check_bases(
+    bases: BasisOptions, given: Sequence[OFPBasis | None], tol: float, no_fmap: bool,
+    names: tuple[str, str],
+) -> None:  # fmt: skip
+    """Refuse OFP bases of two thresholds, then the analytic matrix without a functional map.
+
+    A given basis's threshold is compared with the other given one's, or with the plan's
+    (``tol``); ``no_fmap``: the map has no functional map between the eigenbases.
+    """
     held = [(i, b.tol) for i, b in enumerate(given) if b is not None]
     if len(held) == 2 and not np.isclose(held[0][1], held[1][1], rtol=1e-9):
         raise OptionError("bases", Said(
@@ -590,15 +547,20 @@ def _check_thresholds(
             "{t1:g} and {t2:g}: the two bases must share one; recompute one of them",
             {"source": names[0], "target": names[1], "t1": held[0][1], "t2": held[1][1]},
         ))  # fmt: skip
-    if len(held) != 1 or np.isclose(held[0][1], tol, rtol=1e-9):
-        return
-    side, t = held[0]
-    preset = next((n for n, v in PRESETS.items() if np.isclose(v, t, rtol=1e-9)), None)
-    setting = f"preset={preset!r}" if preset else f"tol={t:g}"
-    flag = f"--preset {preset}" if preset else f"--tol {t:g}"
-    raise OptionError("bases", Said(
-        ": the given basis of {name} was orthogonalized with threshold {t:g}, but the other "
-        "shape's would be made with {tol:g}: the two bases must share one; pass {threshold}, or "
-        "recompute the given basis",
-        {"name": names[side], "t": t, "tol": tol, "setting": setting, "flag": flag},
-    ))  # fmt: skip
+    if len(held) == 1 and not np.isclose(held[0][1], tol, rtol=1e-9):
+        side, t = held[0]
+        preset = next((n for n, v in PRESETS.items() if np.isclose(v, t, rtol=1e-9)), None)
+        setting = f"preset={preset!r}" if preset else f"tol={t:g}"
+        flag = f"--preset {preset}" if preset else f"--tol {t:g}"
+        raise OptionError("bases", Said(
+            ": the given basis of {name} was orthogonalized with threshold {t:g}, but the other "
+            "shape's would be made with {tol:g}: the two bases must share one; pass {threshold}, "
+            "or recompute the given basis",
+            {"name": names[side], "t": t, "tol": tol, "setting": setting, "flag": flag},
+        ))  # fmt: skip
+    if bases.matrix == "analytic" and no_fmap:
+        raise OptionError(
+            "matrix", "='analytic' needs a functional map between the eigenbases: a map "
+            "estimated for whole shapes below the dense threshold, or one given with "
+            "Correspondence.from_fmap; use matrix='p2p'",
+        )  # fmt: skip

@@ -8,6 +8,7 @@ the one place a verdict is logged and warned about.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 
@@ -142,15 +143,9 @@ _LIKELY_CAUSES = {
 
 
 def map_quality(
-    p2p_21: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    fmap_12: np.ndarray | None = None,
-    *,
-    partial: bool = False,
-    overlap: float | None = None,
-    landmarks_given: bool = False,
-) -> MapQuality:
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, fmap_12: np.ndarray | None = None,
+    *, partial: bool = False, overlap: float | None = None, landmarks_given: bool = False,
+) -> MapQuality:  # fmt: skip
     """Judge a point map (and the functional map it came from) without ground truth.
 
     Parameters
@@ -185,8 +180,7 @@ def map_quality(
         k = min(C.shape) - 1
         C = C[: k + 1, : k + 1]
         ortho = float(np.linalg.norm(C.T @ C - np.eye(k + 1)) / math.sqrt(k + 1))
-        C_p2p = fmap_from_p2p(p2p_21, unit_area(eig_1), unit_area(eig_2), k1=k, k2=k)
-        incons = float(np.linalg.norm(C - C_p2p) / max(np.linalg.norm(C), 1e-300))
+        incons = _inconsistency(C, p2p_21, unit_area(eig_1), unit_area(eig_2))
     turned = reversed_fraction(p2p_21, eig_1, eig_2)
     clouds = eig_1.faces is None or eig_2.faces is None
     far = ortho > MAX_ORTHOGONALITY  # no near-isometric map: no "right map" to be mirrored
@@ -210,29 +204,31 @@ def map_quality(
             "the shapes are not near-isometric (shapes of other kinds, a noisy scan, or a part "
             "of the other shape)", {"ortho": ortho, "bound": MAX_ORTHOGONALITY}, "not_isometric",
         ))  # fmt: skip
-    if incons > MAX_INCONSISTENCY:
-        reasons.append(Said(
-            "the point map disagrees with the functional map (inconsistency {incons:.2f})",
-            {"incons": incons}, "inconsistent",
-        ))  # fmt: skip
-    reasons.extend(_area_reasons(eig_1, eig_2, area_ratio, partial))
-    suspect = bool(reasons)
-    if reasons:
-        cause = "far" if far else "landmarks" if landmarks_given else "other"
-        reasons.append(_LIKELY_CAUSES[cause])
+    reasons += _inconsistent(incons) + _area_reasons(eig_1, eig_2, area_ratio, partial)
+    cause = "far" if far else "landmarks" if landmarks_given else "other"
+    reasons += [_LIKELY_CAUSES[cause]] if reasons else []
     return MapQuality(
-        coverage=float(hit / n1),
-        coverage_ratio=float(ratio),
-        orthogonality=ortho,
-        inconsistency=incons,
-        reversed_fraction=turned,
-        area_ratio=float(area_ratio),
-        suspect=suspect,
-        reasons=tuple(reasons),
+        coverage=float(hit / n1), coverage_ratio=float(ratio), orthogonality=ortho,
+        inconsistency=incons, reversed_fraction=turned, area_ratio=float(area_ratio),
+        suspect=bool(reasons), reasons=tuple(reasons),
         notes=tuple(_notes(eig_1, eig_2, area_ratio, partial, clouds)),
         overlap=None if overlap is None else float(overlap),
         reversed_of="neighbourhoods" if clouds else "triangles",
-    )
+    )  # fmt: skip
+
+
+def _inconsistency(C: np.ndarray, p2p_21: np.ndarray, u1: EigenBasis, u2: EigenBasis) -> float:
+    """‖C − C(p2p)‖_F / ‖C‖_F: how far the point map's functional map (bases u1, u2) is from C."""
+    C_p2p = fmap_from_p2p(p2p_21, u1, u2, k1=C.shape[1] - 1, k2=C.shape[0] - 1)
+    return float(np.linalg.norm(C - C_p2p) / max(np.linalg.norm(C), 1e-300))
+
+
+def _inconsistent(incons: float) -> list[Said]:
+    """Return why a point map disagrees with its functional map (above MAX_INCONSISTENCY)."""
+    if not incons > MAX_INCONSISTENCY:
+        return []
+    return [Said("the point map disagrees with the functional map (inconsistency {incons:.2f})",
+                 {"incons": incons}, "inconsistent")]  # fmt: skip
 
 
 def _notes(
@@ -403,17 +399,10 @@ def _reversed_neighbourhoods(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: Eigen
 
 
 def partial_quality(
-    p2p_21: np.ndarray,
-    eig_1: EigenBasis,
-    eig_2: EigenBasis,
-    fmap_12: np.ndarray,
-    *,
-    overlap: float,
-    distortion: float | None = None,
-    refinement_turned: float | None = None,
-    landmarks: bool = False,
-    landmarks_spread: bool = True,
-) -> MapQuality:
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, fmap_12: np.ndarray, *,
+    overlap: float, distortion: float | None = None, refinement_turned: float | None = None,
+    landmarks: bool = False, landmarks_spread: bool = True,
+) -> MapQuality:  # fmt: skip
     """Quality report of a partial map (target a part of the source, same units).
 
     The measures of :func:`map_quality`, except that the map is a restriction, not an
@@ -456,16 +445,14 @@ def partial_quality(
     )
     u1, u2 = rescaled(eig_1, eig_1.area), rescaled(eig_2, eig_1.area)
     C = np.asarray(fmap_12, dtype=np.float64)
-    k2, k1 = C.shape[0] - 1, C.shape[1] - 1
-    ortho = float(np.linalg.norm(C @ C.T - np.eye(k2 + 1)) / math.sqrt(k2 + 1))
-    C_p2p = fmap_from_p2p(p2p_21, u1, u2, k1=k1, k2=k2)
-    incons = float(np.linalg.norm(C - C_p2p) / max(np.linalg.norm(C), 1e-300))
+    ortho = float(np.linalg.norm(C @ C.T - np.eye(C.shape[0])) / math.sqrt(C.shape[0]))
+    incons = _inconsistency(C, p2p_21, u1, u2)
     if distortion is None:
         distortion = geodesic_distortion(
             p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
         )
     stretch = map_stretch(p2p_21, eig_1.vertices, eig_2.vertices, eig_2.faces)
-    reasons = _partial_reasons(distortion, stretch, refinement_turned, incons)
+    reasons = _partial_reasons(distortion, stretch, refinement_turned) + _inconsistent(incons)
     measured_wrong = bool(reasons)
     small = small_part_note(eig_2.area / eig_1.area, landmarks=landmarks)
     lifted = landmarks and landmarks_spread
@@ -491,27 +478,19 @@ def partial_quality(
          "ortho": ortho}, "partial_measures",
     )  # fmt: skip
     all_reasons = (*reasons, *base.reasons)  # map_quality's advice, if any, stays last
-    return MapQuality(
-        coverage=base.coverage,
-        coverage_ratio=base.coverage_ratio,
-        orthogonality=ortho,
-        inconsistency=incons,
-        reversed_fraction=base.reversed_fraction,
-        area_ratio=base.area_ratio,
-        suspect=bool(all_reasons),
-        reasons=all_reasons,
+    return dataclasses.replace(
+        base, orthogonality=ortho, inconsistency=incons, suspect=bool(all_reasons),
+        reasons=all_reasons, distortion=float(distortion), stretch=float(stretch),
         notes=(measured, *base.notes, *([small] if small is not None and lifted else [])),
-        overlap=base.overlap,
-        reversed_of=base.reversed_of,
-        distortion=float(distortion),
-        stretch=float(stretch),
-    )
+    )  # fmt: skip
 
 
-def _partial_reasons(
-    distortion: float, stretch: float, refinement_turned: float | None, incons: float
-) -> list[Said]:
-    """Return why a partial map is measured wrong (its distortion, stretch, refinement)."""
+def _partial_reasons(distortion: float, stretch: float, turned: float | None) -> list[Said]:
+    """Return why a partial map is measured wrong (its distortion, stretch, refinement).
+
+    The restriction map's orthogonality is reported, not judged: right partial maps reach
+    0.44 (above MAX_ORTHOGONALITY); wrong ones are flagged by these measures.
+    """
     reasons = []
     if distortion > MAX_DISTORTION:
         reasons.append(Said(
@@ -526,19 +505,12 @@ def _partial_reasons(
             "right: at most {bound:.1f}): it tears the target apart where a region is sent to "
             "the wrong place", {"stretch": stretch, "bound": MAX_STRETCH}, "stretched",
         ))  # fmt: skip
-    if refinement_turned is not None and refinement_turned > MAX_REVERSED:
+    if turned is not None and turned > MAX_REVERSED:
         reasons.append(Said(
             "refining the map by geodesic distances turned {percent:.0f} % of the triangles "
             "over, so it was kept unrefined: a right start stays oriented when refined, this "
-            "one is wrong on a large region", {"percent": 100 * refinement_turned},
+            "one is wrong on a large region", {"percent": 100 * turned},
             "refinement_turned",
-        ))  # fmt: skip
-    # The restriction map's orthogonality is reported, not judged: right partial maps reach
-    # 0.44 (above MAX_ORTHOGONALITY); wrong ones are flagged by the measures above.
-    if incons > MAX_INCONSISTENCY:
-        reasons.append(Said(
-            "the point map disagrees with the functional map (inconsistency {incons:.2f})",
-            {"incons": incons}, "inconsistent",
         ))  # fmt: skip
     return reasons
 
@@ -583,14 +555,9 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> Said | Non
 
 
 def landmarks_kept(
-    quality: MapQuality,
-    p2p: np.ndarray,
-    landmarks: np.ndarray,
-    vertices_1: np.ndarray,
-    *,
-    subject: str = "the map",
-    spread_note: bool = True,
-) -> MapQuality:
+    quality: MapQuality, p2p: np.ndarray, landmarks: np.ndarray, vertices_1: np.ndarray, *,
+    subject: str = "the map", spread_note: bool = True,
+) -> MapQuality:  # fmt: skip
     """Say how far the map sends the landmarks' target vertices from their given source vertices.
 
     The landmarks enter the descriptor fit only, and the refinements can move them: measured
@@ -608,10 +575,8 @@ def landmarks_kept(
     if spread_note and len(landmarks) == 1:
         extra = "; one landmark holds the map near it only: give more, spread over the part"
     elif spread < MAX_JUMP:
-        extra = (
-            f"; they lie within {spread:.3f} of one another, so they hold the map near them "
-            "only: spread them over the part"
-        )
+        extra = (f"; they lie within {spread:.3f} of one another, so they hold the map near "
+                 "them only: spread them over the part")  # fmt: skip
     quality = quality.noted(Said(
         "landmarks: {subject} sends their target vertices at most {off:.3f} of sqrt(source "
         "area) from the source vertices given for them{extra}",

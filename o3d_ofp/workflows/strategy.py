@@ -65,7 +65,8 @@ class Strategy:
 
     ``method`` names the maps it makes (``Correspondence.method``), ``title`` starts its log
     lines, ``what`` names its map in a warning; ``refine_share`` is the share of the progress
-    the refinements of the starts take, after ``refine_share[0]``.
+    the refinements of the starts take, after ``refine_share[0]`` (the defaults: the full
+    match's).
     """
 
     method: ClassVar[str] = "estimate"
