@@ -342,3 +342,22 @@ def test_an_error_in_the_targets_basis_reaches_the_caller(monkeypatch, blob_mesh
     monkeypatch.setattr(plan, "ofp_basis", failing)
     with pytest.raises(MemoryError, match="forced"):
         ofp.transfer_colors(source, target)
+
+
+def test_a_given_basis_of_another_threshold_is_refused_naming_the_default(blob_mesh):
+    """One given OFP basis against the plan's default threshold: refused, the default said."""
+    from o3d_ofp.core.wording import OptionError
+
+    source, _ = _colored_pair(blob_mesh)
+    V, F = blob_mesh
+    corr = ofp.Correspondence.from_p2p(np.arange(len(V)), source, source)
+    fine = ofp.ofp_basis(ofp.eigenbasis(V, F, k=40), order=2, k=29, preset="ours*")
+    with pytest.raises(OptionError) as caught:
+        ofp.transfer_colors(source, source, correspondence=corr, bases=(fine, None))
+    assert caught.value.option == "bases"
+    said = str(caught.value)
+    assert "threshold 1e-09, but the target's basis would be made with 0.01 (preset='ours', " \
+        "the default for colors)" in said and "BasisOptions(preset='ours*')" in said, said
+    # With the matching threshold asked for, the same bases are taken.
+    ofp.transfer_colors(source, source, correspondence=corr, bases=(fine, None),
+                        options=ofp.BasisOptions(preset="ours*"))

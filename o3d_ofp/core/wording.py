@@ -44,6 +44,10 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "identity": ("map='identity'", "--map identity"),
     "texture_size": ("kind='texture'", "--texture-size N"),
     "threshold": ("options=BasisOptions({setting})", "{flag}"),
+    "default_threshold": (
+        "preset={default!r}, the default for {task}",
+        "--preset {default}, this command's default",
+    ),
     "via_basis": ("via_basis=True", "--via-basis"),
     "pull_back": ("via_basis=False", "--pull-back"),
     "give_map": ("give the map (correspondence=)", "give the map with --map FILE"),

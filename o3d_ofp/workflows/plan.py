@@ -178,7 +178,10 @@ def plan_pair(
     need = _task_needs(task, (n1, n2), bases, detail, given, given_bases, with_bases, names)
     if with_bases:
         no_fmap = dense or estimator in ("closest", "partial") or (given and given.fmap_12 is None)
-        _check_bases(bases, given_bases, bases.threshold(preset), bool(no_fmap), names)
+        default = (preset, task if task == "colors" else "mode='coordinates'")
+        if bases.preset is not None or bases.tol is not None:
+            default = None
+        _check_bases(bases, given_bases, bool(no_fmap), names, default=default, preset=preset)
     estimation = [0, 0]
     if estimator in ("full", "partial") and not dense:
         estimation = list(strategy_of(match).needs(n1, n2 or n1, match))
@@ -532,14 +535,17 @@ class _Ahead:
 
 
 def _check_bases(
-    bases: BasisOptions, given: Sequence[OFPBasis | None], tol: float, no_fmap: bool,
-    names: tuple[str, str],
+    bases: BasisOptions, given: Sequence[OFPBasis | None], no_fmap: bool,
+    names: tuple[str, str], *, default: tuple[str, str] | None, preset: str,
 ) -> None:  # fmt: skip
     """Refuse OFP bases of two thresholds, then the analytic matrix without a functional map.
 
     A given basis's threshold is compared with the other given one's, or with the plan's
-    (``tol``); ``no_fmap``: the map has no functional map between the eigenbases.
+    (``bases``' threshold, ``preset`` when it names none); ``default``: (preset, task) when
+    the plan's is the task's default, said as such; ``no_fmap``: the map has no functional
+    map between the eigenbases.
     """
+    tol = bases.threshold(preset)
     held = [(i, b.tol) for i, b in enumerate(given) if b is not None]
     if len(held) == 2 and not np.isclose(held[0][1], held[1][1], rtol=1e-9):
         raise OptionError("bases", Said(
@@ -553,10 +559,12 @@ def _check_bases(
         setting = f"preset={preset!r}" if preset else f"tol={t:g}"
         flag = f"--preset {preset}" if preset else f"--tol {t:g}"
         raise OptionError("bases", Said(
-            ": the given basis of {name} was orthogonalized with threshold {t:g}, but the other "
-            "shape's would be made with {tol:g}: the two bases must share one; pass {threshold}, "
-            "or recompute the given basis",
-            {"name": names[side], "t": t, "tol": tol, "setting": setting, "flag": flag},
+            ": the given basis of {name} was orthogonalized with threshold {t:g}, but the "
+            "{other}'s basis would be made with {tol:g}{origin}: the two bases must share one; "
+            "pass {threshold}, or recompute the given basis",
+            {"name": names[side], "other": ("target", "source")[side], "t": t, "tol": tol,
+             "setting": setting, "flag": flag, "origin": "" if default is None else
+             Said(" ({default_threshold})", {"default": default[0], "task": default[1]})},
         ))  # fmt: skip
     if bases.matrix == "analytic" and no_fmap:
         raise OptionError(
