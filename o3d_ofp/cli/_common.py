@@ -85,11 +85,10 @@ OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 
 def error_text(exc: BaseException) -> str:
     """Return the one line an error is said in on the command line (flags, not keywords)."""
+    said = text_of(exc, cli=True)  # an OptionError's starts with its option's name
     if isinstance(exc, OptionError) and exc.option in FLAGS:
-        problem = text_of(exc.problem, cli=True)
-        joint = "" if problem.startswith((":", ",", "=")) else " "
-        return flag_of(exc.option) + joint + problem
-    return text_of(exc, cli=True)
+        return flag_of(exc.option) + said.removeprefix(exc.option)
+    return said
 
 
 def flag_of(option: str) -> str:
@@ -231,12 +230,9 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): {exc}") from exc
-    array = isinstance(arr, np.ndarray)
-    real = array and (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_)
-    dtype = getattr(arr, "dtype", None)
-    refuse((not array, f"{flag} {path}: expected one array ({what}), got an archive"),
-           (np.iscomplexobj(arr) or not real,
-            f"{flag} {path}: must hold real numbers ({what}); got dtype {dtype}"))
+    real = np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_  # (.npy: one array)
+    refuse((np.iscomplexobj(arr) or not real,
+            f"{flag} {path}: must hold real numbers ({what}); got dtype {arr.dtype}"))
     return arr
 
 
@@ -276,18 +272,13 @@ def check_output(path: str, allowed: Sequence[str], *, inputs: Sequence[str | No
             f"with one of {', '.join(dict.fromkeys(allowed))}"))  # fmt: skip
     check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
     beside = (*side, *written_beside(path))
-    for other in beside:  # (found by a trial only after the work)
-        if os.path.isdir(other):
-            raise UsageError(f"{flag} {path}: writing it may also write {other} (a file Open3D "
-                             "writes beside it), which is a folder; choose another output name")
-    for source in inputs:  # names that are not files ("colors", "estimate") are skipped
-        if not (isinstance(source, str) and os.path.exists(source)):
-            continue
-        if same_file(path, source):
-            raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
-        for other in (o for o in beside if same_file(o, source)):
-            raise UsageError(f"{flag} {path}: writing it would also write {other}, an input of "
-                             "this command; choose another output name")  # fmt: skip
+    files = [f for f in inputs if isinstance(f, str) and os.path.exists(f)]  # not "colors", ...
+    refuse(*((os.path.isdir(o), f"{flag} {path}: writing it may also write {o} (a file Open3D "
+              "writes beside it), which is a folder; choose another output name") for o in beside),
+           *((same_file(path, f), f"{flag} {path}: is an input of this command; it would be "
+              "overwritten") for f in files),
+           *((same_file(o, f), f"{flag} {path}: writing it would also write {o}, an input of this "
+              "command; choose another output name") for f in files for o in beside))  # fmt: skip
 
 
 def same_file(a: str, b: str) -> bool:
@@ -332,8 +323,6 @@ def check_folder_to_make(path: str | None, flag: str) -> None:
     """
     if not path:
         return
-    refuse((os.path.exists(path) and not os.path.isdir(path), f"{flag} {path}: is a file, not a "
-            "folder"))  # fmt: skip
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
@@ -372,16 +361,20 @@ def add_components_option(p: argparse.ArgumentParser) -> None:
                    "(default: auto)")  # fmt: skip
 
 
-def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
-    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given).
+def basis_flags(args: argparse.Namespace, **sizes: int | None) -> dict[str, Any]:
+    """Return the basis flags given, as keywords (``--tol`` is over ``--preset``).
 
-    ``sizes``: ``k1``/``k2`` of a one-shape command (its ``-k``); ``--tol`` is over
-    ``--preset``.
+    ``sizes``: the sizes of a one-shape command (its ``-k``), over ``--k1``/``--k2``.
     """
     given = {"k1": getattr(args, "k1", None), "k2": getattr(args, "k2", None), **sizes,
              "order": args.order, "preset": None if args.tol is not None else args.preset,
              "tol": args.tol}  # fmt: skip
-    given = {name: value for name, value in given.items() if value is not None}
+    return {name: value for name, value in given.items() if value is not None}
+
+
+def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
+    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given)."""
+    given = basis_flags(args, **sizes)
     return BasisOptions(**given) if given else None
 
 

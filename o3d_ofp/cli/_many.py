@@ -133,20 +133,16 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     and run flags are added here (those not given are left to its defaults). The flags for
     one pair (:data:`PAIR_ONLY`) are refused.
     """
-    for name, flag in PAIR_ONLY.items():
-        if getattr(args, name, None) not in (None, False):
-            raise UsageError(f"{flag} does not apply to several targets")
+    common.refuse(*((getattr(args, name, None) not in (None, False), f"{flag} does not apply to "
+                     "several targets") for name, flag in PAIR_ONLY.items()))  # fmt: skip
     _check_run(args)
-    if args.map not in ("estimate", "identity"):
-        raise UsageError(f"--map {args.map}: with several targets the map is 'estimate' or "
-                         "'identity'")  # fmt: skip
-    if not os.path.isfile(args.source):
-        raise UsageError(f"{args.source}: no such source file")
-    for target in args.target:  # a typo is said before any work (a trial's ran every other)
-        if not os.path.exists(target):
-            raise UsageError(f"{target}: no such target file or folder")
-    given = {"k1": args.k1, "k2": args.k2, "order": args.order, "tol": args.tol,
-             "preset": None if args.tol is not None else args.preset, **options}  # fmt: skip
+    common.refuse(  # a typo in a target's name is said before any work
+        (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
+         "map is 'estimate' or 'identity'"),
+        (not os.path.isfile(args.source), f"{args.source}: no such source file"),
+        *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
+    )  # fmt: skip
+    given = {**common.basis_flags(args), **options}
     records = transfer_many(args.source, args.target, kind=kind, client=args.scheduler,
                             output_dir=args.output, cache_dir=args.cache, workers=args.workers,
                             skip_existing=not args.force, progress=ENABLED.on, map=args.map,

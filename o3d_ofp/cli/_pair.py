@@ -174,7 +174,7 @@ def _check_flags(args: argparse.Namespace) -> None:
     folder = os.path.dirname(os.path.abspath(save or ""))
     partial = "" if kind in ("closest", "identity") else (
         ", a map used as it is (a map saved from a run with --partial is partial already)")
-    for wrong, said in (
+    common.refuse(
         (lm == "", "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
          "'pick'"),
         (save and not lm, "--save-landmarks needs --landmarks (pick, pairs or a file)"),
@@ -194,9 +194,7 @@ def _check_flags(args: argparse.Namespace) -> None:
         (args.target_scale is not None and args.basis_2, f"--basis-2 {args.basis_2} holds the "
          f"basis of {args.target} in its own units, and --target-scale changes them: drop "
          "--basis-2 (--cache DIR keeps the scaled target's basis apart)"),
-    ):  # fmt: skip
-        if wrong:
-            raise UsageError(said)
+    )  # fmt: skip
     for path, flag in ((save, "--save-landmarks"), (args.save_map, "--save-map")):
         if path:
             _check_extra_output(args, path, flag)
@@ -221,17 +219,15 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
     if spec in ("estimate", "closest", "identity"):
         return _identity(n1, n2, V1, V2) if spec == "identity" else None
     files = spec.split(",")
-    for f in files:
-        if not os.path.isfile(f):
-            raise UsageError(f"--map {f}: no such map file "
-                             "(--map estimate|closest|identity|MAP.npz|FILE[,FILE])")  # fmt: skip
-    if len(files) > 2:
-        raise UsageError(f"--map takes one file or two comma-separated .vts files; got {spec!r}")
     path, method = files[0], "given"
-    if len(files) == 1 and common.geometry_file(path):
-        raise UsageError(f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|"
-                         "closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes "
-                         "are the positional arguments")  # fmt: skip
+    common.refuse(
+        *((not os.path.isfile(f), f"--map {f}: no such map file (--map estimate|closest|identity|"
+           "MAP.npz|FILE[,FILE])") for f in files),
+        (len(files) > 2, f"--map takes one file or two comma-separated .vts files; got {spec!r}"),
+        (len(files) == 1 and common.geometry_file(path), f"--map {path}: a mesh or point-cloud "
+         "file, not a map (--map estimate|closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,"
+         "TGT.vts); the shapes are the positional arguments"),
+    )  # fmt: skip
     try:
         if len(files) == 2:  # correspondences of both shapes to a common template
             p2p, method = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2), "template"
@@ -247,12 +243,11 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
         said = str(exc) if len(files) == 1 else f"{spec}: {exc}"
         raise UsageError(said if said.startswith("--map") else f"--map {said}") from exc
     p2p = np.asarray(p2p)
-    if p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer):
-        raise UsageError(f"--map {path}: a map file lists one source vertex per target vertex "
-                         f"({n2} integers); got shape {p2p.shape} and dtype {p2p.dtype}")
-    if p2p.min() < 0 or p2p.max() >= n1:
-        raise UsageError(f"--map {path}: source indices must lie in [0, {n1}) (1-based in .vts); "
-                         f"got [{p2p.min()}, {p2p.max()}]")  # fmt: skip
+    common.refuse((p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer), f"--map {path}: "
+                   f"a map file lists one source vertex per target vertex ({n2} integers); got "
+                   f"shape {p2p.shape} and dtype {p2p.dtype}"))  # fmt: skip
+    common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source indices must lie in "
+                   f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
     return Correspondence(p2p_21=p2p, n_source=n1, method=method)
 
 

@@ -54,9 +54,7 @@ def _run_many(args: argparse.Namespace) -> int:
         (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
         (args.force, "--force does not apply to basis (cached entries are checked)"),
     )  # fmt: skip
-    given = {"k": args.k, "order": args.order, "tol": args.tol,
-             "preset": None if args.tol is not None else args.preset}  # fmt: skip
     records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
                          components=args.components, workers=args.workers, progress=ENABLED.on,
-                         **{name: value for name, value in given.items() if value is not None})
+                         **common.basis_flags(args, k=args.k))  # fmt: skip
     return report_records(records)
