@@ -66,6 +66,8 @@ class Pair:
     target_scale: float | None = None
     #: ``--basis-1`` / ``--basis-2``: the OFP bases read, once the plan uses them
     files: tuple[Any, Any] = (None, None)
+    #: The flag values the command reads files from (those that are not files are skipped)
+    inputs: tuple[str | None, ...] = ()
 
     def in_target_units(self, geometry: Any) -> Any:
         """Return ``geometry``, made from the scaled target, in the target file's own units."""
@@ -147,16 +149,15 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
     return pairs
 
 
-def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
+def _check_extra_output(args: argparse.Namespace, path: str, flag: str, inputs: Any) -> None:
     """Refuse a ``--save-map`` / ``--save-landmarks`` file that would replace another file.
 
     That is an input of the command, the result, the other such file, or a cache entry.
     Found by a trial: ``--save-landmarks`` replaced the ``--signal`` file it was about to read,
     or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
     """
-    names = ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
-    files = [("an input of this command", getattr(args, name, None)) for name in names]
-    files += [("the --map file read", f) for f in args.map.split(",")]
+    files = [("the --map file read", f) for f in args.map.split(",")]
+    files += [("an input of this command", f) for f in inputs]
     beside = (*common.written_beside(args.output), *common.signal_sides(args))
     files += [("the -o output", args.output), *(("written with -o", f) for f in beside)]
     files += [(f"the {o} file", getattr(args, common.dest(o)))
@@ -168,10 +169,9 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
         raise UsageError(f"{flag} {path}: is in the --cache folder {args.cache}; choose another")
 
 
-def _check_flags(args: argparse.Namespace) -> None:
+def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
     """Refuse flags that contradict each other, and bad side outputs, before reading."""
     lm, save, kind = args.landmarks, args.save_landmarks, args.map
-    folder = os.path.dirname(os.path.abspath(save or ""))
     partial = "" if kind in ("closest", "identity") else (
         ", a map used as it is (a map saved from a run with --partial is partial already)")
     common.refuse(
@@ -179,7 +179,6 @@ def _check_flags(args: argparse.Namespace) -> None:
          "'pick'"),
         (save and not lm, "--save-landmarks needs --landmarks (pick, pairs or a file)"),
         (save and os.path.isdir(save), f"--save-landmarks {save}: is a directory"),
-        (save and not os.path.isdir(folder), f"--save-landmarks {save}: the folder does not exist"),
         (lm == "pick" and kind != "estimate", "--landmarks pick applies to --map estimate"),
         (lm == "pick" and not has_display(), "--landmarks pick needs a display to open Open3D's "
          "picking window (DISPLAY and WAYLAND_DISPLAY are not set); give the pairs in a file "
@@ -189,15 +188,14 @@ def _check_flags(args: argparse.Namespace) -> None:
         (args.align and kind != "closest", "--align applies to --map closest"),
         (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
          f"match), not to --map {kind}{partial}: drop --partial"),
-        (kind == "closest" and lm, "--landmarks apply to --map estimate, not --map closest"),
-        (lm and kind != "estimate", "--landmarks only apply with --map estimate"),
+        (lm and kind != "estimate", f"--landmarks apply to --map estimate, not --map {kind}"),
         (args.target_scale is not None and args.basis_2, f"--basis-2 {args.basis_2} holds the "
          f"basis of {args.target} in its own units, and --target-scale changes them: drop "
          "--basis-2 (--cache DIR keeps the scaled target's basis apart)"),
     )  # fmt: skip
     for path, flag in ((save, "--save-landmarks"), (args.save_map, "--save-map")):
         if path:
-            _check_extra_output(args, path, flag)
+            _check_extra_output(args, path, flag, inputs)
             common.check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
 
 
@@ -277,12 +275,19 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     report([f"map quality SUSPECT: {reason}" for reason in reasons])
 
 
-def read_pair(args: argparse.Namespace) -> Pair:
-    """Read both shapes, the map and the landmarks: everything that fails fast."""
+def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
+    """Check ``-o`` (one of ``outputs``), read both shapes, the map and the landmarks.
+
+    Everything that fails fast.
+    """
+    inputs = (args.source, args.target, getattr(args, "signal", None), getattr(args, "texture",
+              None), *args.map.split(","), args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
+    common.check_output(args.output, outputs, inputs=inputs, side=common.signal_sides(args))
     common.check_folder_to_make(args.cache, "--cache")
-    _check_flags(args)
+    _check_flags(args, inputs)
     source, V1, F1 = common.read_shape(args.source)
     target, V2, F2 = common.read_shape(args.target)
+    common.check_output_kind(args.output, F2)
     factor, own = args.target_scale, target
     if factor is not None:  # every step below sees the target in the source's units
         target, V2 = scaled_copy(target, factor), V2 * factor
@@ -306,7 +311,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
         report([f"wrote {len(options.landmarks)} landmark pairs to {args.save_landmarks}"])
     scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
     return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), own,
-                factor)  # fmt: skip
+                factor, inputs=inputs)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- planning

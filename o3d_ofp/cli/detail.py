@@ -47,11 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if not single(args, args.target):
         return run_transfers(args, kind="detail", options=given)
     args.target = args.target[0]
-    inputs = (args.source, args.target)
-    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT), inputs=inputs)
     detail = DetailOptions(**given)
-    pair = read_pair(args)
-    common.check_output_kind(args.output, pair.F2)
+    pair = read_pair(args, (*common.MESH_OUT, *common.CLOUD_OUT))
 
     def unused(named: list[str]) -> str:
         one, band = len(named) == 1, common.flag_of("band")
@@ -66,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                                 mode=detail.mode, band=detail.band, amount=detail.amount,
                                 options=common.basis_options(args),
                                 bases=prepared.bases or (prepared.eig_1, prepared.eig_2))
-    write_geometry(args.output, pair.in_target_units(moved), protect=inputs)
+    write_geometry(args.output, pair.in_target_units(moved), protect=pair.inputs)
     what = detail.mode if detail.mode == "coordinates" else f"{detail.mode}, band {detail.band}"
     report([f"{args.source} -> {args.target}: detail ({what})", f"wrote {args.output}"])
     return 0

@@ -54,9 +54,6 @@ def run(args: argparse.Namespace) -> int:
     if not single(args, args.target):
         return _run_many(args)
     args.target = args.target[0]
-    # the files this command reads (flag values that are not files are skipped)
-    args.inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
-                   args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
     common.refuse(
         (args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)),
          "--uv-atlas bakes the source's colors into a new atlas: it needs an .obj/.glb/.gltf "
@@ -66,10 +63,7 @@ def run(args: argparse.Namespace) -> int:
         (args.via_basis and args.uv_atlas, "--via-basis sends the colors to the target's vertices "
          "and --uv-atlas bakes them into a new atlas: give one of them"),
     )  # fmt: skip
-    common.check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=args.inputs,
-                        side=common.signal_sides(args))  # fmt: skip
-    pair = read_pair(args)
-    common.check_output_kind(args.output, pair.F2)
+    pair = read_pair(args, (*MESH_OUT, *CLOUD_OUT, ".npy"))
     closest = args.map == "closest" or getattr(pair.given, "method", None) == "closest"
     if args.via_basis and not closest:
         raise UsageError("--via-basis applies to a closest map (--map closest or its saved map): "
@@ -126,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         how = f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions"
     # positions sent to the target are written in its own units, as a detail is
     g = g / (pair.target_scale or 1.0) if kind == "xyz" else g
-    written = common.write_result(args.output, pair.own_target, g, kind, args.inputs)
+    written = common.write_result(args.output, pair.own_target, g, kind, pair.inputs)
     report([f"{args.source} -> {args.target}: {how}, map {name}", "wrote " + ", ".join(written)])
     return 0
 
@@ -215,7 +209,7 @@ def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     with stage(f"texture bake ({size} x {size})"):
         out = transfer_texture(pair.source, pair.target, correspondence=corr, size=size,
                                texture=args.texture, atlas=args.uv_atlas)  # fmt: skip
-    write_geometry(args.output, pair.in_target_units(out), protect=args.inputs)
+    write_geometry(args.output, pair.in_target_units(out), protect=pair.inputs)
     layout = "new UV atlas" if args.uv_atlas and not tex.has_uvs(pair.target) else "UV layout"
     what = "texture" if tex.has_uvs(pair.source) else "vertex colors"
     report([f"{args.source} -> {args.target}: {what} baked in the target's {layout} ({size} px), "
