@@ -46,15 +46,8 @@ from ..workflows.pipeline import carry
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from .results import TargetResult
 
-__all__ = [
-    "BasisJob",
-    "ShapeSpec",
-    "SharedSource",
-    "TransferJob",
-    "basis_task",
-    "failed",
-    "transfer_task",
-]
+__all__ = ["BasisJob", "ShapeSpec", "SharedSource", "TransferJob", "basis_task", "failed",
+           "transfer_task"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -125,9 +118,8 @@ class TransferJob:
         if not isinstance(self.texture, (str, os.PathLike)):
             raise OptionError("texture", f"must be an image file path; got {self.texture!r}")
         if self.kind == "detail" or self.signal == "colors":
-            raise OptionError(
-                "texture", "(the source's texture image) applies to its colors or bake"
-            )
+            raise OptionError("texture", "(the source's texture image) applies to its colors or "
+                              "bake")  # fmt: skip
         object.__setattr__(self, "texture", os.path.abspath(os.fspath(self.texture)))
         if not os.path.isfile(self.texture):
             raise FileNotFoundError(f"texture {self.texture}: no such image file")
@@ -256,16 +248,12 @@ def _read(spec: ShapeSpec) -> tuple[Any, np.ndarray, np.ndarray | None]:
 
 #: Appended to a message whose fix is landmarks, which a collection does not take ({command}
 #: and {function}: the command and the Python function of the collection's kind).
-ALONE_WITH_LANDMARKS = (
-    "a collection takes no landmarks: transfer this target alone (o3d-ofp {command} SOURCE "
-    "TARGET --landmarks ..., or ofp.match(source, target, landmarks=...), then "
-    "ofp.{function}(..., correspondence=...))"
-)
+ALONE_WITH_LANDMARKS = ("a collection takes no landmarks: transfer this target alone (o3d-ofp "
+                        "{command} SOURCE TARGET --landmarks ..., or ofp.match(source, target, "
+                        "landmarks=...), then ofp.{function}(..., correspondence=...))")
 #: Appended to a message whose fix is a partial match, which a collection does not make.
-ALONE_PARTIAL = (
-    "a collection makes no partial match: transfer this target alone (o3d-ofp {command} "
-    "SOURCE TARGET --partial, or ofp.match(source, target, partial=True))"
-)
+ALONE_PARTIAL = ("a collection makes no partial match: transfer this target alone (o3d-ofp "
+                 "{command} SOURCE TARGET --partial, or ofp.match(source, target, partial=True))")
 #: The findings whose fix is a partial match (not the "likely causes" that name it among
 #: others).
 _PARTIAL_FIXES = {"looks_partial", "looks_partial_units", "cloud_part", "part_larger"}
@@ -354,9 +342,8 @@ def _transfer_task(source: SharedSource, spec: ShapeSpec, found: dict[str, Any])
     return {"output": spec.output, "kind": task, "values": values}
 
 
-def _prepared(
-    source: SharedSource, V2: np.ndarray, F2: np.ndarray | None, task: str
-) -> tuple[Plan, Prepared]:
+def _prepared(source: SharedSource, V2: np.ndarray, F2: np.ndarray | None,
+              task: str) -> tuple[Plan, Prepared]:  # fmt: skip
     """Plan the target's job and run the plan with the source's shared bases."""
     job, V1, F1 = source.job, source.vertices, source.faces
     given = None
@@ -388,17 +375,15 @@ def _verdict(corr: Correspondence, kind: str) -> dict[str, Any]:
     return {"coverage": float(quality.coverage), "suspect": bool(quality.suspect), "notes": notes}
 
 
-def _transferred(
-    source: SharedSource, spec: ShapeSpec, target: Any, plan: Plan, prepared: Prepared
-) -> np.ndarray | None:
+def _transferred(source: SharedSource, spec: ShapeSpec, target: Any, plan: Plan,
+                 prepared: Prepared) -> np.ndarray | None:  # fmt: skip
     """Transfer onto the target and write it (a file's); else return the values."""
     job, corr = source.job, prepared.correspondence
     keep = spec.output is None or spec.arrays is not None  # a geometry's: written by the caller
     if plan.task == "texture":  # (a texture run has an output folder)
         assert source.texture is not None
-        result = transfer_texture(
-            source.texture, target, correspondence=corr, size=job.texture_size, atlas=job.atlas
-        )
+        result = transfer_texture(source.texture, target, correspondence=corr,
+                                  size=job.texture_size, atlas=job.atlas)  # fmt: skip
     elif plan.task == "detail":
         result = transfer_detail(
             (source.vertices, source.faces), target, correspondence=corr, mode=job.detail.mode,
@@ -450,8 +435,7 @@ def _basis_task(job: BasisJob, spec: ShapeSpec, found: dict[str, Any]) -> dict[s
             )  # fmt: skip
         if eig is not None and eig.k < job.k:
             eig = None  # smaller than the basis needs: fetch_basis solves again
-    cached &= fetch_basis(
-        V, F, **basis, cache_dir=job.cache_dir, eig=eig, components=job.components
-    )[1]
+    cached &= fetch_basis(V, F, **basis, cache_dir=job.cache_dir, eig=eig,
+                          components=job.components)[1]  # fmt: skip
     output = basis_cache_path(V, F, **basis, cache_dir=job.cache_dir, components=job.components)
     return {"status": "skipped" if cached else "ok", "output": output, "cached": cached}
