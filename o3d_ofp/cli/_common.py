@@ -42,6 +42,7 @@ logger = logging.getLogger(__name__)
 MESH_HELP = "mesh or point cloud (any format Open3D reads: PLY, OBJ, OFF, STL, GLB, ...)"
 MESH_OUT = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+GEOMETRY_OUT = (*MESH_OUT, *CLOUD_OUT)
 
 #: The flags that set each option an :class:`OptionError` may name (the library's keyword or
 #: options field): the error is said of those of them given (all of them when none was).
@@ -237,11 +238,6 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- outputs
-
-
-def geometry_file(path: str) -> bool:
-    """Whether a file name is one of a mesh or point-cloud format written here."""
-    return os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT)
 
 
 def written_beside(path: str) -> list[str]:
@@ -513,9 +509,8 @@ def side_outputs(path: str, kind: str) -> list[str]:
 
 def signal_sides(args: Any) -> list[str]:
     """Side files of ``-o`` known from the flags: the ``.npy`` of a ``--signal FILE.npy``."""
-    signal = getattr(args, "signal", None)
-    npy = isinstance(signal, str) and signal.lower().endswith(".npy")
-    return side_outputs(args.output, "array") if npy else []
+    npy = str(getattr(args, "signal", None)).lower().endswith(".npy")
+    return side_outputs(args.output, "array" if npy else "")
 
 
 def write_result(path: str, like: Any, values: np.ndarray, kind: str,

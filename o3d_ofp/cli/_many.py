@@ -88,7 +88,7 @@ def _check_run(args: argparse.Namespace) -> None:
     path, ext = args.output, os.path.splitext(args.output)[1].lower()
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
-    if not os.path.exists(path) and ext in (*common.MESH_OUT, *common.CLOUD_OUT, ".npy"):
+    if not os.path.exists(path) and ext in (*common.GEOMETRY_OUT, ".npy"):
         raise UsageError(f"-o {path}: with several targets -o names a folder (the results keep the "
                          f"targets' names); {ext} looks like one output file")  # fmt: skip
     common.check_folder_to_make(path, "-o")  # written into, or made in its nearest folder

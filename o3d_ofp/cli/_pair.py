@@ -222,9 +222,9 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
         *((not os.path.isfile(f), f"--map {f}: no such map file (--map estimate|closest|identity|"
            "MAP.npz|FILE[,FILE])") for f in files),
         (len(files) > 2, f"--map takes one file or two comma-separated .vts files; got {spec!r}"),
-        (len(files) == 1 and common.geometry_file(path), f"--map {path}: a mesh or point-cloud "
-         "file, not a map (--map estimate|closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,"
-         "TGT.vts); the shapes are the positional arguments"),
+        (len(files) == 1 and path.lower().endswith(common.GEOMETRY_OUT), f"--map {path}: a mesh or "
+         "point-cloud file, not a map (--map estimate|closest|identity|MAP.npz|FILE.vts|FILE.npy|"
+         "SRC.vts,TGT.vts); the shapes are the positional arguments"),
     )  # fmt: skip
     try:
         if len(files) == 2:  # correspondences of both shapes to a common template
@@ -383,12 +383,9 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepare
         report_quality(args, given)
     progress = stage_progress("matching") if planned.estimated else contextlib.nullcontext()
     with stage(_describe(planned, pair), ticking=not planned.estimated), progress as tell:
-        try:
-            prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
-                               given=given, bases=pair.files, cache_dir=args.cache,
-                               progress=tell, names=pair.names)  # fmt: skip
-        except AdvisedError as exc:
-            raise UsageError(exc.said) from exc
+        prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
+                           given=given, bases=pair.files, cache_dir=args.cache, progress=tell,
+                           names=pair.names)  # fmt: skip
     if planned.estimated:
         report_quality(args, prepared.correspondence)
     if args.save_map:

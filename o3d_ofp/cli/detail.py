@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         return run_transfers(args, kind="detail", options=given)
     args.target = args.target[0]
     detail = DetailOptions(**given)
-    pair = read_pair(args, (*common.MESH_OUT, *common.CLOUD_OUT))
+    pair = read_pair(args, common.GEOMETRY_OUT)
 
     def unused(named: list[str]) -> str:
         one, band = len(named) == 1, common.flag_of("band")

@@ -141,7 +141,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exc.code or 0)
     # -q: warnings stay (a suspect map or a refused option is said even then)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose > 1 else logging.INFO
-    prog = f"o3d-ofp {args.command}"
     OUT.quiet, OUT.args, OUT.renamed, OUT.one_pair = bool(args.quiet), args, {}, False
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (logged at WARNING here).
@@ -166,5 +165,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.verbose:
                 logger.exception("internal error")
             code, said = 1, f"internal error: {type(exc).__name__}: {exc}"
-    sys.stderr.write(f"{prog}: {said}\n")
+    sys.stderr.write(f"o3d-ofp {args.command}: {said}\n")
     return code

@@ -14,7 +14,7 @@ from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ..core.wording import Said
 from ..workflows.pipeline import carry, pull_back
 from . import _common as common
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, bounded_int, report, stage
+from ._common import GEOMETRY_OUT, UsageError, bounded_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 
@@ -63,12 +63,15 @@ def run(args: argparse.Namespace) -> int:
         (args.via_basis and args.uv_atlas, "--via-basis sends the colors to the target's vertices "
          "and --uv-atlas bakes them into a new atlas: give one of them"),
     )  # fmt: skip
-    pair = read_pair(args, (*MESH_OUT, *CLOUD_OUT, ".npy"))
+    pair = read_pair(args, (*GEOMETRY_OUT, ".npy"))
     closest = args.map == "closest" or getattr(pair.given, "method", None) == "closest"
-    if args.via_basis and not closest:
-        raise UsageError("--via-basis applies to a closest map (--map closest or its saved map): "
-                         "other maps go through the OFP bases already")  # fmt: skip
-    if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
+    common.refuse((args.via_basis and not closest, "--via-basis applies to a closest map (--map "
+                   "closest or its saved map): other maps go through the OFP bases already"))
+    # a bake: a source mesh with a texture or (without UVs) vertex colors onto a mesh target
+    # with UVs (or an atlas), written as OBJ/glTF
+    colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
+    if args.signal is None and pair.F1 is not None and pair.F2 is not None and colored and (
+            args.uv_atlas or tex.has_uvs(pair.target)) and args.output.lower().endswith(_BAKED):
         if args.uv_atlas and tex.has_uvs(pair.target):
             logger.warning("%s has its own UVs: the texture is baked into them (--uv-atlas makes "
                            "an atlas for a target without UVs only)", args.target)  # fmt: skip
@@ -115,9 +118,8 @@ def run(args: argparse.Namespace) -> int:
             g = image.sample(corr.faces_21, corr.barycentric_21)
         else:
             g = pull_back(f, corr, pair.F1)
-    how = f"{'exact ' * closest}pull-back"
-    if not planned.exact:
-        how = f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions"
+    how = (f"{'exact ' * closest}pull-back" if planned.exact else
+           f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions")  # fmt: skip
     # positions sent to the target are written in its own units, as a detail is
     g = g / (pair.target_scale or 1.0) if kind == "xyz" else g
     written = common.write_result(args.output, pair.own_target, g, kind, pair.inputs)
@@ -172,17 +174,6 @@ def _run_many(args: argparse.Namespace) -> int:
     return run_transfers(args, kind=kind, options={
         "signal": args.signal or "auto", "texture_size": args.texture_size,
         "atlas": args.uv_atlas, "texture": args.texture})  # fmt: skip
-
-
-def _bakeable(pair: Pair, output: str, *, atlas: bool = False) -> bool:
-    """Tell whether to bake into the target's UVs.
-
-    Yes for a source mesh with a texture or (without UVs) vertex colors, a target with UVs (or
-    an atlas), and an OBJ/glTF output.
-    """
-    colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
-    return bool(pair.F1 is not None and pair.F2 is not None and colored
-                and (atlas or tex.has_uvs(pair.target)) and output.lower().endswith(_BAKED))
 
 
 def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
