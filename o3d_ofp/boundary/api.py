@@ -338,7 +338,7 @@ def _check_pair(value: Any, name: str, kinds: type | tuple[type, ...], what: str
     if value is None or (sized and len(value) == 2 and all(isinstance(v, kinds) for v in value)):
         return
     raise OptionError(name, f"must be a pair (source, target) of {what}; got "
-                      f"{type(value).__name__}" + f" of {len(value)}" * sized)  # fmt: skip
+                      f"{type(value).__name__}" + (f" of {len(value)}" if sized else ""))
 
 
 def _bases(value: Any) -> tuple[tuple[Any, Any], tuple[Any, Any]]:
