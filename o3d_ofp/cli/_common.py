@@ -298,9 +298,8 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
             os.remove(probe)
     except OSError as exc:
         why = exc.strerror or str(exc)
-    if why is not None:
-        raise UsageError(f"{flag} {path}: the folder {folder} cannot be written ({why}); "
-                         f"choose another folder for {flag}")  # fmt: skip
+    refuse((why is not None, f"{flag} {path}: the folder {folder} cannot be written ({why}); "
+            f"choose another folder for {flag}"))  # fmt: skip
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
@@ -478,10 +477,8 @@ def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str
 def check_colors_output(output: str | None) -> None:
     """Refuse colors bound for an ``-o`` format that holds none (STL, XYZ), before any work."""
     ext = os.path.splitext(output or "")[1].lower()
-    if ext in NO_COLORS:
-        raise UsageError(f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; "
-                         "write .ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts "
-                         "(points)")  # fmt: skip
+    refuse((ext in NO_COLORS, f"-o {output}: {ext} holds no vertex colors, so the colors would be "
+            "lost; write .ply, .obj, .off, .glb, .gltf (meshes) or .xyzrgb, .pcd, .pts (points)"))
 
 
 def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:

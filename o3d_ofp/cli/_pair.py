@@ -152,9 +152,8 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
 def _check_extra_output(args: argparse.Namespace, path: str, flag: str, inputs: Any) -> None:
     """Refuse a ``--save-map`` / ``--save-landmarks`` file that would replace another file.
 
-    That is an input of the command, the result, the other such file, or a cache entry.
-    Found by a trial: ``--save-landmarks`` replaced the ``--signal`` file it was about to read,
-    or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
+    That is an input of the command, the result or a file written beside it, the other such
+    file, or a cache entry.
     """
     files = [("the --map file read", f) for f in args.map.split(",")]
     files += [("an input of this command", f) for f in inputs]
@@ -162,11 +161,10 @@ def _check_extra_output(args: argparse.Namespace, path: str, flag: str, inputs: 
     files += [("the -o output", args.output), *(("written with -o", f) for f in beside)]
     files += [(f"the {o} file", getattr(args, common.dest(o)))
               for o in ("--save-map", "--save-landmarks") if o != flag]  # fmt: skip
-    for what, other in files:
-        if isinstance(other, str) and other and common.same_file(path, other):
-            raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
-    if args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache):
-        raise UsageError(f"{flag} {path}: is in the --cache folder {args.cache}; choose another")
+    cache = args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache)
+    common.refuse(*((isinstance(f, str) and f and common.same_file(path, f), f"{flag} {path}: is "
+                     f"{what}; it would be overwritten") for what, f in files),
+                  (cache, f"{flag} {path}: is in the --cache folder {args.cache}; choose another"))
 
 
 def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
@@ -259,9 +257,8 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     warned here.
     """
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
-    reasons = [f"--map {args.map}: {collapse.text(cli=True)}"] if collapse else []
-    if args.map.endswith(".npz"):
-        reasons += [m for m in (corr.mismatch(V1, V2, name=f"--map {args.map}"),) if m]
+    reasons = [r for r in (collapse and f"--map {args.map}: {collapse.text(cli=True)}",
+                           corr.mismatch(V1, V2, name=f"--map {args.map}")) if r]  # fmt: skip
     quality = corr.quality
     if quality is not None:
         report([f"stored with --map {args.map}: {quality.summary()}"])
@@ -329,8 +326,7 @@ def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[l
     planned = _planned(pair, task=task, **options)
     named = [f for f in (*common.FLAGS["options"], *common.FLAGS["bases"][: 2 * files])
              if getattr(args, common.dest(f)) is not None]  # fmt: skip
-    if planned.basis_k is None and named:
-        raise UsageError(unused(named))
+    common.refuse((planned.basis_k is None and named, unused(named)))
     pair.files = tuple(  # type: ignore[assignment]
         common.load_basis_file(f, V, F, path, args, flag) if f else None
         for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),

@@ -42,9 +42,8 @@ def run(args: argparse.Namespace) -> int:
     out = os.path.abspath(args.output)
     common.check_folder_to_make(args.output, "-o")  # made with its parents after the checks
     n_vertices = 10 * 4**args.subdivisions + 2  # the icosphere the blob is made from
-    if args.k > n_vertices - 1:
-        raise UsageError(f"-k {args.k}: the shape of --subdivisions {args.subdivisions} has "
-                         f"{n_vertices} vertices: at most {n_vertices - 1}")  # fmt: skip
+    common.refuse((args.k > n_vertices - 1, f"-k {args.k}: the shape of --subdivisions "
+                   f"{args.subdivisions} has {n_vertices} vertices: at most {n_vertices - 1}"))
     try:
         with output_folder(out):  # a refused or interrupted demo leaves no empty folder
             return _run(args, out)

@@ -62,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
         if npy != "-":
             values = common.load_npy(npy, "per-vertex scalars", flag="--scalars")
             values = values[:, 0] if values.ndim == 2 and values.shape[1] == 1 else values
-            if values.shape != (V.shape[0],):
-                raise UsageError(f"--scalars {npy}: shape {values.shape}, expected ({V.shape[0]},) "
-                                 f"for {path}")  # fmt: skip
+            common.refuse((values.shape != (V.shape[0],), f"--scalars {npy}: shape "
+                           f"{values.shape}, expected ({V.shape[0]},) for {path}"))  # fmt: skip
             colors, texture = values.astype(np.float64), None
         items.append((V, F, colors))
         textures.append(texture)
