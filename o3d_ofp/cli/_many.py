@@ -51,14 +51,17 @@ def add_collection_options(p: argparse.ArgumentParser, *, description: str = (
                    "both inputs (default: skip them)")  # fmt: skip
 
 
-def single(args: argparse.Namespace, shapes: Sequence[str]) -> bool:
+def single(args: argparse.Namespace, name: str) -> bool:
     """Whether a command runs over one pair (or one shape); its collection flags refused then.
 
-    Several shapes, or a folder of them, are a collection; one file is the two-shape form,
-    whose ``-o`` names a file (an existing folder is refused as such).
+    Several shapes (``args.<name>``), or a folder of them, are a collection; one file is the
+    two-shape form, whose ``-o`` names a file (an existing folder is refused as such):
+    ``args.<name>`` is then that file.
     """
+    shapes = getattr(args, name)
     if len(shapes) > 1 or any(os.path.isdir(t) for t in shapes):
         return False
+    setattr(args, name, shapes[0])
     for flag in ("--scheduler", "--workers", "--force"):
         if getattr(args, flag[2:]) not in (None, False):
             raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")

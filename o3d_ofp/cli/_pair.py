@@ -298,9 +298,9 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
             raise UsageError(f"--landmarks pick: {exc}") from exc
     else:
         landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    method = "closest" if args.map == "closest" else "estimate"
-    options = MatchOptions(method=method, partial=args.partial, align=args.align,
-                           landmarks=landmarks, components=args.components)  # fmt: skip
+    options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
+                           partial=args.partial, align=args.align, landmarks=landmarks,
+                           components=args.components)  # fmt: skip
     if options.landmarks is not None and args.save_landmarks:
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
             np.savetxt(tmp, options.landmarks, fmt="%d",

@@ -31,15 +31,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Compute the basis of ``args.mesh`` and write it to ``args.output`` (or to the cache)."""
     common.check_folder_to_make(args.cache, "--cache")
-    if args.output is None or not single(args, args.mesh):
+    if args.output is None or not single(args, "mesh"):
         return _run_many(args)
-    (mesh,) = args.mesh
-    common.check_output(args.output, (".npz",), inputs=(mesh,))
-    _, V, F = common.read_shape(mesh)
-    B = common.shape_basis(V, F, mesh, args)
+    common.check_output(args.output, (".npz",), inputs=(args.mesh,))
+    _, V, F = common.read_shape(args.mesh)
+    B = common.shape_basis(V, F, args.mesh, args)
     B.save(args.output)
     cleaning = B.eig.cleaning.report if B.eig.cleaning is not None else None
-    report([f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept "
+    report([f"{args.mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept "
             f"{B.size} of {n_eigenproducts(B.k, B.order)} products",
             *([f"cleaning: {cleaning}"] if cleaning is not None else []),
             f"wrote {args.output}"])  # fmt: skip

@@ -42,11 +42,9 @@ def run(args: argparse.Namespace) -> int:
     common.refuse((args.band is not None and args.mode == "coordinates",
                    f"{common.flag_of('band')} does not apply to --mode coordinates (it has no "
                    "detail band)"))  # fmt: skip
-    given = {n: getattr(args, n) for n in ("mode", "band", "amount")}
-    given = {name: value for name, value in given.items() if value is not None}
-    if not single(args, args.target):
+    given = {n: v for n in ("mode", "band", "amount") if (v := getattr(args, n)) is not None}
+    if not single(args, "target"):
         return run_transfers(args, kind="detail", options=given)
-    args.target = args.target[0]
     detail = DetailOptions(**given)
     pair = read_pair(args, common.GEOMETRY_OUT)
 

@@ -14,7 +14,7 @@ from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ..core.wording import Said
 from ..workflows.pipeline import carry, pull_back
 from . import _common as common
-from ._common import GEOMETRY_OUT, UsageError, bounded_int, report, stage
+from ._common import GEOMETRY_OUT, bounded_int, report, stage
 from ._many import add_collection_options, run_transfers, single
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 
@@ -51,9 +51,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, make (or read) the map, transfer, write (for each target)."""
-    if not single(args, args.target):
+    if not single(args, "target"):
         return _run_many(args)
-    args.target = args.target[0]
     common.refuse(
         (args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)),
          "--uv-atlas bakes the source's colors into a new atlas: it needs an .obj/.glb/.gltf "
@@ -168,9 +167,8 @@ def _run_many(args: argparse.Namespace) -> int:
             why = f"{args.source} has no texture coordinates (UVs)"
         except (TypeError, ValueError, FileNotFoundError) as exc:
             why = tex.no_texture_message(args.source, exc)
-    if kind != "texture" and args.texture_size is not None:
-        raise UsageError(Said("--texture-size applies to a bake, and nothing is baked here: {why}",
-                              {"why": why}))  # fmt: skip
+    common.refuse((kind != "texture" and args.texture_size is not None, Said(
+        "--texture-size applies to a bake, and nothing is baked here: {why}", {"why": why})))
     return run_transfers(args, kind=kind, options={
         "signal": args.signal or "auto", "texture_size": args.texture_size,
         "atlas": args.uv_atlas, "texture": args.texture})  # fmt: skip
