@@ -111,22 +111,23 @@ def report_records(records: Sequence[Any]) -> int:
     warnings, which ``-q`` keeps (each named: the exit code 1 alone would not say which shapes
     failed, nor why).
     """
-    lines = []
-    for r in records:
-        if r.status == "failed":
-            lines.append(f"failed   {r.name}: {text_of(r.error, cli=True)}")
-        elif r.status == "skipped":
-            sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
-            lines.append(f"skipped  {r.name}: up to date ({r.output}){sus}")
-        else:
-            cov = "" if r.coverage != r.coverage else (
-                f", map coverage {r.coverage:.2f} of the source's vertices")  # fmt: skip
-            sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
-            where = f" -> {r.output}" if r.output else ""
-            lines.append(f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}")
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
-    report([*lines, ", ".join(f"{n} {s}" for s, n in counts.items())])
+    report([*map(_line, records), ", ".join(f"{n} {s}" for s, n in counts.items())])
     return 1 if counts["failed"] else 0
+
+
+def _line(r: Any) -> str:
+    """Return the result line of one shape's record."""
+    if r.status == "failed":
+        return f"failed   {r.name}: {text_of(r.error, cli=True)}"
+    if r.status == "skipped":
+        sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
+        return f"skipped  {r.name}: up to date ({r.output}){sus}"
+    cov = "" if r.coverage != r.coverage else (
+        f", map coverage {r.coverage:.2f} of the source's vertices")  # fmt: skip
+    sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
+    where = f" -> {r.output}" if r.output else ""
+    return f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}"
 
 
 def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:

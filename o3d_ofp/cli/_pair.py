@@ -111,10 +111,18 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
 # --------------------------------------------------------------------------- reading
 
 
-def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
-    """Return the pairs of ``--landmarks`` (a file or inline), checked to lie in both shapes."""
+def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> np.ndarray | None:
+    """Return the pairs of ``--landmarks``: picked on ``shapes``, or a file or inline pairs.
+
+    Those read are checked to lie in both shapes.
+    """
     if not spec:
         return None
+    if spec == "pick":
+        try:
+            return pick_landmarks(*shapes)
+        except (ValueError, RuntimeError) as exc:
+            raise UsageError(f"--landmarks pick: {exc}") from exc
     is_file = os.path.isfile(spec)
     where = f" {spec}" if is_file else ""
     common.refuse((not is_file and (":" not in spec or os.sep in spec),
@@ -291,13 +299,7 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
     given = _read_map(args.map, V1, V2)
     if given is not None:
         _judge_given(args, given, V1, V2)
-    if args.landmarks == "pick":
-        try:
-            landmarks = pick_landmarks(source, target)
-        except (ValueError, RuntimeError) as exc:
-            raise UsageError(f"--landmarks pick: {exc}") from exc
-    else:
-        landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
+    landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
     options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
                            partial=args.partial, align=args.align, landmarks=landmarks,
                            components=args.components)  # fmt: skip

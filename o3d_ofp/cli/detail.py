@@ -20,18 +20,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     default = DetailOptions()
     p = sub.add_parser("detail", help="give the target the source's geometric detail")
     add_pair_options(p, preset="ours*", several=True)
-    p.add_argument("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: "
-                   "the target gains the source's detail in its local frames; replace-detail: its "
-                   "own detail is replaced; coordinates (Fig. 13): the source's coordinates "
-                   "through the OFP bases (--k1/--k2/--order/--preset) replace the target's; "
-                   f"replace: deprecated name of coordinates ({default.mode})")
-    p.add_argument("--band", type=positive_int, help="the detail lies above this many "
-                   f"eigenfunctions, at any resolution ({default.band}); lower takes more shape")
-    p.add_argument("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the "
-                   f"transferred detail, in [0, {MAX_AMOUNT:g}] ({default.amount:g})")
-    p.add_argument("--k-low", type=positive_int, help="deprecated name of --band")
-    p.add_argument("-o", "--output", required=True,
-                   help="displaced target; with several targets a folder")  # fmt: skip
+    a = p.add_argument
+    a("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: the target "
+      "gains the source's detail in its local frames; replace-detail: its own detail is replaced; "
+      "coordinates (Fig. 13): the source's coordinates through the OFP bases (--k1/--k2/--order/"
+      f"--preset) replace the target's; replace: deprecated name of coordinates ({default.mode})")
+    a("--band", type=positive_int, help="the detail lies above this many eigenfunctions, at any "
+      f"resolution ({default.band}); lower takes more shape")
+    a("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the transferred detail, in "
+      f"[0, {MAX_AMOUNT:g}] ({default.amount:g})")
+    a("--k-low", type=positive_int, help="deprecated name of --band")
+    a("-o", "--output", required=True, help="displaced target; with several targets a folder")
     add_collection_options(p)
     p.set_defaults(func=run)
 
