@@ -78,7 +78,7 @@ class Pair:
 def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool = False) -> None:
     """Positional source/target(s) and the map, basis and landmark flags.
 
-    With ``several``, ``target`` is a list (files and folders: see :mod:`._many`).
+    With ``several``, ``target`` is a list (files and folders: see :func:`._common.run_transfers`).
     """
     default, a = BasisOptions(), p.add_argument
     a("source", help="source " + common.MESH_HELP)

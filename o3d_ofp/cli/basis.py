@@ -8,7 +8,6 @@ from ..collections import bases_many
 from ..core.products import n_eigenproducts
 from . import _common as common
 from ._common import report
-from ._many import add_collection_options, report_records, single
 from ._progress import ENABLED
 
 __all__ = ["add_parser", "run"]
@@ -22,16 +21,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=common.MESH_HELP + "; several, or folders of them, with --cache DIR")
     common.add_basis_options(p)
     p.add_argument("-o", "--output", help="basis file (.npz) of one shape")
-    add_collection_options(p, description="give several shapes, or folders of them, with --cache "
-                           "DIR and no -o: each shape's bases are stored in DIR (a line per shape "
-                           "printed; --force does not apply)")  # fmt: skip
+    common.add_collection_options(p, description="give several shapes, or folders of them, with "
+                                  "--cache DIR and no -o: each shape's bases are stored in DIR (a "
+                                  "line per shape printed; --force does not apply)")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Compute the basis of ``args.mesh`` and write it to ``args.output`` (or to the cache)."""
     common.check_folder_to_make(args.cache, "--cache")
-    if args.output is None or not single(args, "mesh"):
+    if args.output is None or not common.single(args, "mesh"):
         return _run_many(args)
     common.check_output(args.output, (".npz",), inputs=(args.mesh,))
     _, V, F = common.read_shape(args.mesh)
@@ -56,4 +55,4 @@ def _run_many(args: argparse.Namespace) -> int:
     records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
                          components=args.components, workers=args.workers, progress=ENABLED.on,
                          **common.basis_flags(args, k=args.k))  # fmt: skip
-    return report_records(records)
+    return common.report_records(records)

@@ -9,7 +9,6 @@ from ..boundary.io import write_geometry
 from ..workflows.options import DETAIL_MODES, MAX_AMOUNT, DetailOptions
 from . import _common as common
 from ._common import bounded_float, positive_int, report, stage
-from ._many import add_collection_options, run_transfers, single
 from ._pair import add_pair_options, plan, prepare_pair, read_pair
 
 __all__ = ["add_parser", "run"]
@@ -31,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
       f"[0, {MAX_AMOUNT:g}] ({default.amount:g})")
     a("--k-low", type=positive_int, help="deprecated name of --band")
     a("-o", "--output", required=True, help="displaced target; with several targets a folder")
-    add_collection_options(p)
+    common.add_collection_options(p)
     p.set_defaults(func=run)
 
 
@@ -42,8 +41,8 @@ def run(args: argparse.Namespace) -> int:
                    f"{common.flag_of('band')} does not apply to --mode coordinates (it has no "
                    "detail band)"))  # fmt: skip
     given = {n: v for n in ("mode", "band", "amount") if (v := getattr(args, n)) is not None}
-    if not single(args, "target"):
-        return run_transfers(args, kind="detail", options=given)
+    if not common.single(args, "target"):
+        return common.run_transfers(args, kind="detail", options=given)
     detail = DetailOptions(**given)
     pair = read_pair(args, common.GEOMETRY_OUT)
 

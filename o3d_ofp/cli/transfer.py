@@ -15,7 +15,6 @@ from ..core.wording import Said
 from ..workflows.pipeline import carry, pull_back
 from . import _common as common
 from ._common import GEOMETRY_OUT, bounded_int, report, stage
-from ._many import add_collection_options, run_transfers, single
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 
 __all__ = ["add_parser", "run"]
@@ -45,13 +44,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
       f"pixels ({TEXTURE_SIZE}; at most {MAX_TEXTURE_SIZE})")
     a("-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values; with "
       "several targets a folder")  # fmt: skip
-    add_collection_options(p)
+    common.add_collection_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Read, make (or read) the map, transfer, write (for each target)."""
-    if not single(args, "target"):
+    if not common.single(args, "target"):
         return _run_many(args)
     common.refuse(
         (args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)),
@@ -169,7 +168,7 @@ def _run_many(args: argparse.Namespace) -> int:
             why = tex.no_texture_message(args.source, exc)
     common.refuse((kind != "texture" and args.texture_size is not None, Said(
         "--texture-size applies to a bake, and nothing is baked here: {why}", {"why": why})))
-    return run_transfers(args, kind=kind, options={
+    return common.run_transfers(args, kind=kind, options={
         "signal": args.signal or "auto", "texture_size": args.texture_size,
         "atlas": args.uv_atlas, "texture": args.texture})  # fmt: skip
 
