@@ -30,7 +30,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from ..boundary.convert import geometry_to_arrays, like_target, require_open3d, vertex_colors
+from ..boundary.convert import geometry_to_arrays, like_target, vertex_colors
 from ..boundary.io import CLOUD_ONLY, MESH_ONLY, NO_COLORS, read_geometry, write_geometry
 from ..boundary.texture import has_uvs, no_texture_message, texture_colors, without_texture
 from ..collections import transfer_many, write_summary
@@ -217,10 +217,11 @@ def vector3(text: str) -> tuple[float, float, float]:
 
 
 def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
-    """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
-    require_open3d()
-    refuse((not os.path.exists(path), f"{path}: no such file"),
-           (os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
+    """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file.
+
+    A missing file or Open3D is said by :func:`~o3d_ofp.read_geometry`.
+    """
+    refuse((os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
     try:
         geometry = read_geometry(path)
         return (geometry, *geometry_to_arrays(geometry))
@@ -426,16 +427,16 @@ def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis
     refuse((k > V.shape[0] - 2, f"-k {k}: must be smaller than the number of vertices of {path} "
             f"minus one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"))  # (before the memory
     # estimate, whose message it would be otherwise)
-    entry = args.cache and basis_cache_path(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
-                                            components=args.components)  # fmt: skip
+    cached = {"k": k, "order": order, "tol": tol, "cache_dir": args.cache,
+              "components": args.components}  # fmt: skip
+    entry = args.cache and basis_cache_path(V, F, **cached)
     if not (entry and os.path.isfile(entry) and os.path.getsize(entry) > 0):  # a hit only reads
         check_memory(path, V.shape[0], k=k, order=order,
                      advice="lower -k or --order, or use a simplified mesh (fewer vertices)")
     with about(path):
         if args.cache:
             with stage(f"basis of {path} (cache {args.cache})"):
-                return cached_basis(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
-                                    components=args.components)  # fmt: skip
+                return cached_basis(V, F, **cached)
         with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={k})"):
             eig = eigenbasis(V, F, k=k, components=args.components)
         with stage(f"orthogonalized products of {path} (order {order})"):
@@ -468,8 +469,7 @@ def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str
         return f.astype(np.float64), "array"
     colors = vertex_colors(geometry) if spec == "colors" else None
     hint = ("it has texture coordinates: use --signal texture" if has_uvs(geometry) else
-            "transfer its coordinates with --signal xyz, or a per-vertex signal with --signal "
-            "FILE.npy")  # fmt: skip
+            "transfer its coordinates (--signal xyz) or a per-vertex signal (--signal FILE.npy)")
     refuse((spec not in ("colors", "texture"),
             f"--signal must be colors, texture, xyz or a FILE.npy; got {spec!r}"),
            (spec == "colors" and colors is None, f"{path}: has no vertex colors ({hint})"))

@@ -101,10 +101,9 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
     root, handler = logging.getLogger("o3d_ofp"), logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("o3d-ofp: %(message)s"))
     handler.addFilter(_Shown(quiet_reports=level > logging.DEBUG))
-    saved = (root.level, root.propagate)
+    saved, root.propagate = (root.level, root.propagate), False
     root.addHandler(handler)
     root.setLevel(level)
-    root.propagate = False
     try:
         yield
     finally:

@@ -178,13 +178,12 @@ def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     common.refuse(
         (args.via_basis, "--via-basis sends colors through the OFP bases to the target's vertices; "
          "a bake reads the source through the map: add --signal colors, or drop --via-basis"),
-        (args.pull_back, "--pull-back puts values on the target's vertices; this run bakes the "
-         "source's colors into the target's UVs, which reads them through the map with no OFP "
-         "basis already: drop --pull-back, or add --signal colors for per-vertex colors"),
+        (args.pull_back, "--pull-back puts values on the target's vertices; a bake reads the "
+         "source's colors through the map with no OFP basis already: drop --pull-back, or add "
+         "--signal colors for per-vertex colors"),
     )  # fmt: skip
-    instead = "" if args.uv_atlas else (f", or add --signal colors{' --via-basis' * closest} "
-                                        "to transfer the colors to the target's vertices through "
-                                        "the bases")  # fmt: skip
+    instead = (f", or add --signal colors{' --via-basis' * closest} to transfer the colors to the "
+               "target's vertices through the bases") if not args.uv_atlas else ""  # fmt: skip
     planned = plan(args, pair, "texture", unused=lambda named: (
         f"{'/'.join(named)} does not apply here: a bake reads the source's colors through the "
         f"map, with no OFP basis; drop it{instead}"))  # fmt: skip
