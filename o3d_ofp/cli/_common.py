@@ -499,11 +499,6 @@ def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
     return UsageError(no_texture_message(path, exc))
 
 
-def _save_npy(path: str, values: np.ndarray) -> None:
-    with atomic_path(path, suffix=".npy") as tmp:
-        np.save(tmp, values)
-
-
 def side_outputs(path: str, kind: str) -> list[str]:
     """Files besides ``path`` that :func:`write_result` writes for a signal of ``kind``."""
     if kind == "array" and not path.lower().endswith(".npy"):
@@ -529,17 +524,19 @@ def write_result(path: str, like: Any, values: np.ndarray, kind: str,
     sides = side_outputs(path, kind)
     for side in sides:
         check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
-    if path.lower().endswith(".npy"):
-        _save_npy(path, values)
-        return [path]
-    rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
-    colors = np.clip(values, 0.0, 1.0) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
-    out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
-        like_target(like, colors=colors))  # fmt: skip
-    for npy in sides:
-        _save_npy(npy, values)
-    write_geometry(path, out, protect=protect)
+    geometry = not path.lower().endswith(".npy")  # (else the values alone)
+    if geometry:
+        rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
+        colors = np.clip(values, 0, 1) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
+        out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
+            like_target(like, colors=colors))  # fmt: skip
+    for npy in sides if geometry else [path]:
+        with atomic_path(npy, suffix=".npy") as tmp:
+            np.save(tmp, values)
+    if geometry:
+        write_geometry(path, out, protect=protect)
     return [path, *sides]
+
 
 # --------------------------------------------------------------------------- several shapes
 # One source onto a list or folder of targets (transfer/detail TARGET... -o DIR), and basis of
@@ -610,33 +607,15 @@ def _check_scheduler(address: str) -> None:
                          "local cluster") from exc  # fmt: skip
 
 
-def _check_run(args: argparse.Namespace) -> None:
-    """Refuse, before any work, a bad ``-o DIR``, a cluster without Dask, a bad scheduler."""
-    path, ext = args.output, os.path.splitext(args.output)[1].lower()
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise UsageError(f"-o {path}: is a file; with several targets -o names a folder")
-    if not os.path.exists(path) and ext in (*GEOMETRY_OUT, ".npy"):
-        raise UsageError(f"-o {path}: with several targets -o names a folder (the results keep the "
-                         f"targets' names); {ext} looks like one output file")  # fmt: skip
-    check_folder_to_make(path, "-o")  # written into, or made in its nearest folder
-    check_folder_to_make(args.cache, "--cache")
-    if (args.scheduler or args.workers != 0) and importlib.util.find_spec("distributed") is None:
-        raise UsageError("several targets run on a Dask cluster, and Dask is not installed: pip "
-                         "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
-                         "'.[dask]'), or give --workers 0 to run them one after the other here")
-    if args.scheduler:
-        _check_scheduler(args.scheduler)
-
-
-def report_records(records: Sequence[Any]) -> int:
-    """Print one line per shape and a count; return 1 when any failed, else 0.
+def report_records(records: Sequence[Any], *after: str) -> int:
+    """Print one line per shape, a count and the lines ``after``; return 1 when any failed.
 
     With ``-q`` nothing is printed here: the failures and the suspect maps were logged as
     warnings, which ``-q`` keeps (each named: the exit code 1 alone would not say which shapes
     failed, nor why).
     """
     counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
-    report([*map(_line, records), ", ".join(f"{n} {s}" for s, n in counts.items())])
+    report([*map(_line, records), ", ".join(f"{n} {s}" for s, n in counts.items()), *after])
     return 1 if counts["failed"] else 0
 
 
@@ -659,11 +638,25 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
 
     ``options``: the command's own keywords of :func:`o3d_ofp.transfer_many`; the map, basis
     and run flags are added here (those not given are left to its defaults). The flags for
-    one pair (:data:`PAIR_ONLY`) are refused.
+    one pair (:data:`PAIR_ONLY`), a bad ``-o DIR``, a cluster without Dask, a bad scheduler and
+    a missing source or target are refused before any work.
     """
-    refuse(*((getattr(args, name, None) not in (None, False), f"{flag} does not apply to "
-                     "several targets") for name, flag in PAIR_ONLY.items()))  # fmt: skip
-    _check_run(args)
+    path, ext = args.output, os.path.splitext(args.output)[1].lower()
+    refuse(*((getattr(args, name, None) not in (None, False), f"{flag} does not apply to several "
+              "targets") for name, flag in PAIR_ONLY.items()),
+           (os.path.exists(path) and not os.path.isdir(path), f"-o {path}: is a file; with several "
+            "targets -o names a folder"),
+           (not os.path.exists(path) and ext in (*GEOMETRY_OUT, ".npy"), f"-o {path}: with several "
+            f"targets -o names a folder (the results keep the targets' names); {ext} looks like "
+            "one output file"))  # fmt: skip
+    check_folder_to_make(path, "-o")  # written into, or made in its nearest folder
+    check_folder_to_make(args.cache, "--cache")
+    if (args.scheduler or args.workers != 0) and importlib.util.find_spec("distributed") is None:
+        raise UsageError("several targets run on a Dask cluster, and Dask is not installed: pip "
+                         "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
+                         "'.[dask]'), or give --workers 0 to run them one after the other here")
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
     refuse(  # a typo in a target's name is said before any work
         (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
          "map is 'estimate' or 'identity'"),
@@ -680,6 +673,4 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),
                                    notes=tuple(map(words, r.notes))) for r in records]
     csv_path, json_path = write_summary(records, args.output)
-    code = report_records(records)
-    report([f"summary: {csv_path}, {json_path}"])
-    return code
+    return report_records(records, f"summary: {csv_path}, {json_path}")

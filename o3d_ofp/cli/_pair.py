@@ -124,7 +124,6 @@ def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> n
         except (ValueError, RuntimeError) as exc:
             raise UsageError(f"--landmarks pick: {exc}") from exc
     is_file = os.path.isfile(spec)
-    where = f" {spec}" if is_file else ""
     common.refuse((not is_file and (":" not in spec or os.sep in spec),
                    f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)"))
     try:  # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
@@ -148,12 +147,12 @@ def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> n
          f"each {'line' if is_file else 'pair'}"),
         (not pairs.size, f"--landmarks {spec}: no pairs in the file"),
         (not np.all(np.isfinite(pairs)) or np.any(pairs != np.round(pairs)),
-         f"--landmarks{where}: the values must be integer vertex indices"),
+         f"--landmarks {spec}: the values must be integer vertex indices"),
     )  # fmt: skip
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         common.refuse((pairs[:, col].min() < 0 or pairs[:, col].max() >= n,
-                       f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)"))
+                       f"--landmarks {spec}: {name} indices must lie in [0, {n}) (0-based)"))
     return pairs
 
 

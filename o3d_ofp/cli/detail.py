@@ -45,14 +45,11 @@ def run(args: argparse.Namespace) -> int:
         return common.run_transfers(args, kind="detail", options=given)
     detail = DetailOptions(**given)
     pair = read_pair(args, common.GEOMETRY_OUT)
-
-    def unused(named: list[str]) -> str:
-        one, band = len(named) == 1, common.flag_of("band")
-        return (f"{', '.join(named)} {'applies' if one else 'apply'} to --mode coordinates (the "
-                f"OFP bases); --mode {detail.mode} reads each shape's eigenfunctions up to {band} "
-                f"({detail.band}): drop {'it' if one else 'them'}, or set {band}")  # fmt: skip
-
-    planned = plan(args, pair, "detail", unused=unused, detail=detail)
+    band = common.flag_of("band")
+    planned = plan(args, pair, "detail", detail=detail, unused=lambda named: (
+        f"{', '.join(named)} {'applies' if len(named) == 1 else 'apply'} to --mode coordinates "
+        f"(the OFP bases); --mode {detail.mode} reads each shape's eigenfunctions up to {band} "
+        f"({detail.band}): drop {'it' if len(named) == 1 else 'them'}, or set {band}"))
     prepared = prepare_pair(args, pair, planned)
     with stage(f"detail transfer ({detail.mode})"):
         moved = transfer_detail(pair.source, pair.target, correspondence=prepared.correspondence,

@@ -91,18 +91,15 @@ def run(args: argparse.Namespace) -> int:
         common.check_colors_output(args.output)
     _warn_lost_texture(args, pair, spec)
     f, kind = common.read_signal(pair.source, pair.V1, args.source, spec, args.texture, args.output)
-
-    def unused(named: list[str]) -> str:
-        why = ("the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
-               "add --via-basis to transfer through the bases")  # fmt: skip
-        if args.pull_back:
-            why = ("--pull-back carries the values through the map with no OFP basis; drop it, or "
-                   + ("replace --pull-back by --via-basis" if closest else "drop --pull-back")
-                   + " to transfer through the bases")  # fmt: skip
-        return f"{'/'.join(named)} does not apply here: {why}"
-
+    why = ("the closest map's values are pulled back exactly, with no OFP basis; drop it, or add "
+           "--via-basis to transfer through the bases")  # fmt: skip
+    if args.pull_back:
+        why = ("--pull-back carries the values through the map with no OFP basis; drop it, or "
+               + ("replace --pull-back by --via-basis" if closest else "drop --pull-back")
+               + " to transfer through the bases")  # fmt: skip
     via_basis = True if args.via_basis else False if args.pull_back else None
-    planned = plan(args, pair, "colors", unused=unused, files=True, via_basis=via_basis)
+    planned = plan(args, pair, "colors", files=True, via_basis=via_basis,
+                   unused=lambda named: f"{'/'.join(named)} does not apply here: {why}")
     prepared = prepare_pair(args, pair, planned)
     corr, name = prepared.correspondence, map_name(args, prepared.correspondence)
     surface = corr.barycentric_21 is not None
