@@ -297,7 +297,7 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     refuse((not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
     # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
-    # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
+    # file made and removed tells, before the work rather than after it.
     why = None if os.access(folder, os.W_OK | os.X_OK) else "read-only or no permission"
     try:
         if why is None:
@@ -321,8 +321,8 @@ def check_folder_to_make(path: str | None, flag: str) -> None:
     """Refuse, before any work, an output folder that is a file or cannot be made or written.
 
     Missing folders are made later, with their parents: the nearest one that exists is
-    written into and must be writable (``--cache``: a trial's read-only cache failed after the
-    eigensolve, naming a temporary file). Nothing for ``path`` None.
+    written into and must be writable (a read-only ``--cache`` is said here, not after the
+    eigensolve through a temporary file). Nothing for ``path`` None.
     """
     if not path:
         return

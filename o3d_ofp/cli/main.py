@@ -80,9 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
         command.add_parser(sub)
     # -q / -v also after the command (o3d-ofp transfer ... -q); there they override the
     # values given before it (SUPPRESS: absent flags leave those alone). A word such as "-1:40"
-    # is a value, not an option (no option starts with a dash and a digit): argparse takes only
-    # plain negative numbers for values, so "--landmarks -1:40" stopped at "expected one
-    # argument" (a trial); as a value it reaches the option's own check, which says what is wrong.
+    # is a value, not an option (no option starts with a dash and a digit; argparse alone takes
+    # only plain negative numbers for values): "--landmarks -1:40" reaches the option's own
+    # check, which says what is wrong.
     hidden = {"default": argparse.SUPPRESS, "help": argparse.SUPPRESS}
     for command_parser in sub.choices.values():
         command_parser._negative_number_matcher = re.compile(r"^-\d")

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         if not planned.exact:
             g = carry(f, planned, prepared)
         elif spec == "texture" and surface:  # the texture itself at the surface point, not the
-            # source's per-vertex samples interpolated there (a trial: error 0.022)
+            # source's per-vertex samples interpolated there (blurrier)
             image = tex.mesh_texture(pair.source, args.texture)
             g = image.sample(corr.faces_21, corr.barycentric_21)
         else:
