@@ -65,7 +65,7 @@ class Pair:
     #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
     target_scale: float | None = None
     #: ``--basis-1`` / ``--basis-2``: the OFP bases read, once the plan uses them
-    files: tuple[Any, Any] = (None, None)
+    files: tuple[Any, ...] = (None, None)
     #: The flag values the command reads files from (those that are not files are skipped)
     inputs: tuple[str | None, ...] = ()
 
@@ -328,11 +328,10 @@ def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[l
     named = [f for f in (*common.FLAGS["options"], *common.FLAGS["bases"][: 2 * files])
              if getattr(args, common.dest(f)) is not None]  # fmt: skip
     common.refuse((planned.basis_k is None and named, unused(named)))
-    pair.files = tuple(  # type: ignore[assignment]
-        common.load_basis_file(f, V, F, path, args, flag) if f else None
-        for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
-                                    (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
-    )  # fmt: skip
+    sides = ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
+             (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
+    pair.files = tuple(common.load_basis_file(f, V, F, path, args, flag) if f else None
+                       for f, V, F, path, flag in sides)  # fmt: skip
     bases = common.basis_options(args)
     if planned.basis_k is not None and (bases is not None or any(pair.files)):
         planned = _planned(pair, task=task, bases=bases, given_bases=pair.files, **options)

@@ -670,10 +670,8 @@ def _transfer_targets(
         _run(transfer_task, shared, todo, kind=shared.job.kind, on_record=on_record, **run)
     except KeyboardInterrupt:
         done = sum(r.status == "ok" for r in records.values())
-        logger.warning(
-            "interrupted: %d of %d targets done%s", done, len(todo),
-            "; a rerun skips them and does the others" if made.path else "",
-        )  # fmt: skip
+        logger.warning("interrupted: %d of %d targets done%s", done, len(todo),
+                       "; a rerun skips them and does the others" if made.path else "")
         raise
     return records
 
