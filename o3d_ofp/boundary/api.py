@@ -151,17 +151,10 @@ def eigenbasis(
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return spectrum.eigenbasis(
-        V,
-        F,
-        k=k,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=mollify_factor,
-        n_neighbors=n_neighbors,
-        maxiter=maxiter,
-        clamp_k=clamp_k,
+        V, F, k=k, weld_tolerance=weld_tolerance, components=components,
+        mollify_factor=mollify_factor, n_neighbors=n_neighbors, maxiter=maxiter, clamp_k=clamp_k,
         factorization=factorization,
-    )
+    )  # fmt: skip
 
 
 def shape_digest(
@@ -189,13 +182,9 @@ def shape_digest(
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return spectrum.shape_digest(
-        V,
-        F,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=mollify_factor,
-        n_neighbors=n_neighbors,
-    )
+        V, F, weld_tolerance=weld_tolerance, components=components,
+        mollify_factor=mollify_factor, n_neighbors=n_neighbors,
+    )  # fmt: skip
 
 
 def cached_basis(
@@ -232,18 +221,10 @@ def cached_basis(
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return cache.cached_basis(
-        V,
-        F,
-        k=k,
-        order=order,
-        tol=tol,
-        preset=preset,
-        cache_dir=cache_dir,
-        weld_tolerance=weld_tolerance,
-        components=components,
-        mollify_factor=mollify_factor,
+        V, F, k=k, order=order, tol=tol, preset=preset, cache_dir=cache_dir,
+        weld_tolerance=weld_tolerance, components=components, mollify_factor=mollify_factor,
         n_neighbors=n_neighbors,
-    )
+    )  # fmt: skip
 
 
 def match_options(options: MatchOptions | None = None, **keywords: Any) -> MatchOptions:
@@ -339,7 +320,7 @@ def match(
         options, method=method, align=align, partial=partial, landmarks=landmarks,
         components=components,
     )  # fmt: skip
-    _check_pair(eigenbases, "eigenbases", EigenBasis, "ofp.eigenbasis")
+    _check_pair(eigenbases, "eigenbases", EigenBasis, "EigenBasis from ofp.eigenbasis")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
     plan = plan_pair(V1, F1, V2, F2, task="map", match=opts)
@@ -351,34 +332,20 @@ def match(
     return prepared.correspondence
 
 
-def _check_pair(value: Any, name: str, kind: type, made_by: str) -> None:
-    """Refuse a ``name=`` that is not a (source, target) pair of ``kind`` (None passes)."""
-    if value is None:
+def _check_pair(value: Any, name: str, kinds: type | tuple[type, ...], what: str) -> None:
+    """Refuse a ``name=`` that is not a (source, target) pair of ``kinds`` (None passes)."""
+    sized = isinstance(value, tuple | list)
+    if value is None or (sized and len(value) == 2 and all(isinstance(v, kinds) for v in value)):
         return
-    if not (
-        isinstance(value, tuple | list)
-        and len(value) == 2
-        and all(isinstance(v, kind) for v in value)
-    ):
-        raise OptionError(
-            name, f"must be a pair (source, target) of {kind.__name__} from {made_by}; got "
-            f"{type(value).__name__}"
-            + (f" of {len(value)}" if isinstance(value, tuple | list) else ""),
-        )  # fmt: skip
+    raise OptionError(name, f"must be a pair (source, target) of {what}; got "
+                      f"{type(value).__name__}" + (f" of {len(value)}" if sized else ""))
 
 
 def _bases(value: Any) -> tuple[tuple[Any, Any], tuple[Any, Any]]:
     """(eigenbases, OFP bases) from a transfer's ``bases=``: a pair of either kind, or None."""
-    if value is None:
-        return (None, None), (None, None)
-    kinds = (EigenBasis, OFPBasis, type(None))
-    if not (isinstance(value, tuple | list) and len(value) == 2 and all(
-        isinstance(v, kinds) for v in value
-    )):  # fmt: skip
-        raise OptionError(
-            "bases", "must be a pair (source, target) of OFPBasis (ofp.ofp_basis) or EigenBasis "
-            f"(ofp.eigenbasis), either None; got {type(value).__name__}",
-        )  # fmt: skip
+    _check_pair(value, "bases", (EigenBasis, OFPBasis, type(None)), "OFPBasis (ofp.ofp_basis) or "
+                "EigenBasis (ofp.eigenbasis), either None")  # fmt: skip
+    value = (None, None) if value is None else value
     eigs = tuple(v if isinstance(v, EigenBasis) else None for v in value)
     ofps = tuple(v if isinstance(v, OFPBasis) else None for v in value)
     return eigs, ofps  # type: ignore[return-value]
@@ -675,14 +642,11 @@ def filter_geometry(
     check_choice(components, "components", COMPONENTS)
     geometry = read_if_path(geometry, "geometry")
     V, F = as_arrays(geometry, name="geometry")  # a (vertices, faces) tuple too
-    if basis is not None and basis.n_vertices != V.shape[0]:
-        raise ValueError(
-            f"basis has {basis.n_vertices} vertices but the geometry has {V.shape[0]}: it "
-            "belongs to another shape"
-        )
     if basis is not None:
-        eig = basis.eig if isinstance(basis, OFPBasis) else basis
-        warn_other_shape(eig, V, "basis", "the geometry")
+        if basis.n_vertices != V.shape[0]:
+            raise ValueError(f"basis has {basis.n_vertices} vertices but the geometry has "
+                             f"{V.shape[0]}: it belongs to another shape")  # fmt: skip
+        warn_other_shape(getattr(basis, "eig", basis), V, "basis", "the geometry")
     if gains is None:
         # The low-pass needs only the Laplacian (and the cleaning) of an eigenbasis.
         eig = basis if basis is not None else spectrum.eigenbasis(V, F, k=1, components=components)
@@ -692,14 +656,8 @@ def filter_geometry(
             X = sharpen_coordinates(eig, V, sharpen=sharpen, smooth=smooth, keep_volume=keep_volume)
         return like_target(geometry, vertices=X)
     if basis is None:
-        B = ofp_basis(
-            spectrum.eigenbasis(V, F, k=k, components=components),
-            order=order,
-            preset=preset,
-            tol=tol,
-        )
+        eig = spectrum.eigenbasis(V, F, k=k, components=components)
+        basis = ofp_basis(eig, order=order, preset=preset, tol=tol)
     elif not isinstance(basis, OFPBasis):
         raise TypeError(f"gains need an OFPBasis as basis; got {type(basis).__name__}")
-    else:
-        B = basis
-    return like_target(geometry, vertices=spectral_filter(B, V, gains))
+    return like_target(geometry, vertices=spectral_filter(basis, V, gains))

@@ -1,4 +1,4 @@
-"""What the commands share: result lines, stages, checked flags, inputs, signals and outputs.
+"""What the commands share: result lines, stages, checks, inputs, signals, outputs, collections.
 
 Every check that can fail is made before the expensive work, and every message names the
 file or the flag. The library's messages reach the command line in its own words: a
@@ -11,23 +11,29 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
+import functools
 import glob
+import importlib.util
 import logging
 import math
 import os
+import socket
 import sys
 import tempfile
 import threading
 import time
 import types
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
 import numpy as np
 
-from ..boundary.convert import geometry_to_arrays, like_target, require_open3d, vertex_colors
+from ..boundary.convert import geometry_to_arrays, like_target, vertex_colors
 from ..boundary.io import CLOUD_ONLY, MESH_ONLY, NO_COLORS, read_geometry, write_geometry
 from ..boundary.texture import has_uvs, no_texture_message, texture_colors, without_texture
+from ..collections import transfer_many, write_summary
 from ..core import _memory
 from ..core._atomic import atomic_path
 from ..core.basis import OFPBasis, ofp_basis
@@ -36,12 +42,14 @@ from ..core.wording import OptionError, Said, text_of
 from ..render.panel import colormap
 from ..workflows.cache import basis_cache_path, cached_basis
 from ..workflows.options import COMPONENTS, BasisOptions
+from ._progress import ENABLED
 
 logger = logging.getLogger(__name__)
 
 MESH_HELP = "mesh or point cloud (any format Open3D reads: PLY, OBJ, OFF, STL, GLB, ...)"
 MESH_OUT = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 CLOUD_OUT = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+GEOMETRY_OUT = (*MESH_OUT, *CLOUD_OUT)
 
 #: The flags that set each option an :class:`OptionError` may name (the library's keyword or
 #: options field): the error is said of those of them given (all of them when none was).
@@ -85,11 +93,10 @@ OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 
 def error_text(exc: BaseException) -> str:
     """Return the one line an error is said in on the command line (flags, not keywords)."""
+    said = text_of(exc, cli=True)  # an OptionError's starts with its option's name
     if isinstance(exc, OptionError) and exc.option in FLAGS:
-        problem = text_of(exc.problem, cli=True)
-        joint = "" if problem.startswith((":", ",", "=")) else " "
-        return flag_of(exc.option) + joint + problem
-    return text_of(exc, cli=True)
+        return flag_of(exc.option) + said.removeprefix(exc.option)
+    return said
 
 
 def flag_of(option: str) -> str:
@@ -210,10 +217,11 @@ def vector3(text: str) -> tuple[float, float, float]:
 
 
 def read_shape(path: str) -> tuple[Any, np.ndarray, np.ndarray | None]:
-    """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file."""
-    require_open3d()
-    refuse((not os.path.exists(path), f"{path}: no such file"),
-           (os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
+    """(geometry, vertices, faces) of a mesh or cloud file; one-line errors naming the file.
+
+    A missing file or Open3D is said by :func:`~o3d_ofp.read_geometry`.
+    """
+    refuse((os.path.isdir(path), f"{path}: is a directory, not a mesh file"))
     try:
         geometry = read_geometry(path)
         return (geometry, *geometry_to_arrays(geometry))
@@ -231,21 +239,13 @@ def load_npy(path: str, what: str, *, flag: str) -> np.ndarray:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise UsageError(f"{flag} {path}: not a NumPy .npy file ({what}): {exc}") from exc
-    array = isinstance(arr, np.ndarray)
-    real = array and (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_)
-    dtype = getattr(arr, "dtype", None)
-    refuse((not array, f"{flag} {path}: expected one array ({what}), got an archive"),
-           (np.iscomplexobj(arr) or not real,
-            f"{flag} {path}: must hold real numbers ({what}); got dtype {dtype}"))
+    real = np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_  # (.npy: one array)
+    refuse((np.iscomplexobj(arr) or not real,
+            f"{flag} {path}: must hold real numbers ({what}); got dtype {arr.dtype}"))
     return arr
 
 
 # --------------------------------------------------------------------------- outputs
-
-
-def geometry_file(path: str) -> bool:
-    """Whether a file name is one of a mesh or point-cloud format written here."""
-    return os.path.splitext(path)[1].lower() in (*MESH_OUT, *CLOUD_OUT)
 
 
 def written_beside(path: str) -> list[str]:
@@ -276,18 +276,13 @@ def check_output(path: str, allowed: Sequence[str], *, inputs: Sequence[str | No
             f"with one of {', '.join(dict.fromkeys(allowed))}"))  # fmt: skip
     check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
     beside = (*side, *written_beside(path))
-    for other in beside:  # (found by a trial only after the work)
-        if os.path.isdir(other):
-            raise UsageError(f"{flag} {path}: writing it may also write {other} (a file Open3D "
-                             "writes beside it), which is a folder; choose another output name")
-    for source in inputs:  # names that are not files ("colors", "estimate") are skipped
-        if not (isinstance(source, str) and os.path.exists(source)):
-            continue
-        if same_file(path, source):
-            raise UsageError(f"{flag} {path}: is an input of this command; it would be overwritten")
-        for other in (o for o in beside if same_file(o, source)):
-            raise UsageError(f"{flag} {path}: writing it would also write {other}, an input of "
-                             "this command; choose another output name")  # fmt: skip
+    files = [f for f in inputs if isinstance(f, str) and os.path.exists(f)]  # not "colors", ...
+    refuse(*((os.path.isdir(o), f"{flag} {path}: writing it may also write {o} (a file Open3D "
+              "writes beside it), which is a folder; choose another output name") for o in beside),
+           *((same_file(path, f), f"{flag} {path}: is an input of this command; it would be "
+              "overwritten") for f in files),
+           *((same_file(o, f), f"{flag} {path}: writing it would also write {o}, an input of this "
+              "command; choose another output name") for f in files for o in beside))  # fmt: skip
 
 
 def same_file(a: str, b: str) -> bool:
@@ -302,7 +297,7 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     refuse((not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
     # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
-    # file made and removed tells (a trial's "-o /sys/x.ply" failed after the work).
+    # file made and removed tells, before the work rather than after it.
     why = None if os.access(folder, os.W_OK | os.X_OK) else "read-only or no permission"
     try:
         if why is None:
@@ -311,9 +306,8 @@ def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
             os.remove(probe)
     except OSError as exc:
         why = exc.strerror or str(exc)
-    if why is not None:
-        raise UsageError(f"{flag} {path}: the folder {folder} cannot be written ({why}); "
-                         f"choose another folder for {flag}")  # fmt: skip
+    refuse((why is not None, f"{flag} {path}: the folder {folder} cannot be written ({why}); "
+            f"choose another folder for {flag}"))  # fmt: skip
 
 
 def check_output_kind(path: str, faces: Any, *, flag: str = "-o") -> None:
@@ -327,13 +321,11 @@ def check_folder_to_make(path: str | None, flag: str) -> None:
     """Refuse, before any work, an output folder that is a file or cannot be made or written.
 
     Missing folders are made later, with their parents: the nearest one that exists is
-    written into and must be writable (``--cache``: a trial's read-only cache failed after the
-    eigensolve, naming a temporary file). Nothing for ``path`` None.
+    written into and must be writable (a read-only ``--cache`` is said here, not after the
+    eigensolve through a temporary file). Nothing for ``path`` None.
     """
     if not path:
         return
-    refuse((os.path.exists(path) and not os.path.isdir(path), f"{flag} {path}: is a file, not a "
-            "folder"))  # fmt: skip
     existing = os.path.abspath(path)
     while not os.path.isdir(existing):  # the nearest folder that exists: it is written into
         parent = os.path.dirname(existing)
@@ -372,16 +364,20 @@ def add_components_option(p: argparse.ArgumentParser) -> None:
                    "(default: auto)")  # fmt: skip
 
 
-def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
-    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given).
+def basis_flags(args: argparse.Namespace, **sizes: int | None) -> dict[str, Any]:
+    """Return the basis flags given, as keywords (``--tol`` is over ``--preset``).
 
-    ``sizes``: ``k1``/``k2`` of a one-shape command (its ``-k``); ``--tol`` is over
-    ``--preset``.
+    ``sizes``: the sizes of a one-shape command (its ``-k``), over ``--k1``/``--k2``.
     """
     given = {"k1": getattr(args, "k1", None), "k2": getattr(args, "k2", None), **sizes,
              "order": args.order, "preset": None if args.tol is not None else args.preset,
              "tol": args.tol}  # fmt: skip
-    given = {name: value for name, value in given.items() if value is not None}
+    return {name: value for name, value in given.items() if value is not None}
+
+
+def basis_options(args: argparse.Namespace, **sizes: int | None) -> BasisOptions | None:
+    """Return the :class:`~o3d_ofp.BasisOptions` the flags give (None when none was given)."""
+    given = basis_flags(args, **sizes)
     return BasisOptions(**given) if given else None
 
 
@@ -431,16 +427,16 @@ def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis
     refuse((k > V.shape[0] - 2, f"-k {k}: must be smaller than the number of vertices of {path} "
             f"minus one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"))  # (before the memory
     # estimate, whose message it would be otherwise)
-    entry = args.cache and basis_cache_path(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
-                                            components=args.components)  # fmt: skip
+    cached = {"k": k, "order": order, "tol": tol, "cache_dir": args.cache,
+              "components": args.components}  # fmt: skip
+    entry = args.cache and basis_cache_path(V, F, **cached)
     if not (entry and os.path.isfile(entry) and os.path.getsize(entry) > 0):  # a hit only reads
         check_memory(path, V.shape[0], k=k, order=order,
                      advice="lower -k or --order, or use a simplified mesh (fewer vertices)")
     with about(path):
         if args.cache:
             with stage(f"basis of {path} (cache {args.cache})"):
-                return cached_basis(V, F, k=k, order=order, tol=tol, cache_dir=args.cache,
-                                    components=args.components)  # fmt: skip
+                return cached_basis(V, F, **cached)
         with stage(f"eigenbasis of {path} ({V.shape[0]} vertices, k={k})"):
             eig = eigenbasis(V, F, k=k, components=args.components)
         with stage(f"orthogonalized products of {path} (order {order})"):
@@ -473,8 +469,7 @@ def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str
         return f.astype(np.float64), "array"
     colors = vertex_colors(geometry) if spec == "colors" else None
     hint = ("it has texture coordinates: use --signal texture" if has_uvs(geometry) else
-            "transfer its coordinates with --signal xyz, or a per-vertex signal with --signal "
-            "FILE.npy")  # fmt: skip
+            "transfer its coordinates (--signal xyz) or a per-vertex signal (--signal FILE.npy)")
     refuse((spec not in ("colors", "texture"),
             f"--signal must be colors, texture, xyz or a FILE.npy; got {spec!r}"),
            (spec == "colors" and colors is None, f"{path}: has no vertex colors ({hint})"))
@@ -489,10 +484,8 @@ def read_signal(geometry: Any, V: np.ndarray, path: str, spec: str, texture: str
 def check_colors_output(output: str | None) -> None:
     """Refuse colors bound for an ``-o`` format that holds none (STL, XYZ), before any work."""
     ext = os.path.splitext(output or "")[1].lower()
-    if ext in NO_COLORS:
-        raise UsageError(f"-o {output}: {ext} holds no vertex colors, so the colors would be lost; "
-                         "write .ply, .obj, .off, .glb or .gltf (meshes), or .xyzrgb, .pcd, .pts "
-                         "(points)")  # fmt: skip
+    refuse((ext in NO_COLORS, f"-o {output}: {ext} holds no vertex colors, so the colors would be "
+            "lost; write .ply, .obj, .off, .glb, .gltf (meshes) or .xyzrgb, .pcd, .pts (points)"))
 
 
 def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
@@ -506,11 +499,6 @@ def texture_error(path: str, texture: str | None, exc: Exception) -> UsageError:
     return UsageError(no_texture_message(path, exc))
 
 
-def _save_npy(path: str, values: np.ndarray) -> None:
-    with atomic_path(path, suffix=".npy") as tmp:
-        np.save(tmp, values)
-
-
 def side_outputs(path: str, kind: str) -> list[str]:
     """Files besides ``path`` that :func:`write_result` writes for a signal of ``kind``."""
     if kind == "array" and not path.lower().endswith(".npy"):
@@ -520,9 +508,8 @@ def side_outputs(path: str, kind: str) -> list[str]:
 
 def signal_sides(args: Any) -> list[str]:
     """Side files of ``-o`` known from the flags: the ``.npy`` of a ``--signal FILE.npy``."""
-    signal = getattr(args, "signal", None)
-    npy = isinstance(signal, str) and signal.lower().endswith(".npy")
-    return side_outputs(args.output, "array") if npy else []
+    npy = str(getattr(args, "signal", None)).lower().endswith(".npy")
+    return side_outputs(args.output, "array" if npy else "")
 
 
 def write_result(path: str, like: Any, values: np.ndarray, kind: str,
@@ -537,14 +524,153 @@ def write_result(path: str, like: Any, values: np.ndarray, kind: str,
     sides = side_outputs(path, kind)
     for side in sides:
         check_output(side, (".npy",), inputs=protect, flag="-o (its .npy beside it)")
-    if path.lower().endswith(".npy"):
-        _save_npy(path, values)
-        return [path]
-    rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
-    colors = np.clip(values, 0.0, 1.0) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
-    out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
-        like_target(like, colors=colors))  # fmt: skip
-    for npy in sides:
-        _save_npy(npy, values)
-    write_geometry(path, out, protect=protect)
+    geometry = not path.lower().endswith(".npy")  # (else the values alone)
+    if geometry:
+        rgb = kind == "colors" or (values.ndim == 2 and values.shape[1] == 3)
+        colors = np.clip(values, 0, 1) if rgb else colormap(values.reshape(len(values), -1)[:, 0])
+        out = like_target(like, vertices=values) if kind == "xyz" else without_texture(
+            like_target(like, colors=colors))  # fmt: skip
+    for npy in sides if geometry else [path]:
+        with atomic_path(npy, suffix=".npy") as tmp:
+            np.save(tmp, values)
+    if geometry:
+        write_geometry(path, out, protect=protect)
     return [path, *sides]
+
+
+# --------------------------------------------------------------------------- several shapes
+# One source onto a list or folder of targets (transfer/detail TARGET... -o DIR), and basis of
+# a collection, run on the collection engine (o3d_ofp.collections, on Dask): the source's bases
+# are computed once, each target is a task, a failing target is reported and never stops the
+# others, every result is written atomically to DIR/<target file name>, and a rerun skips
+# targets whose output is newer than both inputs. The summary is printed (one line per target)
+# and written as DIR/summary.csv and DIR/summary.json; the exit code is 1 when any target
+# failed.
+
+
+#: Flags of the two-shape commands that make no sense for a collection, and why.
+PAIR_ONLY = {
+    "landmarks": "--landmarks (vertex pairs belong to one pair of shapes)",
+    "save_map": "--save-map (one map per pair)", "basis_1": "--basis-1 (use --cache DIR)",
+    "basis_2": "--basis-2 (use --cache DIR)", "align": "--align (--map closest is for one pair)",
+    "save_landmarks": "--save-landmarks (landmarks belong to one pair of shapes)",
+    **{name: f"--{name.replace('_', '-')} (for one pair of shapes)"
+       for name in ("partial", "via_basis", "pull_back", "target_scale")},
+}  # fmt: skip
+
+
+def add_collection_options(p: argparse.ArgumentParser, *, description: str = (
+    "give several targets or a folder of them; -o is then a folder (created if missing), with "
+    "summary.csv and summary.json")) -> None:  # fmt: skip
+    """Add the flags of runs over several shapes (``description``: what such a run writes)."""
+    g = p.add_argument_group("several shapes", description)
+    g.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster "
+                   "(default: a local cluster, one worker process per core)")
+    g.add_argument("--workers", type=nonnegative_int, help="worker processes of the local cluster "
+                   "(default: the cores; 0: in this process)")
+    g.add_argument("--force", action="store_true", help="redo targets whose output is newer than "
+                   "both inputs (default: skip them)")  # fmt: skip
+
+
+def single(args: argparse.Namespace, name: str) -> bool:
+    """Whether a command runs over one pair (or one shape); its collection flags refused then.
+
+    Several shapes (``args.<name>``), or a folder of them, are a collection; one file is the
+    two-shape form, whose ``-o`` names a file (an existing folder is refused as such):
+    ``args.<name>`` is then that file.
+    """
+    shapes = getattr(args, name)
+    if len(shapes) > 1 or any(os.path.isdir(t) for t in shapes):
+        return False
+    setattr(args, name, shapes[0])
+    for flag in ("--scheduler", "--workers", "--force"):
+        if getattr(args, flag[2:]) not in (None, False):
+            raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
+    OUT.one_pair = True  # its quality report is printed, not logged; a warning said once
+    return True
+
+
+def _check_scheduler(address: str) -> None:
+    """Refuse, before any work, a scheduler address where nothing listens."""
+    parts, port = urlsplit(address if "://" in address else f"tcp://{address}"), None
+    with contextlib.suppress(ValueError):  # a port that is not a number
+        port = parts.port
+    if parts.scheme not in ("tcp", "tls", "ws", "wss", "ucx") or not parts.hostname or not port:
+        raise UsageError(f"--scheduler {address}: expected tcp://HOST:PORT (or tls, ws, wss, ucx)")
+    if parts.scheme == "ucx":  # no plain socket to try: Dask will say
+        return
+    try:
+        socket.create_connection((parts.hostname, port), timeout=5).close()
+    except OSError as exc:
+        raise UsageError(f"--scheduler {address}: nothing answers there ({exc.strerror or exc}); "
+                         "start the scheduler (dask scheduler) or leave --scheduler out for a "
+                         "local cluster") from exc  # fmt: skip
+
+
+def report_records(records: Sequence[Any], *after: str) -> int:
+    """Print one line per shape, a count and the lines ``after``; return 1 when any failed.
+
+    With ``-q`` nothing is printed here: the failures and the suspect maps were logged as
+    warnings, which ``-q`` keeps (each named: the exit code 1 alone would not say which shapes
+    failed, nor why).
+    """
+    counts = {s: sum(r.status == s for r in records) for s in ("ok", "failed", "skipped")}
+    report([*map(_line, records), ", ".join(f"{n} {s}" for s, n in counts.items()), *after])
+    return 1 if counts["failed"] else 0
+
+
+def _line(r: Any) -> str:
+    """Return the result line of one shape's record."""
+    if r.status == "failed":
+        return f"failed   {r.name}: {text_of(r.error, cli=True)}"
+    if r.status == "skipped":
+        sus = " (its map was SUSPECT when it was made: see the summary)" if r.suspect else ""
+        return f"skipped  {r.name}: up to date ({r.output}){sus}"
+    cov = "" if r.coverage != r.coverage else (
+        f", map coverage {r.coverage:.2f} of the source's vertices")  # fmt: skip
+    sus = " (SUSPECT map: see its warning on stderr and the summary)" if r.suspect else ""
+    where = f" -> {r.output}" if r.output else ""
+    return f"ok       {r.name}: {r.seconds:.1f} s{cov}{sus}{where}"
+
+
+def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, Any]) -> int:
+    """Run one source onto every target of ``args.target`` (files and folders) into ``-o DIR``.
+
+    ``options``: the command's own keywords of :func:`o3d_ofp.transfer_many`; the map, basis
+    and run flags are added here (those not given are left to its defaults). The flags for
+    one pair (:data:`PAIR_ONLY`), a bad ``-o DIR``, a cluster without Dask, a bad scheduler and
+    a missing source or target are refused before any work.
+    """
+    path, ext = args.output, os.path.splitext(args.output)[1].lower()
+    refuse(*((getattr(args, name, None) not in (None, False), f"{flag} does not apply to several "
+              "targets") for name, flag in PAIR_ONLY.items()),
+           (os.path.exists(path) and not os.path.isdir(path), f"-o {path}: is a file; with several "
+            "targets -o names a folder"),
+           (not os.path.exists(path) and ext in (*GEOMETRY_OUT, ".npy"), f"-o {path}: with several "
+            f"targets -o names a folder (the results keep the targets' names); {ext} looks like "
+            "one output file"))  # fmt: skip
+    check_folder_to_make(path, "-o")  # written into, or made in its nearest folder
+    check_folder_to_make(args.cache, "--cache")
+    if (args.scheduler or args.workers != 0) and importlib.util.find_spec("distributed") is None:
+        raise UsageError("several targets run on a Dask cluster, and Dask is not installed: pip "
+                         "install 'dask[distributed]' (from a clone of o3d_ofp: pip install -e "
+                         "'.[dask]'), or give --workers 0 to run them one after the other here")
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
+    refuse(  # a typo in a target's name is said before any work
+        (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
+         "map is 'estimate' or 'identity'"),
+        (not os.path.isfile(args.source), f"{args.source}: no such source file"),
+        *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
+    )  # fmt: skip
+    given = {**basis_flags(args), **options}
+    records = transfer_many(args.source, args.target, kind=kind, client=args.scheduler,
+                            output_dir=args.output, cache_dir=args.cache, workers=args.workers,
+                            skip_existing=not args.force, progress=ENABLED.on, map=args.map,
+                            components=args.components, strict=args.strict,
+                            **{name: value for name, value in given.items() if value is not None})
+    words = functools.partial(text_of, cli=True)  # what was said of each target, for flags
+    records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),
+                                   notes=tuple(map(words, r.notes))) for r in records]
+    csv_path, json_path = write_summary(records, args.output)
+    return report_records(records, f"summary: {csv_path}, {json_path}")

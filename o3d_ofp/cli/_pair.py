@@ -65,7 +65,9 @@ class Pair:
     #: ``--target-scale``: ``target`` and ``V2`` are the file's scaled by it (None: as read)
     target_scale: float | None = None
     #: ``--basis-1`` / ``--basis-2``: the OFP bases read, once the plan uses them
-    files: tuple[Any, Any] = (None, None)
+    files: tuple[Any, ...] = (None, None)
+    #: The flag values the command reads files from (those that are not files are skipped)
+    inputs: tuple[str | None, ...] = ()
 
     def in_target_units(self, geometry: Any) -> Any:
         """Return ``geometry``, made from the scaled target, in the target file's own units."""
@@ -76,7 +78,7 @@ class Pair:
 def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool = False) -> None:
     """Positional source/target(s) and the map, basis and landmark flags.
 
-    With ``several``, ``target`` is a list (files and folders: see :mod:`._many`).
+    With ``several``, ``target`` is a list (files and folders: see :func:`._common.run_transfers`).
     """
     default, a = BasisOptions(), p.add_argument
     a("source", help="source " + common.MESH_HELP)
@@ -109,12 +111,19 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
 # --------------------------------------------------------------------------- reading
 
 
-def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
-    """Return the pairs of ``--landmarks`` (a file or inline), checked to lie in both shapes."""
+def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> np.ndarray | None:
+    """Return the pairs of ``--landmarks``: picked on ``shapes``, or a file or inline pairs.
+
+    Those read are checked to lie in both shapes.
+    """
     if not spec:
         return None
+    if spec == "pick":
+        try:
+            return pick_landmarks(*shapes)
+        except (ValueError, RuntimeError) as exc:
+            raise UsageError(f"--landmarks pick: {exc}") from exc
     is_file = os.path.isfile(spec)
-    where = f" {spec}" if is_file else ""
     common.refuse((not is_file and (":" not in spec or os.sep in spec),
                    f"--landmarks {spec}: no such file (or give pairs like 12:40,500:611)"))
     try:  # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
@@ -138,48 +147,43 @@ def _landmarks(spec: str | None, n1: int, n2: int) -> np.ndarray | None:
          f"each {'line' if is_file else 'pair'}"),
         (not pairs.size, f"--landmarks {spec}: no pairs in the file"),
         (not np.all(np.isfinite(pairs)) or np.any(pairs != np.round(pairs)),
-         f"--landmarks{where}: the values must be integer vertex indices"),
+         f"--landmarks {spec}: the values must be integer vertex indices"),
     )  # fmt: skip
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
         common.refuse((pairs[:, col].min() < 0 or pairs[:, col].max() >= n,
-                       f"--landmarks{where}: {name} indices must lie in [0, {n}) (0-based)"))
+                       f"--landmarks {spec}: {name} indices must lie in [0, {n}) (0-based)"))
     return pairs
 
 
-def _check_extra_output(args: argparse.Namespace, path: str, flag: str) -> None:
+def _check_extra_output(args: argparse.Namespace, path: str, flag: str, inputs: Any) -> None:
     """Refuse a ``--save-map`` / ``--save-landmarks`` file that would replace another file.
 
-    That is an input of the command, the result, the other such file, or a cache entry.
-    Found by a trial: ``--save-landmarks`` replaced the ``--signal`` file it was about to read,
-    or was replaced by ``-o``; ``--save-map`` replaced a ``--basis-2`` file or a cache entry.
+    That is an input of the command, the result or a file written beside it, the other such
+    file, or a cache entry.
     """
-    names = ("source", "target", "signal", "texture", "landmarks", "basis_1", "basis_2")
-    files = [("an input of this command", getattr(args, name, None)) for name in names]
-    files += [("the --map file read", f) for f in args.map.split(",")]
+    files = [("the --map file read", f) for f in args.map.split(",")]
+    files += [("an input of this command", f) for f in inputs]
     beside = (*common.written_beside(args.output), *common.signal_sides(args))
     files += [("the -o output", args.output), *(("written with -o", f) for f in beside)]
     files += [(f"the {o} file", getattr(args, common.dest(o)))
               for o in ("--save-map", "--save-landmarks") if o != flag]  # fmt: skip
-    for what, other in files:
-        if isinstance(other, str) and other and common.same_file(path, other):
-            raise UsageError(f"{flag} {path}: is {what}; it would be overwritten")
-    if args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache):
-        raise UsageError(f"{flag} {path}: is in the --cache folder {args.cache}; choose another")
+    cache = args.cache and os.path.dirname(os.path.abspath(path)) == os.path.abspath(args.cache)
+    common.refuse(*((isinstance(f, str) and f and common.same_file(path, f), f"{flag} {path}: is "
+                     f"{what}; it would be overwritten") for what, f in files),
+                  (cache, f"{flag} {path}: is in the --cache folder {args.cache}; choose another"))
 
 
-def _check_flags(args: argparse.Namespace) -> None:
+def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
     """Refuse flags that contradict each other, and bad side outputs, before reading."""
     lm, save, kind = args.landmarks, args.save_landmarks, args.map
-    folder = os.path.dirname(os.path.abspath(save or ""))
     partial = "" if kind in ("closest", "identity") else (
         ", a map used as it is (a map saved from a run with --partial is partial already)")
-    for wrong, said in (
+    common.refuse(
         (lm == "", "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
          "'pick'"),
         (save and not lm, "--save-landmarks needs --landmarks (pick, pairs or a file)"),
         (save and os.path.isdir(save), f"--save-landmarks {save}: is a directory"),
-        (save and not os.path.isdir(folder), f"--save-landmarks {save}: the folder does not exist"),
         (lm == "pick" and kind != "estimate", "--landmarks pick applies to --map estimate"),
         (lm == "pick" and not has_display(), "--landmarks pick needs a display to open Open3D's "
          "picking window (DISPLAY and WAYLAND_DISPLAY are not set); give the pairs in a file "
@@ -189,17 +193,14 @@ def _check_flags(args: argparse.Namespace) -> None:
         (args.align and kind != "closest", "--align applies to --map closest"),
         (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
          f"match), not to --map {kind}{partial}: drop --partial"),
-        (kind == "closest" and lm, "--landmarks apply to --map estimate, not --map closest"),
-        (lm and kind != "estimate", "--landmarks only apply with --map estimate"),
+        (lm and kind != "estimate", f"--landmarks apply to --map estimate, not --map {kind}"),
         (args.target_scale is not None and args.basis_2, f"--basis-2 {args.basis_2} holds the "
          f"basis of {args.target} in its own units, and --target-scale changes them: drop "
          "--basis-2 (--cache DIR keeps the scaled target's basis apart)"),
-    ):  # fmt: skip
-        if wrong:
-            raise UsageError(said)
+    )  # fmt: skip
     for path, flag in ((save, "--save-landmarks"), (args.save_map, "--save-map")):
         if path:
-            _check_extra_output(args, path, flag)
+            _check_extra_output(args, path, flag, inputs)
             common.check_writable_folder(os.path.dirname(os.path.abspath(path)), path, flag=flag)
 
 
@@ -221,17 +222,15 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
     if spec in ("estimate", "closest", "identity"):
         return _identity(n1, n2, V1, V2) if spec == "identity" else None
     files = spec.split(",")
-    for f in files:
-        if not os.path.isfile(f):
-            raise UsageError(f"--map {f}: no such map file "
-                             "(--map estimate|closest|identity|MAP.npz|FILE[,FILE])")  # fmt: skip
-    if len(files) > 2:
-        raise UsageError(f"--map takes one file or two comma-separated .vts files; got {spec!r}")
     path, method = files[0], "given"
-    if len(files) == 1 and common.geometry_file(path):
-        raise UsageError(f"--map {path}: a mesh or point-cloud file, not a map (--map estimate|"
-                         "closest|identity|MAP.npz|FILE.vts|FILE.npy|SRC.vts,TGT.vts); the shapes "
-                         "are the positional arguments")  # fmt: skip
+    common.refuse(
+        *((not os.path.isfile(f), f"--map {f}: no such map file (--map estimate|closest|identity|"
+           "MAP.npz|FILE[,FILE])") for f in files),
+        (len(files) > 2, f"--map takes one file or two comma-separated .vts files; got {spec!r}"),
+        (len(files) == 1 and path.lower().endswith(common.GEOMETRY_OUT), f"--map {path}: a mesh or "
+         "point-cloud file, not a map (--map estimate|closest|identity|MAP.npz|FILE.vts|FILE.npy|"
+         "SRC.vts,TGT.vts); the shapes are the positional arguments"),
+    )  # fmt: skip
     try:
         if len(files) == 2:  # correspondences of both shapes to a common template
             p2p, method = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2), "template"
@@ -247,12 +246,11 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
         said = str(exc) if len(files) == 1 else f"{spec}: {exc}"
         raise UsageError(said if said.startswith("--map") else f"--map {said}") from exc
     p2p = np.asarray(p2p)
-    if p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer):
-        raise UsageError(f"--map {path}: a map file lists one source vertex per target vertex "
-                         f"({n2} integers); got shape {p2p.shape} and dtype {p2p.dtype}")
-    if p2p.min() < 0 or p2p.max() >= n1:
-        raise UsageError(f"--map {path}: source indices must lie in [0, {n1}) (1-based in .vts); "
-                         f"got [{p2p.min()}, {p2p.max()}]")  # fmt: skip
+    common.refuse((p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer), f"--map {path}: "
+                   f"a map file lists one source vertex per target vertex ({n2} integers); got "
+                   f"shape {p2p.shape} and dtype {p2p.dtype}"))  # fmt: skip
+    common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source indices must lie in "
+                   f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
     return Correspondence(p2p_21=p2p, n_source=n1, method=method)
 
 
@@ -266,9 +264,8 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     warned here.
     """
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
-    reasons = [f"--map {args.map}: {collapse.text(cli=True)}"] if collapse else []
-    if args.map.endswith(".npz"):
-        reasons += [m for m in (corr.mismatch(V1, V2, name=f"--map {args.map}"),) if m]
+    reasons = [r for r in (collapse and f"--map {args.map}: {collapse.text(cli=True)}",
+                           corr.mismatch(V1, V2, name=f"--map {args.map}")) if r]  # fmt: skip
     quality = corr.quality
     if quality is not None:
         report([f"stored with --map {args.map}: {quality.summary()}"])
@@ -282,28 +279,29 @@ def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.nda
     report([f"map quality SUSPECT: {reason}" for reason in reasons])
 
 
-def read_pair(args: argparse.Namespace) -> Pair:
-    """Read both shapes, the map and the landmarks: everything that fails fast."""
+def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
+    """Check ``-o`` (one of ``outputs``), read both shapes, the map and the landmarks.
+
+    Everything that fails fast.
+    """
+    inputs = (args.source, args.target, getattr(args, "signal", None), getattr(args, "texture",
+              None), *args.map.split(","), args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
+    common.check_output(args.output, outputs, inputs=inputs, side=common.signal_sides(args))
     common.check_folder_to_make(args.cache, "--cache")
-    _check_flags(args)
+    _check_flags(args, inputs)
     source, V1, F1 = common.read_shape(args.source)
     target, V2, F2 = common.read_shape(args.target)
+    common.check_output_kind(args.output, F2)
     factor, own = args.target_scale, target
     if factor is not None:  # every step below sees the target in the source's units
         target, V2 = scaled_copy(target, factor), V2 * factor
     given = _read_map(args.map, V1, V2)
     if given is not None:
         _judge_given(args, given, V1, V2)
-    if args.landmarks == "pick":
-        try:
-            landmarks = pick_landmarks(source, target)
-        except (ValueError, RuntimeError) as exc:
-            raise UsageError(f"--landmarks pick: {exc}") from exc
-    else:
-        landmarks = _landmarks(args.landmarks, V1.shape[0], V2.shape[0])
-    method = "closest" if args.map == "closest" else "estimate"
-    options = MatchOptions(method=method, partial=args.partial, align=args.align,
-                           landmarks=landmarks, components=args.components)  # fmt: skip
+    landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
+    options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
+                           partial=args.partial, align=args.align, landmarks=landmarks,
+                           components=args.components)  # fmt: skip
     if options.landmarks is not None and args.save_landmarks:
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
             np.savetxt(tmp, options.landmarks, fmt="%d",
@@ -311,7 +309,7 @@ def read_pair(args: argparse.Namespace) -> Pair:
         report([f"wrote {len(options.landmarks)} landmark pairs to {args.save_landmarks}"])
     scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
     return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), own,
-                factor)  # fmt: skip
+                factor, inputs=inputs)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- planning
@@ -329,13 +327,11 @@ def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[l
     planned = _planned(pair, task=task, **options)
     named = [f for f in (*common.FLAGS["options"], *common.FLAGS["bases"][: 2 * files])
              if getattr(args, common.dest(f)) is not None]  # fmt: skip
-    if planned.basis_k is None and named:
-        raise UsageError(unused(named))
-    pair.files = tuple(  # type: ignore[assignment]
-        common.load_basis_file(f, V, F, path, args, flag) if f else None
-        for f, V, F, path, flag in ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
-                                    (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
-    )  # fmt: skip
+    common.refuse((planned.basis_k is None and named, unused(named)))
+    sides = ((args.basis_1, pair.V1, pair.F1, args.source, "--basis-1"),
+             (args.basis_2, pair.V2, pair.F2, args.target, "--basis-2"))
+    pair.files = tuple(common.load_basis_file(f, V, F, path, args, flag) if f else None
+                       for f, V, F, path, flag in sides)  # fmt: skip
     bases = common.basis_options(args)
     if planned.basis_k is not None and (bases is not None or any(pair.files)):
         planned = _planned(pair, task=task, bases=bases, given_bases=pair.files, **options)
@@ -383,12 +379,9 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepare
         report_quality(args, given)
     progress = stage_progress("matching") if planned.estimated else contextlib.nullcontext()
     with stage(_describe(planned, pair), ticking=not planned.estimated), progress as tell:
-        try:
-            prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
-                               given=given, bases=pair.files, cache_dir=args.cache,
-                               progress=tell, names=pair.names)  # fmt: skip
-        except AdvisedError as exc:
-            raise UsageError(exc.said) from exc
+        prepared = prepare(planned, pair.V1, pair.F1, pair.V2, pair.F2, match=pair.match,
+                           given=given, bases=pair.files, cache_dir=args.cache, progress=tell,
+                           names=pair.names)  # fmt: skip
     if planned.estimated:
         report_quality(args, prepared.correspondence)
     if args.save_map:

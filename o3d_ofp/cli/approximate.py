@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Approximate the signal and write it."""
     inputs = (args.mesh, args.signal, args.texture, args.basis)
-    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT, ".npy"), inputs=inputs,
+    common.check_output(args.output, (*common.GEOMETRY_OUT, ".npy"), inputs=inputs,
                  side=common.signal_sides(args))  # fmt: skip
     common.check_folder_to_make(args.cache, "--cache")
     geometry, V, F = common.read_shape(args.mesh)

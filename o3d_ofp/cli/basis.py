@@ -8,7 +8,6 @@ from ..collections import bases_many
 from ..core.products import n_eigenproducts
 from . import _common as common
 from ._common import report
-from ._many import add_collection_options, report_records, single
 from ._progress import ENABLED
 
 __all__ = ["add_parser", "run"]
@@ -22,24 +21,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=common.MESH_HELP + "; several, or folders of them, with --cache DIR")
     common.add_basis_options(p)
     p.add_argument("-o", "--output", help="basis file (.npz) of one shape")
-    add_collection_options(p, description="give several shapes, or folders of them, with --cache "
-                           "DIR and no -o: each shape's bases are stored in DIR (a line per shape "
-                           "printed; --force does not apply)")  # fmt: skip
+    common.add_collection_options(p, description="give several shapes, or folders of them, with "
+                                  "--cache DIR and no -o: each shape's bases are stored in DIR (a "
+                                  "line per shape printed; --force does not apply)")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Compute the basis of ``args.mesh`` and write it to ``args.output`` (or to the cache)."""
     common.check_folder_to_make(args.cache, "--cache")
-    if args.output is None or not single(args, args.mesh):
+    if args.output is None or not common.single(args, "mesh"):
         return _run_many(args)
-    (mesh,) = args.mesh
-    common.check_output(args.output, (".npz",), inputs=(mesh,))
-    _, V, F = common.read_shape(mesh)
-    B = common.shape_basis(V, F, mesh, args)
+    common.check_output(args.output, (".npz",), inputs=(args.mesh,))
+    _, V, F = common.read_shape(args.mesh)
+    B = common.shape_basis(V, F, args.mesh, args)
     B.save(args.output)
     cleaning = B.eig.cleaning.report if B.eig.cleaning is not None else None
-    report([f"{mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept "
+    report([f"{args.mesh}: {V.shape[0]} vertices, k={B.k}, order {B.order}, tol {B.tol:g}: kept "
             f"{B.size} of {n_eigenproducts(B.k, B.order)} products",
             *([f"cleaning: {cleaning}"] if cleaning is not None else []),
             f"wrote {args.output}"])  # fmt: skip
@@ -54,9 +52,7 @@ def _run_many(args: argparse.Namespace) -> int:
         (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
         (args.force, "--force does not apply to basis (cached entries are checked)"),
     )  # fmt: skip
-    given = {"k": args.k, "order": args.order, "tol": args.tol,
-             "preset": None if args.tol is not None else args.preset}  # fmt: skip
     records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
                          components=args.components, workers=args.workers, progress=ENABLED.on,
-                         **{name: value for name, value in given.items() if value is not None})
-    return report_records(records)
+                         **common.basis_flags(args, k=args.k))  # fmt: skip
+    return common.report_records(records)

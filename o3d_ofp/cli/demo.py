@@ -11,7 +11,7 @@ from ..core._atomic import output_folder
 from ..render.panel import RenderError, render_panel
 from ..workflows.options import BasisOptions
 from . import _common as common
-from ._common import UsageError, report, stage
+from ._common import UsageError, positive_int, report, stage
 
 __all__ = ["add_parser", "run"]
 
@@ -26,9 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     default, a = BasisOptions(), p.add_argument
     a("-o", "--output", default="demo_out", help="output folder (demo_out)")
-    a("-k", "--k", type=common.positive_int, default=default.k1,
-      help=f"eigenfunctions ({default.k1})")
-    a("--order", type=common.positive_int, default=default.order,
+    a("-k", "--k", type=positive_int, default=default.k1, help=f"eigenfunctions ({default.k1})")
+    a("--order", type=positive_int, default=default.order,
       help=f"product order N ({default.order})")
     a("--subdivisions", type=common.bounded_int(2, 9), default=5, help="icosphere subdivisions of "
       "the shape, 2-9 (5: 10242 vertices; the map estimate needs the 162 of 2)")
@@ -42,9 +41,8 @@ def run(args: argparse.Namespace) -> int:
     out = os.path.abspath(args.output)
     common.check_folder_to_make(args.output, "-o")  # made with its parents after the checks
     n_vertices = 10 * 4**args.subdivisions + 2  # the icosphere the blob is made from
-    if args.k > n_vertices - 1:
-        raise UsageError(f"-k {args.k}: the shape of --subdivisions {args.subdivisions} has "
-                         f"{n_vertices} vertices: at most {n_vertices - 1}")  # fmt: skip
+    common.refuse((args.k > n_vertices - 1, f"-k {args.k}: the shape of --subdivisions "
+                   f"{args.subdivisions} has {n_vertices} vertices: at most {n_vertices - 1}"))
     try:
         with output_folder(out):  # a refused or interrupted demo leaves no empty folder
             return _run(args, out)

@@ -9,7 +9,6 @@ from ..boundary.io import write_geometry
 from ..workflows.options import DETAIL_MODES, MAX_AMOUNT, DetailOptions
 from . import _common as common
 from ._common import bounded_float, positive_int, report, stage
-from ._many import add_collection_options, run_transfers, single
 from ._pair import add_pair_options, plan, prepare_pair, read_pair
 
 __all__ = ["add_parser", "run"]
@@ -20,19 +19,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     default = DetailOptions()
     p = sub.add_parser("detail", help="give the target the source's geometric detail")
     add_pair_options(p, preset="ours*", several=True)
-    p.add_argument("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: "
-                   "the target gains the source's detail in its local frames; replace-detail: its "
-                   "own detail is replaced; coordinates (Fig. 13): the source's coordinates "
-                   "through the OFP bases (--k1/--k2/--order/--preset) replace the target's; "
-                   f"replace: deprecated name of coordinates ({default.mode})")
-    p.add_argument("--band", type=positive_int, help="the detail lies above this many "
-                   f"eigenfunctions, at any resolution ({default.band}); lower takes more shape")
-    p.add_argument("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the "
-                   f"transferred detail, in [0, {MAX_AMOUNT:g}] ({default.amount:g})")
-    p.add_argument("--k-low", type=positive_int, help="deprecated name of --band")
-    p.add_argument("-o", "--output", required=True,
-                   help="displaced target; with several targets a folder")  # fmt: skip
-    add_collection_options(p)
+    a = p.add_argument
+    a("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: the target "
+      "gains the source's detail in its local frames; replace-detail: its own detail is replaced; "
+      "coordinates (Fig. 13): the source's coordinates through the OFP bases (--k1/--k2/--order/"
+      f"--preset) replace the target's; replace: deprecated name of coordinates ({default.mode})")
+    a("--band", type=positive_int, help="the detail lies above this many eigenfunctions, at any "
+      f"resolution ({default.band}); lower takes more shape")
+    a("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the transferred detail, in "
+      f"[0, {MAX_AMOUNT:g}] ({default.amount:g})")
+    a("--k-low", type=positive_int, help="deprecated name of --band")
+    a("-o", "--output", required=True, help="displaced target; with several targets a folder")
+    common.add_collection_options(p)
     p.set_defaults(func=run)
 
 
@@ -42,31 +40,23 @@ def run(args: argparse.Namespace) -> int:
     common.refuse((args.band is not None and args.mode == "coordinates",
                    f"{common.flag_of('band')} does not apply to --mode coordinates (it has no "
                    "detail band)"))  # fmt: skip
-    given = {n: getattr(args, n) for n in ("mode", "band", "amount")}
-    given = {name: value for name, value in given.items() if value is not None}
-    if not single(args, args.target):
-        return run_transfers(args, kind="detail", options=given)
-    args.target = args.target[0]
-    inputs = (args.source, args.target)
-    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT), inputs=inputs)
+    given = {n: v for n in ("mode", "band", "amount") if (v := getattr(args, n)) is not None}
+    if not common.single(args, "target"):
+        return common.run_transfers(args, kind="detail", options=given)
     detail = DetailOptions(**given)
-    pair = read_pair(args)
-    common.check_output_kind(args.output, pair.F2)
-
-    def unused(named: list[str]) -> str:
-        one, band = len(named) == 1, common.flag_of("band")
-        return (f"{', '.join(named)} {'applies' if one else 'apply'} to --mode coordinates (the "
-                f"OFP bases); --mode {detail.mode} reads each shape's eigenfunctions up to {band} "
-                f"({detail.band}): drop {'it' if one else 'them'}, or set {band}")  # fmt: skip
-
-    planned = plan(args, pair, "detail", unused=unused, detail=detail)
+    pair = read_pair(args, common.GEOMETRY_OUT)
+    band = common.flag_of("band")
+    planned = plan(args, pair, "detail", detail=detail, unused=lambda named: (
+        f"{', '.join(named)} {'applies' if len(named) == 1 else 'apply'} to --mode coordinates "
+        f"(the OFP bases); --mode {detail.mode} reads each shape's eigenfunctions up to {band} "
+        f"({detail.band}): drop {'it' if len(named) == 1 else 'them'}, or set {band}"))
     prepared = prepare_pair(args, pair, planned)
     with stage(f"detail transfer ({detail.mode})"):
         moved = transfer_detail(pair.source, pair.target, correspondence=prepared.correspondence,
                                 mode=detail.mode, band=detail.band, amount=detail.amount,
                                 options=common.basis_options(args),
                                 bases=prepared.bases or (prepared.eig_1, prepared.eig_2))
-    write_geometry(args.output, pair.in_target_units(moved), protect=inputs)
+    write_geometry(args.output, pair.in_target_units(moved), protect=pair.inputs)
     what = detail.mode if detail.mode == "coordinates" else f"{detail.mode}, band {detail.band}"
     report([f"{args.source} -> {args.target}: detail ({what})", f"wrote {args.output}"])
     return 0

@@ -12,7 +12,7 @@ from ..boundary.api import filter_geometry
 from ..boundary.io import write_geometry
 from ..core.filtering import DEFAULT_SMOOTH, MAX_SHARPEN, MAX_SMOOTH
 from . import _common as common
-from ._common import MESH_HELP, UsageError, bounded_float
+from ._common import MESH_HELP, bounded_float
 
 __all__ = ["add_parser", "run"]
 
@@ -41,9 +41,9 @@ def run(args: argparse.Namespace) -> int:
     The low-pass is two complex sparse factorizations of the whole mesh (no eigenfunctions):
     its stage says so, and that it still runs (the library reports no progress inside them).
     """
-    common.check_output(args.output, (*common.MESH_OUT, *common.CLOUD_OUT), inputs=(args.mesh,))
-    if args.smooth is None and args.sharpen is None:
-        raise UsageError("give --smooth RADIUS and/or --sharpen GAIN")
+    common.check_output(args.output, common.GEOMETRY_OUT, inputs=(args.mesh,))
+    common.refuse((args.smooth is None and args.sharpen is None,
+                   "give --smooth RADIUS and/or --sharpen GAIN"))  # fmt: skip
     geometry, V, F = common.read_shape(args.mesh)
     common.check_output_kind(args.output, F)
     n, points, basis = V.shape[0], "vertices" if F is not None else "points", None

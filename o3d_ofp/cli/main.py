@@ -80,9 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
         command.add_parser(sub)
     # -q / -v also after the command (o3d-ofp transfer ... -q); there they override the
     # values given before it (SUPPRESS: absent flags leave those alone). A word such as "-1:40"
-    # is a value, not an option (no option starts with a dash and a digit): argparse takes only
-    # plain negative numbers for values, so "--landmarks -1:40" stopped at "expected one
-    # argument" (a trial); as a value it reaches the option's own check, which says what is wrong.
+    # is a value, not an option (no option starts with a dash and a digit; argparse alone takes
+    # only plain negative numbers for values): "--landmarks -1:40" reaches the option's own
+    # check, which says what is wrong.
     hidden = {"default": argparse.SUPPRESS, "help": argparse.SUPPRESS}
     for command_parser in sub.choices.values():
         command_parser._negative_number_matcher = re.compile(r"^-\d")
@@ -101,10 +101,9 @@ def _logging_to_stderr(level: int) -> Iterator[None]:
     root, handler = logging.getLogger("o3d_ofp"), logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("o3d-ofp: %(message)s"))
     handler.addFilter(_Shown(quiet_reports=level > logging.DEBUG))
-    saved = (root.level, root.propagate)
+    saved, root.propagate = (root.level, root.propagate), False
     root.addHandler(handler)
     root.setLevel(level)
-    root.propagate = False
     try:
         yield
     finally:
@@ -141,7 +140,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exc.code or 0)
     # -q: warnings stay (a suspect map or a refused option is said even then)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose > 1 else logging.INFO
-    prog = f"o3d-ofp {args.command}"
     OUT.quiet, OUT.args, OUT.renamed, OUT.one_pair = bool(args.quiet), args, {}, False
     ENABLED.on = not args.quiet
     # OFPWarnings repeat what the log already prints (logged at WARNING here).
@@ -166,5 +164,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.verbose:
                 logger.exception("internal error")
             code, said = 1, f"internal error: {type(exc).__name__}: {exc}"
-    sys.stderr.write(f"{prog}: {said}\n")
+    sys.stderr.write(f"o3d-ofp {args.command}: {said}\n")
     return code

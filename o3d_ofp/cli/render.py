@@ -55,19 +55,15 @@ def run(args: argparse.Namespace) -> int:
         colormap(np.zeros(1), args.colormap)
     except ValueError as exc:
         raise UsageError(f"--colormap {args.colormap}: {exc}") from exc
-    items, textures = [], []
-    for path, npy in zip(args.mesh, scalars, strict=True):
-        geometry, V, F = common.read_shape(path)
-        ((_, _, colors),), (texture,) = geometry_items([geometry])  # colors, or its own texture
+    # each mesh's colors, or its own texture, or its scalars
+    items, textures = geometry_items([common.read_shape(path)[0] for path in args.mesh])
+    for i, (path, npy, (V, F, _)) in enumerate(zip(args.mesh, scalars, items, strict=True)):
         if npy != "-":
             values = common.load_npy(npy, "per-vertex scalars", flag="--scalars")
             values = values[:, 0] if values.ndim == 2 and values.shape[1] == 1 else values
-            if values.shape != (V.shape[0],):
-                raise UsageError(f"--scalars {npy}: shape {values.shape}, expected ({V.shape[0]},) "
-                                 f"for {path}")  # fmt: skip
-            colors, texture = values.astype(np.float64), None
-        items.append((V, F, colors))
-        textures.append(texture)
+            common.refuse((values.shape != (V.shape[0],), f"--scalars {npy}: shape "
+                           f"{values.shape}, expected ({V.shape[0]},) for {path}"))  # fmt: skip
+            items[i], textures[i] = (V, F, values.astype(np.float64)), None
     options = {k: v for k, v in (("width", args.width), ("height", args.height),
                                  ("colorbar_label", args.label)) if v}  # fmt: skip
     with stage(f"rendering {len(items)} views"):

@@ -14,8 +14,7 @@ from ..core.texture import MAX_TEXTURE_SIZE, TEXTURE_SIZE
 from ..core.wording import Said
 from ..workflows.pipeline import carry, pull_back
 from . import _common as common
-from ._common import CLOUD_OUT, MESH_OUT, UsageError, bounded_int, report, stage
-from ._many import add_collection_options, run_transfers, single
+from ._common import GEOMETRY_OUT, bounded_int, report, stage
 from ._pair import Pair, add_pair_options, map_name, plan, prepare_pair, read_pair
 
 __all__ = ["add_parser", "run"]
@@ -45,18 +44,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
       f"pixels ({TEXTURE_SIZE}; at most {MAX_TEXTURE_SIZE})")
     a("-o", "--output", required=True, help="colored target (mesh/cloud), or .npy values; with "
       "several targets a folder")  # fmt: skip
-    add_collection_options(p)
+    common.add_collection_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Read, make (or read) the map, transfer, write (for each target)."""
-    if not single(args, args.target):
+    if not common.single(args, "target"):
         return _run_many(args)
-    args.target = args.target[0]
-    # the files this command reads (flag values that are not files are skipped)
-    args.inputs = (args.source, args.target, args.signal, args.texture, *args.map.split(","),
-                   args.landmarks, args.basis_1, args.basis_2)  # fmt: skip
     common.refuse(
         (args.uv_atlas and (args.signal is not None or not args.output.lower().endswith(_BAKED)),
          "--uv-atlas bakes the source's colors into a new atlas: it needs an .obj/.glb/.gltf "
@@ -66,15 +61,15 @@ def run(args: argparse.Namespace) -> int:
         (args.via_basis and args.uv_atlas, "--via-basis sends the colors to the target's vertices "
          "and --uv-atlas bakes them into a new atlas: give one of them"),
     )  # fmt: skip
-    common.check_output(args.output, (*MESH_OUT, *CLOUD_OUT, ".npy"), inputs=args.inputs,
-                        side=common.signal_sides(args))  # fmt: skip
-    pair = read_pair(args)
-    common.check_output_kind(args.output, pair.F2)
+    pair = read_pair(args, (*GEOMETRY_OUT, ".npy"))
     closest = args.map == "closest" or getattr(pair.given, "method", None) == "closest"
-    if args.via_basis and not closest:
-        raise UsageError("--via-basis applies to a closest map (--map closest or its saved map): "
-                         "other maps go through the OFP bases already")  # fmt: skip
-    if args.signal is None and _bakeable(pair, args.output, atlas=args.uv_atlas):
+    common.refuse((args.via_basis and not closest, "--via-basis applies to a closest map (--map "
+                   "closest or its saved map): other maps go through the OFP bases already"))
+    # a bake: a source mesh with a texture or (without UVs) vertex colors onto a mesh target
+    # with UVs (or an atlas), written as OBJ/glTF
+    colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
+    if args.signal is None and pair.F1 is not None and pair.F2 is not None and colored and (
+            args.uv_atlas or tex.has_uvs(pair.target)) and args.output.lower().endswith(_BAKED):
         if args.uv_atlas and tex.has_uvs(pair.target):
             logger.warning("%s has its own UVs: the texture is baked into them (--uv-atlas makes "
                            "an atlas for a target without UVs only)", args.target)  # fmt: skip
@@ -96,18 +91,15 @@ def run(args: argparse.Namespace) -> int:
         common.check_colors_output(args.output)
     _warn_lost_texture(args, pair, spec)
     f, kind = common.read_signal(pair.source, pair.V1, args.source, spec, args.texture, args.output)
-
-    def unused(named: list[str]) -> str:
-        why = ("the closest map's values are pulled back exactly, with no OFP basis; drop it, or "
-               "add --via-basis to transfer through the bases")  # fmt: skip
-        if args.pull_back:
-            why = ("--pull-back carries the values through the map with no OFP basis; drop it, or "
-                   + ("replace --pull-back by --via-basis" if closest else "drop --pull-back")
-                   + " to transfer through the bases")  # fmt: skip
-        return f"{'/'.join(named)} does not apply here: {why}"
-
+    why = ("the closest map's values are pulled back exactly, with no OFP basis; drop it, or add "
+           "--via-basis to transfer through the bases")  # fmt: skip
+    if args.pull_back:
+        why = ("--pull-back carries the values through the map with no OFP basis; drop it, or "
+               + ("replace --pull-back by --via-basis" if closest else "drop --pull-back")
+               + " to transfer through the bases")  # fmt: skip
     via_basis = True if args.via_basis else False if args.pull_back else None
-    planned = plan(args, pair, "colors", unused=unused, files=True, via_basis=via_basis)
+    planned = plan(args, pair, "colors", files=True, via_basis=via_basis,
+                   unused=lambda named: f"{'/'.join(named)} does not apply here: {why}")
     prepared = prepare_pair(args, pair, planned)
     corr, name = prepared.correspondence, map_name(args, prepared.correspondence)
     surface = corr.barycentric_21 is not None
@@ -116,17 +108,16 @@ def run(args: argparse.Namespace) -> int:
         if not planned.exact:
             g = carry(f, planned, prepared)
         elif spec == "texture" and surface:  # the texture itself at the surface point, not the
-            # source's per-vertex samples interpolated there (a trial: error 0.022)
+            # source's per-vertex samples interpolated there (blurrier)
             image = tex.mesh_texture(pair.source, args.texture)
             g = image.sample(corr.faces_21, corr.barycentric_21)
         else:
             g = pull_back(f, corr, pair.F1)
-    how = f"{'exact ' * closest}pull-back"
-    if not planned.exact:
-        how = f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions"
+    how = (f"{'exact ' * closest}pull-back" if planned.exact else
+           f"{prepared.bases[0].size} -> {prepared.bases[1].size} basis functions")  # fmt: skip
     # positions sent to the target are written in its own units, as a detail is
     g = g / (pair.target_scale or 1.0) if kind == "xyz" else g
-    written = common.write_result(args.output, pair.own_target, g, kind, args.inputs)
+    written = common.write_result(args.output, pair.own_target, g, kind, pair.inputs)
     report([f"{args.source} -> {args.target}: {how}, map {name}", "wrote " + ", ".join(written)])
     return 0
 
@@ -172,23 +163,11 @@ def _run_many(args: argparse.Namespace) -> int:
             why = f"{args.source} has no texture coordinates (UVs)"
         except (TypeError, ValueError, FileNotFoundError) as exc:
             why = tex.no_texture_message(args.source, exc)
-    if kind != "texture" and args.texture_size is not None:
-        raise UsageError(Said("--texture-size applies to a bake, and nothing is baked here: {why}",
-                              {"why": why}))  # fmt: skip
-    return run_transfers(args, kind=kind, options={
+    common.refuse((kind != "texture" and args.texture_size is not None, Said(
+        "--texture-size applies to a bake, and nothing is baked here: {why}", {"why": why})))
+    return common.run_transfers(args, kind=kind, options={
         "signal": args.signal or "auto", "texture_size": args.texture_size,
         "atlas": args.uv_atlas, "texture": args.texture})  # fmt: skip
-
-
-def _bakeable(pair: Pair, output: str, *, atlas: bool = False) -> bool:
-    """Tell whether to bake into the target's UVs.
-
-    Yes for a source mesh with a texture or (without UVs) vertex colors, a target with UVs (or
-    an atlas), and an OBJ/glTF output.
-    """
-    colored = tex.has_uvs(pair.source) or vertex_colors(pair.source) is not None
-    return bool(pair.F1 is not None and pair.F2 is not None and colored
-                and (atlas or tex.has_uvs(pair.target)) and output.lower().endswith(_BAKED))
 
 
 def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
@@ -196,13 +175,12 @@ def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     common.refuse(
         (args.via_basis, "--via-basis sends colors through the OFP bases to the target's vertices; "
          "a bake reads the source through the map: add --signal colors, or drop --via-basis"),
-        (args.pull_back, "--pull-back puts values on the target's vertices; this run bakes the "
-         "source's colors into the target's UVs, which reads them through the map with no OFP "
-         "basis already: drop --pull-back, or add --signal colors for per-vertex colors"),
+        (args.pull_back, "--pull-back puts values on the target's vertices; a bake reads the "
+         "source's colors through the map with no OFP basis already: drop --pull-back, or add "
+         "--signal colors for per-vertex colors"),
     )  # fmt: skip
-    instead = "" if args.uv_atlas else (f", or add --signal colors{' --via-basis' * closest} "
-                                        "to transfer the colors to the target's vertices through "
-                                        "the bases")  # fmt: skip
+    instead = (f", or add --signal colors{' --via-basis' * closest} to transfer the colors to the "
+               "target's vertices through the bases") if not args.uv_atlas else ""  # fmt: skip
     planned = plan(args, pair, "texture", unused=lambda named: (
         f"{'/'.join(named)} does not apply here: a bake reads the source's colors through the "
         f"map, with no OFP basis; drop it{instead}"))  # fmt: skip
@@ -215,7 +193,7 @@ def _bake(args: argparse.Namespace, pair: Pair, closest: bool) -> int:
     with stage(f"texture bake ({size} x {size})"):
         out = transfer_texture(pair.source, pair.target, correspondence=corr, size=size,
                                texture=args.texture, atlas=args.uv_atlas)  # fmt: skip
-    write_geometry(args.output, pair.in_target_units(out), protect=args.inputs)
+    write_geometry(args.output, pair.in_target_units(out), protect=pair.inputs)
     layout = "new UV atlas" if args.uv_atlas and not tex.has_uvs(pair.target) else "UV layout"
     what = "texture" if tex.has_uvs(pair.source) else "vertex colors"
     report([f"{args.source} -> {args.target}: {what} baked in the target's {layout} ({size} px), "

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 from ..boundary.convert import geometry_to_arrays, is_open3d_geometry, like_target, vertex_colors
-from ..boundary.io import read_geometry, write_geometry
+from ..boundary.io import CLOUD_ONLY, MESH_ONLY, read_geometry, write_geometry
 from ..boundary.texture import no_texture_message, surface_colors, texture_colors
 from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
@@ -43,17 +43,8 @@ from ..workflows.plan import plan_pair, prepare_source
 from .results import TargetResult
 from .tasks import BasisJob, ShapeSpec, SharedSource, TransferJob, basis_task, failed, transfer_task
 
-__all__ = [
-    "BLAS_ENV",
-    "COUNTERS",
-    "MESH_EXTENSIONS",
-    "OUTPUTS_RECORD",
-    "bases_many",
-    "expand_paths",
-    "local_workers",
-    "open_client",
-    "transfer_many",
-]
+__all__ = ["BLAS_ENV", "COUNTERS", "MESH_EXTENSIONS", "OUTPUTS_RECORD", "bases_many",
+           "expand_paths", "local_workers", "open_client", "transfer_many"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -64,9 +55,7 @@ logger = logging.getLogger(__name__)
 COUNTERS: Counter[str] = Counter()
 
 #: File extensions taken from a directory given as a target or a shape.
-MESH_EXTENSIONS = (
-    ".ply", ".obj", ".off", ".stl", ".glb", ".gltf", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts",
-)  # fmt: skip
+MESH_EXTENSIONS = (".ply", *MESH_ONLY, *CLOUD_ONLY)
 #: Outputs of these kinds cannot hold vertex colors: a colored target is written as ``.ply``.
 _NO_COLORS = (".stl", ".xyz", ".xyzn", ".pts")
 #: Outputs of a bake: OBJ + MTL + PNG. The other formats hold no UVs (as Open3D reads them):
@@ -158,11 +147,9 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
     try:
         import distributed
     except ImportError as exc:
-        raise ImportError(
-            "collections on a cluster need Dask: pip install 'dask[distributed]' (from a "
-            "clone of o3d_ofp: pip install -e '.[dask]'); workers=0 runs in this process "
-            "without it"
-        ) from exc
+        raise ImportError("collections on a cluster need Dask: pip install 'dask[distributed]' "
+                          "(from a clone of o3d_ofp: pip install -e '.[dask]'); workers=0 runs in "
+                          "this process without it") from exc  # fmt: skip
     if client is not None and not isinstance(client, str):
         yield client
         return
@@ -171,10 +158,9 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
         try:
             connected = distributed.Client(client)
         except OSError as exc:  # a timeout, a refused connection
-            raise ConnectionError(
-                f"client {client}: cannot connect to the Dask scheduler ({exc}); check the "
-                "address (tcp://HOST:PORT) and that the scheduler is running"
-            ) from exc
+            raise ConnectionError(f"client {client}: cannot connect to the Dask scheduler ({exc}); "
+                                  "check the address (tcp://HOST:PORT) and that the scheduler is "
+                                  "running") from exc  # fmt: skip
         with connected as c:
             yield c
         return
@@ -197,11 +183,10 @@ def open_client(client: Any = None, *, workers: int | None = None) -> Iterator[A
                 )  # fmt: skip
             except RuntimeError as exc:
                 raise RuntimeError(
-                    f"the local Dask cluster did not start ({exc}). From a script, call this "
-                    'under `if __name__ == "__main__":` (the worker processes start by '
-                    "importing the script, which must not start a cluster again); or pass "
-                    "workers=0 to run in this process, or client= an existing cluster"
-                ) from exc
+                    f"the local Dask cluster did not start ({exc}). From a script, call this under "
+                    '`if __name__ == "__main__":` (the worker processes start by importing the '
+                    "script, which must not start a cluster again); or pass workers=0 to run in "
+                    "this process, or client= an existing cluster") from exc  # fmt: skip
         with cluster, distributed.Client(cluster) as c:
             yield c
 
@@ -282,17 +267,9 @@ def _log_record(r: TargetResult) -> None:
             logger.warning("%s", said, extra={"said": said})
 
 
-def _run(
-    task: Callable[[Any, ShapeSpec], TargetResult],
-    shared: Any,
-    specs: Sequence[ShapeSpec],
-    *,
-    kind: str,
-    client: Any,
-    workers: int | None,
-    progress: bool,
-    on_record: Callable[[TargetResult], None],
-) -> None:
+def _run(task: Callable[[Any, ShapeSpec], TargetResult], shared: Any, specs: Sequence[ShapeSpec],
+         *, kind: str, client: Any, workers: int | None, progress: bool,
+         on_record: Callable[[TargetResult], None]) -> None:  # fmt: skip
     """Run ``task(shared, spec)`` for every spec, with a progress bar on a terminal.
 
     Exceptions of a task, and a worker that died running it, become its record; ``on_record``
@@ -322,9 +299,8 @@ def _run(
                 arrived(r)
 
 
-def _on_cluster(
-    c: Any, task: Callable[[Any, ShapeSpec], TargetResult], shared: Any, specs: Any, kind: str
-) -> Iterator[TargetResult]:
+def _on_cluster(c: Any, task: Callable[[Any, ShapeSpec], TargetResult], shared: Any, specs: Any,
+                kind: str) -> Iterator[TargetResult]:  # fmt: skip
     """Yield the records of the tasks run on the cluster of client ``c``, as they arrive."""
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
@@ -373,9 +349,8 @@ def _names(items: Sequence[Any], kind: str) -> list[str]:
     return names
 
 
-def _specs(
-    items: Sequence[Any], output_dir: str | None, kind: str
-) -> tuple[list[ShapeSpec], dict[int, TargetResult]]:
+def _specs(items: Sequence[Any], output_dir: str | None,
+           kind: str) -> tuple[list[ShapeSpec], dict[int, TargetResult]]:  # fmt: skip
     """Return the tasks' inputs, and the failed records of geometries that give no arrays.
 
     A file is read on the worker; a geometry is sent as arrays, its result written here.
@@ -389,10 +364,8 @@ def _specs(
             except (TypeError, ValueError) as exc:
                 records[i] = failed(ShapeSpec(i, name, None), exc, kind=kind)
         elif output is not None and os.path.abspath(output) == os.path.abspath(item):
-            raise ValueError(
-                f"the output folder {output_dir} holds the target {item}: its output would "
-                "overwrite it; write to another folder"
-            )
+            raise ValueError(f"the output folder {output_dir} holds the target {item}: its "
+                             "output would overwrite it; write to another folder")  # fmt: skip
         else:
             specs.append(ShapeSpec(i, name, item, None, output))
     return specs, records
@@ -410,10 +383,9 @@ class _OutputsRecord:
 
     def __init__(self, out_dir: str | None, job: TransferJob) -> None:
         self.path = None if out_dir is None else os.path.join(out_dir, OUTPUTS_RECORD)
-        bases = dataclasses.asdict(job.bases or BasisOptions())
         own = {name: getattr(job, name) for name in _JOB_OPTIONS if name != "strict"}
-        detail = dataclasses.asdict(job.detail)
-        self.options = {"kind": job.kind, **bases, **detail, **own}  # what the outputs depend on
+        self.options = {"kind": job.kind, **dataclasses.asdict(job.bases or BasisOptions()),
+                        **dataclasses.asdict(job.detail), **own}  # what the outputs depend on
         self.entries: dict[str, Any] | None = None  # None: no record in the folder
         if self.path is not None and os.path.isfile(self.path):
             try:
@@ -444,9 +416,8 @@ class _OutputsRecord:
         elif not isinstance(before, dict) or before.keys() != self.options.keys():
             why = "recorded by another version of o3d_ofp"
         else:
-            changed = (
-                f"{k} {before[k]!r} -> {v!r}" for k, v in self.options.items() if before[k] != v
-            )
+            changed = (f"{k} {before[k]!r} -> {v!r}" for k, v in self.options.items()
+                       if before[k] != v)  # fmt: skip
             why = "made with other options: " + ", ".join(changed)
         logger.info("%s: %s is redone (%s)", spec.name, spec.output, why)
         return False
@@ -463,8 +434,9 @@ class _OutputsRecord:
     def made(self, result: TargetResult) -> None:
         """Record that the output of ``result`` was just made with these options."""
         if self.path is not None and result.output is not None:
-            row = {**result.row(), "warnings": result.warnings, "notes": result.notes}
-            found = {k: _as_json(row[k]) for k in _FOUND}
+            found = {k: v for k, v in result.row().items() if k in _FOUND}  # messages as data:
+            found.update({k: [dataclasses.asdict(m) if isinstance(m, Said) else str(m)
+                              for m in getattr(result, k)] for k in ("warnings", "notes")})
             entry = {"options": self.options, "found": found}
             self.entries = {**(self.entries or {}), result.name: entry}
             self._write()
@@ -482,15 +454,8 @@ class _OutputsRecord:
             json.dump({"version": 2, "outputs": self.entries}, fh, indent=1, sort_keys=True)
 
 
-def _as_json(value: Any) -> Any:
-    """Return a record's field for the JSON file (messages as their templates, worded later)."""
-    if isinstance(value, tuple):
-        return [dataclasses.asdict(v) if isinstance(v, Said) else str(v) for v in value]
-    return value
-
-
 def _said_of(item: Any) -> str | Said:
-    """Return a message read back from the JSON file (see :func:`_as_json`)."""
+    """Return a message read back from the JSON file (a Said kept as its template and values)."""
     return Said.from_dict(item) if isinstance(item, dict) and "template" in item else str(item)
 
 
@@ -508,9 +473,8 @@ def _transfer_job(kind: str, cache_dir: str | None, options: dict[str, Any]) -> 
     known = (*_BASIS_OPTIONS, *_DETAIL_OPTIONS, *_JOB_OPTIONS)
     unknown = sorted(set(options) - set(known))
     if unknown:
-        raise OptionError(
-            unknown[0], f"is not an option of transfer_many; it takes {', '.join(sorted(known))}"
-        )
+        raise OptionError(unknown[0], "is not an option of transfer_many; it takes "
+                          f"{', '.join(sorted(known))}")  # fmt: skip
     bases = {name: options[name] for name in _BASIS_OPTIONS if name in options}
     return TransferJob(
         kind=kind, bases=BasisOptions(**bases) if bases else None, cache_dir=cache_dir,
@@ -523,9 +487,8 @@ def _source(source: Any, path: str | None, job: TransferJob) -> SharedSource:
     """Read the source and run its side of the plan (any target), once for every target."""
     geometry = read_geometry(path) if path is not None else source
     if not is_open3d_geometry(geometry):
-        raise OptionError(
-            "source", f"must be a file or an Open3D geometry; got {type(source).__name__}"
-        )
+        raise OptionError("source", "must be a file or an Open3D geometry; got "
+                          f"{type(source).__name__}")  # fmt: skip
     name = os.path.basename(path) if path else "source"
     V, F = geometry_to_arrays(geometry)
     signal, texture = _source_colors(geometry, path, name, job)
@@ -567,11 +530,10 @@ def _source_colors(geometry: Any, path: str | None, name: str, job: TransferJob)
         try:
             texture = surface_colors(geometry, job.texture)
         except (TypeError, ValueError, FileNotFoundError) as exc:  # its fixes kept as data
-            why = Said("{name}: {why}", {"name": name, "why": getattr(exc, "said", str(exc))})
-            if path is not None and job.texture is None:
-                why = no_texture_message(path, exc)
-            refusal = "the source has no texture or vertex colors to bake: {why}"
-            raise AdvisedError(Said(refusal, {"why": why}, "no_texture")) from exc
+            why = (no_texture_message(path, exc) if path is not None and job.texture is None
+                   else named(name, getattr(exc, "said", str(exc))))  # fmt: skip
+            raise AdvisedError(Said("the source has no texture or vertex colors to bake: {why}",
+                                    {"why": why}, "no_texture")) from exc  # fmt: skip
     if job.signal != "texture" and job.texture is None:
         colors = vertex_colors(geometry)
         if colors is not None:
@@ -708,10 +670,8 @@ def _transfer_targets(
         _run(transfer_task, shared, todo, kind=shared.job.kind, on_record=on_record, **run)
     except KeyboardInterrupt:
         done = sum(r.status == "ok" for r in records.values())
-        logger.warning(
-            "interrupted: %d of %d targets done%s", done, len(todo),
-            "; a rerun skips them and does the others" if made.path else "",
-        )  # fmt: skip
+        logger.warning("interrupted: %d of %d targets done%s", done, len(todo),
+                       "; a rerun skips them and does the others" if made.path else "")
         raise
     return records
 
@@ -763,10 +723,8 @@ def _output_folder(out_dir: str | None) -> Iterator[None]:
         return
     with output_folder(out_dir):
         if not os.access(out_dir, os.W_OK | os.X_OK):
-            raise PermissionError(
-                f"{out_dir}: the output folder cannot be written (read-only or no permission); "
-                "choose another output folder"
-            )
+            raise PermissionError(f"{out_dir}: the output folder cannot be written (read-only or "
+                                  "no permission); choose another output folder")  # fmt: skip
         yield
 
 
@@ -832,15 +790,12 @@ def bases_many(
     items = _items(paths, "paths")
     _check_workers(workers, client)
     folder = str(_folder(cache_dir, "cache_dir", required=True))
-    job = BasisJob(
-        cache_dir=folder, k=k, order=order, tol=tol, preset=preset if tol is None else None,
-        components=components, eigenbasis_k=eigenbasis_k,
-    )  # fmt: skip
+    job = BasisJob(cache_dir=folder, k=k, order=order, tol=tol, preset=preset if tol is None
+                   else None, components=components, eigenbasis_k=eigenbasis_k)  # fmt: skip
     os.makedirs(folder, exist_ok=True)
     specs, records = _specs(items, None, "basis")
-    run = {"client": client, "workers": workers, "progress": progress}
-    _run(basis_task, job, specs, kind="basis", on_record=lambda r: records.update({r.index: r}),
-         **run)  # fmt: skip
+    _run(basis_task, job, specs, kind="basis", client=client, workers=workers, progress=progress,
+         on_record=lambda r: records.update({r.index: r}))  # fmt: skip
     results = [records[i] for i in range(len(items))]
     logger.info("bases_many: %s", dict(Counter(r.status for r in results)))
     return results

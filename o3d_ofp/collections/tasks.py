@@ -14,6 +14,7 @@ import logging
 import os
 import time
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -45,15 +46,8 @@ from ..workflows.pipeline import carry
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from .results import TargetResult
 
-__all__ = [
-    "BasisJob",
-    "ShapeSpec",
-    "SharedSource",
-    "TransferJob",
-    "basis_task",
-    "failed",
-    "transfer_task",
-]
+__all__ = ["BasisJob", "ShapeSpec", "SharedSource", "TransferJob", "basis_task", "failed",
+           "transfer_task"]  # fmt: skip
 
 logger = logging.getLogger(__name__)
 
@@ -124,9 +118,8 @@ class TransferJob:
         if not isinstance(self.texture, (str, os.PathLike)):
             raise OptionError("texture", f"must be an image file path; got {self.texture!r}")
         if self.kind == "detail" or self.signal == "colors":
-            raise OptionError(
-                "texture", "(the source's texture image) applies to its colors or bake"
-            )
+            raise OptionError("texture", "(the source's texture image) applies to its colors or "
+                              "bake")  # fmt: skip
         object.__setattr__(self, "texture", os.path.abspath(os.fspath(self.texture)))
         if not os.path.isfile(self.texture):
             raise FileNotFoundError(f"texture {self.texture}: no such image file")
@@ -255,16 +248,12 @@ def _read(spec: ShapeSpec) -> tuple[Any, np.ndarray, np.ndarray | None]:
 
 #: Appended to a message whose fix is landmarks, which a collection does not take ({command}
 #: and {function}: the command and the Python function of the collection's kind).
-ALONE_WITH_LANDMARKS = (
-    "a collection takes no landmarks: transfer this target alone (o3d-ofp {command} SOURCE "
-    "TARGET --landmarks ..., or ofp.match(source, target, landmarks=...), then "
-    "ofp.{function}(..., correspondence=...))"
-)
+ALONE_WITH_LANDMARKS = ("a collection takes no landmarks: transfer this target alone (o3d-ofp "
+                        "{command} SOURCE TARGET --landmarks ..., or ofp.match(source, target, "
+                        "landmarks=...), then ofp.{function}(..., correspondence=...))")
 #: Appended to a message whose fix is a partial match, which a collection does not make.
-ALONE_PARTIAL = (
-    "a collection makes no partial match: transfer this target alone (o3d-ofp {command} "
-    "SOURCE TARGET --partial, or ofp.match(source, target, partial=True))"
-)
+ALONE_PARTIAL = ("a collection makes no partial match: transfer this target alone (o3d-ofp "
+                 "{command} SOURCE TARGET --partial, or ofp.match(source, target, partial=True))")
 #: The findings whose fix is a partial match (not the "likely causes" that name it among
 #: others).
 _PARTIAL_FIXES = {"looks_partial", "looks_partial_units", "cloud_part", "part_larger"}
@@ -310,42 +299,51 @@ def transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
     if worker_name() != "local":
         warnings.filterwarnings("ignore", category=OFPWarning)
     with collected_warnings() as said:
-        result = _transfer_task(source, spec)
+        result = _recorded(spec, source.job.kind, lambda found: _transfer_task(source, spec, found))
     worded = (_for_collections(m, source.job.kind) for m in said)
     messages = tuple({str(m): m for m in worded}.values())  # each said once
     return dataclasses.replace(result, warnings=messages) if messages else result
 
 
-def _transfer_task(source: SharedSource, spec: ShapeSpec) -> TargetResult:
-    """Map the source onto one target and transfer; never raises for the target."""
-    job, t0 = source.job, time.perf_counter()
-    found: dict[str, Any] = {}
+def _recorded(spec: ShapeSpec, kind: str, work: Callable[[dict[str, Any]], dict[str, Any]]
+              ) -> TargetResult:  # fmt: skip
+    """Run ``work(found)`` for one shape and return its record; never raises for the shape.
+
+    ``work`` puts in ``found`` what it learns of the shape (kept in a failed record) and
+    returns the other fields of its record (status "ok" and ``kind`` unless it gives them).
+    """
+    t0, found = time.perf_counter(), {}
     try:
-        target, V2, F2 = _read(spec)
-        found["n_vertices"] = V2.shape[0]
-        task = job.task(target, mesh=spec.arrays is None and F2 is not None)
-        plan, prepared = _prepared(source, V2, F2, task)
-        corr = prepared.correspondence
-        found.update(cached=prepared.cached[1], **_verdict(corr, job.kind))
-        if job.strict and found["suspect"]:
-            reasons = [_for_collections(r, job.kind) for r in corr.quality.reasons]
-            template = "; ".join(f"{{r{i}}}" for i in range(len(reasons)))
-            raise AdvisedError(Said("suspect map (strict): " + template,
-                                    {f"r{i}": r for i, r in enumerate(reasons)}, "strict"))
-        values = _transferred(source, spec, target, plan, prepared)
-    except Exception as exc:  # a target's failure is its record, never the run's
+        fields = {"status": "ok", "kind": kind, **work(found), **found}
+    except Exception as exc:  # a shape's failure is its record, never the run's
         logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
         seconds = time.perf_counter() - t0
-        return failed(spec, exc, kind=job.kind, seconds=seconds, worker=worker_name(), **found)
-    return TargetResult(  # a geometry's output is written by the caller, from the values
-        spec.index, spec.name, spec.path, "ok", output=spec.output, kind=task,
-        seconds=time.perf_counter() - t0, worker=worker_name(), values=values, **found,
-    )  # fmt: skip
+        return failed(spec, exc, kind=kind, seconds=seconds, worker=worker_name(), **found)
+    return TargetResult(spec.index, spec.name, spec.path, seconds=time.perf_counter() - t0,
+                        worker=worker_name(), **fields)  # fmt: skip
 
 
-def _prepared(
-    source: SharedSource, V2: np.ndarray, F2: np.ndarray | None, task: str
-) -> tuple[Plan, Prepared]:
+def _transfer_task(source: SharedSource, spec: ShapeSpec, found: dict[str, Any]) -> dict[str, Any]:
+    """Map the source onto one target and transfer; the fields of its record."""
+    job = source.job
+    target, V2, F2 = _read(spec)
+    found["n_vertices"] = V2.shape[0]
+    task = job.task(target, mesh=spec.arrays is None and F2 is not None)
+    plan, prepared = _prepared(source, V2, F2, task)
+    corr = prepared.correspondence
+    found.update(cached=prepared.cached[1], **_verdict(corr, job.kind))
+    if job.strict and found["suspect"]:
+        reasons = [_for_collections(r, job.kind) for r in corr.quality.reasons]
+        template = "; ".join(f"{{r{i}}}" for i in range(len(reasons)))
+        raise AdvisedError(Said("suspect map (strict): " + template,
+                                {f"r{i}": r for i, r in enumerate(reasons)}, "strict"))
+    values = _transferred(source, spec, target, plan, prepared)
+    # a geometry's output is written by the caller, from the values
+    return {"output": spec.output, "kind": task, "values": values}
+
+
+def _prepared(source: SharedSource, V2: np.ndarray, F2: np.ndarray | None,
+              task: str) -> tuple[Plan, Prepared]:  # fmt: skip
     """Plan the target's job and run the plan with the source's shared bases."""
     job, V1, F1 = source.job, source.vertices, source.faces
     given = None
@@ -377,17 +375,15 @@ def _verdict(corr: Correspondence, kind: str) -> dict[str, Any]:
     return {"coverage": float(quality.coverage), "suspect": bool(quality.suspect), "notes": notes}
 
 
-def _transferred(
-    source: SharedSource, spec: ShapeSpec, target: Any, plan: Plan, prepared: Prepared
-) -> np.ndarray | None:
+def _transferred(source: SharedSource, spec: ShapeSpec, target: Any, plan: Plan,
+                 prepared: Prepared) -> np.ndarray | None:  # fmt: skip
     """Transfer onto the target and write it (a file's); else return the values."""
     job, corr = source.job, prepared.correspondence
     keep = spec.output is None or spec.arrays is not None  # a geometry's: written by the caller
     if plan.task == "texture":  # (a texture run has an output folder)
         assert source.texture is not None
-        result = transfer_texture(
-            source.texture, target, correspondence=corr, size=job.texture_size, atlas=job.atlas
-        )
+        result = transfer_texture(source.texture, target, correspondence=corr,
+                                  size=job.texture_size, atlas=job.atlas)  # fmt: skip
     elif plan.task == "detail":
         result = transfer_detail(
             (source.vertices, source.faces), target, correspondence=corr, mode=job.detail.mode,
@@ -418,34 +414,28 @@ def basis_task(job: BasisJob, spec: ShapeSpec) -> TargetResult:
     ``output`` of the record is the basis' cache file; ``skipped`` when every entry was
     already cached.
     """
-    t0, n = time.perf_counter(), 0
+    return _recorded(spec, "basis", lambda found: _basis_task(job, spec, found))
+
+
+def _basis_task(job: BasisJob, spec: ShapeSpec, found: dict[str, Any]) -> dict[str, Any]:
+    """Fetch one shape's bases into the cache; the fields of its record."""
     basis = {"k": job.k, "order": job.order, "tol": job.tol, "preset": job.preset}
-    try:
-        _, V, F = _read(spec)
-        n = V.shape[0]
-        eig, cached = None, True
-        if job.eigenbasis_k is not None:  # the eigenbasis a map estimation plans for this shape
-            k = job.eigenbasis_k
-            match = MatchOptions(zoomout_to=k, k_fit=min(k, MatchOptions.k_fit),
-                                 components=job.components)  # fmt: skip
-            plan = plan_pair(V, F, None, None, task="map", match=match)
-            if plan.eig_k[0]:  # (none on the dense path)
-                eig, cached = fetch_eigenbasis(
-                    V, F, k=plan.eig_k[0], clamp_k=plan.clamp[0], cache_dir=job.cache_dir,
-                    components=job.components,
-                )  # fmt: skip
-            if eig is not None and eig.k < job.k:
-                eig = None  # smaller than the basis needs: fetch_basis solves again
-        cached &= fetch_basis(
-            V, F, **basis, cache_dir=job.cache_dir, eig=eig, components=job.components
-        )[1]
-        output = basis_cache_path(V, F, **basis, cache_dir=job.cache_dir, components=job.components)
-    except Exception as exc:  # a shape's failure is its record, never the run's
-        logger.debug("%s: failed: %s: %s", spec.name, type(exc).__name__, exc)  # the caller logs it
-        seconds = time.perf_counter() - t0
-        return failed(spec, exc, kind="basis", seconds=seconds, n_vertices=n, worker=worker_name())
-    return TargetResult(
-        spec.index, spec.name, spec.path, "skipped" if cached else "ok",
-        output=output, seconds=time.perf_counter() - t0, kind="basis", n_vertices=n,
-        cached=cached, worker=worker_name(),
-    )  # fmt: skip
+    _, V, F = _read(spec)
+    found["n_vertices"] = V.shape[0]
+    eig, cached = None, True
+    if job.eigenbasis_k is not None:  # the eigenbasis a map estimation plans for this shape
+        k = job.eigenbasis_k
+        match = MatchOptions(zoomout_to=k, k_fit=min(k, MatchOptions.k_fit),
+                             components=job.components)  # fmt: skip
+        plan = plan_pair(V, F, None, None, task="map", match=match)
+        if plan.eig_k[0]:  # (none on the dense path)
+            eig, cached = fetch_eigenbasis(
+                V, F, k=plan.eig_k[0], clamp_k=plan.clamp[0], cache_dir=job.cache_dir,
+                components=job.components,
+            )  # fmt: skip
+        if eig is not None and eig.k < job.k:
+            eig = None  # smaller than the basis needs: fetch_basis solves again
+    cached &= fetch_basis(V, F, **basis, cache_dir=job.cache_dir, eig=eig,
+                          components=job.components)[1]  # fmt: skip
+    output = basis_cache_path(V, F, **basis, cache_dir=job.cache_dir, components=job.components)
+    return {"status": "skipped" if cached else "ok", "output": output, "cached": cached}
