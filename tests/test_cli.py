@@ -1383,3 +1383,21 @@ def test_library_messages_name_only_the_flag_on_the_command_line(
         "--k1/--order (sizes)"  # the flags given of those that set the option
     )
     assert error_text(OptionError("k_fit", "must be >= 1")) == "k_fit must be >= 1"  # no flag
+
+
+def test_an_options_python_value_is_worded_as_its_flags_argument():
+    """``partial=True`` / ``method='closest'`` refused by the library read as the flags' words."""
+    from o3d_ofp.cli._common import error_text
+    from o3d_ofp.core.wording import OptionError
+
+    assert error_text(OptionError("partial", "=True needs triangle meshes")) == (
+        "--partial needs triangle meshes"
+    )
+    assert error_text(OptionError("method", "='closest' needs surfaces")) == (
+        "--map closest needs surfaces"
+    )
+    assert error_text(OptionError("workers", "=0 runs here")) == "--workers 0 runs here"
+    assert error_text(OptionError("k1", "must be >= 1; got 0")) == "--k1 must be >= 1; got 0"
+    assert error_text(OptionError("nothing_like_a_flag", "=3 is wrong")) == (
+        "nothing_like_a_flag=3 is wrong"
+    )

@@ -94,9 +94,14 @@ OUT = types.SimpleNamespace(quiet=False, one_pair=False, args=None, renamed={})
 def error_text(exc: BaseException) -> str:
     """Return the one line an error is said in on the command line (flags, not keywords)."""
     said = text_of(exc, cli=True)  # an OptionError's starts with its option's name
-    if isinstance(exc, OptionError) and exc.option in FLAGS:
-        return flag_of(exc.option) + said.removeprefix(exc.option)
-    return said
+    if not (isinstance(exc, OptionError) and exc.option in FLAGS):
+        return said
+    rest = said.removeprefix(exc.option)
+    if rest.startswith("="):  # a Python value (=True, ='closest') is the flag's argument
+        value, _, rest = rest[1:].partition(" ")
+        value = value.strip("'\"")
+        rest = (f" {value} " if value not in ("", "True") else " ") + rest
+    return flag_of(exc.option) + rest
 
 
 def flag_of(option: str) -> str:

@@ -94,8 +94,8 @@ def _other_threads_at_work() -> bool:
     """Whether a fork could catch another thread inside a library: then none is made.
 
     OpenBLAS's fork handler waits for its threads to stop, forever when another thread of
-    the process is inside a BLAS call (a new-user trial: ``ofp.match`` from three threads at
-    once hung in 2 of 4 runs). Forks are made from the main thread while every other thread
+    the process is inside a BLAS call (``ofp.match`` from three threads at once can hang).
+    Forks are made from the main thread while every other thread
     is a daemon (a notebook kernel's, a progress bar's); a caller that runs its own threads
     has its cores busy already.
     """
