@@ -9,6 +9,7 @@ import pytest
 
 import o3d_ofp as ofp
 from o3d_ofp.core.shapes import blob, icosphere
+from o3d_ofp.core.wording import Said
 from o3d_ofp.workflows.maps import Correspondence
 from o3d_ofp.workflows.quality import map_quality
 
@@ -168,6 +169,12 @@ def test_save_load_round_trip(reference, tmp_path):
     np.savez(tmp_path / "other.npz", a=np.ones(3))
     with pytest.raises(ValueError, match=r"other\.npz: not an o3d_ofp correspondence file"):
         Correspondence.load(tmp_path / "other.npz")
+    # NumPy would write map.txt.npz: the name is refused, with the one to use, and nothing written
+    with pytest.raises(ValueError, match=r"map\.txt: a correspondence is saved as \.npz; name it"):
+        reference.save(tmp_path / "map.txt")
+    with pytest.raises(IsADirectoryError, match=r"is a folder, not a correspondence file"):
+        Correspondence.load(tmp_path)
+    assert not list(tmp_path.glob("map.txt*"))
 
 
 def test_transfer_takes_the_correspondence(pair, reference):
@@ -325,3 +332,31 @@ def test_geodesic_repair_re_estimates_a_map_wrong_on_a_region():
     assert _error(ofp.p2p_from_fmap(C, u, u), V) < 0.01
     C, _ = geodesic_repair(wrong, u, u, k_fit=20, k_final=40, share=0.5)
     assert C is None  # under the share given: kept
+
+
+def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):
+    """Files written before reasons became data (format 1: reasons and notes as words) load."""
+    import dataclasses
+    import json
+
+    said = Said("coverage {coverage:.3f} is low {partial}", {"coverage": 0.25}, "low_coverage")
+    quality = dataclasses.replace(reference.quality, reasons=(said,), notes=(said,))
+    new = tmp_path / "new.npz"
+    dataclasses.replace(reference, quality=quality).save(new)
+    with np.load(new) as data:
+        fields = {key: data[key] for key in data.files}
+    quality = json.loads(str(fields["quality"]))
+    words = {name: [str(Said.from_dict(x)) for x in quality[name]] for name in ("reasons", "notes")}
+    quality.update(words)
+    fields.update(quality=np.array(json.dumps(quality)), format_version=np.array(1))
+    old = tmp_path / "old.npz"
+    np.savez(old, **fields)
+    back = Correspondence.load(old)
+    assert words["reasons"] == ["coverage 0.250 is low partial=True"]
+    assert [str(r) for r in back.quality.reasons] == words["reasons"]
+    assert [str(n) for n in back.quality.notes] == words["notes"]
+    np.testing.assert_array_equal(back.p2p_21, reference.p2p_21)
+    fields.update(format_version=np.array(7))
+    np.savez(tmp_path / "future.npz", **fields)
+    with pytest.raises(ValueError, match=r"future\.npz: unknown correspondence format version"):
+        Correspondence.load(tmp_path / "future.npz")
