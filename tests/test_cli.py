@@ -1401,3 +1401,22 @@ def test_an_options_python_value_is_worded_as_its_flags_argument():
     assert error_text(OptionError("nothing_like_a_flag", "=3 is wrong")) == (
         "nothing_like_a_flag=3 is wrong"
     )
+
+
+def test_a_long_filter_says_it_still_runs(files, tmp_path, monkeypatch, capsys):
+    """The low-pass reports no progress of its own: its stage logs "still running" lines."""
+    import time
+
+    from o3d_ofp.cli import _common
+    from o3d_ofp.cli import filter as cli_filter
+
+    real = cli_filter.filter_geometry
+    monkeypatch.setattr(_common, "TICK_SECONDS", 0.05)
+    slow = lambda *a, **k: time.sleep(0.3) or real(*a, **k)  # noqa: E731
+    monkeypatch.setattr(cli_filter, "filter_geometry", slow)
+    out = tmp_path / "f.ply"
+    assert main(["filter", files["src"], "--smooth", "0.05", "-v", "-o", str(out)]) == 0
+    lines = [line.removeprefix("o3d-ofp: ") for line in capsys.readouterr().err.splitlines()]
+    ticks = [line for line in lines if ": still running (" in line]
+    assert ticks and all(t.startswith("smooth 0.05 of ") for t in ticks), lines
+    assert lines[-1].startswith("smooth 0.05 of ") and ": done in " in lines[-1], lines
