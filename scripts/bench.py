@@ -101,9 +101,10 @@ def fit_exponents(rows: list[dict]) -> dict:
 def ours_end_to_end(V1, F1, V2, F2, f) -> tuple[np.ndarray, np.ndarray, float]:
     t0 = time.perf_counter()
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
-    p2p = ofp.match_eigenbases(e1, e2).p2p_21
-    g = ofp.transfer_function(f, e1, e2, k1=29, k2=39, order=2, p2p_21=p2p)
-    return p2p, g, time.perf_counter() - t0
+    corr = ofp.match_eigenbases(e1, e2)
+    options = ofp.BasisOptions(k1=29, k2=39, order=2)
+    g = ofp.transfer_function(f, e1, e2, correspondence=corr, options=options)
+    return corr.p2p_21, g, time.perf_counter() - t0
 
 
 def pyfm_end_to_end(V1, F1, V2, F2, f) -> tuple[np.ndarray, np.ndarray, float]:
