@@ -191,29 +191,36 @@ def ours(
     built meanwhile, the source's basis, the transfer); "match" is then the time until the map
     exists (its eigenbases included). Without it: ``ofp.match`` alone.
     """
-    from o3d_ofp.workflows import matching
-    from o3d_ofp.workflows.pipeline import BasesAhead, estimate_for_transfer
+    from o3d_ofp.workflows import plan as planner
+    from o3d_ofp.workflows.pipeline import carry
 
-    saved = matching.DENSE_VERTICES
+    class Ahead(planner._Ahead):
+        """The planner's bases: asked for once the map and the eigenbases exist."""
+
+        def result(self):
+            nonlocal t_match
+            t_match = time.perf_counter() - t0
+            return super().result()
+
+    t_match = 0.0
+    saved = planner.DENSE_VERTICES, planner._Ahead
     if dense_above is not None:
-        matching.DENSE_VERTICES = dense_above
+        planner.DENSE_VERTICES = dense_above
     try:
         with Peak() as m:
             t0 = time.perf_counter()
             if transfer:
-                with BasesAhead(29, 39, order=2, tol=None, preset="ours") as ahead:
-                    e1, e2, corr = estimate_for_transfer(
-                        V1, F1, V2, F2, k1=29, k2=39, ready=ahead.start
-                    )
-                    t_match = time.perf_counter() - t0
-                    ofp.transfer_function(
-                        colors_of(V1), e1, e2, correspondence=corr, bases=ahead.result(e1, e2)
-                    )
+                options = ofp.BasisOptions(k1=29, k2=39, order=2, preset="ours")
+                plan = planner.plan_pair(V1, F1, V2, F2, task="colors", bases=options)
+                planner._Ahead = Ahead
+                prepared = planner.prepare(plan, V1, F1, V2, F2)
+                carry(colors_of(V1), plan, prepared)
+                corr = prepared.correspondence
             else:
                 corr = ofp.match((V1, F1), (V2, F2))
                 t_match = time.perf_counter() - t0
     finally:
-        matching.DENSE_VERTICES = saved
+        planner.DENSE_VERTICES, planner._Ahead = saved
     return corr.p2p_21, t_match, m.seconds, m.peak, m.others
 
 
