@@ -95,9 +95,12 @@ def run(neighbors: list[int], seed: int) -> None:
         sqrt_area = math.sqrt(float(face_areas_normals(V2, F)[0].sum()))
         identity = np.arange(len(V2))
         t0 = time.perf_counter()
-        mesh_c = ofp.transfer_colors(source, triangle_mesh_from_arrays(V2, F), p2p_21=identity)
+        target = triangle_mesh_from_arrays(V2, F)
+        given = ofp.Correspondence.from_p2p(identity, source, target)
+        mesh_c = ofp.transfer_colors(source, target, correspondence=given)
         e_mesh_c = float(np.abs(np.asarray(mesh_c.vertex_colors) - colors).mean())
-        mesh_d = ofp.transfer_detail(source, (smooth, F), p2p_21=identity)
+        given = ofp.Correspondence.from_p2p(identity, source, (smooth, F))
+        mesh_d = ofp.transfer_detail(source, (smooth, F), correspondence=given)
         e_mesh_d = float(np.linalg.norm(np.asarray(mesh_d.vertices) - V2, axis=1).mean())
         nothing_mesh = float(np.linalg.norm(smooth - V2, axis=1).mean())
         t_mesh = time.perf_counter() - t0
@@ -106,17 +109,14 @@ def run(neighbors: list[int], seed: int) -> None:
         for k in neighbors:
             t0 = time.perf_counter()
             eig_c = ofp.eigenbasis(P_true, None, k=39, n_neighbors=k)
-            cloud_c = ofp.transfer_colors(
-                source, point_cloud_from_arrays(P_true), p2p_21=p2p_cloud, eigenbases=(eig_1, eig_c)
-            )
+            cloud = point_cloud_from_arrays(P_true)
+            given = ofp.Correspondence.from_p2p(p2p_cloud, source, cloud)
+            cloud_c = ofp.transfer_colors(source, cloud, correspondence=given, bases=(eig_1, eig_c))
             e_cloud_c = float(np.abs(np.asarray(cloud_c.colors) - true_colors).mean())
             eig_s = ofp.eigenbasis(P_smooth, None, k=39, n_neighbors=k)
-            cloud_d = ofp.transfer_detail(
-                source,
-                point_cloud_from_arrays(P_smooth),
-                p2p_21=p2p_cloud,
-                eigenbases=(eig_1, eig_s),
-            )
+            cloud = point_cloud_from_arrays(P_smooth)
+            given = ofp.Correspondence.from_p2p(p2p_cloud, source, cloud)
+            cloud_d = ofp.transfer_detail(source, cloud, correspondence=given, bases=(eig_1, eig_s))
             e_cloud_d = float(np.linalg.norm(np.asarray(cloud_d.points) - P_true, axis=1).mean())
             nothing_cloud = float(np.linalg.norm(P_smooth - P_true, axis=1).mean())
             rows.append(
