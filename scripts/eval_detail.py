@@ -53,7 +53,7 @@ from o3d_ofp.workflows.detail import (
     lowpass_coordinates,
     transfer_detail_frames,
 )
-from o3d_ofp.workflows.matching import match_eigenbases
+from o3d_ofp.workflows.estimate import match_eigenbases
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -347,11 +347,12 @@ def modes_figure(path: Path) -> None:
     V2, _ = load("faust/tr_reg_087.ply")
     smooth = lowpass_coordinates(ofp.eigenbasis(V2, F, k=TARGET_BAND), TARGET_BAND)
     source, target = (V1, F), (smooth, F)
-    p2p = np.arange(len(V2))
+    given = ofp.Correspondence.from_p2p(np.arange(len(V2)), source, target)
     shown = [("source (093)", V1), ("target (087, smoothed)", smooth)]
     for mode in ("add", "replace-detail", "coordinates"):
         t0 = time.perf_counter()
-        X = np.asarray(ofp.transfer_detail(source, target, mode=mode, p2p_21=p2p).vertices)
+        moved = ofp.transfer_detail(source, target, mode=mode, correspondence=given)
+        X = np.asarray(moved.vertices)
         d = detail_metrics(X, V2, F)
         print(
             f"figure: mode {mode}: distance to the truth {d['dist']:.4f} √area "
