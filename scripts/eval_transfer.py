@@ -34,7 +34,7 @@ from o3d_ofp.boundary.convert import geometry_to_arrays
 from o3d_ofp.core.baselines import transfer_eigs, transfer_prods
 from o3d_ofp.core.correspondence import p2p_from_template
 from o3d_ofp.core.io import read_vts
-from o3d_ofp.workflows.matching import match_eigenbases
+from o3d_ofp.workflows.estimate import match_eigenbases
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -158,7 +158,7 @@ def run_pair(name: str, n_eig: int = 200) -> list[str]:
     C_gt_big = ofp.fmap_from_p2p(gt, e1_big, e2_big, k1=max(nk1, k1), k2=max(nk2, k2))
     settings["ground-truth map"] = (C_gt_big, C_gt_big)
     ts = time.perf_counter()
-    _corr = match_eigenbases(e1_big, e2_big, zoomout_to=zoom_to)
+    _corr = match_eigenbases(e1_big, e2_big, options=ofp.MatchOptions(zoomout_to=zoom_to))
     C_est_big, p2p_est = _corr.fmap_12, _corr.p2p_21
     t_match = time.perf_counter() - ts
     settings["estimated map"] = (C_est_big, C_est_big)
