@@ -270,8 +270,9 @@ def test_each_decision_is_made_in_one_place(decision):
 def test_front_ends_run_the_planner_and_never_re_decide():
     """The command line and the collections plan with workflows.plan; no estimation internals."""
     internals = {
-        "ESTIMATION_K", "FIT_K", "required_k", "DENSE_VERTICES", "uses_dense_path",
-        "match_eigenbases", "estimate", "estimate_dense", "strategy_of", "match_dense",
+        "ESTIMATION_K", "FIT_K", "required_k", "DENSE_VERTICES", "match_eigenbases", "estimate",
+        "estimate_dense", "strategy_of", "FullMatch", "PartialMatch", "coarse_source",
+        "refuse_clouds",
     }  # fmt: skip
     found = sorted(
         f"{module}: {sorted(internals & _code_names(path))}"

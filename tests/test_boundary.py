@@ -683,3 +683,30 @@ def test_shapes_that_are_no_shapes_and_meshes_given_as_bases_are_named():
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
     with pytest.raises(TypeError, match=r"eig_1 must be an EigenBasis .*transfer_colors"):
         ofp.transfer_function(V[:, 0], mesh, mesh)
+
+
+@pytest.mark.parametrize(
+    ("function", "keyword", "use"),
+    [
+        ("transfer_colors", "p2p_21", "correspondence=o3d_ofp.Correspondence.from_p2p("),
+        ("transfer_colors", "partial", "correspondence=o3d_ofp.match(source, target, partial="),
+        ("transfer_colors", "k1", "options=o3d_ofp.BasisOptions(k1="),
+        ("transfer_colors", "method", "options=o3d_ofp.BasisOptions(matrix="),
+        ("transfer_detail", "k_low", "band="),
+        ("transfer_detail", "eigenbases", "bases=(eig_1, eig_2)"),
+        ("transfer_texture", "p2p_21", "Correspondence.from_p2p("),
+        ("texture_pullback", "partial", "o3d_ofp.match(source, target, partial="),
+        ("match", "k_fit", "options=o3d_ofp.MatchOptions(k_fit="),
+        ("match_eigenbases", "landmarks", "options=o3d_ofp.MatchOptions(landmarks="),
+        ("transfer_function", "fmap_12", "Correspondence.from_fmap(fmap_12, eig_1, eig_2)"),
+    ],
+)
+def test_a_former_keyword_is_refused_with_what_replaces_it(function, keyword, use):
+    """Keywords the options objects replaced: a TypeError naming the new way, before any work."""
+    import inspect
+
+    fn = getattr(ofp, function)
+    assert keyword not in inspect.signature(fn).parameters  # the signature is the new one
+    with pytest.raises(TypeError, match=rf"{function}\(\) no longer takes {keyword}=: use ") as e:
+        fn(None, None, None, **{keyword: 1})
+    assert use in str(e.value), str(e.value)

@@ -409,7 +409,7 @@ def test_crowded_closest_map_is_suspect(case):
         assert q.coverage_ratio < CLOSEST_MIN_COVERAGE
         assert "crowd onto" in q.reasons[0] and "method='estimate'" in q.reasons[0]
         assert q.reasons[0].code == "crowded" and "--map estimate" in q.reasons[0].text(cli=True)
-        assert "with partial=True when the target is a part" in q.reasons[0]
+        assert "with o3d_ofp.match(..., partial=True) when the target is a part" in q.reasons[0]
         assert "with --partial when the target is a part" in q.reasons[0].text(cli=True)
         assert not any("rigid motion" in n for n in q.notes)
     else:

@@ -410,6 +410,13 @@ def test_bad_workers_are_refused_before_dask_starts(shapes, tmp_path, client):
             call()
         assert time.perf_counter() - t0 < 0.3  # at once: no cluster, no eigensolve
         assert info.value.option == "workers", info.value
+    with pytest.raises(OptionError) as info:
+        calls[1]()
+    from o3d_ofp.cli._common import error_text  # each reader its own words
+
+    assert "give it or client=, not both" in str(info.value)
+    assert error_text(info.value) == "--workers 0 runs in this process: give it or --scheduler, " \
+        "not both"
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no folder made
 
 
@@ -655,6 +662,10 @@ def test_cli_bad_collection_usage_is_refused(shapes, tmp_path, capsys):
         # a trial's typo ran every other target first (exit 1 at the end)
         (["transfer", paths["src"], paths["t0"], tmp_path / "typo.ply", "-o", tmp_path / "o",
           "--workers", "0"], "typo.ply: no such target file or folder"),
+        # the OFP bases' flags in detail's add mode: named as flags, not as keywords
+        (["detail", paths["src"], paths["t0"], paths["t1"], "-o", tmp_path / "o", "--k1", "5",
+          "--order", "3", "--workers", "0"],
+         "error: --k1 (the OFP bases' sizes and threshold) does not apply: mode 'add'"),
         # the output folder holding a target: said with the flag, not the keyword
         (["transfer", paths["src"], paths["t0"], paths["t1"], "-o",
           os.path.dirname(paths["t0"]), "--workers", "0"], "the output folder"),
@@ -1080,7 +1091,7 @@ def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
         "as the source", {}, "looks_partial",
     )  # fmt: skip
     said = _for_collections(part)
-    assert "partial=True with the whole shape" in said
+    assert "o3d_ofp.match(..., partial=True) with the whole shape" in said
     assert "a collection makes no partial match" in said and "--partial" in said
     # a reason inside a suspect map's message: its code is read too
     suspect = Said("{what} is suspect:\n  - {r0}", {"what": "the map", "r0": part}, "suspect")

@@ -385,3 +385,19 @@ def test_transfer_below_the_threshold_shares_one_eigensolve(monkeypatch, twisted
     assert sizes == [99, 99]  # one basis per shape serves the estimation and the transfer
     assert (e1.k, e2.k) == (99, 99)
     assert prepared.bases is not None  # and the OFP bases were built on them
+
+
+def test_given_eigenbases_are_matched_at_full_resolution(small_threshold, twisted_pair):
+    """Both eigenbases given: the map is estimated from them, not on coarse copies."""
+    import o3d_ofp as ofp
+
+    V1, F1, V2, F2 = twisted_pair
+    assert plan_module.plan_pair(V1, F1, V2, F2, task="map").dense  # above the threshold
+    e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
+    one = plan_module.plan_pair(V1, F1, V2, F2, task="map", eigenbases=(e1, None))
+    assert one.dense  # one side's eigenbasis alone: still coarse copies
+    both = plan_module.plan_pair(V1, F1, V2, F2, task="map", eigenbases=(e1, e2))
+    assert not both.dense
+    corr = ofp.match((V1, F1), (V2, F2), eigenbases=(e1, e2))
+    assert corr.options.get("dense") is None and corr.eigenbases == (e1, e2)
+    assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06

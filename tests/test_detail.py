@@ -179,10 +179,12 @@ def test_coordinates_mode_is_the_paper_fig13(blob_pair):
         (source, F), (target, F), correspondence=corr, mode="coordinates", bases=(e1, e2)
     )
     np.testing.assert_allclose(np.asarray(got.vertices), fig13)
-    with pytest.warns(DeprecationWarning, match="'replace' is deprecated; use 'coordinates'"):
+    with pytest.warns(DeprecationWarning, match="'replace' is deprecated; use 'coordinates'") as w:
         old_name = ofp.transfer_detail(
             (source, F), (target, F), correspondence=corr, mode="replace", bases=(e1, e2)
         )
+    # said at the caller's line (Python shows a DeprecationWarning only there, in __main__)
+    assert [x.filename for x in w] == [__file__], [x.filename for x in w]
     np.testing.assert_allclose(np.asarray(old_name.vertices), fig13)
     where = re.escape("o3d_ofp.transfer_detail(..., mode='coordinates')")
     for mode in ("coordinates", "replace"):

@@ -352,7 +352,7 @@ def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):
     old = tmp_path / "old.npz"
     np.savez(old, **fields)
     back = Correspondence.load(old)
-    assert words["reasons"] == ["coverage 0.250 is low partial=True"]
+    assert words["reasons"] == ["coverage 0.250 is low o3d_ofp.match(..., partial=True)"]
     assert [str(r) for r in back.quality.reasons] == words["reasons"]
     assert [str(n) for n in back.quality.notes] == words["notes"]
     np.testing.assert_array_equal(back.p2p_21, reference.p2p_21)
@@ -360,3 +360,17 @@ def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):
     np.savez(tmp_path / "future.npz", **fields)
     with pytest.raises(ValueError, match=r"future\.npz: unknown correspondence format version"):
         Correspondence.load(tmp_path / "future.npz")
+
+
+def test_from_p2p_refuses_paths_and_other_things_by_their_keyword(pair):
+    from o3d_ofp.core.wording import OptionError
+
+    (V1, F1), (V2, F2) = pair
+    p2p = np.zeros(len(V2), dtype=np.int64)
+    with pytest.raises(OptionError, match=r"source='a\.ply' is a path: give the shape itself"):
+        Correspondence.from_p2p(p2p, "a.ply", (V2, F2))
+    with pytest.raises(OptionError, match=r"^target must be a geometry, .* got list"):
+        Correspondence.from_p2p(p2p, (V1, F1), ["x", "y", "z"])  # no numbers: no raw NumPy error
+    with pytest.raises(OptionError, match=r"^target must be a geometry, .* got dict"):
+        Correspondence.from_p2p(p2p, (V1, F1), {"a": 1})
+    assert Correspondence.from_p2p(p2p, len(V1), (V2, F2)).n_source == len(V1)

@@ -513,7 +513,8 @@ def test_a_cloud_of_another_area_is_said_to_be_perhaps_a_part(whole, cut):
     with pytest.warns(ofp.OFPWarning, match="a point cloud's boundary is not measured"):
         corr = match_eigenbases(e1, cloud, options=MatchOptions(zoomout_to=30))
     (note,) = _said(corr.quality.notes, "cloud_part")
-    assert "mesh both and match with partial=True" in str(note) and "partial" in note.fixes
+    assert "mesh both and match with o3d_ofp.match(..., partial=True)" in str(note)
+    assert "partial" in note.fixes
     # A whole cloud of about the source's area, or one in other units (inches against
     # centimetres: 6.45 in area, the smallest change of units): no such note.
     for scale in (1.0, 2.54, 1000.0):

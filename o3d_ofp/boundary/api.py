@@ -40,6 +40,7 @@ from ..workflows.options import (
     MatchOptions,
     check_bool,
     check_choice,
+    moved_keywords,
 )
 from ..workflows.pipeline import carry, pull_back
 from ..workflows.plan import plan_pair, prepare
@@ -245,6 +246,7 @@ def match_options(options: MatchOptions | None = None, **keywords: Any) -> Match
     return dataclasses.replace(base, **given) if given else base
 
 
+@moved_keywords("k_fit", "zoomout_to", "zoomout_subsample", "descriptors", "w_orient")
 def match(
     source: Any,
     target: Any,
@@ -289,7 +291,8 @@ def match(
         Policy for several connected components (see :func:`eigenbasis`).
     eigenbases : (EigenBasis, EigenBasis), optional
         Precomputed eigenbases (computed again, larger, when they hold fewer eigenfunctions
-        than the estimation needs: ``options.zoomout_to``).
+        than the estimation needs: ``options.zoomout_to``); with them the map is estimated at
+        full resolution, also above the dense path's size (slower, no coarse copies).
     options : MatchOptions, optional
         All of the above and the estimation's own settings (fit size ``k_fit``, ZoomOut's
         ``zoomout_to`` and ``zoomout_subsample``, ``descriptors``, ``w_orient``); the keywords
@@ -323,7 +326,7 @@ def match(
     _check_pair(eigenbases, "eigenbases", EigenBasis, "EigenBasis from ofp.eigenbasis")
     V1, F1 = as_arrays(source, name="source")
     V2, F2 = as_arrays(target, name="target")
-    plan = plan_pair(V1, F1, V2, F2, task="map", match=opts)
+    plan = plan_pair(V1, F1, V2, F2, task="map", match=opts, eigenbases=eigenbases or (None, None))
     if plan.estimator == "closest":
         return closest_correspondence(V1, F1, V2, faces_2=F2, align=opts.align)
     prepared = prepare(
@@ -390,6 +393,10 @@ def _source_colors(source: Any, V1: np.ndarray, texture: Any) -> tuple[np.ndarra
     return as_signal(f, V1.shape[0], name=f"the source's {what} array"), surface
 
 
+@moved_keywords(
+    "k1", "k2", "order", "preset", "tol", "p2p_21", "fmap_12", "landmarks", "partial", "components",
+    "method", "eigenbases",
+)
 def transfer_colors(
     source: Any,
     target: Any,
@@ -452,7 +459,7 @@ def transfer_colors(
     eigs, ofps = _bases(bases)
     plan = plan_pair(
         V1, F1, V2, F2, task="colors", bases=options, given=correspondence, given_bases=ofps,
-        via_basis=via_basis,
+        eigenbases=eigs, via_basis=via_basis,
     )  # fmt: skip
     if plan.exact and bases is not None:
         raise OptionError("bases", "do not apply to the exact pull-back (no OFP basis)")
@@ -477,6 +484,10 @@ def transfer_colors(
     return like_target(target, colors=np.clip(g, 0.0, 1.0))
 
 
+@moved_keywords(
+    "k1", "k2", "order", "preset", "tol", "p2p_21", "fmap_12", "landmarks", "partial", "components",
+    "k_low", "eigenbases",
+)
 def transfer_detail(
     source: Any,
     target: Any,
@@ -546,7 +557,7 @@ def transfer_detail(
     V2, F2 = as_arrays(target, name="target")
     plan = plan_pair(
         V1, F1, V2, F2, task="detail", detail=detail, bases=options, given=correspondence,
-        given_bases=ofps,
+        given_bases=ofps, eigenbases=eigs,
     )  # fmt: skip
     prepared = prepare(plan, V1, F1, V2, F2, given=correspondence, eigenbases=eigs, bases=ofps)
     corr = prepared.correspondence

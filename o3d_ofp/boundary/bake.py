@@ -32,6 +32,7 @@ from ..core._warnings import warn
 from ..core.texture import MAX_TEXTURE_SIZE
 from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, check_correspondence
+from ..workflows.options import moved_keywords
 from ..workflows.plan import plan_pair, prepare
 from ._verbosity import open3d_errors_only
 from .closest import _hit_weights
@@ -331,6 +332,7 @@ def _dilate(image: np.ndarray, filled: np.ndarray, dilate: int) -> np.ndarray:
     return out
 
 
+@moved_keywords("p2p_21", "partial")
 def transfer_texture(
     source: Any,
     target: Any,
@@ -496,6 +498,7 @@ def _plane_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return np.column_stack([1.0 - s - t, s, t])
 
 
+@moved_keywords("p2p_21", "partial")
 def texture_pullback(
     source: Any,
     target: Any,

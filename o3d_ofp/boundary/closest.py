@@ -69,7 +69,7 @@ MAX_DISTANCE_NOTE = 0.1
 #: Copies of a vertex (seams of a mesh read with its UVs) count once.
 MIN_COVERAGE = 0.25
 #: Without ``align``, a rigid motion is fitted to the closest points (point-to-plane, from the
-#: identity, against the exact surface: :func:`_misalignment`). The map is suspect when that
+#: identity, against the exact surface: :func:`_misaligned`). The map is suspect when that
 #: motion brings the target's mean distance to the source below :data:`MISALIGNED_RATIO` of
 #: what it was, by more than :data:`MISALIGNED_GAIN` of the diagonal: the shapes are the same
 #: surface, slightly turned or moved, and closest points slide along it. Measured by

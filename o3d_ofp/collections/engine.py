@@ -504,7 +504,7 @@ def _source(source: Any, path: str | None, job: TransferJob) -> SharedSource:
         if exc.option != "options":
             raise
         given = [n for n in _BASIS_OPTIONS if getattr(job.bases, n) != getattr(BasisOptions(), n)]
-        raise OptionError(", ".join(given), exc.problem) from None
+        raise OptionError(given[0], exc.problem) from None  # the first, named as a keyword
     eig, B, cached, coarse = prepare_source(plan, V, F, match=job.match, cache_dir=job.cache_dir)
     COUNTERS["source_bases"] += 1
     logger.info(
@@ -697,7 +697,8 @@ def _check_workers(workers: Any, client: Any) -> None:
     if workers is not None:
         check_int(workers, name="workers", minimum=0)
         if workers == 0 and client is not None:
-            raise OptionError("workers", "=0 runs in this process: give it or client=, not both")
+            raise OptionError("workers", Said("=0 runs in this process: give it or {client}, "
+                                              "not both"))  # fmt: skip
 
 
 def _folder(value: Any, name: str, *, required: bool = False) -> str | None:

@@ -71,18 +71,25 @@ def warn(logger: logging.Logger, message: str | Said, *, stacklevel: int | None 
     extra = {"said": message} if isinstance(message, Said) else None
     logger.log(_LOG.level, "%s", message, extra=extra)
     if stacklevel is None:
-        stacklevel = _outside_the_package()
+        stacklevel = outside_the_package()
     warnings.warn(str(message), OFPWarning, stacklevel=stacklevel)
 
 
 _PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
 
 
-def _outside_the_package() -> int:
-    """``stacklevel`` of the first frame (above warn's caller) whose code is not o3d_ofp's."""
-    frame = sys._getframe(2)  # the caller of warn
+def outside_the_package() -> int:
+    """``stacklevel`` (for the function that calls this) of the first frame not o3d_ofp's.
+
+    A frame is the package's when its file is, or its globals are (the ``__init__`` that
+    :mod:`dataclasses` generates for an options object).
+    """
+    frame = sys._getframe(2)  # the caller's caller
     level = 2
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+    while frame is not None and (
+        os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE)
+        or str(frame.f_globals.get("__name__", "")).startswith("o3d_ofp.")
+    ):
         frame = frame.f_back
         level += 1
     return level
@@ -130,4 +137,4 @@ def reissue(message: str, category: type[Warning]) -> None:
     """
     if issubclass(category, OFPWarning):
         _collect(message)
-    warnings.warn(message, category, stacklevel=_outside_the_package())
+    warnings.warn(message, category, stacklevel=outside_the_package())

@@ -294,7 +294,7 @@ def geodesic_refine(
     the shortest-path distances along the edges (``d`` on both shapes, as in
     :func:`geodesic_distortion`) and the isometry allow: measured 0.022-0.039 (map error over
     sqrt(source area)) from the true maps of the cuts of ``scripts/eval_partial.py``, so a
-    spectral refinement follows it in :func:`o3d_ofp.workflows.partial.match_partial_eigenbases`.
+    spectral refinement follows it (:class:`o3d_ofp.workflows.partial.PartialMatch`).
     Cost: ``anchors`` Dijkstra runs on the target, and on the source at most ``anchors`` per
     iteration (the distances from a source vertex are computed once); the iterations re-map
     the anchors only, and one ``anchors``-dimensional nearest-neighbour search re-maps every

@@ -20,9 +20,16 @@ __all__ = ["FIXES", "AdvisedError", "OptionError", "Said", "named", "text_of"]
 #: ``{partial}`` in a :class:`Said` template becomes one of them; ``{target_scale}`` reads the
 #: ``factor`` value.
 FIXES: Mapping[str, tuple[str, str]] = {
-    "landmarks": ("landmarks=[[source, target], ...]", "--landmarks 12:40,500:611"),
-    "landmarks_check": ("landmarks=", "--landmarks; pick them with --landmarks pick"),
-    "partial": ("partial=True", "--partial"),
+    # A map's own options are o3d_ofp.match's (a transfer takes its result as correspondence=).
+    "landmarks": (
+        "o3d_ofp.match(..., landmarks=[[source, target], ...])", "--landmarks 12:40,500:611"
+    ),
+    "landmarks_check": (
+        "landmarks= of o3d_ofp.match; pick them with o3d_ofp.pick_landmarks",
+        "--landmarks; pick them with --landmarks pick",
+    ),
+    "partial": ("o3d_ofp.match(..., partial=True)", "--partial"),
+    "no_partial": ("match without partial=True", "match without --partial"),
     "closest": ("method='closest'", "--map closest"),
     "estimate": ("method='estimate'", "--map estimate"),
     "align": ("align=True", "--align"),
@@ -50,6 +57,7 @@ FIXES: Mapping[str, tuple[str, str]] = {
     ),
     "via_basis": ("via_basis=True", "--via-basis"),
     "pull_back": ("via_basis=False", "--pull-back"),
+    "client": ("client=", "--scheduler"),
     "give_map": ("give the map (correspondence=)", "give the map with --map FILE"),
     "lower": (
         "lower k1, k2 or order (options=BasisOptions(...)) or band",

@@ -37,7 +37,8 @@ a map and re-applied in the target's local frames:
   total vertex masses of the two shapes), so it follows the sizes of the two shapes and
   not their units.
 
-The result keeps the target's pose and low-frequency shape. Modes (:data:`MODES`):
+The result keeps the target's pose and low-frequency shape. Modes
+(:data:`o3d_ofp.workflows.options.DETAIL_MODES`):
 
 * ``"add"`` (default): the target keeps its own detail and gains the source's on top (right
   for a smooth target, which is taken as its own low-pass shape).

@@ -31,7 +31,7 @@ from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
 from .maps import Correspondence, shape_signature, with_signatures
 from .matching import FullMatch
-from .options import MatchOptions, check_bool
+from .options import MatchOptions, check_bool, moved_keywords
 from .partial import PartialMatch
 from .quality import say
 from .strategy import Run, Strategy
@@ -102,6 +102,10 @@ def estimate(
     return on_surfaces(eig_1, eig_2, on_surface, landmarks)
 
 
+@moved_keywords(
+    "k_fit", "zoomout_to", "zoomout_subsample", "descriptors", "w_orient",
+    landmarks="options=o3d_ofp.MatchOptions(landmarks=...)",
+)
 def match_eigenbases(
     eig_1: EigenBasis, eig_2: EigenBasis, *, options: MatchOptions | None = None,
     progress: Callable[[str, float], None] | None = None,

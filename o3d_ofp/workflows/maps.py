@@ -259,7 +259,7 @@ class Correspondence:
         Correspondence
             ``method="given"``, no quality report.
         """
-        V1, V2 = _vertices_of(source), _vertices_of(target)
+        V1, V2 = _vertices_of(source, "source"), _vertices_of(target, "target")
         n1 = V1.shape[0] if isinstance(V1, np.ndarray) else V1
         n2 = V2.shape[0] if isinstance(V2, np.ndarray) else V2
         p2p = check_p2p(p2p_21, n2, n1)
@@ -537,19 +537,28 @@ def given_map_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> Said
     )
 
 
-def _vertices_of(shape: Any) -> np.ndarray | int:
-    """Return the (n, 3) vertices of a shape given in any of the package's forms, or its count."""
+def _vertices_of(shape: Any, name: str) -> np.ndarray | int:
+    """Return the (n, 3) vertices of a shape given in any of the package's forms, or its count.
+
+    ``name``: the keyword it came as, for the refusal.
+    """
     if isinstance(shape, numbers.Integral) and not isinstance(shape, bool):
         return int(shape)
+    if isinstance(shape, str | os.PathLike):  # files are read at the boundary, not here
+        raise OptionError(name, f"={os.fspath(shape)!r} is a path: give the shape itself "
+                          "(o3d_ofp.read_geometry(path)) or its vertex count")  # fmt: skip
     if isinstance(shape, tuple):
         shape = shape[0]
     with contextlib.suppress(AttributeError):
         shape = shape.vertex.positions.numpy()  # Open3D tensor geometries
     shape = getattr(shape, "vertices", getattr(shape, "points", shape))  # legacy mesh or cloud
-    V = np.asarray(shape, dtype=np.float64)
+    try:
+        V = np.asarray(shape, dtype=np.float64)
+    except (TypeError, ValueError):
+        V = np.empty(0)
     if V.ndim != 2 or V.shape[1] != 3:
         raise OptionError(
-            "shape", "must be a geometry, (vertices, faces), (n, 3) vertices or a count; got "
+            name, "must be a geometry, (vertices, faces), (n, 3) vertices or a count; got "
             f"{type(shape).__name__}",
         )  # fmt: skip
     return V

@@ -9,14 +9,17 @@ copies of the package's defaults (the paper's K = 30 / 40 for humans: ``k1=29``,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 import warnings
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
 from ..core._validation import check_int
+from ..core._warnings import outside_the_package
 from ..core.orthogonalize import resolve_tol
 from ..core.spectrum import DEFAULT_K
 from ..core.wording import OptionError, Said
@@ -61,6 +64,9 @@ DETAIL_MODES = ("add", "replace-detail", "coordinates")
 _RENAMED = {("mode", "replace"): "coordinates"}
 
 
+_Function = TypeVar("_Function", bound=Callable[..., Any])
+
+
 def required_k(n_vertices: int, wanted: int = ESTIMATION_K) -> int:
     """Eigenfunctions a shape of ``n_vertices`` vertices can give of ``wanted``: at most n - 1."""
     return max(1, min(wanted, n_vertices - 1))
@@ -80,6 +86,44 @@ def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
     return value
 
 
+#: Keywords the functions took before the options objects (CHANGELOG, issue 40), and what
+#: replaces them.
+MOVED = {
+    **{k: "correspondence=o3d_ofp.match(source, target, " + k + "=...)"
+       for k in ("landmarks", "partial", "components")},
+    "p2p_21": "correspondence=o3d_ofp.Correspondence.from_p2p(p2p_21, source, target)",
+    "fmap_12": "correspondence=o3d_ofp.Correspondence.from_fmap(fmap_12, eig_1, eig_2)",
+    "eigenbases": "bases=(eig_1, eig_2)",
+    "method": "options=o3d_ofp.BasisOptions(matrix=...)",
+    "k_low": "band=",
+    **{k: f"options=o3d_ofp.BasisOptions({k}=...)" for k in ("k1", "k2", "order", "preset", "tol")},
+    **{k: f"options=o3d_ofp.MatchOptions({k}=...)"
+       for k in ("k_fit", "zoomout_to", "zoomout_subsample", "descriptors", "w_orient")},
+}  # fmt: skip
+
+
+def moved_keywords(*names: str, **instead: str) -> Callable[[_Function], _Function]:
+    """Make a function refuse its former keywords with what replaces each.
+
+    ``names``: replaced as :data:`MOVED` says; ``instead``: keyword -> its replacement here.
+    Python's own error would only say "unexpected keyword argument"; the signature is kept.
+    """
+    where = {**{name: MOVED[name] for name in names}, **instead}
+
+    def wrap(function: _Function) -> _Function:
+        @functools.wraps(function)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            for name, use in where.items():
+                if name in kwargs:
+                    raise TypeError(f"{function.__name__}() no longer takes {name}=: use {use} "
+                                    "(see the CHANGELOG)")  # fmt: skip
+            return function(*args, **kwargs)
+
+        return call  # type: ignore[return-value]
+
+    return wrap
+
+
 def deprecated_choice(name: str, value: Any) -> Any:
     """Return the value a deprecated value of option ``name`` now has (with a warning).
 
@@ -88,7 +132,8 @@ def deprecated_choice(name: str, value: Any) -> Any:
     new = _RENAMED.get((name, value)) if isinstance(value, str) else None
     if new is None:
         return value
-    warnings.warn(f"{name} {value!r} is deprecated; use {new!r}", DeprecationWarning, stacklevel=4)
+    warnings.warn(f"{name} {value!r} is deprecated; use {new!r}", DeprecationWarning,
+                  stacklevel=outside_the_package())  # the caller's own line
     return new
 
 

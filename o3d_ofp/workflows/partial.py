@@ -266,7 +266,7 @@ def refuse_clouds(faces: tuple[Any, ...], names: Any = ("the source", "the targe
                 "=True needs triangle meshes: {name} is a point cloud (no faces), whose cut "
                 "boundary, orientation and geodesic distances, which the partial match and its "
                 "check read, are unknown; mesh it first (e.g. Open3D's "
-                "create_from_point_cloud_poisson) or match without {partial}", {"name": name},
+                "create_from_point_cloud_poisson) or {no_partial}", {"name": name},
             ))  # fmt: skip
 
 

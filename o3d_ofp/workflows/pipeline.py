@@ -21,7 +21,7 @@ from ..core.spectrum import EigenBasis
 from ..core.transfer import transfer_matrix, transfer_signal
 from ..core.wording import OptionError
 from .maps import Correspondence, check_correspondence
-from .options import BasisOptions
+from .options import BasisOptions, moved_keywords
 from .plan import Plan, Prepared, plan_pair, prepare
 
 __all__ = ["carry", "pull_back", "transfer_function"]
@@ -29,6 +29,7 @@ __all__ = ["carry", "pull_back", "transfer_function"]
 logger = logging.getLogger(__name__)
 
 
+@moved_keywords("k1", "k2", "order", "preset", "tol", "p2p_21", "fmap_12", "landmarks", "method")
 def transfer_function(
     f_1: Any, eig_1: EigenBasis, eig_2: EigenBasis, *,
     correspondence: Correspondence | None = None, bases: tuple[OFPBasis, OFPBasis] | None = None,

@@ -109,6 +109,7 @@ def plan_pair(
     detail: DetailOptions | None = None,
     given: Correspondence | None = None,
     given_bases: Sequence[OFPBasis | None] = (None, None),
+    eigenbases: Sequence[EigenBasis | None] = (None, None),
     via_basis: bool | None = None,
     names: tuple[str, str] = ("the source", "the target"),
 ) -> Plan:
@@ -135,6 +136,9 @@ def plan_pair(
         refused).
     given_bases : (OFPBasis or None, OFPBasis or None)
         OFP bases the caller has: their sizes are the plan's on their side.
+    eigenbases : (EigenBasis or None, EigenBasis or None)
+        Eigenbases the caller has: with both, a map is estimated from them at full resolution
+        (never on coarse copies, whatever the sizes).
     via_basis : bool, optional
         Task "colors": carry the values through the OFP bases (True) or pull them back through
         the map (False); default: pulled back through a closest-point map, carried otherwise.
@@ -168,6 +172,7 @@ def plan_pair(
     meshes = F1 is not None and (V2 is None or F2 is not None)
     estimator = _estimator(match, given, (V1, F1, V2, F2), names)
     dense = estimator in ("full", "partial") and meshes and max(n1, n2 or 0) > DENSE_VERTICES
+    dense = dense and any(e is None for e in eigenbases)
     closest = estimator == "closest" or (given is not None and given.method == "closest")
     exact = task in ("texture", "map") or (
         task == "colors" and (via_basis is False or (via_basis is None and closest))
