@@ -32,7 +32,7 @@ from o3d_ofp.boundary.convert import geometry_to_arrays
 from o3d_ofp.core.baselines import approximate_eigs, transfer_eigs, transfer_prods
 from o3d_ofp.core.filtering import sharpen_gains, smooth_gains, spectral_filter
 from o3d_ofp.render.panel import View, read_png, render_panel
-from o3d_ofp.workflows.matching import match_eigenbases
+from o3d_ofp.workflows.estimate import match_eigenbases
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
