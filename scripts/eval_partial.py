@@ -170,7 +170,8 @@ def resolution_rows(
     level: int, sizes: list[int], *, only: list[str] | None, loop: bool = False
 ) -> None:
     """Print the table of ``--resolutions``: each cut matched on coarse copies of each size."""
-    from o3d_ofp.workflows.partial import DISAGREEMENT, match_partial_arrays
+    from o3d_ofp.workflows.estimate import estimate_dense
+    from o3d_ofp.workflows.partial import DISAGREEMENT
 
     print("| cut | coarse copies | error | verdict | apart |\n|---|---|---|---|---|")
     for name, V1, F1, Vc, Fc, orig in _dense_cuts(level, only=only, loop=loop):
@@ -179,10 +180,12 @@ def resolution_rows(
         weight /= weight.sum()
         maps = {}
         for n in sizes:
-            corr = match_partial_arrays(
-                V1, F1, Vc, Fc, second_opinion=False, coarse_vertices=n, warn_suspect=False,
-                dense_above=0,
-            )  # fmt: skip
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the verdict is a column
+                corr = estimate_dense(
+                    V1, F1, Vc, Fc, options=ofp.MatchOptions(partial=True), coarse_vertices=n,
+                    opinions=False,
+                )  # fmt: skip
             maps[n] = corr.p2p_21
             q = corr.quality
             earlier = sizes[: sizes.index(n)]
@@ -202,8 +205,7 @@ def resolution_rows(
 
 def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool = False) -> None:
     """Print the table of ``--dense``: every cut with both shapes subdivided ``level`` times."""
-    from o3d_ofp.workflows.dense import DENSE_VERTICES
-    from o3d_ofp.workflows.partial import match_partial_arrays
+    from o3d_ofp.workflows import plan
 
     print(
         "| cut | vertices (source / target) | path | error | verdict | second opinion "
@@ -211,22 +213,28 @@ def dense_rows(level: int, *, only: list[str] | None, direct: bool, loop: bool =
     )
     for name, V1, F1, Vc, Fc, orig in _dense_cuts(level, only=only, loop=loop):
         area = float(_areas(V1, F1).sum())
-        dense = max(len(V1), len(Vc)) > DENSE_VERTICES
+        dense = max(len(V1), len(Vc)) > plan.DENSE_VERTICES
         for dense_above in [None] + ([10**12] if direct and dense else []):
-            t0 = time.perf_counter()
-            corr = match_partial_arrays(V1, F1, Vc, Fc, dense_above=dense_above)
-            seconds = time.perf_counter() - t0
+            saved = plan.DENSE_VERTICES
+            if dense_above is not None:  # the direct path: the planner's threshold lifted
+                plan.DENSE_VERTICES = dense_above
+            try:
+                t0 = time.perf_counter()
+                corr = ofp.match((V1, F1), (Vc, Fc), partial=True)
+                seconds = time.perf_counter() - t0
+            finally:
+                plan.DENSE_VERTICES = saved
             q = corr.quality
             label = "coarse copies" if corr.options.get("dense") else "direct"
             # the opinions' notes: "second opinion (...): ... images on 1.2 % of the target's
             # area ..."; a third is asked when the second disagrees: its share against the
             # first map, then (when it agrees with the second) against the second
             shares: dict[str, list[str]] = {"second": [], "third": []}
-            for n in q.notes:
+            for n in map(str, q.notes):
                 if m := re.match(r"(second|third) opinion .* on ([\d.]+ %) of the target", n):
                     shares[m.group(1)].append(m.group(2))
-            flagged = any(r.startswith(("the match on coarse copies", "the matches on coarse"))
-                          for r in q.reasons)  # fmt: skip
+            flagged = any(str(r).startswith(("the match on coarse copies", "the matches on "
+                                             "coarse")) for r in q.reasons)  # fmt: skip
             opinion = "-" if not shares["second"] else shares["second"][0] + (
                 f", third {' / '.join(shares['third'])}" if shares["third"] else "") + (
                 " (flags it)" if flagged else "")  # fmt: skip
@@ -310,7 +318,7 @@ def _rescaled_cuts(only: list[str] | None):
     source's units (``rescaled``) and the partial match's final target size.
     """
     from o3d_ofp.core.partial import rescaled
-    from o3d_ofp.workflows.matching import ESTIMATION_K, FIT_K
+    from o3d_ofp.workflows.options import ESTIMATION_K, FIT_K
     from o3d_ofp.workflows.partial import _final_target_size
 
     for name, axis, side, fraction, V1, F1, e1, V2, F2 in _cuts_and_sources(only):
@@ -330,7 +338,7 @@ def truth_rows(only: list[str] | None) -> None:
     """
     from o3d_ofp.core.correspondence import fmap_from_p2p
     from o3d_ofp.core.partial import partial_p2p, partial_polish, partial_zoomout, slant
-    from o3d_ofp.workflows.matching import FIT_K
+    from o3d_ofp.workflows.options import FIT_K
 
     print(
         "| cut | true map at 29 | partial ZoomOut | ZoomOut, polished | true map polished |\n"
@@ -360,7 +368,7 @@ def baseline_rows(only: list[str] | None) -> None:
     polish). Seconds given both eigenbases.
     """
     from o3d_ofp.core.partial import fit_partial_fmap, partial_p2p, partial_zoomout
-    from o3d_ofp.workflows.matching import FIT_K
+    from o3d_ofp.workflows.options import FIT_K
 
     print(
         "| cut | fit alone | s | fit + partial ZoomOut | s | ofp.match(partial=True) | verdict "
@@ -415,7 +423,9 @@ def landmark_rows(counts: list[int], only: list[str] | None) -> None:
                 offsets = f"{off.max() / np.sqrt(e1.area):.3f}"
             verdict = "suspect" if corr.quality.suspect else "ok"
             # why a map is suspect: the first reason's opening words
-            why = textwrap.shorten(corr.quality.reasons[0], 120) if corr.quality.suspect else "-"
+            why = "-"
+            if corr.quality.suspect:
+                why = textwrap.shorten(str(corr.quality.reasons[0]), 120)
             print(
                 f"| {name} | {count} | {error(V1, corr.p2p_21, orig, e1.area):.4f} | {verdict} "
                 f"| {offsets} | {seconds:.1f} | {why} |",
