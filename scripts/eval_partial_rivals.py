@@ -39,13 +39,11 @@ from o3d_ofp.core.partial import (
     partial_zoomout,
     rescaled,
 )
+from o3d_ofp.core.spectrum import on_cleaned_vertices
 from o3d_ofp.workflows import partial as P
-from o3d_ofp.workflows.matching import (
-    DCOMM_WEIGHTS,
-    MAX_REVERSED,
-    map_quality,
-    on_cleaned_vertices,
-)
+from o3d_ofp.workflows.matching import DCOMM_WEIGHTS
+from o3d_ofp.workflows.options import ESTIMATION_K, FIT_K
+from o3d_ofp.workflows.quality import MAX_REVERSED, map_quality
 
 
 def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
@@ -58,8 +56,8 @@ def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
         return p if rep_2 is None else p[eig_2.cleaning.index]
 
     u1, u2 = rescaled(s1, s1.area), rescaled(s2, s1.area)
-    k2_fit = min(P.FIT_K, s2.k)
-    k2_final = P._final_target_size(u1, u2, k2_fit=k2_fit, k1_max=min(P.ESTIMATION_K, s1.k))
+    k2_fit = min(FIT_K, s2.k)
+    k2_final = P._final_target_size(u1, u2, k2_fit=k2_fit, k1_max=min(ESTIMATION_K, s1.k))
     options = {"landmarks": None, "w_dcomm": DCOMM_WEIGHTS, "w_orient": 1.0,
                "descriptors": partial_descriptors(u1, u2)}  # fmt: skip
     starts = [C for k, solver in P._start_fits(k2_fit)
