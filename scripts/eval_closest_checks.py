@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, V1, F1, V2, F2 in rows:
             corr = closest_correspondence(V1, F1, V2, faces_2=F2, align=True)
             icp, q = corr.options["icp"], corr.quality
-            verdict = "suspect: " + q.reasons[0][:60] if q.suspect else "ok"
+            verdict = "suspect: " + str(q.reasons[0])[:60] if q.suspect else "ok"
             error = "-"  # same vertex count (same template): vertex i is the truth of vertex i
             if V2.shape == V1.shape:
                 area = 0.5 * np.linalg.norm(
@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         corr = closest_correspondence(V1, F1, V2, faces_2=F2)
         m, q = corr.options["misalignment"], corr.quality
         before, after = m["mean_distance_rel"], m["mean_distance_rel_moved"]
-        verdict = "suspect: " + q.reasons[0][:60] if q.suspect else "ok"
+        verdict = "suspect: " + str(q.reasons[0])[:60] if q.suspect else "ok"
         print(
             f"| {name} | {q.coverage_ratio:.2f} | {before:.2e} | {after:.2e} | "
             f"{after / max(before, 1e-300):.2f} | {corr.options['facing_away']:.3f} | "
