@@ -146,7 +146,7 @@ def run(neighbors: list[int], seed: int) -> None:
 
 
 def estimate(seed: int) -> None:
-    from o3d_ofp.workflows.matching import map_quality
+    from o3d_ofp.workflows.quality import map_quality
 
     print(
         "| pair | source | target | map error | reversed | suspect |\n"

@@ -43,7 +43,7 @@ from o3d_ofp.core.spectrum import on_cleaned_vertices
 from o3d_ofp.workflows import partial as P
 from o3d_ofp.workflows.matching import DCOMM_WEIGHTS
 from o3d_ofp.workflows.options import ESTIMATION_K, FIT_K
-from o3d_ofp.workflows.quality import MAX_REVERSED, map_quality
+from o3d_ofp.workflows.quality import MAX_DISTORTION, MAX_REVERSED, MAX_STRETCH, map_quality
 
 
 def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
@@ -100,7 +100,7 @@ def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
                 break
         if final is None:
             return {"flagged": True, "err": first[best]["err"]}
-    if final["dist"] > P.MAX_DISTORTION or final["stretch"] > P.MAX_STRETCH:
+    if final["dist"] > MAX_DISTORTION or final["stretch"] > MAX_STRETCH:
         return {"flagged": True, "err": final["err"]}
     candidates = [i for i in order if first[i]["turned"] <= MAX_REVERSED and i != chosen
                   and i not in turned_over][: P.RIVAL_STARTS]  # fmt: skip
@@ -108,9 +108,9 @@ def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
     closest, rival = None, False
     for i in candidates:
         r = known.get(i) or refined(first[i])
-        if r["turned"] > MAX_REVERSED or r["dist"] > P.MAX_DISTORTION:
+        if r["turned"] > MAX_REVERSED or r["dist"] > MAX_DISTORTION:
             continue
-        if r["stretch"] > P.MAX_STRETCH:
+        if r["stretch"] > MAX_STRETCH:
             continue
         apart = np.linalg.norm(X[final["p2p"]] - X[r["p2p"]], axis=1) > P.DISAGREEMENT
         share = float(M2 @ apart / M2.sum())

@@ -26,7 +26,7 @@ import numpy as np
 
 import o3d_ofp as ofp
 from o3d_ofp.boundary.bake import _Surface, source_colors_at, texture_error
-from o3d_ofp.workflows.matching import Correspondence
+from o3d_ofp.workflows.maps import Correspondence
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
