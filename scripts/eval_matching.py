@@ -7,7 +7,7 @@ divided by sqrt(source area)), the quality report of ``ofp.match`` and the wall 
 match (both eigenbases with k = 99 included). ``--scales`` repeats the FAUST 093 -> 087 pair
 with the target scaled by each factor (the map must not change).
 
-The bounds of the quality report (``o3d_ofp.workflows.matching.MAX_ORTHOGONALITY`` and the
+The bounds of the quality report (``o3d_ofp.workflows.quality.MAX_ORTHOGONALITY`` and the
 others) are read off these tables: ``--all-pairs`` adds every ordered pair of the FAUST and of
 the FAUST-remeshed shapes (32, with ground truth); ``--variants`` maps of the same shape or
 kind without ground truth (error "-"): decimated (Open3D's quadric decimation), subdivided,
