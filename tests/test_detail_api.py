@@ -119,8 +119,8 @@ def test_coordinates_mode_and_its_deprecated_name(blob_pair):
     with pytest.warns(DeprecationWarning, match="'replace' is deprecated"):
         old = ofp.transfer_detail((source, F), (target, F), mode="replace", **kw)
     np.testing.assert_allclose(np.asarray(old.vertices), X)
-    # k_low, the deprecated name of band, is gone from the Python API: Python's own refusal
-    with pytest.raises(TypeError, match="unexpected keyword argument 'k_low'"):
+    # k_low, the former name of band, is refused with its replacement named
+    with pytest.raises(TypeError, match=r"no longer takes k_low=: use band="):
         ofp.transfer_detail((source, F), (target, F), k_low=20, correspondence=identity)
 
 
@@ -157,14 +157,16 @@ def test_transfer_detail_refuses_bad_options_before_any_eigensolve(blob_pair, no
         ({"mode": "replace-detail", "options": ofp.BasisOptions(order=3, preset="ours")},
          ValueError, "does not apply: mode 'replace-detail' reads each shape's eigenfunctions "
          "up to band (30)", "options"),
-        # the former keywords are gone: Python's own refusal (k_low, the maps, components)
-        ({"k_low": 0}, TypeError, "unexpected keyword argument 'k_low'", None),
-        ({"components": "largest"}, TypeError, "unexpected keyword argument 'components'", None),
+        # the former keywords are refused, each with what replaces it (k_low, the maps, components)
+        ({"k_low": 0}, TypeError, "no longer takes k_low=: use band=", None),
+        ({"components": "largest"}, TypeError,
+         "no longer takes components=: use correspondence=o3d_ofp.match(source, target, "
+         "components=...)", None),
     ]
     for mode in ("add", "replace-detail", "coordinates"):  # every mode: one way to give a map
         for old in ("p2p_21", "fmap_12", "eigenbases"):
             cases.append(({old: None, "mode": mode}, TypeError,
-                          f"unexpected keyword argument '{old}'", None))  # fmt: skip
+                          f"no longer takes {old}=: use ", None))  # fmt: skip
         cases.append(({"correspondence": np.arange(len(target)), "mode": mode}, TypeError,
                       "correspondence must be an o3d_ofp Correspondence", None))  # fmt: skip
     for kw, exc, message, option in cases:
@@ -357,10 +359,9 @@ def _two_spheres():
 def test_components_keyword_reaches_every_call_that_computes_a_basis(tmp_path):
     """The message for several components says components='largest': every call takes it.
 
-    A new-user trial found the advice unusable: filter_geometry and transfer_detail had no
-    such keyword. filter_geometry has it; transfer_detail takes the policy through the
-    eigenbases given as ``bases=`` (its own ``components=`` keyword is gone: Python's
-    TypeError).
+    filter_geometry takes it; transfer_detail takes the policy through the map
+    (``correspondence=o3d_ofp.match(..., components=...)``) or the eigenbases given as
+    ``bases=``, and its former ``components=`` keyword is refused with that replacement named.
     """
     two = _two_spheres()
     n = len(two[0])
@@ -372,7 +373,7 @@ def test_components_keyword_reaches_every_call_that_computes_a_basis(tmp_path):
     identity = identity_map(two, two)
     with pytest.raises(ValueError, match="components='largest'"):
         ofp.transfer_detail(two, two, correspondence=identity, band=5)
-    with pytest.raises(TypeError, match="unexpected keyword argument 'components'"):
+    with pytest.raises(TypeError, match=r"no longer takes components=: use correspondence="):
         ofp.transfer_detail(two, two, correspondence=identity, band=5, components="largest")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ofp.OFPWarning)  # "kept the largest of 2 components"
