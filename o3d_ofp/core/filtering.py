@@ -12,7 +12,10 @@
   cut is added back), so noise is removed; sharpening amplifies what the low-pass removes.
 
 The low-pass is a Butterworth filter of order 4 in the eigenvalues λ of ``L φ = λ μ φ``
-(``L`` the cotangent stiffness, ``μ = area / n`` the same mass at every vertex):
+(sharpening: ``L`` the cotangent stiffness, ``μ = area / n`` the same mass at every vertex;
+smoothing: the umbrella Laplacian of the mesh's edges, ``μ`` its degree times a quarter of the
+mean squared edge length, whose weights a noisy mesh does not perturb, see
+:data:`SMOOTH_WEIGHTS`):
 ``g(λ) = 1 / (1 + (t λ)⁴)`` with ``t = (smooth · √area)²``. It is applied exactly, without
 computing eigenfunctions, as a sum of two complex shifted solves (partial fractions of
 ``1/(1 + x⁴)``). ``smooth`` is a length: the smoothing radius as a fraction of √area, i.e.
@@ -22,7 +25,8 @@ vertex area), so a mesh denser in its detailed parts keeps more of them. This is
 under scaling and under uniform refinement. Measured (``scripts/eval_detail.py``, noise of
 0.5 % of the diagonal along the normals): with the lumped (true) vertex areas as mass the best
 results were 10-25 % farther from the clean meshes, behind Open3D's Taubin smoothing; with the
-same mass at every vertex they are closer than Taubin's best on every mesh tried.
+same mass at every vertex closer than Taubin's best on the regular meshes tried, behind it on a
+remeshed one; with the umbrella weights closer on all seven.
 
 Vertices the eigenbasis left out of the surface (the smaller components with
 ``components="largest"``, unreferenced vertices: see :mod:`o3d_ofp.core.cleaning`) are not
@@ -53,6 +57,7 @@ __all__ = [
     "KEEP_SIZE_EXTENT",
     "MAX_SHARPEN",
     "MAX_SMOOTH",
+    "SMOOTH_WEIGHTS",
     "check_amount",
     "edit_coefficient",
     "lowpass",
@@ -65,10 +70,22 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Default smoothing radius, as a fraction of √area. Measured on the bunny, FAUST 093 and TOSCA
-#: centaur2 with noise of 0.5 % of the bounding-box diagonal along the normals: 0.50-0.61 times
-#: the noisy mesh's distance to the clean one (the best radius, 0.010-0.012, gives 0.48-0.56).
+#: Default smoothing radius, as a fraction of √area. Measured on seven meshes with noise of
+#: 0.5 % of the bounding-box diagonal along the normals (see :data:`SMOOTH_WEIGHTS`):
+#: 0.50-0.77 times the noisy mesh's distance to the clean one, 0.97 on the teddy (the best
+#: radius, 0.01-0.025, gives 0.42-0.81).
 DEFAULT_SMOOTH = 0.01
+#: The Laplacian of :func:`smooth_coordinates` (see :func:`lowpass`): the umbrella weights
+#: depend on the connectivity only, where the cotangent weights of a noisy mesh are noisy.
+#: Measured (``scripts/eval_detail.py --only smoothing``, noise of 0.5 % of the diagonal,
+#: distance to the clean mesh × the noisy one's at the best radius): 0.42-0.57 on six meshes
+#: (bunny, FAUST, TOSCA centaur and a remeshed cat, a sculpture, a dog), 0.81 on the teddy,
+#: ahead of Open3D's Taubin at its best iteration count on all seven (0.51-0.66, 0.83); with
+#: the cotangent weights 0.49-0.58 and 0.78, behind Taubin on the remeshed cat (0.54 against
+#: 0.51). (Sharpening keeps the cotangent weights: on an
+#: irregular mesh the umbrella's high-pass also holds tangential offsets, which sharpening
+#: would amplify.)
+SMOOTH_WEIGHTS = "umbrella"
 #: Largest accepted ``smooth``: a radius of a quarter of √area already reduces a human to a blob.
 MAX_SMOOTH = 0.25
 #: Largest accepted ``sharpen``. Measured on five shared meshes (bunny, bunny_small, teddy,
@@ -263,12 +280,53 @@ def _uniform_mass(eig: EigenBasis) -> np.ndarray:
     return np.where(c.kept, eig.area / c.n_vertices / np.maximum(mult, 1.0), 0.0)
 
 
+def _umbrella_operators(eig: EigenBasis) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Return the umbrella (graph) Laplacian ``D − A`` of the shape's neighbours and its mass.
+
+    The neighbours are the mesh's edges (welded copies of a vertex share theirs), or for a
+    cloud those of its cotangent stiffness, each weighing 1; the mass
+    ``(h² / 4) · degree``, ``h²`` the mean squared edge length, makes its eigenvalues those of
+    the surface's Laplacian on a regular mesh. Vertices left out of the surface get no mass.
+    """
+    n = eig.n_vertices
+    if eig.faces is not None and len(eig.faces):
+        F = np.asarray(eig.faces)
+        pairs = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+        c = eig.cleaning
+        if c is not None:  # on the cleaned vertices, then back to every copy of each
+            m = c.n_vertices
+            edges = c.index[pairs]
+            kept = np.flatnonzero(c.kept)  # a removed vertex stands for no one's neighbour
+            link = sp.csr_matrix((np.ones(kept.size), (kept, c.index[kept])), shape=(n, m))
+        else:
+            m, edges, link = n, pairs, None
+        edges = edges[edges[:, 0] != edges[:, 1]]
+        A = sp.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(m, m))
+        A = ((A + A.T) > 0).astype(np.float64)
+        if link is not None:
+            A = (link @ A @ link.T).tocsr()
+    else:
+        L = eig.stiffness.tocoo()
+        off = (L.row != L.col) & (L.data != 0)
+        A = sp.csr_matrix((np.ones(int(off.sum())), (L.row[off], L.col[off])), shape=(n, n))
+        A = ((A + A.T) > 0).astype(np.float64)
+    A = A.tocoo()
+    V = eig.vertices
+    h2 = float(np.average(((V[A.row] - V[A.col]) ** 2).sum(1), weights=A.data)) if A.nnz else 0.0
+    A = A.tocsr()
+    degree = np.asarray(A.sum(axis=1)).ravel()
+    mass = np.where(_uniform_mass(eig) > 0, 0.25 * h2 * degree, 0.0)
+    return (sp.diags(degree) - A).tocsr(), mass
+
+
 @one_blas_thread  # SuperLU's supernodal updates call the BLAS: threads only spin here
-def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
+def lowpass(
+    B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH, weights: str = "cotangent"
+) -> np.ndarray:
     """Butterworth low-pass of a per-vertex signal over the whole spectrum of the Laplacian.
 
     Gains ``1 / (1 + (t λ)⁴)``, ``t = (smooth · √area)²``, ``λ`` the eigenvalues of
-    ``L φ = λ (area / n) φ`` (see the module notes); computed exactly with two complex sparse
+    ``L φ = λ μ φ`` (see the module notes); computed exactly with two complex sparse
     solves, no eigenfunctions.
 
     Parameters
@@ -279,6 +337,11 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
         Signal.
     smooth : float, default 0.01
         Smoothing radius as a fraction of √area, in [0, 0.25]; 0 returns ``f``.
+    weights : {"cotangent", "umbrella"}, default "cotangent"
+        The Laplacian: the shape's cotangent stiffness with the same mass ``area / n`` at
+        every vertex, or the umbrella (graph) Laplacian of its neighbours with mass
+        ``(h² / 4) · degree`` (``h²`` the mean squared edge length), whose weights do not
+        depend on the positions (see :data:`SMOOTH_WEIGHTS`).
 
     Returns
     -------
@@ -287,23 +350,26 @@ def lowpass(B: Any, f: Any, *, smooth: float = DEFAULT_SMOOTH) -> np.ndarray:
     """
     eig = _eigenbasis_of(B)[0]
     smooth = check_amount(smooth, "smooth", MAX_SMOOTH)
+    if weights not in ("cotangent", "umbrella"):
+        raise ValueError(f"weights must be 'cotangent' or 'umbrella'; got {weights!r}")
     x = as_signal(f, eig.n_vertices)
     if smooth == 0.0:
         return x
     X = x.reshape(x.shape[0], -1)
-    mu = _uniform_mass(eig)
+    K, mu = (eig.stiffness, _uniform_mass(eig)) if weights == "cotangent" else (
+        _umbrella_operators(eig))  # fmt: skip
     empty = mu <= 0
     t = smooth * smooth * eig.area
     rhs = mu[:, None] * X
     out = np.zeros_like(X)
-    logger.debug("low-pass (smooth %.3g): two complex sparse factorizations of %d vertices",
-                 smooth, eig.n_vertices)  # fmt: skip
+    logger.debug("low-pass (smooth %.3g, %s): two complex sparse factorizations of %d vertices",
+                 smooth, weights, eig.n_vertices)  # fmt: skip
     # 1/(1 + x⁴) = Σ_k (−r_k/4) / (x − r_k) over the roots r_k of 1 + x⁴ (conjugate pairs:
     # the two with positive imaginary part, doubled, real part taken). x ↦ t λ becomes the
     # operator (t L − r M)⁻¹ M.
     for k in range(_ORDER // 2):
         r = complex(np.exp(1j * np.pi * (2 * k + 1) / _ORDER))
-        A = (t * eig.stiffness - sp.diags(r * mu + empty)).tocsc().astype(np.complex128)
+        A = (t * K - sp.diags(r * mu + empty)).tocsc().astype(np.complex128)
         # A = t L − r M is complex symmetric with Im(xᴴ A x) = −Im(r) xᴴ M x < 0 for x ≠ 0
         # (on kept vertices): every principal submatrix is nonsingular, so elimination with
         # diagonal pivots in a symmetric fill-reducing order cannot break down. Measured on a
@@ -386,7 +452,7 @@ def smooth_coordinates(
         If ``smooth`` is outside [0, 0.25] (the message names ``smooth``).
     """
     eig, V = _eigenbasis_of(B, vertices)
-    X = lowpass(eig, V, smooth=smooth)
+    X = lowpass(eig, V, smooth=smooth, weights=SMOOTH_WEIGHTS)
     return _keep_size(eig, V, X) if keep_volume and smooth > 0 else X
 
 
