@@ -244,7 +244,7 @@ DECISIONS = {
         {"DENSE_VERTICES"}, {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.dense"},
     ),
     "eigenbasis sizes": (
-        {"needs", "ROTATION_K"},
+        {"needs"},
         {"o3d_ofp.workflows.plan", "o3d_ofp.workflows.strategy", "o3d_ofp.workflows.partial",
          "o3d_ofp.workflows.detail"},
     ),

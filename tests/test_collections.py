@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -220,29 +221,41 @@ def test_two_targets_given_as_geometries(client, shapes, tmp_path):
 
 
 def test_detail_in_this_process(shapes, tmp_path):
-    paths, V, _, _ = shapes
-    before = COUNTERS["source_bases"]
-    results = transfer_many(
-        paths["src"],
-        [paths["t0"], paths["t1"]],
-        kind="detail",
-        workers=0,
-        output_dir=tmp_path,
-        map="identity",
-    )
-    assert COUNTERS["source_bases"] - before == 1
-    assert [(r.status, r.kind, r.worker) for r in results] == [("ok", "detail", "local")] * 2
-    moved = np.asarray(read_geometry(results[0].output).vertices)
-    bent = _bent(V, 0.1)
-    assert moved.shape == bent.shape and 0 < np.abs(moved - bent).max() < 0.1 * np.ptp(bent)
-    # The same as the two-shape call with the same map (PLY stores float32 coordinates).
+    """Detail for each target, as the two-shape call does it (calibrated, and with a band).
+
+    The bent copies are as detailed as the smooth source: calibrated, nothing is added, and
+    the result says why; a band adds the detail above it everywhere.
+    """
     import o3d_ofp as ofp
 
+    paths, V, _, _ = shapes
     identity = ofp.Correspondence.from_p2p(np.arange(len(V)), len(V), len(V))
-    one = ofp.transfer_detail(
-        read_geometry(paths["src"]), read_geometry(paths["t0"]), correspondence=identity
-    )
-    np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-6 * np.ptp(bent))
+    bent = _bent(V, 0.1)
+    for band in (None, 30):
+        before = COUNTERS["source_bases"]
+        results = transfer_many(
+            paths["src"],
+            [paths["t0"], paths["t1"]],
+            kind="detail",
+            workers=0,
+            output_dir=tmp_path / str(band),
+            map="identity",
+            **({} if band is None else {"band": band}),
+        )
+        assert COUNTERS["source_bases"] - before == 1
+        assert [(r.status, r.kind, r.worker) for r in results] == [("ok", "detail", "local")] * 2
+        moved = np.asarray(read_geometry(results[0].output).vertices)
+        if band is None:
+            np.testing.assert_allclose(moved, bent, atol=1e-6 * np.ptp(bent))
+            assert any("already has the source's detail" in str(w) for w in results[0].warnings)
+        else:
+            assert moved.shape == bent.shape and 0 < np.abs(moved - bent).max() < 0.1 * np.ptp(bent)
+        # The same as the two-shape call with the same map (PLY stores float32 coordinates).
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ofp.OFPWarning)
+            one = ofp.transfer_detail(read_geometry(paths["src"]), read_geometry(paths["t0"]),
+                                      correspondence=identity, band=band)  # fmt: skip
+        np.testing.assert_allclose(moved, np.asarray(one.vertices), atol=1e-6 * np.ptp(bent))
 
 
 def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_path, monkeypatch):

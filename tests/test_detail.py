@@ -61,9 +61,10 @@ def test_onto_itself_returns_the_input(bumpy_sphere):
         np.linalg.norm(twice - bumpy - detail, axis=1).mean()
         / np.linalg.norm(detail, axis=1).mean()
     )
-    # measured 0.0022: the only difference, the rotations between the low-pass and the bumpy
-    # surface (close to the identity on a sphere), and the area scale
-    assert rel < 0.01
+    # measured 0.019: the only difference, the rotations between the low-pass and the bumpy
+    # surface (close to the identity on a sphere; over neighbourhoods of 8e-4 of the area the
+    # bumps tilt them a little), and the area scale
+    assert rel < 0.03
     same = transfer_detail_frames(eig_b, eig_b, p2p_21=identity, band=24, amount=0.0)
     np.testing.assert_allclose(same, bumpy, atol=1e-12)
 
@@ -119,11 +120,16 @@ def test_rigid_motion_of_the_target_moves_the_result(blob_pair):
 
 
 def test_a_wrong_map_leaves_the_target_alone(blob_pair):
+    """A scrambled map: the calibration finds nothing the target lacks, the band's trust none."""
     source, target, F = blob_pair
     wrong = np.random.default_rng(0).permutation(len(target))
     good = np.linalg.norm(_transfer(source, target, F) - target, axis=1).mean()
-    moved = np.linalg.norm(_transfer(source, target, F, wrong) - target, axis=1).mean()
-    trusting = _transfer(source, target, F, wrong, fit_range=None)
+    calibrated = np.linalg.norm(_transfer(source, target, F, wrong) - target, axis=1).mean()
+    assert calibrated < 0.1 * good
+    # with a band the detail is added everywhere, where the map is trusted
+    good = np.linalg.norm(_transfer(source, target, F, band=30) - target, axis=1).mean()
+    moved = np.linalg.norm(_transfer(source, target, F, wrong, band=30) - target, axis=1).mean()
+    trusting = _transfer(source, target, F, wrong, band=30, fit_range=None)
     assert moved < 0.5 * good
     assert np.linalg.norm(trusting - target, axis=1).mean() > 2 * moved
 
@@ -151,7 +157,8 @@ def test_refused_options_name_the_keyword(blob_pair):
         ({"amount": float("nan")}, "amount"),
         ({"carry": "teleport"}, "carry"),
         ({"fit_range": (0.9, 0.7)}, "fit_range"),
-        ({"rotation_k": 0}, "rotation_k"),
+        ({"rotation_time": 0}, "rotation_time"),
+        ({"rotation_time": 2.0}, "rotation_time"),
         ({"normals_2": np.ones((3, 3))}, "normals_2"),
     ]
     for kw, word in cases:
@@ -196,12 +203,107 @@ def test_coordinates_mode_is_the_paper_fig13(blob_pair):
         assert info.value.option == "mode"
 
 
-def test_faust_pose_pair_beats_doing_nothing_and_the_baseline():
-    """FAUST 093 → 087 (true map): the target is 087 on its first 30 eigenfunctions."""
+def _fairing(V, F, fraction):
+    """One implicit fairing step (M + t L)⁻¹ M V, t = fraction · area: robust-laplacian's own."""
+    import robust_laplacian
+    import scipy.sparse.linalg as sla
+
+    L, M = robust_laplacian.mesh_laplacian(np.asarray(V, float), np.asarray(F))
+    return sla.spsolve((M + fraction * M.diagonal().sum() * L).tocsc(), M @ V)
+
+
+def _umbrella(V, F, steps):
+    """Uniform umbrella smoothing, half a step at a time: a filter the library does not own."""
+    X = np.array(V, dtype=float)
+    n = len(X)
+    edges = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    for _ in range(steps):
+        total = np.zeros_like(X)
+        count = np.zeros(n)
+        for a, b in ((0, 1), (1, 0)):
+            np.add.at(total, edges[:, a], X[edges[:, b]])
+            np.add.at(count, edges[:, a], 1.0)
+        X = X + 0.5 * (total / count[:, None] - X)
+    return X
+
+
+def test_calibration_finds_the_fairing_that_made_the_target(blob_pair):
+    """A target faired by a known heat step: the calibrated time is that step's, within a level.
+
+    The ladder's levels are a factor 2 apart and the parabola places the time between them;
+    a target smoothed more is calibrated to a longer time.
+    """
+    from o3d_ofp.workflows.detail import LADDER, calibrate_detail
+
+    source, _, F = blob_pair
+    e1 = ofp.eigenbasis(source, F, k=5)
+    identity = np.arange(len(source))
+    times = []
+    for fraction in (3e-5, 3e-4):
+        e2 = ofp.eigenbasis(_fairing(source, F, fraction), F, k=5)
+        calibration, _ = calibrate_detail(e1, e2, identity)
+        assert fraction / 2 < calibration.time < fraction * 2, (fraction, calibration.time)
+        assert calibration.share > 0.9  # smoothed everywhere: it lacks the detail everywhere
+        assert calibration.fits.shape == (len(LADDER) + 1,)
+        times.append(calibration.time)
+    assert times[0] < times[1]
+
+
+def _sized(X, reference):
+    """X scaled about its centroid to the reference's RMS spread, moved onto its centroid."""
+    c, r = X.mean(axis=0), reference.mean(axis=0)
+    spread = np.sqrt(((reference - r) ** 2).sum(1).mean() / ((X - c) ** 2).sum(1).mean())
+    return r + spread * (X - c)
+
+
+def test_a_target_smoothed_by_another_tool_gets_back_what_was_removed(blob_pair):
+    """Smoothed by tools the library does not own, the target gets back most of the detail.
+
+    The blob is compact: a low-pass shrinks it as a whole, which is no detail (the target's
+    size is kept), so the result is compared with the truth at the truth's size. Measured
+    (distance × the smoothed target's): fairing 0.29, umbrella steps 0.64; the former fixed
+    band (30), which added the detail above 30 eigenfunctions on top of what the smoothing
+    left, 6.8 and 1.17.
+    """
+    source, _, F = blob_pair
+    identity = np.arange(len(source))
+    e1 = ofp.eigenbasis(source, F, k=30)
+    for smoothed, bound in ((_fairing(source, F, 1e-4), 0.4), (_umbrella(source, F, 8), 0.75)):
+        e2 = ofp.eigenbasis(smoothed, F, k=30)
+        before = np.linalg.norm(_sized(smoothed, source) - source, axis=1).mean()
+        X = transfer_detail_frames(e1, e2, p2p_21=identity)
+        assert np.linalg.norm(_sized(X, source) - source, axis=1).mean() < bound * before
+        assert area(X, F) == pytest.approx(area(smoothed, F), rel=0.03)  # its size is kept
+        fixed = transfer_detail_frames(e1, e2, p2p_21=identity, band=30)
+        assert np.linalg.norm(_sized(fixed, source) - source, axis=1).mean() > before
+
+
+def test_a_target_as_detailed_as_the_source_gets_nothing_and_is_told(blob_pair, caplog):
+    """The source itself, or a moved and scaled copy of it, as the target: nothing is added."""
+    import logging
+
+    source, _, F = blob_pair
+    identity = np.arange(len(source))
+    e1 = ofp.eigenbasis(source, F, k=5)
+    c, s = np.cos(0.4), np.sin(0.4)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    for copy in (source, 3.0 * source @ R.T + 1.0):
+        e2 = ofp.eigenbasis(copy, F, k=5)
+        caplog.clear()
+        with pytest.warns(ofp.OFPWarning, match="already has the source's detail") as said:
+            with caplog.at_level(logging.WARNING), warnings_logged():
+                X = transfer_detail_frames(e1, e2, p2p_21=identity)
+        assert "band=30" in str(said[0].message) and "mode='coordinates'" in str(said[0].message)
+        np.testing.assert_allclose(X, copy, atol=1e-9 * np.ptp(copy))
+
+
+def test_faust_pose_pair_faired_beats_doing_nothing_and_the_baseline():
+    """FAUST 093 → 087 (true map; different people): the target is 087 after implicit fairing."""
     V1, F = load_shared_mesh("faust/tr_reg_093.ply")
     V2, _ = load_shared_mesh("faust/tr_reg_087.ply")
-    smooth = lowpass_coordinates(ofp.eigenbasis(V2, F, k=30), 30)
-    e1, e2 = ofp.eigenbasis(V1, F, k=39), ofp.eigenbasis(smooth, F, k=39)
+    smooth = _fairing(V2, F, 1e-4)
+    e1, e2 = ofp.eigenbasis(V1, F, k=5), ofp.eigenbasis(smooth, F, k=5)
     p2p = np.arange(len(V2))
 
     def dist(X):
@@ -212,18 +314,20 @@ def test_faust_pose_pair_beats_doing_nothing_and_the_baseline():
         return np.degrees(np.arccos(np.clip(cos, -1, 1))).mean()
 
     ours = transfer_detail_frames(e1, e2, p2p_21=p2p)
-    # the simple baseline: the source's height along its normals above its 30-eigenfunction
-    # low-pass, added along the target's normals
-    h = np.einsum("ij,ij->i", detail_vectors(e1, 30), vertex_normals(V1, F))
+    # the simple baseline: the source's height along its normals above its own faired shape,
+    # added along the target's normals
+    h = np.einsum("ij,ij->i", V1 - _fairing(V1, F, 1e-4), vertex_normals(V1, F))
     base = smooth + np.sqrt(e2.area / e1.area) * h[:, None] * vertex_normals(smooth, F)
-    # measured: ours 0.65x / 0.58x doing nothing, the baseline 0.82x / 0.94x
-    assert dist(ours) < 0.75 * dist(smooth) and angle(ours) < 0.65 * angle(smooth)
-    assert dist(ours) < 0.9 * dist(base) and angle(ours) < 0.7 * angle(base)
-    assert area(ours, F) == pytest.approx(area(V2, F), rel=0.05)
+    # measured: ours 0.61x / 0.71x doing nothing; the baseline, whose low-pass is here the very
+    # fairing that made the target, 0.53x / 0.95x
+    assert dist(ours) < 0.7 * dist(smooth) and angle(ours) < 0.8 * angle(smooth)
+    assert angle(ours) < 0.85 * angle(base)
+    # the area: the target 0.92 of the truth's, ours 0.95
+    assert area(smooth, F) / area(V2, F) < area(ours, F) / area(V2, F) < 1.05
 
 
-def test_add_mode_warns_when_the_target_already_has_detail(caplog):
-    """'add' on a detailed target doubles the detail (new-user trial): it is said, with the fix."""
+def test_add_mode_with_a_band_warns_when_the_target_already_has_detail(caplog):
+    """'add' with a band on a detailed target doubles the detail: it is said, with the fix."""
     import logging
     import warnings
 
@@ -241,7 +345,7 @@ def test_add_mode_warns_when_the_target_already_has_detail(caplog):
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
             with caplog.at_level(logging.WARNING, logger=name), warnings_logged():
-                transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode)
+                transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode, band=30)
         assert [x.category for x in w] == ([ofp.OFPWarning] if warned else [])
         said = [r.getMessage() for r in caplog.records if r.name == name]
         assert bool(said) == warned, (mode, said)
@@ -289,7 +393,7 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region(caplog)
     covered = e1.mass[region].sum() / e1.area
     assert 0.6 < covered < 0.8  # the kept share of the area, and a rim two edges wide
     assert _covered(e1, ofp.eigenbasis(V2, F2, k=30), np.arange(len(V2))).all()  # whole
-    band = _part_band(e1, detailed, 30, covered * e1.area / detailed.area)
+    band = _part_band(e1, detailed, 30, covered * e1.area / detailed.area)  # the expert's band
     assert 18 <= band <= 26  # about the area ratio times 30 (Weyl's law)
     # an estimated full-shape map onto a whole target that covers half of the source (a
     # wrong map crowds; a smoothed target has less area) is no part (a review of the change)
@@ -304,13 +408,13 @@ def test_onto_a_part_the_detail_check_and_size_follow_the_covered_region(caplog)
     with warnings.catch_warnings(), caplog.at_level(logging.INFO, "o3d_ofp.workflows.detail"):
         warnings.simplefilter("ignore")
         estimated = Correspondence(p2p_21=crowded, n_source=len(V1), method="estimate")
-        transfer_detail_frames(e1, whole, correspondence=estimated)
+        transfer_detail_frames(e1, whole, correspondence=estimated, band=30)
     seen = [r.getMessage() for r in caplog.records]
     assert not any("onto a part" in m for m in seen)
     for eig, warned in ((detailed, True), (smooth, False)):
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
-            X = transfer_detail_frames(e1, eig, p2p_21=orig)
+            X = transfer_detail_frames(e1, eig, p2p_21=orig, band=30)
         assert any("already has detail" in str(w.message) for w in said) == warned
         if not warned:
             # the detail's size on the part: the result's area is the truth's (measured 1.03;
@@ -352,5 +456,31 @@ def test_a_part_in_pieces_is_measured_on_the_piece_its_eigenbasis_keeps():
     np.testing.assert_array_equal(kept_region, _covered(e1, only_kept, orig))
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
-        transfer_detail_frames(e1, pieces, p2p_21=keep)
+        transfer_detail_frames(e1, pieces, p2p_21=keep, band=30)
     assert any("already has detail" in str(w.message) for w in said)
+
+
+def test_calibrated_detail_onto_a_faired_part_and_a_point_cloud(blob_pair):
+    """The calibration works on a part of the source and on a point-cloud target.
+
+    Measured: the faired cut of FAUST 087 (feet and lower legs removed, true map from 093)
+    0.54x doing nothing, area 0.97 of the truth's (the target's 0.93); the faired blob as a
+    cloud (robust-laplacian's point-cloud operators) 0.28x, at the truth's size.
+    """
+    V1, F1 = load_shared_mesh("faust/tr_reg_093.ply")
+    V2, F2 = load_shared_mesh("faust/tr_reg_087.ply")
+    orig, Fc = _cut_above(V2, F2, 0.85)
+    smooth = _fairing(V2, F2, 1e-4)[orig]
+    e1 = ofp.eigenbasis(V1, F1, k=5)
+    X = transfer_detail_frames(e1, ofp.eigenbasis(smooth, Fc, k=5), p2p_21=orig)
+    truth = V2[orig]
+    ratio = np.linalg.norm(X - truth, axis=1).mean() / np.linalg.norm(smooth - truth, axis=1).mean()
+    assert ratio < 0.7
+    assert area(smooth, Fc) < area(X, Fc) < 1.05 * area(truth, Fc)
+    source, _, F = blob_pair
+    smoothed = _fairing(source, F, 1e-4)
+    cloud = ofp.eigenbasis(smoothed, None, k=5)
+    identity = np.arange(len(source))
+    Y = transfer_detail_frames(ofp.eigenbasis(source, F, k=5), cloud, p2p_21=identity)
+    before = np.linalg.norm(_sized(smoothed, source) - source, axis=1).mean()
+    assert np.linalg.norm(_sized(Y, source) - source, axis=1).mean() < 0.4 * before

@@ -62,9 +62,10 @@ def test_bumps_onto_the_smooth_sphere_open3d_level(spheres):
     X = np.asarray(out.vertices)
     # measured 0.072 (doing nothing: 1.0): the known bumps come back
     assert np.linalg.norm(X - bumpy, axis=1).mean() / np.abs(h).mean() < 0.1
-    # the default band (30) on the same pair: the same (measured 0.070)
-    X30 = np.asarray(ofp.transfer_detail(source, target, correspondence=identity).vertices)
-    assert np.linalg.norm(X30 - bumpy, axis=1).mean() / np.abs(h).mean() < 0.1
+    # the default (calibrated: the low-pass the smooth sphere fits best, at the source's
+    # spread) on the same pair: measured 0.135, the bumps come back a little lower
+    calibrated = ofp.transfer_detail(source, target, correspondence=identity).vertices
+    assert np.linalg.norm(np.asarray(calibrated) - bumpy, axis=1).mean() / np.abs(h).mean() < 0.2
 
 
 def test_detail_onto_itself_with_the_identity_returns_the_input(spheres):
@@ -155,8 +156,8 @@ def test_transfer_detail_refuses_bad_options_before_any_eigensolve(blob_pair, no
         ({"options": ofp.BasisOptions(k2=29)}, ValueError,
          "options (the OFP bases' sizes and threshold) does not apply: mode 'add'", "options"),
         ({"mode": "replace-detail", "options": ofp.BasisOptions(order=3, preset="ours")},
-         ValueError, "does not apply: mode 'replace-detail' reads each shape's eigenfunctions "
-         "up to band (30)", "options"),
+         ValueError, "does not apply: mode 'replace-detail' carries the source's detail in "
+         "local frames, with no OFP basis", "options"),
         # the former keywords are refused, each with what replaces it (k_low, the maps, components)
         ({"k_low": 0}, TypeError, "no longer takes k_low=: use band=", None),
         ({"components": "largest"}, TypeError,
@@ -235,7 +236,10 @@ def test_filter_geometry_sharpen_gains_and_refusals(blob_pair, monkeypatch):
     source, _, F = blob_pair
     mesh = triangle_mesh_from_arrays(source, F)
     sharp = np.asarray(ofp.filter_geometry(mesh, sharpen=1.0, smooth=0.02).vertices)
-    low = np.asarray(ofp.filter_geometry(mesh, smooth=0.02, keep_volume=False).vertices)
+    # sharpening's low-pass has the cotangent weights (smoothing's the umbrella's)
+    from o3d_ofp.core.filtering import lowpass
+
+    low = lowpass(ofp.eigenbasis(source, F, k=3), source, smooth=0.02, weights="cotangent")
     # unsharp masking: the detail above the low-pass doubles (before the volume is restored)
     raw = np.asarray(
         ofp.filter_geometry(mesh, sharpen=1.0, smooth=0.02, keep_volume=False).vertices
@@ -310,7 +314,7 @@ def _pair_arrays(files):
 BAD = [
     (["detail", "{src}", "{tgt}", "--band", "0"], "expected a positive integer"),
     (["detail", "{src}", "{tgt}", "--band", "40", "--k1", "20"], "--k1 applies to --mode coord"),
-    (["detail", "{src}", "{tgt}", "--k-low", "20", "--k2", "10"], "up to --k-low (20): drop it"),
+    (["detail", "{src}", "{tgt}", "--k-low", "20", "--k2", "10"], "with no OFP basis: drop it"),
     (["detail", "{src}", "{tgt}", "--mode", "replace-detail", "--order", "3", "--preset", "ours"],
      "--order, --preset apply to --mode coordinates (the OFP bases); --mode replace-detail"),
     (["detail", "{src}", "{tgt}", "--k1", "40", "--k2", "40", "--tol", "0.1"],

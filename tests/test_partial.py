@@ -1311,12 +1311,13 @@ def test_cli_target_scale_runs_as_on_a_rescaled_file(tmp_path, capsys):
     np.testing.assert_allclose(np.asarray(written[0].vertices), Vm, rtol=1e-6)
     assert np.asarray(written[1].vertex_colors).shape == (len(Vm), 3)
     capsys.readouterr()
-    # detail: written in the target's own units (the source's detail, scaled back)
+    # detail: written in the target's own units (the source's detail, scaled back; the part
+    # is as smooth as the source, so a band is given for the detail to move it)
     details = [tmp_path / "dm.ply", tmp_path / "dmm.ply"]
     scale = ["--target-scale", "0.001"]
     for target, out, extra in ((tgt, details[0], []), (mm, details[1], scale)):
-        assert main(["detail", str(src), str(target), "--map", str(maps[0]), *extra, "-o",
-                     str(out)]) == 0  # fmt: skip
+        assert main(["detail", str(src), str(target), "--map", str(maps[0]), "--band", "30",
+                     *extra, "-o", str(out)]) == 0  # fmt: skip
     moved_m, moved_mm = (np.asarray(ofp.read_geometry(d).vertices) for d in details)
     assert np.abs(moved_m - Vm).max() > 1e-4  # the detail moved the part
     np.testing.assert_allclose(moved_mm / 1000, moved_m, atol=1e-5 * np.ptp(Vm))

@@ -34,7 +34,6 @@ from ..workflows.detail import check_coordinates_area, transfer_detail_frames
 from ..workflows.maps import Correspondence, check_correspondence, warn_other_shape
 from ..workflows.options import (
     COMPONENTS,
-    DETAIL_BAND,
     BasisOptions,
     DetailOptions,
     MatchOptions,
@@ -494,17 +493,19 @@ def transfer_detail(
     *,
     correspondence: Correspondence | None = None,
     mode: str = "add",
-    band: int = DETAIL_BAND,
+    band: int | None = None,
     amount: float = 1.0,
     bases: tuple[Any, Any] | None = None,
     options: BasisOptions | None = None,
 ) -> Any:
     """Give the target the source's geometric detail; return a new displaced geometry.
 
-    The detail of a shape is what its coordinates have above its first ``band``
-    Laplace-Beltrami eigenfunctions. It is carried through the map and re-applied in the
-    target's local frames (fitted rotations between the two low-pass shapes), where the map
-    is trusted; see :mod:`o3d_ofp.workflows.detail`.
+    By default the detail is what the target lacks, whatever smoothed it: the source's
+    low-pass the target resembles most is found (heat low-passes compared through the map,
+    :func:`o3d_ofp.workflows.detail.calibrate_detail`), and the source's detail above it is
+    carried through the map and re-applied in the target's local frames (fitted rotations
+    between the low-pass and the target), where the target lacks it and the map is trusted;
+    see :mod:`o3d_ofp.workflows.detail`.
 
     Parameters
     ----------
@@ -517,22 +518,26 @@ def transfer_detail(
         The map, as in :func:`transfer_colors` (a partial map from ``match(partial=True)``:
         the detail is then measured on the region of the source the part covers).
     mode : {"add", "replace-detail", "coordinates"}, default "add"
-        "add": the target keeps its pose, its low-frequency shape and its own detail, and
-        gains the source's detail on top (for a smooth target). "replace-detail": the
-        target's own detail above ``band`` is replaced by the source's (a shape given itself
-        with the identity map comes back unchanged). "coordinates": the paper's Fig. 13, the
-        source's coordinates transferred with OFP bases replace the target's (the target
-        takes the source's pose; ``bases`` and ``options`` apply only here, threshold "ours*"
-        by default). "replace" is the deprecated former name of "coordinates".
-    band : int, default 30
-        Eigenfunctions of the low band the detail is measured above: a count, so it means the
-        same at every resolution and scale. Lower takes more of the source's shape (and
-        pose), higher only its finer detail.
+        "add": the target keeps its pose, its shape and its own detail, and gains the detail
+        it lacks (a target as detailed as the source gets almost nothing, and a warning says
+        so). "replace-detail": the target's own detail above the same low-pass is replaced
+        by the source's everywhere (a shape given itself with the identity map comes back
+        unchanged). "coordinates": the paper's Fig. 13, the source's coordinates transferred
+        with OFP bases replace the target's (the target takes the source's pose and surface:
+        for aligned copies with a closest-point map; ``bases`` and ``options`` apply only
+        here, threshold "ours*" by default). "replace" is the deprecated former name of
+        "coordinates".
+    band : int, optional
+        None (default): calibrated, as above. An int: the detail is what the coordinates have
+        above their first ``band`` Laplace-Beltrami eigenfunctions, added everywhere
+        whatever the target has (an expert's override: a count, so it means the same at
+        every resolution and scale; lower takes more of the source's shape and pose).
     amount : float, default 1.0
         Multiplies the transferred detail, in [0, 10].
     bases : (EigenBasis or OFPBasis, EigenBasis or OFPBasis), optional
-        Precomputed bases of source and target, as in :func:`transfer_colors` (an eigenbasis
-        with fewer than ``band`` eigenfunctions is computed again, larger).
+        Precomputed bases of source and target, as in :func:`transfer_colors` (with ``band``
+        given, an eigenbasis with fewer than ``band`` eigenfunctions is computed again,
+        larger).
     options : BasisOptions, optional
         The OFP bases of mode "coordinates" (default order 2 on 29 / 39 eigenfunctions,
         "ours*").

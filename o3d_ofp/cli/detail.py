@@ -21,11 +21,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_pair_options(p, preset="ours*", several=True)
     a = p.add_argument
     a("--mode", choices=(*DETAIL_MODES, "replace"), default=default.mode, help="add: the target "
-      "gains the source's detail in its local frames; replace-detail: its own detail is replaced; "
+      "gains the detail it lacks, in its local frames; replace-detail: its own detail is replaced; "
       "coordinates (Fig. 13): the source's coordinates through the OFP bases (--k1/--k2/--order/"
       f"--preset) replace the target's; replace: deprecated name of coordinates ({default.mode})")
-    a("--band", type=positive_int, help="the detail lies above this many eigenfunctions, at any "
-      f"resolution ({default.band}); lower takes more shape")
+    a("--band", type=positive_int, help="add the detail above this many eigenfunctions everywhere "
+      "(lower takes more shape); default: what the target lacks, calibrated on the two shapes")
     a("--amount", type=bounded_float(0.0, MAX_AMOUNT), help="multiplies the transferred detail, in "
       f"[0, {MAX_AMOUNT:g}] ({default.amount:g})")
     a("--k-low", type=positive_int, help="deprecated name of --band")
@@ -45,11 +45,10 @@ def run(args: argparse.Namespace) -> int:
         return common.run_transfers(args, kind="detail", options=given)
     detail = DetailOptions(**given)
     pair = read_pair(args, common.GEOMETRY_OUT)
-    band = common.flag_of("band")
     planned = plan(args, pair, "detail", detail=detail, unused=lambda named: (
         f"{', '.join(named)} {'applies' if len(named) == 1 else 'apply'} to --mode coordinates "
-        f"(the OFP bases); --mode {detail.mode} reads each shape's eigenfunctions up to {band} "
-        f"({detail.band}): drop {'it' if len(named) == 1 else 'them'}, or set {band}"))
+        f"(the OFP bases); --mode {detail.mode} carries the source's detail in local frames, "
+        f"with no OFP basis: drop {'it' if len(named) == 1 else 'them'}"))
     prepared = prepare_pair(args, pair, planned)
     with stage(f"detail transfer ({detail.mode})"):
         moved = transfer_detail(pair.source, pair.target, correspondence=prepared.correspondence,
@@ -57,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
                                 options=common.basis_options(args),
                                 bases=prepared.bases or (prepared.eig_1, prepared.eig_2))
     write_geometry(args.output, pair.in_target_units(moved), protect=pair.inputs)
-    what = detail.mode if detail.mode == "coordinates" else f"{detail.mode}, band {detail.band}"
+    what = detail.mode if detail.mode == "coordinates" else (
+        f"{detail.mode}, " + ("calibrated" if detail.band is None else f"band {detail.band}"))
     report([f"{args.source} -> {args.target}: detail ({what})", f"wrote {args.output}"])
     return 0

@@ -605,7 +605,7 @@ def transfer_many(
         ``map`` ("estimate" (default) or "identity": targets with the source's vertices),
         ``k1`` (29), ``k2`` (39), ``order`` (2), ``preset`` ("ours" for colors, "ours*" for
         detail), ``tol``, ``mode`` ("add", "replace-detail" or "coordinates", detail, see
-        :func:`o3d_ofp.transfer_detail`), ``band`` (30, detail), ``amount`` (1.0, detail),
+        :func:`o3d_ofp.transfer_detail`), ``band`` (calibrated, detail), ``amount`` (1.0, detail),
         ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
         vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture"), ``atlas``

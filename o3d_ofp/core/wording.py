@@ -37,6 +37,11 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "atlas": ("atlas=True", "--uv-atlas"),
     "texture": ("texture=...", "--texture FILE"),
     "replace_detail": ("mode='replace-detail'", "--mode replace-detail"),
+    "band": ("band=30", "--band 30"),
+    "coordinates_closest": (
+        "mode='coordinates' with correspondence=o3d_ofp.match(..., method='closest')",
+        "--mode coordinates --map closest",
+    ),
     "smooth": ("filter_geometry(smooth=0.01)", "o3d-ofp filter --smooth 0.01"),
     "components_largest": (
         "components='largest' (to o3d_ofp.match, or to the eigenbases given as bases=)",

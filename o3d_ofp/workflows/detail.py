@@ -1,23 +1,30 @@
 """Geometric detail transfer in local frames, on arrays.
 
-The *detail* of a shape is what its coordinates have above a low band of its spectrum:
-``D = X − P X`` with ``P`` the projection on the first ``band`` Laplace-Beltrami
-eigenfunctions (the *low-pass shape* ``P X``). It is carried from a source to a target through
-a map and re-applied in the target's local frames:
+The *detail* a target lacks is the source's coordinates minus the source's low-pass shape that
+the target resembles: ``D = X − P X``, ``P`` a low-pass of the source *calibrated* to how
+smooth the target is (:func:`calibrate_detail`), or, with a ``band`` given, the projection on
+the first ``band`` Laplace-Beltrami eigenfunctions (an expert's override). It is carried from
+a source to a target through a map and re-applied in the target's local frames:
 
+* **Calibration.** Whatever tool smoothed the target (a fairing, Open3D's filters, a sculpting
+  brush, a decimation), the target resembles one of the source's heat low-passes more than
+  the others: the one compared best with it, neighbourhood by neighbourhood up to a rotation
+  and a scale, through the map. Its detail is what the smoothing removed; where the target
+  fits the source itself as well (a part left detailed, a target as detailed as the source),
+  nothing is added there. Measured (``scripts/eval_detail.py``: five pairs, targets made by
+  seven smoothers the library does not own, true maps): surface distance to the truth 0.89x
+  doing nothing on average, never above 1.01x; a fixed band of 30 eigenfunctions added its
+  detail on top of what the smoothing left: 5.4x on average, 36.8x at worst.
 * **Local frames.** At every target vertex ``i`` the frame of the source's low-pass surface at
   the corresponding point is turned into the target's by ``R_i``, the rotation that best aligns
-  the two low-pass surfaces around ``i`` (weighted Procrustes over a heat-kernel neighbourhood
-  of time ``1/λ_rotation_k``): the normal goes to the normal and the tangent plane to the tangent
+  the source's low-pass surface and the target around ``i`` (weighted Procrustes over a
+  heat-kernel neighbourhood): the normal goes to the normal and the tangent plane to the tangent
   plane, so the detail keeps its orientation relative to the surface whatever the two poses.
   A detail vector with frame coordinates ``c`` (normal height and two tangent offsets) at the
-  source becomes ``R_i (E₁ c) = E₂ c`` at the target. Frames built separately on each low-pass
-  surface (its vertex normals plus a tangent from the gradient of a low eigenfunction) were
-  measured and rejected: at ``band = 30`` the low-pass surface collapses limbs, fingers and
-  tails into ribbons whose normals are meaningless (43° from the true normals on FAUST), and
-  such frames made every result farther from the truth than doing nothing (see
-  ``scripts/eval_detail.py``). The fitted rotation looks at a neighbourhood wider than a
-  ribbon, needs no normals (point clouds work) and never degenerates on a surface.
+  source becomes ``R_i (E₁ c) = E₂ c`` at the target. The fitted rotation (on neighbourhoods
+  of :data:`ROTATION_TIME`) needs no normals (point clouds work) and never degenerates where
+  a low-pass collapses a limb into a ribbon (frames from the low-pass surface's own normals
+  were 43° off on FAUST and made every result worse than doing nothing).
 * **Carrying.** The detail vectors and the low-pass coordinates are carried to the target
   either by pulling them back through the point map (``carry="p2p"``) or with the OFP transfer
   of the paper (``carry="ofp"``, :func:`o3d_ofp.workflows.pipeline.transfer_function`).
@@ -40,12 +47,11 @@ a map and re-applied in the target's local frames:
 The result keeps the target's pose and low-frequency shape. Modes
 (:data:`o3d_ofp.workflows.options.DETAIL_MODES`):
 
-* ``"add"`` (default): the target keeps its own detail and gains the source's on top (right
-  for a smooth target, which is taken as its own low-pass shape).
-* ``"replace-detail"``: the target's own detail above ``band`` is removed and the source's
-  put in its place (a shape given itself as source comes back unchanged). Measured on
-  smoothed targets: 1.18-1.31x doing nothing, as re-projecting an already smoothed target on
-  the eigenfunctions of its own (smoothed) surface removes more of it.
+* ``"add"`` (default): the target keeps its own detail and gains what it lacks of the
+  source's (with a ``band``: all of the source's detail above it, on top of its own).
+* ``"replace-detail"``: the target's own detail is removed by the same low-pass (its own
+  operators) and the source's put in its place everywhere (a shape given itself as source
+  comes back unchanged).
 * ``"coordinates"``: the paper's Fig. 13, the source's coordinates transferred with OFP bases
   replace the target's (the target's pose is lost); ``"replace"`` is its former, deprecated
   name.
@@ -53,6 +59,7 @@ The result keeps the target's pose and low-frequency shape. Modes
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import numbers
@@ -63,21 +70,29 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from ..core._threads import blas_threads
-from ..core._validation import check_int
 from ..core._warnings import warn
 from ..core.correspondence import check_p2p
 from ..core.geometry import face_areas_normals, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
 from ..core.wording import OptionError, Said
 from .maps import Correspondence, check_correspondence
-from .options import DETAIL_BAND, BasisOptions, DetailOptions
+from .options import BasisOptions, DetailOptions, check_number
 from .pipeline import transfer_function
-from .plan import ROTATION_K
 
 __all__ = [
+    "COMPARE_TIME",
     "COORDINATES_AREA_RATIO",
     "FIT_RANGE",
+    "GATE_TIME",
+    "LACKING",
+    "LADDER",
+    "NOTHING_ADDED",
     "PART_COVERAGE",
+    "ROTATION_TIME",
+    "ROTATION_WIDER",
+    "STEPS",
+    "DetailCalibration",
+    "calibrate_detail",
     "check_coordinates_area",
     "detail_vectors",
     "local_rotations",
@@ -94,15 +109,60 @@ logger = logging.getLogger(__name__)
 FIT_RANGE = (0.7, 0.9)
 _CARRIES = ("p2p", "ofp")
 
+#: The source's low-pass shapes the calibration chooses among: the source's coordinates after
+#: :data:`STEPS` implicit heat steps ``(M + (t / STEPS) L)⁻¹ M`` of total time ``t = c · area``
+#: for each ``c`` here, a factor 2 apart, from no visible change (1e-6) to limbs thinned
+#: (4e-3). Several steps fall off like the iterated filters of other tools (umbrella,
+#: Laplacian, brush) and stay close to a single implicit fairing step: measured
+#: (``scripts/eval_detail.py``, true maps) one step against three, mean distance 0.88 and
+#: 0.87x doing nothing, the worst 1.31 and 1.04x (a 30-eigenfunction projection). Each level
+#: is scaled back to the source's spread (RMS distance from the centroid): a low-pass shrinks
+#: a compact shape as a whole, and a smooth sphere or torus target, which fits every shrunk
+#: level alike, got that shrinking as detail (a bumpy sphere onto a smooth one: 13 times the
+#: bumps' height off, 0.13 with the spread kept; on bodies, whose limbs thin while the whole
+#: keeps its extent, it changes nothing measurable).
+LADDER = tuple(float(c) for c in np.geomspace(1e-6, 4e-3, 13))
+STEPS = 3
+#: Neighbourhoods (heat time / the target's area) on which the calibration compares the
+#: target with the source's low-passes: a few edge lengths of a 5-10k vertex body, the scale
+#: of its detail. Measured on FAUST and TOSCA targets faired by a known step: the level it
+#: chooses is the one closest to the truth (neighbourhoods of ``1/λ_100``, ten times wider,
+#: fit every level alike).
+COMPARE_TIME = 1e-4
+#: Neighbourhoods of the local rotations (heat time / area): about ``1/λ_100`` on FAUST,
+#: TOSCA and the bunny (measured 8.7e-4, 8.0e-4, 8.1e-4). Measured on TOSCA centaur2 → 4
+#: (true map, the target faired, the source's low-pass the same fairing): the distance to the
+#: truth 0.32-0.34x doing nothing against 0.36-0.38x at ``1/λ_10`` (neighbourhoods wider than
+#: a limb blur the rotations at joints).
+ROTATION_TIME = 8e-4
+#: The rotations' neighbourhoods are at least this many times as wide (in heat time) as the
+#: low-pass's own blur: a strong low-pass collapses limbs and fingers into ribbons, whose
+#: neighbourhoods of :data:`ROTATION_TIME` give tilted rotations. With a band of 30, three
+#: times its blur ``1/λ_30`` is about ``1/λ_10`` (Weyl's law), the neighbourhood measured
+#: right for it (10 and 20 gave the same results, 3 blurred neighbouring parts).
+ROTATION_WIDER = 3.0
+#: Where the target matches the source's calibrated low-pass better than the source itself,
+#: it lacks the detail between them: all of it once its misfit to the source is this much
+#: reduced (share of ``1 − fit``, both averaged over neighbourhoods of :data:`GATE_TIME`),
+#: none where it is not reduced. Without it, a target smoothed in one region only (a brush)
+#: got the detail everywhere (1.4-1.8x doing nothing); 0.25 and 0.5 give the same mean
+#: distance (0.84 and 0.88x), the worst 1.20 and 1.04x.
+LACKING = 0.5
+#: Neighbourhoods (heat time / the target's area) over which the gain in fit is averaged: a
+#: region a brush smooths (a tenth of a body), wider than the comparison's.
+GATE_TIME = 1e-3
+#: A calibrated transfer that adds less than this share of the detail says so.
+NOTHING_ADDED = 0.05
 
-def lowpass_coordinates(eig: EigenBasis, band: int = DETAIL_BAND) -> np.ndarray:
+
+def lowpass_coordinates(eig: EigenBasis, band: int) -> np.ndarray:
     """Return the low-pass shape: the coordinates projected on the first ``band`` eigenfunctions.
 
     Parameters
     ----------
     eig : EigenBasis
         The shape's eigenbasis (its ``vertices`` are the coordinates), with ``k >= band``.
-    band : int, default 30
+    band : int
         Non-constant eigenfunctions kept.
 
     Returns
@@ -115,14 +175,14 @@ def lowpass_coordinates(eig: EigenBasis, band: int = DETAIL_BAND) -> np.ndarray:
     return low.reconstruct(low.project(eig.vertices))
 
 
-def detail_vectors(eig: EigenBasis, band: int = DETAIL_BAND) -> np.ndarray:
+def detail_vectors(eig: EigenBasis, band: int) -> np.ndarray:
     """Return the detail of a shape: its coordinates minus their low-pass, ``X − P X``.
 
     Parameters
     ----------
     eig : EigenBasis
         The shape's eigenbasis, with ``k >= band``.
-    band : int, default 30
+    band : int
         Non-constant eigenfunctions of the low-pass.
 
     Returns
@@ -133,19 +193,18 @@ def detail_vectors(eig: EigenBasis, band: int = DETAIL_BAND) -> np.ndarray:
     return eig.vertices - lowpass_coordinates(eig, band)
 
 
-def _heat_operator(eig: EigenBasis, k: int) -> Any:
-    """Return ``f ↦ (M + L/λ_k)⁻¹ M f``: one implicit heat step of time ``1/λ_k``.
+def _heat_operator(eig: EigenBasis, time: float) -> Any:
+    """Return ``f ↦ (M + t L)⁻¹ M f``: one implicit heat step of time ``t = time``.
 
     Rows of the operator sum to one (constants are kept). Vertices without mass (removed by
     the cleaning) take the value of the kept vertex standing for them.
     """
-    lam = float(eig.evals[k])
-    if not lam > 0:
-        raise ValueError(f"eigenvalue {k} of the shape is {lam:g}: the shape has no scale")
+    if not time > 0 or not math.isfinite(time):
+        raise ValueError(f"the heat time must be positive; got {time:g} (the shape has no scale)")
     mass = np.asarray(eig.mass, dtype=np.float64)
     empty = mass <= 0
     diag = np.where(empty, 1.0, mass)
-    A = (sp.diags(diag) + eig.stiffness / lam).tocsc()
+    A = (sp.diags(diag) + time * eig.stiffness).tocsc()
     # SuperLU's supernodal updates call the BLAS, whose threads only spin on this size of
     # problem (measured with another process busy: 14-20x slower with them)
     with blas_threads(1):
@@ -169,53 +228,15 @@ def _heat_operator(eig: EigenBasis, k: int) -> Any:
     return apply
 
 
-def local_rotations(
-    eig: EigenBasis, source: Any, target: Any, *, rotation_k: int = ROTATION_K
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation at every vertex that best turns a neighbourhood of ``source`` into ``target``.
-
-    ``R_i = argmin_R Σ_j K_ij ‖R (s_j − s̄_i) − (t_j − t̄_i)‖²`` over rotations, ``K`` the
-    implicit heat kernel of ``eig`` at time ``1/λ_rotation_k`` and ``s̄_i``, ``t̄_i`` the
-    ``K``-weighted means: the polar factor (with determinant +1) of the weighted
-    cross-covariance ``C_i``.
-
-    Parameters
-    ----------
-    eig : EigenBasis
-        Eigenbasis of the shape both point sets live on (its operators define the
-        neighbourhoods), with ``k >= rotation_k``.
-    source, target : (n, 3) array_like of float
-        Two embeddings of the same vertices (e.g. the source's low-pass shape pulled back
-        through a map, and the target's).
-    rotation_k : int, default 10
-        Eigenvalue index setting the neighbourhood size.
-
-    Returns
-    -------
-    rotations : (n, 3, 3) ndarray
-        ``rotations[i] @ v`` turns a vector ``v`` of the source's frame at ``i`` into the
-        target's.
-    fit : (n,) ndarray
-        How well the rotated neighbourhoods agree, ``tr(R_i C_i) / sqrt(var_s var_t)`` in
-        [−1, 1]: 1 when they are congruent up to a rotation and a scale. Measured at
-        ``rotation_k = 10`` between 30-eigenfunction low-pass shapes: true maps give a median
-        0.91-0.94 (5th percentile 0.70-0.83) on FAUST and TOSCA pairs, failed maps (flipped or
-        scrambled) a median 0.40-0.48 (95th percentile 0.65-0.77).
-    """
-    n = eig.n_vertices
-    rotation_k = check_int(rotation_k, name="rotation_k", minimum=1, maximum=eig.k)
-    P = np.asarray(source, dtype=np.float64)
-    Q = np.asarray(target, dtype=np.float64)
-    for name, arr in (("source", P), ("target", Q)):
-        if arr.shape != (n, 3):
-            raise ValueError(f"{name} must have shape ({n}, 3); got {arr.shape}")
+def _procrustes(heat: Any, source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted Procrustes of every neighbourhood (``heat``'s rows): rotations and fits."""
+    n = source.shape[0]
     # Centre and normalize both embeddings first: the covariances then have entries of order
     # 1 whatever the units (neither the rotation nor the fit depends on them).
-    P = P - P.mean(axis=0)
-    Q = Q - Q.mean(axis=0)
+    P = source - source.mean(axis=0)
+    Q = target - target.mean(axis=0)
     P /= max(float(np.abs(P).max()), np.finfo(float).tiny)
     Q /= max(float(np.abs(Q).max()), np.finfo(float).tiny)
-    heat = _heat_operator(eig, rotation_k)
     outer = (P[:, :, None] * Q[:, None, :]).reshape(n, 9)
     moments = heat(
         np.hstack([P, Q, outer, (P**2).sum(1, keepdims=True), (Q**2).sum(1, keepdims=True)])
@@ -234,6 +255,150 @@ def local_rotations(
     spread = np.sqrt(np.clip(var_p, 0.0, None) * np.clip(var_q, 0.0, None))
     fit = np.divide(agree, spread, out=np.zeros(n), where=spread > 0)
     return rotations, np.clip(fit, -1.0, 1.0)
+
+
+def local_rotations(
+    eig: EigenBasis, source: Any, target: Any, *, rotation_time: float = ROTATION_TIME
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation at every vertex that best turns a neighbourhood of ``source`` into ``target``.
+
+    ``R_i = argmin_R Σ_j K_ij ‖R (s_j − s̄_i) − (t_j − t̄_i)‖²`` over rotations, ``K`` the
+    implicit heat kernel of ``eig`` at time ``rotation_time · area`` and ``s̄_i``, ``t̄_i`` the
+    ``K``-weighted means: the polar factor (with determinant +1) of the weighted
+    cross-covariance ``C_i``.
+
+    Parameters
+    ----------
+    eig : EigenBasis
+        Eigenbasis of the shape both point sets live on (its operators define the
+        neighbourhoods; no eigenfunction is used).
+    source, target : (n, 3) array_like of float
+        Two embeddings of the same vertices (e.g. the source's low-pass shape pulled back
+        through a map, and the target's).
+    rotation_time : float, default 8e-4
+        Heat time of the neighbourhoods, as a fraction of the shape's area, in (0, 1].
+
+    Returns
+    -------
+    rotations : (n, 3, 3) ndarray
+        ``rotations[i] @ v`` turns a vector ``v`` of the source's frame at ``i`` into the
+        target's.
+    fit : (n,) ndarray
+        How well the rotated neighbourhoods agree, ``tr(R_i C_i) / sqrt(var_s var_t)`` in
+        [−1, 1]: 1 when they are congruent up to a rotation and a scale.
+    """
+    n = eig.n_vertices
+    rotation_time = _positive(rotation_time, "rotation_time")
+    P = np.asarray(source, dtype=np.float64)
+    Q = np.asarray(target, dtype=np.float64)
+    for name, arr in (("source", P), ("target", Q)):
+        if arr.shape != (n, 3):
+            raise ValueError(f"{name} must have shape ({n}, 3); got {arr.shape}")
+    return _procrustes(_heat_operator(eig, rotation_time * eig.area), P, Q)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DetailCalibration:
+    """What detail of the source a target lacks (made by :func:`calibrate_detail`).
+
+    Attributes
+    ----------
+    time : float
+        Heat time of the source's calibrated low-pass, as a fraction of the source's area
+        (0: the target is as detailed as the source).
+    fits : (len(LADDER) + 1,) ndarray
+        Mean fit (see :func:`local_rotations`) of the target with the source itself and with
+        each of its low-passes in :data:`LADDER`, through the map.
+    lacking : (n2,) ndarray
+        Share of the calibrated detail each target vertex lacks, in [0, 1].
+    share : float
+        The area-weighted mean of ``lacking``.
+    """
+
+    time: float
+    fits: np.ndarray
+    lacking: np.ndarray
+    share: float
+
+
+def _ladder(eig: EigenBasis) -> list[np.ndarray]:
+    """Return the coordinates, then their heat low-passes at the :data:`LADDER` times."""
+    X = np.asarray(eig.vertices, dtype=np.float64)
+    out = [X]
+    for c in LADDER:
+        step = _heat_operator(eig, c * eig.area / STEPS)
+        Y = X
+        for _ in range(STEPS):
+            Y = step(Y)
+        out.append(_same_spread(eig, X, Y))
+    return out
+
+
+def _same_spread(eig: EigenBasis, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Y scaled about its centroid to X's mass-weighted RMS distance from its own centroid."""
+    w = eig.mass / eig.area
+    centre_x, centre_y = w @ X, w @ Y
+    spread_x = math.sqrt(float(w @ ((X - centre_x) ** 2).sum(1)))
+    spread_y = math.sqrt(float(w @ ((Y - centre_y) ** 2).sum(1)))
+    return centre_y + (spread_x / spread_y) * (Y - centre_y) if spread_y > 0 else Y
+
+
+def calibrate_detail(
+    eig_1: EigenBasis, eig_2: EigenBasis, p2p_21: np.ndarray
+) -> tuple[DetailCalibration, np.ndarray]:
+    """Choose the source's low-pass whose detail the target lacks, and where it lacks it.
+
+    The target is compared, through the map, with the source and with each of its heat
+    low-passes (:data:`LADDER`): at every target vertex, the fit of the two neighbourhoods
+    up to a rotation (:func:`local_rotations` on neighbourhoods of :data:`COMPARE_TIME`).
+    The low-pass the whole target fits best is the calibrated one: the target was smoothed
+    about that much, by whatever tool. Where the target does not fit that low-pass better
+    than the source itself (a region left detailed, a target as detailed as the source), it
+    lacks nothing (see :data:`LACKING`). The source's shape, pose and units need not be the
+    target's: fits compare neighbourhoods up to a rotation and a scale.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target (their operators; no eigenfunction is used).
+    p2p_21 : (n2,) ndarray of int
+        The source vertex of every target vertex.
+
+    Returns
+    -------
+    calibration : DetailCalibration
+    lowpass : (n1, 3) ndarray
+        The source's calibrated low-pass shape (the source itself when ``time`` is 0).
+    """
+    levels = _ladder(eig_1)
+    compare = _heat_operator(eig_2, COMPARE_TIME * eig_2.area)
+    T = np.asarray(eig_2.vertices, dtype=np.float64)
+    fits = np.array([_procrustes(compare, X[p2p_21], T)[1] for X in levels])
+    mean = fits @ eig_2.mass / eig_2.area
+    best = int(np.argmax(mean))
+    lowpass, fit_at, time = levels[best], fits[best], (0.0, *LADDER)[best]
+    if best == 0:
+        lacking = np.zeros(eig_2.n_vertices)
+    else:
+        around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
+        gained = around(fit_at - fits[0])
+        misfit = around(1.0 - fits[0])
+        reduced = np.divide(gained, misfit, out=np.zeros_like(gained), where=misfit > 0)
+        lacking = np.clip(reduced / LACKING, 0.0, 1.0)
+    share = float(eig_2.mass @ lacking) / eig_2.area
+    logger.info("detail calibration: low-pass at heat time %.3g of the source's area (fit "
+                "%.3f, the source itself %.3f); the target lacks %.0f %% of its detail",
+                time, float(fit_at @ eig_2.mass) / eig_2.area, mean[0], 100.0 * share)  # fmt: skip
+    calibration = DetailCalibration(time=time, fits=mean, lacking=lacking, share=share)
+    return calibration, lowpass
+
+
+def _positive(value: Any, name: str) -> float:
+    """Return a fraction of the area in (0, 1] (a heat time per area)."""
+    x = check_number(value, name, 0.0, 1.0)
+    if x == 0.0:
+        raise OptionError(name, "must be > 0 (a heat time, as a fraction of the area); got 0")
+    return x
 
 
 def _check_band(band: Any, eig: EigenBasis, name: str) -> int:
@@ -375,8 +540,8 @@ def check_coordinates_area(
 
 def transfer_detail_frames(
     eig_1: EigenBasis, eig_2: EigenBasis, *, p2p_21: Any = None,
-    correspondence: Correspondence | None = None, mode: str = "add", band: int = DETAIL_BAND,
-    amount: float = 1.0, carry: str = "p2p", rotation_k: int = ROTATION_K,
+    correspondence: Correspondence | None = None, mode: str = "add", band: int | None = None,
+    amount: float = 1.0, carry: str = "p2p", rotation_time: float | None = None,
     fit_range: tuple[float, float] | None = FIT_RANGE, normals_1: Any = None, normals_2: Any = None,
 ) -> np.ndarray:  # fmt: skip
     """Give the target the source's geometric detail, in local frames; return new positions.
@@ -384,37 +549,39 @@ def transfer_detail_frames(
     Parameters
     ----------
     eig_1, eig_2 : EigenBasis
-        Source (with the detail) and target eigenbases, each with ``k >= band`` and
-        ``k >= rotation_k`` (and the OFP bases' 29 / 39 for ``carry="ofp"``). Their
-        ``vertices`` are the two shapes.
+        Source (with the detail) and target eigenbases. Their ``vertices`` are the two shapes;
+        with ``band`` given each needs ``k >= band`` (and the OFP bases' 29 / 39 for
+        ``carry="ofp"``).
     p2p_21 : (n2,) array_like of int, optional
         Point map: the source vertex of every target vertex.
     correspondence : Correspondence, optional
         A map from :func:`o3d_ofp.match` (its point map is used). Give exactly one of the two.
     mode : {"add", "replace-detail"}, default "add"
-        "add": the target keeps its own detail and the source's is added on top (right for a
-        smooth target: it is taken as its own low-pass shape). "replace-detail": the
-        target's own detail above ``band`` is replaced by the source's (added to the target's
-        low-pass shape; a shape given itself as source then comes back unchanged; on a smoothed
-        target, see the module notes). (Mode "coordinates" moves the target through the OFP
-        bases: :func:`o3d_ofp.transfer_detail`.)
-    band : int, default 30
-        Low band, in eigenfunctions: the detail is the part of the coordinates above the
-        first ``band`` eigenfunctions. Lower takes more of the source's shape (and of its
-        pose), higher only its finer detail. Onto a part (a partial map, or a given or
-        closest-point map whose image covers less than :data:`PART_COVERAGE` of the source,
-        onto a target of less than that area), the target's low band is its
-        eigenfunctions up to the source's ``band``-th eigenvalue (about the area ratio times
-        ``band``), and its detail and size are compared with the region the part covers.
+        "add": the target keeps its own detail and gains what it lacks of the source's (with
+        ``band`` given: all of the source's detail above ``band``, on top of its own).
+        "replace-detail": the target's own detail is removed (the same low-pass) and the
+        source's put in its place everywhere (a shape given itself as source then comes back
+        unchanged). (Mode "coordinates" moves the target through the OFP bases:
+        :func:`o3d_ofp.transfer_detail`.)
+    band : int, optional
+        None (default): the detail is calibrated on the two shapes (:func:`calibrate_detail`):
+        the source's low-pass is the one the target fits best, and the target gains the
+        detail above it where it lacks it. An int: the detail is what the coordinates have
+        above the first ``band`` eigenfunctions, added everywhere (an expert's override).
+        Onto a part (a partial map, or a given or closest-point map whose image covers less
+        than :data:`PART_COVERAGE` of the source, onto a target of less than that area), the
+        target's band is its eigenfunctions up to the source's ``band``-th eigenvalue, and the
+        detail's size is compared with the region the part covers.
     amount : float, default 1.0
         Multiplies the transferred detail, in [0, 10] (0 returns the base surface).
     carry : {"p2p", "ofp"}, default "p2p"
         How the detail reaches the target: pulled back through the point map, or transferred
         with the OFP bases (order 2 on 29 / 39 eigenfunctions, "ours*"; measured: see the
         module notes).
-    rotation_k : int, default 10
-        Size of the neighbourhood the local rotations are fitted on (heat kernel at time
-        ``1/λ_rotation_k``).
+    rotation_time : float, optional
+        Neighbourhoods of the local rotations (heat time / area, see :func:`local_rotations`);
+        default :data:`ROTATION_TIME`, or :data:`ROTATION_WIDER` times the low-pass's own time
+        when that is longer.
     fit_range : (float, float) or None, default (0.7, 0.9)
         Fits (see :func:`local_rotations`) between which the trust in the map goes from none
         to full, ``0 <= lo < hi <= 1``; ``None`` trusts the map everywhere.
@@ -437,19 +604,38 @@ def transfer_detail_frames(
     options = DetailOptions(mode=mode, band=band, amount=amount)
     correspondence = _checked(eig_1, eig_2, p2p_21, correspondence, options.mode, carry)
     mode, amount, p2p = options.mode, options.amount, np.asarray(correspondence.p2p_21)
-    band_1 = _check_band(band, eig_1, "eig_1")
-    _check_band(band, eig_2, "eig_2")
-    rotation_k = check_int(rotation_k, name="rotation_k", minimum=1, maximum=eig_2.k)
+    if options.band is not None:
+        _check_band(options.band, eig_1, "eig_1")
+        _check_band(options.band, eig_2, "eig_2")
+    if rotation_time is not None:
+        rotation_time = _positive(rotation_time, "rotation_time")
     if fit_range is not None:
         lo, hi = (float(v) for v in fit_range)
         if not 0.0 <= lo < hi <= 1.0:
             raise ValueError(f"fit_range must be (lo, hi) with 0 <= lo < hi <= 1; got {fit_range}")
-    low_1 = lowpass_coordinates(eig_1, band_1)
+    region = _part_region(eig_1, eig_2, correspondence)
+    T = np.asarray(eig_2.vertices, dtype=np.float64)
+    if options.band is None:
+        calibration, low_1 = calibrate_detail(eig_1, eig_2, p2p)
+        lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
+        smoothed = calibration.time > 0 and mode == "replace-detail"
+        base = _heat_operator(eig_2, calibration.time * eig_2.area)(T) if smoothed else T
+        if mode == "add" and amount > 0 and calibration.share < NOTHING_ADDED:
+            _warn_nothing_added(calibration)
+        blurred = calibration.time
+    else:
+        low_1 = lowpass_coordinates(eig_1, options.band)
+        band_2 = options.band if region is None else _part_band(
+            eig_1, eig_2, options.band, float(eig_1.mass[region].sum()) / eig_2.area
+        )  # fmt: skip
+        base = T if mode == "add" else lowpass_coordinates(eig_2, band_2)
+        if mode == "add" and amount > 0:
+            _warn_detailed_target(eig_1, eig_2, low_1, region, options.band, band_2)
+        lacking = np.ones(eig_2.n_vertices)
+        blurred = 1.0 / (float(eig_1.evals[options.band]) * eig_1.area)
+    if rotation_time is None:
+        rotation_time = min(1.0, max(ROTATION_TIME, ROTATION_WIDER * blurred))
     detail_1 = eig_1.vertices - low_1
-    region, band_2 = _onto_part(eig_1, eig_2, correspondence, band_1)
-    base = np.array(eig_2.vertices) if mode == "add" else lowpass_coordinates(eig_2, band_2)
-    if mode == "add" and amount > 0:
-        _warn_detailed_target(eig_1, eig_2, low_1, region, band_1, band_2)
     if carry == "p2p":
         low_at_2, detail_at_2 = low_1[p2p], detail_1[p2p]
     else:
@@ -457,7 +643,7 @@ def transfer_detail_frames(
         both = transfer_function(np.hstack([low_1, detail_1]), eig_1, eig_2,
                                  correspondence=correspondence, options=ours)  # fmt: skip
         low_at_2, detail_at_2 = both[:, :3], both[:, 3:]
-    R, fit = local_rotations(eig_2, low_at_2, base, rotation_k=rotation_k)
+    R, fit = local_rotations(eig_2, low_at_2, base, rotation_time=rotation_time)
     moved = np.einsum("nij,nj->ni", R, detail_at_2)
     if fit_range is not None:
         w = np.clip((fit - lo) / (hi - lo), 0.0, 1.0)
@@ -469,8 +655,18 @@ def transfer_detail_frames(
             moved += ((1.0 - w) * mean_height)[:, None] * n2
         logger.debug("map trusted at %.1f %% of the target", 100.0 * float(w.mean()))
     scale = _detail_scale(eig_1, eig_2, base, low_1, region)
-    logger.debug("detail transfer: band %d, scale %.4g, carry %s", band_1, scale, carry)
-    return base + (amount * scale) * moved
+    logger.debug("detail transfer: scale %.4g, carry %s", scale, carry)
+    return base + (amount * scale) * lacking[:, None] * moved
+
+
+def _warn_nothing_added(calibration: DetailCalibration) -> None:
+    warn(logger, Said(
+        "the target already has the source's detail (it lacks {share:.0%} of it, below "
+        "{bound:.0%}): little was added; {band} adds the detail above that many "
+        "eigenfunctions everywhere, and aligned copies take the source's surface with "
+        "{coordinates_closest}",
+        {"share": calibration.share, "bound": NOTHING_ADDED}, "nothing_added",
+    ))  # fmt: skip
 
 
 def _checked(
@@ -506,15 +702,15 @@ def _detail_scale(
     return math.sqrt(area_base / area_low) if area_low > 0 else math.sqrt(eig_2.area / eig_1.area)
 
 
-def _onto_part(
-    eig_1: EigenBasis, eig_2: EigenBasis, correspondence: Correspondence, band_1: int
-) -> tuple[np.ndarray | None, int]:
-    """Return the source region a part covers (None: not a part) and the part's own band.
+def _part_region(
+    eig_1: EigenBasis, eig_2: EigenBasis, correspondence: Correspondence
+) -> np.ndarray | None:
+    """Return the source region a part covers (None: the target is no part of the source).
 
-    Onto a part of the source (a partial map), the part's eigenfunctions have higher
+    Onto a part of the source (a partial map), the source's detail and low-pass area are
+    those of the region the part covers; with a band, the part's eigenfunctions have higher
     frequencies than the whole's at the same count, so its low band is the one below the
-    source's band-th eigenvalue; the source's detail and low-pass area are those of the
-    region the part covers.
+    source's band-th eigenvalue (:func:`_part_band`).
     """
     # Measured with the true maps on the 8 cuts of
     # scripts/eval_detail.py --only parts (smooth parts): no "already has detail" warning,
@@ -534,11 +730,9 @@ def _onto_part(
         or (covered < PART_COVERAGE * eig_1.area and eig_2.area < PART_COVERAGE * eig_1.area)
     )
     if not part:
-        return None, band_1
-    band_2 = _part_band(eig_1, eig_2, band_1, covered / eig_2.area)
-    logger.info("detail transfer onto a part (%.2f of the source covered): target band %d",
-                covered / eig_1.area, band_2)  # fmt: skip
-    return region, band_2
+        return None
+    logger.info("detail transfer onto a part (%.2f of the source covered)", covered / eig_1.area)
+    return region
 
 
 def _warn_detailed_target(

@@ -26,7 +26,6 @@ from ..core.wording import OptionError, Said
 
 __all__ = [
     "COMPONENTS",
-    "DETAIL_BAND",
     "DETAIL_MODES",
     "ESTIMATION_K",
     "FIT_K",
@@ -36,6 +35,7 @@ __all__ = [
     "MatchOptions",
     "check_bool",
     "check_choice",
+    "check_number",
     "deprecated_choice",
     "required_k",
 ]
@@ -47,14 +47,6 @@ ESTIMATION_K = 99
 FIT_K = DEFAULT_K
 #: Policies for several connected components (see :func:`o3d_ofp.eigenbasis`).
 COMPONENTS = ("auto", "largest", "error")
-#: Default low band (non-constant eigenfunctions) the detail is measured from. A count of
-#: eigenfunctions, so it means the same at every resolution and scale. Measured on FAUST and
-#: TOSCA pairs (``scripts/eval_detail.py``, targets smoothed to 30 eigenfunctions, true map):
-#: distance to the truth 0.57-0.78x doing nothing at 30; a lower band (20) also takes the
-#: source's own pose and bulk (0.89-1.20x, volume +8-19 %); a higher one (40) leaves part of
-#: what the smoothing removed (0.72-0.82x). On a symmetric shape with repeated eigenvalues,
-#: choose a band that ends an eigenspace (on a sphere: 3, 8, 15, 24, 35, ...).
-DETAIL_BAND = 30
 #: Largest ``amount`` of a detail transfer: a detail exaggerated ten times is no longer the
 #: source's detail.
 MAX_AMOUNT = 10.0
@@ -137,7 +129,8 @@ def deprecated_choice(name: str, value: Any) -> Any:
     return new
 
 
-def _number(value: Any, name: str, lo: float, hi: float = math.inf) -> float:
+def check_number(value: Any, name: str, lo: float, hi: float = math.inf) -> float:
+    """Return ``value`` as a float when it is a finite real number in ``[lo, hi]``."""
     real = not isinstance(value, bool) and isinstance(value, numbers.Real)
     if not (real and math.isfinite(value) and lo <= value <= hi):
         bound = f">= {lo:g}" if hi == math.inf else f"in [{lo:g}, {hi:g}]"
@@ -224,7 +217,7 @@ class MatchOptions:
                                 or sub < 2):  # fmt: skip
             raise OptionError("zoomout_subsample", f"must be None or an integer >= 2; got {sub!r}")
         check_choice(self.descriptors, "descriptors", ("wks",) if self.partial else ("wks", "hks"))
-        _number(self.w_orient, "w_orient", 0.0)
+        check_number(self.w_orient, "w_orient", 0.0)
         closest = self.method == "closest"
         for name, wrong in (
             ("partial", self.partial and closest),
@@ -302,18 +295,23 @@ class DetailOptions:
     ----------
     mode : {"add", "replace-detail", "coordinates"}
         "replace" is the deprecated name of "coordinates" (a DeprecationWarning).
-    band : int
-        Eigenfunctions of the low band the detail is measured above.
+    band : int or None
+        None (the default): the detail is what the target lacks, calibrated on the two
+        shapes (:func:`o3d_ofp.workflows.detail.calibrate_detail`). An int: the detail is
+        what the coordinates have above this many eigenfunctions, whatever the target has
+        (an expert's override; on a sphere choose a count that ends an eigenspace: 3, 8,
+        15, 24, 35, ...).
     amount : float
         Multiplies the transferred detail, in [0, :data:`MAX_AMOUNT`].
     """
 
     mode: str = "add"
-    band: int = DETAIL_BAND
+    band: int | None = None
     amount: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mode", deprecated_choice("mode", self.mode))
         check_choice(self.mode, "mode", DETAIL_MODES)
-        object.__setattr__(self, "band", check_int(self.band, name="band", minimum=1))
-        object.__setattr__(self, "amount", _number(self.amount, "amount", 0.0, MAX_AMOUNT))
+        if self.band is not None:
+            object.__setattr__(self, "band", check_int(self.band, name="band", minimum=1))
+        object.__setattr__(self, "amount", check_number(self.amount, "amount", 0.0, MAX_AMOUNT))

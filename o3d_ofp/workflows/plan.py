@@ -36,17 +36,13 @@ from .maps import Correspondence, given_map_collapse, same_shape, warn_other_sha
 from .options import BasisOptions, DetailOptions, MatchOptions, check_choice
 from .partial import check_partial_areas, refuse_clouds
 
-__all__ = ["ROTATION_K", "TASKS", "Plan", "Prepared", "plan_pair", "prepare", "prepare_source"]
+__all__ = ["TASKS", "Plan", "Prepared", "plan_pair", "prepare", "prepare_source"]
 
 logger = logging.getLogger(__name__)
 
 #: What a job asks for: the map only, colors (or any signal) on the target's vertices, the
 #: source's texture baked into the target's UVs, or the source's geometric detail.
 TASKS = ("map", "colors", "texture", "detail")
-#: Neighbourhood of the detail transfer's local rotation fit: the heat kernel at time
-#: ``1/λ_k`` for this k, a region a few times wider than a limb on a human (measured: 10 and
-#: 20 give the same results; 3 blurs the rotations of neighbouring parts).
-ROTATION_K = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -236,8 +232,10 @@ def _task_needs(
         own = (bases.k1, bases.k2)
         need = [b.k if b is not None else k for b, k in zip(given_bases, own, strict=True)]
         what = ["" if b is not None else f"k{i + 1}" for i, b in enumerate(given_bases)]
-    elif task == "detail":
-        need, what = [max(detail.band, ROTATION_K)] * 2, ["band"] * 2
+    elif task == "detail" and detail.band is not None:
+        need, what = [detail.band] * 2, ["band"] * 2
+    elif task == "detail":  # calibrated: the shapes' operators, no eigenfunction read
+        need, what = [1, 1], ["", ""]
     else:
         need, what = [0, 0], ["", ""]
     if given is not None and given.fmap_12 is not None and bases.matrix == "analytic":
@@ -255,8 +253,8 @@ def _task_needs(
 def _refuse_bases(task: str, detail: DetailOptions, closest: bool) -> None:
     """Refuse basis options given to a task that builds no OFP basis, saying why it builds none."""
     if task == "detail":
-        why = Said("mode {mode!r} reads each shape's eigenfunctions up to band ({band})",
-                   {"mode": detail.mode, "band": detail.band})  # fmt: skip
+        why = Said("mode {mode!r} carries the source's detail in local frames, with no OFP basis",
+                   {"mode": detail.mode})  # fmt: skip
     elif task == "colors":
         why = Said(
             "the exact pull-back ({why}) carries the colors with no OFP basis; drop it, or pass "
