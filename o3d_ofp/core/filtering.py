@@ -283,8 +283,9 @@ def _uniform_mass(eig: EigenBasis) -> np.ndarray:
 def _umbrella_operators(eig: EigenBasis) -> tuple[sp.csr_matrix, np.ndarray]:
     """Return the umbrella (graph) Laplacian ``D − A`` of the shape's neighbours and its mass.
 
-    The neighbours are the mesh's edges (welded copies of a vertex share theirs), or for a
-    cloud those of its cotangent stiffness, each weighing 1; the mass
+    The neighbours are the mesh's edges (welded copies of a vertex share theirs, each copy
+    weighing one share), or for a cloud those of its cotangent stiffness, each weighing 1; the
+    mass
     ``(h² / 4) · degree``, ``h²`` the mean squared edge length, makes its eigenvalues those of
     the surface's Laplacian on a regular mesh. Vertices left out of the surface get no mass.
     """
@@ -297,7 +298,11 @@ def _umbrella_operators(eig: EigenBasis) -> tuple[sp.csr_matrix, np.ndarray]:
             m = c.n_vertices
             edges = c.index[pairs]
             kept = np.flatnonzero(c.kept)  # a removed vertex stands for no one's neighbour
-            link = sp.csr_matrix((np.ones(kept.size), (kept, c.index[kept])), shape=(n, m))
+            # each copy of a welded vertex weighs 1 / its copies: a split mesh (UV seams, a
+            # triangle soup) is smoothed as the welded one, and its mass split as
+            # _uniform_mass splits it
+            share = 1.0 / np.maximum(c.multiplicity.astype(np.float64), 1.0)[c.index[kept]]
+            link = sp.csr_matrix((share, (kept, c.index[kept])), shape=(n, m))
         else:
             m, edges, link = n, pairs, None
         edges = edges[edges[:, 0] != edges[:, 1]]
@@ -430,8 +435,11 @@ def smooth_coordinates(
     Parameters
     ----------
     B : OFPBasis or EigenBasis
-        The shape's basis (its Laplacian, area and faces are used; the result is not limited to
-        the span of the basis).
+        The shape's basis (its faces, neighbours and area are used, with the umbrella weights
+        of :data:`SMOOTH_WEIGHTS`; the result is not limited to the span of the basis). The
+        umbrella weights also even out the sampling: on an unevenly sampled mesh vertices
+        slide along the surface (measured on a graded sphere at ``smooth=0.01``: up to 4.8 %
+        of an edge, 0.03 % with cotangent weights), which moves texture coordinates' content.
     vertices : (n, 3) array_like of float
         Coordinates to smooth (usually the shape's own vertices).
     smooth : float, default 0.01

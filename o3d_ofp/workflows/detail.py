@@ -13,7 +13,7 @@ a source to a target through a map and re-applied in the target's local frames:
   fits the source itself as well (a part left detailed, a target as detailed as the source),
   nothing is added there. Measured (``scripts/eval_detail.py``: five pairs, targets made by
   seven smoothers the library does not own, true maps): surface distance to the truth 0.89x
-  doing nothing on average, never above 1.01x; a fixed band of 30 eigenfunctions added its
+  doing nothing on average, at most 1.02x; a fixed band of 30 eigenfunctions added its
   detail on top of what the smoothing left: 5.4x on average, 36.8x at worst.
 * **Local frames.** At every target vertex ``i`` the frame of the source's low-pass surface at
   the corresponding point is turned into the target's by ``R_i``, the rotation that best aligns
@@ -28,17 +28,18 @@ a source to a target through a map and re-applied in the target's local frames:
 * **Carrying.** The detail vectors and the low-pass coordinates are carried to the target
   either by pulling them back through the point map (``carry="p2p"``) or with the OFP transfer
   of the paper (``carry="ofp"``, :func:`o3d_ofp.workflows.pipeline.transfer_function`).
-  Measured with the true map: the OFP transfer loses most of the detail (distance 0.79-0.97x
-  doing nothing and normal angle 0.98-1.16x, against 0.57-0.78x and 0.45-0.59x pulled back).
+  Measured with the true map on the former benchmark (targets projected on 30
+  eigenfunctions, band 30): the OFP transfer loses most of the detail (distance 0.79-0.97x
+  doing nothing, normal angle 0.98-1.16x; pulled back 0.57-0.78x and 0.45-0.59x).
   With a wrong map both are the same (the map is not trusted).
 * **Trust in the map.** Where the map is wrong the two low-pass neighbourhoods do not match:
   the fitted rotation then leaves a poor fit (see :func:`local_rotations`). The detail is
   weighted by ``clip((fit − 0.7) / (0.9 − 0.7), 0, 1)``; where it is not trusted, the target
   gets instead the source's mean detail height along its normals, the one part of the detail
-  no map is needed for (a functional map always takes constants to constants). Measured: a
-  wrong map then leaves the target where it was (distance 0.89-0.93x doing nothing, against
-  1.4-1.7x without the weights), and the weights also help with the true map (0.67x against
-  0.70x on average).
+  no map is needed for (a functional map always takes constants to constants). Measured on
+  the former benchmark (band 30): a wrong map then leaves the target where it was (distance
+  0.89-0.93x doing nothing, against 1.4-1.7x without the weights), and the weights also help
+  with the true map (0.67x against 0.70x on average).
 * **Scale.** The detail is scaled by ``sqrt(area(base) / area(P X₁))``: the ratio of the areas
   of the surface it is added to and of the surface it was measured from (for point clouds, the
   total vertex masses of the two shapes), so it follows the sizes of the two shapes and
@@ -76,7 +77,7 @@ from ..core.geometry import face_areas_normals, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
 from ..core.wording import OptionError, Said
 from .maps import Correspondence, check_correspondence
-from .options import BasisOptions, DetailOptions, check_number
+from .options import BasisOptions, DetailOptions, check_number, moved_keywords
 from .pipeline import transfer_function
 
 __all__ = [
@@ -103,9 +104,10 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Fit (see :func:`local_rotations`) below which the map is not trusted at a vertex, and above
-#: which it is fully trusted. Measured at the defaults: true maps 0.70-0.83 at the 5th
-#: percentile, median 0.91-0.94; failed estimated maps median 0.40-0.48, 95th percentile
-#: 0.65-0.77. (0.6, 0.85) and (0.75, 0.95) give within 0.03 the same distances.
+#: which it is fully trusted. Measured with neighbourhoods of ``1/λ_10`` (before
+#: :data:`ROTATION_TIME`; not measured again) between 30-eigenfunction low-passes: true maps
+#: 0.70-0.83 at the 5th percentile, median 0.91-0.94; failed estimated maps median 0.40-0.48,
+#: 95th percentile 0.65-0.77. (0.6, 0.85) and (0.75, 0.95) give within 0.03 the same distances.
 FIT_RANGE = (0.7, 0.9)
 _CARRIES = ("p2p", "ofp")
 
@@ -257,6 +259,7 @@ def _procrustes(heat: Any, source: np.ndarray, target: np.ndarray) -> tuple[np.n
     return rotations, np.clip(fit, -1.0, 1.0)
 
 
+@moved_keywords(rotation_k="rotation_time= (a heat time, as a fraction of the area)")
 def local_rotations(
     eig: EigenBasis, source: Any, target: Any, *, rotation_time: float = ROTATION_TIME
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -321,17 +324,25 @@ class DetailCalibration:
     share: float
 
 
+def _heat_lowpass(eig: EigenBasis, time: float) -> np.ndarray:
+    """Return one level of :data:`LADDER`: the coordinates after heat steps, spread kept.
+
+    :data:`STEPS` implicit steps of total time ``time · area``, then the result scaled back
+    to the coordinates' spread (RMS distance from the centroid); 0 returns the coordinates.
+    """
+    X = np.asarray(eig.vertices, dtype=np.float64)
+    if time == 0.0:
+        return X
+    step = _heat_operator(eig, time * eig.area / STEPS)
+    Y = X
+    for _ in range(STEPS):
+        Y = step(Y)
+    return _same_spread(eig, X, Y)
+
+
 def _ladder(eig: EigenBasis) -> list[np.ndarray]:
     """Return the coordinates, then their heat low-passes at the :data:`LADDER` times."""
-    X = np.asarray(eig.vertices, dtype=np.float64)
-    out = [X]
-    for c in LADDER:
-        step = _heat_operator(eig, c * eig.area / STEPS)
-        Y = X
-        for _ in range(STEPS):
-            Y = step(Y)
-        out.append(_same_spread(eig, X, Y))
-    return out
+    return [np.asarray(eig.vertices, dtype=np.float64)] + [_heat_lowpass(eig, c) for c in LADDER]
 
 
 def _same_spread(eig: EigenBasis, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -343,7 +354,7 @@ def _same_spread(eig: EigenBasis, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return centre_y + (spread_x / spread_y) * (Y - centre_y) if spread_y > 0 else Y
 
 
-def _steady_map(eig_1: EigenBasis, eig_2: EigenBasis, p2p_21: np.ndarray) -> np.ndarray:
+def _steady_map(eig_1: EigenBasis, compare: Any, p2p_21: np.ndarray) -> np.ndarray:
     """Return the map with its jitter averaged out.
 
     Each target vertex goes to the source vertex nearest the mean of its neighbourhood's
@@ -355,8 +366,8 @@ def _steady_map(eig_1: EigenBasis, eig_2: EigenBasis, p2p_21: np.ndarray) -> np.
     true maps unchanged (0.89x on average).
     """
     S = np.asarray(eig_1.vertices, dtype=np.float64)
-    mean = _heat_operator(eig_2, COMPARE_TIME * eig_2.area)(S[p2p_21])
-    return nearest_neighbors(S, mean)
+    kept = np.flatnonzero(eig_1.mass > 0)  # vertices left out of the surface are no images
+    return kept[nearest_neighbors(S[kept], compare(S[p2p_21]))]
 
 
 def calibrate_detail(
@@ -387,9 +398,12 @@ def calibrate_detail(
     lowpass : (n1, 3) ndarray
         The source's calibrated low-pass shape (the source itself when ``time`` is 0).
     """
+    check_eigenbasis(eig_1, "eig_1")
+    check_eigenbasis(eig_2, "eig_2")
+    p2p_21 = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     levels = _ladder(eig_1)
-    p2p_21 = _steady_map(eig_1, eig_2, np.asarray(p2p_21))
     compare = _heat_operator(eig_2, COMPARE_TIME * eig_2.area)
+    p2p_21 = _steady_map(eig_1, compare, p2p_21)
     T = np.asarray(eig_2.vertices, dtype=np.float64)
     fits = np.array([_procrustes(compare, X[p2p_21], T)[1] for X in levels])
     mean = fits @ eig_2.mass / eig_2.area
@@ -407,6 +421,8 @@ def calibrate_detail(
     logger.info("detail calibration: low-pass at heat time %.3g of the source's area (fit "
                 "%.3f, the source itself %.3f); the target lacks %.0f %% of its detail",
                 time, float(fit_at @ eig_2.mass) / eig_2.area, mean[0], 100.0 * share)  # fmt: skip
+    mean.setflags(write=False)
+    lacking.setflags(write=False)
     calibration = DetailCalibration(time=time, fits=mean, lacking=lacking, share=share)
     return calibration, lowpass
 
@@ -556,6 +572,7 @@ def check_coordinates_area(
     ))  # fmt: skip
 
 
+@moved_keywords(rotation_k="rotation_time= (a heat time, as a fraction of the area)")
 def transfer_detail_frames(
     eig_1: EigenBasis, eig_2: EigenBasis, *, p2p_21: Any = None,
     correspondence: Correspondence | None = None, mode: str = "add", band: int | None = None,
@@ -636,9 +653,10 @@ def transfer_detail_frames(
     if options.band is None:
         calibration, low_1 = calibrate_detail(eig_1, eig_2, p2p)
         lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
-        smoothed = calibration.time > 0 and mode == "replace-detail"
-        base = _heat_operator(eig_2, calibration.time * eig_2.area)(T) if smoothed else T
-        if mode == "add" and amount > 0 and calibration.share < NOTHING_ADDED:
+        # replace-detail: the target's own detail goes by the same low-pass, on its own shape
+        base = T if mode == "add" else _heat_lowpass(eig_2, calibration.time)
+        share = calibration.share if mode == "add" else float(calibration.time > 0)
+        if amount > 0 and share < NOTHING_ADDED:
             _warn_nothing_added(calibration)
         blurred = calibration.time
     else:
@@ -679,10 +697,11 @@ def transfer_detail_frames(
 
 def _warn_nothing_added(calibration: DetailCalibration) -> None:
     warn(logger, Said(
-        "the target already has the source's detail (it lacks {share:.0%} of it, below "
-        "{bound:.0%}): little was added; {band} adds the detail above that many "
-        "eigenfunctions everywhere, and aligned copies take the source's surface with "
-        "{coordinates_closest}",
+        "no detail the target lacks was found (it fits the source's low-passes no better than "
+        "the source itself; {share:.0%} of it lacking, below {bound:.0%}): little was "
+        "changed. To add the source's detail anyway, {band} adds the detail above that many "
+        "eigenfunctions everywhere (on top of the target's own); aligned copies take the "
+        "source's surface with {coordinates_closest}",
         {"share": calibration.share, "bound": NOTHING_ADDED}, "nothing_added",
     ))  # fmt: skip
 
