@@ -801,6 +801,28 @@ def _counted_runs(monkeypatch, change=None):
     return runs, maps
 
 
+def _send_a_landmark_far(monkeypatch, V, landmarks):
+    """Make the full map send the second landmark's target vertex far; return where, and more.
+
+    The target vertex goes to the source vertex farthest from the landmark's source vertex;
+    the real extension is returned to be put back.
+    """
+    import o3d_ofp.workflows.partial as workflow
+
+    source, target = landmarks[1]
+    far = int(np.argmax(np.linalg.norm(V - V[source], axis=1)))
+    real_extend = workflow._extend_partial
+
+    def moving(corr, *args, **options):
+        p2p, corr = real_extend(corr, *args, **options)
+        p2p = p2p.copy()
+        p2p[target] = far
+        return p2p, corr
+
+    monkeypatch.setattr(workflow, "_extend_partial", moving)
+    return far, real_extend
+
+
 def _three_landmarks(truth: np.ndarray) -> np.ndarray:
     """Three known (source, target) pairs of the cut: first, middle and last target vertex.
 
@@ -964,17 +986,8 @@ def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     V, F, _ = whole
     Vc, Fc, truth, _ = cut
     landmarks = _three_landmarks(truth)
-    source, target = landmarks[1]
-    far = int(np.argmax(np.linalg.norm(V - V[source], axis=1)))
-    real_extend = workflow._extend_partial
-
-    def moving(corr, *args, **options):
-        p2p, corr = real_extend(corr, *args, **options)
-        p2p = p2p.copy()
-        p2p[target] = far
-        return p2p, corr
-
-    monkeypatch.setattr(workflow, "_extend_partial", moving)
+    far, real_extend = _send_a_landmark_far(monkeypatch, V, landmarks)
+    target = landmarks[1, 1]
     runs, _ = _counted_runs(monkeypatch)
     options = _partial(landmarks=landmarks)
     with pytest.warns(OFPWarning, match="the full map sends 1 of the 3 landmarks") as said:
@@ -1002,8 +1015,6 @@ def test_a_dense_partial_map_without_opinions_still_checks_its_landmarks_on_the_
     The opinions are a second look at a map that passed; the landmark check at full
     resolution is the map's own (the coarse check read the coarse map).
     """
-    import o3d_ofp.workflows.partial as workflow
-
     V, F, e1 = whole
     Vc, Fc, truth, _ = cut
     landmarks = _three_landmarks(truth)
@@ -1017,17 +1028,7 @@ def test_a_dense_partial_map_without_opinions_still_checks_its_landmarks_on_the_
     off = np.linalg.norm(V[kept.p2p_21[landmarks[:, 1]]] - V[landmarks[:, 0]], axis=1)
     assert f"at most {off.max() / math.sqrt(e1.area):.3f} of" in full_note
     # a full map that sends a landmark far is flagged, without opinions too
-    source, target = landmarks[1]
-    far = int(np.argmax(np.linalg.norm(V - V[source], axis=1)))
-    real_extend = workflow._extend_partial
-
-    def moving(corr, *args, **keywords):
-        p2p, corr = real_extend(corr, *args, **keywords)
-        p2p = p2p.copy()
-        p2p[target] = far
-        return p2p, corr
-
-    monkeypatch.setattr(workflow, "_extend_partial", moving)
+    _send_a_landmark_far(monkeypatch, V, landmarks)
     moved = estimate_dense(V, F, Vc, Fc, options=options, opinions=False)
     assert moved.quality.suspect and "landmarks_far" in moved.quality.codes()
 

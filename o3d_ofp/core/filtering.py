@@ -50,6 +50,7 @@ from ._threads import one_blas_thread
 from ._validation import as_signal, as_vertices, check_int
 from ._warnings import warn
 from .basis import OFPBasis
+from .geometry import unique_edges
 from .spectrum import EigenBasis
 
 __all__ = [
@@ -66,6 +67,7 @@ __all__ = [
     "smooth_coordinates",
     "smooth_gains",
     "spectral_filter",
+    "spread_scale",
 ]
 
 logger = logging.getLogger(__name__)
@@ -292,11 +294,10 @@ def _umbrella_operators(eig: EigenBasis) -> tuple[sp.csr_matrix, np.ndarray]:
     n = eig.n_vertices
     if eig.faces is not None and len(eig.faces):
         F = np.asarray(eig.faces)
-        pairs = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
         c = eig.cleaning
         if c is not None:  # on the cleaned vertices, then back to every copy of each
             m = c.n_vertices
-            edges = c.index[pairs]
+            edges = unique_edges(c.index[F])[0]
             kept = np.flatnonzero(c.kept)  # a removed vertex stands for no one's neighbour
             # each copy of a welded vertex weighs 1 / its copies: a split mesh (UV seams, a
             # triangle soup) is smoothed as the welded one, and its mass split as
@@ -304,10 +305,10 @@ def _umbrella_operators(eig: EigenBasis) -> tuple[sp.csr_matrix, np.ndarray]:
             share = 1.0 / np.maximum(c.multiplicity.astype(np.float64), 1.0)[c.index[kept]]
             link = sp.csr_matrix((share, (kept, c.index[kept])), shape=(n, m))
         else:
-            m, edges, link = n, pairs, None
-        edges = edges[edges[:, 0] != edges[:, 1]]
+            m, edges, link = n, unique_edges(F)[0], None
+        edges = edges[edges[:, 0] != edges[:, 1]]  # welded ends: no edge
         A = sp.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(m, m))
-        A = ((A + A.T) > 0).astype(np.float64)
+        A = A + A.T
         if link is not None:
             A = (link @ A @ link.T).tocsr()
     else:
@@ -405,7 +406,7 @@ def _keep_size(eig: EigenBasis, reference: np.ndarray, X: np.ndarray) -> np.ndar
             logger.warning("the enclosed volume is not defined here; the size is not restored")
             return X
         s = ratio ** (1.0 / 3.0)
-        extent = _rms_scale(w, reference, X, centre)
+        extent = spread_scale(w, reference, X, centre)
         if s > KEEP_SIZE_EXTENT * extent:
             warn(
                 logger,
@@ -416,12 +417,30 @@ def _keep_size(eig: EigenBasis, reference: np.ndarray, X: np.ndarray) -> np.ndar
             )
             s = KEEP_SIZE_EXTENT * extent
     else:
-        s = _rms_scale(w, reference, X, centre)
+        s = spread_scale(w, reference, X, centre)
     return _unchanged_outside(eig, X, centre + s * (X - centre))
 
 
-def _rms_scale(w: np.ndarray, reference: np.ndarray, X: np.ndarray, centre: np.ndarray) -> float:
-    """Scale of X about ``centre`` that restores the mass-weighted RMS radius of ``reference``."""
+def spread_scale(
+    w: np.ndarray, reference: np.ndarray, X: np.ndarray, centre: np.ndarray
+) -> float:
+    """Return the scale of X about ``centre`` that restores ``reference``'s spread.
+
+    Parameters
+    ----------
+    w : (n,) ndarray
+        Vertex weights summing to 1 (the masses over the area).
+    reference, X : (n, 3) ndarray
+        The shape whose spread (weighted RMS distance from its weighted centroid) is kept,
+        and the shape scaled.
+    centre : (3,) ndarray
+        The point X is scaled about.
+
+    Returns
+    -------
+    float
+        The scale (1 when X has no spread about ``centre``).
+    """
     r_ref = math.sqrt(w @ ((reference - w @ reference) ** 2).sum(1))
     r_out = math.sqrt(w @ ((X - centre) ** 2).sum(1))
     return r_ref / r_out if r_out > 0 else 1.0

@@ -73,6 +73,7 @@ import scipy.sparse.linalg as sla
 from ..core._threads import blas_threads
 from ..core._warnings import warn
 from ..core.correspondence import check_p2p, nearest_neighbors
+from ..core.filtering import spread_scale
 from ..core.geometry import face_areas_normals, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
 from ..core.wording import OptionError, Said
@@ -348,10 +349,8 @@ def _ladder(eig: EigenBasis) -> list[np.ndarray]:
 def _same_spread(eig: EigenBasis, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Y scaled about its centroid to X's mass-weighted RMS distance from its own centroid."""
     w = eig.mass / eig.area
-    centre_x, centre_y = w @ X, w @ Y
-    spread_x = math.sqrt(float(w @ ((X - centre_x) ** 2).sum(1)))
-    spread_y = math.sqrt(float(w @ ((Y - centre_y) ** 2).sum(1)))
-    return centre_y + (spread_x / spread_y) * (Y - centre_y) if spread_y > 0 else Y
+    centre = w @ Y
+    return centre + spread_scale(w, X, Y, centre) * (Y - centre)
 
 
 def _steady_map(eig_1: EigenBasis, compare: Any, p2p_21: np.ndarray) -> np.ndarray:
