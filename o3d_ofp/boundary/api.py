@@ -285,7 +285,9 @@ def match(
         result. Without it, a target that looks like a part of the source is flagged suspect.
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
-        ambiguous pairs.
+        ambiguous pairs, and they drive the refinement (see
+        :func:`o3d_ofp.core.fmap.zoomout_refine`): 5-6 well-spread ones map shapes that are
+        not near-isometric (a gorilla onto a human, ``scripts/eval_nonisometric.py``).
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (see :func:`eigenbasis`).
     eigenbases : (EigenBasis, EigenBasis), optional

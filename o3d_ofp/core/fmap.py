@@ -18,20 +18,25 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 import scipy.spatial
+from scipy.sparse import csgraph
 
 from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from .descriptors import hks, wks
-from .geometry import face_areas_normals, hat_gradients, outward_sign, point_frames
+from .geometry import edge_graph, face_areas_normals, hat_gradients, outward_sign, point_frames
 from .products import eigenproduct_indices
 from .spectrum import EigenBasis, check_eigenbasis
 
 __all__ = [
+    "LANDMARK_DISTANCES",
+    "LANDMARK_WEIGHT",
+    "Anchors",
     "estimate_fmap",
     "estimate_fmaps",
     "farthest_points",
     "icp_refine",
+    "landmark_anchors",
     "lift_fmap",
     "unit_area",
     "zoomout_refine",
@@ -738,6 +743,11 @@ def grid_samples(vertices: np.ndarray, count: int) -> np.ndarray:
     return np.sort(order[firsts]).astype(np.int64)
 
 
+def _off_centre(X: np.ndarray) -> int:
+    """Return the vertex farthest from the centroid (whatever the order, position and scale)."""
+    return int(np.argmax(np.einsum("ij,ij->i", X - X.mean(axis=0), X - X.mean(axis=0))))
+
+
 def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = None) -> np.ndarray:
     """Farthest-point sampling (Euclidean): ``count`` well-spread vertex indices.
 
@@ -767,9 +777,11 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = Non
         # on ``FPS_POOL · count`` grid-spread vertices instead, as well spread at this scale.
         pool = grid_samples(X, FPS_POOL * count)
         if pool.shape[0] > count:
-            return pool[farthest_points(X[pool], count)]
+            # exact on the pool, however many it holds (a symmetric shape's grid may keep more
+            # cells than asked for; sampling the pool again could then go on forever)
+            return pool[farthest_points(X[pool], count, start=_off_centre(X[pool]))]
     if start is None:
-        start = int(np.argmax(np.einsum("ij,ij->i", X - X.mean(axis=0), X - X.mean(axis=0))))
+        start = _off_centre(X)
     chosen = np.empty(count, dtype=np.int64)
     chosen[0] = start
     diff = X - X[start]
@@ -790,6 +802,86 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = Non
     return chosen
 
 
+#: Known pairs in ZoomOut: their rows weigh, all together, this share of the fit's total weight
+#: (the samples' count, or the unit area at full resolution), and ...
+LANDMARK_WEIGHT = 0.2
+#: ... every nearest-neighbour step compares, beside the spectral embeddings, the vertices'
+#: shortest-path distances to the landmarks (over sqrt(area)) times this. Without either, a
+#: spectral refinement drifts from the landmarks that started it (they landed 0.06-0.18
+#: sqrt(area) from their pairs on gorilla -> human maps). Measured in ``ofp.match``
+#: (``scripts/eval_nonisometric.py``, 6 well-spread landmarks, mean geodesic error x100):
+#: gorilla -> human 14.1 -> 8.7 (worst 16.7 -> 10.1), TOSCA pairs of one animal in two poses
+#: 2.61 -> 2.6 (worst 6.0). Chosen on a scratch ZoomOut from each map's restriction to 30
+#: eigenfunctions (gorilla / TOSCA): weight alone 12.1 / 2.24, with distances x1 11.2 / 2.19,
+#: x3 8.3 / 2.17, x10 8.9 / 2.26; weights 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3
+#: 14.3 -> 9.6 and 2.72 -> 2.32.
+LANDMARK_DISTANCES = 3.0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Anchors:
+    """Known pairs as ZoomOut uses them (made by :func:`landmark_anchors`).
+
+    Attributes
+    ----------
+    source, target : (p,) ndarray of int
+        The landmarks' source and target vertices.
+    distances_1, distances_2 : (n1, p), (n2, p) ndarray or None
+        Shortest-path distances along the edges from every vertex to the landmarks, over
+        sqrt(area) (so the same in any units); None when either shape is a point cloud.
+    """
+
+    source: np.ndarray
+    target: np.ndarray
+    distances_1: np.ndarray | None
+    distances_2: np.ndarray | None
+
+
+def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
+    assert eig.faces is not None
+    d = csgraph.dijkstra(edge_graph(eig.vertices, eig.faces), directed=False, indices=vertices).T
+    finite = np.isfinite(d)
+    # Vertices on other pieces than a landmark's: far beyond the shape, the same on both sides.
+    far = 10.0 * float(np.max(d[finite], initial=1.0))
+    return np.where(finite, d, far) / math.sqrt(eig.area)
+
+
+def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> Anchors:
+    """Return the landmarks as :func:`zoomout_refine` anchors them.
+
+    Parameters
+    ----------
+    eig_1, eig_2 : EigenBasis
+        Source and target (their vertices, faces and areas; no eigenfunction is used).
+    landmarks : (p, 2) array_like of int
+        ``[source vertex, target vertex]`` pairs.
+
+    Returns
+    -------
+    Anchors
+        With distances when both shapes are meshes (``p`` shortest-path runs on each).
+    """
+    source, target = _landmark_pairs(landmarks)
+    if source is None or target is None or source.size == 0:
+        raise ValueError("landmarks: give at least one (source, target) pair")
+    source, target = source.astype(np.int64), target.astype(np.int64)
+    for v, eig, name in ((source, eig_1, "source"), (target, eig_2, "target")):
+        if v.min() < 0 or v.max() >= eig.n_vertices:
+            raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
+    if eig_1.faces is None or eig_2.faces is None:
+        return Anchors(source, target, None, None)
+    return Anchors(
+        source, target, _landmark_distances(eig_1, source), _landmark_distances(eig_2, target)
+    )
+
+
+def _embedded(spectral: np.ndarray, distances: np.ndarray | None) -> np.ndarray:
+    """Return the point map's coordinates: spectral, then the weighted landmark distances."""
+    if distances is None:
+        return spectral
+    return np.hstack([spectral, LANDMARK_DISTANCES * distances])
+
+
 @one_blas_thread
 def zoomout_refine(
     fmap_12: Any,
@@ -800,6 +892,7 @@ def zoomout_refine(
     step: int = 1,
     subsample: int | None = None,
     samples: tuple[np.ndarray, np.ndarray] | None = None,
+    anchors: Anchors | None = None,
 ) -> np.ndarray:
     """ZoomOut (Melzi et al. 2019): grow the map one eigenfunction at a time through p2p maps.
 
@@ -822,6 +915,12 @@ def zoomout_refine(
         The samples of each shape, when the caller already has them (``farthest_points`` of
         both shapes with ``subsample`` samples, as computed here otherwise): callers that
         refine several maps between the same shapes sample them once.
+    anchors : Anchors, optional
+        Known pairs (:func:`landmark_anchors`): every fit also asks the landmarks to map onto
+        each other (their rows weigh :data:`LANDMARK_WEIGHT` of the fit), and every point map
+        also matches the vertices' distances to the landmarks (:data:`LANDMARK_DISTANCES`):
+        the landmarks then drive the refinement instead of only its start (a spectral map
+        alone drifts from them, most between shapes that are not near-isometric).
 
     Returns
     -------
@@ -850,6 +949,10 @@ def zoomout_refine(
         if samples is None:
             s1 = farthest_points(eig_1.vertices, subsample)
             s2 = farthest_points(eig_2.vertices, subsample)
+    if anchors is not None:
+        sampled = None if subsample is None else (s1, s2)
+        return scale * _anchored_zoomout(C, eig_1, eig_2, k, k_final, step, sampled, anchors)
+    if subsample is not None:
         phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
         # The fits min ‖Ψ_s[:, :k+1] C − Φ_s[p2p, :k+1]‖ all use leading columns of Ψ_s.
         fits = _LeadingFits(psi2)
@@ -863,6 +966,40 @@ def zoomout_refine(
         p2p_sub = nearest_neighbors(phi1[:, :kc] @ C.T, psi2[:, :kc])
         C = fits.solve(k + 1, phi1[p2p_sub, : k + 1])
     return C * scale
+
+
+def _anchored_zoomout(
+    C: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, k: int, k_final: int, step: int,
+    samples: tuple[np.ndarray, np.ndarray] | None, anchors: Anchors,
+) -> np.ndarray:  # fmt: skip
+    """:func:`zoomout_refine` with known pairs (unit-area bases, the samples or None for all)."""
+    n1, n2 = eig_1.n_vertices, eig_2.n_vertices
+    if anchors.source.max() >= n1 or anchors.target.max() >= n2:
+        raise ValueError("anchors: landmark vertices outside the shapes (made for other shapes?)")
+    if samples is not None:
+        s1, s2 = samples
+        # Every sample weighs 1: the landmarks' rows weigh LANDMARK_WEIGHT of their count.
+        weights = np.ones(s2.size)
+        total = float(s2.size)
+    else:
+        s1, s2 = np.arange(n1), np.arange(n2)
+        weights = np.asarray(eig_2.mass, dtype=np.float64)  # unit area: they sum to 1
+        total = float(weights.sum())
+    phi1, psi2 = eig_1.evecs[s1, : k_final + 1], eig_2.evecs[s2, : k_final + 1]
+    d1 = None if anchors.distances_1 is None else anchors.distances_1[s1]
+    d2 = None if anchors.distances_2 is None else anchors.distances_2[s2]
+    share = math.sqrt(LANDMARK_WEIGHT * total / anchors.source.size)
+    # min Σ_i w_i ‖Ψ_i C − Φ_p(i)‖² + share² Σ_l ‖Ψ_l C − Φ_l‖², one system of leading columns
+    root = np.sqrt(weights)[:, None]
+    landmark_rows = share * eig_2.evecs[anchors.target, : k_final + 1]
+    fits = _LeadingFits(np.vstack([root * psi2, landmark_rows]))
+    known = share * eig_1.evecs[anchors.source, : k_final + 1]
+    while k < k_final:
+        kc = C.shape[0]
+        p2p = nearest_neighbors(_embedded(phi1[:, :kc] @ C.T, d1), _embedded(psi2[:, :kc], d2))
+        k = min(k + step, k_final)
+        C = fits.solve(k + 1, np.vstack([root * phi1[p2p, : k + 1], known[:, : k + 1]]))
+    return C
 
 
 class _LeadingFits:

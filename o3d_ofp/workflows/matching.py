@@ -19,7 +19,14 @@ from typing import Any
 import numpy as np
 
 from ..core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
-from ..core.fmap import estimate_fmaps, farthest_points, unit_area, zoomout_refine
+from ..core.fmap import (
+    Anchors,
+    estimate_fmaps,
+    farthest_points,
+    landmark_anchors,
+    unit_area,
+    zoomout_refine,
+)
 from ..core.multiscale import extend_p2p, local_p2p_from_fmap
 from ..core.partial import geodesic_features
 from ..core.spectrum import EigenBasis
@@ -135,7 +142,7 @@ REPAIR_MAX_PAIRS = 1e9
 def geodesic_repair(
     p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, k_fit: int, k_final: int,
     subsample: int | None = None, samples: tuple[np.ndarray, np.ndarray] | None = None,
-    share: float = REPAIR_SHARE, checked: np.ndarray | None = None,
+    share: float = REPAIR_SHARE, checked: np.ndarray | None = None, anchors: Anchors | None = None,
 ) -> tuple[np.ndarray | None, float]:  # fmt: skip
     """Re-estimate a map that is wrong on a region from its geodesic refinement.
 
@@ -164,6 +171,9 @@ def geodesic_repair(
     checked : (s,) ndarray of int, optional
         The target vertices the disagreement is measured on: farthest-point samples (default:
         :data:`REPAIR_SAMPLES` of them).
+    anchors : Anchors, optional
+        Known pairs, kept by the ZoomOut of a re-estimated map (see
+        :func:`~o3d_ofp.core.fmap.zoomout_refine`).
 
     Returns
     -------
@@ -189,7 +199,9 @@ def geodesic_repair(
     f1, f2 = geodesic_features(p2p_21, *surfaces)
     geodesic = nearest_neighbors(f1.T, f2.T)
     C = fmap_from_p2p(geodesic, eig_1, eig_2, k1=k_fit, k2=k_fit)
-    C = zoomout_refine(C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples)
+    C = zoomout_refine(
+        C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples, anchors=anchors
+    )
     return C, disagreement
 
 
@@ -225,16 +237,19 @@ class FullMatch(Strategy):
             samples = sampled.result()
         subsampled = o.zoomout_subsample is not None and o.zoomout_subsample < min(
             u1.n_vertices, u2.n_vertices)  # fmt: skip
+        # Known pairs drive every ZoomOut, not only the fits' starts (measured: see
+        # o3d_ofp.core.fmap.LANDMARK_DISTANCES).
+        anchors = None if run.landmarks is None else landmark_anchors(u1, u2, run.landmarks)
         run.state.update(
             samples=samples, zoom=samples if subsampled else None, final=final,
-            select=min(final, max(sizes[-1], SELECT_K)),
+            select=min(final, max(sizes[-1], SELECT_K)), anchors=anchors,
         )  # fmt: skip
         return list(starts)
 
     def _zoomout(self, run: Run, C: np.ndarray, k: int) -> np.ndarray:
         return zoomout_refine(
             C, run.u1, run.u2, k_final=k, subsample=run.options.zoomout_subsample,
-            samples=run.state["zoom"],
+            samples=run.state["zoom"], anchors=run.state["anchors"],
         )  # fmt: skip
 
     def refine(self, run: Run, index: int, start: Any) -> Any:
@@ -299,6 +314,7 @@ class FullMatch(Strategy):
             settled.p2p_21, run.u1, run.u2, k_fit=settled.info["k_fit"],
             k_final=run.state["final"], subsample=run.options.zoomout_subsample,
             samples=run.state["zoom"], share=REPAIR_SHARE, checked=run.state["samples"][1],
+            anchors=run.state["anchors"],
         )  # fmt: skip
         redo = f" (> {REPAIR_SHARE:g}): re-estimated from the geodesic map"
         logger.debug("match: the map and its geodesic refinement disagree on %.3f of the target's "
