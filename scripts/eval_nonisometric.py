@@ -1,13 +1,15 @@
 """Maps between different shapes, against published maps: the pairs of ``bcicp_dev``.
 
-    python scripts/eval_nonisometric.py [--datasets TOSCA_nonIsometric ...] [--landmarks 6]
-                                        [--pyfm] [--max N]
+    python scripts/eval_nonisometric.py [--datasets TOSCA_nonIsometric TOSCA_Isometric humans]
+                                        [--landmarks 6] [--pyfm] [--max N]
 
 The pairs of ``../shared/data/bcicp_dev/pairs.tsv`` (Ren et al., "Continuous and
 orientation-preserving correspondences via functional maps", SIGGRAPH Asia 2018): twelve
 gorilla -> man / woman pairs (``TOSCA_nonIsometric``) and ten TOSCA pairs of one animal in two
-poses (``TOSCA_Isometric``), each shape remeshed on its own (about 5k vertices). For each pair
-``A B`` the map sends every vertex of ``A`` to a vertex of ``B``:
+poses (``TOSCA_Isometric``), each shape remeshed on its own (about 5k vertices); and
+(``humans``) the 30 ordered pairs of the six people of ``TOSCA_nonIsometric`` (three men and
+three women in other poses: near-isometric, different bodies). For each pair ``A B`` the map
+sends every vertex of ``A`` to a vertex of ``B``:
 
 * ``ours``: ``ofp.match(B, A)`` at its defaults (no ground truth, no landmarks);
 * ``ours+lm``: the same with ``--landmarks`` landmark pairs (default 6): the farthest-point
@@ -32,6 +34,7 @@ the errors against the truth and against its symmetric ``.sym.vts``), as the BCI
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import math
 import time
@@ -49,6 +52,8 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "bcicp_d
 PUBLISHED = {"BCICP (WKS)": ("WKSini_direct_BCICP", 1), "BCICP (seg)": ("SEGini_direct_BCICP", 1),
              "BIM": ("BIM", 0)}  # fmt: skip
 SAMPLES = 1000
+#: The people of TOSCA_nonIsometric, matched among themselves by ``--datasets humans``.
+HUMANS = ("8_man_01", "8_man_05", "8_man_07", "8_woman_01", "8_woman_02", "8_woman_03")
 
 
 def load(dataset: str, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -137,7 +142,8 @@ def cell(name: str, result: dict[str, object]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--datasets", nargs="+", default=["TOSCA_nonIsometric", "TOSCA_Isometric"])
+    parser.add_argument("--datasets", nargs="+", default=["TOSCA_nonIsometric", "TOSCA_Isometric"],
+                        choices=["TOSCA_nonIsometric", "TOSCA_Isometric", "humans"])  # fmt: skip
     parser.add_argument("--landmarks", type=int, default=6, help="landmark pairs (0: none)")
     parser.add_argument("--pyfm", action="store_true", help="also pyFM (pyfmaps 1.3.1)")
     parser.add_argument("--max", type=int, default=None, help="at most this many pairs a dataset")
@@ -147,10 +153,14 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("ignore")  # the suspect verdicts are read from the maps' quality
     logging.disable(logging.WARNING)
     lines = [line.split() for line in (DATA / "pairs.tsv").read_text().splitlines() if line]
-    for dataset in args.datasets:
-        pairs = [(a, b) for d, a, b in lines if d == dataset][: args.max]
+    for name in args.datasets:
+        if name == "humans":
+            dataset, pairs = "TOSCA_nonIsometric", list(itertools.permutations(HUMANS, 2))
+        else:
+            dataset, pairs = name, [(a, b) for d, a, b in lines if d == name]
+        pairs = pairs[: args.max]
         results = []
-        print(f"\n### {dataset}: mean geodesic error x100 (direct / left-right flip forgiven; "
+        print(f"\n### {name}: mean geodesic error x100 (direct / left-right flip forgiven; "
               "! flagged suspect)\n")  # fmt: skip
         for a, b in pairs:
             result = run_pair(dataset, a, b, args)
