@@ -710,3 +710,12 @@ def test_a_former_keyword_is_refused_with_what_replaces_it(function, keyword, us
     with pytest.raises(TypeError, match=rf"{function}\(\) no longer takes {keyword}=: use ") as e:
         fn(None, None, None, **{keyword: 1})
     assert use in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("name", ["x.ply", "x.obj"])
+def test_write_geometry_refuses_arrays_with_the_function_that_makes_a_mesh(tmp_path, name):
+    V, F = icosphere(1)
+    with pytest.raises(TypeError, match=r"x\.(ply|obj): the geometry to write must be an Open3D "
+                       r"TriangleMesh or PointCloud .* got tuple .*triangle_mesh_from_arrays"):
+        ofp.write_geometry(str(tmp_path / name), (V, F))
+    assert list(tmp_path.iterdir()) == []  # nothing written, no temporary folder left

@@ -498,3 +498,25 @@ def test_cli_detail_basis_files(files, tmp_path, capsys, monkeypatch):
         "this command's default)" in err and "pass --preset ours" in err, err
     assert not out.exists() and not made
     assert main([*coords, "--preset", "ours", "-o", str(out)]) == 0
+
+
+def test_cli_calibrated_detail_onto_a_target_in_other_units(files, tmp_path):
+    """The calibrated detail (no --band) onto a target in millimetres, with --target-scale.
+
+    The result is the same-units result, written in the target's own millimetres.
+    """
+    from o3d_ofp import write_geometry
+
+    _, V2, F = _pair_arrays(files)
+    mm = tmp_path / "mm.ply"
+    write_geometry(str(mm), triangle_mesh_from_arrays(V2 * 1000.0, F))
+    out, out_mm = tmp_path / "d.ply", tmp_path / "d_mm.ply"
+    argv = ["detail", files["src"], files["tgt"], "--map", "identity"]
+    assert main([*argv, "-o", str(out)]) == 0
+    argv[2] = str(mm)
+    assert main([*argv, "--target-scale", "0.001", "-o", str(out_mm)]) == 0
+    X = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertices)
+    X_mm = np.asarray(o3d.io.read_triangle_mesh(str(out_mm)).vertices)
+    assert not np.allclose(X, V2, atol=1e-4)  # the calibration added detail
+    # float32 files: 1e-5 of the blob's unit extent, in millimetres 1e-2
+    np.testing.assert_allclose(X_mm, 1000.0 * X, atol=1e-2)

@@ -376,6 +376,14 @@ def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
     written to a mesh format (ValueError).
     """
     ext = _ext(path)
+    kinds = (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh, o3d.geometry.PointCloud,
+             o3d.t.geometry.PointCloud)  # fmt: skip
+    if not isinstance(geometry, kinds):
+        raise TypeError(
+            f"{path}: the geometry to write must be an Open3D TriangleMesh or PointCloud (legacy "
+            f"or tensor); got {type(geometry).__name__} (from arrays: o3d_ofp.boundary.convert."
+            "triangle_mesh_from_arrays(V, F) or point_cloud_from_arrays(V))"
+        )
     if not isinstance(geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh)):
         if ext in MESH_ONLY:
             raise ValueError(
@@ -514,6 +522,8 @@ def write_geometry(
 
     Raises
     ------
+    TypeError
+        For anything else than an Open3D mesh or point cloud (nothing is written).
     ValueError
         For glTF, a mesh that uses several texture images (write an OBJ instead); a point
         cloud to a mesh format (.obj, .off, .stl, .glb, .gltf); a write that would replace a
