@@ -17,7 +17,7 @@ sends every vertex of ``A`` to a vertex of ``B``:
   user clicking well-spread points gives);
 * ``pyFM`` (``--pyfm``, pyfmaps 1.3.1 installed): its pipeline at its fastest usual setting
   (k = 100, WKS, fit K = 30 with the orientation term, ZoomOut ``nit=14, step=5``, the point
-  map of the refined map);
+  map of the refined map: ``bench_match.pyfm``);
 * the dataset authors' own saved maps where present (gorilla pairs only): BCICP from a WKS start
   (``WKSini_direct_BCICP``) and from a segmentation start (``SEGini_direct_BCICP``), and BIM
   (Kim et al. 2011).
@@ -37,6 +37,8 @@ import argparse
 import itertools
 import logging
 import math
+import os
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -48,6 +50,7 @@ from o3d_ofp.boundary.convert import geometry_to_arrays
 from o3d_ofp.core.fmap import farthest_points
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "bcicp_dev"
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # bench_match
 #: The authors' saved maps: folder, and the index of the first vertex in its files.
 PUBLISHED = {"BCICP (WKS)": ("WKSini_direct_BCICP", 1), "BCICP (seg)": ("SEGini_direct_BCICP", 1),
              "BIM": ("BIM", 0)}  # fmt: skip
@@ -88,14 +91,9 @@ def geodesic_errors(
 
 def pyfm_map(VA: np.ndarray, FA: np.ndarray, VB: np.ndarray, FB: np.ndarray) -> np.ndarray:
     """Return pyFM's map (a vertex of B for every vertex of A) at its fastest usual setting."""
-    from pyFM.functional import FunctionalMapping
-    from pyFM.mesh import TriMesh
+    from bench_match import pyfm  # one place for pyFM's call
 
-    model = FunctionalMapping(TriMesh(VB, FB), TriMesh(VA, FA))
-    model.preprocess(n_descr=100, descr_type="WKS", k_process=100, k_descr=100, verbose=False)
-    model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0, verbose=False)
-    FM = model.zoomout_refine(nit=14, step=5, subsample=2000, verbose=False)  # the refined map
-    return np.asarray(model.get_p2p(FM=FM))
+    return np.asarray(pyfm(VB, FB, VA, FA, "fast")[0])
 
 
 def run_pair(dataset: str, a: str, b: str, args: argparse.Namespace) -> dict[str, object]:
