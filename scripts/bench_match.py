@@ -240,8 +240,9 @@ def pyfm(V1, F1, V2, F2, setting: str = "fast") -> tuple[np.ndarray, float, floa
     Its meshes processed intrinsically (no normals) at unit area, k = 100; 100 WKS
     descriptors, every second one in the operators; the fit of K = 30 with the orientation
     term; ZoomOut at :data:`PYFM_SETTINGS`. Measured on FAUST 093 -> 087 (one run each):
-    4.4-5.0 s, error 0.0359 at the fast setting, where ``preprocess()`` with its defaults and
-    ZoomOut on 2000 samples (this benchmark's call before) took 9.1-11.4 s for 0.10.
+    4.4-5.0 s, error 0.0359 at the fast setting, where this benchmark's call before
+    (``preprocess()`` with its defaults, ZoomOut on 2000 samples), given the same ZoomOut
+    steps, took 9.1-11.4 s for 0.10.
     """
     from pyFM.functional import FunctionalMapping
     from pyFM.mesh import TriMesh
