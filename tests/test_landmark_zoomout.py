@@ -9,6 +9,8 @@ from o3d_ofp.core.correspondence import nearest_neighbors, p2p_from_fmap
 from o3d_ofp.core.fmap import farthest_points, landmark_anchors, unit_area, zoomout_refine
 from o3d_ofp.core.shapes import icosphere
 
+from .test_estimated_maps import _p2p_error as _error  # same triangulation: truth i -> i
+
 
 @pytest.fixture(scope="module")
 def stretched():
@@ -21,10 +23,6 @@ def stretched():
     landmarks = np.repeat(farthest_points(source, 6)[:, None], 2, axis=1)
     e1, e2 = ofp.eigenbasis(source, F, k=30), ofp.eigenbasis(target, F, k=30)
     return source, target, F, landmarks, e1, e2
-
-
-def _error(p2p, source, area):
-    return np.linalg.norm(source[p2p] - source, axis=1).mean() / np.sqrt(area)
 
 
 def test_farthest_points_on_a_symmetric_shape_ends(stretched):

@@ -841,7 +841,7 @@ def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
     assert eig.faces is not None
     d = csgraph.dijkstra(edge_graph(eig.vertices, eig.faces), directed=False, indices=vertices).T
     finite = np.isfinite(d)
-    # Vertices on other pieces than a landmark's: far beyond the shape, the same on both sides.
+    # Vertices on other pieces than a landmark's: ten times the shape's longest distance away.
     far = 10.0 * float(np.max(d[finite], initial=1.0))
     return np.where(finite, d, far) / math.sqrt(eig.area)
 
