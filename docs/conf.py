@@ -20,7 +20,7 @@ import o3d_ofp  # noqa: E402
 
 project = "o3d_ofp"
 author = "o3d_ofp developers"
-copyright = f"{date.today().year}, {author}"  # noqa: A001
+copyright = f"{date.today().year}, {author}"
 release = o3d_ofp.__version__
 version = release
 
