@@ -135,8 +135,21 @@ def eigenbasis(
         Triangles when ``mesh_or_vertices`` is an array.
     k : int, default 29
         Non-constant eigenfunctions (the paper's K = 30 is ``k=29``).
-    weld_tolerance, components, mollify_factor, n_neighbors, maxiter, clamp_k, factorization
-        As in :func:`o3d_ofp.core.spectrum.eigenbasis`.
+    weld_tolerance : float or None, default 1e-9
+        Relative distance (to the bounding box's largest side) under which vertices are welded.
+    components : {"auto", "largest", "error"}, default "auto"
+        Policy for several connected components (:func:`o3d_ofp.clean_shape`): "auto" keeps
+        the largest when it holds ≥ 90 % of the area, else raises.
+    mollify_factor, n_neighbors : float, int
+        Passed to :func:`o3d_ofp.laplacian` (default 1e-5; 30 neighbours per point of a point
+        cloud).
+    maxiter : int, optional
+        Bound on the Lanczos restarts per attempt (default ``max(1000, 10 (k + 1))``).
+    clamp_k : bool, default False
+        Reduce a ``k`` the cleaned shape cannot hold to ``n − 1`` (with a warning), not raise.
+    factorization : {"auto", "cholmod", "superlu"}, default "auto"
+        Sparse factorization of ``L − σM`` for shift-invert: CHOLMOD's supernodal Cholesky
+        (from the ``cholespy`` wheels) when it can be imported, else SciPy's SuperLU (logged).
 
     Returns
     -------
@@ -148,6 +161,17 @@ def eigenbasis(
     ----------
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
+
+    Examples
+    --------
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=8)
+    >>> eig.evecs.shape  # 182 vertices, the constant and 8 eigenfunctions
+    (182, 9)
+    >>> [round(float(x)) for x in eig.evals[:4]]  # a unit sphere's: l (l + 1)
+    [0, 2, 2, 2]
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return spectrum.eigenbasis(
@@ -179,6 +203,20 @@ def shape_digest(
     -------
     str
         A 32-character hex digest: equal inputs and options give equal digests.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> digest = ofp.shape_digest(sphere)
+    >>> len(digest)
+    32
+    >>> digest == ofp.shape_digest(np.asarray(sphere.vertices), np.asarray(sphere.triangles))
+    True
+    >>> digest == ofp.shape_digest(sphere, components="largest")  # another cleaning option
+    False
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return spectrum.shape_digest(
@@ -218,6 +256,20 @@ def cached_basis(
     -------
     OFPBasis
         The basis; its file is ``<cache_dir>/<digest>.npz``.
+
+    Examples
+    --------
+    >>> import os
+    >>> import tempfile
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> with tempfile.TemporaryDirectory() as cache:
+    ...     B = ofp.cached_basis(sphere, k=8, cache_dir=cache)  # computed, then written
+    ...     again = ofp.cached_basis(sphere, k=8, cache_dir=cache)  # read back
+    ...     files = os.listdir(cache)
+    >>> again.size == B.size, len(files)
+    (True, 1)
     """
     V, F = as_arrays(mesh_or_vertices, faces, name="mesh_or_vertices")
     return cache.cached_basis(
@@ -286,7 +338,7 @@ def match(
     landmarks : (p, 2) array_like of int, optional
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs, and they drive the refinement (see
-        :func:`o3d_ofp.core.fmap.zoomout_refine`): 5-6 well-spread ones map shapes that are
+        :func:`o3d_ofp.zoomout_refine`): 5-6 well-spread ones map shapes that are
         not near-isometric (a gorilla onto a human, ``scripts/eval_nonisometric.py``).
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (see :func:`eigenbasis`).
@@ -319,6 +371,24 @@ def match(
     ----------
     .. [1] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> ellipsoid = o3d.geometry.TriangleMesh(sphere)
+    >>> xyz = np.asarray(sphere.vertices) * [1.0, 0.7, 0.5]
+    >>> ellipsoid.vertices = o3d.utility.Vector3dVector(xyz)
+    >>> moved = o3d.geometry.TriangleMesh(ellipsoid)
+    >>> _ = moved.rotate(moved.get_rotation_matrix_from_xyz((0.3, 0.2, 0.1)), center=(0, 0, 0))
+    >>> _ = moved.translate((2.0, 0.0, 0.0))
+    >>> corr = ofp.match(ellipsoid, moved)
+    >>> corr.p2p_21.shape, corr.method
+    ((182,), 'estimate')
+    >>> corr.quality.suspect, corr.quality.coverage > 0.5
+    (False, True)
     """
     opts = match_options(
         options, method=method, align=align, partial=partial, landmarks=landmarks,
@@ -451,6 +521,24 @@ def transfer_colors(
     ----------
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> source = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> z = np.asarray(source.vertices)[:, 2]
+    >>> colors = np.column_stack([(1 + z) / 2, np.full_like(z, 0.5), (1 - z) / 2])
+    >>> source.vertex_colors = o3d.utility.Vector3dVector(colors)
+    >>> target = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> _ = target.translate((2.0, 0.0, 0.0))
+    >>> corr = ofp.Correspondence.from_p2p(np.arange(182), source, target)
+    >>> out = ofp.transfer_colors(source, target, correspondence=corr)
+    >>> np.asarray(out.vertex_colors).shape
+    (182, 3)
+    >>> bool(np.abs(np.asarray(out.vertex_colors) - colors).max() < 0.05)
+    True
     """
     source, target = read_if_path(source, "source"), read_if_path(target, "target")
     V1, F1 = as_arrays(source, name="source")
@@ -555,6 +643,26 @@ def transfer_detail(
     ValueError, TypeError
         For a bad ``mode``, ``band`` or ``amount`` (the message names the keyword), before any
         eigensolve.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> target = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(target.vertices)
+    >>> angle = np.arctan2(xyz[:, 1], xyz[:, 0])
+    >>> ripples = 1 + 0.03 * np.sin(8 * angle) * np.sin(np.pi * xyz[:, 2])
+    >>> detailed = xyz * ripples[:, None]
+    >>> source = o3d.geometry.TriangleMesh(target)
+    >>> source.vertices = o3d.utility.Vector3dVector(detailed)
+    >>> corr = ofp.Correspondence.from_p2p(np.arange(182), source, target)
+    >>> out = ofp.transfer_detail(source, target, correspondence=corr)
+    >>> new = np.asarray(out.vertices)
+    >>> new.shape  # the target, given the source's ripples
+    (182, 3)
+    >>> bool(np.linalg.norm(new - detailed) < 0.5 * np.linalg.norm(xyz - detailed))
+    True
     """
     detail = DetailOptions(mode=mode, band=band, amount=amount)
     check_correspondence(correspondence)
@@ -601,10 +709,10 @@ def filter_geometry(
 ) -> Any:
     """Smooth or sharpen the vertex coordinates of a mesh or a point cloud.
 
-    ``smooth`` alone returns the low-pass shape (:func:`o3d_ofp.filtering.smooth_coordinates`,
+    ``smooth`` alone returns the low-pass shape (:func:`o3d_ofp.core.filtering.smooth_coordinates`,
     a Butterworth low-pass over the whole spectrum of the Laplacian, nothing of the input
     above the cut added back, the enclosed volume kept). ``sharpen`` multiplies the detail
-    smaller than ``smooth`` by ``1 + sharpen`` (:func:`o3d_ofp.filtering.sharpen_coordinates`).
+    smaller than ``smooth`` by ``1 + sharpen`` (:func:`o3d_ofp.core.filtering.sharpen_coordinates`).
     ``gains`` filters instead the coefficients in an OFP basis (the paper's Figs. 14-15).
 
     Parameters
@@ -624,7 +732,8 @@ def filter_geometry(
         its spread).
     gains : callable or (q,) array_like, optional
         Instead of ``smooth`` / ``sharpen``: gains of the OFP basis functions, see
-        :func:`o3d_ofp.filtering.spectral_filter` (e.g. ``smooth_gains(5)``).
+        :func:`o3d_ofp.core.filtering.spectral_filter` (e.g.
+        :func:`smooth_gains(5) <o3d_ofp.core.filtering.smooth_gains>`).
     k, order, preset, tol
         The OFP basis for ``gains`` (the paper uses order 3 on the first 15 eigenfunctions:
         ``k=14``).
@@ -647,6 +756,21 @@ def filter_geometry(
     ValueError
         For none or a wrong combination of ``smooth`` / ``sharpen`` / ``gains``, or a value
         outside its range (the message names the keyword), before any eigensolve.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> noisy = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(noisy.vertices)
+    >>> bumps = 1 + 0.02 * np.random.default_rng(0).standard_normal(len(xyz))
+    >>> noisy.vertices = o3d.utility.Vector3dVector(xyz * bumps[:, None])
+    >>> smooth = ofp.filter_geometry(noisy, smooth=0.05)
+    >>> def roughness(mesh):
+    ...     return np.linalg.norm(np.asarray(mesh.vertices), axis=1).std()
+    >>> len(smooth.vertices), bool(roughness(smooth) < 0.7 * roughness(noisy))
+    (182, True)
     """
     if gains is not None and (smooth is not None or sharpen is not None):
         raise ValueError("give gains alone, or smooth and/or sharpen (not both)")

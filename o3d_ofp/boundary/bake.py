@@ -11,7 +11,7 @@ the source's image and gets, at each triangle corner, the source UV of the mappe
 
 :func:`texture_error` measures either result against the truth on shapes in the same pose.
 
-Maps are given per target vertex (:class:`o3d_ofp.workflows.matching.Correspondence`, with or
+Maps are given per target vertex (:class:`o3d_ofp.Correspondence`, with or
 without its precise ``faces_21`` / ``barycentric_21`` surface points, or a plain ``p2p_21``);
 a texel inside target triangle (a, b, c) with barycentric weights (wa, wb, wc) goes to the
 source surface point nearest to ``wa P(a) + wb P(b) + wc P(c)``, with P the mapped points.
@@ -360,9 +360,10 @@ def transfer_texture(
     ----------
     source : Open3D TriangleMesh (legacy or tensor), MeshTexture, VertexColorSurface or path
         The source (a file path is read with :func:`o3d_ofp.read_geometry`): textured
-        (per-corner UVs and an image, see :func:`mesh_texture`), or without UVs and with
-        vertex colors; or its arrays already read by :func:`surface_colors` (picklable: what
-        a collection run sends to its workers); not modified.
+        (per-corner UVs and an image, read as :func:`o3d_ofp.texture_colors` reads them), or
+        without UVs and with vertex colors; or its arrays already read by
+        ``o3d_ofp.boundary.texture.surface_colors`` (picklable: what a collection run sends to
+        its workers); not modified.
     target : open3d.geometry.TriangleMesh or open3d.t.geometry.TriangleMesh or path
         The target, with its own per-corner UVs (``triangle_uvs``); not modified.
     correspondence : Correspondence, optional
@@ -390,9 +391,8 @@ def transfer_texture(
         A new mesh of the target's kind: a copy of the target (every attribute kept,
         ``triangle_uvs`` unchanged) with ``textures`` = [the baked image] and all
         ``triangle_material_ids`` 0 (legacy; the image stored bottom-up like every legacy
-        Open3D texture, see :mod:`o3d_ofp.boundary.texture`, so
-        ``open3d.io.write_triangle_mesh`` writes it the right way up), or the image as the
-        material's ``albedo`` map (tensor).
+        Open3D texture, so ``open3d.io.write_triangle_mesh`` writes it the right way up), or
+        the image as the material's ``albedo`` map (tensor).
 
     Raises
     ------

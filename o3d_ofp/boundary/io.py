@@ -288,6 +288,20 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
         float64 cannot hold, a face naming a vertex the file does not have (the message names
         the vertex or face, for OFF and OBJ with its line); if it is named .ply but is no PLY
         file. The message is one line: what Open3D's PLY reader prints is quoted, not shown.
+
+    Examples
+    --------
+    >>> import os
+    >>> import tempfile
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "sphere.ply")
+    ...     ofp.write_geometry(path, sphere)
+    ...     mesh = ofp.read_geometry(path)
+    >>> len(mesh.vertices), len(mesh.triangles)
+    (182, 360)
     """
     o3d = require_open3d()
     path = os.fspath(path)
@@ -531,6 +545,20 @@ def write_geometry(
     OSError
         If Open3D fails to write, or writes a glTF it cannot read back (or without the
         texture); nothing is left at ``path`` or beside it.
+
+    Examples
+    --------
+    >>> import os
+    >>> import tempfile
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "sphere.ply")
+    ...     ofp.write_geometry(path, sphere)
+    ...     mesh = ofp.read_geometry(path)
+    >>> len(mesh.vertices), len(mesh.triangles)
+    (182, 360)
     """
     o3d = require_open3d()
     path = os.fspath(path)

@@ -113,7 +113,7 @@ def pick_landmarks(
     Parameters
     ----------
     source, target : Open3D TriangleMesh or PointCloud (legacy or tensor)
-        The shapes. Indices refer to their vertices as :func:`geometry_to_arrays` gives them.
+        The shapes. Indices refer to their vertices, in the geometries' own order.
     count : int, optional
         Number of pairs required (default: any number >= 1, the same on both shapes).
     picker : callable, optional
@@ -131,7 +131,8 @@ def pick_landmarks(
     RuntimeError
         Without a display (and no ``picker``): nothing is opened.
     ValueError
-        If the picks do not pair up (see :func:`validate_picks`) or ``count`` < 1.
+        If the picks do not pair up (nothing picked on a shape, not as many on both or not
+        ``count``, a vertex picked twice on one shape) or ``count`` < 1.
     """
     if count is not None:
         count = check_int(count, name="count", minimum=1)

@@ -560,7 +560,7 @@ def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
     (n, 3) ndarray of float64
         Colors in [0, 1]: at each vertex, the mean of its triangle corners' samples. Open3D
         splits OBJ vertices along UV seams; the two copies of a seam vertex are welded again
-        when a basis is built (see :mod:`o3d_ofp.cleaning`), so the shape stays one surface
+        when a basis is built (see :func:`o3d_ofp.clean_shape`), so the shape stays one surface
         and the welded vertex gets the mean of both sides' colors.
 
     Raises

@@ -1,9 +1,9 @@
 """Collections of shapes: one source onto many targets, the bases of many shapes, on Dask.
 
-:func:`transfer_many` transfers a source's vertex colors, texture or detail onto every
+:func:`~o3d_ofp.transfer_many` transfers a source's vertex colors, texture or detail onto every
 target, each target a task on a Dask cluster (a local one sized to the machine by default),
-the source's bases computed once and shared; :func:`bases_many` fills a basis cache for a
-whole collection; :func:`write_summary` writes a run's records as ``summary.csv`` and
+the source's bases computed once and shared; :func:`~o3d_ofp.bases_many` fills a basis cache for a
+whole collection; :func:`~o3d_ofp.write_summary` writes a run's records as ``summary.csv`` and
 ``summary.json``.
 
 Importing this package does not import Dask (``pip install 'o3d_ofp[dask]'``): it is imported

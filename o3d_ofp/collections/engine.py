@@ -598,7 +598,7 @@ def transfer_many(
     skip_existing : bool, default True
         Skip (status ``"skipped"``) a target whose output is newer than both the source and
         the target files and was made with the same options (recorded in the output folder's
-        :data:`OUTPUTS_RECORD`; never for inputs given as geometries).
+        ``.o3d_ofp_outputs.json``; never for inputs given as geometries).
     progress : bool, default True
         A progress bar over the targets on stderr when it is a terminal.
     **options

@@ -46,7 +46,7 @@ class TargetResult:
         in the output folder (an output of a folder without that record has none).
     output : str or None
         The file written (the transferred target, or the cached basis for
-        :func:`~o3d_ofp.collections.bases_many`); ``None`` when nothing was written.
+        :func:`~o3d_ofp.bases_many`); ``None`` when nothing was written.
     seconds : float
         Wall time spent on the shape (on its worker).
     coverage : float
@@ -69,7 +69,7 @@ class TargetResult:
         What was said about the shape's result (:class:`~o3d_ofp.OFPWarning` messages: a
         suspect map with its reasons and fix, parts left out, ...); empty when nothing was.
     notes : tuple of str or Said
-        The notes of its map's quality report (:attr:`~o3d_ofp.MapQuality.notes`: e.g. a
+        The notes of its map's quality report (``notes`` of :class:`~o3d_ofp.MapQuality`: e.g. a
         target whose area says other units or a part, a point cloud's estimated normals);
         empty when there were none or no map.
     values : (n, 3) ndarray or None
@@ -123,13 +123,14 @@ def write_summary(
 
     Both files are written atomically. The JSON file holds ``{"counts": {status: n},
     "results": [row, ...]}``; the CSV file one row per shape with the columns
-    :data:`SUMMARY_FIELDS` (empty cells for ``None``).
+    ``o3d_ofp.collections.SUMMARY_FIELDS``: the fields of :class:`~o3d_ofp.TargetResult`
+    but ``values``, in order (empty cells for ``None``).
 
     Parameters
     ----------
     results : iterable of TargetResult
-        The records of a run (from :func:`~o3d_ofp.collections.transfer_many` or
-        :func:`~o3d_ofp.collections.bases_many`).
+        The records of a run (from :func:`~o3d_ofp.transfer_many` or
+        :func:`~o3d_ofp.bases_many`).
     output_dir : str or os.PathLike
         Folder (created when missing).
 

@@ -475,7 +475,7 @@ def clean_shape(
     components : {"auto", "largest", "error"}, default "auto"
         What to do with several connected components (see the module's documentation).
     mollify_factor : float, default 1e-5
-        Intrinsic mollification of :func:`o3d_ofp.laplacian.laplacian`.
+        Intrinsic mollification of :func:`o3d_ofp.laplacian`.
     n_neighbors : int, default 30
         Neighbours per point for a point cloud's Laplacian.
 
@@ -489,6 +489,20 @@ def clean_shape(
     TypeError, ValueError
         On malformed arrays, or a shape that is no surface once cleaned (no face left,
         collinear points, too few points, several comparable components under "auto").
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> corners = np.asarray(sphere.vertices)[np.asarray(sphere.triangles)].reshape(-1, 3)
+    >>> soup = np.arange(len(corners)).reshape(-1, 3)  # each triangle with its own 3 vertices
+    >>> shape = ofp.clean_shape(corners, soup)
+    >>> shape.vertices.shape, shape.faces.shape
+    ((182, 3), (360, 3))
+    >>> shape.cleaning.report.merged_vertices
+    898
     """
     topo = _topology(vertices, faces, weld_tolerance, components, n_neighbors)
     V, group, first, counts = topo.V, topo.group, topo.first, dict(topo.counts)

@@ -304,6 +304,17 @@ def fmap_from_p2p(
     -------
     (k2+1, k1+1) ndarray
         ``fmap_12``, mapping source coefficients to target coefficients.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=8)
+    >>> C = ofp.fmap_from_p2p(np.arange(182), eig, eig)  # the identity map
+    >>> C.shape, bool(np.allclose(C, np.eye(9)))
+    ((9, 9), True)
     """
     k1 = eig_1.k if k1 is None else check_int(k1, name="k1", minimum=1, maximum=eig_1.k)
     k2 = eig_2.k if k2 is None else check_int(k2, name="k2", minimum=1, maximum=eig_2.k)
@@ -335,6 +346,17 @@ def p2p_from_fmap(
     ----------
     .. [1] M. Ovsjanikov et al., "Functional Maps: A Flexible Representation of Maps Between
        Shapes", ACM TOG 31(4), 2012.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=8)
+    >>> p2p = ofp.p2p_from_fmap(np.eye(9), eig, eig)
+    >>> p2p.shape, bool((p2p == np.arange(182)).all())
+    ((182,), True)
     """
     C = fmap_between(fmap_12, eig_1, eig_2)
     rows, cols = C.shape

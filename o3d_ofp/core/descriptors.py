@@ -1,6 +1,6 @@
 """Spectral point descriptors: heat and wave kernel signatures, and their landmark variants.
 
-All are computed from an :class:`~o3d_ofp.spectrum.EigenBasis` (the constant eigenpair is
+All are computed from an :class:`~o3d_ofp.EigenBasis` (the constant eigenpair is
 ignored) and are invariant to the mesh's scale: times and energies are chosen from the
 eigenvalues themselves.
 """
@@ -106,6 +106,17 @@ def hks(
     ----------
     .. [1] J. Sun, M. Ovsjanikov, L. Guibas, "A Concise and Provably Informative
        Multi-Scale Signature Based on Heat Diffusion", Computer Graphics Forum 28(5), 2009.
+
+    Examples
+    --------
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=8)
+    >>> ofp.hks(eig, n_times=5).shape  # one column per time
+    (182, 5)
+    >>> ofp.hks(eig, n_times=5, landmarks=[0, 1]).shape  # heat kernel maps at 2 vertices
+    (182, 10)
     """
     evals, phi = _nonconstant(eig, k)
     if times is None:
@@ -133,7 +144,8 @@ def wks(
     eig : EigenBasis
         The shape's eigenbasis.
     n_energies : int, default 100
-        Number of log-energies (see :func:`wks_energies`).
+        Number of log-energies ``e``, evenly spaced in ``[log λ_1 + 2σ, log λ_k − 2σ]``
+        with the bandwidth ``σ = 7 (log λ_k − log λ_1) / n_energies``.
     k : int, optional
         Use the first ``k`` non-constant eigenpairs (default: all).
     landmarks : (p,) array_like of int, optional
@@ -149,6 +161,15 @@ def wks(
     ----------
     .. [1] M. Aubry, U. Schlickewei, D. Cremers, "The Wave Kernel Signature: A Quantum
        Mechanical Approach to Shape Analysis", ICCV Workshops, 2011.
+
+    Examples
+    --------
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=8)
+    >>> ofp.wks(eig, n_energies=6).shape  # one column per energy
+    (182, 6)
     """
     evals, phi = _nonconstant(eig, k)
     energies, sigma = wks_energies(evals, check_int(n_energies, name="n_energies", minimum=1))

@@ -29,7 +29,7 @@ same mass at every vertex closer than Taubin's best on the regular meshes tried,
 remeshed one; with the umbrella weights closer on all seven.
 
 Vertices the eigenbasis left out of the surface (the smaller components with
-``components="largest"``, unreferenced vertices: see :mod:`o3d_ofp.core.cleaning`) are not
+``components="largest"``, unreferenced vertices: see :func:`o3d_ofp.clean_shape`) are not
 filtered: every function here returns their input values unchanged, and they take no part in
 restoring the volume.
 """

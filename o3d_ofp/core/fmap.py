@@ -534,7 +534,7 @@ def estimate_fmap(
         Weight of the orientation term relative to the others (it is rescaled so that, at
         the identity map, it equals ``w_orient`` times the other terms). On a point cloud
         (no faces) it is built from estimated normals and tangent-plane gradients
-        (:func:`o3d_ofp.core.geometry.point_normals`, ``point_gradient_operator``).
+        (``o3d_ofp.core.geometry.point_normals`` and ``point_gradient_operator``).
     operator_step : int, default OPERATOR_STEP (5)
         The commutativity and orientation terms use every ``operator_step``-th descriptor
         (pyFM's ``subsample_step``); the descriptor term uses all of them.
@@ -847,7 +847,7 @@ def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
 
 
 def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> Anchors:
-    """Return the landmarks as :func:`zoomout_refine` anchors them.
+    """Return the landmarks as :func:`~o3d_ofp.zoomout_refine` anchors them.
 
     Parameters
     ----------
@@ -916,9 +916,11 @@ def zoomout_refine(
         both shapes with ``subsample`` samples, as computed here otherwise): callers that
         refine several maps between the same shapes sample them once.
     anchors : Anchors, optional
-        Known pairs (:func:`landmark_anchors`): every fit also asks the landmarks to map onto
-        each other (their rows weigh :data:`LANDMARK_WEIGHT` of the fit), and every point map
-        also matches the vertices' distances to the landmarks (:data:`LANDMARK_DISTANCES`):
+        Known pairs (:func:`o3d_ofp.core.fmap.landmark_anchors`): every fit also asks the
+        landmarks to map onto each other (their rows weigh
+        :data:`~o3d_ofp.core.fmap.LANDMARK_WEIGHT` of the fit), and every point map also
+        matches the vertices' distances to the landmarks
+        (:data:`~o3d_ofp.core.fmap.LANDMARK_DISTANCES`):
         the landmarks then drive the refinement instead of only its start (a spectral map
         alone drifts from them, most between shapes that are not near-isometric).
 
@@ -1037,7 +1039,7 @@ def lift_fmap(
     fmap_12 : (k2+1, k1+1) array_like
         Functional map between the eigenbases (constant first).
     order : int
-        Product order N (as in :func:`~o3d_ofp.products.eigenproduct_indices`).
+        Product order N (as in :func:`o3d_ofp.eigenproduct_indices`).
     target_area : float
         Area of the target shape (sets the constant ψ0 = 1/√area).
     k1, k2 : int, optional

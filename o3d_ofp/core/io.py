@@ -1,4 +1,4 @@
-"""Reading correspondence files (mesh files are read by :mod:`o3d_ofp.adapters`)."""
+"""Reading correspondence files (mesh files are read by :mod:`o3d_ofp.boundary.io`)."""
 
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ def laplacian(
         Triangles. ``None`` builds the point-cloud Laplacian.
     mollify_factor : float, default 1e-5
         Intrinsic mollification (relative to the mean edge length) that keeps cotangent
-        weights finite on degenerate triangles; see :func:`robust_laplacian.mesh_laplacian`.
+        weights finite on degenerate triangles; see ``robust_laplacian.mesh_laplacian``.
     n_neighbors : int, default 30
         Neighbours of each point for the point-cloud Laplacian (ignored for meshes).
 
@@ -59,6 +59,20 @@ def laplacian(
     ----------
     .. [1] N. Sharp and K. Crane, "A Laplacian for Nonmanifold Triangle Meshes", Computer
        Graphics Forum 39(5), 2020.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> L, M = ofp.laplacian(np.asarray(sphere.vertices), np.asarray(sphere.triangles))
+    >>> L.shape, M.shape
+    ((182, 182), (182,))
+    >>> round(float(M.sum()), 2)  # the mesh's area (4π = 12.57 for the smooth sphere)
+    12.31
+    >>> bool(np.abs(L @ np.ones(182)).max() < 1e-9)  # constants have no energy
+    True
     """
     import robust_laplacian  # deferred: its import loads a compiled extension
 

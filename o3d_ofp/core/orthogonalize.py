@@ -615,6 +615,19 @@ def gram_schmidt(
        doi:10.1111/cgf.142645
     .. [2] L. Giraud, J. Langou, M. Rozložník, "The loss of orthogonality in the Gram-Schmidt
        orthogonalization process", Computers & Mathematics with Applications 50, 2005.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import o3d_ofp as ofp
+    >>> rng = np.random.default_rng(0)
+    >>> A = rng.standard_normal((50, 2))
+    >>> candidates = np.column_stack([A, A.sum(axis=1)])  # the third depends on the first two
+    >>> gs = ofp.gram_schmidt(candidates, np.ones(50))
+    >>> gs.Q.shape, gs.kept.tolist()
+    ((50, 2), [0, 1])
+    >>> bool(np.allclose(gs.Q.T @ gs.Q, np.eye(2)))
+    True
     """
     m = np.asarray(mass)
     if m.ndim != 1:

@@ -184,7 +184,7 @@ def map_stretch(
     limb, a piece turned over) adds the length of the jump. Measured on the final partial maps
     of ``scripts/eval_partial.py`` (FAUST, remeshed FAUST, TOSCA centaurs): right maps
     1.03-1.23, maps wrong on a large region 1.55-1.88 (see
-    :data:`o3d_ofp.workflows.partial.MAX_STRETCH`).
+    :data:`o3d_ofp.workflows.quality.MAX_STRETCH`).
 
     Parameters
     ----------

@@ -43,6 +43,14 @@ def n_eigenproducts(k: int, order: int) -> int:
     -------
     int
         The number of candidates, the constant included.
+
+    Examples
+    --------
+    >>> import o3d_ofp as ofp
+    >>> ofp.n_eigenproducts(3, 2)  # the constant, φ1..φ3 and their 6 products
+    10
+    >>> ofp.n_eigenproducts(29, 2)  # the paper's K = 30 at order 2
+    465
     """
     return math.comb(k + order, order)
 
@@ -142,6 +150,18 @@ def eigenproducts(evecs: Any, order: int) -> tuple[np.ndarray, list[tuple[int, .
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 2 (Def. 2.1) and 3.3.
        doi:10.1111/cgf.142645
+
+    Examples
+    --------
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> eig = ofp.eigenbasis(sphere, k=3)
+    >>> P, indices = ofp.eigenproducts(eig.evecs, 2)
+    >>> P.shape
+    (182, 10)
+    >>> indices[:6]
+    [(), (1,), (2,), (3,), (1, 1), (1, 2)]
     """
     phi = _as_evecs(evecs)
     order = check_int(order, name="order", minimum=1)

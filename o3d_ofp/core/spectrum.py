@@ -758,7 +758,7 @@ def eigenbasis(
 ) -> EigenBasis:
     """Compute the ``k + 1`` smallest Laplace-Beltrami eigenpairs of a mesh or point cloud.
 
-    The input is first cleaned by :func:`o3d_ofp.cleaning.clean_shape` (duplicated vertices
+    The input is first cleaned by :func:`o3d_ofp.clean_shape` (duplicated vertices
     welded, degenerate/duplicated faces and unreferenced vertices removed, stray components
     handled by ``components``); the eigenpairs of the cleaned surface are then given on the
     caller's **original** vertices (see :attr:`EigenBasis.cleaning`).
@@ -776,10 +776,10 @@ def eigenbasis(
     weld_tolerance : float or None, default 1e-9
         Relative distance (to the bounding box's largest side) under which vertices are welded.
     components : {"auto", "largest", "error"}, default "auto"
-        Policy for several connected components (:mod:`o3d_ofp.cleaning`): "auto" keeps the
+        Policy for several connected components (:func:`o3d_ofp.clean_shape`): "auto" keeps the
         largest when it holds ≥ 90 % of the area, else raises.
     mollify_factor, n_neighbors : float, int
-        Passed to :func:`o3d_ofp.laplacian.laplacian` (default 1e-5; 30 neighbours per point
+        Passed to :func:`o3d_ofp.laplacian` (default 1e-5; 30 neighbours per point
         of a point cloud).
     maxiter : int, optional
         Bound on the Lanczos restarts per attempt (default ``max(1000, 10 (k + 1))``).

@@ -73,6 +73,17 @@ def transfer_matrix(
     ----------
     .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3-3.4. doi:10.1111/cgf.142645
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> B = ofp.ofp_basis(ofp.eigenbasis(sphere, k=8), order=2)
+    >>> T = ofp.transfer_matrix(B, B, p2p_21=np.arange(182))
+    >>> T.shape == (B.size, B.size), bool(np.allclose(T, np.eye(B.size)))
+    (True, True)
     """
     _check_bases(B_1, B_2)
     if method not in ("p2p", "analytic"):
@@ -115,6 +126,19 @@ def transfer_signal(f_1: Any, B_1: OFPBasis, B_2: OFPBasis, transfer_12: Any) ->
     -------
     (n2,) or (n2, d) ndarray
         The transferred signal on the target vertices.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> B = ofp.ofp_basis(ofp.eigenbasis(sphere, k=8), order=2)
+    >>> T = ofp.transfer_matrix(B, B, p2p_21=np.arange(182))  # the identity map
+    >>> f = np.asarray(sphere.vertices)[:, 2] ** 2
+    >>> g = ofp.transfer_signal(f, B, B, T)
+    >>> g.shape, ofp.approximation_error(f, g, B.mass) < 0.01
+    ((182,), True)
     """
     _check_bases(B_1, B_2)
     transfer = np.asarray(transfer_12, dtype=np.float64)

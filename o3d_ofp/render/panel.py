@@ -400,9 +400,9 @@ def render_panel(
     Parameters
     ----------
     items : sequence of (vertices, faces, colors)
-        As in :func:`render_images`. Scalar ``colors`` share one color scale across the panel
-        (``scalar_range``, default the min and max over all scalar items) and add a color bar
-        with tick values under the tiles.
+        As in :func:`~o3d_ofp.render.render_images`. Scalar ``colors`` share one color scale
+        across the panel (``scalar_range``, default the min and max over all scalar items) and
+        add a color bar with tick values under the tiles.
     path : str or os.PathLike, optional
         Where to write the panel as a PNG (atomically).
     titles : sequence of str, optional
@@ -420,9 +420,9 @@ def render_panel(
     colorbar_label : str, optional
         Text under the color bar (e.g. "relative error").
     textures : sequence of (uv, image) or None, optional
-        Per-item UV textures, as in :func:`render_images`.
+        Per-item UV textures, as in :func:`~o3d_ofp.render.render_images`.
     point_size : float, optional
-        Point size for point clouds, as in :func:`render_images`.
+        Point size for point clouds, as in :func:`~o3d_ofp.render.render_images`.
 
     Returns
     -------
@@ -532,9 +532,9 @@ def geometry_items(geometries: Sequence[Any]) -> tuple[list[tuple[Any, Any, Any]
     Returns
     -------
     items : list of (vertices (n, 3), faces (m, 3) or None, colors (n, 3) or None)
-        As :func:`render_images` takes them.
+        As :func:`~o3d_ofp.render.render_images` takes them.
     textures : list of (uv (3m, 2), image) or None
-        As :func:`render_images` takes them (None for an untextured geometry).
+        As :func:`~o3d_ofp.render.render_images` takes them (None for an untextured geometry).
     """
     from ..boundary.convert import geometry_to_arrays, vertex_colors
     from ..boundary.texture import mesh_texture

@@ -2,14 +2,14 @@
 
 The direct match of two 110k-vertex meshes spends most of its time on the 100
 full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertices).
-:func:`o3d_ofp.workflows.estimate.estimate_dense` never computes them:
+``o3d_ofp.workflows.estimate.estimate_dense`` never computes them:
 
 1. each shape is reduced to a coarse mesh of about :data:`COARSE_VERTICES` (20000) vertices, the
-   dual of its geodesic Voronoi cells (:func:`o3d_ofp.core.multiscale.coarse_mesh`, O(n log n));
-2. the whole estimation (:func:`o3d_ofp.workflows.estimate.estimate`: descriptor fit,
+   dual of its geodesic Voronoi cells (``o3d_ofp.core.multiscale.coarse_mesh``, O(n log n));
+2. the whole estimation (``o3d_ofp.workflows.estimate.estimate``: descriptor fit,
    ZoomOut to 100, quality report) runs between the coarse meshes;
 3. the coarse map is carried to every full-resolution vertex by
-   :func:`o3d_ofp.core.multiscale.extend_p2p`: the coarse eigenfunctions are interpolated to
+   ``o3d_ofp.core.multiscale.extend_p2p``: the coarse eigenfunctions are interpolated to
    the full vertices and each target vertex gets the exact nearest source vertex in that
    embedding by the cell-pruned local search (no step is quadratic in the vertex count); an
    estimate whose point map is not its functional map's alone passes its own ``extend``
@@ -36,7 +36,7 @@ __all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_landmarks
 logger = logging.getLogger(__name__)
 
 #: Meshes with more vertices than this (either shape) are matched on coarse copies (the dense
-#: path of :func:`o3d_ofp.workflows.plan.plan_pair`). Below it the direct match is faster or
+#: path of ``o3d_ofp.workflows.plan.plan_pair``). Below it the direct match is faster or
 #: as fast (measured, FAUST subdivided, 27.5k vertices: direct 0.0255 error; the coarse path
 #: gains little time there) and keeps the exact full-resolution spectral map.
 DENSE_VERTICES = 50_000

@@ -22,18 +22,18 @@ a source to a target through a map and re-applied in the target's local frames:
   plane, so the detail keeps its orientation relative to the surface whatever the two poses.
   A detail vector with frame coordinates ``c`` (normal height and two tangent offsets) at the
   source becomes ``R_i (E₁ c) = E₂ c`` at the target. The fitted rotation (on neighbourhoods
-  of :data:`ROTATION_TIME`) needs no normals (point clouds work) and never degenerates where
+  of ``ROTATION_TIME``) needs no normals (point clouds work) and never degenerates where
   a low-pass collapses a limb into a ribbon (frames from the low-pass surface's own normals
   were 43° off on FAUST and made every result worse than doing nothing).
 * **Carrying.** The detail vectors and the low-pass coordinates are carried to the target
   either by pulling them back through the point map (``carry="p2p"``) or with the OFP transfer
-  of the paper (``carry="ofp"``, :func:`o3d_ofp.workflows.pipeline.transfer_function`).
+  of the paper (``carry="ofp"``, :func:`o3d_ofp.transfer_function`).
   Measured with the true map on the former benchmark (targets projected on 30
   eigenfunctions, band 30): the OFP transfer loses most of the detail (distance 0.79-0.97x
   doing nothing, normal angle 0.98-1.16x; pulled back 0.57-0.78x and 0.45-0.59x).
   With a wrong map both are the same (the map is not trusted).
 * **Trust in the map.** Where the map is wrong the two low-pass neighbourhoods do not match:
-  the fitted rotation then leaves a poor fit (see :func:`local_rotations`). The detail is
+  the fitted rotation then leaves a poor fit (see ``local_rotations``). The detail is
   weighted by ``clip((fit − 0.7) / (0.9 − 0.7), 0, 1)``; where it is not trusted, the target
   gets instead the source's mean detail height along its normals, the one part of the detail
   no map is needed for (a functional map always takes constants to constants). Measured on
@@ -46,7 +46,7 @@ a source to a target through a map and re-applied in the target's local frames:
   not their units.
 
 The result keeps the target's pose and low-frequency shape. Modes
-(:data:`o3d_ofp.workflows.options.DETAIL_MODES`):
+(``o3d_ofp.workflows.options.DETAIL_MODES``):
 
 * ``"add"`` (default): the target keeps its own detail and gains what it lacks of the
   source's (with a ``band``: all of the source's detail above it, on top of its own).
@@ -375,13 +375,13 @@ def calibrate_detail(
     """Choose the source's low-pass whose detail the target lacks, and where it lacks it.
 
     The target is compared, through the map (its jitter averaged out first), with the source
-    and with each of its heat low-passes (:data:`LADDER`): at every target vertex, the fit of
-    the two neighbourhoods up to a rotation (:func:`local_rotations` on neighbourhoods of
-    :data:`COMPARE_TIME`).
+    and with each of its heat low-passes (``LADDER``): at every target vertex, the fit of
+    the two neighbourhoods up to a rotation (``local_rotations`` on neighbourhoods of
+    ``COMPARE_TIME``).
     The low-pass the whole target fits best is the calibrated one: the target was smoothed
     about that much, by whatever tool. Where the target does not fit that low-pass better
     than the source itself (a region left detailed, a target as detailed as the source), it
-    lacks nothing (see :data:`LACKING`). The source's shape, pose and units need not be the
+    lacks nothing (see ``LACKING``). The source's shape, pose and units need not be the
     target's: fits compare neighbourhoods up to a rotation and a scale.
 
     Parameters

@@ -133,10 +133,9 @@ def match_eigenbases(
 
     Notes
     -----
-    The estimation runs on each shape's cleaned surface (:func:`on_surfaces`: one vertex per
-    welded group, e.g. the copies of an OBJ's vertices along its UV seams) and the point map
-    is carried back to the input vertices; the quality report's counts (coverage) are those of
-    the surfaces.
+    The estimation runs on each shape's cleaned surface (one vertex per welded group, e.g. the
+    copies of an OBJ's vertices along its UV seams) and the point map is carried back to the
+    input vertices; the quality report's counts (coverage) are those of the surfaces.
 
     References
     ----------

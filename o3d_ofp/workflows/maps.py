@@ -193,12 +193,29 @@ class Correspondence:
     barycentric_21 : (n2, 3) ndarray of float64 or None
         Its barycentric coordinates in that triangle (rows sum to 1).
     signatures : ((s,), (s,)) ndarrays or None
-        :func:`shape_signature` of the source and the target the map was made for (set by
+        Shape signatures of the source and the target the map was made for (distances of a
+        few vertices to the centroid over the RMS radius, the same for a moved, rotated or
+        uniformly scaled copy; set by
         the estimation and the closest-point map): :meth:`check` warns when it is used on
         other shapes with the same vertex counts.
     eigenbases : (EigenBasis, EigenBasis) or None
         The eigenbases the map was estimated on (not saved): a transfer with this map on the
         same shapes reuses them instead of solving again.
+
+    Examples
+    --------
+    >>> import os
+    >>> import tempfile
+    >>> import o3d_ofp as ofp
+    >>> corr = ofp.Correspondence.from_p2p([2, 0, 1], 3, 3)  # target vertex i -> source vertex
+    >>> corr.n_source, corr.n_target, corr.method
+    (3, 3, 'given')
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "map.npz")
+    ...     corr.save(path)
+    ...     again = ofp.Correspondence.load(path)
+    >>> again.p2p_21.tolist(), again.method
+    ([2, 0, 1], 'given')
     """
 
     p2p_21: np.ndarray
@@ -258,6 +275,17 @@ class Correspondence:
         -------
         Correspondence
             ``method="given"``, no quality report.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import open3d as o3d
+        >>> import o3d_ofp as ofp
+        >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+        >>> moved = o3d.geometry.TriangleMesh(sphere).translate((2.0, 0.0, 0.0))
+        >>> corr = ofp.Correspondence.from_p2p(np.arange(182), sphere, moved)
+        >>> corr.n_source, corr.n_target, corr.quality is None
+        (182, 182, True)
         """
         V1, V2 = _vertices_of(source, "source"), _vertices_of(target, "target")
         n1 = V1.shape[0] if isinstance(V1, np.ndarray) else V1
@@ -312,7 +340,7 @@ class Correspondence:
         """Raise ``ValueError`` unless the map goes from ``n_source`` to ``n_target`` vertices.
 
         With the shapes' vertices (``source``, ``target``: (n, 3) arrays) and
-        :attr:`signatures`, also warn (:class:`~o3d_ofp.OFPWarning`) when they are not the
+        ``signatures``, also warn (:class:`~o3d_ofp.OFPWarning`) when they are not the
         shapes the map was made for, up to a move, a rotation and a uniform scaling: source
         and target swapped, or another pair with the same vertex counts (all FAUST shapes
         have 6890 vertices).
@@ -338,7 +366,7 @@ class Correspondence:
         Parameters
         ----------
         source, target : (n, 3) array_like, optional
-            The shapes' vertices, compared with :attr:`signatures` up to a move, a rotation
+            The shapes' vertices, compared with ``signatures`` up to a move, a rotation
             and a uniform scaling (a shape left out, or a map without signatures, is not
             compared).
         name : str
@@ -379,6 +407,18 @@ class Correspondence:
             one asked for).
         FileNotFoundError
             If the destination's folder does not exist.
+
+        Examples
+        --------
+        >>> import os
+        >>> import tempfile
+        >>> import o3d_ofp as ofp
+        >>> corr = ofp.Correspondence.from_p2p([1, 1, 0], 2, 3)
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = os.path.join(folder, "map.npz")
+        ...     corr.save(path)
+        ...     os.path.exists(path)
+        True
         """
         payload: dict[str, Any] = {
             "format_version": np.int64(_FORMAT_VERSION),
@@ -415,6 +455,18 @@ class Correspondence:
             If there is no such file.
         ValueError
             If the file cannot be read or is not a correspondence file (the message names it).
+
+        Examples
+        --------
+        >>> import os
+        >>> import tempfile
+        >>> import o3d_ofp as ofp
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = os.path.join(folder, "map.npz")
+        ...     ofp.Correspondence.from_p2p([1, 1, 0], 2, 3).save(path)
+        ...     corr = ofp.Correspondence.load(path)
+        >>> corr.p2p_21.tolist(), corr.n_source
+        ([1, 1, 0], 2)
         """
         import zipfile
 

@@ -78,7 +78,7 @@ def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
     return value
 
 
-#: Keywords the functions took before the options objects (CHANGELOG, issue 40), and what
+#: Keywords the functions took before the options objects (CHANGELOG, "Removed"), and what
 #: replaces them.
 MOVED = {
     **{k: "correspondence=o3d_ofp.match(source, target, " + k + "=...)"
@@ -302,7 +302,7 @@ class DetailOptions:
         (an expert's override; on a sphere choose a count that ends an eigenspace: 3, 8,
         15, 24, 35, ...).
     amount : float
-        Multiplies the transferred detail, in [0, :data:`MAX_AMOUNT`].
+        Multiplies the transferred detail, in [0, 10] (``o3d_ofp.workflows.options.MAX_AMOUNT``).
     """
 
     mode: str = "add"

@@ -1,8 +1,8 @@
 """Matching a part of a shape (a cut, a one-sided scan) onto the whole shape.
 
-:class:`PartialMatch` is the strategy :func:`o3d_ofp.workflows.estimate.estimate` runs for a
-part (the target) of a whole (the source), in the same units: partial functional maps
-(Rodolà et al. 2017) with a partial ZoomOut in place of the membership alternation. Both
+``PartialMatch`` is the strategy ``o3d_ofp.workflows.estimate.estimate`` runs for a part (the
+target) of a whole (the source), in the same units: partial functional maps (Rodolà et al.
+2017 [1]_) with a partial ZoomOut [2]_ in place of the membership alternation. Both
 eigenbases are expressed in the *source's* units (the source scaled to unit area, the target
 by the same factor, so the area ratio, which sets the slant of the restriction map, is kept).
 The steps:
@@ -14,15 +14,16 @@ The steps:
 3. *settle*: orientation-preserving starts first, then the least geodesic distortion; the
    chosen start refined by geodesic distances and a second partial ZoomOut (where its image
    jumps more than ``MAX_JUMP`` the geodesic one is kept); a refinement that turns the map
-   over tries the next starts (at most :data:`NEXT_STARTS`), else the start is kept unrefined
+   over tries the next starts (at most ``NEXT_STARTS``), else the start is kept unrefined
    and flagged;
-4. *judge*: :func:`~o3d_ofp.workflows.quality.partial_quality` (distortion, stretch, ...);
+4. *judge*: ``o3d_ofp.workflows.quality.partial_quality`` (distortion, stretch, ...: see
+   :class:`o3d_ofp.MapQuality`);
 5. *review*: a map that passes is compared with the refinements of the next starts (a rival
    as good that sends most of the part elsewhere makes it suspect); the checked map is
    polished; landmarks the map does not keep make it suspect.
 
 On the dense path the match runs between coarse copies, its checked map is polished as it is
-extended, and a map that passes gets a second opinion from smaller copies (:meth:`dense`).
+extended, and a map that passes gets a second opinion from smaller copies (``PartialMatch.dense``).
 Known limit: a near-spherical part (or any shape with a continuous symmetry) can be matched
 rotated with little distortion, which the check does not see.
 
