@@ -1,15 +1,15 @@
 """o3d_ofp: Orthogonalized Fourier Polynomials for Open3D meshes and point clouds.
 
-The package is layered (see the README's "Architecture"): :mod:`o3d_ofp.core` (arrays only),
-:mod:`o3d_ofp.workflows` (whole runs over arrays), :mod:`o3d_ofp.boundary` (Open3D geometries
-in and out), :mod:`o3d_ofp.collections` (many shapes, on Dask) and the front ends
-:mod:`o3d_ofp.cli` and :mod:`o3d_ofp.render`. The names below
+The package is layered (see the documentation's "Architecture" page): :mod:`o3d_ofp.core`
+(arrays only), :mod:`o3d_ofp.workflows` (whole runs over arrays), :mod:`o3d_ofp.boundary`
+(Open3D geometries in and out), :mod:`o3d_ofp.collections` (many shapes, on Dask) and the
+front ends :mod:`o3d_ofp.cli` and :mod:`o3d_ofp.render`. The names below
 are the public API. Importing the package does not import Open3D: the boundary functions import
 it when they are called.
 
 References
 ----------
-.. [1] G. Maggioli, S. Melzi, M. Bronstein, M. Ovsjanikov, E. Rodolà, "Orthogonalized Fourier
+.. [1] F. Maggioli, S. Melzi, M. Ovsjanikov, M. M. Bronstein, E. Rodolà, "Orthogonalized Fourier
    Polynomials for Signal Approximation and Transfer", Computer Graphics Forum 40(2), 2021
    (Eurographics 2021). doi:10.1111/cgf.142645
 """

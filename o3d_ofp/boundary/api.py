@@ -159,7 +159,7 @@ def eigenbasis(
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
 
     Examples
@@ -519,7 +519,7 @@ def transfer_colors(
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021. doi:10.1111/cgf.142645
 
     Examples

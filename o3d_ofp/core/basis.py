@@ -121,7 +121,7 @@ class OFPBasis:
 
     References
     ----------
-    .. [1] G. Maggioli, S. Melzi, M. Bronstein, M. Ovsjanikov, E. Rodolà, "Orthogonalized
+    .. [1] F. Maggioli, S. Melzi, M. Ovsjanikov, M. M. Bronstein, E. Rodolà, "Orthogonalized
        Fourier Polynomials for Signal Approximation and Transfer", Computer Graphics Forum
        40(2), 2021. doi:10.1111/cgf.142645
 
@@ -377,7 +377,7 @@ def ofp_basis(
         Storage of Q. The selection and orthogonalization always run in double precision;
         float32 then halves the stored basis (and the memory of projections), at the cost of
         single-precision round-off: measured on FAUST (k = 29) ‖QᵀMQ − I‖ ≈ 5e-9 instead of
-        1e-14, approximation errors changed by < 4e-7 relative (see the README).
+        1e-14, approximation errors changed by < 4e-7 relative (see the CHANGELOG).
 
     Returns
     -------
@@ -392,7 +392,7 @@ def ofp_basis(
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3. doi:10.1111/cgf.142645
 
     Examples

@@ -1052,7 +1052,7 @@ def lift_fmap(
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3. doi:10.1111/cgf.142645
     """
     C0 = np.asarray(fmap_12, dtype=np.float64)

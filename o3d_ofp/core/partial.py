@@ -45,7 +45,7 @@ Method (what :func:`fit_partial_fmap`, :func:`partial_zoomout` and :func:`partia
 
 This replaces the alternation of C with a TV-regularized membership of the original
 algorithm by the ZoomOut refinement; it is not shown to be as good as the original on every
-cut: ``scripts/eval_partial.py`` measures it (README, "Scans").
+cut: ``scripts/eval_partial.py`` measures it (the benchmarks page, "Partial shapes").
 
 References
 ----------

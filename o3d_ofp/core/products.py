@@ -147,7 +147,7 @@ def eigenproducts(evecs: Any, order: int) -> tuple[np.ndarray, list[tuple[int, .
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 2 (Def. 2.1) and 3.3.
        doi:10.1111/cgf.142645
 

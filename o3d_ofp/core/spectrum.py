@@ -819,7 +819,7 @@ def eigenbasis(
 
     References
     ----------
-    .. [1] G. Maggioli, S. Melzi, M. Bronstein, M. Ovsjanikov, E. Rodolà, "Orthogonalized
+    .. [1] F. Maggioli, S. Melzi, M. Ovsjanikov, M. M. Bronstein, E. Rodolà, "Orthogonalized
        Fourier Polynomials for Signal Approximation and Transfer", Computer Graphics Forum
        40(2), 2021 (Eurographics). doi:10.1111/cgf.142645
     """

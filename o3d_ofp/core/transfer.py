@@ -71,7 +71,7 @@ def transfer_matrix(
 
     References
     ----------
-    .. [1] G. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
+    .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3-3.4. doi:10.1111/cgf.142645
 
     Examples
