@@ -711,8 +711,11 @@ def filter_geometry(
 
     ``smooth`` alone returns the low-pass shape (:func:`o3d_ofp.core.filtering.smooth_coordinates`,
     a Butterworth low-pass over the whole spectrum of the Laplacian, nothing of the input
-    above the cut added back, the enclosed volume kept). ``sharpen`` multiplies the detail
-    smaller than ``smooth`` by ``1 + sharpen`` (:func:`o3d_ofp.core.filtering.sharpen_coordinates`).
+    above the cut added back, the enclosed volume kept; the graph (umbrella) Laplacian of the
+    mesh's edges, robust to noise). ``sharpen`` multiplies the detail smaller than ``smooth``
+    by ``1 + sharpen`` (:func:`o3d_ofp.core.filtering.sharpen_coordinates`); that detail is
+    measured above the cotangent Laplacian's low-pass, not above the umbrella one ``smooth``
+    alone returns, so against the latter the gain is smaller.
     ``gains`` filters instead the coefficients in an OFP basis (the paper's Figs. 14-15).
 
     Parameters
