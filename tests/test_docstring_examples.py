@@ -37,6 +37,7 @@ WITH_EXAMPLES = (
     "Correspondence.save",
     "Correspondence.load",
     "transfer_colors",
+    "transfer_function",
     "transfer_signal",
     "transfer_matrix",
     "transfer_detail",

@@ -12,12 +12,21 @@ from __future__ import annotations
 
 import builtins
 import importlib
+import inspect
 import sys
 from typing import Any
 
 from docutils import nodes
 
 ALIASES = {"np": "numpy", "o3d": "open3d", "sp": "scipy"}
+#: One page per documented object on these sites (their own layouts).
+SITES = {
+    "numpy": "https://numpy.org/doc/stable/reference/generated/{name}.html",
+    "scipy": "https://docs.scipy.org/doc/scipy/reference/generated/{name}.html",
+    "open3d": "https://www.open3d.org/docs/release/python_api/{name}.html",
+    "dask": "https://docs.dask.org/en/stable/generated/{name}.html",
+    "distributed": "https://distributed.dask.org/en/stable/api.html#{name}",
+}
 BUILTIN_PAGES = {
     "functions": {"int", "float", "str", "bool", "object", "type", "bytes", "complex", "range"},
     "stdtypes": {"list", "dict", "tuple", "set", "frozenset"},
@@ -25,19 +34,24 @@ BUILTIN_PAGES = {
 }
 
 
-def _resolve(name: str) -> Any:
-    """Return the object a dotted name refers to, or raise LookupError."""
+def _resolve(name: str) -> tuple[str, list[Any]]:
+    """Return the longest importable module prefix of a dotted name and the objects along it.
+
+    Raises LookupError when the name does not lead to an object.
+    """
     parts = name.split(".")
     for cut in range(len(parts), 0, -1):
+        module_name = ".".join(parts[:cut])
         try:
-            obj = importlib.import_module(".".join(parts[:cut]))
+            obj = importlib.import_module(module_name)
         except ImportError:
             continue
+        chain = [obj]
         for attr in parts[cut:]:
-            if not hasattr(obj, attr):
+            if not hasattr(chain[-1], attr):
                 raise LookupError(name)
-            obj = getattr(obj, attr)
-        return obj
+            chain.append(getattr(chain[-1], attr))
+        return module_name, chain
     raise LookupError(name)
 
 
@@ -46,39 +60,41 @@ def _canonical(name: str) -> str:
     return ALIASES.get(head, head) + ("." + rest if rest else "")
 
 
+def _builtin_url(name: str) -> str | None:
+    for page, names in BUILTIN_PAGES.items():
+        if name in names:
+            return f"https://docs.python.org/3/library/{page}.html#{name}"
+    obj = getattr(builtins, name, None)
+    if isinstance(obj, type) and issubclass(obj, BaseException):
+        return f"https://docs.python.org/3/library/exceptions.html#{name}"
+    if callable(obj):
+        return f"https://docs.python.org/3/library/functions.html#{name}"
+    return None
+
+
 def url_for(name: str) -> str | None:
     """Return the documentation address of an importable name outside o3d_ofp, or None."""
-    if name in vars(builtins) or name in BUILTIN_PAGES["constants"]:
-        for page, names in BUILTIN_PAGES.items():
-            if name in names:
-                return f"https://docs.python.org/3/library/{page}.html#{name}"
-        if isinstance(getattr(builtins, name, None), type) and issubclass(
-            getattr(builtins, name), BaseException
-        ):
-            return f"https://docs.python.org/3/library/exceptions.html#{name}"
-        return None
+    if "." not in name and (name in vars(builtins) or name in BUILTIN_PAGES["constants"]):
+        return _builtin_url(name)
     name = _canonical(name)
     top = name.split(".")[0]
+    if top not in SITES and top not in sys.stdlib_module_names:
+        return None
     try:
-        _resolve(name)
+        module_name, chain = _resolve(name)
     except LookupError:
         return None
-    if top == "numpy":
-        if name.startswith("numpy.typing."):
-            return f"https://numpy.org/doc/stable/reference/typing.html#{name}"
-        return f"https://numpy.org/doc/stable/reference/generated/{name}.html"
-    if top == "scipy":
-        return f"https://docs.scipy.org/doc/scipy/reference/generated/{name}.html"
-    if top == "open3d":
-        return f"https://www.open3d.org/docs/release/python_api/{name}.html"
-    if top in ("dask", "distributed"):
+    if top in sys.stdlib_module_names:  # one page per module, an anchor per object
+        return f"https://docs.python.org/3/library/{module_name}.html#{name}"
+    if top == "open3d" and len(chain) > 1 and inspect.isclass(chain[-2]):
+        owner = name.rsplit(".", 1)[0]  # a member: an anchor on its class's page
+        return SITES[top].format(name=owner) + f"#{name}"
+    if top == "numpy" and name.startswith("numpy.typing."):
+        return f"https://numpy.org/doc/stable/reference/typing.html#{name}"
+    if top == "distributed" or name.startswith("dask.distributed."):
         short = name.replace("dask.distributed.", "distributed.")
-        if short.startswith("distributed."):
-            return f"https://distributed.dask.org/en/stable/api.html#{short}"
-        return f"https://docs.dask.org/en/stable/generated/{name}.html"
-    if top in sys.stdlib_module_names:
-        return f"https://docs.python.org/3/library/{top}.html#{name}"
-    return None
+        return f"https://distributed.dask.org/en/stable/api.html#{short}"
+    return SITES[top].format(name=name)
 
 
 def _missing_reference(app: Any, env: Any, node: Any, contnode: Any) -> Any:

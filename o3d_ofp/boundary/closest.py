@@ -9,7 +9,7 @@ position of the shapes (the scene itself works in float32, on centred, unit-diag
 
 For shapes that are only *almost* aligned, ``align=True`` first registers the target onto the
 source with a rigid point-to-plane ICP. Shapes that are not aligned at all need the spectral
-estimate instead (:func:`o3d_ofp.workflows.matching.match_eigenbases`); the quality report says
+estimate instead (:func:`o3d_ofp.match_eigenbases`); the quality report says
 so when the closest points are far away. Without ``align``, the report also says when a rigid
 motion would bring the target much closer (a turned or moved copy: closest points slide along
 the surface), and names ``align=True``.
