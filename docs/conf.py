@@ -8,10 +8,14 @@ and fails the strict build, as a broken intersphinx reference would.
 
 from __future__ import annotations
 
+import importlib
 import os
+import pkgutil
 import sys
 from datetime import date
 from pathlib import Path
+
+from sphinx.pycode import ModuleAnalyzer
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "_ext"))
@@ -50,8 +54,47 @@ autosummary_imported_members = True
 autodoc_typehints = "none"  # the numpydoc sections carry the types, with shapes
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
-numpydoc_xref_param_type = False
+# Parameter and return types link to their classes (checked like every other reference); words
+# of the type lines that are not below (shapes, "optional", "of") stay plain text. The defaults'
+# Python and NumPy entries use intersphinx roles, replaced here by names offline_xref resolves.
+numpydoc_xref_param_type = True
+numpydoc_xref_ignore = "all"
+numpydoc_xref_aliases = {
+    **{
+        name: name
+        for name in ("None", "True", "False", "bool", "int", "float", "str", "list", "tuple",
+                     "dict", "object", "bytes")
+    },
+    "boolean": "bool",
+    "string": "str",
+    "callable": "collections.abc.Callable",
+    "iterable": "collections.abc.Iterable",
+    "sequence": "collections.abc.Sequence",
+    "mapping": "collections.abc.Mapping",
+    "PathLike": "os.PathLike",
+    "os.PathLike": "os.PathLike",
+    "Path": "pathlib.Path",
+    "logging.Logger": "logging.Logger",
+    "array": "numpy.ndarray",
+    "ndarray": "numpy.ndarray",
+    "np.ndarray": "numpy.ndarray",
+    "array_like": "numpy.typing.ArrayLike",
+    "array-like": "numpy.typing.ArrayLike",
+    "dtype": "numpy.dtype",
+    "csr_matrix": "scipy.sparse.csr_matrix",
+    "TriangleMesh": "open3d.geometry.TriangleMesh",
+    "PointCloud": "open3d.geometry.PointCloud",
+    "Image": "open3d.geometry.Image",
+    "distributed.Client": "distributed.Client",
+    "Client": "distributed.Client",
+    # the package's classes (CamelCase public names; PRESETS is a constant)
+    **{f"{name}": f"o3d_ofp.{name}" for name in o3d_ofp.__all__ if name[:1].isupper()
+       and not name.isupper()},
+}
 numpydoc_validation_checks: set[str] = set()
+
+# Keep "--flag" as typed (the CLI reference and code-like text), not typographic dashes.
+smartquotes = False
 
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
@@ -72,6 +115,34 @@ sphinx_gallery_conf = {
     "show_memory": False,
     "plot_gallery": "True",
 }
+
+
+
+def _reexported_data_doc(app, what, name, obj, options, lines):
+    """Give a constant re-exported by ``o3d_ofp`` the ``#:`` comment of its definition.
+
+    Autodoc reads ``#:`` comments from the module it documents (``o3d_ofp``), where these names
+    are only imported, and would otherwise show the docstring of the value's type (``str``).
+    """
+    if what != "data" or not name.startswith("o3d_ofp."):
+        return
+    attr = name.rsplit(".", 1)[1]
+    for info in pkgutil.walk_packages(o3d_ofp.__path__, "o3d_ofp."):
+        if info.name.endswith("__main__"):
+            continue
+        module = importlib.import_module(info.name)
+        if getattr(module, attr, None) is not obj:
+            continue
+        comment = ModuleAnalyzer.for_module(info.name).find_attr_docs().get(("", attr))
+        if comment:
+            lines[:] = list(comment)
+            return
+
+
+def setup(app):
+    """Connect the handlers above."""
+    app.connect("autodoc-process-docstring", _reexported_data_doc)
+
 
 html_theme = "pydata_sphinx_theme"
 html_title = f"o3d_ofp {release}"

@@ -6,6 +6,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 .venv/bin/python -m ruff check .
 bash scripts/docs.sh
-.venv/bin/python -m pytest "$@"
+# Two worker processes (pytest-xdist), one a core of the 2-core CI machine: the fast tests take
+# 7.8 minutes instead of 9.8 (measured on this machine, one run each).
+.venv/bin/python -m pytest -n 2 "$@"
 # Exit code 5 means "no slow tests collected" (e.g. when -k filters them all out): not a failure.
-.venv/bin/python -m pytest -m slow "$@" || [ $? -eq 5 ]
+.venv/bin/python -m pytest -m slow -n 2 "$@" || [ $? -eq 5 ]
