@@ -7,9 +7,9 @@ once with the ground-truth functional map and once with an estimated one (WKS de
 orientation term, ZoomOut to 100; no ground truth used). Also the mean error of the p2p maps:
 Euclidean distance between the matched and the true target positions, divided by √area.
 
-``--pyfm`` also runs pyFM's standard pipeline (``pip install pyfmaps``; evaluation only) on the
-FAUST 093→087 and TOSCA centaur2→centaur4 pairs in the same process and prints both p2p errors
-and times.
+``--pyfm`` also runs pyFM at its fastest usual setting (``bench_match.pyfm``; ``pip install
+pyfmaps``, evaluation only) on FAUST 093→087 and TOSCA centaur2→centaur4 in the same process and
+prints both p2p errors and the maps' seconds.
 
 Usage::
 
@@ -200,23 +200,21 @@ def run_pair(name: str, n_eig: int = 200) -> list[str]:
 
 
 def head_to_head(name: str) -> str:
-    """Run pyFM's standard pipeline and ours on one pair, in this process: p2p errors and times."""
-    from pyFM.functional import FunctionalMapping
-    from pyFM.mesh import TriMesh
+    """Run pyFM and ours on one pair, in this process: p2p errors and the maps' seconds.
+
+    pyFM at its fastest usual setting, called as ``bench_match.pyfm`` does (one place for
+    pyFM's call: k = 100, WKS, the fit of K = 30 with the orientation term, ZoomOut
+    ``nit=14, step=5``, the point map of the refined map).
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_match
+    from bench_match import pyfm
 
     src, tgt, kind, *_ = PAIRS[name]
     V1, F1 = load(src)
     V2, F2 = load(tgt)
     gt, on = ground_truth(kind, src, tgt, V2)
     area1 = ofp.laplacian(V1, F1)[1].sum()
-    t0 = time.perf_counter()
-    model = FunctionalMapping(TriMesh(V1, F1), TriMesh(V2, F2))
-    model.preprocess(n_descr=100, descr_type="WKS", k_process=100, k_descr=100)
-    model.fit(K=(30, 30), w_descr=1e0, w_lap=1e-2, w_dcomm=1e-1, w_orient=1e0)
-    # pyfmaps 1.3.1: zoomout_refine RETURNS the refined map (model.FM_12 is not updated).
-    FM = model.zoomout_refine(nit=70, step=1, subsample=2000)  # 30 → 100
-    p2p_pyfm = model.get_p2p(FM=FM)
-    t_pyfm = time.perf_counter() - t0
+    p2p_pyfm, t_pyfm, *_ = pyfm(V1, F1, V2, F2, "fast")
     t0 = time.perf_counter()
     e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
     p2p_ours = match_eigenbases(e1, e2).p2p_21
