@@ -28,7 +28,7 @@ from ..core.fmap import (
     zoomout_refine,
 )
 from ..core.multiscale import extend_p2p, local_p2p_from_fmap
-from ..core.partial import geodesic_features
+from ..core.partial import geodesic_distortion, geodesic_features
 from ..core.spectrum import EigenBasis
 from ..core.wording import Said
 from .maps import Correspondence, MapQuality
@@ -37,6 +37,7 @@ from .strategy import Run, Settled, Strategy
 
 __all__ = [
     "DCOMM_WEIGHTS",
+    "REPAIR_GAIN",
     "REPAIR_MAX_SHARE",
     "REPAIR_SHARE",
     "SELECT_K",
@@ -44,6 +45,7 @@ __all__ = [
     "FullMatch",
     "alignment_residual",
     "geodesic_repair",
+    "repair_doubt",
 ]
 
 logger = logging.getLogger(__name__)
@@ -131,6 +133,18 @@ REPAIR_SAMPLES = 2000
 #: from the full refinement (with these, remeshed 007 -> 000 came out 0.042 instead of 0.025).
 REPAIR_ANCHORS = 50
 REPAIR_ITERATIONS = 2
+#: A re-estimate must earn its place: when it changes the map (on more than
+#: :data:`REPAIR_SHARE` of the target) but its geodesic distortion
+#: (:func:`~o3d_ofp.core.partial.geodesic_distortion`, :data:`REPAIR_DISTORTION_SAMPLES` target
+#: samples) is not below this fraction of the spectral map's, nothing says which of the two is
+#: right, and the map is flagged. Measured (``scripts/eval_matching.py --all-pairs``,
+#: ``scripts/eval_nonisometric.py --datasets TOSCA_Isometric humans``): the 10 re-estimates
+#: that fixed a region (errors 0.039-0.187 to 0.014-0.029 / sqrt(area)) lowered it to
+#: 0.58-0.84 of the spectral map's; the two that left a wrong map, one of them worse than the
+#: spectral map (TOSCA cat2 -> cat3, 0.032 to 0.064; woman_03 -> man_05, 0.185 to 0.071),
+#: 0.94 and 1.00.
+REPAIR_GAIN = 0.9
+REPAIR_DISTORTION_SAMPLES = 100
 #: The check runs when n1 · n2 is at most this: the dense path's coarse copies (20 000
 #: vertices) are under it. Its cost is mostly its Dijkstra runs (100 on the target, 100-300 on
 #: the source): measured 0.3 s at 6.9k vertices and 1.8 s at 27.5k (FAUST 093, subdivided once;
@@ -203,6 +217,41 @@ def geodesic_repair(
         C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples, anchors=anchors
     )
     return C, disagreement
+
+
+def repair_doubt(
+    spectral: np.ndarray, repaired: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *,
+    checked: np.ndarray,
+) -> dict[str, float] | None:  # fmt: skip
+    """Say whether a re-estimated map is not clearly better than the spectral map it replaces.
+
+    Parameters
+    ----------
+    spectral, repaired : (n2,) ndarray of int
+        The two maps (source vertex of every target vertex).
+    eig_1, eig_2 : EigenBasis
+        Unit-area source and target eigenbases of triangle meshes.
+    checked : (s,) ndarray of int
+        Target samples on which the two maps are compared.
+
+    Returns
+    -------
+    dict or None
+        None when the re-estimate keeps the map (it moves at most :data:`REPAIR_SHARE` of the
+        samples over :data:`REPAIR_JUMP`) or lowers its geodesic distortion below
+        :data:`REPAIR_GAIN` of the spectral map's; else ``{"before": ..., "after": ...}``,
+        the two distortions.
+    """
+    moved = np.linalg.norm(eig_1.vertices[spectral[checked]] - eig_1.vertices[repaired[checked]],
+                           axis=1)  # fmt: skip
+    if np.mean(moved > REPAIR_JUMP) <= REPAIR_SHARE:
+        return None
+    surfaces = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
+    before, after = (geodesic_distortion(p2p, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
+                     for p2p in (spectral, repaired))  # fmt: skip
+    if after < REPAIR_GAIN * before:
+        return None
+    return {"before": before, "after": after}
 
 
 class FullMatch(Strategy):
@@ -335,12 +384,28 @@ class FullMatch(Strategy):
             return settled, quality.flagged(found).flagged(causes, first=False)
         if repaired is None:
             return settled, quality
+        spectral = settled
         settled = self._settled(run, repaired, settled.info)
-        return settled, self.judge(run, settled).noted(Said(
+        quality = self.judge(run, settled).noted(Said(
             "the spectral map disagreed with its geodesic refinement on {share:.3f} of the "
             "target's area (a region sent to the wrong place): re-estimated from the geodesic "
             "map", {"share": disagreement}, "repaired",
         ))  # fmt: skip
+        doubt = repair_doubt(spectral.p2p_21, settled.p2p_21, run.u1, run.u2,
+                             checked=run.state["samples"][1])  # fmt: skip
+        if doubt is None or quality.suspect:
+            return settled, quality
+        found = Said(
+            "the map was re-estimated from its geodesic refinement, but the re-estimate changes "
+            "geodesic distances about as much as the spectral map did ({after:.3f} against "
+            "{before:.3f}): which of the two is right is not known", doubt, "repair_doubtful",
+        )  # fmt: skip
+        causes = Said(
+            "likely causes: parts the descriptors cannot tell apart (limbs, a tail), or shapes "
+            "that are not near-isometric; fix: give a few known vertex pairs ({landmarks})",
+            {}, "causes",
+        )  # fmt: skip
+        return settled, quality.flagged(found).flagged(causes, first=False)
 
     def options(self, run: Run, settled: Settled) -> dict[str, Any]:
         """Return the options, with the fit the map came from and the size it ends at."""
