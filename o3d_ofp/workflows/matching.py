@@ -139,10 +139,10 @@ REPAIR_ITERATIONS = 2
 #: samples) is not below this fraction of the spectral map's, nothing says which of the two is
 #: right, and the map is flagged. Measured (``scripts/eval_matching.py --all-pairs``,
 #: ``scripts/eval_nonisometric.py --datasets TOSCA_Isometric humans``): the 10 re-estimates
-#: that fixed a region (errors 0.039-0.187 to 0.014-0.029 / sqrt(area)) lowered it to
-#: 0.58-0.84 of the spectral map's; the two that left a wrong map, one of them worse than the
-#: spectral map (TOSCA cat2 -> cat3, 0.032 to 0.064; woman_03 -> man_05, 0.185 to 0.071),
-#: 0.94 and 1.00.
+#: that lowered the error (9 from 0.039-0.187 to 0.014-0.029 / sqrt(area), TOSCA cat1 -> cat7
+#: 0.081 to 0.078) lowered the distortion to 0.58-0.84 of the spectral map's; the two that
+#: left a wrong map, one of them worse than the spectral map (TOSCA cat2 -> cat3, 0.032 to
+#: 0.064; woman_03 -> man_05, 0.185 to 0.071), to 0.94 and 1.00.
 REPAIR_GAIN = 0.9
 REPAIR_DISTORTION_SAMPLES = 100
 #: The check runs when n1 · n2 is at most this: the dense path's coarse copies (20 000
