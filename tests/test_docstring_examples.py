@@ -51,6 +51,17 @@ WITH_EXAMPLES = (
     "write_geometry",
     "cached_basis",
     "shape_digest",
+    "eigenproduct_indices",
+    "lift_fmap",
+    "estimate_fmap",
+    "zoomout_refine",
+    "icp_refine",
+    "nearest_neighbors",
+    "p2p_from_template",
+    "match_eigenbases",
+    "texture_colors",
+    "render_panel",
+    "write_summary",
 )
 
 

@@ -567,5 +567,20 @@ def texture_colors(mesh: Any, texture: Any = None) -> np.ndarray:
     ------
     ValueError
         If the mesh has no UVs, or no texture image is given or loaded.
+
+    Examples
+    --------
+    A box with a UV map, and a texture image red on top, blue below:
+
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> box = o3d.geometry.TriangleMesh.create_box(create_uv_map=True)
+    >>> image = np.zeros((64, 64, 3), dtype=np.uint8)
+    >>> image[:32, :, 0] = 255
+    >>> image[32:, :, 2] = 255
+    >>> colors = ofp.texture_colors(box, image)
+    >>> colors.shape, bool(((colors >= 0) & (colors <= 1)).all())
+    ((8, 3), True)
     """
     return mesh_texture(mesh, texture).vertex_colors()

@@ -138,6 +138,24 @@ def write_summary(
     -------
     csv_path, json_path : str
         The files written.
+
+    Examples
+    --------
+    >>> import json
+    >>> import tempfile
+    >>> import o3d_ofp as ofp
+    >>> results = [
+    ...     ofp.TargetResult(0, "a.ply", "a.ply", "ok", coverage=0.9),
+    ...     ofp.TargetResult(1, "b.ply", "b.ply", "failed", error="ValueError: no faces"),
+    ... ]
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     csv_path, json_path = ofp.write_summary(results, folder)
+    ...     with open(json_path, encoding="utf-8") as fh:
+    ...         summary = json.load(fh)
+    >>> summary["counts"]
+    {'ok': 1, 'failed': 1, 'skipped': 0}
+    >>> [row["error"] for row in summary["results"]]
+    ['', 'ValueError: no faces']
     """
     rows = [r.row() for r in results]
     folder = os.fspath(output_dir)

@@ -203,6 +203,15 @@ def nearest_neighbors(data: Any, queries: Any, *, method: str = "auto") -> np.nd
     unscaled search wherever that one is computable, and embeddings of any magnitude
     (1e-200 or 1e200, whose squared distances underflow or overflow in float64) are searched
     as exactly as embeddings of magnitude 1.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import o3d_ofp as ofp
+    >>> data = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    >>> queries = np.array([[0.9, 0.1], [0.1, 0.2], [0.2, 0.8], [1.0, 1.1]])
+    >>> ofp.nearest_neighbors(data, queries).tolist()
+    [1, 0, 2, 2]
     """
     X = np.ascontiguousarray(data, dtype=np.float64)
     Y = np.ascontiguousarray(queries, dtype=np.float64)
@@ -387,6 +396,17 @@ def p2p_from_template(corr_1: Any, corr_2: Any, vertices_2: Any) -> np.ndarray:
     -------
     p2p_21 : (n2,) ndarray of int64
         Source vertex of every target vertex.
+
+    Examples
+    --------
+    Two template points, matched to source vertices 5 and 7 and to target vertices 0 and 3;
+    the other target vertices take the answer of the nearest of those two:
+
+    >>> import numpy as np
+    >>> import o3d_ofp as ofp
+    >>> target = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.7, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    >>> ofp.p2p_from_template([5, 7], [0, 3], target).tolist()
+    [5, 5, 7, 7]
     """
     a = np.asarray(corr_1)
     b = np.asarray(corr_2)

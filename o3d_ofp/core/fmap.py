@@ -562,6 +562,26 @@ def estimate_fmap(
        Correspondences via Functional Maps", ACM TOG 37(6), 2018.
     .. [3] S. Melzi et al., "ZoomOut: Spectral Upsampling for Efficient Shape Correspondence",
        ACM TOG 38(6), 2019.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(sphere.vertices)
+    >>> shape = o3d.geometry.TriangleMesh(sphere)  # a bumpy ellipsoid with no symmetry
+    >>> bumps = 0.2 * xyz[:, [1, 2, 0]] ** 2
+    >>> shape.vertices = o3d.utility.Vector3dVector(xyz * [1.0, 0.7, 0.5] + bumps)
+    >>> moved = o3d.geometry.TriangleMesh(shape)
+    >>> _ = moved.rotate(moved.get_rotation_matrix_from_xyz((0.3, 0.2, 0.1)), center=(0, 0, 0))
+    >>> eig_1, eig_2 = ofp.eigenbasis(shape, k=10), ofp.eigenbasis(moved, k=10)
+    >>> C = ofp.estimate_fmap(eig_1, eig_2)
+    >>> C.shape
+    (11, 11)
+    >>> p2p = ofp.p2p_from_fmap(C, eig_1, eig_2)  # the vertices of the rotated copy are in order
+    >>> bool((p2p == np.arange(182)).mean() > 0.9)
+    True
     """
     k1, k2 = _checked_sizes(eig_1, eig_2, k1, k2, solver, refine, w_dcomm)
     options = (descriptors, n_descriptors, k_descriptors, landmarks, operator_step)
@@ -684,6 +704,25 @@ def icp_refine(
     (k2+1, k1+1) ndarray
         The refined map (closest to orthogonal for the matched points, on the unit-area
         shapes; converted back to the shapes' own areas).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(sphere.vertices)
+    >>> shape = o3d.geometry.TriangleMesh(sphere)  # a bumpy ellipsoid with no symmetry
+    >>> bumps = 0.2 * xyz[:, [1, 2, 0]] ** 2
+    >>> shape.vertices = o3d.utility.Vector3dVector(xyz * [1.0, 0.7, 0.5] + bumps)
+    >>> eig = ofp.eigenbasis(shape, k=10)
+    >>> C = ofp.fmap_from_p2p(np.arange(182), eig, eig, k1=6, k2=6)  # the identity map
+    >>> noisy = C + 0.1 * np.random.default_rng(0).standard_normal(C.shape)
+    >>> bool((ofp.p2p_from_fmap(noisy, eig, eig) == np.arange(182)).all())
+    False
+    >>> refined = ofp.icp_refine(noisy, eig, eig)
+    >>> refined.shape, bool((ofp.p2p_from_fmap(refined, eig, eig) == np.arange(182)).all())
+    ((7, 7), True)
     """
     scale = math.sqrt(eig_2.area / eig_1.area)
     C = np.array(fmap_12, dtype=np.float64) / scale
@@ -927,6 +966,29 @@ def zoomout_refine(
     Returns
     -------
     (k_final+1, k_final+1) ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(sphere.vertices)
+    >>> shape = o3d.geometry.TriangleMesh(sphere)  # a bumpy ellipsoid with no symmetry
+    >>> bumps = 0.2 * xyz[:, [1, 2, 0]] ** 2
+    >>> shape.vertices = o3d.utility.Vector3dVector(xyz * [1.0, 0.7, 0.5] + bumps)
+    >>> moved = o3d.geometry.TriangleMesh(shape)
+    >>> _ = moved.rotate(moved.get_rotation_matrix_from_xyz((0.3, 0.2, 0.1)), center=(0, 0, 0))
+    >>> eig_1, eig_2 = ofp.eigenbasis(shape, k=10), ofp.eigenbasis(moved, k=10)
+    >>> C = ofp.estimate_fmap(eig_1, eig_2, k1=4, k2=4, refine=None)  # a small map
+    >>> C.shape
+    (5, 5)
+    >>> big = ofp.zoomout_refine(C, eig_1, eig_2, k_final=10)
+    >>> big.shape
+    (11, 11)
+    >>> p2p = ofp.p2p_from_fmap(big, eig_1, eig_2)
+    >>> bool((p2p == np.arange(182)).mean() > 0.9)
+    True
     """
     scale = math.sqrt(eig_2.area / eig_1.area)
     C = np.array(fmap_12, dtype=np.float64) / scale  # between the unit-area bases
@@ -1054,6 +1116,16 @@ def lift_fmap(
     ----------
     .. [1] F. Maggioli et al., "Orthogonalized Fourier Polynomials for Signal Approximation
        and Transfer", Computer Graphics Forum 40(2), 2021, Sec. 3.3. doi:10.1111/cgf.142645
+
+    Examples
+    --------
+    The identity map between eigenbases lifts to the identity between eigenproducts:
+
+    >>> import numpy as np
+    >>> import o3d_ofp as ofp
+    >>> C_tilde = ofp.lift_fmap(np.eye(4), 2, target_area=4 * np.pi)  # k = 3, order 2
+    >>> C_tilde.shape, bool(np.allclose(C_tilde, np.eye(10)))
+    ((10, 10), True)
     """
     C0 = np.asarray(fmap_12, dtype=np.float64)
     if C0.ndim != 2:

@@ -69,6 +69,14 @@ def eigenproduct_indices(k: int, order: int) -> list[tuple[int, ...]]:
     -------
     list of tuple of int
         ``C(k + N, N)`` tuples: ``()`` (the constant), ``(1,) .. (k,)``, ``(1, 1), (1, 2), ...``.
+
+    Examples
+    --------
+    >>> import o3d_ofp as ofp
+    >>> ofp.eigenproduct_indices(2, 2)
+    [(), (1,), (2,), (1, 1), (1, 2), (2, 2)]
+    >>> len(ofp.eigenproduct_indices(29, 2)) == ofp.n_eigenproducts(29, 2)
+    True
     """
     k = check_int(k, name="k", minimum=1)
     order = check_int(order, name="order", minimum=1)

@@ -428,6 +428,27 @@ def render_panel(
     -------
     (H, W, 3) ndarray of uint8
         The panel.
+
+    Examples
+    --------
+    Two tiles of 64 × 64 pixels, colored by the z and x coordinates on one color scale:
+
+    >>> import os
+    >>> import tempfile
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> V, F = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "panel.png")
+    ...     panel = ofp.render_panel(
+    ...         [(V, F, V[:, 2]), (V, F, V[:, 0])], path, titles=["z", "x"], width=64, height=64
+    ...     )
+    ...     os.path.exists(path)
+    True
+    >>> panel.dtype, panel.shape[1], panel.shape[2]
+    (dtype('uint8'), 128, 3)
     """
     from PIL import Image, ImageDraw
 

@@ -143,6 +143,25 @@ def match_eigenbases(
        ACM TOG 38(6), 2019.
     .. [2] J. Ren et al., "Continuous and Orientation-preserving Correspondences via
        Functional Maps", ACM TOG 37(6), 2018.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import open3d as o3d
+    >>> import o3d_ofp as ofp
+    >>> sphere = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=10)
+    >>> xyz = np.asarray(sphere.vertices)
+    >>> shape = o3d.geometry.TriangleMesh(sphere)  # a bumpy ellipsoid with no symmetry
+    >>> bumps = 0.2 * xyz[:, [1, 2, 0]] ** 2
+    >>> shape.vertices = o3d.utility.Vector3dVector(xyz * [1.0, 0.7, 0.5] + bumps)
+    >>> moved = o3d.geometry.TriangleMesh(shape)
+    >>> _ = moved.rotate(moved.get_rotation_matrix_from_xyz((0.3, 0.2, 0.1)), center=(0, 0, 0))
+    >>> eig_1, eig_2 = ofp.eigenbasis(shape, k=10), ofp.eigenbasis(moved, k=10)
+    >>> corr = ofp.match_eigenbases(eig_1, eig_2, options=ofp.MatchOptions(k_fit=6, zoomout_to=10))
+    >>> corr.p2p_21.shape, corr.method, corr.quality.suspect
+    ((182,), 'estimate', False)
+    >>> bool((corr.p2p_21 == np.arange(182)).mean() > 0.9)
+    True
     """
     if options is not None and options.method != "estimate":
         raise OptionError("method", "='closest' needs the shapes' surfaces: o3d_ofp.match")
