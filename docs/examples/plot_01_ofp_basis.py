@@ -22,16 +22,10 @@ import numpy as np
 import o3d_ofp as ofp
 from o3d_ofp.core.shapes import blob
 from o3d_ofp.render import View
+from o3d_ofp.workflows.demo import demo_signal
 
 vertices, faces = blob(4)  # 2562 vertices
-x, y, z = (vertices - vertices.mean(0)).T / np.ptp(vertices, axis=0).max()
-colors = np.column_stack(
-    [
-        0.5 + 0.5 * np.sin(6 * np.pi * x),
-        0.5 + 0.5 * np.cos(4 * np.pi * (y + z)),
-        (np.sin(12 * np.pi * z) > 0).astype(float),
-    ]
-)
+colors = demo_signal(vertices)  # the demo's pattern: smooth bands, sharp stripes
 print(f"{vertices.shape[0]} vertices, {faces.shape[0]} triangles")
 
 # %%
