@@ -153,6 +153,12 @@ REPAIR_DISTORTION_SAMPLES = 100
 REPAIR_MAX_PAIRS = 1e9
 
 
+def _apart(eig_1: EigenBasis, images_a: np.ndarray, images_b: np.ndarray) -> float:
+    """Share of target samples whose two source images lie over :data:`REPAIR_JUMP` apart."""
+    apart = np.linalg.norm(eig_1.vertices[images_a] - eig_1.vertices[images_b], axis=1)
+    return float(np.mean(apart > REPAIR_JUMP))
+
+
 def geodesic_repair(
     p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, k_fit: int, k_final: int,
     subsample: int | None = None, samples: tuple[np.ndarray, np.ndarray] | None = None,
@@ -206,8 +212,7 @@ def geodesic_repair(
     if checked is None:
         checked = farthest_points(eig_2.vertices, min(REPAIR_SAMPLES, eig_2.n_vertices))
     geodesic = nearest_neighbors(f1.T, f2[:, checked].T)
-    apart = np.linalg.norm(eig_1.vertices[p2p_21[checked]] - eig_1.vertices[geodesic], axis=1)
-    disagreement = float(np.mean(apart > REPAIR_JUMP))
+    disagreement = _apart(eig_1, p2p_21[checked], geodesic)
     if disagreement <= share:
         return None, disagreement
     f1, f2 = geodesic_features(p2p_21, *surfaces)
@@ -242,9 +247,7 @@ def repair_doubt(
         :data:`REPAIR_GAIN` of the spectral map's; else ``{"before": ..., "after": ...}``,
         the two distortions.
     """
-    moved = np.linalg.norm(eig_1.vertices[spectral[checked]] - eig_1.vertices[repaired[checked]],
-                           axis=1)  # fmt: skip
-    if np.mean(moved > REPAIR_JUMP) <= REPAIR_SHARE:
+    if _apart(eig_1, spectral[checked], repaired[checked]) <= REPAIR_SHARE:
         return None
     surfaces = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
     before, after = (geodesic_distortion(p2p, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
