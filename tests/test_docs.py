@@ -62,13 +62,19 @@ def test_every_command_shown_parses(page, line):
         pytest.fail(f"{page}: {line!r} is refused by the parser (exit {exit_.code})")
 
 
-def test_references_to_other_projects_resolve_only_when_the_name_exists():
-    """The offline stand-in for intersphinx links real names and leaves misspelt ones broken."""
+@pytest.fixture(scope="module")
+def url_for():
+    """Return the offline resolver of docs/_ext (an extension module, not in the package)."""
     sys.path.insert(0, str(DOCS / "_ext"))
     try:
         from offline_xref import url_for
     finally:
         sys.path.remove(str(DOCS / "_ext"))
+    return url_for
+
+
+def test_references_to_other_projects_resolve_only_when_the_name_exists(url_for):
+    """The offline stand-in for intersphinx links real names and leaves misspelt ones broken."""
     numpy_page = "https://numpy.org/doc/stable/reference/generated/numpy.ndarray.html"
     assert url_for("numpy.ndarray") == url_for("np.ndarray") == numpy_page
     assert url_for("scipy.sparse.csr_matrix").endswith("generated/scipy.sparse.csr_matrix.html")
@@ -82,13 +88,8 @@ def test_references_to_other_projects_resolve_only_when_the_name_exists():
     assert url_for("o3d_ofp.match") is None
 
 
-def test_open3d_references_link_the_class_page():
+def test_open3d_references_link_the_class_page(url_for):
     pytest.importorskip("open3d", reason="Open3D's names are looked up in the installed package")
-    sys.path.insert(0, str(DOCS / "_ext"))
-    try:
-        from offline_xref import url_for
-    finally:
-        sys.path.remove(str(DOCS / "_ext"))
     page = "https://www.open3d.org/docs/release/python_api/open3d.geometry.TriangleMesh.html"
     assert url_for("open3d.geometry.TriangleMesh") == url_for("o3d.geometry.TriangleMesh") == page
     assert url_for("open3d.geometry.TriangleMesh.vertices") == (
