@@ -271,7 +271,7 @@ def test_front_ends_run_the_planner_and_never_re_decide():
     """The command line and the collections plan with workflows.plan; no estimation internals."""
     internals = {
         "ESTIMATION_K", "FIT_K", "required_k", "DENSE_VERTICES", "match_eigenbases", "estimate",
-        "estimate_dense", "strategy_of", "FullMatch", "PartialMatch", "coarse_source",
+        "estimate_dense", "strategy_of", "FullMatch", "PartialMatch", "coarse_copies",
         "refuse_clouds",
     }  # fmt: skip
     found = sorted(

@@ -263,9 +263,9 @@ def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_
     import o3d_ofp as ofp
     from o3d_ofp.workflows import dense, estimate, plan
 
-    paths, V, F, _ = shapes
+    paths, _, _, _ = shapes
     # The 642-vertex shapes made "dense" (above 500 vertices, coarse copies of 400): each
-    # target's map comes from the dense path, no ~100-eigenfunction basis of any full shape.
+    # target's map comes from the dense path, and the OFP bases are the coarse copies'.
     monkeypatch.setattr(plan, "DENSE_VERTICES", 500)
     monkeypatch.setattr(estimate, "COARSE_VERTICES", 400)
     monkeypatch.setitem(dense.coarse_shape.__kwdefaults__, "coarse_vertices", 400)
@@ -289,20 +289,18 @@ def test_dense_targets_are_matched_on_coarse_copies_in_this_process(shapes, tmp_
         paths["src"], [paths["t0"], paths["t1"]], workers=0, output_dir=tmp_path, k1=12, k2=12
     )
     assert [r.status for r in results] == ["ok", "ok"]
-    assert sizes == [12, 12, 12]  # the source once, each target: the OFP bases' size only
+    # no full-resolution eigenbasis: the map and the OFP bases live on the coarse copies
+    assert sizes == []
     # coarse eigenbases: the source's once (shared), then each target's
     assert len(coarse_sizes) == 3, coarse_sizes
-    # each target's colors are those of the two-shape pipeline through the dense-path map
-    corr = ofp.match((V, F), (_bent(V, 0.1), F))
-    assert corr.options["dense"] is True
-    colors = np.asarray(read_geometry(paths["src"]).vertex_colors)
-    e1, e2 = real(V, F, k=12), real(_bent(V, 0.1), F, k=12)
-    from o3d_ofp.workflows.pipeline import transfer_function
-
-    options = ofp.BasisOptions(k1=12, k2=12)
-    g = np.clip(transfer_function(colors, e1, e2, correspondence=corr, options=options), 0, 1)
+    # each target's colors are those of the two-shape pipeline (its own coarse copies)
+    one = ofp.transfer_colors(read_geometry(paths["src"]), read_geometry(paths["t0"]),
+                              options=ofp.BasisOptions(k1=12, k2=12))  # fmt: skip
+    assert len(coarse_sizes) == 5
     # PLY stores colors as 8-bit: half a step of 1/255
-    np.testing.assert_allclose(_colors(results[0].output), g, atol=0.5 / 255 + 1e-9)
+    np.testing.assert_allclose(
+        _colors(results[0].output), np.asarray(one.vertex_colors), atol=0.5 / 255 + 1e-9
+    )
 
 
 def test_cli_detail_onto_several_targets(shapes, tmp_path, capsys):

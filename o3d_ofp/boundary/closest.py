@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core._validation import as_faces, as_vertices
 from ..core._warnings import warn
-from ..core.geometry import face_areas_normals, units_change
+from ..core.geometry import closest_on_triangles, face_areas_normals, units_change
 from ..core.wording import Said
 from ..workflows.maps import Correspondence, MapQuality, shape_signature
 from ..workflows.quality import AREA_RATIO_NOTE
@@ -189,53 +189,6 @@ def _frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
     return 0.5 * (lo + hi), diag if diag > 0 else 1.0
-
-
-def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates of the closest point of each triangle to each point, in float64.
-
-    The Voronoi-region method of Ericson, *Real-Time Collision Detection* (5.1.5), vectorized:
-    weights that vanish (closest point on an edge or at a vertex) are exactly 0.
-
-    Parameters
-    ----------
-    p, a, b, c : (n, 3) ndarray of float64
-        Query points and the corners of the triangle of each.
-
-    Returns
-    -------
-    (n, 3) ndarray of float64
-        Weights of ``a``, ``b``, ``c`` (non-negative, rows sum to 1; NaN rows where the
-        triangle is degenerate and the formula divides by zero).
-    """
-
-    def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", x, y)
-
-    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
-    d1, d2 = dot(ab, ap), dot(ac, ap)
-    d3, d4 = dot(ab, bp), dot(ac, bp)
-    d5, d6 = dot(ab, cp), dot(ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v_in, w_in = vb / denom, vc / denom
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    out = np.stack([1.0 - v_in - w_in, v_in, w_in], axis=1)  # interior
-    regions = (  # in reverse priority: later assignments win, as Ericson's early returns do
-        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), lambda: (0 * t_bc, 1.0 - t_bc, t_bc)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: (1.0 - t_ac, 0 * t_ac, t_ac)),
-        ((d6 >= 0) & (d5 <= d6), lambda: (0 * d6, 0 * d6, 0 * d6 + 1.0)),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: (1.0 - t_ab, t_ab, 0 * t_ab)),
-        ((d3 >= 0) & (d4 <= d3), lambda: (0 * d3, 0 * d3 + 1.0, 0 * d3)),
-        ((d1 <= 0) & (d2 <= 0), lambda: (0 * d1 + 1.0, 0 * d1, 0 * d1)),
-    )
-    for mask, weights in regions:
-        if mask.any():
-            out[mask] = np.stack(weights(), axis=1)[mask]
-    return out
 
 
 def _canonical_faces(
@@ -402,7 +355,7 @@ class _Surface:
         ans = self.scene.compute_closest_points(self._o3d.core.Tensor(Pn.astype(np.float32)))
         face_ids = ans["primitive_ids"].numpy().astype(np.int64)
         corners = self.normalize(self.V[self.F[face_ids]])  # (q, 3, 3), float64
-        bary = np.clip(_closest_on_triangles(Pn, *corners.transpose(1, 0, 2)), 0.0, 1.0)
+        bary = np.clip(closest_on_triangles(Pn, *corners.transpose(1, 0, 2)), 0.0, 1.0)
         d64 = np.linalg.norm(Pn - np.einsum("qi,qij->qj", bary, corners), axis=1)
         d32 = np.linalg.norm(Pn - ans["points"].numpy().astype(np.float64), axis=1)
         bad = ~np.isfinite(d64) | (d64 > d32 + 1e-6)  # degenerate triangles: keep Open3D's answer
@@ -914,8 +867,6 @@ def _closest_quality(
         reversed_fraction=nan, area_ratio=area_ratio, suspect=bool(reasons),
         reasons=tuple(reasons), notes=tuple(notes),
     )  # fmt: skip
-
-
 
 
 def closest_correspondence(

@@ -508,8 +508,9 @@ def _source(source: Any, path: str | None, job: TransferJob) -> SharedSource:
     eig, B, cached, coarse = prepare_source(plan, V, F, match=job.match, cache_dir=job.cache_dir)
     COUNTERS["source_bases"] += 1
     logger.info(
-        "source %s: %d vertices, eigenbasis k=%d%s%s%s (%.1f s); shared with every target",
-        name, V.shape[0], eig.k, " (cached)" if cached else "",
+        "source %s: %d vertices, %s%s%s%s (%.1f s); shared with every target",
+        name, V.shape[0], "no eigenbasis" if eig is None else f"eigenbasis k={eig.k}",
+        " (cached)" if cached else "",
         "" if B is None else f", OFP basis {B.size} functions",
         "" if coarse is None else f", coarse copy of {coarse.vertices.shape[0]} vertices",
         time.perf_counter() - t0,

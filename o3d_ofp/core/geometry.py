@@ -9,6 +9,7 @@ import scipy.sparse as sp
 
 __all__ = [
     "POINT_NEIGHBOURS",
+    "closest_on_triangles",
     "edge_graph",
     "face_areas_normals",
     "face_gradient_operator",
@@ -20,6 +21,7 @@ __all__ = [
     "tangent_frames",
     "unique_edges",
     "units_change",
+    "vertex_areas",
     "vertex_normals",
 ]
 
@@ -73,6 +75,25 @@ def face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndar
     norm = np.linalg.norm(cross, axis=1)
     normals = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
     return 0.5 * norm, normals
+
+
+def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Barycentric vertex areas: a third of the area of every face around each vertex.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    (n,) ndarray of float64
+        Zero at vertices no face uses; the sum is the surface's area.
+    """
+    areas, _ = face_areas_normals(vertices, faces)
+    return np.bincount(
+        np.asarray(faces).ravel(), weights=np.repeat(areas / 3.0, 3), minlength=len(vertices)
+    )
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -380,3 +401,50 @@ def _gradients_of(
         cl = np.concatenate([nb.reshape(-1), np.arange(n)])
         out.append(sp.csr_matrix((data, (r, cl)), shape=(n, n)))
     return out[0], out[1], t1, t2
+
+
+def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of the closest point of each triangle to each point, in float64.
+
+    The Voronoi-region method of Ericson, *Real-Time Collision Detection* (5.1.5), vectorized:
+    weights that vanish (closest point on an edge or at a vertex) are exactly 0.
+
+    Parameters
+    ----------
+    p, a, b, c : (n, 3) ndarray of float64
+        Query points and the corners of the triangle of each.
+
+    Returns
+    -------
+    (n, 3) ndarray of float64
+        Weights of ``a``, ``b``, ``c`` (non-negative, rows sum to 1; NaN rows where the
+        triangle is degenerate and the formula divides by zero).
+    """
+
+    def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", x, y)
+
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v_in, w_in = vb / denom, vc / denom
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    out = np.stack([1.0 - v_in - w_in, v_in, w_in], axis=1)  # interior
+    regions = (  # in reverse priority: later assignments win, as Ericson's early returns do
+        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), lambda: (0 * t_bc, 1.0 - t_bc, t_bc)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: (1.0 - t_ac, 0 * t_ac, t_ac)),
+        ((d6 >= 0) & (d5 <= d6), lambda: (0 * d6, 0 * d6, 0 * d6 + 1.0)),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: (1.0 - t_ab, t_ab, 0 * t_ab)),
+        ((d3 >= 0) & (d4 <= d3), lambda: (0 * d3, 0 * d3 + 1.0, 0 * d3)),
+        ((d1 <= 0) & (d2 <= 0), lambda: (0 * d1 + 1.0, 0 * d1, 0 * d1)),
+    )
+    for mask, weights in regions:
+        if mask.any():
+            out[mask] = np.stack(weights(), axis=1)[mask]
+    return out

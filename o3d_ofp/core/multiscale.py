@@ -31,10 +31,18 @@ from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
 from .correspondence import fmap_between, fmap_from_p2p
 from .fmap import farthest_points, grid_samples
-from .geometry import edge_graph
+from .geometry import closest_on_triangles, edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
-__all__ = ["coarse_eigenbasis", "coarse_mesh", "extend_fmap", "extend_p2p", "local_p2p_from_fmap"]
+__all__ = [
+    "cell_restriction",
+    "coarse_eigenbasis",
+    "coarse_mesh",
+    "extend_fmap",
+    "extend_p2p",
+    "local_p2p_from_fmap",
+    "surface_prolongation",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -463,7 +471,11 @@ def _coarse_stage(
         # directions of the cells that occur.
         w2 = (dist.ravel()[flat].astype(np.float64) + cells.radius[ci]) ** 2
         w2_low = np.maximum(w2 - err[qi] - 1e-5 * (y_norm[qi] + c_max) ** 2, 0.0)
-        used, pos = np.unique(ci, return_inverse=True)
+        # The cells that occur, ascending, and each pair's position among them: a counting
+        # lookup over the s cells (np.unique would sort the pairs: 2.7 s of a 110k match).
+        present = np.bincount(ci, minlength=s) > 0
+        used = np.flatnonzero(present)
+        pos = (np.cumsum(present) - 1)[ci]
         rows_p = (used[:, None] * p + np.arange(p)).ravel()
         proj = qa[:, :d] @ basis_rows[rows_p].T  # (m, |used| p): −2 Bᵀy
         cols_p = pos[:, None] * p + np.arange(p)
@@ -827,3 +839,89 @@ def coarse_mesh(
     L = L[(L[:, 0] != L[:, 1]) & (L[:, 1] != L[:, 2]) & (L[:, 0] != L[:, 2])]
     _, first = np.unique(np.sort(L, axis=1), axis=0, return_index=True)
     return V[samples], L[np.sort(first)], samples, cell
+
+
+def surface_prolongation(
+    coarse_vertices: np.ndarray, coarse_faces: np.ndarray, cell: np.ndarray, vertices: np.ndarray
+) -> sp.csr_matrix:
+    """Interpolation from a :func:`coarse_mesh` to its dense mesh, along the surface.
+
+    Every dense vertex takes the value at its closest point on the coarse triangles around
+    the coarse vertex of its own cell (barycentric weights; the samples themselves get their
+    own value exactly). Only triangles of its cell are looked at, so a vertex never reads a
+    part close in space but not on the surface. The nearest coarse points in space would:
+    on FAUST subdivided to 110k vertices, interpolating a smooth signal from its values at
+    the 20k coarse vertices by the 4 nearest points' inverse squared distances misses it by
+    9.6 % (relative L2; 1 % of the vertices, at the hands by the thighs, off by up to 0.9 of
+    its range), by the cell's triangles by 0.33 %.
+
+    Parameters
+    ----------
+    coarse_vertices : (s, 3) ndarray of float
+        Coarse vertices.
+    coarse_faces : (f, 3) ndarray of int
+        Coarse triangles.
+    cell : (n,) ndarray of int
+        Coarse vertex (cell) of every dense vertex.
+    vertices : (n, 3) ndarray of float
+        Dense vertices.
+
+    Returns
+    -------
+    (n, s) scipy.sparse.csr_matrix
+        Rows of at most three non-negative weights summing to 1 (a vertex whose cell has no
+        coarse triangle takes its cell's value).
+    """
+    Vc = as_vertices(coarse_vertices, name="coarse_vertices")
+    V = as_vertices(vertices)
+    s = Vc.shape[0]
+    Fc = as_faces(coarse_faces, s) if len(coarse_faces) else np.empty((0, 3), dtype=np.int64)
+    cell = np.asarray(cell, dtype=np.int64)
+    n, nf = V.shape[0], Fc.shape[0]
+    around = sp.csr_matrix(
+        (np.ones(3 * nf), (Fc.ravel(), np.repeat(np.arange(nf), 3))), shape=(s, nf)
+    )  # row c: the coarse triangles at coarse vertex c
+    degree = np.diff(around.indptr)[cell]
+    best = np.full(n, np.inf)
+    corners = np.repeat(cell[:, None], 3, axis=1)
+    weights = np.zeros((n, 3))
+    weights[:, 0] = 1.0
+    for j in range(int(degree.max(initial=0))):  # the j-th triangle around every vertex's cell
+        q = np.flatnonzero(degree > j)
+        tri = around.indices[around.indptr[cell[q]] + j]
+        a, b, c = (Vc[Fc[tri, i]] for i in range(3))
+        w = closest_on_triangles(V[q], a, b, c)
+        gap = np.linalg.norm(w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c - V[q], axis=1)
+        closer = np.isfinite(gap) & (gap < best[q])  # (NaN: a degenerate triangle)
+        q, tri = q[closer], tri[closer]
+        best[q] = gap[closer]
+        corners[q] = Fc[tri]
+        weights[q] = w[closer]
+    return sp.csr_matrix(
+        (weights.ravel(), (np.repeat(np.arange(n), 3), corners.ravel())), shape=(n, s)
+    )
+
+
+def cell_restriction(cell: np.ndarray, weights: np.ndarray, count: int) -> sp.csr_matrix:
+    """Weighted averages over the cells of a :func:`coarse_mesh`: dense values to coarse ones.
+
+    Parameters
+    ----------
+    cell : (n,) ndarray of int
+        Cell (coarse vertex) of every dense vertex.
+    weights : (n,) ndarray of float
+        Non-negative weight of every dense vertex (its area: the average is the cell's mean).
+    count : int
+        Number of cells ``s``.
+
+    Returns
+    -------
+    (s, n) scipy.sparse.csr_matrix
+        Row c averages the values of cell c's vertices (rows of empty or weightless cells
+        are zero).
+    """
+    cell = np.asarray(cell, dtype=np.int64)
+    w = np.asarray(weights, dtype=np.float64)
+    total = np.bincount(cell, weights=w, minlength=count)
+    scale = np.divide(w, total[cell], out=np.zeros_like(w), where=total[cell] > 0)
+    return sp.csr_matrix((scale, (cell, np.arange(cell.shape[0]))), shape=(count, cell.shape[0]))

@@ -17,6 +17,11 @@ full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertic
 
 This follows the coarse-to-fine idea of Magnet & Ovsjanikov (EG 2023) with a simpler reduced
 representation (a coarse remeshing instead of their reduced functional space).
+
+A color transfer on such a mesh needs no full-resolution eigenpair either (the plan's
+``coarse_bases``): its OFP basis is built on the coarse copy, the source's values enter it as
+their cells' area-weighted means (:meth:`CoarseShape.restriction`) and the target's result
+leaves it interpolated along the surface (:meth:`CoarseShape.prolongation`).
 """
 
 from __future__ import annotations
@@ -25,9 +30,11 @@ import dataclasses
 import logging
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..core._validation import check_int
-from ..core.multiscale import coarse_mesh
+from ..core.geometry import vertex_areas
+from ..core.multiscale import cell_restriction, coarse_mesh, surface_prolongation
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import Said
 
@@ -73,6 +80,20 @@ class CoarseShape:
     samples: np.ndarray
     cell: np.ndarray
     eig: EigenBasis
+
+    def restriction(self, vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+        """(s, n) area-weighted means over the cells: the shape's values on the coarse copy.
+
+        ``vertices`` and ``faces`` are the full shape's (the one this copy was made of).
+        """
+        return cell_restriction(self.cell, vertex_areas(vertices, faces), len(self.samples))
+
+    def prolongation(self, vertices: np.ndarray) -> sp.csr_matrix:
+        """(n, s) interpolation of coarse values to the full shape's ``vertices``, along it.
+
+        See :func:`o3d_ofp.core.multiscale.surface_prolongation`.
+        """
+        return surface_prolongation(self.vertices, self.faces, self.cell, vertices)
 
 
 def coarse_shape(

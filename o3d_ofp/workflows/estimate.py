@@ -16,7 +16,7 @@ import dataclasses
 import functools
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import Any
 
@@ -37,7 +37,7 @@ from .quality import say
 from .strategy import Run, Strategy
 
 __all__ = [
-    "coarse_source",
+    "coarse_copies",
     "estimate",
     "estimate_dense",
     "match_eigenbases",
@@ -235,8 +235,8 @@ def on_surfaces(
 def estimate_dense(
     vertices_1: np.ndarray, faces_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray, *,
     options: MatchOptions | None = None, coarse_vertices: int | None = None,
-    coarse_source: Any = None, progress: Callable[[str, float], None] | None = None,
-    opinions: bool = True,
+    coarse_source: Any = None, coarse_target: Any = None,
+    progress: Callable[[str, float], None] | None = None, opinions: bool = True,
 ) -> Correspondence:  # fmt: skip
     """Estimate a map between two dense meshes on coarse copies (the dense path).
 
@@ -254,6 +254,8 @@ def estimate_dense(
         Vertices of each coarse copy (default :data:`o3d_ofp.workflows.dense.COARSE_VERTICES`).
     coarse_source : CoarseShape, optional
         The source's coarse copy, built once for several targets.
+    coarse_target : CoarseShape, optional
+        The target's coarse copy (made by a caller that uses it after the match too).
     progress : callable, optional
         ``progress(stage, fraction_done)``.
     opinions : bool, default True
@@ -287,7 +289,8 @@ def estimate_dense(
         corr = _match_dense(
             vertices_1, faces_1, vertices_2, faces_2, strategy=strategy, options=options,
             landmarks=landmarks, coarse_vertices=size, progress=report,
-            coarse_1=coarse_source if size == first else None, quiet=size != first,
+            coarse=(coarse_source, coarse_target) if size == first else (None, None),
+            quiet=size != first,
         )  # fmt: skip
         return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
 
@@ -295,24 +298,18 @@ def estimate_dense(
     return strategy.dense(again, first, shapes, whole, opinions=opinions)
 
 
-def coarse_source(vertices: np.ndarray, faces: np.ndarray, options: MatchOptions) -> CoarseShape:
-    """Return a source's coarse copy as :func:`estimate_dense` makes it (shared by many targets)."""
-    return coarse_shape(
-        vertices, faces, k=options.zoomout_to, coarse_vertices=COARSE_VERTICES,
-        components=options.components,
-    )  # fmt: skip
-
-
 def _match_dense(
     vertices_1: np.ndarray, faces_1: np.ndarray, vertices_2: np.ndarray, faces_2: np.ndarray, *,
     strategy: Strategy, options: MatchOptions, landmarks: np.ndarray | None, coarse_vertices: int,
-    progress: Callable[[str, float], None] | None, coarse_1: CoarseShape | None, quiet: bool,
+    progress: Callable[[str, float], None] | None,
+    coarse: tuple[CoarseShape | None, CoarseShape | None], quiet: bool,
 ) -> Correspondence:  # fmt: skip
     """Estimate a map between two dense meshes on coarse copies, then extend it to every vertex.
 
     The strategy's :meth:`~o3d_ofp.workflows.strategy.Strategy.for_coarse` runs between coarse
-    copies of about ``coarse_vertices`` vertices (``coarse_1``: the source's, made once for
-    several targets), with eigenbases of ``options.zoomout_to`` functions; ``landmarks`` (in the
+    copies of about ``coarse_vertices`` vertices (``coarse``: copies already made, such as a
+    source's made once for several targets), with eigenbases of at least
+    ``options.zoomout_to`` functions; ``landmarks`` (in the
     full meshes' numbering) go to the coarse vertices of their cells (pairs that fall on one
     coarse vertex are merged, or left out when they would pair it twice: a note, and a warning
     unless ``quiet``, which also silences a suspect map: a run that checks another). Its
@@ -336,7 +333,7 @@ def _match_dense(
 
     t0 = time.perf_counter()
     c1, c2 = _coarse_copies(
-        (V1, faces_1), (V2, faces_2), coarse_1, coarse_vertices, options, say, report
+        (V1, faces_1), (V2, faces_2), coarse, coarse_vertices, options, say, report
     )
     lm_coarse, left_out = None, None
     if landmarks is not None:  # every landmark goes to the coarse vertex of its cell
@@ -374,33 +371,72 @@ def _match_dense(
 
 def _coarse_copies(
     source: tuple[np.ndarray, np.ndarray], target: tuple[np.ndarray, np.ndarray],
-    coarse_1: CoarseShape | None, size: int, options: MatchOptions, say: Callable[..., None],
-    report: Callable[[str, float], None],
+    given: tuple[CoarseShape | None, CoarseShape | None], size: int, options: MatchOptions,
+    say: Callable[..., None], report: Callable[[str, float], None],
 ) -> tuple[CoarseShape, CoarseShape]:  # fmt: skip
-    """Return the coarse copies of both shapes (side by side), or the target's beside one given.
-
-    A source's copy built for another vertex count, or a shape their eigensolves would refuse,
-    is refused before either is built.
-    """
-    if coarse_1 is not None and coarse_1.cell.shape[0] != len(source[0]):
-        raise ValueError(f"coarse_1 was built for a shape of {coarse_1.cell.shape[0]} vertices; "
-                         f"the source has {len(source[0])}")  # fmt: skip
-    shapes = [source, target][0 if coarse_1 is None else 1 :]
-    check_shapes(shapes, names=("the source", "the target")[2 - len(shapes) :],
-                 components=options.components)  # fmt: skip
-    coarse = functools.partial(
-        coarse_shape, k=options.zoomout_to, coarse_vertices=size, components=options.components
-    )
-    if coarse_1 is not None:
+    """Return the coarse copies of both shapes for the dense match (those not ``given``)."""
+    if all(c is not None for c in given):
+        say("the coarse copies are given", 0.0)
+    elif given[0] is not None:
         say("the source's coarse copy is given; coarse copy of the target (~%d vertices) and "
             "its eigenbasis", 0.0, size)  # fmt: skip
-        report("coarse target", 0.0)
-        return coarse_1, coarse(*target)
-    say("coarse copies (~%d vertices) of both shapes and their eigenbases", 0.0, size)
+    else:
+        say("coarse copies (~%d vertices) of both shapes and their eigenbases", 0.0, size)
     report("coarse copies", 0.0)
-    n = [len(source[0]), len(target[0])]
-    c1, c2 = run_per_shape(
-        [functools.partial(coarse, *source), functools.partial(coarse, *target)], n,
-        [eigenbasis_bytes(min(m, size), options.zoomout_to) for m in n], what="coarse copies",
-    )  # fmt: skip
+    c1, c2 = coarse_copies((source, target), k=(options.zoomout_to,) * 2, size=size,
+                           components=options.components, given=given)  # fmt: skip
+    assert c1 is not None and c2 is not None
     return c1, c2
+
+
+def coarse_copies(
+    shapes: Sequence[tuple[np.ndarray, np.ndarray] | None], *, k: Sequence[int],
+    size: int | None = None, components: str = "auto",
+    given: Sequence[CoarseShape | None] = (None, None),
+    names: Sequence[str] = ("the source", "the target"),
+) -> list[CoarseShape | None]:  # fmt: skip
+    """Coarse copies of shapes (:func:`o3d_ofp.workflows.dense.coarse_shape`), side by side.
+
+    Parameters
+    ----------
+    shapes : sequence of ((n, 3) ndarray, (m, 3) ndarray) or None
+        The meshes (None: no copy wanted for that one).
+    k : sequence of int
+        Eigenfunctions of each copy's basis.
+    size : int, optional
+        Vertices of each copy (default :data:`~o3d_ofp.workflows.dense.COARSE_VERTICES`).
+    components : {"auto", "largest", "error"}
+        The components policy.
+    given : sequence of CoarseShape or None
+        Copies already made (kept; one built for another vertex count is refused).
+    names : sequence of str
+        How messages name the shapes.
+
+    Returns
+    -------
+    list of CoarseShape or None
+        One per shape (None where the shape is None).
+
+    Raises
+    ------
+    ValueError
+        A given copy of another shape, or a shape the eigensolves would refuse: before any
+        copy is built.
+    """
+    for shape, copy, name in zip(shapes, given, names, strict=False):
+        if copy is not None and shape is not None and copy.cell.shape[0] != len(shape[0]):
+            raise ValueError(f"the coarse copy of {name} was built for a shape of "
+                             f"{copy.cell.shape[0]} vertices; it has {len(shape[0])}")  # fmt: skip
+    size = COARSE_VERTICES if size is None else size
+    todo = [i for i, shape in enumerate(shapes) if shape is not None and given[i] is None]
+    check_shapes([shapes[i] for i in todo], names=[names[i] for i in todo],  # type: ignore[misc]
+                 components=components)  # fmt: skip
+    jobs = [functools.partial(coarse_shape, *shapes[i], k=k[i], coarse_vertices=size,  # type: ignore[misc]
+                              components=components) for i in todo]  # fmt: skip
+    n = [len(shapes[i][0]) for i in todo]  # type: ignore[index]
+    memory = [eigenbasis_bytes(min(m, size), k[i]) for m, i in zip(n, todo, strict=True)]
+    built = run_per_shape(jobs, n, memory, what="coarse copies") if todo else []
+    out = [given[i] if i < len(given) else None for i in range(len(shapes))]
+    for i, copy in zip(todo, built, strict=True):
+        out[i] = copy
+    return out

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
-from ..core.geometry import face_areas_normals, units_change
+from ..core.geometry import face_areas_normals, units_change, vertex_areas
 from ..core.multiscale import extend_p2p
 from ..core.partial import (
     fit_partial_fmap,
@@ -721,8 +721,7 @@ def _with_opinions(
     logger.info("partial match (dense): second opinion from coarse copies of ~%d vertices",
                 sizes[1])  # fmt: skip
     second = again(sizes[1], (0.55, 0.3), "second opinion: ")
-    areas = face_areas_normals(V2, F2)[0]
-    weight = np.bincount(np.asarray(F2).ravel(), weights=np.repeat(areas, 3), minlength=len(V2))
+    weight = vertex_areas(V2, F2)
 
     def apart(a: Correspondence, b: Correspondence) -> float:
         """Return the share of the target's area whose images by a and b lie far apart."""

@@ -104,16 +104,30 @@ def carry(f_1: np.ndarray, plan: Plan, prepared: Prepared) -> np.ndarray:
     """Carry a checked source signal through a prepared job's OFP bases.
 
     The transfer matrix of the plan (``"p2p"``: least squares of ``Q₂ O = Π Q₁``; ``"analytic"``:
-    Eq. 20 from the map's ``fmap_12``), then the signal's coefficients through it.
+    Eq. 20 from the map's ``fmap_12``), then the signal's coefficients through it. A side
+    whose basis is on its coarse copy (``plan.coarse_bases``) is carried there and back by
+    the prepared ``restrict_1`` / ``prolong_2``.
     """
     assert prepared.bases is not None
     B_1, B_2 = prepared.bases
     corr = prepared.correspondence
     if plan.matrix == "analytic":
         transfer_12 = transfer_matrix(B_1, B_2, corr.fmap_12, method="analytic")
-    else:
-        transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=corr.p2p_21)
-    return transfer_signal(f_1, B_1, B_2, transfer_12)
+        return transfer_signal(f_1, B_1, B_2, transfer_12)
+    # A side whose basis lives on its coarse copy (plan.coarse_bases): the source's values are
+    # its cells' means there, the map is read at the target's coarse vertices and lands in
+    # the source's cells, and the target's coarse result is interpolated to its vertices.
+    c_1, c_2 = prepared.coarse
+    p2p = corr.p2p_21 if c_2 is None else corr.p2p_21[c_2.samples]
+    if c_1 is not None:
+        assert prepared.restrict_1 is not None
+        p2p, f_1 = c_1.cell[p2p], prepared.restrict_1 @ f_1
+    transfer_12 = transfer_matrix(B_1, B_2, method="p2p", p2p_21=p2p)
+    g = transfer_signal(f_1, B_1, B_2, transfer_12)
+    if c_2 is not None:
+        assert prepared.prolong_2 is not None
+        g = prepared.prolong_2 @ g
+    return g
 
 
 def pull_back(f_1: Any, correspondence: Correspondence, faces_1: Any = None) -> np.ndarray:
