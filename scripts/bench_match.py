@@ -22,20 +22,22 @@ in shift-invert mode, ``sigma=-0.01``, as pyFM calls it), and ours as a multiple
 ``--pairs``: every ground-truth pair of ../shared/data, ours and pyFM (fast).
 
 Map error: mean distance between the matched and the true source vertex / sqrt(source area).
-Columns: map error, seconds until the map exists (its eigenbases included) and end to end (match
-+ color transfer; for the limit, the two eigensolves), peak memory (the larger of the kernel's
-high-water mark of the process's resident set over the call, reset at its start through
-/proc/self/clear_refs, and, every 100 ms, the resident set plus the memory of its children of
-their own, USS: the forked processes of the side-by-side eigensolves; psutil. Where the reset is
-refused, the resident set is sampled every 5 ms instead. A sampling thread every 5 ms cost the
-pipeline ~4 % of its time, the GIL it takes included), the share of the machine's CPU other
-processes used during the row (steal time included; this process's own threads and reaped
-children are not counted, unlike in a load average), and the comparison with ours: pyFM's
-seconds over ours (a speed-up), or ours over the limit's.
-Both pipelines are first run once, untimed, on another pair (see ``warm_up``).
-A row is flagged "busy" and a warning printed when that share exceeded 10 %: ratios are
-evidence only on a quiet machine (pyFM slows down under load far more than ours, which
-inflates them).
+Colors error (ours): the relative L2 distance of the transferred colors (a smooth pattern of the
+source's coordinates, ``colors_of``) to the source's colors at each target vertex's true source
+vertex; shapes above 50k vertices carry them through OFP bases on their coarse copies.
+Columns: map error, colors error, seconds until the map exists (its eigenbases included) and end
+to end (match + color transfer; for the limit, the two eigensolves), peak memory (the larger of
+the kernel's high-water mark of the process's resident set over the call, reset at its start
+through /proc/self/clear_refs, and, every 100 ms, the resident set plus the memory of its
+children of their own, USS: the forked processes of the side-by-side eigensolves; psutil. Where
+the reset is refused, the resident set is sampled every 5 ms instead. A sampling thread every 5
+ms cost the pipeline ~4 % of its time, the GIL it takes included), the share of the machine's
+CPU other processes used during the row (steal time included; this process's own threads and
+reaped children are not counted, unlike in a load average), and the comparison with ours: pyFM's
+seconds over ours (a speed-up), or ours over the limit's. Both pipelines are first run once,
+untimed, on another pair (see ``warm_up``). A row is flagged "busy" and a warning printed when
+that share exceeded 10 %: ratios are evidence only on a quiet machine (pyFM slows down under
+load far more than ours, which inflates them).
 """
 
 from __future__ import annotations
@@ -189,13 +191,15 @@ def colors_of(V: np.ndarray) -> np.ndarray:
 
 def ours(
     V1, F1, V2, F2, *, dense_above=None, transfer=True
-) -> tuple[np.ndarray, float, float, float, float]:
-    """p2p_21, seconds of the match, seconds, peak bytes and others' CPU of match + transfer.
+) -> tuple[np.ndarray, float, float, float, float, np.ndarray | None]:
+    """Return the map, seconds, peak bytes and others' CPU of match + transfer, and the colors.
 
-    With the transfer: what ``ofp.transfer_colors(source, target)`` runs on arrays (the
-    eigenbases the transfer and the estimation share, the map with the target's OFP basis
-    built meanwhile, the source's basis, the transfer); "match" is then the time until the map
-    exists (its eigenbases included). Without it: ``ofp.match`` alone.
+    (p2p_21, seconds of the match, seconds, peak bytes and others' CPU of match + transfer, the
+    transferred colors or None without the transfer.) With the transfer: what
+    ``ofp.transfer_colors(source, target)`` runs on arrays (the eigenbases the transfer and the
+    estimation share, the map with the target's OFP basis built meanwhile, the source's basis,
+    the transfer); "match" is then the time until the map exists (its eigenbases included).
+    Without it: ``ofp.match`` alone.
     """
     from o3d_ofp.workflows import plan as planner
     from o3d_ofp.workflows.pipeline import carry
@@ -209,6 +213,7 @@ def ours(
             return super().result()
 
     t_match = 0.0
+    colors = None
     saved = planner.DENSE_VERTICES, planner._Ahead
     if dense_above is not None:
         planner.DENSE_VERTICES = dense_above
@@ -220,14 +225,28 @@ def ours(
                 plan = planner.plan_pair(V1, F1, V2, F2, task="colors", bases=options)
                 planner._Ahead = Ahead
                 prepared = planner.prepare(plan, V1, F1, V2, F2)
-                carry(colors_of(V1), plan, prepared)
+                colors = carry(colors_of(V1), plan, prepared)
                 corr = prepared.correspondence
             else:
                 corr = ofp.match((V1, F1), (V2, F2))
                 t_match = time.perf_counter() - t0
     finally:
         planner.DENSE_VERTICES, planner._Ahead = saved
-    return corr.p2p_21, t_match, m.seconds, m.peak, m.others
+    return corr.p2p_21, t_match, m.seconds, m.peak, m.others, colors
+
+
+def colors_error(colors: np.ndarray | None, V1: np.ndarray, target_idx, source_idx) -> float | None:
+    """Relative L2 distance of transferred colors to the source's at the true points (or None).
+
+    The truth: ``colors_of(V1)`` read at each target vertex's true source vertex; the
+    distance is taken over those target vertices, relative to the truth's own spread.
+    """
+    if colors is None:
+        return None
+    truth = colors_of(V1)[source_idx]
+    return float(
+        np.linalg.norm(colors[target_idx] - truth) / np.linalg.norm(truth - truth.mean(axis=0))
+    )
 
 
 #: pyFM's ZoomOut (nit, step) from 30 to 100 functions: "fast" is its fastest usual setting.
@@ -289,6 +308,7 @@ def row(
     name: str,
     n: int,
     err: float | None,
+    colors: float | None,
     t_match: float,
     seconds: float | None,
     peak: float,
@@ -299,7 +319,8 @@ def row(
     flag = " (busy)" if others > BUSY else ""
     total = "-" if seconds is None else f"{seconds:.1f}"
     return (
-        f"| {name} | {n} | {who} | {'-' if err is None else f'{err:.4f}'} | {t_match:.1f} | "
+        f"| {name} | {n} | {who} | {'-' if err is None else f'{err:.4f}'} | "
+        f"{'-' if colors is None else f'{100 * colors:.2f} %'} | {t_match:.1f} | "
         f"{total} | "
         f"{peak / 1e9:.2f} | {100 * others:.0f} %{flag} | {ratio} |",
         others,
@@ -330,22 +351,23 @@ def main(argv: list[str] | None = None) -> int:
     cores = os.cpu_count() or 1
     print(f"{cores} cores; load average {os.getloadavg()[0]:.1f} at the start")
     print(
-        "| pair | vertices | method | map error | match s | match + transfer s | peak GB | "
-        "others' CPU | against ours |"
+        "| pair | vertices | method | map error | colors error | match s | match + transfer s | "
+        "peak GB | others' CPU | against ours |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     warm_up(with_pyfm=bool(args.pairs or set(args.pyfm_levels) & set(levels)))
     busy = []
     for level in levels:
         V1, F1, V2, F2 = faust_pair(level)
         every = np.arange(len(V2))
         name = f"FAUST 093->087 x{4**level}"
-        p2p, t_match, seconds, peak, others = ours(
+        p2p, t_match, seconds, peak, others, colors = ours(
             V1, F1, V2, F2, dense_above=dense_above, transfer=not args.match_only
         )
         err = error(p2p, V1, F1, every, every)
+        c_err = colors_error(colors, V1, every, every)
         total = None if args.match_only else seconds
-        line, others = row(name, len(V1), err, t_match, total, peak, "ours", "", others)
+        line, others = row(name, len(V1), err, c_err, t_match, total, peak, "ours", "", others)
         print(line, flush=True)
         busy.append(others)
         for setting, wanted in (("fast", args.pyfm_levels), ("accurate", args.accurate_levels)):
@@ -356,14 +378,18 @@ def main(argv: list[str] | None = None) -> int:
             ratio = f"ours {t_pyfm / seconds:.1f}x faster"
             nit, step = PYFM_SETTINGS[setting]
             who = f"pyFM {setting} (nit={nit}, step={step})"
-            line, others = row(name, len(V1), err, t_match, t_pyfm, peak, who, ratio, others)
+            line, others = row(
+                name, len(V1), err, None, t_match, t_pyfm, peak, who, ratio, others
+            )
             print(line, flush=True)
             busy.append(others)
         if level in args.limit_levels:
             t_limit, peak, others = eigsh_limit(V1, F1, V2, F2)
             ratio = f"ours {seconds / t_limit:.1f}x the limit"
             who = "limit: SciPy eigsh k=100 x2"
-            line, others = row(name, len(V1), None, t_limit, t_limit, peak, who, ratio, others)
+            line, others = row(
+                name, len(V1), None, None, t_limit, t_limit, peak, who, ratio, others
+            )
             print(line, flush=True)
             busy.append(others)
     if args.pairs:
@@ -375,16 +401,19 @@ def main(argv: list[str] | None = None) -> int:
             V2, F2 = load(b)
             t, s = truth(a, b, kind, len(V2))
             name = f"{Path(a).stem}->{Path(b).stem}"
-            p2p, t_match, t_ours, peak, others = ours(V1, F1, V2, F2)
+            p2p, t_match, t_ours, peak, others, colors = ours(V1, F1, V2, F2)
             err = error(p2p, V1, F1, t, s)
             sums["ours"].append((err, t_ours))
-            line, o1 = row(name, len(V1), err, t_match, t_ours, peak, "ours", "", others)
+            c_err = colors_error(colors, V1, t, s)
+            line, o1 = row(name, len(V1), err, c_err, t_match, t_ours, peak, "ours", "", others)
             print(line, flush=True)
             p2p, t_match, t_pyfm, peak, others = pyfm(V1, F1, V2, F2, "fast")
             ratio = f"ours {t_pyfm / t_ours:.1f}x faster"
             err = error(p2p, V1, F1, t, s)
             sums["pyFM"].append((err, t_pyfm))
-            line, o2 = row(name, len(V1), err, t_match, t_pyfm, peak, "pyFM fast", ratio, others)
+            line, o2 = row(
+                name, len(V1), err, None, t_match, t_pyfm, peak, "pyFM fast", ratio, others
+            )
             print(line, flush=True)
             busy += [o1, o2]
         ours_e, ours_s = np.array(sums["ours"]).T
