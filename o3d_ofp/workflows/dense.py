@@ -91,7 +91,9 @@ class CoarseShape:
     def prolongation(self, vertices: np.ndarray) -> sp.csr_matrix:
         """(n, s) interpolation of coarse values to the full shape's ``vertices``, along it.
 
-        See :func:`o3d_ofp.core.multiscale.surface_prolongation`.
+        Every vertex takes the value at its closest point on the coarse triangles around its
+        own cell's coarse vertex (``o3d_ofp.core.multiscale.surface_prolongation``): never a
+        value from a part close in space but not on the surface.
         """
         return surface_prolongation(self.vertices, self.faces, self.cell, vertices)
 
