@@ -375,9 +375,9 @@ def test_colors_of_a_dense_pair_go_through_bases_on_the_coarse_copies(
     assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06
     # Colors come back as the full-resolution bases carry them. Measured here: 2.5 % apart
     # (relative L2), 13.2 % from the truth against their 12.3 % (the truth: the source's own
-    # values, the pair sharing its numbering; both bases are low-passes); FAUST at 110k
-    # vertices: 1.3 % apart. A wrong restriction, map or interpolation (the cells of the
-    # other shape, say) puts them tens of per cent apart.
+    # values, the pair sharing its numbering; both bases are low-passes). A wrong restriction,
+    # map or interpolation (the cells of the other shape, say) puts them tens of per cent
+    # apart.
     f = np.stack([np.sin(3 * V1[:, 0] / np.ptp(V1)), np.cos(4 * V1[:, 1] / np.ptp(V1))], axis=1)
     g = carry(f, plan, prepared)
     monkeypatch.setattr(plan_module, "DENSE_VERTICES", 10**9)
