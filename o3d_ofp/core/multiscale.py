@@ -849,11 +849,11 @@ def surface_prolongation(
     Every dense vertex takes the value at its closest point on the coarse triangles around
     the coarse vertex of its own cell (barycentric weights; the samples themselves get their
     own value exactly). Only triangles of its cell are looked at, so a vertex never reads a
-    part close in space but not on the surface. The nearest coarse points in space would:
-    on FAUST subdivided to 110k vertices, interpolating a smooth signal from its values at
-    the 20k coarse vertices by the 4 nearest points' inverse squared distances misses it by
-    9.6 % (relative L2; 1 % of the vertices, at the hands by the thighs, off by up to 0.9 of
-    its range), by the cell's triangles by 0.33 %.
+    part close in space but not on the surface. The nearest coarse points in space would: on
+    a strip folded in two, its arms closer than the coarse spacing (``tests/test_multiscale.py``),
+    a smooth function of the arc length read back from the 735 coarse vertices is 113 % off
+    (relative L2) through the 4 nearest points' inverse squared distances, 1.3 % through the
+    cell's triangles (most of it at the strip's open ends, which no coarse triangle reaches).
 
     Parameters
     ----------
