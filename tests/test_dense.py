@@ -437,6 +437,29 @@ def test_only_colors_with_no_given_basis_have_their_bases_on_coarse_copies(
     assert coarse(task="map") == (False, False)
 
 
+def test_memory_of_bases_on_coarse_copies_is_counted_at_their_size(
+    monkeypatch, small_threshold, twisted_pair
+):
+    """A 440k-vertex side whose basis is on its coarse copy is not refused for the full size."""
+    import dataclasses
+
+    from o3d_ofp.core.wording import AdvisedError
+
+    V1, F1, V2, F2 = twisted_pair
+    plan = plan_module.plan_pair(V1, F1, V2, F2, task="colors")
+    assert plan.coarse_bases == (True, True)
+    big = np.zeros((440_000, 3))
+    shapes = ((big, F1), (big, F2))
+    names = ("the source", "the target")
+    # measured: about 14 GB estimated for two full-size k = 29 / 39 bases, 0.65 GB for two of
+    # 20 000 vertices
+    monkeypatch.setattr(plan_module, "available_memory", lambda: 4e9)
+    plan_module._check_memory(plan, shapes, [], (None, None), names)
+    full = dataclasses.replace(plan, coarse_bases=(False, False))
+    with pytest.raises(AdvisedError, match="memory"):
+        plan_module._check_memory(full, shapes, [], (None, None), names)
+
+
 def test_transfer_below_the_threshold_shares_one_eigensolve(monkeypatch, twisted_pair):
     V1, F1, V2, F2 = twisted_pair
     sizes = _spy_eigenbasis(monkeypatch)

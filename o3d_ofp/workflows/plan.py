@@ -30,7 +30,7 @@ from ..core.orthogonalize import PRESETS
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import AdvisedError, OptionError, Said
 from .cache import fetch_basis, fetch_eigenbasis
-from .dense import DENSE_VERTICES, CoarseShape
+from .dense import COARSE_VERTICES, DENSE_VERTICES, CoarseShape
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape, said_of
 from .estimate import coarse_copies, estimate, estimate_dense, strategy_of
 from .maps import Correspondence, given_map_collapse, same_shape, warn_other_shape
@@ -503,6 +503,8 @@ def _check_memory(
         k = plan.basis_k[i] if plan.basis_k and bases[i] is None else 0
         if i in todo or k:
             n = shapes[i][0].shape[0]
+            if plan.coarse_bases[i] and i not in todo:  # its basis is on its coarse copy
+                n = min(n, COARSE_VERTICES)
             jobs.append((names[i], n, k or 1, plan.eig_k[i], plan.order if k else 1))
     need = sum(basis_job_bytes(n, k=k, order=o, eig_k=e) for _, n, k, e, o in jobs)
     limit = available_memory()
