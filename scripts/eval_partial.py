@@ -58,6 +58,7 @@ import numpy as np
 
 import o3d_ofp as ofp
 from o3d_ofp.boundary.convert import geometry_to_arrays
+from o3d_ofp.core.geometry import vertex_areas
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -176,7 +177,7 @@ def resolution_rows(
     print("| cut | coarse copies | error | verdict | apart |\n|---|---|---|---|---|")
     for name, V1, F1, Vc, Fc, orig in _dense_cuts(level, only=only, loop=loop):
         scale = float(np.sqrt(_areas(V1, F1).sum()))
-        weight = np.bincount(Fc.ravel(), weights=np.repeat(_areas(Vc, Fc), 3), minlength=len(Vc))
+        weight = vertex_areas(Vc, Fc)
         weight /= weight.sum()
         maps = {}
         for n in sizes:

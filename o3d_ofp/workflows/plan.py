@@ -421,13 +421,17 @@ def _coarse(
         return [None, None]
     if plan.coarse_bases[0] and bases[0] is not None and coarse_source is None:
         raise ValueError("a source basis made on a coarse copy needs that copy (coarse_source)")
-    assert plan.basis_k is not None
-    k = [max(plan.basis_k[i] if plan.coarse_bases[i] else 0,
-             match.zoomout_to if plan.dense else 0) for i in (0, 1)]  # fmt: skip
     return coarse_copies(
-        [shape if w else None for shape, w in zip(shapes, want, strict=True)], k=k,
+        [shape if w else None for shape, w in zip(shapes, want, strict=True)],
+        k=[_coarse_k(plan, match, i) for i in (0, 1)],
         components=components, given=(coarse_source, None), names=names,
     )  # fmt: skip
+
+
+def _coarse_k(plan: Plan, match: MatchOptions, side: int) -> int:
+    """Eigenfunctions of a side's coarse copy: the dense match's, or its OFP basis's if more."""
+    basis = plan.basis_k[side] if plan.basis_k and plan.coarse_bases[side] else 0
+    return max(basis, match.zoomout_to if plan.dense else 0)
 
 
 def prepare_source(
@@ -451,9 +455,8 @@ def prepare_source(
     eigs, cached = _eigenbases(plan, shapes, [None, None], todo, [match.components] * 2, cache_dir)
     coarse = None
     if plan.dense or plan.coarse_bases[0]:  # every target's job uses the source's copy: once
-        k = max(match.zoomout_to if plan.dense else 0,
-                plan.basis_k[0] if plan.basis_k and plan.coarse_bases[0] else 0)  # fmt: skip
-        coarse = coarse_copies([(V1, F1)], k=[k], components=match.components)[0]
+        k = [_coarse_k(plan, match, 0)]
+        coarse = coarse_copies([(V1, F1)], k=k, components=match.components)[0]
     basis = None
     if plan.basis_k is not None:
         ahead = _Ahead(plan, eigs, (None, None), cache_dir, shapes, [match.components] * 2,
