@@ -1,7 +1,8 @@
 """Matching dense meshes on coarse copies (``o3d_ofp.workflows.dense``, ``core.multiscale``).
 
-The dense path must give the quality of the direct match, not depend on the units, pose or
-vertex order, and never build anything quadratic in the vertex count.
+The dense path must give maps as good as right maps between differently triangulated shapes
+(its coarse copies are triangulated independently), not depend on the units, pose or vertex
+order, and never build anything quadratic in the vertex count.
 """
 
 from __future__ import annotations
@@ -316,17 +317,18 @@ def test_dense_path_refuses_a_target_in_pieces_before_any_coarse_copy(twisted_pa
 def test_dense_path_on_a_subdivided_human():
     # FAUST 093 -> 087 midpoint-subdivided (27554 vertices, one triangulation: the truth is
     # the identity). The dense path matches coarse copies decimated one independently of the
-    # other, i.e. two differently triangulated shapes: it is held to the errors of right maps
-    # between independently remeshed FAUST shapes (at most 0.028 sqrt(area),
-    # scripts/eval_matching.py --all-pairs), and to twice the direct map's. Measured: direct
-    # 0.0131, dense 0.0202 (20000 coarse vertices); a limb sent to the wrong side is > 0.05.
+    # other, i.e. two differently triangulated shapes: it is held to the errors of the right
+    # maps among the 32 FAUST and remeshed-FAUST pairs (at most 0.0267 sqrt(area),
+    # scripts/eval_matching.py --all-pairs) and to twice the direct map's. Measured: direct
+    # 0.0131, dense 0.0202 (20000 coarse vertices); maps wrong on a region (a limb on the
+    # other, measured on those pairs) are 0.039-0.187.
     V1, F1 = _midpoint(*load_shared_mesh("faust/tr_reg_093.ply"))
     V2, F2 = _midpoint(*load_shared_mesh("faust/tr_reg_087.ply"))
     truth = np.arange(V2.shape[0])
     direct = _direct(V1, F1, V2, F2)
     dense = estimate_dense(V1, F1, V2, F2)
     e_direct, e_dense = (_error(c.p2p_21, V1, F1, truth) for c in (direct, dense))
-    assert e_dense <= min(0.028, 2 * e_direct), (e_dense, e_direct)
+    assert e_dense <= min(0.0267, 2 * e_direct), (e_dense, e_direct)
 
 
 # --- transfers route large pairs through the dense path ------------------------------------

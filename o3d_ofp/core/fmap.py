@@ -850,10 +850,11 @@ LANDMARK_WEIGHT = 0.2
 #: sqrt(area) from their pairs on gorilla -> human maps). Measured in ``ofp.match``
 #: (``scripts/eval_nonisometric.py``, 6 well-spread landmarks, mean geodesic error x100):
 #: gorilla -> human 14.0 -> 8.7 (worst 17.2 -> 10.1), TOSCA pairs of one animal in two poses
-#: 2.6 -> 2.6 (worst 6.0 both). Chosen on a scratch ZoomOut from each map's restriction to 30
-#: eigenfunctions (gorilla / TOSCA): weight alone 12.1 / 2.24, with distances x1 11.2 / 2.19,
-#: x3 8.3 / 2.17, x10 8.9 / 2.26; weights 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3
-#: 14.3 -> 9.6 and 2.72 -> 2.32.
+#: 2.6 -> 2.6 (worst 6.0 both); with the final ZoomOut in steps of five
+#: (``workflows.matching.ZOOMOUT_STEP``) 8.4 (worst 11.8) and 2.5 (worst 5.9). Chosen on a
+#: scratch ZoomOut from each map's restriction to 30 eigenfunctions (gorilla / TOSCA): weight
+#: alone 12.1 / 2.24, with distances x1 11.2 / 2.19, x3 8.3 / 2.17, x10 8.9 / 2.26; weights
+#: 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3 14.3 -> 9.6 and 2.72 -> 2.32.
 LANDMARK_DISTANCES = 3.0
 
 

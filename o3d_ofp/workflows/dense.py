@@ -44,8 +44,9 @@ logger = logging.getLogger(__name__)
 
 #: Meshes with more vertices than this (either shape) are matched on coarse copies (the dense
 #: path of ``o3d_ofp.workflows.plan.plan_pair``). Below it the direct match is faster or
-#: as fast (measured, FAUST subdivided, 27.5k vertices: direct 0.0255 error; the coarse path
-#: gains little time there) and keeps the exact full-resolution spectral map.
+#: as fast and more precise: it keeps the exact full-resolution spectral map (measured, FAUST
+#: 093 -> 087 midpoint-subdivided to 27.5k vertices: direct 0.0131 in 6.2 s, the coarse path
+#: 0.0202; tests/test_dense.py and scripts/bench_match.py).
 DENSE_VERTICES = 50_000
 #: Vertices of each coarse mesh. Measured (FAUST 093 -> 087 subdivided to 110k vertices, map
 #: error / sqrt(area) with the estimation's chosen start; the direct match of the original
@@ -53,7 +54,8 @@ DENSE_VERTICES = 50_000
 #: 22500 0.0185, 27000 0.0213 (the coarse meshes' sampling moves the error by ±0.003 around a
 #: floor near 0.018); at 440k, 15000 0.0201 and 20000 0.0176. Coarse meshes and their
 #: eigenpairs take 2.3 s at 15000, 3.7 s at 20000 (110k); 7000 gave 0.034-0.09 and 10000
-#: 0.033-0.036.
+#: 0.033-0.036. (Those runs had the final ZoomOut one eigenfunction a step; with five a step,
+#: ``matching.ZOOMOUT_STEP``, 20000 gives 0.0155 at 110k and 0.0214 at 440k: bench_match.py.)
 COARSE_VERTICES = 20_000
 
 
