@@ -376,6 +376,32 @@ def test_a_repair_no_better_than_the_map_is_flagged_on_real_pairs():
     assert not corr.quality.suspect and "repaired" in corr.quality.codes()
 
 
+def test_a_start_whose_map_is_a_mirror_image_gives_way_to_the_next(pair, reference, monkeypatch,
+                                                                   caplog):
+    """The best-aligned start's map turned over: the next start by alignment is taken."""
+    from o3d_ofp.workflows import matching
+
+    real = matching.reversed_fraction
+    calls = []
+
+    def first_turned(p2p, eig_1, eig_2):
+        calls.append(1)
+        return 0.9 if len(calls) == 1 else real(p2p, eig_1, eig_2)
+
+    monkeypatch.setattr(matching, "reversed_fraction", first_turned)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.workflows.matching"):
+        corr = ofp.match(*pair)
+    assert "trying the next start" in caplog.text
+    assert len(calls) == 2
+    chosen = (corr.options["k_fit"], corr.options["w_dcomm"])
+    assert chosen != (reference.options["k_fit"], reference.options["w_dcomm"])
+    assert _error(corr.p2p_21, pair[0][0]) < 0.05  # the next start is right on this pair too
+    # every start's map turned over: the best aligned one is kept (the report flags it)
+    monkeypatch.setattr(matching, "reversed_fraction", lambda *a: 0.9)
+    corr = ofp.match(*pair)
+    assert np.array_equal(corr.p2p_21, reference.p2p_21)
+
+
 def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):
     """Files written before reasons became data (format 1: reasons and notes as words) load."""
     import dataclasses

@@ -32,7 +32,7 @@ from ..core.partial import geodesic_distortion, geodesic_features
 from ..core.spectrum import EigenBasis
 from ..core.wording import Said
 from .maps import Correspondence, MapQuality
-from .quality import map_quality
+from .quality import MAX_REVERSED, map_quality, reversed_fraction
 from .strategy import Run, Settled, Strategy
 
 __all__ = [
@@ -332,18 +332,42 @@ class FullMatch(Strategy):
         return C, residual
 
     def settle(self, run: Run, starts: list[Any], refined: list[Any]) -> Settled:
-        """Keep the start that aligns best, ZoomOut it to ``zoomout_to``, read its point map."""
-        best = min(range(len(starts)), key=lambda i: refined[i][1])
-        C = refined[best][0]
+        """Keep the start that aligns best, ZoomOut it to ``zoomout_to``, read its point map.
+
+        A map that turns more than :data:`~o3d_ofp.workflows.quality.MAX_REVERSED` of the
+        triangles over is a mirror image (a mirror image aligns the spectral embeddings about
+        as well as the right map): the next start by alignment is taken instead, and so on;
+        when every start's map is turned over, the best aligned one is kept (and flagged by
+        the quality report).
+        """
+        order = sorted(range(len(starts)), key=lambda i: refined[i][1])
+        first = None
+        for index in order:
+            settled = self._final(run, starts, refined, index, report=first is None)
+            first = settled if first is None else first
+            turned = reversed_fraction(settled.p2p_21, run.eig_1, run.eig_2)
+            if not turned > MAX_REVERSED:  # NaN (nothing to tell) keeps the map too
+                return settled
+            logger.info("match: start %d's map turns %.2f of the triangles over (a mirror "
+                        "image): trying the next start", index + 1, turned)  # fmt: skip
+        return first
+
+    def _final(
+        self, run: Run, starts: list[Any], refined: list[Any], index: int, *, report: bool
+    ) -> Settled:
+        """ZoomOut start ``index`` to ``zoomout_to`` and read its point map."""
+        C = refined[index][0]
         final, select = run.state["final"], run.state["select"]
-        if final > select:  # only the best start goes on
-            logger.debug("match: ZoomOut %d -> %d", select, final)
-            run.report("ZoomOut", 0.6)
+        if final > select:  # only the chosen start goes on
+            logger.debug("match: ZoomOut %d -> %d (start %d)", select, final, index + 1)
+            if report:
+                run.report("ZoomOut", 0.6)
             C = self._zoomout(run, C, final, ZOOMOUT_STEP)
         logger.debug("match: point map at full resolution (%d target vertices)",
                      run.eig_2.n_vertices)  # fmt: skip
-        run.report("point map", 0.7)
-        info = {"k_fit": starts[best][0], "w_dcomm": starts[best][1]}
+        if report:
+            run.report("point map", 0.7)
+        info = {"k_fit": starts[index][0], "w_dcomm": starts[index][1]}
         return self._settled(run, C, info)
 
     def _settled(self, run: Run, C: np.ndarray, info: dict[str, Any]) -> Settled:
