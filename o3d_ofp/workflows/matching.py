@@ -3,10 +3,11 @@
 :class:`FullMatch` is the strategy :func:`o3d_ofp.workflows.estimate.estimate` runs for two
 whole shapes: four starts (two fit sizes, each with and without the descriptor-commutativity
 term: each helps on some pairs and hurts on others) refined by ZoomOut to :data:`SELECT_K`, the
-one whose spectral embeddings align best refined to ``zoomout_to``, its point map at full
-resolution, its quality report, and a geodesic check that re-estimates a map wrong on a region.
-Everything runs on unit-area copies of the eigenbases, so the result does not depend on the
-units, position or orientation of either shape.
+one whose spectral embeddings align best refined to ``zoomout_to`` (the next one when its map
+is a mirror image), its point map at full resolution, its quality report, and a geodesic check
+that re-estimates a map wrong on a region. Everything runs on unit-area copies of the
+eigenbases, so the result does not depend on the units, position or orientation of either
+shape.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from .strategy import Run, Settled, Strategy
 
 __all__ = [
     "DCOMM_WEIGHTS",
+    "MIRROR_RESIDUAL",
     "REPAIR_GAIN",
     "REPAIR_MAX_SHARE",
     "REPAIR_SHARE",
@@ -89,6 +91,13 @@ SELECT_K = 49
 #: but TOSCA cat1 -> cat7 18.5 and horse14 -> horse15 23.0 (against 7.6 and 3.2). The numbers
 #: quoted by the other constants of this module were measured with one at a time.
 ZOOMOUT_STEP = 5
+#: When the best aligned start's map is a mirror image, the starts whose alignment residual is
+#: within this factor of the best are tried in turn (a mirror image aligns about as well as
+#: the right map). Measured: FAUST 093 -> 087 onto a target barely smoothed by Open3D's Taubin
+#: filter, the mirror image 2.555 and the right start 2.568 (1.005x; 0.054 -> 0.0186); FAUST
+#: 019 -> 094 onto a brush-smoothed target, every start wrong, the two turned ones within
+#: 1.003x and the two others 1.19x and 1.24x (a map of 0.53 sqrt(area) instead of 0.33).
+MIRROR_RESIDUAL = 1.1
 
 
 def alignment_residual(
@@ -335,21 +344,25 @@ class FullMatch(Strategy):
         """Keep the start that aligns best, ZoomOut it to ``zoomout_to``, read its point map.
 
         A map that turns more than :data:`~o3d_ofp.workflows.quality.MAX_REVERSED` of the
-        triangles over is a mirror image (a mirror image aligns the spectral embeddings about
-        as well as the right map): the next start by alignment is taken instead, and so on;
-        when every start's map is turned over, the best aligned one is kept (and flagged by
-        the quality report).
+        triangles over is a mirror image, which aligns the spectral embeddings about as well
+        as the right map: the next start by alignment is taken instead, and so on among the
+        starts that align within :data:`MIRROR_RESIDUAL` of the best; when every one of their
+        maps is turned over, the best aligned one is kept (and flagged by the quality report).
         """
         order = sorted(range(len(starts)), key=lambda i: refined[i][1])
+        best = refined[order[0]][1]
+        order = [i for i in order if refined[i][1] <= MIRROR_RESIDUAL * best]
         first = None
-        for index in order:
+        for rank, index in enumerate(order):
             settled = self._final(run, starts, refined, index, report=first is None)
             first = settled if first is None else first
             turned = reversed_fraction(settled.p2p_21, run.eig_1, run.eig_2)
             if not turned > MAX_REVERSED:  # NaN (nothing to tell) keeps the map too
                 return settled
+            then = ("trying the next start" if rank + 1 < len(order) else
+                    "no other start aligns as well: the best aligned map is kept")  # fmt: skip
             logger.info("match: start %d's map turns %.2f of the triangles over (a mirror "
-                        "image): trying the next start", index + 1, turned)  # fmt: skip
+                        "image): %s", index + 1, turned, then)  # fmt: skip
         return first
 
     def _final(
