@@ -400,6 +400,12 @@ def test_a_start_whose_map_is_a_mirror_image_gives_way_to_the_next(pair, referen
     monkeypatch.setattr(matching, "reversed_fraction", lambda *a: 0.9)
     corr = ofp.match(*pair)
     assert np.array_equal(corr.p2p_21, reference.p2p_21)
+    # no other start aligns within MIRROR_RESIDUAL of the best: none is tried
+    calls.clear()
+    monkeypatch.setattr(matching, "reversed_fraction", first_turned)
+    monkeypatch.setattr(matching, "MIRROR_RESIDUAL", 1.0)
+    corr = ofp.match(*pair)
+    assert len(calls) == 1 and np.array_equal(corr.p2p_21, reference.p2p_21)
 
 
 def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):
