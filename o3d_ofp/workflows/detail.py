@@ -10,7 +10,7 @@ a source to a target through a map and re-applied in the target's local frames:
   brush, a decimation), the target resembles one of the source's heat low-passes more than
   the others: the one compared best with it, neighbourhood by neighbourhood up to a rotation
   and a scale, through the map. Its detail is what the smoothing removed. Where the target
-  lacks it is told by the converse test (:data:`CONVERSE`): a target that lacks the detail
+  lacks it is told by the converse test (``CONVERSE``): a target that lacks the detail
   fits the source worse when it is smoothed further, while two shapes equally detailed (two
   people, a target barely touched) both fit better when either is smoothed. Where the target
   fits the source itself as well (a part left detailed, a target as detailed as the source),
