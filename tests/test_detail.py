@@ -336,9 +336,10 @@ def test_the_converse_test_tells_a_smoothed_target_from_another_detailed_body():
     Smoothing either of two equally detailed bodies makes them fit each other better (the
     detail that does not correspond goes), so the source's low-pass fitting the target better
     says nothing alone. The target faired all over lacks the detail on a large share of the
-    body (measured 0.39; 0.13 with the LACKING rule alone); the unsmoothed 087 and 087 barely
-    touched by a Taubin filter, whose smoothing makes them fit 093 better, lack it nearly
-    nowhere (0.02 and 0.04).
+    body, where both tests agree (measured 0.39; 0.13 with the LACKING rule alone, 0.72 where
+    the source's low-pass alone fits better, 0.33 where the target's own low-pass fits 093
+    better); the unsmoothed 087 and 087 barely touched by a Taubin filter, whose smoothing
+    makes them fit 093 better, lack it nearly nowhere (0.02 and 0.04).
     """
     from o3d_ofp.workflows.detail import calibrate_detail
 
@@ -353,7 +354,7 @@ def test_the_converse_test_tells_a_smoothed_target_from_another_detailed_body():
     for name, target in (("faired", _fairing(V2, F, 1e-4)), ("raw", V2), ("taubin", taubin)):
         calibration, _ = calibrate_detail(e1, ofp.eigenbasis(target, F, k=5), identity)
         shares[name] = calibration.share
-    assert shares["faired"] > 0.3, shares
+    assert 0.35 < shares["faired"] < 0.5, shares
     assert shares["raw"] < 0.1 and shares["taubin"] < 0.1, shares
 
 

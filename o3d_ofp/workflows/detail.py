@@ -121,8 +121,9 @@ _CARRIES = ("p2p", "ofp")
 #: for each ``c`` here, a factor 2 apart, from no visible change (1e-6) to limbs thinned
 #: (4e-3). Several steps fall off like the iterated filters of other tools (umbrella,
 #: Laplacian, brush) and stay close to a single implicit fairing step: measured
-#: (``scripts/eval_detail.py``, true maps) one step against three, mean distance 0.88 and
-#: 0.87x doing nothing, the worst 1.31 and 1.04x (a 30-eigenfunction projection). Each level
+#: (``scripts/eval_detail.py``, true maps, before :data:`CONVERSE`) one step against three,
+#: mean distance 0.88 and 0.87x doing nothing, the worst 1.31 and 1.04x (a 30-eigenfunction
+#: projection). Each level
 #: is scaled back to the source's spread (RMS distance from the centroid): a low-pass shrinks
 #: a compact shape as a whole, and a smooth sphere or torus target, which fits every shrunk
 #: level alike, got that shrinking as detail (a bumpy sphere onto a smooth one: 13 times the
@@ -153,7 +154,7 @@ ROTATION_WIDER = 3.0
 #: reduced (share of ``1 − fit``, both averaged over neighbourhoods of :data:`GATE_TIME`),
 #: none where it is not reduced. Without it, a target smoothed in one region only (a brush)
 #: got the detail everywhere (1.4-1.8x doing nothing); 0.25 and 0.5 give the same mean
-#: distance (0.84 and 0.88x), the worst 1.20 and 1.04x.
+#: distance (0.84 and 0.88x), the worst 1.20 and 1.04x (before :data:`CONVERSE`).
 LACKING = 0.5
 #: Neighbourhoods (heat time / the target's area) over which the gain in fit is averaged: a
 #: region a brush smooths (a tenth of a body), wider than the comparison's.
@@ -164,15 +165,17 @@ GATE_TIME = 1e-3
 #: When smoothing the target by the calibrated low-pass (on its own operators) loses, on
 #: average, at least this share of what smoothing the source gains, the target lacks the
 #: detail wherever the source's low-pass fits it better and its own fits the source worse;
-#: otherwise the :data:`LACKING` rule says where. Measured (``scripts/eval_detail.py``, true
-#: maps, five pairs, the loss over the gain): the targets smoothed all over by the fairings
-#: and Open3D's Laplacian and simple filters -0.82 to -7.5 (one calibrated to no visible
-#: change: both about 0), the projection on 30 eigenfunctions -1.1 to -2.4; Open3D's Taubin
-#: filter, which barely touches the shapes, -0.09 to +14; the brush -2.7 to +4. Estimated
-#: maps, whose images of neighbouring vertices are not neighbours at the detail's scale,
-#: always gain (0.9 to 11 times the source's gain) and keep the :data:`LACKING` rule. Mean
-#: surface distance to the truth 0.79x doing nothing against 0.89x with the :data:`LACKING`
-#: rule alone, the worst the same (1.02x); the fairings 0.36-0.85x against 0.55-0.99x.
+#: otherwise the :data:`LACKING` rule says where. The target's low-pass has the same heat time
+#: per area as the source's (onto a part, less than the source's in absolute terms, by the
+#: part's share of its area). Measured (``scripts/eval_detail.py``, true maps, five pairs, the
+#: loss over the gain): the targets smoothed all over by the fairings and Open3D's Laplacian
+#: and simple filters -0.82 to -7.5, the projection on 30 eigenfunctions -1.1 to -2.4;
+#: Open3D's Taubin filter, which barely touches the shapes, -0.08 to +12; the brush -2.6 to
+#: +5.6. Estimated maps, whose images of neighbouring vertices are not neighbours at the
+#: detail's scale, gain wherever a low-pass is chosen (0.9 to 33 times the source's gain; none
+#: is chosen on the projections) and keep the :data:`LACKING` rule. Mean surface distance to
+#: the truth 0.79x doing nothing against 0.89x with the :data:`LACKING` rule alone, the worst
+#: the same (1.02x); the fairings 0.36-0.85x against 0.55-0.99x.
 CONVERSE = 0.5
 #: A calibrated transfer that adds less than this share of the detail says so.
 NOTHING_ADDED = 0.05
@@ -402,10 +405,11 @@ def calibrate_detail(
     about that much, by whatever tool. When the target smoothed by the same low-pass (its own
     operators) fits the source worse, by at least ``CONVERSE`` of what the source's low-pass
     gains, the target lacks the detail wherever both say so (the source's low-pass fits it
-    better, its own fits the source worse). Otherwise, and where the target does not fit
-    that low-pass better than the source itself (a region left detailed, a target as detailed
-    as the source), it lacks nothing (see ``LACKING``). The source's shape, pose and units
-    need not be the target's: fits compare neighbourhoods up to a rotation and a scale.
+    better, its own fits the source worse). Otherwise the share it lacks is how much of its
+    misfit to the source the low-pass removes (see ``LACKING``): nothing where it does not
+    fit that low-pass better than the source itself (a region left detailed, a target as
+    detailed as the source). The source's shape, pose and units need not be the target's:
+    fits compare neighbourhoods up to a rotation and a scale.
 
     Parameters
     ----------
