@@ -534,7 +534,8 @@ def estimate_fmap(
     landmarks : (p, 2) array_like of int, optional
         Known pairs (source vertex, target vertex), added to the descriptors: between meshes,
         each landmark's shortest-path distance (over sqrt(area)) and Gaussians of it
-        (:data:`LANDMARK_SCALES`); with a point cloud, each landmark's wave (heat) kernel map.
+        (``o3d_ofp.core.fmap.LANDMARK_SCALES``); with a point cloud, each landmark's wave
+        (heat) kernel map.
     w_descr, w_lap, w_dcomm : float
         Weights of the descriptor, Laplacian and descriptor-commutativity terms. Everything is
         computed on unit-area copies of the shapes and the Laplacian term normalized to unit
@@ -866,7 +867,7 @@ LANDMARK_WEIGHT = 0.2
 #: scratch ZoomOut from each map's restriction to 30 eigenfunctions (gorilla / TOSCA): weight
 #: alone 12.1 / 2.24, with distances x1 11.2 / 2.19, x3 8.3 / 2.17, x10 8.9 / 2.26; weights
 #: 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3 14.3 -> 9.6 and 2.72 -> 2.32 (all with the
-#: landmarks' kernel maps as the fits' descriptors, before :data:`LANDMARK_SCALES`).
+#: landmarks' kernel maps as the fits' descriptors, before ``LANDMARK_SCALES``).
 LANDMARK_DISTANCES = 3.0
 #: Between meshes, the fits' descriptors of a landmark are its shortest-path distance (over
 #: sqrt(area)) and ``exp(-(d / s)²)`` for each ``s`` here: functions of where a point lies
