@@ -143,7 +143,20 @@ def test_landmark_distances_as_descriptors_beat_their_kernel_maps_on_a_gorilla_o
         return np.linalg.norm(images - man[0][t_man], axis=1).mean() / np.sqrt(area)
 
     ours = error(ofp.match(man, gorilla, landmarks=landmarks))
-    kernel = fmap._descriptors
-    monkeypatch.setattr(fmap, "_descriptors", lambda *args: kernel(*args[:5], False))
+    real = fmap._descriptors
+
+    def kernel_maps(eig, kind, n, landmarks, k, geodesic, step):
+        return real(eig, kind, n, landmarks, k, False, step)
+
+    monkeypatch.setattr(fmap, "_descriptors", kernel_maps)
     before = error(ofp.match(man, gorilla, landmarks=landmarks))
     assert ours < 0.9 * before, (ours, before)
+
+
+def test_landmarks_outside_the_shapes_are_refused_by_the_fits(stretched):
+    """A landmark index of -1 or n names the side and the range (it used to wrap around)."""
+    _, _, _, _, e1, e2 = stretched
+    with pytest.raises(ValueError, match=r"landmarks: source vertices must be in \[0, "):
+        ofp.estimate_fmap(e1, e2, k1=5, k2=5, landmarks=[[-1, 0]], refine=None)
+    with pytest.raises(ValueError, match=r"landmarks: target vertices must be in \[0, "):
+        ofp.estimate_fmap(e1, e2, k1=5, k2=5, landmarks=[[0, e2.n_vertices]], refine=None)

@@ -104,19 +104,37 @@ def _projection(eig: EigenBasis, k: int) -> np.ndarray:
 
 
 def _descriptors(
-    eig: EigenBasis, kind: str, n: int, landmarks: np.ndarray | None, k: int, geodesic: bool
-) -> np.ndarray:
+    eig: EigenBasis, kind: str, n: int, landmarks: np.ndarray | None, k: int, geodesic: bool,
+    step: int,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Return the descriptors and the functions of the fits' operators, each of unit norm.
+
+    The operators (commutativity, orientation) take every ``step``-th descriptor of the
+    family; with landmarks between meshes (``geodesic``), each landmark's distance function
+    too (see :data:`LANDMARK_SCALES`); with a point cloud, every ``step``-th column of the
+    landmarks' kernel maps, continuing the same stride. A column that is zero on a shape (a
+    landmark's Gaussian on a piece the cleaning left out) stays zero, so that both shapes
+    keep the same columns.
+    """
     fn = wks if kind == "wks" else hks
     kw = {"n_energies": n, "k": k} if kind == "wks" else {"n_times": n, "k": k}
-    D = fn(eig, **kw)
+    family = fn(eig, **kw)
+    parts, ops = [family], [family[:, ::step]]
     if landmarks is not None and geodesic:
-        d = _landmark_distances(eig, np.asarray(landmarks, dtype=np.int64))
-        D = np.concatenate([D, *(np.exp(-((d / s) ** 2)) for s in LANDMARK_SCALES), d], axis=1)
+        d = _landmark_distances(eig, landmarks)
+        parts += [*(np.exp(-((d / s) ** 2)) for s in LANDMARK_SCALES), d]
+        ops.append(d)
     elif landmarks is not None:
-        D = np.concatenate([D, fn(eig, landmarks=landmarks, **kw)], axis=1)
+        kernels = fn(eig, landmarks=landmarks, **kw)
+        parts.append(kernels)
+        ops.append(kernels[:, (-family.shape[1]) % step :: step])
+    return _unit_columns(eig, np.hstack(parts)), _unit_columns(eig, np.hstack(ops))
+
+
+def _unit_columns(eig: EigenBasis, D: np.ndarray) -> np.ndarray:
+    """Columns scaled to unit mass norm (zero columns stay zero)."""
     norms = np.sqrt(eig.mass @ D**2)
-    keep = norms > 0
-    return D[:, keep] / norms[keep]
+    return D / np.where(norms > 0, norms, 1.0)
 
 
 #: Vertices per chunk when building the descriptor operators: bounds the temporary
@@ -436,6 +454,9 @@ class _FitTerms:
     ) -> None:  # fmt: skip
         descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
         lm1, lm2 = _landmark_pairs(landmarks)
+        for v, eig, name in ((lm1, eig_1, "source"), (lm2, eig_2, "target")):
+            if v is not None and (v.size == 0 or v.min() < 0 or v.max() >= eig.n_vertices):
+                raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
@@ -449,10 +470,11 @@ class _FitTerms:
         geodesic = eig_1.faces is not None and eig_2.faces is not None
 
         def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
-            D = _descriptors(
-                eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k), geodesic
-            )
-            return _shape_terms(eig, k, D, D[:, ::operator_step], dcomm, orient)
+            D, ops = _descriptors(
+                eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k), geodesic,
+                operator_step,
+            )  # fmt: skip
+            return _shape_terms(eig, k, D, ops, dcomm, orient)
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
@@ -873,11 +895,14 @@ LANDMARK_DISTANCES = 3.0
 #: sqrt(area)) and ``exp(-(d / s)²)`` for each ``s`` here: functions of where a point lies
 #: relative to the landmark that hold between shapes of other proportions, where its wave
 #: kernel map (the former descriptors, kept for point clouds) follows each shape's own
-#: spectrum. Measured in ``ofp.match`` (``scripts/eval_nonisometric.py``, 6 well-spread
-#: landmarks, mean geodesic error x100 on 300 points): gorilla -> human 7.4 against 8.3 with
-#: the kernel maps (worst 9.1 against 10.7); TOSCA pairs of one animal 2.46 against 2.50.
-#: Scales (0.05, 0.1, 0.2, 0.4) gave 7.8, (0.2, 0.4, 0.8, 1.6) 7.8, (0.1, ..., 1.6) 7.6; the
-#: distance functions alone, without WKS, 9.1; beside the kernel maps 8.5.
+#: spectrum. The commutativity and orientation operators take each landmark's distance
+#: function. Measured in ``ofp.match`` (``scripts/eval_nonisometric.py``, well-spread
+#: landmarks, mean geodesic error x100 on 300 points; gorilla -> human, then TOSCA pairs of one
+#: animal): 6 landmarks 7.2 and 2.33 against 8.3 and 2.50 with the kernel maps; 4 landmarks
+#: 11.1 against 12.3 (gorilla); 10 landmarks 6.5 against 6.6. The operators of one Gaussian
+#: per landmark instead gave 7.1-7.7 (the widest best), of all five 7.7; with operators of
+#: mixed scales, scales (0.05, ..., 0.4) and (0.2, ..., 1.6) did no better than these, and the
+#: distance functions alone, without WKS, gave 9.1.
 LANDMARK_SCALES = (0.1, 0.2, 0.4, 0.8)
 
 
