@@ -885,11 +885,11 @@ LANDMARK_WEIGHT = 0.2
 #: (``scripts/eval_nonisometric.py``, 6 well-spread landmarks, mean geodesic error x100):
 #: gorilla -> human 14.0 -> 8.7 (worst 17.2 -> 10.1), TOSCA pairs of one animal in two poses
 #: 2.6 -> 2.6 (worst 6.0 both); with the final ZoomOut in steps of five
-#: (``workflows.matching.ZOOMOUT_STEP``) 8.4 (worst 11.8) and 2.5 (worst 5.9). Chosen on a
-#: scratch ZoomOut from each map's restriction to 30 eigenfunctions (gorilla / TOSCA): weight
-#: alone 12.1 / 2.24, with distances x1 11.2 / 2.19, x3 8.3 / 2.17, x10 8.9 / 2.26; weights
-#: 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3 14.3 -> 9.6 and 2.72 -> 2.32 (all with the
-#: landmarks' kernel maps as the fits' descriptors, before ``LANDMARK_SCALES``).
+#: (``workflows.matching.ZOOMOUT_STEP``) 8.4 (worst 11.8) and 2.5 (worst 5.9); all of these
+#: with the landmarks' kernel maps as the fits' descriptors, before ``LANDMARK_SCALES``. Chosen
+#: on a scratch ZoomOut from each map's restriction to 30 eigenfunctions (gorilla / TOSCA):
+#: weight alone 12.1 / 2.24, with distances x1 11.2 / 2.19, x3 8.3 / 2.17, x10 8.9 / 2.26;
+#: weights 0.05 and 1 within 0.4 of 0.2; 4 landmarks x3 14.3 -> 9.6 and 2.72 -> 2.32.
 LANDMARK_DISTANCES = 3.0
 #: Between meshes, the fits' descriptors of a landmark are its shortest-path distance (over
 #: sqrt(area)) and ``exp(-(d / s)²)`` for each ``s`` here: functions of where a point lies

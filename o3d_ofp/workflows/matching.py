@@ -86,7 +86,8 @@ SELECT_K = 49
 #: 110k and 0.0214 against 0.0210 at 440k; TOSCA people onto one another
 #: (``scripts/eval_nonisometric.py --datasets humans``, mean geodesic error x100) 1.8 against
 #: 1.9, worst 3.9 against 7.5; TOSCA animals 3.0 against 2.9, worst 7.6 against 7.3; gorilla
-#: -> human with 6 landmarks 8.4 against 8.7, worst 11.8 against 10.1; the failed SHREC'19
+#: -> human with 6 landmarks 8.4 against 8.7, worst 11.8 against 10.1 (before the landmarks'
+#: distances became the fits' descriptors, ``core.fmap.LANDMARK_SCALES``); the failed SHREC'19
 #: pair 0.329 against 0.302. The starts' ZoomOut in steps of five too was tried: FAUST 0.0168,
 #: but TOSCA cat1 -> cat7 18.5 and horse14 -> horse15 23.0 (against 7.6 and 3.2). The numbers
 #: quoted by the other constants of this module were measured with one at a time.
