@@ -84,7 +84,7 @@ def test_point_orientation_operators_agree_with_the_mesh_ones():
     """The same integral ∫ φ_b ∇φ_a·(n × ∇d), sampled at the points or summed over faces."""
     V, F = load_shared_mesh("faust/tr_reg_093.ply")
     eig = fmap.unit_area(ofp.eigenbasis(V, F, k=40))
-    D = fmap._descriptors(eig, "wks", 100, None, 40)[:, ::10]
+    D = fmap._descriptors(eig, "wks", 100, None, 40, False, 10)[1]  # every tenth, unit norm
     mesh = fmap._orientation_ops(eig, 30, D)
     points = fmap._orientation_ops(ofp.EigenBasis(**{**eig.__dict__, "faces": None}), 30, D)
     cos = np.einsum("pij,pij->p", mesh, points) / (
