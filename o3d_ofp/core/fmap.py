@@ -436,6 +436,20 @@ def _landmark_pairs(landmarks: Any) -> tuple[np.ndarray | None, np.ndarray | Non
     return lm[:, 0], lm[:, 1]
 
 
+def _landmark_vertices(
+    landmarks: Any, eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray, np.ndarray]:
+    """Split (p, 2) landmark pairs into source and target vertices, each checked on its shape."""
+    source, target = _landmark_pairs(landmarks)
+    if source is None or target is None or source.size == 0:
+        raise ValueError("landmarks: give at least one (source, target) pair")
+    source, target = source.astype(np.int64), target.astype(np.int64)
+    for v, eig, name in ((source, eig_1, "source"), (target, eig_2, "target")):
+        if v.min() < 0 or v.max() >= eig.n_vertices:
+            raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
+    return source, target
+
+
 class _FitTerms:
     """The terms of :func:`estimate_fmap`'s energy on unit-area copies of two bases, built once.
 
@@ -453,10 +467,9 @@ class _FitTerms:
         orient: bool,
     ) -> None:  # fmt: skip
         descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
-        lm1, lm2 = _landmark_pairs(landmarks)
-        for v, eig, name in ((lm1, eig_1, "source"), (lm2, eig_2, "target")):
-            if v is not None and (v.size == 0 or v.min() < 0 or v.max() >= eig.n_vertices):
-                raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
+        lm1 = lm2 = None
+        if landmarks is not None:
+            lm1, lm2 = _landmark_vertices(landmarks, eig_1, eig_2)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
         k_descriptors = check_int(k_descriptors, name="k_descriptors", minimum=2)
@@ -949,13 +962,7 @@ def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> An
     Anchors
         With distances when both shapes are meshes (``p`` shortest-path runs on each).
     """
-    source, target = _landmark_pairs(landmarks)
-    if source is None or target is None or source.size == 0:
-        raise ValueError("landmarks: give at least one (source, target) pair")
-    source, target = source.astype(np.int64), target.astype(np.int64)
-    for v, eig, name in ((source, eig_1, "source"), (target, eig_2, "target")):
-        if v.min() < 0 or v.max() >= eig.n_vertices:
-            raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
+    source, target = _landmark_vertices(landmarks, eig_1, eig_2)
     if eig_1.faces is None or eig_2.faces is None:
         return Anchors(source, target, None, None)
     return Anchors(
