@@ -340,12 +340,16 @@ class DetailCalibration:
         Share of the calibrated detail each target vertex lacks, in [0, 1].
     share : float
         The area-weighted mean of ``lacking``.
+    target_lowpass : (n2, 3) ndarray
+        The target's own low-pass at the same heat time per area (the target itself when
+        ``time`` is 0): the converse test's, and mode "replace-detail"'s base.
     """
 
     time: float
     fits: np.ndarray
     lacking: np.ndarray
     share: float
+    target_lowpass: np.ndarray
 
 
 def _heat_lowpass(eig: EigenBasis, time: float) -> np.ndarray:
@@ -435,13 +439,15 @@ def calibrate_detail(
     mean = fits @ eig_2.mass / eig_2.area
     best = int(np.argmax(mean))
     lowpass, fit_at, time = levels[best], fits[best], (0.0, *LADDER)[best]
+    # the target's own low-pass at the same time (the target itself at time 0)
+    target_lowpass = _heat_lowpass(eig_2, time)
     if best == 0:
         lacking = np.zeros(eig_2.n_vertices)
     else:
         around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
         gained = around(fit_at - fits[0])
         # the converse: the target smoothed by the same low-pass, compared with the source
-        smoother = _procrustes(compare, levels[0][p2p_21], _heat_lowpass(eig_2, time))[1]
+        smoother = _procrustes(compare, levels[0][p2p_21], target_lowpass)[1]
         lost = around(smoother - fits[0])
         weight = eig_2.mass / eig_2.area
         if float(weight @ lost) <= -CONVERSE * float(weight @ gained):
@@ -456,7 +462,11 @@ def calibrate_detail(
                 time, float(fit_at @ eig_2.mass) / eig_2.area, mean[0], 100.0 * share)  # fmt: skip
     mean.setflags(write=False)
     lacking.setflags(write=False)
-    calibration = DetailCalibration(time=time, fits=mean, lacking=lacking, share=share)
+    if time > 0:  # at time 0 it is the target's own array, not this function's to freeze
+        target_lowpass.setflags(write=False)
+    calibration = DetailCalibration(
+        time=time, fits=mean, lacking=lacking, share=share, target_lowpass=target_lowpass
+    )
     return calibration, lowpass
 
 
@@ -687,7 +697,7 @@ def transfer_detail_frames(
         calibration, low_1 = calibrate_detail(eig_1, eig_2, p2p)
         lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
         # replace-detail: the target's own detail goes by the same low-pass, on its own shape
-        base = T if mode == "add" else _heat_lowpass(eig_2, calibration.time)
+        base = T if mode == "add" else calibration.target_lowpass
         share = calibration.share if mode == "add" else float(calibration.time > 0)
         if amount > 0 and share < NOTHING_ADDED:
             _warn_nothing_added(calibration)
