@@ -88,11 +88,18 @@ def test_anchored_zoomout_equals_the_weighted_least_squares_loop(stretched, subs
 def test_landmark_anchors_are_scale_free_and_none_for_clouds(stretched):
     source, target, F, landmarks, e1, e2 = stretched
     a = landmark_anchors(e1, e2, landmarks)
-    assert a.distances_1.shape == (len(source), len(landmarks))
-    np.testing.assert_array_equal(a.distances_1[landmarks[:, 0], np.arange(len(landmarks))], 0.0)
-    # distances over sqrt(area): a copy in other units has the same
+    p = len(landmarks)
+    assert a.distances_1.shape == (len(source), 2 * p)
+    np.testing.assert_array_equal(a.distances_1[landmarks[:, 0], np.arange(p)], 0.0)
+    # then the biharmonic coordinates: 1 at their own landmark, 0 at the others
+    np.testing.assert_array_equal(a.distances_1[landmarks[:, 0], p:], np.eye(p))
+    # and sum to 1 (a constant costs no energy; 2e-10 measured: the solve's round-off)
+    np.testing.assert_allclose(a.distances_1[:, p:].sum(axis=1), 1.0, atol=1e-8)
+    # distances over sqrt(area), coordinates of the unit-area shape: a copy in other units has
+    # the same (measured: 6e-16 and 9e-13; the coordinates' solve is a biharmonic one, whose
+    # round-off the other units' stiffness changes)
     scaled = landmark_anchors(ofp.eigenbasis(source * 250.0, F, k=5), e2, landmarks)
-    np.testing.assert_allclose(scaled.distances_1, a.distances_1, rtol=1e-9)
+    np.testing.assert_allclose(scaled.distances_1, a.distances_1, rtol=1e-9, atol=1e-10)
     cloud = landmark_anchors(e1, ofp.eigenbasis(target, None, k=5), landmarks)
     assert cloud.distances_1 is None and cloud.distances_2 is None
     np.testing.assert_array_equal(cloud.target, landmarks[:, 1])
@@ -151,6 +158,70 @@ def test_landmark_distances_as_descriptors_beat_their_kernel_maps_on_a_gorilla_o
     monkeypatch.setattr(fmap, "_descriptors", kernel_maps)
     before = error(ofp.match(man, gorilla, landmarks=landmarks))
     assert ours < 0.9 * before, (ours, before)
+
+
+def test_landmark_coordinates_solve_the_constrained_biharmonic_problem():
+    """Against the dense Lagrange system of min wᵀ Q w with w = e_j at the landmarks."""
+    V, F = icosphere(2)
+    shape = V * np.array([1.0, 0.7, 0.5]) * 30.0  # other units than 1: the unit-area shape counts
+    eig = ofp.eigenbasis(shape, F, k=5)
+    given = np.array([3, 40, 41, 100, 3])  # 41 next to 40; 3 given twice
+    W = fmap.landmark_coordinates(eig, given)
+    K = eig.stiffness.toarray()
+    m = eig.mass / eig.area
+    Q = K @ np.diag(1.0 / m) @ K + fmap._BIHARMONIC_SHIFT * np.diag(m)
+    lm = np.unique(given)
+    n, p = len(V), lm.size
+    E = np.zeros((p, n))
+    E[np.arange(p), lm] = 1.0
+    kkt = np.block([[Q, E.T], [E, np.zeros((p, p))]])
+    rhs = np.vstack([np.zeros((n, p)), np.eye(p)])
+    ref = np.linalg.solve(kkt, rhs)[:n]
+    ref = ref[:, np.searchsorted(lm, given)]  # a repeated landmark: its column twice
+    # Both solve the same system, whose condition number is 2e3 here: agreement to 1e-8 is
+    # round-off; measured: the same mass at every vertex instead of the lumped one is off by
+    # 0.14, two columns swapped by 1.07.
+    np.testing.assert_allclose(W, ref, atol=1e-8)
+    np.testing.assert_allclose(W.sum(axis=1), 1.0 + (W[:, 0] * 1.0), atol=1e-8)  # 3 counted twice
+    with pytest.raises(ValueError, match=r"vertices: landmark vertices in \[0, 162\)"):
+        fmap.landmark_coordinates(eig, [0, 162])
+    with pytest.raises(ValueError, match="needs a mesh"):
+        fmap.landmark_coordinates(ofp.eigenbasis(shape, None, k=5), [0, 1])
+
+
+@pytest.mark.slow
+def test_landmark_coordinates_tell_a_gorillas_limbs_from_a_womans_with_four_landmarks(
+    monkeypatch,
+):
+    """bcicp_dev gorilla_03 -> woman_01, 4 well-spread landmarks (see fmap.landmark_coordinates).
+
+    With the landmarks' distances alone the map was wrong on limbs whose lengths differ
+    (26.9 mean geodesic error x100 on this pair, ``scripts/eval_nonisometric.py``-style on 300
+    points); with their biharmonic coordinates too 7.0. Here the mean Euclidean distance to
+    the true vertex over sqrt(area): 0.064 against 0.208.
+    """
+    from .conftest import load_shared_mesh, shared_path
+
+    root = "bcicp_dev/TOSCA_nonIsometric"
+    woman, gorilla = (load_shared_mesh(f"{root}/8_{n}.off") for n in ("woman_01", "gorilla_03"))
+    t_woman, t_gorilla = (
+        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
+        for name in ("woman_01", "gorilla_03")
+    )
+    spread = farthest_points(gorilla[0][t_gorilla], 4)
+    landmarks = np.stack([t_woman[spread], t_gorilla[spread]], axis=1)  # [woman, gorilla]
+    area = ofp.eigenbasis(*woman, k=5).area
+
+    def error(corr):
+        images = woman[0][np.asarray(corr.p2p_21)[t_gorilla]]
+        return np.linalg.norm(images - woman[0][t_woman], axis=1).mean() / np.sqrt(area)
+
+    ours = error(ofp.match(woman, gorilla, landmarks=landmarks))
+    # Zero coordinates: zero descriptor and operator columns, nothing added to the embedding.
+    monkeypatch.setattr(fmap, "landmark_coordinates",
+                        lambda eig, v: np.zeros((eig.n_vertices, len(v))))  # fmt: skip
+    before = error(ofp.match(woman, gorilla, landmarks=landmarks))
+    assert ours < 0.5 * before, (ours, before)
 
 
 def test_landmarks_outside_the_shapes_are_refused_by_the_fits(stretched):

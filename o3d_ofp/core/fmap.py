@@ -17,8 +17,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.linalg
 import scipy.optimize
+import scipy.sparse as sp
 import scipy.spatial
 from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
 
 from ._threads import one_blas_thread
 from ._validation import check_int
@@ -38,6 +40,7 @@ __all__ = [
     "farthest_points",
     "icp_refine",
     "landmark_anchors",
+    "landmark_coordinates",
     "lift_fmap",
     "unit_area",
     "zoomout_refine",
@@ -111,7 +114,8 @@ def _descriptors(
 
     The operators (commutativity, orientation) take every ``step``-th descriptor of the
     family; with landmarks between meshes (``geodesic``), each landmark's distance function
-    too (see :data:`LANDMARK_SCALES`); with a point cloud, every ``step``-th column of the
+    and biharmonic coordinate too (see :data:`LANDMARK_SCALES`); with a point cloud, every
+    ``step``-th column of the
     landmarks' kernel maps, continuing the same stride. A column that is zero on a shape (a
     landmark's Gaussian on a piece the cleaning left out) stays zero, so that both shapes
     keep the same columns.
@@ -121,9 +125,9 @@ def _descriptors(
     family = fn(eig, **kw)
     parts, ops = [family], [family[:, ::step]]
     if landmarks is not None and geodesic:
-        d = _landmark_distances(eig, landmarks)
-        parts += [*(np.exp(-((d / s) ** 2)) for s in LANDMARK_SCALES), d]
-        ops.append(d)
+        d, w = _landmark_distances(eig, landmarks), landmark_coordinates(eig, landmarks)
+        parts += [*(np.exp(-((d / s) ** 2)) for s in LANDMARK_SCALES), d, w]
+        ops += [d, w]
     elif landmarks is not None:
         kernels = fn(eig, landmarks=landmarks, **kw)
         parts.append(kernels)
@@ -568,8 +572,9 @@ def estimate_fmap(
         result does not depend on how many eigenpairs the caller computed.
     landmarks : (p, 2) array_like of int, optional
         Known pairs (source vertex, target vertex), added to the descriptors: between meshes,
-        each landmark's shortest-path distance (over sqrt(area)) and Gaussians of it
-        (``o3d_ofp.core.fmap.LANDMARK_SCALES``); with a point cloud, each landmark's wave
+        each landmark's shortest-path distance (over sqrt(area)), Gaussians of it
+        (``o3d_ofp.core.fmap.LANDMARK_SCALES``) and its biharmonic coordinate
+        (:func:`landmark_coordinates`); with a point cloud, each landmark's wave
         (heat) kernel map.
     w_descr, w_lap, w_dcomm : float
         Weights of the descriptor, Laplacian and descriptor-commutativity terms. Everything is
@@ -892,7 +897,8 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = Non
 #: (the samples' count, or the unit area at full resolution), and ...
 LANDMARK_WEIGHT = 0.2
 #: ... every nearest-neighbour step compares, beside the spectral embeddings, the vertices'
-#: shortest-path distances to the landmarks (over sqrt(area)) times this. Without either, a
+#: shortest-path distances to the landmarks (over sqrt(area)) and their
+#: :func:`landmark_coordinates`, both times this. Without either, a
 #: spectral refinement drifts from the landmarks that started it (they landed 0.06-0.18
 #: sqrt(area) from their pairs on gorilla -> human maps). Measured in ``ofp.match``
 #: (``scripts/eval_nonisometric.py``, 6 well-spread landmarks, mean geodesic error x100):
@@ -915,7 +921,13 @@ LANDMARK_DISTANCES = 3.0
 #: 11.1 against 12.3 (gorilla); 10 landmarks 6.5 against 6.6. The operators of one Gaussian
 #: per landmark instead gave 7.1-7.7 (the widest best), of all five 7.7; with operators of
 #: mixed scales, scales (0.05, ..., 0.4) and (0.2, ..., 1.6) did no better than these, and the
-#: distance functions alone, without WKS, gave 9.1.
+#: distance functions alone, without WKS, gave 9.1. The biharmonic coordinates
+#: (:func:`landmark_coordinates`) join the descriptors, the operators and (at the weight of
+#: ``LANDMARK_DISTANCES``) ZoomOut's point maps: gorilla -> human 6.4 against 7.2 with 6
+#: landmarks, 6.4 against 11.1 with 4, 6.7 against 6.5 with 10; TOSCA animals 2.21 against
+#: 2.33, 10 of the 30 pairs of TOSCA people 1.60 against 1.57. Scratch sweeps, 6 landmarks:
+#: in the point maps only 6.5 (at twice the weight 6.8, four times 8.2); in the point maps in
+#: place of the distances 7.2 (twice the weight 6.4, but 10.1 with 4 landmarks).
 LANDMARK_SCALES = (0.1, 0.2, 0.4, 0.8)
 
 
@@ -927,9 +939,10 @@ class Anchors:
     ----------
     source, target : (p,) ndarray of int
         The landmarks' source and target vertices.
-    distances_1, distances_2 : (n1, p), (n2, p) ndarray or None
-        Shortest-path distances along the edges from every vertex to the landmarks, over
-        sqrt(area) (so the same in any units); None when either shape is a point cloud.
+    distances_1, distances_2 : (n1, 2p), (n2, 2p) ndarray or None
+        Where every vertex lies relative to the landmarks: its shortest-path distances along
+        the edges to them, over sqrt(area), then its :func:`landmark_coordinates` (both the
+        same in any units); None when either shape is a point cloud.
     """
 
     source: np.ndarray
@@ -947,6 +960,64 @@ def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
     return np.where(finite, d, far) / math.sqrt(eig.area)
 
 
+def landmark_coordinates(eig: EigenBasis, vertices: Any) -> np.ndarray:
+    """Biharmonic coordinates of a mesh's vertices with respect to landmark vertices.
+
+    Column ``j`` is the smoothest function that is 1 at landmark ``j`` and 0 at the others:
+    it minimizes the biharmonic energy ``fᵀ L M⁻¹ L f`` (``L`` the cotangent stiffness, ``M``
+    the lumped mass) under those values. Along a limb between two landmarks it goes from one
+    to the other in proportion to the way covered, so it tells where a point lies relative
+    to the landmarks also between shapes of other proportions (a gorilla's arm and a
+    human's), where a distance grows with the limb's length. The columns sum to 1 on every
+    piece that holds a landmark, are 0 on the others, and do not change with the units.
+
+    Parameters
+    ----------
+    eig : EigenBasis
+        A mesh's basis (its stiffness and mass are used, no eigenfunction).
+    vertices : (p,) array_like of int
+        The landmark vertices (a vertex given twice gets the same column twice).
+
+    Returns
+    -------
+    (n, p) ndarray
+
+    Raises
+    ------
+    ValueError
+        If ``eig`` is a point cloud's, or a landmark is outside the shape.
+    """
+    if eig.faces is None:
+        raise ValueError("landmark_coordinates needs a mesh (a point cloud's basis was given)")
+    given = np.asarray(vertices, dtype=np.int64).ravel()
+    n = eig.n_vertices
+    if given.size == 0 or given.min() < 0 or given.max() >= n:
+        raise ValueError(f"vertices: landmark vertices in [0, {n}) are needed")
+    lm, column = np.unique(given, return_inverse=True)
+    # On the unit-area shape (the cotangent stiffness does not depend on the units): the
+    # same coordinates in any units, to the last bit.
+    mass = np.asarray(eig.mass, dtype=np.float64) / eig.area
+    out = mass <= 0  # vertices left out of the surface: no energy, pinned to 0 below
+    K = eig.stiffness.tocsr()
+    # The small mass term keeps a piece without a landmark (no constraint there) definite:
+    # its coordinates are then 0.
+    Q = K @ sp.diags(1.0 / np.where(out, 1.0, mass)) @ K
+    Q = (Q + sp.diags(_BIHARMONIC_SHIFT * mass + out)).tocsc()
+    free = np.ones(n, dtype=bool)
+    free[lm] = False
+    W = np.zeros((n, lm.size))
+    W[lm, np.arange(lm.size)] = 1.0
+    rhs = -(Q[:, lm][free]).toarray()  # the landmarks' unit values moved to the right side
+    W[free] = splu(Q[free][:, free].tocsc()).solve(rhs)
+    return W[:, column]
+
+
+#: Mass term of :func:`landmark_coordinates`'s energy, relative to the biharmonic term of a
+#: unit-area shape (whose lowest non-zero eigenvalue is about 10-50 for a body, 100-2500
+#: squared): it only decides a piece without a landmark.
+_BIHARMONIC_SHIFT = 1e-6
+
+
 def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> Anchors:
     """Return the landmarks as :func:`~o3d_ofp.zoomout_refine` anchors them.
 
@@ -960,18 +1031,20 @@ def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> An
     Returns
     -------
     Anchors
-        With distances when both shapes are meshes (``p`` shortest-path runs on each).
+        With distances and biharmonic coordinates when both shapes are meshes (``p``
+        shortest-path runs and one sparse solve on each).
     """
     source, target = _landmark_vertices(landmarks, eig_1, eig_2)
     if eig_1.faces is None or eig_2.faces is None:
         return Anchors(source, target, None, None)
-    return Anchors(
-        source, target, _landmark_distances(eig_1, source), _landmark_distances(eig_2, target)
-    )
+    return Anchors(source, target, *(
+        np.hstack([_landmark_distances(eig, v), landmark_coordinates(eig, v)])
+        for eig, v in ((eig_1, source), (eig_2, target))
+    ))  # fmt: skip
 
 
 def _embedded(spectral: np.ndarray, distances: np.ndarray | None) -> np.ndarray:
-    """Return the point map's coordinates: spectral, then the weighted landmark distances."""
+    """Return the point map's coordinates: spectral, then the weighted landmark functions."""
     if distances is None:
         return spectral
     return np.hstack([spectral, LANDMARK_DISTANCES * distances])
@@ -1014,7 +1087,7 @@ def zoomout_refine(
         Known pairs (:func:`o3d_ofp.core.fmap.landmark_anchors`): every fit also asks the
         landmarks to map onto each other (their rows weigh
         :data:`~o3d_ofp.core.fmap.LANDMARK_WEIGHT` of the fit), and every point map also
-        matches the vertices' distances to the landmarks
+        matches the vertices' distances to the landmarks and their biharmonic coordinates
         (:data:`~o3d_ofp.core.fmap.LANDMARK_DISTANCES`):
         the landmarks then drive the refinement instead of only its start (a spectral map
         alone drifts from them, most between shapes that are not near-isometric).
