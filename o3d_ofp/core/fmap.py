@@ -115,10 +115,9 @@ def _descriptors(
     The operators (commutativity, orientation) take every ``step``-th descriptor of the
     family; with landmarks between meshes (``geodesic``), each landmark's distance function
     and biharmonic coordinate too (see :data:`LANDMARK_SCALES`); with a point cloud, every
-    ``step``-th column of the
-    landmarks' kernel maps, continuing the same stride. A column that is zero on a shape (a
-    landmark's Gaussian on a piece the cleaning left out) stays zero, so that both shapes
-    keep the same columns.
+    ``step``-th column of the landmarks' kernel maps, continuing the same stride. A column
+    that is zero on a shape (a landmark's Gaussian on a piece the cleaning left out) stays
+    zero, so that both shapes keep the same columns.
     """
     fn = wks if kind == "wks" else hks
     kw = {"n_energies": n, "k": k} if kind == "wks" else {"n_times": n, "k": k}
@@ -574,8 +573,8 @@ def estimate_fmap(
         Known pairs (source vertex, target vertex), added to the descriptors: between meshes,
         each landmark's shortest-path distance (over sqrt(area)), Gaussians of it
         (``o3d_ofp.core.fmap.LANDMARK_SCALES``) and its biharmonic coordinate
-        (:func:`landmark_coordinates`); with a point cloud, each landmark's wave
-        (heat) kernel map.
+        (``o3d_ofp.core.fmap.landmark_coordinates``); with a point cloud, each landmark's
+        wave (heat) kernel map.
     w_descr, w_lap, w_dcomm : float
         Weights of the descriptor, Laplacian and descriptor-commutativity terms. Everything is
         computed on unit-area copies of the shapes and the Laplacian term normalized to unit
@@ -897,8 +896,8 @@ def farthest_points(vertices: np.ndarray, count: int, *, start: int | None = Non
 #: (the samples' count, or the unit area at full resolution), and ...
 LANDMARK_WEIGHT = 0.2
 #: ... every nearest-neighbour step compares, beside the spectral embeddings, the vertices'
-#: shortest-path distances to the landmarks (over sqrt(area)) and their
-#: :func:`landmark_coordinates`, both times this. Without either, a
+#: shortest-path distances to the landmarks (over sqrt(area)) and their biharmonic
+#: coordinates (``landmark_coordinates``), both times this. Without either, a
 #: spectral refinement drifts from the landmarks that started it (they landed 0.06-0.18
 #: sqrt(area) from their pairs on gorilla -> human maps). Measured in ``ofp.match``
 #: (``scripts/eval_nonisometric.py``, 6 well-spread landmarks, mean geodesic error x100):
@@ -922,12 +921,14 @@ LANDMARK_DISTANCES = 3.0
 #: per landmark instead gave 7.1-7.7 (the widest best), of all five 7.7; with operators of
 #: mixed scales, scales (0.05, ..., 0.4) and (0.2, ..., 1.6) did no better than these, and the
 #: distance functions alone, without WKS, gave 9.1. The biharmonic coordinates
-#: (:func:`landmark_coordinates`) join the descriptors, the operators and (at the weight of
+#: (``landmark_coordinates``) join the descriptors, the operators and (at the weight of
 #: ``LANDMARK_DISTANCES``) ZoomOut's point maps: gorilla -> human 6.4 against 7.2 with 6
-#: landmarks, 6.4 against 11.1 with 4, 6.7 against 6.5 with 10; TOSCA animals 2.21 against
-#: 2.33, 10 of the 30 pairs of TOSCA people 1.60 against 1.57. Scratch sweeps, 6 landmarks:
-#: in the point maps only 6.5 (at twice the weight 6.8, four times 8.2); in the point maps in
-#: place of the distances 7.2 (twice the weight 6.4, but 10.1 with 4 landmarks).
+#: landmarks, 6.3 against 11.1 with 4, 6.0 against 6.5 with 10; TOSCA animals 2.32 against
+#: 2.33, 10 of the 30 pairs of TOSCA people 1.57 against 1.57. Unclipped (the biharmonic
+#: minimizer itself): 6.4, 6.4 and 6.7 (three gorilla pairs 8.3-9.7 with 10 landmarks), 2.21,
+#: 1.60. Scratch sweeps, 6 landmarks, unclipped: in the point maps only 6.5 (at twice the
+#: weight 6.8, four times 8.2); in the point maps in place of the distances 7.2 (twice the
+#: weight 6.4, but 10.1 with 4 landmarks).
 LANDMARK_SCALES = (0.1, 0.2, 0.4, 0.8)
 
 
@@ -941,8 +942,9 @@ class Anchors:
         The landmarks' source and target vertices.
     distances_1, distances_2 : (n1, 2p), (n2, 2p) ndarray or None
         Where every vertex lies relative to the landmarks: its shortest-path distances along
-        the edges to them, over sqrt(area), then its :func:`landmark_coordinates` (both the
-        same in any units); None when either shape is a point cloud.
+        the edges to them, over sqrt(area), then its biharmonic coordinates
+        (``landmark_coordinates``; both the same in any units); None when either shape is a
+        point cloud.
     """
 
     source: np.ndarray
@@ -961,15 +963,20 @@ def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
 
 
 def landmark_coordinates(eig: EigenBasis, vertices: Any) -> np.ndarray:
-    """Biharmonic coordinates of a mesh's vertices with respect to landmark vertices.
+    """Biharmonic coordinates of a mesh's vertices with respect to landmark vertices, in [0, 1].
 
     Column ``j`` is the smoothest function that is 1 at landmark ``j`` and 0 at the others:
     it minimizes the biharmonic energy ``fᵀ L M⁻¹ L f`` (``L`` the cotangent stiffness, ``M``
     the lumped mass) under those values. Along a limb between two landmarks it goes from one
     to the other in proportion to the way covered, so it tells where a point lies relative
     to the landmarks also between shapes of other proportions (a gorilla's arm and a
-    human's), where a distance grows with the limb's length. The columns sum to 1 on every
-    piece that holds a landmark, are 0 on the others, and do not change with the units.
+    human's), where a distance grows with the limb's length. Beyond the outermost landmarks
+    the minimizer goes on as it came (measured on FAUST with 6 farthest-point landmarks:
+    -1.06 to 2.60), a reach that follows each shape's own proportions there: the result is
+    clipped to [0, 1], which keeps where a point lies between the landmarks and drops how
+    far beyond them (see ``LANDMARK_SCALES`` for what the clipping gained). Unclipped, the
+    columns sum to 1 on every piece that holds a landmark; they are 0 on the others, and
+    the same in any units.
 
     Parameters
     ----------
@@ -995,7 +1002,7 @@ def landmark_coordinates(eig: EigenBasis, vertices: Any) -> np.ndarray:
         raise ValueError(f"vertices: landmark vertices in [0, {n}) are needed")
     lm, column = np.unique(given, return_inverse=True)
     # On the unit-area shape (the cotangent stiffness does not depend on the units): the
-    # same coordinates in any units, to the last bit.
+    # same coordinates in any units, to round-off.
     mass = np.asarray(eig.mass, dtype=np.float64) / eig.area
     out = mass <= 0  # vertices left out of the surface: no energy, pinned to 0 below
     K = eig.stiffness.tocsr()
@@ -1009,12 +1016,12 @@ def landmark_coordinates(eig: EigenBasis, vertices: Any) -> np.ndarray:
     W[lm, np.arange(lm.size)] = 1.0
     rhs = -(Q[:, lm][free]).toarray()  # the landmarks' unit values moved to the right side
     W[free] = splu(Q[free][:, free].tocsc()).solve(rhs)
-    return W[:, column]
+    return np.clip(W[:, column], 0.0, 1.0)
 
 
-#: Mass term of :func:`landmark_coordinates`'s energy, relative to the biharmonic term of a
-#: unit-area shape (whose lowest non-zero eigenvalue is about 10-50 for a body, 100-2500
-#: squared): it only decides a piece without a landmark.
+#: Mass term of ``landmark_coordinates``' energy, relative to the biharmonic term of a
+#: unit-area shape (whose squared lowest non-zero eigenvalue is 21-41 on FAUST, a TOSCA
+#: gorilla and cat: 4.6-6.4 squared): it only decides a piece without a landmark.
 _BIHARMONIC_SHIFT = 1e-6
 
 
