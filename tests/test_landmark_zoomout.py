@@ -225,6 +225,40 @@ def test_landmark_coordinates_tell_a_gorillas_limbs_from_a_womans_with_four_land
     assert ours < 0.5 * before, (ours, before)
 
 
+def test_anchored_point_map_is_the_nearest_neighbour_of_the_landmark_embedding(stretched):
+    """The scan and the cell-pruned search give the brute-force answer."""
+    from o3d_ofp.core.multiscale import anchored_p2p_from_fmap
+
+    source, target, _, landmarks, e1, e2 = stretched
+    C = ofp.fmap_from_p2p(np.arange(len(source)), e1, e2, k1=20, k2=20)
+    anchors = landmark_anchors(e1, e2, landmarks)
+    u1, u2 = unit_area(e1), unit_area(e2)
+    Cu = C / np.sqrt(e2.area / e1.area)  # between the unit-area bases
+    mapped = fmap.landmark_embedding(u1.evecs[:, :21] @ Cu.T, anchors.distances_1)
+    own = fmap.landmark_embedding(u2.evecs[:, :21], anchors.distances_2)
+    squared = ((own[:, None, :] - mapped[None]) ** 2).sum(-1)  # (target, source)
+    nearest = squared.min(axis=1)
+
+    def check(p2p):
+        # The ellipsoid's mirror-image vertices tie: the chosen vertex is as near as any, to
+        # round-off (squared distances of about 1-70 here).
+        np.testing.assert_allclose(squared[np.arange(len(p2p)), p2p], nearest, atol=1e-9)
+
+    scan = anchored_p2p_from_fmap(C, e1, e2, anchors)
+    check(scan)
+    check(anchored_p2p_from_fmap(C, e1, e2, anchors, local=True))
+    # The landmark functions change the answer here (else the test would not see them).
+    assert (scan != ofp.p2p_from_fmap(C, e1, e2)).mean() > 0.01
+    cloud = landmark_anchors(e1, ofp.eigenbasis(target, None, k=30), landmarks)
+    np.testing.assert_array_equal(
+        anchored_p2p_from_fmap(C, e1, e2, cloud), ofp.p2p_from_fmap(C, e1, e2)
+    )
+    wrong = fmap.Anchors(anchors.source, anchors.target, anchors.distances_1[:-1],
+                         anchors.distances_2)  # fmt: skip
+    with pytest.raises(ValueError, match="anchors: made for another source"):
+        anchored_p2p_from_fmap(C, e1, e2, wrong)
+
+
 def test_landmarks_outside_the_shapes_are_refused_by_the_fits(stretched):
     """A landmark index of -1 or n names the side and the range (it used to wrap around)."""
     _, _, _, _, e1, e2 = stretched

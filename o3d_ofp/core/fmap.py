@@ -41,6 +41,7 @@ __all__ = [
     "icp_refine",
     "landmark_anchors",
     "landmark_coordinates",
+    "landmark_embedding",
     "lift_fmap",
     "unit_area",
     "zoomout_refine",
@@ -1050,11 +1051,24 @@ def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> An
     ))  # fmt: skip
 
 
-def _embedded(spectral: np.ndarray, distances: np.ndarray | None) -> np.ndarray:
-    """Return the point map's coordinates: spectral, then the weighted landmark functions."""
-    if distances is None:
+def landmark_embedding(spectral: np.ndarray, functions: np.ndarray | None) -> np.ndarray:
+    """Return a point map's coordinates: spectral, then the weighted landmark functions.
+
+    Parameters
+    ----------
+    spectral : (n, d) ndarray
+        The vertices' spectral coordinates (a source's ``Φ Cᵀ`` or a target's ``Ψ``).
+    functions : (n, 2p) ndarray or None
+        Their landmark functions (``Anchors.distances_1`` or ``.distances_2``); None: none.
+
+    Returns
+    -------
+    (n, d + 2p) ndarray
+        ``[spectral, LANDMARK_DISTANCES · functions]`` (``spectral`` itself without functions).
+    """
+    if functions is None:
         return spectral
-    return np.hstack([spectral, LANDMARK_DISTANCES * distances])
+    return np.hstack([spectral, LANDMARK_DISTANCES * functions])
 
 
 @one_blas_thread
@@ -1196,7 +1210,9 @@ def _anchored_zoomout(
     known = share * eig_1.evecs[anchors.source, : k_final + 1]
     while k < k_final:
         kc = C.shape[0]
-        p2p = nearest_neighbors(_embedded(phi1[:, :kc] @ C.T, d1), _embedded(psi2[:, :kc], d2))
+        p2p = nearest_neighbors(
+            landmark_embedding(phi1[:, :kc] @ C.T, d1), landmark_embedding(psi2[:, :kc], d2)
+        )
         k = min(k + step, k_final)
         C = fits.solve(k + 1, np.vstack([root * phi1[p2p, : k + 1], known[:, : k + 1]]))
     return C

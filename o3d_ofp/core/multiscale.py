@@ -29,12 +29,13 @@ from scipy.spatial import cKDTree
 
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
-from .correspondence import fmap_between, fmap_from_p2p
-from .fmap import farthest_points, grid_samples
+from .correspondence import fmap_between, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
+from .fmap import Anchors, farthest_points, grid_samples, landmark_embedding
 from .geometry import closest_on_triangles, edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
 __all__ = [
+    "anchored_p2p_from_fmap",
     "cell_restriction",
     "coarse_eigenbasis",
     "coarse_mesh",
@@ -315,6 +316,57 @@ def local_p2p_from_fmap(
     return _local_search(
         eig_1.evecs, Ct, eig_2.evecs, math.sqrt(a2), eig_1.vertices, eig_2.vertices, count, seed
     )
+
+
+def anchored_p2p_from_fmap(
+    fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis, anchors: Anchors, *, local: bool = False
+) -> np.ndarray:
+    """Point map of a functional map that also compares the vertices' landmark functions.
+
+    For every target vertex, the source vertex nearest in
+    :func:`~o3d_ofp.core.fmap.landmark_embedding`: the unit-area spectral embeddings of
+    :func:`local_p2p_from_fmap` (``Φ̂ Ĉᵀ`` against ``Ψ̂``) followed by the landmark functions
+    of ``anchors`` (distances and biharmonic coordinates), as every anchored ZoomOut step
+    compares them. Anchors without functions (a point cloud) give the spectral point map.
+
+    Parameters
+    ----------
+    fmap_12 : (k2+1, k1+1) array_like
+        Functional map, in this package's convention.
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases.
+    anchors : Anchors
+        :func:`o3d_ofp.core.fmap.landmark_anchors` of the two shapes.
+    local : bool, default False
+        Search by :func:`local_p2p_from_fmap`'s cell-pruned exact search instead of a scan
+        (the same answer; faster on large pairs).
+
+    Returns
+    -------
+    (n2,) ndarray of int64
+        ``p2p_21``.
+    """
+    eig_1 = check_eigenbasis(eig_1, "eig_1")
+    eig_2 = check_eigenbasis(eig_2, "eig_2")
+    C = fmap_between(fmap_12, eig_1, eig_2)
+    for functions, eig, name in ((anchors.distances_1, eig_1, "source"),
+                                 (anchors.distances_2, eig_2, "target")):  # fmt: skip
+        if functions is not None and functions.shape[0] != eig.n_vertices:
+            raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
+                             f"not {eig.n_vertices})")  # fmt: skip
+    if anchors.distances_1 is None or anchors.distances_2 is None:
+        return local_p2p_from_fmap(C, eig_1, eig_2) if local else p2p_from_fmap(C, eig_1, eig_2)
+    rows, cols = C.shape
+    a1, a2 = eig_1.area, eig_2.area
+    # Unit-area embeddings, as local_p2p_from_fmap's: Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ and Ψ̂ = Ψ √A2.
+    phi = landmark_embedding(eig_1.evecs[:, :cols] @ C.T * (a1 / math.sqrt(a2)),
+                             anchors.distances_1)  # fmt: skip
+    psi = landmark_embedding(eig_2.evecs[:, :rows] * math.sqrt(a2), anchors.distances_2)
+    if not local:
+        return nearest_neighbors(phi, psi)
+    count = _cell_count(None, eig_1.n_vertices)
+    return _local_search(phi, np.eye(phi.shape[1]), psi, 1.0, eig_1.vertices, eig_2.vertices,
+                         count, 0)  # fmt: skip
 
 
 @one_blas_thread

@@ -28,7 +28,7 @@ from ..core.fmap import (
     unit_area,
     zoomout_refine,
 )
-from ..core.multiscale import extend_p2p, local_p2p_from_fmap
+from ..core.multiscale import anchored_p2p_from_fmap, extend_p2p, local_p2p_from_fmap
 from ..core.partial import geodesic_distortion, geodesic_features
 from ..core.spectrum import EigenBasis
 from ..core.wording import Said
@@ -385,8 +385,20 @@ class FullMatch(Strategy):
         return self._settled(run, C, info)
 
     def _settled(self, run: Run, C: np.ndarray, info: dict[str, Any]) -> Settled:
-        """Return the map ``C`` between the unit-area bases, its point map and its own-units map."""
-        if run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS:
+        """Return the map ``C`` between the unit-area bases, its point map and its own-units map.
+
+        With landmarks the point map compares their functions too, as each ZoomOut step does
+        (:func:`~o3d_ofp.core.multiscale.anchored_p2p_from_fmap`). Measured
+        (``scripts/eval_nonisometric.py``-style, 6 well-spread landmarks, 300 points, mean
+        geodesic error x100): gorilla -> human 6.15 against 6.36 (4 landmarks 6.22 against
+        6.30, 10: 5.81 against 5.99), TOSCA animals 2.16 against 2.32 (worst 4.3 against
+        5.3), 10 of the 30 pairs of TOSCA people 1.56 against 1.57.
+        """
+        local = run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS
+        anchors = run.state["anchors"]
+        if anchors is not None:
+            p2p = anchored_p2p_from_fmap(C, run.u1, run.u2, anchors, local=local)
+        elif local:
             p2p = local_p2p_from_fmap(C, run.u1, run.u2)  # exact, without the quadratic scan
         else:
             p2p = p2p_from_fmap(C, run.u1, run.u2)
