@@ -121,6 +121,33 @@ def test_match_with_landmarks_between_shapes_that_are_not_isometric(stretched, m
     assert got < 0.75 * was, (got, was)
 
 
+def _gorilla_onto_human(gorilla_name, human_name, count):
+    """Load a bcicp_dev gorilla -> human pair with ``count`` well-spread true landmark pairs.
+
+    Returns the human (source) and gorilla (target) meshes, the [human, gorilla] landmark
+    pairs (farthest-point samples of the gorilla's ground-truth vertices) and the error of a
+    map: the mean Euclidean distance from each true gorilla vertex's image to its true human
+    vertex, over sqrt(area) of the human.
+    """
+    from .conftest import load_shared_mesh, shared_path
+
+    root = "bcicp_dev/TOSCA_nonIsometric"
+    human, gorilla = (load_shared_mesh(f"{root}/8_{n}.off") for n in (human_name, gorilla_name))
+    t_human, t_gorilla = (
+        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
+        for name in (human_name, gorilla_name)
+    )
+    spread = farthest_points(gorilla[0][t_gorilla], count)
+    landmarks = np.stack([t_human[spread], t_gorilla[spread]], axis=1)
+    area = ofp.eigenbasis(*human, k=5).area
+
+    def error(corr):
+        images = human[0][np.asarray(corr.p2p_21)[t_gorilla]]
+        return np.linalg.norm(images - human[0][t_human], axis=1).mean() / np.sqrt(area)
+
+    return human, gorilla, landmarks, error
+
+
 @pytest.mark.slow
 def test_landmark_distances_as_descriptors_beat_their_kernel_maps_on_a_gorilla_onto_a_man(
     monkeypatch,
@@ -132,22 +159,7 @@ def test_landmark_distances_as_descriptors_beat_their_kernel_maps_on_a_gorilla_o
     geodesic error x100 on this pair, ``scripts/eval_nonisometric.py``): 5.4 against 6.8;
     here the mean Euclidean distance to the true vertex over sqrt(area), 0.053 against 0.065.
     """
-    from .conftest import load_shared_mesh, shared_path
-
-    root = "bcicp_dev/TOSCA_nonIsometric"
-    man, gorilla = (load_shared_mesh(f"{root}/8_{name}.off") for name in ("man_01", "gorilla_01"))
-    t_man, t_gorilla = (
-        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
-        for name in ("man_01", "gorilla_01")
-    )
-    spread = farthest_points(gorilla[0][t_gorilla], 6)
-    landmarks = np.stack([t_man[spread], t_gorilla[spread]], axis=1)  # [man, gorilla] pairs
-    area = ofp.eigenbasis(*man, k=5).area
-
-    def error(corr):
-        images = man[0][np.asarray(corr.p2p_21)[t_gorilla]]
-        return np.linalg.norm(images - man[0][t_man], axis=1).mean() / np.sqrt(area)
-
+    man, gorilla, landmarks, error = _gorilla_onto_human("gorilla_01", "man_01", 6)
     ours = error(ofp.match(man, gorilla, landmarks=landmarks))
     real = fmap._descriptors
 
@@ -201,22 +213,7 @@ def test_landmark_coordinates_tell_a_gorillas_limbs_from_a_womans_with_four_land
     points); with their biharmonic coordinates too 6.1. Here the mean Euclidean distance to
     the true vertex over sqrt(area): 0.063 against 0.208.
     """
-    from .conftest import load_shared_mesh, shared_path
-
-    root = "bcicp_dev/TOSCA_nonIsometric"
-    woman, gorilla = (load_shared_mesh(f"{root}/8_{n}.off") for n in ("woman_01", "gorilla_03"))
-    t_woman, t_gorilla = (
-        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
-        for name in ("woman_01", "gorilla_03")
-    )
-    spread = farthest_points(gorilla[0][t_gorilla], 4)
-    landmarks = np.stack([t_woman[spread], t_gorilla[spread]], axis=1)  # [woman, gorilla]
-    area = ofp.eigenbasis(*woman, k=5).area
-
-    def error(corr):
-        images = woman[0][np.asarray(corr.p2p_21)[t_gorilla]]
-        return np.linalg.norm(images - woman[0][t_woman], axis=1).mean() / np.sqrt(area)
-
+    woman, gorilla, landmarks, error = _gorilla_onto_human("gorilla_03", "woman_01", 4)
     ours = error(ofp.match(woman, gorilla, landmarks=landmarks))
     # Zero coordinates: zero descriptor and operator columns, nothing added to the embedding.
     monkeypatch.setattr(fmap, "landmark_coordinates",
