@@ -319,15 +319,17 @@ def local_p2p_from_fmap(
 
 
 def anchored_p2p_from_fmap(
-    fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis, anchors: Anchors, *, local: bool = False
-) -> np.ndarray:
+    fmap_12: Any, eig_1: EigenBasis, eig_2: EigenBasis, anchors: Anchors | None, *,
+    local: bool = False,
+) -> np.ndarray:  # fmt: skip
     """Point map of a functional map that also compares the vertices' landmark functions.
 
     For every target vertex, the source vertex nearest in
     :func:`~o3d_ofp.core.fmap.landmark_embedding`: the unit-area spectral embeddings of
     :func:`local_p2p_from_fmap` (``Φ̂ Ĉᵀ`` against ``Ψ̂``) followed by the landmark functions
     of ``anchors`` (distances and biharmonic coordinates), as every anchored ZoomOut step
-    compares them. Anchors without functions (a point cloud) give the spectral point map.
+    compares them. No anchors, or anchors without functions (a point cloud), give the
+    spectral point map (:func:`~o3d_ofp.p2p_from_fmap`, or :func:`local_p2p_from_fmap`).
 
     Parameters
     ----------
@@ -335,8 +337,8 @@ def anchored_p2p_from_fmap(
         Functional map, in this package's convention.
     eig_1, eig_2 : EigenBasis
         Source and target eigenbases.
-    anchors : Anchors
-        :func:`o3d_ofp.core.fmap.landmark_anchors` of the two shapes.
+    anchors : Anchors or None
+        :func:`o3d_ofp.core.fmap.landmark_anchors` of the two shapes (None: no landmarks).
     local : bool, default False
         Search by :func:`local_p2p_from_fmap`'s cell-pruned exact search instead of a scan
         (the same answer; faster on large pairs).
@@ -349,19 +351,18 @@ def anchored_p2p_from_fmap(
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
     C = fmap_between(fmap_12, eig_1, eig_2)
-    for functions, eig, name in ((anchors.distances_1, eig_1, "source"),
-                                 (anchors.distances_2, eig_2, "target")):  # fmt: skip
+    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
+    for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
         if functions is not None and functions.shape[0] != eig.n_vertices:
             raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
                              f"not {eig.n_vertices})")  # fmt: skip
-    if anchors.distances_1 is None or anchors.distances_2 is None:
+    if d1 is None or d2 is None:
         return local_p2p_from_fmap(C, eig_1, eig_2) if local else p2p_from_fmap(C, eig_1, eig_2)
     rows, cols = C.shape
     a1, a2 = eig_1.area, eig_2.area
     # Unit-area embeddings, as local_p2p_from_fmap's: Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ and Ψ̂ = Ψ √A2.
-    phi = landmark_embedding(eig_1.evecs[:, :cols] @ C.T * (a1 / math.sqrt(a2)),
-                             anchors.distances_1)  # fmt: skip
-    psi = landmark_embedding(eig_2.evecs[:, :rows] * math.sqrt(a2), anchors.distances_2)
+    phi = landmark_embedding(eig_1.evecs[:, :cols] @ C.T * (a1 / math.sqrt(a2)), d1)
+    psi = landmark_embedding(eig_2.evecs[:, :rows] * math.sqrt(a2), d2)
     if not local:
         return nearest_neighbors(phi, psi)
     count = _cell_count(None, eig_1.n_vertices)
