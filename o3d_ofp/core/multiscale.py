@@ -14,6 +14,10 @@ eigenfunctions, exact local search) and projected on small full-resolution bases
 :func:`extend_fmap`. :func:`coarse_mesh` gives the coarse versions that
 :mod:`o3d_ofp.workflows.dense` matches (a point-cloud subsample, :func:`coarse_eigenbasis`,
 measured on FAUST x4: error 0.21 instead of 0.03).
+
+The final point map of a match is read here too, by the same searches:
+:func:`anchored_p2p_from_fmap` (the spectral embedding with the landmark functions) and
+:func:`dirichlet_p2p` (one smoothing step of that map).
 """
 
 from __future__ import annotations
@@ -25,12 +29,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 from scipy.spatial import cKDTree
 
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
 from .correspondence import fmap_between, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
-from .fmap import Anchors, farthest_points, grid_samples, landmark_embedding
+from .fmap import Anchors, farthest_points, grid_samples, landmark_embedding, unit_area
 from .geometry import closest_on_triangles, edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
@@ -39,6 +44,7 @@ __all__ = [
     "cell_restriction",
     "coarse_eigenbasis",
     "coarse_mesh",
+    "dirichlet_p2p",
     "extend_fmap",
     "extend_p2p",
     "local_p2p_from_fmap",
@@ -351,11 +357,7 @@ def anchored_p2p_from_fmap(
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
     C = fmap_between(fmap_12, eig_1, eig_2)
-    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
-    for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
-        if functions is not None and functions.shape[0] != eig.n_vertices:
-            raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
-                             f"not {eig.n_vertices})")  # fmt: skip
+    d1, d2 = _anchor_functions(anchors, eig_1, eig_2)
     if d1 is None or d2 is None:
         return local_p2p_from_fmap(C, eig_1, eig_2) if local else p2p_from_fmap(C, eig_1, eig_2)
     rows, cols = C.shape
@@ -363,6 +365,106 @@ def anchored_p2p_from_fmap(
     # Unit-area embeddings, as local_p2p_from_fmap's: Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ and Ψ̂ = Ψ √A2.
     phi = landmark_embedding(eig_1.evecs[:, :cols] @ C.T * (a1 / math.sqrt(a2)), d1)
     psi = landmark_embedding(eig_2.evecs[:, :rows] * math.sqrt(a2), d2)
+    if not local:
+        return nearest_neighbors(phi, psi)
+    count = _cell_count(None, eig_1.n_vertices)
+    return _local_search(phi, np.eye(phi.shape[1]), psi, 1.0, eig_1.vertices, eig_2.vertices,
+                         count, 0)  # fmt: skip
+
+
+def _anchor_functions(
+    anchors: Anchors | None, eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Return the anchors' landmark functions on both shapes (None, None without anchors)."""
+    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
+    for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
+        if functions is not None and functions.shape[0] != eig.n_vertices:
+            raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
+                             f"not {eig.n_vertices})")  # fmt: skip
+    return d1, d2
+
+
+#: Heat time (on the unit-area target) of :func:`dirichlet_p2p`'s smoothing of the positions a
+#: point map sends the target's vertices to: a diffusion length of about
+#: sqrt(DIRICHLET_TIME) = 0.03 sqrt(area), a few edges of a 5k-vertex body.
+DIRICHLET_TIME = 1e-3
+#: Weight of those positions in :func:`dirichlet_p2p`'s embedding: their squared distances
+#: count ``DIRICHLET_WEIGHT · k`` times (``k`` the map's size: a unit-area spectral row's
+#: squared norm grows as ``k``). Measured as a scratch step after ``ofp.match``'s final point
+#: map (``scripts/eval_nonisometric.py``-style, 300 points, mean geodesic error x100), with
+#: weights 0.3, 3, 30, 100, 300, 1000 (time 1e-3): gorilla -> human with 6 landmarks 6.36,
+#: 6.20, 5.90, 5.84, 5.83, 5.89 against 6.15 without the step; at weight 100 times 1e-4 and
+#: 3e-3 gave 5.98 and 6.20. The step repeated 3 and 6 times: 5.85 and 5.99 (TOSCA animals
+#: without landmarks 2.71 and 2.85 against 2.70 once).
+DIRICHLET_WEIGHT = 100.0
+
+
+def dirichlet_p2p(
+    p2p_21: Any, eig_1: EigenBasis, eig_2: EigenBasis, anchors: Anchors | None, *, k: int,
+    local: bool = False,
+) -> np.ndarray:  # fmt: skip
+    """One smoothing step of a point map: its images made smooth on the target, then snapped.
+
+    After Magnet, Ren, Sorkine-Hornung and Ovsjanikov, "Smooth non-rigid shape matching via
+    effective Dirichlet energy optimization" (3DV 2022): a spectral point map is noisy where
+    the shapes are not isometric (the images of neighbouring target vertices scatter), and a
+    map whose images vary smoothly over the target is closer to the truth. On the unit-area
+    shapes:
+
+    1. ``C`` = the map's own functional map on ``k`` eigenfunctions
+       (:func:`~o3d_ofp.core.correspondence.fmap_from_p2p`: ZoomOut's step at that size);
+    2. ``Y`` = the source positions ``V̂₁[p2p_21]``, smoothed on the target by one implicit
+       heat step ``(M₂ + t K₂) Y' = M₂ Y`` (``t`` = :data:`DIRICHLET_TIME`);
+    3. every target vertex goes to the source vertex nearest in ``[Φ̂ Ĉᵀ, landmark
+       functions, a V̂₁]`` against ``[Ψ̂, landmark functions, a Y']``, with
+       ``a² = DIRICHLET_WEIGHT · k``: the smoothed position decides, the spectral embedding
+       and the landmark functions (:func:`~o3d_ofp.core.fmap.landmark_embedding`) tell apart
+       the source vertices near it (two limbs that touch).
+
+    Parameters
+    ----------
+    p2p_21 : (n2,) array_like of int
+        The point map: source vertex of every target vertex.
+    eig_1, eig_2 : EigenBasis
+        Source and target eigenbases of triangle meshes, in any units, with at least ``k``
+        non-constant eigenfunctions.
+    anchors : Anchors or None
+        :func:`o3d_ofp.core.fmap.landmark_anchors` of the two shapes (None: no landmarks).
+    k : int
+        Size of the map's functional map.
+    local : bool, default False
+        Search by :func:`local_p2p_from_fmap`'s cell-pruned exact search instead of a scan.
+
+    Returns
+    -------
+    (n2,) ndarray of int64
+
+    Raises
+    ------
+    ValueError
+        If either basis is a point cloud's (not measured there), ``k`` is out of range or the
+        map does not fit the shapes.
+    """
+    eig_1 = check_eigenbasis(eig_1, "eig_1")
+    eig_2 = check_eigenbasis(eig_2, "eig_2")
+    if eig_1.faces is None or eig_2.faces is None:
+        raise ValueError("dirichlet_p2p needs two meshes (a point cloud's basis was given)")
+    k = check_int(k, name="k", minimum=1, maximum=min(eig_1.k, eig_2.k))
+    p2p = np.asarray(p2p_21, dtype=np.int64)
+    if p2p.shape != (eig_2.n_vertices,) or p2p.min() < 0 or p2p.max() >= eig_1.n_vertices:
+        raise ValueError(f"p2p_21: one source vertex in [0, {eig_1.n_vertices}) per target "
+                         f"vertex ({eig_2.n_vertices}) is needed")  # fmt: skip
+    u1, u2 = unit_area(eig_1), unit_area(eig_2)
+    C = fmap_from_p2p(p2p, u1, u2, k1=k, k2=k)
+    mass = u2.mass
+    out = mass <= 0  # vertices left out of the surface: a unit diagonal keeps the system regular
+    heat = sp.diags(np.where(out, 1.0, mass)) + DIRICHLET_TIME * u2.stiffness
+    lu = sla.splu(heat.tocsc())
+    smooth = lu.solve(mass[:, None] * u1.vertices[p2p])
+    a = math.sqrt(DIRICHLET_WEIGHT * k)
+    d1, d2 = _anchor_functions(anchors, eig_1, eig_2)
+    phi = np.hstack([landmark_embedding(u1.evecs[:, : k + 1] @ C.T, d1), a * u1.vertices])
+    psi = np.hstack([landmark_embedding(u2.evecs[:, : k + 1], d2), a * smooth])
     if not local:
         return nearest_neighbors(phi, psi)
     count = _cell_count(None, eig_1.n_vertices)
