@@ -45,9 +45,12 @@ def test_dirichlet_step_pulls_a_scattered_map_back_to_the_truth(bent):
     assert after < 0.35 * before, (before, after)
 
 
-def test_dirichlet_step_is_the_nearest_neighbour_of_its_embedding(bent):
+@pytest.mark.parametrize("target_kind", ["mesh", "cloud"])
+def test_dirichlet_step_is_the_nearest_neighbour_of_its_embedding(bent, target_kind):
     """The scan and the cell-pruned search against a dense solve and a brute-force search."""
-    source, _, F, e1, e2 = bent
+    source, target, F, e1, e2 = bent
+    if target_kind == "cloud":  # its smoothing uses the cloud's own Laplacian
+        e2 = ofp.eigenbasis(target, None, k=30)
     p2p = _scattered(source, F, 3, seed=1)
     landmarks = np.repeat(farthest_points(source, 6)[:, None], 2, axis=1)
     for anchors in (None, landmark_anchors(e1, e2, landmarks)):
@@ -71,15 +74,17 @@ def test_dirichlet_step_is_the_nearest_neighbour_of_its_embedding(bent):
     plain = dirichlet_p2p(p2p, e1, e2, None, k=20)
     assert (plain != p2p).mean() > 0.5
     scaled_1 = ofp.eigenbasis(source * 0.01, F, k=30)
-    scaled_2 = ofp.eigenbasis(e2.vertices * 30.0 + 5.0, F, k=30)
-    np.testing.assert_array_equal(dirichlet_p2p(p2p, scaled_1, scaled_2, None, k=20), plain)
+    scaled_2 = ofp.eigenbasis(e2.vertices * 30.0 + 5.0, e2.faces, k=30)
+    other_units = dirichlet_p2p(p2p, scaled_1, scaled_2, None, k=20)
+    # The ellipsoid's mirror-image vertices tie, and round-off in other units can pick the
+    # other one: measured 0 of 2562 vertices on the mesh, 7 on the cloud (its Laplacian is
+    # rebuilt from the scaled points). A step that depended on the units would move most.
+    assert (other_units == plain).mean() > 0.99
 
 
 def test_dirichlet_step_refuses_what_it_cannot_use(bent):
-    source, target, _, e1, e2 = bent
+    source, _, _, e1, e2 = bent
     p2p = np.arange(len(source))
-    with pytest.raises(ValueError, match="needs two meshes"):
-        dirichlet_p2p(p2p, e1, ofp.eigenbasis(target, None, k=10), None, k=5)
     with pytest.raises(ValueError, match="k"):
         dirichlet_p2p(p2p, e1, e2, None, k=31)
     with pytest.raises(ValueError, match=r"p2p_21: one source vertex in \[0, 2562\)"):

@@ -426,8 +426,8 @@ def dirichlet_p2p(
     p2p_21 : (n2,) array_like of int
         The point map: source vertex of every target vertex.
     eig_1, eig_2 : EigenBasis
-        Source and target eigenbases of triangle meshes, in any units, with at least ``k``
-        non-constant eigenfunctions.
+        Source and target eigenbases (meshes or point clouds: a cloud's smoothing uses its own
+        Laplacian), in any units, with at least ``k`` non-constant eigenfunctions.
     anchors : Anchors or None
         :func:`o3d_ofp.core.fmap.landmark_anchors` of the two shapes (None: no landmarks).
     k : int
@@ -442,13 +442,11 @@ def dirichlet_p2p(
     Raises
     ------
     ValueError
-        If either basis is a point cloud's (not measured there), ``k`` is out of range or the
-        map does not fit the shapes.
+        If ``k`` is out of range, the map does not fit the shapes or the anchors were made for
+        other shapes.
     """
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
-    if eig_1.faces is None or eig_2.faces is None:
-        raise ValueError("dirichlet_p2p needs two meshes (a point cloud's basis was given)")
     k = check_int(k, name="k", minimum=1, maximum=min(eig_1.k, eig_2.k))
     p2p = np.asarray(p2p_21, dtype=np.int64)
     if p2p.shape != (eig_2.n_vertices,) or p2p.min() < 0 or p2p.max() >= eig_1.n_vertices:
