@@ -391,11 +391,11 @@ DIRICHLET_TIME = 1e-3
 #: Weight of those positions in :func:`dirichlet_p2p`'s embedding: their squared distances
 #: count ``DIRICHLET_WEIGHT · k`` times (``k`` the map's size: a unit-area spectral row's
 #: squared norm grows as ``k``). Measured as a scratch step after ``ofp.match``'s final point
-#: map (``scripts/eval_nonisometric.py``-style, 300 points, mean geodesic error x100), with
-#: weights 0.3, 3, 30, 100, 300, 1000 (time 1e-3): gorilla -> human with 6 landmarks 6.36,
-#: 6.20, 5.90, 5.84, 5.83, 5.89 against 6.15 without the step; at weight 100 times 1e-4 and
-#: 3e-3 gave 5.98 and 6.20. The step repeated 3 and 6 times: 5.85 and 5.99 (TOSCA animals
-#: without landmarks 2.71 and 2.85 against 2.70 once).
+#: map (``scripts/eval_nonisometric.py``-style, 300 points, mean geodesic error x100;
+#: gorilla -> human with 6 landmarks, 6.15 without the step): once, as here, 5.85 (TOSCA
+#: animals without landmarks 2.71 against 3.05); repeated 3 times 5.84 (2.70), 6 times 5.99
+#: (2.85). Three steps with weights 0.3, 3, 30, 100, 300, 1000 (time 1e-3): 6.36, 6.20, 5.90,
+#: 5.84, 5.83, 5.89; at weight 100 times 1e-4 and 3e-3: 5.98 and 6.20.
 DIRICHLET_WEIGHT = 100.0
 
 
