@@ -365,6 +365,13 @@ def anchored_p2p_from_fmap(
     # Unit-area embeddings, as local_p2p_from_fmap's: Φ̂ Ĉᵀ = Φ (A1/√A2) Cᵀ and Ψ̂ = Ψ √A2.
     phi = landmark_embedding(eig_1.evecs[:, :cols] @ C.T * (a1 / math.sqrt(a2)), d1)
     psi = landmark_embedding(eig_2.evecs[:, :rows] * math.sqrt(a2), d2)
+    return _nearest_rows(phi, psi, eig_1, eig_2, local=local)
+
+
+def _nearest_rows(
+    phi: np.ndarray, psi: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, local: bool
+) -> np.ndarray:
+    """Nearest row of ``phi`` (source) for every row of ``psi`` (target): scan or local search."""
     if not local:
         return nearest_neighbors(phi, psi)
     count = _cell_count(None, eig_1.n_vertices)
@@ -463,11 +470,7 @@ def dirichlet_p2p(
     d1, d2 = _anchor_functions(anchors, eig_1, eig_2)
     phi = np.hstack([landmark_embedding(u1.evecs[:, : k + 1] @ C.T, d1), a * u1.vertices])
     psi = np.hstack([landmark_embedding(u2.evecs[:, : k + 1], d2), a * smooth])
-    if not local:
-        return nearest_neighbors(phi, psi)
-    count = _cell_count(None, eig_1.n_vertices)
-    return _local_search(phi, np.eye(phi.shape[1]), psi, 1.0, eig_1.vertices, eig_2.vertices,
-                         count, 0)  # fmt: skip
+    return _nearest_rows(phi, psi, eig_1, eig_2, local=local)
 
 
 @one_blas_thread
