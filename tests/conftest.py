@@ -33,6 +33,25 @@ def load_shared_mesh(relative: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.fixture(scope="session")
+def stretched():
+    """Make an ellipsoid and a copy stretched along x and bent (truth: the identity).
+
+    Returns the source and target vertices, the shared faces, 6 farthest-point landmark pairs
+    (each vertex with itself) and the two eigenbases of 30 functions.
+    """
+    from o3d_ofp.core.fmap import farthest_points
+
+    V, F = icosphere(4)
+    source = V * np.array([1.0, 0.7, 0.5])
+    target = source.copy()
+    target[:, 0] *= 1.4
+    target[:, 1] += 0.3 * target[:, 0] ** 2
+    landmarks = np.repeat(farthest_points(source, 6)[:, None], 2, axis=1)
+    e1, e2 = ofp.eigenbasis(source, F, k=30), ofp.eigenbasis(target, F, k=30)
+    return source, target, F, landmarks, e1, e2
+
+
+@pytest.fixture(scope="session")
 def sphere_mesh():
     return icosphere(5)  # 10242 vertices
 

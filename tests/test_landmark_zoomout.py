@@ -12,19 +12,6 @@ from o3d_ofp.core.shapes import icosphere
 from .test_estimated_maps import _p2p_error as _error  # same triangulation: truth i -> i
 
 
-@pytest.fixture(scope="module")
-def stretched():
-    """Make an ellipsoid and a copy stretched along x and bent (truth: the identity)."""
-    V, F = icosphere(4)
-    source = V * np.array([1.0, 0.7, 0.5])
-    target = source.copy()
-    target[:, 0] *= 1.4
-    target[:, 1] += 0.3 * target[:, 0] ** 2
-    landmarks = np.repeat(farthest_points(source, 6)[:, None], 2, axis=1)
-    e1, e2 = ofp.eigenbasis(source, F, k=30), ofp.eigenbasis(target, F, k=30)
-    return source, target, F, landmarks, e1, e2
-
-
 def test_farthest_points_on_a_symmetric_shape_ends(stretched):
     # The grid pool of an ellipsoid keeps more cells than asked for (210 for 192): sampling
     # the pool again recursed until Python's limit.
