@@ -24,7 +24,10 @@ a source to a target through a map and re-applied in the target's local frames:
   heat-kernel neighbourhood): the normal goes to the normal and the tangent plane to the tangent
   plane, so the detail keeps its orientation relative to the surface whatever the two poses.
   A detail vector with frame coordinates ``c`` (normal height and two tangent offsets) at the
-  source becomes ``R_i (E₁ c) = E₂ c`` at the target. The fitted rotation (on neighbourhoods
+  source becomes ``R_i (E₁ c) = E₂ c`` at the target. Between meshes, where the fitted
+  rotation turns the normals over, the two surfaces' normals take part in the fit
+  (``NORMAL_WEIGHT``): a neighbourhood along a thinned limb leaves the turn about its axis
+  undetermined. The fitted rotation (on neighbourhoods
   of ``ROTATION_TIME``) needs no normals (point clouds work) and never degenerates where
   a low-pass collapses a limb into a ribbon (frames from the low-pass surface's own normals
   were 43° off on FAUST and made every result worse than doing nothing).
@@ -77,7 +80,7 @@ from ..core._threads import blas_threads
 from ..core._warnings import warn
 from ..core.correspondence import check_p2p, nearest_neighbors
 from ..core.filtering import spread_scale
-from ..core.geometry import face_areas_normals, vertex_normals
+from ..core.geometry import face_areas_normals, outward_sign, vertex_normals
 from ..core.spectrum import EigenBasis, check_eigenbasis
 from ..core.wording import OptionError, Said
 from .maps import Correspondence, check_correspondence
@@ -92,6 +95,7 @@ __all__ = [
     "GATE_TIME",
     "LACKING",
     "LADDER",
+    "NORMAL_WEIGHT",
     "NOTHING_ADDED",
     "PART_COVERAGE",
     "ROTATION_TIME",
@@ -149,6 +153,19 @@ ROTATION_TIME = 8e-4
 #: times its blur ``1/λ_30`` is about ``1/λ_10`` (Weyl's law), the neighbourhood measured
 #: right for it (10 and 20 gave the same results, 3 blurred neighbouring parts).
 ROTATION_WIDER = 3.0
+#: Where the rotation fitted to a neighbourhood's positions turns the source's normals over
+#: (their heat-weighted mean cosine with the target's is negative after it), the normals take
+#: part in the fit: the cross-covariance gains this times ``sqrt(var_s var_t)`` (the
+#: positions' spreads) times the heat-weighted mean of ``n_s n_tᵀ``, as if each point came
+#: with two more one spread away along its normal. Positions leave the rotation undetermined
+#: on a limb the low-pass thinned (spreads 1 : 0.06 : 0.01: any turn about its axis fits).
+#: Measured (``scripts/eval_detail.py``, true maps): on TOSCA centaur2 → 4 faired at 5e-4 of
+#: its area, 151 vertices of a leg got their detail inside out (normal angle 1.00x doing
+#: nothing; 0.83x with this). Steering every rotation by the normals gained 0.01-0.05 more on
+#: the fairings but moved a band-30 transfer onto a smoothed part away from the truth (the
+#: normals of a 30-eigenfunction low-pass are off where it makes limbs ribbons), at weights
+#: 0.1-1 alike.
+NORMAL_WEIGHT = 1.0
 #: Where the target matches the source's calibrated low-pass better than the source itself,
 #: it lacks the detail between them: all of it once its misfit to the source is this much
 #: reduced (share of ``1 − fit``, both averaged over neighbourhoods of :data:`GATE_TIME`),
@@ -254,8 +271,16 @@ def _heat_operator(eig: EigenBasis, time: float) -> Any:
     return apply
 
 
-def _procrustes(heat: Any, source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted Procrustes of every neighbourhood (``heat``'s rows): rotations and fits."""
+def _procrustes(
+    heat: Any, source: np.ndarray, target: np.ndarray,
+    normals: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Weighted Procrustes of every neighbourhood (``heat``'s rows): rotations and fits.
+
+    With ``normals`` (the source's and the target's unit normals at the same vertices), where
+    the rotation turns the normals over, the cross-covariance also takes the normals' (see
+    ``NORMAL_WEIGHT``); the fit is that of the positions alone.
+    """
     n = source.shape[0]
     # Centre and normalize both embeddings first: the covariances then have entries of order
     # 1 whatever the units (neither the rotation nor the fit depends on them).
@@ -271,28 +296,46 @@ def _procrustes(heat: Any, source: np.ndarray, target: np.ndarray) -> tuple[np.n
     cov = moments[:, 6:15].reshape(n, 3, 3) - mean_p[:, :, None] * mean_q[:, None, :]
     var_p = moments[:, 15] - (mean_p**2).sum(1)
     var_q = moments[:, 16] - (mean_q**2).sum(1)
-    U, sigma, Vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    d[d == 0] = 1.0
-    U[:, :, 2] *= d[:, None]
-    # cov = U S Vᵀ: the rotation taking s to t is V Uᵀ (with the reflection removed).
-    rotations = np.einsum("nji,nkj->nik", Vt, U)
-    agree = sigma[:, 0] + sigma[:, 1] + d * sigma[:, 2]
     spread = np.sqrt(np.clip(var_p, 0.0, None) * np.clip(var_q, 0.0, None))
+    rotations = _polar(cov)
+    if normals is not None:
+        n_p, n_q = normals
+        along = heat((n_p[:, :, None] * n_q[:, None, :]).reshape(n, 9)).reshape(n, 3, 3)
+        # where the positions' rotation turns the normals over (their mean cosine after it
+        # is negative), the normals take part in the fit
+        over = np.einsum("nij,nji->n", rotations, along) < 0.0
+        if np.any(over):
+            steer = cov[over] + NORMAL_WEIGHT * spread[over, None, None] * along[over]
+            rotations[over] = _polar(steer)
+    agree = np.einsum("nij,nji->n", rotations, cov)  # tr(R C)
     fit = np.divide(agree, spread, out=np.zeros(n), where=spread > 0)
     return rotations, np.clip(fit, -1.0, 1.0)
 
 
+def _polar(cov: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations ``R`` maximizing ``tr(R C)`` for each cross-covariance ``C``."""
+    U, _, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+    d[d == 0] = 1.0
+    U[:, :, 2] *= d[:, None]
+    # C = U S Vᵀ: the rotation taking s to t is V Uᵀ (with the reflection removed).
+    return np.einsum("nji,nkj->nik", Vt, U)
+
+
 @moved_keywords(rotation_k="rotation_time= (a heat time, as a fraction of the area)")
 def local_rotations(
-    eig: EigenBasis, source: Any, target: Any, *, rotation_time: float = ROTATION_TIME
-) -> tuple[np.ndarray, np.ndarray]:
+    eig: EigenBasis, source: Any, target: Any, *, rotation_time: float = ROTATION_TIME,
+    normals: tuple[Any, Any] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Rotation at every vertex that best turns a neighbourhood of ``source`` into ``target``.
 
     ``R_i = argmin_R Σ_j K_ij ‖R (s_j − s̄_i) − (t_j − t̄_i)‖²`` over rotations, ``K`` the
     implicit heat kernel of ``eig`` at time ``rotation_time · area`` and ``s̄_i``, ``t̄_i`` the
     ``K``-weighted means: the polar factor (with determinant +1) of the weighted
-    cross-covariance ``C_i``.
+    cross-covariance ``C_i``. With ``normals``, where that rotation turns the source's normals
+    over, the normals take part in the fit (:data:`NORMAL_WEIGHT`): a neighbourhood stretched
+    along a thin limb fits any turn about the limb's axis, and on a smoothed leg one turned
+    the detail inside out.
 
     Parameters
     ----------
@@ -304,6 +347,9 @@ def local_rotations(
         through a map, and the target's).
     rotation_time : float, default 8e-4
         Heat time of the neighbourhoods, as a fraction of the shape's area, in (0, 1].
+    normals : ((n, 3) array_like, (n, 3) array_like), optional
+        Unit normals of ``source`` and of ``target`` at the same vertices, oriented alike
+        (both outward).
 
     Returns
     -------
@@ -321,7 +367,13 @@ def local_rotations(
     for name, arr in (("source", P), ("target", Q)):
         if arr.shape != (n, 3):
             raise ValueError(f"{name} must have shape ({n}, 3); got {arr.shape}")
-    return _procrustes(_heat_operator(eig, rotation_time * eig.area), P, Q)
+    if normals is not None:
+        normals = tuple(np.asarray(a, dtype=np.float64) for a in normals)
+        if len(normals) != 2 or any(a.shape != (n, 3) for a in normals):
+            raise ValueError(f"normals must be two arrays of shape ({n}, 3)")
+        if not all(np.all(np.isfinite(a)) for a in normals):
+            raise ValueError("normals must be finite")
+    return _procrustes(_heat_operator(eig, rotation_time * eig.area), P, Q, normals)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -496,7 +548,10 @@ def _normals(eig: EigenBasis, surface: np.ndarray, given: Any, name: str) -> np.
             raise ValueError(f"{name} must be finite with shape ({eig.n_vertices}, 3)")
         norm = np.linalg.norm(arr, axis=1, keepdims=True)
         return np.divide(arr, norm, out=np.zeros_like(arr), where=norm > 0)
-    return None if eig.faces is None else vertex_normals(surface, eig.faces)
+    if eig.faces is None:
+        return None
+    # outward (the two meshes may be wound in opposite senses)
+    return vertex_normals(surface, eig.faces) * outward_sign(surface, eig.faces)
 
 
 #: A map whose image covers less than this fraction of the source's area (the vertices within
@@ -664,10 +719,11 @@ def transfer_detail_frames(
         Fits (see :func:`local_rotations`) between which the trust in the map goes from none
         to full, ``0 <= lo < hi <= 1``; ``None`` trusts the map everywhere.
     normals_1, normals_2 : (n, 3) array_like, optional
-        Normals for the mean detail height used where the map is not trusted (default: vertex
-        normals of the source's low-pass shape and of the surface the detail is added to).
-        Needed for point clouds; without them a cloud gets nothing where the map is not
-        trusted.
+        Normals of the source's low-pass shape and of the surface the detail is added to
+        (default: their outward vertex normals). Between two meshes they keep the local
+        rotations from turning the detail over (:data:`NORMAL_WEIGHT`); they carry the mean
+        detail height used where the map is not trusted. Needed for point clouds; without
+        them a cloud gets nothing where the map is not trusted.
 
     Returns
     -------
@@ -722,13 +778,17 @@ def transfer_detail_frames(
         both = transfer_function(np.hstack([low_1, detail_1]), eig_1, eig_2,
                                  correspondence=correspondence, options=ours)  # fmt: skip
         low_at_2, detail_at_2 = both[:, :3], both[:, 3:]
-    R, fit = local_rotations(eig_2, low_at_2, base, rotation_time=rotation_time)
+    n1 = _normals(eig_1, low_1, normals_1, "normals_1")
+    n2 = _normals(eig_2, base, normals_2, "normals_2")
+    # Meshes' normals steer the rotations; a cloud's fitted normals do not (their signs are
+    # wrong at 4-8 % of the points, see core.geometry.point_normals: turned rotations there)
+    meshes = eig_1.faces is not None and eig_2.faces is not None
+    steer = (n1[p2p], n2) if meshes and n1 is not None and n2 is not None else None
+    R, fit = local_rotations(eig_2, low_at_2, base, rotation_time=rotation_time, normals=steer)
     moved = np.einsum("nij,nj->ni", R, detail_at_2)
     if fit_range is not None:
         w = np.clip((fit - lo) / (hi - lo), 0.0, 1.0)
         moved *= w[:, None]
-        n1 = _normals(eig_1, low_1, normals_1, "normals_1")
-        n2 = _normals(eig_2, base, normals_2, "normals_2")
         if n1 is not None and n2 is not None:
             mean_height = float(eig_1.mass @ np.einsum("ij,ij->i", detail_1, n1)) / eig_1.area
             moved += ((1.0 - w) * mean_height)[:, None] * n2
