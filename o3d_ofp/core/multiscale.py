@@ -829,6 +829,7 @@ def extend_p2p(
     neighbours: int = 4,
     n_samples: int | None = None,
     adjoint: bool = False,
+    images: Any = None,
 ) -> np.ndarray:
     """Point map between two full-resolution shapes from a map between coarse versions.
 
@@ -864,6 +865,15 @@ def extend_p2p(
         Source cells of the search (see :func:`local_p2p_from_fmap`).
     adjoint : bool, default False
         Compare ``Ψ C`` with ``Φ`` instead of ``Ψ`` with ``Φ Cᵀ`` (above).
+    images : (n2, 3) array_like of float, optional
+        Where on the source each full target vertex should go, in the source's coordinates:
+        the coarse point map's images interpolated along the target
+        (``o3d_ofp.workflows.dense.CoarseShape.prolongation``). They join the embedding as
+        in :func:`dirichlet_p2p` (unit-area positions weighted by ``a² = DIRICHLET_WEIGHT ·
+        k``): the images decide between the full source vertices of a coarse cell, which the
+        interpolated eigenfunctions barely tell apart, and the point map follows the coarse
+        point map (its landmarks and Dirichlet step) rather than its functional map alone.
+        Not with ``adjoint``.
 
     Returns
     -------
@@ -889,8 +899,22 @@ def extend_p2p(
         # The source embedding Φ Ĉᵀ is interpolated directly (rows × d instead of cols columns).
         coarse_phi, coarse_psi = coarse_1.evecs[:, :cols] @ Ct, coarse_2.evecs[:, :rows]
         dims, root2 = rows, math.sqrt(a2)
+    if images is not None:
+        if adjoint:
+            raise ValueError("images: not with adjoint=True (a partial fit's read-off)")
+        images = as_vertices(images, name="images")
+        if images.shape[0] != V2.shape[0]:
+            raise ValueError(f"images: one position per target vertex ({V2.shape[0]}) is "
+                             f"needed; got {images.shape[0]}")  # fmt: skip
     phi = np.asarray(_interpolation(coarse_1.vertices, V1, neighbours) @ coarse_phi)
     psi = np.asarray(_interpolation(coarse_2.vertices, V2, neighbours) @ coarse_psi)
+    if images is not None:
+        # unit-area positions (the embeddings are unit-area rows: Ψ √A2 against Φ Ĉᵀ);
+        # psi is multiplied by root2 in the search
+        a = math.sqrt(DIRICHLET_WEIGHT * (dims - 1)) / math.sqrt(a1)
+        phi = np.hstack([phi, a * V1])
+        psi = np.hstack([psi, (a / root2) * images])
+        dims += 3
     t_interp = time.perf_counter() - t0
     out = _local_search(phi, np.eye(dims), psi, root2, V1, V2, count, 0)
     logger.debug("extend_p2p: interpolation %.2fs, total %.2fs", t_interp, time.perf_counter() - t0)

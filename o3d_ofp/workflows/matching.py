@@ -501,6 +501,14 @@ class FullMatch(Strategy):
     def extend(
         self, corr: Correspondence, coarse_1: Any, coarse_2: Any, V1: Any, V2: Any
     ) -> tuple[np.ndarray, Correspondence]:
-        """Extend a coarse map to every vertex: its functional map's point map."""
+        """Extend a coarse map to every vertex: its functional map's, steered by its point map.
+
+        The coarse point map's images, interpolated along the target, join the search
+        (``extend_p2p(images=...)``). Measured (``scripts/bench_match.py``, FAUST 093 → 087
+        subdivided, map error / sqrt(area)): 110k vertices 0.0155 → 0.0142, 440k 0.0214 →
+        0.0197 (the coarse map itself 0.0184 and 0.0244 at its vertices).
+        """
         assert corr.fmap_12 is not None
-        return extend_p2p(corr.fmap_12, coarse_1.eig, coarse_2.eig, V1, V2), corr
+        images = coarse_2.prolongation(V2) @ coarse_1.vertices[np.asarray(corr.p2p_21)]
+        p2p = extend_p2p(corr.fmap_12, coarse_1.eig, coarse_2.eig, V1, V2, images=images)
+        return p2p, corr
