@@ -290,7 +290,7 @@ def test_images_steer_the_extension_within_a_coarse_cell(blob_mesh, blob_pair, c
     shape's units), the extension follows them, whatever either shape's units.
     """
     V, _ = blob_mesh
-    e1, e2, _ = blob_pair
+    _, e2, _ = blob_pair
     V2 = e2.vertices
     b1, _, b2, _, truth = coarse_blob
     C = fmap_from_p2p(truth, b1, b2)
