@@ -10,10 +10,10 @@ full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertic
    ZoomOut to 100, quality report) runs between the coarse meshes;
 3. the coarse map is carried to every full-resolution vertex by
    ``o3d_ofp.core.multiscale.extend_p2p``: the coarse eigenfunctions are interpolated to
-   the full vertices, the coarse point map's images along the target's surface
-   (:meth:`CoarseShape.prolongation`), and each target vertex gets the exact nearest source
-   vertex in that embedding by the cell-pruned local search (no step is quadratic in the
-   vertex count); an
+   the full vertices (the first :data:`EXTENSION_K`), the coarse point map's images along
+   the target's surface (:meth:`CoarseShape.prolongation`), and each target vertex gets the
+   exact nearest source vertex in that embedding by the cell-pruned local search (no step
+   is quadratic in the vertex count); an
    estimate whose point map is not its functional map's alone passes its own ``extend``
    (the partial match: ``o3d_ofp.workflows.partial._extend_partial``).
 
@@ -40,7 +40,14 @@ from ..core.multiscale import cell_restriction, coarse_mesh, surface_prolongatio
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import Said
 
-__all__ = ["COARSE_VERTICES", "DENSE_VERTICES", "CoarseShape", "coarse_landmarks", "coarse_shape"]
+__all__ = [
+    "COARSE_VERTICES",
+    "DENSE_VERTICES",
+    "EXTENSION_K",
+    "CoarseShape",
+    "coarse_landmarks",
+    "coarse_shape",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +66,13 @@ DENSE_VERTICES = 50_000
 #: 0.033-0.036. (Those runs had the final ZoomOut one eigenfunction a step; with five a step,
 #: ``matching.ZOOMOUT_STEP``, 20000 gives 0.0155 at 110k and 0.0214 at 440k: bench_match.py.)
 COARSE_VERTICES = 20_000
+#: Non-constant eigenfunctions of the coarse map's functional map that its extension to every
+#: vertex compares, beside the coarse point map's images (which place each vertex; the
+#: eigenfunctions keep apart parts that touch, a low-frequency matter). Measured
+#: (``scripts/bench_match.py``, FAUST 093 -> 087 subdivided; map error / sqrt(area), the
+#: extension's seconds): all 99 0.0142 (2.5 s) at 110k and 0.0197 (13.0 s) at 440k; 30 0.0142
+#: (1.4 s) and 0.0195 (7.7 s); 10 0.0193 (5.3 s) at 440k.
+EXTENSION_K = 30
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
