@@ -10,7 +10,7 @@ full-resolution eigenpairs of each shape (20-25 s per shape; 80 s at 440k vertic
    ZoomOut to 100, quality report) runs between the coarse meshes;
 3. the coarse map is carried to every full-resolution vertex by
    ``o3d_ofp.core.multiscale.extend_p2p``: the coarse eigenfunctions are interpolated to
-   the full vertices (the first :data:`EXTENSION_K`), the coarse point map's images along
+   the full vertices (the first ``EXTENSION_K``), the coarse point map's images along
    the target's surface (:meth:`CoarseShape.prolongation`), and each target vertex gets the
    exact nearest source vertex in that embedding by the cell-pruned local search (no step
    is quadratic in the vertex count); an
