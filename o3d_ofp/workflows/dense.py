@@ -68,10 +68,11 @@ DENSE_VERTICES = 50_000
 COARSE_VERTICES = 20_000
 #: Non-constant eigenfunctions of the coarse map's functional map that its extension to every
 #: vertex compares, beside the coarse point map's images (which place each vertex; the
-#: eigenfunctions keep apart parts that touch, a low-frequency matter). Measured
-#: (``scripts/bench_match.py``, FAUST 093 -> 087 subdivided; map error / sqrt(area), the
-#: extension's seconds): all 99 0.0142 (2.5 s) at 110k and 0.0197 (13.0 s) at 440k; 30 0.0142
-#: (1.4 s) and 0.0195 (7.7 s); 10 0.0193 (5.3 s) at 440k.
+#: eigenfunctions keep apart parts that touch, a low-frequency matter). Measured in scratch
+#: runs of the dense path (FAUST 093 -> 087 subdivided, as ``scripts/bench_match.py`` makes it;
+#: map error / sqrt(area), the extension's seconds): all 99 0.0142 (2.5 s) at 110k and 0.0197
+#: (13.0 s) at 440k; 30 0.0142 (1.4 s) and 0.0195 (7.7 s); 10 0.0193 (5.3 s) at 440k.
+#: ``bench_match.py`` with 30: 0.0142 and 0.0195, 7.9 s and 20.2 s end to end.
 EXTENSION_K = 30
 
 
