@@ -34,7 +34,13 @@ from scipy.spatial import cKDTree
 
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
-from .correspondence import fmap_between, fmap_from_p2p, nearest_neighbors, p2p_from_fmap
+from .correspondence import (
+    check_p2p,
+    fmap_between,
+    fmap_from_p2p,
+    nearest_neighbors,
+    p2p_from_fmap,
+)
 from .fmap import Anchors, farthest_points, grid_samples, landmark_embedding, unit_area
 from .geometry import closest_on_triangles, edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
@@ -455,10 +461,7 @@ def dirichlet_p2p(
     eig_1 = check_eigenbasis(eig_1, "eig_1")
     eig_2 = check_eigenbasis(eig_2, "eig_2")
     k = check_int(k, name="k", minimum=1, maximum=min(eig_1.k, eig_2.k))
-    p2p = np.asarray(p2p_21, dtype=np.int64)
-    if p2p.shape != (eig_2.n_vertices,) or p2p.min() < 0 or p2p.max() >= eig_1.n_vertices:
-        raise ValueError(f"p2p_21: one source vertex in [0, {eig_1.n_vertices}) per target "
-                         f"vertex ({eig_2.n_vertices}) is needed")  # fmt: skip
+    p2p = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     u1, u2 = unit_area(eig_1), unit_area(eig_2)
     C = fmap_from_p2p(p2p, u1, u2, k1=k, k2=k)
     mass = u2.mass
