@@ -250,3 +250,40 @@ def test_landmarks_outside_the_shapes_are_refused_by_the_fits(stretched):
         ofp.estimate_fmap(e1, e2, k1=5, k2=5, landmarks=[[-1, 0]], refine=None)
     with pytest.raises(ValueError, match=r"landmarks: target vertices must be in \[0, "):
         ofp.estimate_fmap(e1, e2, k1=5, k2=5, landmarks=[[0, e2.n_vertices]], refine=None)
+
+
+def test_fits_take_the_landmark_functions_of_anchors(stretched):
+    """Anchors given to the fits are their landmark pairs with the functions computed once."""
+    _, _, _, landmarks, e1, e2 = stretched
+    u1, u2 = unit_area(e1), unit_area(e2)
+    anchors = landmark_anchors(u1, u2, landmarks)
+    kw = {"sizes": [8, 12], "w_dcomm": [0.1]}
+    given = fmap.estimate_fmaps(e1, e2, landmarks=landmarks, **kw)
+    reused = fmap.estimate_fmaps(e1, e2, landmarks=anchors, **kw)
+    for (_, _, C), (_, _, D) in zip(given, reused, strict=True):
+        # the same functions (computed on unit-area copies here, on the bases' own units by
+        # the fits: both are unit-free to round-off, see the anchors' scale test)
+        np.testing.assert_allclose(D, C, atol=1e-8)
+    # the functions are the anchors' own, not recomputed: other functions, other maps
+    other = fmap.Anchors(anchors.source, anchors.target, anchors.distances_1[::-1].copy(),
+                         anchors.distances_2)  # fmt: skip
+    changed = fmap.estimate_fmaps(e1, e2, landmarks=other, **kw)
+    assert np.abs(changed[1][2] - reused[1][2]).max() > 1e-3
+    with pytest.raises(ValueError, match="anchors made for another target"):
+        wrong = fmap.Anchors(anchors.source, anchors.target, anchors.distances_1,
+                             anchors.distances_2[:-1])  # fmt: skip
+        fmap.estimate_fmaps(e1, e2, landmarks=wrong, **kw)
+
+
+def test_a_match_with_landmarks_computes_their_functions_once(stretched, monkeypatch):
+    source, target, F, landmarks, _, _ = stretched
+    calls = []
+    computed = fmap._landmark_functions
+
+    def counted(eig, vertices):
+        calls.append(eig.n_vertices)
+        return computed(eig, vertices)
+
+    monkeypatch.setattr(fmap, "_landmark_functions", counted)
+    ofp.match((source, F), (target, F), landmarks=landmarks)
+    assert len(calls) == 2  # once a shape: the anchors' functions serve the fits and ZoomOut

@@ -109,23 +109,26 @@ def _projection(eig: EigenBasis, k: int) -> np.ndarray:
 
 def _descriptors(
     eig: EigenBasis, kind: str, n: int, landmarks: np.ndarray | None, k: int, geodesic: bool,
-    step: int,
+    step: int, functions: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Return the descriptors and the functions of the fits' operators, each of unit norm.
 
     The operators (commutativity, orientation) take every ``step``-th descriptor of the
     family; with landmarks between meshes (``geodesic``), each landmark's distance function
-    and biharmonic coordinate too (see :data:`LANDMARK_SCALES`); with a point cloud, every
-    ``step``-th column of the landmarks' kernel maps, continuing the same stride. A column
-    that is zero on a shape (a landmark's Gaussian on a piece the cleaning left out) stays
-    zero, so that both shapes keep the same columns.
+    and biharmonic coordinate too (see :data:`LANDMARK_SCALES`; ``functions``: those already
+    computed, an :class:`Anchors`' ``distances_1`` or ``distances_2``); with a point cloud,
+    every ``step``-th column of the landmarks' kernel maps, continuing the same stride. A
+    column that is zero on a shape (a landmark's Gaussian on a piece the cleaning left out)
+    stays zero, so that both shapes keep the same columns.
     """
     fn = wks if kind == "wks" else hks
     kw = {"n_energies": n, "k": k} if kind == "wks" else {"n_times": n, "k": k}
     family = fn(eig, **kw)
     parts, ops = [family], [family[:, ::step]]
     if landmarks is not None and geodesic:
-        d, w = _landmark_distances(eig, landmarks), landmark_coordinates(eig, landmarks)
+        if functions is None:
+            functions = _landmark_functions(eig, landmarks)
+        d, w = np.hsplit(functions, 2)
         parts += [*(np.exp(-((d / s) ** 2)) for s in LANDMARK_SCALES), d, w]
         ops += [d, w]
     elif landmarks is not None:
@@ -471,8 +474,10 @@ class _FitTerms:
         orient: bool,
     ) -> None:  # fmt: skip
         descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
-        lm1 = lm2 = None
-        if landmarks is not None:
+        lm1 = lm2 = f1 = f2 = None
+        if isinstance(landmarks, Anchors):  # the landmark functions, computed once
+            lm1, lm2, f1, f2 = _anchor_parts(landmarks, eig_1, eig_2)
+        elif landmarks is not None:
             lm1, lm2 = _landmark_vertices(landmarks, eig_1, eig_2)
         if descriptors not in ("wks", "hks"):
             raise ValueError(f"descriptors must be 'wks' or 'hks'; got {descriptors!r}")
@@ -486,17 +491,19 @@ class _FitTerms:
         # (LANDMARK_SCALES), as their kernel maps otherwise.
         geodesic = eig_1.faces is not None and eig_2.faces is not None
 
-        def terms(eig: EigenBasis, k: int, lm: np.ndarray | None) -> tuple[Any, ...]:
+        def terms(
+            eig: EigenBasis, k: int, lm: np.ndarray | None, functions: np.ndarray | None
+        ) -> tuple[Any, ...]:  # fmt: skip
             D, ops = _descriptors(
                 eig, descriptors, n_descriptors, lm, min(k_descriptors, eig.k), geodesic,
-                operator_step,
+                operator_step, functions,
             )  # fmt: skip
             return _shape_terms(eig, k, D, ops, dcomm, orient)
 
         # The two shapes' terms are independent: one thread each (their BLAS on one thread).
         with ThreadPoolExecutor(max_workers=2) as pool:
-            job = pool.submit(terms, eig_2, k2, lm2)
-            self.terms = (terms(eig_1, k1, lm1), job.result())
+            job = pool.submit(terms, eig_2, k2, lm2, f2)
+            self.terms = (terms(eig_1, k1, lm1, f1), job.result())
 
     def fit(
         self, k1: int, k2: int, *, weights: _Weights, solver: str = "direct",
@@ -570,12 +577,14 @@ def estimate_fmap(
     k_descriptors : int, default 100
         Eigenpairs the descriptors are computed from (fewer if a basis has fewer), so the
         result does not depend on how many eigenpairs the caller computed.
-    landmarks : (p, 2) array_like of int, optional
+    landmarks : (p, 2) array_like of int or Anchors, optional
         Known pairs (source vertex, target vertex), added to the descriptors: between meshes,
         each landmark's shortest-path distance (over sqrt(area)), Gaussians of it
         (``o3d_ofp.core.fmap.LANDMARK_SCALES``) and its biharmonic coordinate
         (``o3d_ofp.core.fmap.landmark_coordinates``); with a point cloud, each landmark's
-        wave (heat) kernel map.
+        wave (heat) kernel map. ``landmark_anchors`` of the two shapes (``Anchors``) give the
+        same pairs with those functions already computed (a match that also anchors its
+        ZoomOut with them computes them once).
     w_descr, w_lap, w_dcomm : float
         Weights of the descriptor, Laplacian and descriptor-commutativity terms. Everything is
         computed on unit-area copies of the shapes and the Laplacian term normalized to unit
@@ -954,6 +963,30 @@ class Anchors:
     distances_2: np.ndarray | None
 
 
+def _landmark_functions(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
+    """Return where every vertex lies relative to the landmarks (an Anchors' rows).
+
+    (n, 2p): the shortest-path distances to them over sqrt(area), then their biharmonic
+    coordinates.
+    """
+    return np.hstack([_landmark_distances(eig, vertices), landmark_coordinates(eig, vertices)])
+
+
+def _anchor_parts(
+    anchors: Anchors, eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Return an Anchors' source and target vertices and functions, checked against the shapes."""
+    parts = (anchors.source, anchors.target)
+    functions = (anchors.distances_1, anchors.distances_2)
+    for v, f, eig, name in zip(parts, functions, (eig_1, eig_2), ("source", "target"), strict=True):
+        if v.size == 0 or v.min() < 0 or v.max() >= eig.n_vertices:
+            raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
+        if f is not None and f.shape != (eig.n_vertices, 2 * v.size):
+            raise ValueError(f"landmarks: anchors made for another {name} (functions "
+                             f"{f.shape}, not ({eig.n_vertices}, {2 * v.size}))")  # fmt: skip
+    return (*parts, *functions)
+
+
 def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
     assert eig.faces is not None
     d = csgraph.dijkstra(edge_graph(eig.vertices, eig.faces), directed=False, indices=vertices).T
@@ -1046,8 +1079,7 @@ def landmark_anchors(eig_1: EigenBasis, eig_2: EigenBasis, landmarks: Any) -> An
     if eig_1.faces is None or eig_2.faces is None:
         return Anchors(source, target, None, None)
     return Anchors(source, target, *(
-        np.hstack([_landmark_distances(eig, v), landmark_coordinates(eig, v)])
-        for eig, v in ((eig_1, source), (eig_2, target))
+        _landmark_functions(eig, v) for eig, v in ((eig_1, source), (eig_2, target))
     ))  # fmt: skip
 
 

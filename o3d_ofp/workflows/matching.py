@@ -305,20 +305,21 @@ class FullMatch(Strategy):
         # comparison of the starts, while the fits run (the sampling is mostly Python steps,
         # the fits mostly BLAS).
         n_samples = o.zoomout_subsample or 2000
+        # Known pairs drive every ZoomOut, not only the fits' starts (measured: see
+        # o3d_ofp.core.fmap.LANDMARK_DISTANCES); their functions are computed once, for both.
+        anchors = None if run.landmarks is None else landmark_anchors(u1, u2, run.landmarks)
         with ThreadPoolExecutor(max_workers=1) as sampler:
             sampled = sampler.submit(
                 lambda: tuple(farthest_points(u.vertices, n_samples) for u in (u1, u2))
             )
             starts = estimate_fmaps(
-                u1, u2, sizes=sizes, w_dcomm=DCOMM_WEIGHTS, landmarks=run.landmarks,
+                u1, u2, sizes=sizes, w_dcomm=DCOMM_WEIGHTS,
+                landmarks=run.landmarks if anchors is None else anchors,
                 descriptors=o.descriptors, w_orient=o.w_orient,
             )  # fmt: skip
             samples = sampled.result()
         subsampled = o.zoomout_subsample is not None and o.zoomout_subsample < min(
             u1.n_vertices, u2.n_vertices)  # fmt: skip
-        # Known pairs drive every ZoomOut, not only the fits' starts (measured: see
-        # o3d_ofp.core.fmap.LANDMARK_DISTANCES).
-        anchors = None if run.landmarks is None else landmark_anchors(u1, u2, run.landmarks)
         run.state.update(
             samples=samples, zoom=samples if subsampled else None, final=final,
             select=min(final, max(sizes[-1], SELECT_K)), anchors=anchors,
