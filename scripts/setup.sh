@@ -17,5 +17,6 @@ $SUDO apt-get install -y -qq --no-install-recommends $APT_PACKAGES >/dev/null
 "$PYTHON" -c 'import sys; assert sys.version_info >= (3, 10), "o3d_ofp needs Python >= 3.10, found " + sys.version'
 "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[cpu,dask,test,docs]"
+# within the NumPy / SciPy releases the suite was last run green with (see the file)
+.venv/bin/python -m pip install -q -e ".[cpu,dask,test,docs]" -c scripts/constraints.txt
 .venv/bin/python -c "import open3d, o3d_ofp; print('o3d_ofp', o3d_ofp.__version__, 'with Open3D', open3d.__version__, 'ready in .venv')"
