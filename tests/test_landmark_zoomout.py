@@ -41,9 +41,8 @@ def test_anchored_zoomout_equals_the_weighted_least_squares_loop(stretched, subs
     """The nested-QR fits with landmark rows give the maps of a plain weighted lstsq loop."""
     source, _, _, landmarks, e1, e2 = stretched
     start = ofp.fmap_from_p2p(np.arange(len(source)), e1, e2, k1=6, k2=6)
-    got = zoomout_refine(
-        start, e1, e2, k_final=20, subsample=subsample, anchors=landmark_anchors(e1, e2, landmarks)
-    )
+    anchors = landmark_anchors(e1, e2, landmarks)
+    got = zoomout_refine(start, e1, e2, k_final=20, subsample=subsample, anchors=anchors)
     u1, u2 = unit_area(e1), unit_area(e2)
     if subsample is None:
         s1, s2 = np.arange(u1.n_vertices), np.arange(u2.n_vertices)
@@ -51,7 +50,7 @@ def test_anchored_zoomout_equals_the_weighted_least_squares_loop(stretched, subs
     else:
         s1, s2 = farthest_points(u1.vertices, subsample), farthest_points(u2.vertices, subsample)
         w = np.ones(subsample)
-    a1 = landmark_anchors(u1, u2, landmarks)
+    a1 = anchors  # the very functions zoomout_refine is given (unit-free, to round-off)
     d1 = fmap.LANDMARK_DISTANCES * a1.distances_1[s1]
     d2 = fmap.LANDMARK_DISTANCES * a1.distances_2[s2]
     lw = fmap.LANDMARK_WEIGHT * w.sum() / len(landmarks)  # each landmark row's weight
