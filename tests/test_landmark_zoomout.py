@@ -50,9 +50,9 @@ def test_anchored_zoomout_equals_the_weighted_least_squares_loop(stretched, subs
     else:
         s1, s2 = farthest_points(u1.vertices, subsample), farthest_points(u2.vertices, subsample)
         w = np.ones(subsample)
-    a1 = anchors  # the very functions zoomout_refine is given (unit-free, to round-off)
-    d1 = fmap.LANDMARK_DISTANCES * a1.distances_1[s1]
-    d2 = fmap.LANDMARK_DISTANCES * a1.distances_2[s2]
+    # the very functions zoomout_refine is given (they are unit-free only to round-off)
+    d1 = fmap.LANDMARK_DISTANCES * anchors.distances_1[s1]
+    d2 = fmap.LANDMARK_DISTANCES * anchors.distances_2[s2]
     lw = fmap.LANDMARK_WEIGHT * w.sum() / len(landmarks)  # each landmark row's weight
     scale = np.sqrt(e2.area / e1.area)
     C, k = start / scale, 6
@@ -268,9 +268,13 @@ def test_fits_take_the_landmark_functions_of_anchors(stretched):
                          anchors.distances_2)  # fmt: skip
     changed = fmap.estimate_fmaps(e1, e2, landmarks=other, **kw)
     assert np.abs(changed[1][2] - reused[1][2]).max() > 1e-3
-    with pytest.raises(ValueError, match="anchors made for another target"):
+    with pytest.raises(ValueError, match="anchors: made for another target"):
         wrong = fmap.Anchors(anchors.source, anchors.target, anchors.distances_1,
                              anchors.distances_2[:-1])  # fmt: skip
+        fmap.estimate_fmaps(e1, e2, landmarks=wrong, **kw)
+    with pytest.raises(ValueError, match=r"target's functions have 11 columns, not two per"):
+        wrong = fmap.Anchors(anchors.source, anchors.target, anchors.distances_1,
+                             anchors.distances_2[:, :-1])  # fmt: skip
         fmap.estimate_fmaps(e1, e2, landmarks=wrong, **kw)
 
 

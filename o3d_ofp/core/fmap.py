@@ -476,7 +476,9 @@ class _FitTerms:
         descriptors, n_descriptors, k_descriptors, landmarks, operator_step = options
         lm1 = lm2 = f1 = f2 = None
         if isinstance(landmarks, Anchors):  # the landmark functions, computed once
-            lm1, lm2, f1, f2 = _anchor_parts(landmarks, eig_1, eig_2)
+            pairs = np.stack([landmarks.source, landmarks.target], axis=1)
+            lm1, lm2 = _landmark_vertices(pairs, eig_1, eig_2)
+            f1, f2 = _anchor_functions(landmarks, eig_1, eig_2)
         elif landmarks is not None:
             lm1, lm2 = _landmark_vertices(landmarks, eig_1, eig_2)
         if descriptors not in ("wks", "hks"):
@@ -972,19 +974,27 @@ def _landmark_functions(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:
     return np.hstack([_landmark_distances(eig, vertices), landmark_coordinates(eig, vertices)])
 
 
-def _anchor_parts(
-    anchors: Anchors, eig_1: EigenBasis, eig_2: EigenBasis
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Return an Anchors' source and target vertices and functions, checked against the shapes."""
-    parts = (anchors.source, anchors.target)
-    functions = (anchors.distances_1, anchors.distances_2)
-    for v, f, eig, name in zip(parts, functions, (eig_1, eig_2), ("source", "target"), strict=True):
-        if v.size == 0 or v.min() < 0 or v.max() >= eig.n_vertices:
-            raise ValueError(f"landmarks: {name} vertices must be in [0, {eig.n_vertices})")
-        if f is not None and f.shape != (eig.n_vertices, 2 * v.size):
-            raise ValueError(f"landmarks: anchors made for another {name} (functions "
-                             f"{f.shape}, not ({eig.n_vertices}, {2 * v.size}))")  # fmt: skip
-    return (*parts, *functions)
+def _anchor_functions(
+    anchors: Anchors | None, eig_1: EigenBasis, eig_2: EigenBasis
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Return the anchors' landmark functions on both shapes (None, None without anchors).
+
+    Functions made for other shapes (another vertex count, or not two columns per landmark)
+    are refused.
+    """
+    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
+    for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
+        if functions is None:
+            continue
+        if functions.shape[0] != eig.n_vertices:
+            raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
+                             f"not {eig.n_vertices})")  # fmt: skip
+        assert anchors is not None
+        columns = 2 * anchors.source.size
+        if functions.shape[1] != columns:
+            raise ValueError(f"anchors: the {name}'s functions have {functions.shape[1]} "
+                             f"columns, not two per landmark ({columns})")  # fmt: skip
+    return d1, d2
 
 
 def _landmark_distances(eig: EigenBasis, vertices: np.ndarray) -> np.ndarray:

@@ -41,7 +41,14 @@ from .correspondence import (
     nearest_neighbors,
     p2p_from_fmap,
 )
-from .fmap import Anchors, farthest_points, grid_samples, landmark_embedding, unit_area
+from .fmap import (
+    Anchors,
+    _anchor_functions,
+    farthest_points,
+    grid_samples,
+    landmark_embedding,
+    unit_area,
+)
 from .geometry import closest_on_triangles, edge_graph
 from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
@@ -383,18 +390,6 @@ def _nearest_rows(
     count = _cell_count(None, eig_1.n_vertices)
     return _local_search(phi, np.eye(phi.shape[1]), psi, 1.0, eig_1.vertices, eig_2.vertices,
                          count, 0)  # fmt: skip
-
-
-def _anchor_functions(
-    anchors: Anchors | None, eig_1: EigenBasis, eig_2: EigenBasis
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Return the anchors' landmark functions on both shapes (None, None without anchors)."""
-    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
-    for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
-        if functions is not None and functions.shape[0] != eig.n_vertices:
-            raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
-                             f"not {eig.n_vertices})")  # fmt: skip
-    return d1, d2
 
 
 #: Heat time (on the unit-area target) of :func:`dirichlet_p2p`'s smoothing of the positions a
