@@ -177,8 +177,8 @@ def repair_rows(pairs: list[tuple[str, str, str | None]]) -> None:
             e1, e2 = ofp.eigenbasis(V1, F1, k=99), ofp.eigenbasis(V2, F2, k=99)
             corr = ofp.match((V1, F1), (V2, F2), eigenbases=(e1, e2))
             C, disagreement = matching.geodesic_repair(
-                corr.p2p_21, unit_area(e1), unit_area(e2), k_fit=corr.options["k_fit"],
-                k_final=corr.options["zoomout_to"], subsample=corr.options["zoomout_subsample"],
+                corr.p2p_21, unit_area(e1), unit_area(e2), k_final=corr.options["zoomout_to"],
+                subsample=corr.options["zoomout_subsample"],
                 share=-1.0,
             )  # fmt: skip
             if kind is None:  # shapes of other kinds: no truth, the disagreement only

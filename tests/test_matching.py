@@ -334,6 +334,47 @@ def test_geodesic_repair_re_estimates_a_map_wrong_on_a_region():
     assert C is None  # under the share given: kept
 
 
+def test_a_re_estimate_zooms_out_from_a_fit_of_repair_fit_k_eigenfunctions(monkeypatch):
+    """A re-estimate fits the geodesic map on REPAIR_FIT_K eigenfunctions (at most its final size).
+
+    A match's check calls it with that default: the chosen start's own fit size is not passed on.
+    """
+    import o3d_ofp.workflows.matching as matching
+    from o3d_ofp.core.correspondence import nearest_neighbors
+    from o3d_ofp.core.fmap import unit_area
+
+    V, F = blob(4)
+    u = unit_area(ofp.eigenbasis(V, F, k=40))
+    region = V[:, 0] > np.quantile(V[:, 0], 0.85)
+    wrong = np.arange(len(V))
+    wrong[region] = nearest_neighbors(V, V[region] * [-1.0, 1.0, 1.0])
+    sizes = []
+    fit = matching.fmap_from_p2p
+
+    def spy(p2p, eig_1, eig_2, *, k1=None, k2=None):
+        sizes.append((k1, k2))
+        return fit(p2p, eig_1, eig_2, k1=k1, k2=k2)
+
+    monkeypatch.setattr(matching, "fmap_from_p2p", spy)
+    C, _ = matching.geodesic_repair(wrong, u, u, k_final=40)
+    assert sizes == [(matching.REPAIR_FIT_K,) * 2] and C.shape == (41, 41)
+    assert _error(ofp.p2p_from_fmap(C, u, u), V) < 0.01  # still the identity again
+    sizes.clear()
+    matching.geodesic_repair(wrong, u, u, k_final=10)
+    assert sizes == [(10, 10)]
+    # a match's check calls it with the default size
+    calls = []
+    repair = matching.geodesic_repair
+
+    def checked(*args, **kwargs):
+        calls.append(kwargs)
+        return repair(*args, **kwargs)
+
+    monkeypatch.setattr(matching, "geodesic_repair", checked)
+    ofp.match((V, F), (V, F))
+    assert calls and all("k_fit" not in kw for kw in calls)
+
+
 def test_a_re_estimate_that_is_not_clearly_better_is_doubted():
     """A re-estimate replaces the map only with a clearly lower geodesic distortion."""
     from o3d_ofp.core.correspondence import nearest_neighbors

@@ -40,6 +40,7 @@ from .strategy import Run, Settled, Strategy
 __all__ = [
     "DCOMM_WEIGHTS",
     "MIRROR_RESIDUAL",
+    "REPAIR_FIT_K",
     "REPAIR_GAIN",
     "REPAIR_MAX_SHARE",
     "REPAIR_SHARE",
@@ -160,6 +161,19 @@ REPAIR_SAMPLES = 2000
 #: from the full refinement (with these, remeshed 007 -> 000 came out 0.042 instead of 0.025).
 REPAIR_ANCHORS = 50
 REPAIR_ITERATIONS = 2
+#: Non-constant eigenfunctions a re-estimate fits to the geodesic map before its ZoomOut (at
+#: most the ZoomOut's final size). Fewer than the descriptor fits' 29 or 39: the geodesic map
+#: is precise to the edges only, and from the smoother fit ZoomOut finds a better map.
+#: Measured on the 13 maps re-estimated among the 32 FAUST and remeshed-FAUST pairs
+#: (``scripts/eval_matching.py --all-pairs``, map error x100 / sqrt(area)), the 30 TOSCA people
+#: and the 10 TOSCA animal pairs (``scripts/eval_nonisometric.py``'s geodesic error x100, on
+#: 300 points; one scratch run each), against the chosen start's fit size (29 or 39): mean
+#: 2.63 against 2.90; 10 better (remeshed 001 -> 007 2.72 -> 2.17, cat1 -> cat7 6.54 -> 4.74,
+#: woman_03 -> man_05 3.76, flagged, -> 3.14, not flagged), one the same, two worse (remeshed
+#: 007 -> 000 2.41 -> 2.43, cat2 -> cat3 6.02 -> 6.16, flagged either way); 20 eigenfunctions
+#: gave 6.30 on cat1 -> cat7 and 10 gave 8.90 on woman_03 -> man_05. The other maps are not
+#: re-estimated: the same.
+REPAIR_FIT_K = 15
 #: A re-estimate must earn its place: when it changes the map (on more than
 #: :data:`REPAIR_SHARE` of the target) but its geodesic distortion
 #: (:func:`~o3d_ofp.core.partial.geodesic_distortion`, :data:`REPAIR_DISTORTION_SAMPLES` target
@@ -169,7 +183,8 @@ REPAIR_ITERATIONS = 2
 #: that lowered the error (9 from 0.039-0.187 to 0.014-0.029 / sqrt(area), TOSCA cat1 -> cat7
 #: 0.081 to 0.078) lowered the distortion to 0.58-0.84 of the spectral map's; the two that
 #: left a wrong map, one of them worse than the spectral map (TOSCA cat2 -> cat3, 0.032 to
-#: 0.064; woman_03 -> man_05, 0.185 to 0.071), to 0.94 and 1.00.
+#: 0.064; woman_03 -> man_05, 0.185 to 0.071), to 0.94 and 1.00 (re-estimates then fitted on
+#: the chosen start's 29 or 39 eigenfunctions; see :data:`REPAIR_FIT_K`).
 REPAIR_GAIN = 0.9
 REPAIR_DISTORTION_SAMPLES = 100
 #: The check runs when n1 · n2 is at most this: the dense path's coarse copies (20 000
@@ -187,9 +202,10 @@ def _apart(eig_1: EigenBasis, images_a: np.ndarray, images_b: np.ndarray) -> flo
 
 
 def geodesic_repair(
-    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, k_fit: int, k_final: int,
-    subsample: int | None = None, samples: tuple[np.ndarray, np.ndarray] | None = None,
-    share: float = REPAIR_SHARE, checked: np.ndarray | None = None, anchors: Anchors | None = None,
+    p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis, *, k_final: int,
+    k_fit: int = REPAIR_FIT_K, subsample: int | None = None,
+    samples: tuple[np.ndarray, np.ndarray] | None = None, share: float = REPAIR_SHARE,
+    checked: np.ndarray | None = None, anchors: Anchors | None = None,
 ) -> tuple[np.ndarray | None, float]:  # fmt: skip
     """Re-estimate a map that is wrong on a region from its geodesic refinement.
 
@@ -209,8 +225,11 @@ def geodesic_repair(
         The estimated map: source vertex of every target vertex.
     eig_1, eig_2 : EigenBasis
         Unit-area source and target eigenbases of triangle meshes (``faces`` set).
-    k_fit, k_final : int
-        Size of the fit to the geodesic map and of the ZoomOut that follows.
+    k_final : int
+        Size of the ZoomOut that ends a re-estimate.
+    k_fit : int, default REPAIR_FIT_K
+        Size of the fit to the geodesic map that the ZoomOut starts from (at most
+        ``k_final``).
     subsample, samples
         ZoomOut's farthest-point samples (as in :func:`~o3d_ofp.core.fmap.zoomout_refine`).
     share : float, default REPAIR_SHARE
@@ -244,6 +263,7 @@ def geodesic_repair(
         return None, disagreement
     f1, f2 = geodesic_features(p2p_21, *surfaces)
     geodesic = nearest_neighbors(f1.T, f2.T)
+    k_fit = min(k_fit, k_final)
     C = fmap_from_p2p(geodesic, eig_1, eig_2, k1=k_fit, k2=k_fit)
     C = zoomout_refine(
         C, eig_1, eig_2, k_final=k_final, subsample=subsample, samples=samples, anchors=anchors
@@ -444,10 +464,9 @@ class FullMatch(Strategy):
             return settled, quality
         run.report("geodesic check", 0.8)
         repaired, disagreement = geodesic_repair(
-            settled.p2p_21, run.u1, run.u2, k_fit=settled.info["k_fit"],
-            k_final=run.state["final"], subsample=run.options.zoomout_subsample,
-            samples=run.state["zoom"], share=REPAIR_SHARE, checked=run.state["samples"][1],
-            anchors=run.state["anchors"],
+            settled.p2p_21, run.u1, run.u2, k_final=run.state["final"],
+            subsample=run.options.zoomout_subsample, samples=run.state["zoom"], share=REPAIR_SHARE,
+            checked=run.state["samples"][1], anchors=run.state["anchors"],
         )  # fmt: skip
         redo = f" (> {REPAIR_SHARE:g}): re-estimated from the geodesic map"
         logger.debug("match: the map and its geodesic refinement disagree on %.3f of the target's "
