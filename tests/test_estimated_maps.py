@@ -140,7 +140,7 @@ def test_a_map_between_shapes_of_other_kinds_disagreeing_with_its_geodesic_one_i
     assert "repaired" not in corr.quality.codes()
     u1, u2 = (unit_area(e) for e in eigenbases)
     _, disagreement = geodesic_repair(
-        corr.p2p_21, u1, u2, k_fit=29, k_final=99, share=float("inf")
+        corr.p2p_21, u1, u2, k_final=99, share=float("inf")
     )  # measured only: an infinite share re-estimates nothing
     assert disagreement > REPAIR_MAX_SHARE, disagreement
     monkeypatch.setattr(quality, "MAX_ORTHOGONALITY", 0.5)
