@@ -982,15 +982,16 @@ def _anchor_functions(
     Functions made for other shapes (another vertex count, or not two columns per landmark)
     are refused.
     """
-    d1, d2 = (None, None) if anchors is None else (anchors.distances_1, anchors.distances_2)
+    if anchors is None:
+        return None, None
+    d1, d2 = anchors.distances_1, anchors.distances_2
+    columns = 2 * anchors.source.size
     for functions, eig, name in ((d1, eig_1, "source"), (d2, eig_2, "target")):
         if functions is None:
             continue
         if functions.shape[0] != eig.n_vertices:
             raise ValueError(f"anchors: made for another {name} ({functions.shape[0]} vertices, "
                              f"not {eig.n_vertices})")  # fmt: skip
-        assert anchors is not None
-        columns = 2 * anchors.source.size
         if functions.shape[1] != columns:
             raise ValueError(f"anchors: the {name}'s functions have {functions.shape[1]} "
                              f"columns, not two per landmark ({columns})")  # fmt: skip
