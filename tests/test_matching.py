@@ -35,6 +35,20 @@ def _error(p2p, V):
     return np.linalg.norm(V[p2p] - V, axis=1).mean() / np.sqrt(area)
 
 
+def _one_end_mirrored(V):
+    """Return one end of a blob and the identity map with that end mirrored onto the other.
+
+    The end: the last 15 % of the vertices along x; the mirror: x -> -x. A map wrong on one
+    region, as the geodesic repair's tests need it.
+    """
+    from o3d_ofp.core.correspondence import nearest_neighbors
+
+    region = V[:, 0] > np.quantile(V[:, 0], 0.85)
+    wrong = np.arange(len(V))
+    wrong[region] = nearest_neighbors(V, V[region] * [-1.0, 1.0, 1.0])
+    return region, wrong
+
+
 def test_match_is_accurate_and_reports_quality(pair, reference):
     (V, _), _ = pair
     corr = reference
@@ -309,7 +323,6 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
 
 def test_geodesic_repair_re_estimates_a_map_wrong_on_a_region():
     """A map right everywhere but on one region is re-estimated; a right map is kept."""
-    from o3d_ofp.core.correspondence import nearest_neighbors
     from o3d_ofp.core.fmap import unit_area
     from o3d_ofp.workflows.matching import REPAIR_SHARE, geodesic_repair
 
@@ -319,10 +332,7 @@ def test_geodesic_repair_re_estimates_a_map_wrong_on_a_region():
     right = np.arange(len(V))
     C, disagreement = geodesic_repair(right, u, u, k_fit=20, k_final=40)
     assert C is None and disagreement == 0.0  # the geodesic refinement agrees: kept as it is
-    region = V[:, 0] > np.quantile(V[:, 0], 0.85)  # one end of the blob ...
-    mirrored = V[region] * [-1.0, 1.0, 1.0]
-    wrong = right.copy()
-    wrong[region] = nearest_neighbors(V, mirrored)  # ... sent to the other end
+    region, wrong = _one_end_mirrored(V)  # one end of the blob sent to the other
     share = float(eig.mass @ region) / float(eig.mass.sum())
     assert share > REPAIR_SHARE and _error(wrong, V) > 0.05
     C, disagreement = geodesic_repair(wrong, u, u, k_fit=20, k_final=40)
@@ -340,14 +350,11 @@ def test_a_re_estimate_zooms_out_from_a_fit_of_repair_fit_k_eigenfunctions(monke
     A match's check calls it with that default: the chosen start's own fit size is not passed on.
     """
     import o3d_ofp.workflows.matching as matching
-    from o3d_ofp.core.correspondence import nearest_neighbors
     from o3d_ofp.core.fmap import unit_area
 
     V, F = blob(4)
     u = unit_area(ofp.eigenbasis(V, F, k=40))
-    region = V[:, 0] > np.quantile(V[:, 0], 0.85)
-    wrong = np.arange(len(V))
-    wrong[region] = nearest_neighbors(V, V[region] * [-1.0, 1.0, 1.0])
+    _, wrong = _one_end_mirrored(V)
     sizes = []
     fit = matching.fmap_from_p2p
 
@@ -377,7 +384,6 @@ def test_a_re_estimate_zooms_out_from_a_fit_of_repair_fit_k_eigenfunctions(monke
 
 def test_a_re_estimate_that_is_not_clearly_better_is_doubted():
     """A re-estimate replaces the map only with a clearly lower geodesic distortion."""
-    from o3d_ofp.core.correspondence import nearest_neighbors
     from o3d_ofp.core.fmap import farthest_points, unit_area
     from o3d_ofp.workflows.matching import REPAIR_GAIN, repair_doubt
 
@@ -385,9 +391,7 @@ def test_a_re_estimate_that_is_not_clearly_better_is_doubted():
     u = unit_area(ofp.eigenbasis(V, F, k=10))
     checked = farthest_points(u.vertices, 2000)
     right = np.arange(len(V))
-    region = V[:, 0] > np.quantile(V[:, 0], 0.85)
-    wrong = right.copy()
-    wrong[region] = nearest_neighbors(V, V[region] * [-1.0, 1.0, 1.0])
+    _, wrong = _one_end_mirrored(V)
     # a region put right lowers the distortion well below REPAIR_GAIN of the wrong map's
     assert repair_doubt(wrong, right, u, u, checked=checked) is None
     # a right map "re-estimated" into a wrong one: doubted, with both distortions
