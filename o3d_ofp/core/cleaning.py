@@ -42,6 +42,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ._rows import unique_rows
 from ._validation import as_faces, as_signal, as_vertices, check_int
 from ._warnings import warn
 from .geometry import face_areas_normals
@@ -259,9 +260,9 @@ def _weld(vertices: np.ndarray, tolerance: float | None) -> tuple[np.ndarray, np
         # in the same cell except, rarely, across a cell boundary (then they stay apart, which
         # is harmless); unlike a radius search this can never blow up on a dense cluster.
         key = np.floor((vertices - lo) / size / tolerance).astype(np.int64)
-    else:
-        key = vertices
-    _, first, group = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        _, first, group = unique_rows(key, return_index=True, return_inverse=True)
+    else:  # equal positions only
+        _, first, group = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
     group = group.reshape(-1)
     # Number groups by first occurrence so that the cleaned order follows the input's.
     order = np.argsort(first, kind="stable")
@@ -387,7 +388,7 @@ def _topology(vertices: Any, faces: Any, weld: Any, components: str, n_neighbors
                 f"all {F_in.shape[0]} faces are degenerate (they repeat a vertex once duplicated "
                 "vertices are welded): there is no surface"
             )
-        _, uniq = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
+        _, uniq = unique_rows(np.sort(F, axis=1), return_index=True)
         counts["duplicate_faces"] = F.shape[0] - uniq.shape[0]
         F = F[np.sort(uniq)]
         used = np.zeros(n_g, dtype=bool)

@@ -7,6 +7,8 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
+from ._rows import unique_rows
+
 __all__ = [
     "POINT_NEIGHBOURS",
     "closest_on_triangles",
@@ -183,7 +185,7 @@ def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return the distinct edges (sorted vertex pairs) of triangles and the triangles of each."""
     F = np.asarray(faces, dtype=np.int64)
     edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)
+    return unique_rows(edges, return_counts=True)
 
 
 def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -32,6 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.spatial import cKDTree
 
+from ._rows import unique_rows
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
 from .correspondence import (
@@ -1015,7 +1016,7 @@ def coarse_mesh(
         cell[far] = cKDTree(V[samples]).query(V[far], k=1, workers=-1)[1]
     L = cell[F]
     L = L[(L[:, 0] != L[:, 1]) & (L[:, 1] != L[:, 2]) & (L[:, 0] != L[:, 2])]
-    _, first = np.unique(np.sort(L, axis=1), axis=0, return_index=True)
+    _, first = unique_rows(np.sort(L, axis=1), return_index=True)
     return V[samples], L[np.sort(first)], samples, cell
 
 
