@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from o3d_ofp.core import multiscale
 from o3d_ofp.core.correspondence import fmap_from_p2p, nearest_neighbors, p2p_from_fmap
 from o3d_ofp.core.fmap import unit_area
 from o3d_ofp.core.multiscale import (
@@ -170,6 +171,26 @@ def test_bad_inputs_name_the_argument(blob_pair):
         local_p2p_from_fmap(C, e1, e2, n_samples=0)
     with pytest.raises(TypeError, match="n_samples"):
         local_p2p_from_fmap(C, e1, e2, n_samples=2.5)
+
+
+def test_queries_split_in_halves_give_the_same_answers(blob_pair, blob_reference, monkeypatch):
+    # Above SPLIT_QUERIES target vertices the search runs two halves of the target side by
+    # side (forked processes where they can be made): every answer must stay the same.
+    e1, e2, C = blob_pair
+    jobs = []
+
+    def spy(work, **options):
+        jobs.append(len(work))
+        return real(work, **options)
+
+    real = multiscale.side_by_side
+    monkeypatch.setattr(multiscale, "side_by_side", spy)
+    monkeypatch.setattr(multiscale, "SPLIT_QUERIES", e2.n_vertices - 1)
+    assert np.array_equal(local_p2p_from_fmap(C, e1, e2), blob_reference)
+    assert jobs == [2]
+    monkeypatch.setattr(multiscale, "SPLIT_QUERIES", e2.n_vertices)
+    assert np.array_equal(local_p2p_from_fmap(C, e1, e2), blob_reference)
+    assert jobs == [2]  # not split at the bound itself
 
 
 def _error(p2p, V1, area1, rows=None):

@@ -32,6 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.spatial import cKDTree
 
+from ._processes import side_by_side
 from ._rows import unique_rows
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
@@ -78,6 +79,8 @@ _BLOCK = 512
 _FPS_POOL = 4
 #: Source vertices per chunk when building the cells' embeddings.
 _CHUNK = 65536
+#: Target vertices above which the local search runs two halves of them side by side.
+SPLIT_QUERIES = 20_000
 
 
 def _morton_order(vertices: np.ndarray) -> np.ndarray:
@@ -483,30 +486,57 @@ def _local_search(
     n_samples: int,
     seed: int,
 ) -> np.ndarray:
-    """Nearest row of ``phi[:, :cols] @ Ct`` for every row of ``root2 * psi[:, :rows]``."""
+    """Nearest row of ``phi[:, :cols] @ Ct`` for every row of ``root2 * psi[:, :rows]``.
+
+    Above :data:`SPLIT_QUERIES` target rows the queries are split into compact halves of the
+    target (along its Z-order curve) searched side by side
+    (:func:`~o3d_ofp.core._processes.side_by_side`); every answer is exact, so the split
+    changes the time only.
+    """
     t0 = time.perf_counter()
     n1, n2 = phi.shape[0], psi.shape[0]
+    rows = Ct.shape[1]
     emb, shift = _source_embedding(phi, Ct)
     samples, cell = _sample(vertices_1, n_samples, seed)
     samples, cell = _split(emb, samples, cell)
     del emb
     cells = _Cells(phi, Ct, shift, vertices_1, samples, cell)
-    target = _Target(psi, Ct.shape[1], root2, shift)
     t_cells = time.perf_counter() - t0
-    best_cell, pairs, n_looked = _coarse_stage(cells, target, vertices_2)
-    t_coarse = time.perf_counter() - t0
-    best, upper2, certain, searched = _fine_stage(cells, target, best_cell, pairs)
-    out = cells.order[best]
-    # Queries whose float32 winner is not certain: float64 on the same cells, ties to the
-    # smallest source index.
-    unsure = np.flatnonzero(~certain)
-    if unsure.size:
-        out[unsure] = _redo64(unsure, best_cell, pairs, upper2, cells, target)
+
+    def search(queries: np.ndarray | None) -> tuple[np.ndarray, int, int, int]:
+        """Answers of ``queries`` (all when None), comparisons made, the float64 redone."""
+        if queries is None:
+            part_psi, part_vertices = psi, vertices_2
+        else:
+            part_psi, part_vertices = psi[queries, :rows], vertices_2[queries]
+        target = _Target(part_psi, rows, root2, shift)
+        best_cell, pairs, looked = _coarse_stage(cells, target, part_vertices)
+        best, upper2, certain, searched = _fine_stage(cells, target, best_cell, pairs)
+        out = cells.order[best]
+        # Queries whose float32 winner is not certain: float64 on the same cells, ties to the
+        # smallest source index.
+        unsure = np.flatnonzero(~certain)
+        if unsure.size:
+            out[unsure] = _redo64(unsure, best_cell, pairs, upper2, cells, target)
+        return out, looked, searched, unsure.size
+
+    if n2 > SPLIT_QUERIES:
+        halves = np.array_split(_morton_order(vertices_2), 2)
+        # Each half's target rows in float64 and float32, its bounds and candidate pairs.
+        each = halves[0].size * (12.0 * rows + 200.0)
+        parts = side_by_side([lambda q=q: search(q) for q in halves], what="nearest neighbours",
+                             memory_each=each)  # fmt: skip
+        out = np.empty(n2, dtype=np.int64)
+        for q, part in zip(halves, parts, strict=True):
+            out[q] = part[0]
+        n_looked, searched, redone = (sum(part[i] for part in parts) for i in (1, 2, 3))
+    else:
+        out, n_looked, searched, redone = search(None)
     logger.debug(
-        "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), coarse %.2fs (%.0f cells per "
-        "query), %.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
-        n1, n2, samples.shape[0], t_cells, t_coarse - t_cells, n_looked / n2, searched / n2,
-        100.0 * searched / (n1 * n2), unsure.size, time.perf_counter() - t0,
+        "local_p2p_from_fmap: %d -> %d vertices, %d cells (%.2fs), %.0f cells per query, "
+        "%.0f candidates per query (%.2f%% of the source), %d redone in float64, %.2fs",
+        n1, n2, samples.shape[0], t_cells, n_looked / n2, searched / n2,
+        100.0 * searched / (n1 * n2), redone, time.perf_counter() - t0,
     )  # fmt: skip
     return out
 
