@@ -68,6 +68,7 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as sla
 
+from ._processes import side_by_side
 from ._threads import one_blas_thread
 from ._validation import check_int
 from .correspondence import check_p2p, nearest_neighbors
@@ -359,12 +360,20 @@ def geodesic_features(
     p2p = np.array(p2p_21, dtype=np.int64)
     n_anchors = check_int(anchors, name="anchors", minimum=2)
     s2 = farthest_points(V2, min(n_anchors, V2.shape[0]))
-    d2 = csgraph.dijkstra(edge_graph(V2, faces_2), directed=False, indices=s2)
-    graph_1 = edge_graph(V1, faces_1)
+    images = p2p[s2]  # the map enters through the anchors' images only
+    graph_1, graph_2 = edge_graph(V1, faces_1), edge_graph(V2, faces_2)
+    # The target's runs and those from the anchors' first images are independent: side by
+    # side (SciPy's Dijkstra holds the GIL, so in processes).
+    first = np.unique(images)
+    d2, found = side_by_side(
+        [lambda: csgraph.dijkstra(graph_2, directed=False, indices=s2),
+         lambda: csgraph.dijkstra(graph_1, directed=False, indices=first)],
+        what="shortest paths", memory_each=24.0 * s2.size * max(V1.shape[0], V2.shape[0]),
+    )  # fmt: skip
     # Unreachable pieces (islands): a distance far beyond the shape's, the same on both sides.
     far = 10.0 * float(np.max(d2[np.isfinite(d2)], initial=1.0))
-    images = p2p[s2]  # the map enters through the anchors' images only
-    rows: dict[int, np.ndarray] = {}  # distances from a source vertex: computed once
+    # distances from a source vertex: computed once
+    rows: dict[int, np.ndarray] = dict(zip(first.tolist(), found, strict=True))
     for i in range(iterations):
         new = np.unique(images[[int(v) not in rows for v in images]])
         if new.size:
