@@ -185,6 +185,7 @@ def test_queries_split_in_halves_give_the_same_answers(blob_pair, blob_reference
 
     real = multiscale.side_by_side
     monkeypatch.setattr(multiscale, "side_by_side", spy)
+    monkeypatch.setattr(multiscale, "processes_available", lambda: 2)
     monkeypatch.setattr(multiscale, "SPLIT_QUERIES", e2.n_vertices - 1)
     assert np.array_equal(local_p2p_from_fmap(C, e1, e2), blob_reference)
     assert jobs == [2]

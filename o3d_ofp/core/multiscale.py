@@ -32,7 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.spatial import cKDTree
 
-from ._processes import side_by_side
+from ._processes import processes_available, side_by_side
 from ._rows import unique_rows
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
@@ -488,9 +488,9 @@ def _local_search(
 ) -> np.ndarray:
     """Nearest row of ``phi[:, :cols] @ Ct`` for every row of ``root2 * psi[:, :rows]``.
 
-    Above :data:`SPLIT_QUERIES` target rows the queries are split into compact halves of the
-    target (along its Z-order curve) searched side by side
-    (:func:`~o3d_ofp.core._processes.side_by_side`); every answer is exact, so the split
+    Above :data:`SPLIT_QUERIES` target rows, where a second process can be made, the queries
+    are split into two compact halves of the target (along its Z-order curve) searched side by
+    side (:func:`~o3d_ofp.core._processes.side_by_side`); every answer is exact, so the split
     changes the time only.
     """
     t0 = time.perf_counter()
@@ -520,7 +520,7 @@ def _local_search(
             out[unsure] = _redo64(unsure, best_cell, pairs, upper2, cells, target)
         return out, looked, searched, unsure.size
 
-    if n2 > SPLIT_QUERIES:
+    if n2 > SPLIT_QUERIES and processes_available() > 1:
         halves = np.array_split(_morton_order(vertices_2), 2)
         # Each half's target rows in float64 and float32, its bounds and candidate pairs.
         each = halves[0].size * (12.0 * rows + 200.0)
