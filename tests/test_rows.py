@@ -25,9 +25,9 @@ CASES = {
     "wide columns, repeated rows": np.repeat(RNG.integers(0, 10**9, size=(3000, 3)), 2, axis=0)[
         RNG.permutation(6000)
     ],
-    # keys that cannot fit in int64: the lexicographic sort
-    "forty columns": RNG.integers(0, 3, size=(2000, 40)),
     "huge values": RNG.integers(-(2**62), 2**62, size=(300, 3)),
+    # keys that cannot fit in int64 (3**40 of them): the lexicographic sort
+    "forty columns": RNG.integers(0, 3, size=(2000, 40)),
     "empty": np.zeros((0, 3), dtype=np.int64),
 }
 
