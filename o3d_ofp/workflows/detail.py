@@ -14,10 +14,12 @@ a source to a target through a map and re-applied in the target's local frames:
   fits the source worse when it is smoothed further, while two shapes equally detailed (two
   people, a target barely touched) both fit better when either is smoothed. Where the target
   fits the source itself as well (a part left detailed, a target as detailed as the source),
-  nothing is added there. Measured (``scripts/eval_detail.py``: five pairs, targets made by
-  seven smoothers the library does not own, true maps): surface distance to the truth 0.79x
-  doing nothing on average, at most 1.02x; a fixed band of 30 eigenfunctions added its
-  detail on top of what the smoothing left: 5.4x on average, 36.8x at worst.
+  nothing is added there. A region smoothed more than the whole (a sculpting brush on part of
+  the shape) gets the detail above the longer low-pass it fits (``LACKING``). Measured
+  (``scripts/eval_detail.py``: five pairs, targets made by seven smoothers the library does
+  not own, true maps): surface distance to the truth 0.77x doing nothing on average, at most
+  1.00x; a fixed band of 30 eigenfunctions added its detail on top of what the smoothing
+  left: 5.3x on average, 36.4x at worst.
 * **Local frames.** At every target vertex ``i`` the frame of the source's low-pass surface at
   the corresponding point is turned into the target's by ``R_i``, the rotation that best aligns
   the source's low-pass surface and the target around ``i`` (weighted Procrustes over a
@@ -172,6 +174,14 @@ NORMAL_WEIGHT = 1.0
 #: none where it is not reduced. Without it, a target smoothed in one region only (a brush)
 #: got the detail everywhere (1.4-1.8x doing nothing); 0.25 and 0.5 give the same mean
 #: distance (0.84 and 0.88x), the worst 1.20 and 1.04x (before :data:`CONVERSE`).
+#: A region where a longer low-pass removes this share of the misfit the calibrated one
+#: leaves there is smoothed more than the whole (a brush on part of the shape): it gets the
+#: detail above that longer low-pass. Measured (``scripts/eval_detail.py``, true maps, the 35
+#: targets, surface distance): the five brushed targets 0.74-1.00x doing nothing against
+#: 0.93-1.02x with the whole's level alone (one, the centaur, 0.94 against 0.93), the other
+#: targets no farther than 0.01 (FAUST 019 -> 094's fairings and Open3D filters 0.51-0.74x
+#: against 0.57-0.76x); with estimated maps the same. A share of 0.4 gained more on the
+#: brushes but lost up to 0.17 on the fairings (0.46 -> 0.63x); 0.6 gained less.
 LACKING = 0.5
 #: Neighbourhoods (heat time / the target's area) over which the gain in fit is averaged: a
 #: region a brush smooths (a tenth of a body), wider than the comparison's.
@@ -393,8 +403,13 @@ class DetailCalibration:
     share : float
         The area-weighted mean of ``lacking``.
     target_lowpass : (n2, 3) ndarray
-        The target's own low-pass at the same heat time per area (the target itself when
-        ``time`` is 0): the converse test's, and mode "replace-detail"'s base.
+        The target's own low-pass at the same heat times per area as the source's, vertex by
+        vertex (the target itself where they are 0): mode "replace-detail"'s base.
+    times : (n2,) ndarray
+        Heat time of the source's low-pass each target vertex lacks the detail above, as a
+        fraction of the source's area: ``time``, except in regions that lack more than the
+        whole (a region a brush smoothed, see :func:`calibrate_detail`), before the levels
+        are blended across the regions' borders.
     """
 
     time: float
@@ -402,6 +417,7 @@ class DetailCalibration:
     lacking: np.ndarray
     share: float
     target_lowpass: np.ndarray
+    times: np.ndarray
 
 
 def _heat_lowpass(eig: EigenBasis, time: float) -> np.ndarray:
@@ -464,7 +480,11 @@ def calibrate_detail(
     better, its own fits the source worse). Otherwise the share it lacks is how much of its
     misfit to the source the low-pass removes (see ``LACKING``): nothing where it does not
     fit that low-pass better than the source itself (a region left detailed, a target as
-    detailed as the source). The source's shape, pose and units need not be the target's:
+    detailed as the source). In a target found smoothed, a region smoothed more than the
+    whole (a sculpting brush on part of the shape) is compared with the longer low-passes
+    too: where one of them removes at least ``LACKING`` of the misfit the calibrated
+    low-pass leaves there (averaged over neighbourhoods of ``GATE_TIME``), the region lacks
+    the detail above that one, the levels blended across its border. The source's shape, pose and units need not be the target's:
     fits compare neighbourhoods up to a rotation and a scale.
 
     Parameters
@@ -478,48 +498,119 @@ def calibrate_detail(
     -------
     calibration : DetailCalibration
     lowpass : (n1, 3) ndarray
-        The source's calibrated low-pass shape (the source itself when ``time`` is 0).
+        The source's calibrated low-pass shape (the source itself when ``time`` is 0), in a
+        region that lacks more than the whole the longer low-pass (blended across borders).
     """
     check_eigenbasis(eig_1, "eig_1")
     check_eigenbasis(eig_2, "eig_2")
     p2p_21 = check_p2p(p2p_21, eig_2.n_vertices, eig_1.n_vertices)
     levels = _ladder(eig_1)
     compare = _heat_operator(eig_2, COMPARE_TIME * eig_2.area)
-    p2p_21 = _steady_map(eig_1, compare, p2p_21)
+    steady = _steady_map(eig_1, compare, p2p_21)
     T = np.asarray(eig_2.vertices, dtype=np.float64)
-    fits = np.array([_procrustes(compare, X[p2p_21], T)[1] for X in levels])
-    mean = fits @ eig_2.mass / eig_2.area
+    fits = np.array([_procrustes(compare, X[steady], T)[1] for X in levels])
+    weight = eig_2.mass / eig_2.area
+    mean = fits @ weight
     best = int(np.argmax(mean))
-    lowpass, fit_at, time = levels[best], fits[best], (0.0, *LADDER)[best]
-    # the target's own low-pass at the same time (the target itself at time 0)
-    target_lowpass = _heat_lowpass(eig_2, time)
+    times = np.array((0.0, *LADDER))
+    time = float(times[best])
+    around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
+    local = around(fits.T)  # (n2, levels): each level's fit averaged over a region
+    misfit = 1.0 - local[:, 0]  # the source itself
+    own = {best: _heat_lowpass(eig_2, time)}  # the target's own low-passes (itself at 0)
     if best == 0:
         lacking = np.zeros(eig_2.n_vertices)
     else:
-        around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
-        gained = around(fit_at - fits[0])
+        gained = local[:, best] - local[:, 0]
         # the converse: the target smoothed by the same low-pass, compared with the source
-        smoother = _procrustes(compare, levels[0][p2p_21], target_lowpass)[1]
+        smoother = _procrustes(compare, levels[0][steady], own[best])[1]
         lost = around(smoother - fits[0])
-        weight = eig_2.mass / eig_2.area
         if float(weight @ lost) <= -CONVERSE * float(weight @ gained):
             lacking = np.clip(around(((lost < 0) & (gained > 0)).astype(np.float64)), 0.0, 1.0)
         else:
-            misfit = around(1.0 - fits[0])
-            reduced = np.divide(gained, misfit, out=np.zeros_like(gained), where=misfit > 0)
-            lacking = np.clip(reduced / LACKING, 0.0, 1.0)
+            lacking = _lacking(gained, misfit)
+    # Regions that lack more than the whole (a brush smoothed them): where a longer low-pass
+    # fits so much better that it removes at least LACKING of the misfit the calibrated one
+    # leaves there, that low-pass is theirs, blended over the regions' neighbourhoods. Only
+    # in a target found smoothed: a smooth source's bent copy, which fits the source itself
+    # best, fits the longest low-passes better in places (their shrinking, not detail).
+    top = np.argmax(local, axis=1)
+    rows = np.arange(eig_2.n_vertices)
+    left = 1.0 - local[:, best]
+    excess = np.divide(local[rows, top] - local[:, best], left, out=np.zeros_like(left),
+                       where=left > 0)  # fmt: skip
+    level = np.where((best > 0) & (top > best) & (excess >= LACKING), top, best)
+    present = np.unique(level)
+    blend = np.zeros_like(local)
+    if len(present) == 1:
+        blend[:, best] = 1.0
+    else:
+        blend[:, present] = np.clip(around(level[:, None] == present), 0.0, None)
+        blend /= np.maximum(blend.sum(axis=1, keepdims=True), np.finfo(float).tiny)
+    # where the blended low-passes remove enough of the misfit, the target lacks their detail
+    lacking = np.maximum(lacking, _lacking((blend * local).sum(axis=1) - local[:, 0], misfit))
+    used = [int(i) for i in np.flatnonzero(blend.max(axis=0) > 0)]
+    lowpass = _on_source(eig_1, p2p_21, blend, levels, used)
+    if used == [best]:
+        target_lowpass = own[best]
+    else:
+        own.update({i: _heat_lowpass(eig_2, float(times[i])) for i in used if i not in own})
+        target_lowpass = sum(blend[:, [i]] * own[i] for i in used)
     share = float(eig_2.mass @ lacking) / eig_2.area
+    regional = level != best
     logger.info("detail calibration: low-pass at heat time %.3g of the source's area (fit "
                 "%.3f, the source itself %.3f); the target lacks %.0f %% of its detail",
-                time, float(fit_at @ eig_2.mass) / eig_2.area, mean[0], 100.0 * share)  # fmt: skip
+                time, float(mean[best]), mean[0], 100.0 * share)  # fmt: skip
+    if np.any(regional):
+        logger.info(
+            "a region of %.0f %% of the target lacks more: low-passes up to heat time %.3g there",
+            100.0 * float(weight @ regional),
+            float(times[level].max()),
+        )
     mean.setflags(write=False)
     lacking.setflags(write=False)
-    if time > 0:  # at time 0 it is the target's own array, not this function's to freeze
+    if target_lowpass is not own.get(0):  # the target's own array is not this function's
         target_lowpass.setflags(write=False)
     calibration = DetailCalibration(
-        time=time, fits=mean, lacking=lacking, share=share, target_lowpass=target_lowpass
-    )
+        time=time, fits=mean, lacking=lacking, share=share, target_lowpass=target_lowpass,
+        times=times[level],
+    )  # fmt: skip
     return calibration, lowpass
+
+
+def _lacking(gained: np.ndarray, misfit: np.ndarray) -> np.ndarray:
+    """Return the :data:`LACKING` rule's share of the detail lacking where a low-pass gained."""
+    reduced = np.divide(gained, misfit, out=np.zeros_like(gained), where=misfit > 0)
+    return np.clip(reduced / LACKING, 0.0, 1.0)
+
+
+def _on_source(
+    eig_1: EigenBasis, p2p_21: np.ndarray, blend: np.ndarray, levels: list[np.ndarray],
+    used: list[int],
+) -> np.ndarray:  # fmt: skip
+    """Return the source's low-pass blended as the target's vertices blend the levels.
+
+    Each source vertex takes the mean blend of the target vertices mapped onto it, spread
+    over the source's own neighbourhoods of :data:`GATE_TIME` (a normalized convolution:
+    source vertices no target vertex maps to take their neighbours'; with none near, the
+    level most of the target has).
+    """
+    if len(used) == 1:
+        return levels[used[0]]
+    n1 = eig_1.n_vertices
+    pulled = np.zeros((n1, len(used)))
+    np.add.at(pulled, p2p_21, blend[:, used])
+    count = np.bincount(p2p_21, minlength=n1).astype(np.float64)
+    spread = _heat_operator(eig_1, GATE_TIME * eig_1.area)
+    pulled, count = spread(pulled), spread(count)
+    # "none near": less than a millionth of a target vertex's image within reach; those take
+    # the level most of the target has
+    near = count > 1e-6
+    weights = np.divide(pulled, count[:, None], out=np.zeros_like(pulled), where=near[:, None])
+    weights[~near, int(np.argmax(blend[:, used].sum(axis=0)))] = 1.0
+    weights = np.clip(weights, 0.0, None)
+    weights /= np.maximum(weights.sum(axis=1, keepdims=True), np.finfo(float).tiny)
+    return sum(weights[:, [j]] * levels[i] for j, i in enumerate(used))
 
 
 def _positive(value: Any, name: str) -> float:
@@ -754,10 +845,13 @@ def transfer_detail_frames(
         lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
         # replace-detail: the target's own detail goes by the same low-pass, on its own shape
         base = T if mode == "add" else calibration.target_lowpass
-        share = calibration.share if mode == "add" else float(calibration.time > 0)
+        share = calibration.share if mode == "add" else float(np.any(calibration.times > 0))
         if amount > 0 and share < NOTHING_ADDED:
             _warn_nothing_added(calibration)
-        blurred = calibration.time
+        # the rotations' neighbourhoods follow the low-passes where the detail is added
+        added = eig_2.mass * lacking
+        total = float(added.sum())
+        blurred = float(added @ calibration.times) / total if total > 0 else calibration.time
     else:
         low_1 = lowpass_coordinates(eig_1, options.band)
         band_2 = options.band if region is None else _part_band(
