@@ -447,6 +447,7 @@ def test_the_converse_test_tells_a_smoothed_target_from_another_detailed_body():
     assert shares["raw"] < 0.1 and shares["taubin"] < 0.1, shares
 
 
+@pytest.mark.slow  # 7 s: two calibrations of a 6890-vertex body
 def test_a_region_brushed_smooth_gets_the_detail_the_whole_does_not_lack():
     """FAUST 019 -> 094 (true map; different people), 094 smoothed by a brush on one limb.
 
