@@ -592,7 +592,8 @@ def transfer_detail(
 
     By default the detail is what the target lacks, whatever smoothed it: the source's
     low-pass the target resembles most is found (heat low-passes compared through the map,
-    :func:`o3d_ofp.workflows.detail.calibrate_detail`), and the source's detail above it is
+    :func:`o3d_ofp.workflows.detail.calibrate_detail`; a region smoothed more than the rest,
+    as by a sculpting brush, gets its own longer one), and the source's detail above it is
     carried through the map and re-applied in the target's local frames (fitted rotations
     between the low-pass and the target), where the target lacks it and the map is trusted;
     see :mod:`o3d_ofp.workflows.detail`.
