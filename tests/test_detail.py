@@ -455,9 +455,9 @@ def test_a_region_brushed_smooth_gets_the_detail_the_whole_does_not_lack():
     The body as a whole fits the source's shortest low-passes best, so the whole's calibration
     adds little there; the brushed region fits a longer one that removes more than half of the
     misfit left there (``LACKING``), and gets the detail above it. Measured: distance to the
-    truth where the brush weighs over one half 0.70x the target's (0.94x with the whole's
-    calibration alone), normal angle 0.60x (0.71x); the vertices the brush left alone moved
-    9e-5 of sqrt(area) on average.
+    truth where the brush weighs over one half 0.72x the target's (0.94x with the whole's
+    calibration alone), normal angle 0.63x (0.71x); the vertices the brush left alone moved
+    8e-5 of sqrt(area) on average.
     """
     from o3d_ofp.workflows.detail import calibrate_detail
 
@@ -472,7 +472,8 @@ def test_a_region_brushed_smooth_gets_the_detail_the_whole_does_not_lack():
     calibration, _ = calibrate_detail(e1, e2, identity)
     inside, outside = weight > 0.5, weight == 0
     # longer low-passes only in the brushed region (measured: 486 vertices, all brushed; a
-    # quarter of those weighed over one half, the levels then blended over neighbourhoods)
+    # quarter of the vertices the brush weighs over one half, the levels then blended over
+    # neighbourhoods)
     longer = calibration.times > calibration.time
     assert np.all(weight[longer] > 0) and np.mean(longer[inside]) > 0.1
     X = transfer_detail_frames(e1, e2, p2p_21=identity)

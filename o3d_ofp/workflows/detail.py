@@ -192,7 +192,8 @@ GATE_TIME = 1e-3
 #: When smoothing the target by the calibrated low-pass (on its own operators) loses, on
 #: average, at least this share of what smoothing the source gains, the target lacks the
 #: detail wherever the source's low-pass fits it better and its own fits the source worse;
-#: otherwise the :data:`LACKING` rule says where. The target's low-pass has the same heat time
+#: otherwise the :data:`LACKING` rule says where (in a region smoothed more than the whole,
+#: the larger of the two). The target's low-pass has the same heat time
 #: per area as the source's (onto a part, less than the source's in absolute terms, by the
 #: part's share of its area). Measured (``scripts/eval_detail.py``, true maps, five pairs, the
 #: loss over the gain): the targets smoothed all over by the fairings and Open3D's Laplacian
@@ -399,12 +400,14 @@ class DetailCalibration:
         Mean fit (see :func:`local_rotations`) of the target with the source itself and with
         each of its low-passes in :data:`LADDER`, through the map.
     lacking : (n2,) ndarray
-        Share of the calibrated detail each target vertex lacks, in [0, 1].
+        Share of the calibrated detail (above each vertex's own level, see ``times``) each
+        target vertex lacks, in [0, 1].
     share : float
         The area-weighted mean of ``lacking``.
     target_lowpass : (n2, 3) ndarray
-        The target's own low-pass at the same heat times per area as the source's, vertex by
-        vertex (the target itself where they are 0): mode "replace-detail"'s base.
+        The target's own low-passes at the same heat times per area as the source's, blended
+        as the source's are (the target itself where the time is 0): mode "replace-detail"'s
+        base.
     times : (n2,) ndarray
         Heat time of the source's low-pass each target vertex lacks the detail above, as a
         fraction of the source's area: ``time``, except in regions that lack more than the
@@ -480,12 +483,15 @@ def calibrate_detail(
     better, its own fits the source worse). Otherwise the share it lacks is how much of its
     misfit to the source the low-pass removes (see ``LACKING``): nothing where it does not
     fit that low-pass better than the source itself (a region left detailed, a target as
-    detailed as the source). In a target found smoothed, a region smoothed more than the
-    whole (a sculpting brush on part of the shape) is compared with the longer low-passes
-    too: where one of them removes at least ``LACKING`` of the misfit the calibrated
-    low-pass leaves there (averaged over neighbourhoods of ``GATE_TIME``), the region lacks
-    the detail above that one, the levels blended across its border. The source's shape, pose and units need not be the target's:
-    fits compare neighbourhoods up to a rotation and a scale.
+    detailed as the source). In a target found smoothed (the calibrated low-pass is not the
+    source itself), a region smoothed more than the whole (a sculpting brush on part of the
+    shape) is compared with the longer low-passes too: where the one it fits best removes at
+    least ``LACKING`` of the misfit the calibrated low-pass leaves there (fits averaged over
+    neighbourhoods of ``GATE_TIME``), the region has that level, blended with its
+    neighbours' over the same neighbourhoods, and lacks the detail above it by the
+    ``LACKING`` rule (in proportion to the longer levels' share of the blend). The source's
+    shape, pose and units need not be the target's: fits compare neighbourhoods up to a
+    rotation and a scale.
 
     Parameters
     ----------
@@ -518,6 +524,7 @@ def calibrate_detail(
     local = around(fits.T)  # (n2, levels): each level's fit averaged over a region
     misfit = 1.0 - local[:, 0]  # the source itself
     own = {best: _heat_lowpass(eig_2, time)}  # the target's own low-passes (itself at 0)
+    level = np.full(eig_2.n_vertices, best)
     if best == 0:
         lacking = np.zeros(eig_2.n_vertices)
     else:
@@ -529,33 +536,33 @@ def calibrate_detail(
             lacking = np.clip(around(((lost < 0) & (gained > 0)).astype(np.float64)), 0.0, 1.0)
         else:
             lacking = _lacking(gained, misfit)
-    # Regions that lack more than the whole (a brush smoothed them): where a longer low-pass
-    # fits so much better that it removes at least LACKING of the misfit the calibrated one
-    # leaves there, that low-pass is theirs, blended over the regions' neighbourhoods. Only
-    # in a target found smoothed: a smooth source's bent copy, which fits the source itself
-    # best, fits the longest low-passes better in places (their shrinking, not detail).
-    top = np.argmax(local, axis=1)
-    rows = np.arange(eig_2.n_vertices)
-    left = 1.0 - local[:, best]
-    excess = np.divide(local[rows, top] - local[:, best], left, out=np.zeros_like(left),
-                       where=left > 0)  # fmt: skip
-    level = np.where((best > 0) & (top > best) & (excess >= LACKING), top, best)
-    present = np.unique(level)
-    blend = np.zeros_like(local)
-    if len(present) == 1:
-        blend[:, best] = 1.0
+        # Regions that lack more than the whole (a brush smoothed them): where a longer
+        # low-pass removes at least LACKING of the misfit the calibrated one leaves there,
+        # it is theirs. Only in a target found smoothed: a smooth source's bent copy, which
+        # fits the source itself best, fits the longest low-passes better in places (their
+        # shrinking, not detail).
+        top = np.argmax(local, axis=1)
+        left = 1.0 - local[:, best]
+        won = local[np.arange(eig_2.n_vertices), top] - local[:, best]
+        excess = np.divide(won, left, out=np.zeros_like(left), where=left > 0)
+        level = np.where((top > best) & (excess >= LACKING), top, best)
+    present = [int(i) for i in np.unique(level)]
+    if present == [best]:
+        lowpass, target_lowpass = levels[best], own[best]
     else:
-        blend[:, present] = np.clip(around(level[:, None] == present), 0.0, None)
+        # each level's share at every vertex, over the regions' neighbourhoods (once on each
+        # shape: the target's here, the source's in _on_source)
+        marks = (level[:, None] == np.array(present)).astype(np.float64)
+        blend = np.clip(around(marks), 0.0, None)
         blend /= np.maximum(blend.sum(axis=1, keepdims=True), np.finfo(float).tiny)
-    # where the blended low-passes remove enough of the misfit, the target lacks their detail
-    lacking = np.maximum(lacking, _lacking((blend * local).sum(axis=1) - local[:, 0], misfit))
-    used = [int(i) for i in np.flatnonzero(blend.max(axis=0) > 0)]
-    lowpass = _on_source(eig_1, p2p_21, blend, levels, used)
-    if used == [best]:
-        target_lowpass = own[best]
-    else:
-        own.update({i: _heat_lowpass(eig_2, float(times[i])) for i in used if i not in own})
-        target_lowpass = sum(blend[:, [i]] * own[i] for i in used)
+        longer = 1.0 - (blend[:, present.index(best)] if best in present else 0.0)
+        # where the blended low-passes remove enough of the misfit, the target lacks their
+        # detail (by the LACKING rule), in proportion to the longer levels' share
+        blended = _lacking((blend * local[:, present]).sum(axis=1) - local[:, 0], misfit)
+        lacking = np.maximum(lacking, longer * blended)
+        lowpass = _on_source(eig_1, p2p_21, marks, [levels[i] for i in present])
+        own.update({i: _heat_lowpass(eig_2, float(times[i])) for i in present if i not in own})
+        target_lowpass = sum(blend[:, [j]] * own[i] for j, i in enumerate(present))
     share = float(eig_2.mass @ lacking) / eig_2.area
     regional = level != best
     logger.info("detail calibration: low-pass at heat time %.3g of the source's area (fit "
@@ -571,9 +578,11 @@ def calibrate_detail(
     lacking.setflags(write=False)
     if target_lowpass is not own.get(0):  # the target's own array is not this function's
         target_lowpass.setflags(write=False)
+    level_times = times[level]
+    level_times.setflags(write=False)
     calibration = DetailCalibration(
         time=time, fits=mean, lacking=lacking, share=share, target_lowpass=target_lowpass,
-        times=times[level],
+        times=level_times,
     )  # fmt: skip
     return calibration, lowpass
 
@@ -585,32 +594,29 @@ def _lacking(gained: np.ndarray, misfit: np.ndarray) -> np.ndarray:
 
 
 def _on_source(
-    eig_1: EigenBasis, p2p_21: np.ndarray, blend: np.ndarray, levels: list[np.ndarray],
-    used: list[int],
-) -> np.ndarray:  # fmt: skip
-    """Return the source's low-pass blended as the target's vertices blend the levels.
+    eig_1: EigenBasis, p2p_21: np.ndarray, marks: np.ndarray, levels: list[np.ndarray]
+) -> np.ndarray:
+    """Return the source's low-pass blended as the target's vertices choose the levels.
 
-    Each source vertex takes the mean blend of the target vertices mapped onto it, spread
-    over the source's own neighbourhoods of :data:`GATE_TIME` (a normalized convolution:
-    source vertices no target vertex maps to take their neighbours'; with none near, the
-    level most of the target has).
+    ``marks`` (n2, len(levels)): which level each target vertex has. Each source vertex takes
+    the share of each level among the target vertices mapped onto it and onto its
+    neighbourhood of :data:`GATE_TIME` (a normalized convolution, one smoothing as the
+    target's blend has: source vertices no target vertex maps to take their neighbours'; with
+    none near, the level most target vertices have).
     """
-    if len(used) == 1:
-        return levels[used[0]]
     n1 = eig_1.n_vertices
-    pulled = np.zeros((n1, len(used)))
-    np.add.at(pulled, p2p_21, blend[:, used])
+    pulled = np.zeros((n1, marks.shape[1]))
+    np.add.at(pulled, p2p_21, marks)
     count = np.bincount(p2p_21, minlength=n1).astype(np.float64)
     spread = _heat_operator(eig_1, GATE_TIME * eig_1.area)
     pulled, count = spread(pulled), spread(count)
-    # "none near": less than a millionth of a target vertex's image within reach; those take
-    # the level most of the target has
+    # "none near": less than a millionth of a target vertex's image within reach
     near = count > 1e-6
     weights = np.divide(pulled, count[:, None], out=np.zeros_like(pulled), where=near[:, None])
-    weights[~near, int(np.argmax(blend[:, used].sum(axis=0)))] = 1.0
+    weights[~near, int(np.argmax(marks.sum(axis=0)))] = 1.0
     weights = np.clip(weights, 0.0, None)
     weights /= np.maximum(weights.sum(axis=1, keepdims=True), np.finfo(float).tiny)
-    return sum(weights[:, [j]] * levels[i] for j, i in enumerate(used))
+    return sum(weights[:, [j]] * level for j, level in enumerate(levels))
 
 
 def _positive(value: Any, name: str) -> float:
@@ -845,7 +851,7 @@ def transfer_detail_frames(
         lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
         # replace-detail: the target's own detail goes by the same low-pass, on its own shape
         base = T if mode == "add" else calibration.target_lowpass
-        share = calibration.share if mode == "add" else float(np.any(calibration.times > 0))
+        share = calibration.share if mode == "add" else float(calibration.time > 0)
         if amount > 0 and share < NOTHING_ADDED:
             _warn_nothing_added(calibration)
         # the rotations' neighbourhoods follow the low-passes where the detail is added
