@@ -177,11 +177,13 @@ NORMAL_WEIGHT = 1.0
 #: A region where a longer low-pass removes this share of the misfit the calibrated one
 #: leaves there is smoothed more than the whole (a brush on part of the shape): it gets the
 #: detail above that longer low-pass. Measured (``scripts/eval_detail.py``, true maps, the 35
-#: targets, surface distance): the five brushed targets 0.74-1.00x doing nothing against
+#: targets, surface distance): the five brushed targets 0.72-1.00x doing nothing against
 #: 0.93-1.02x with the whole's level alone (one, the centaur, 0.94 against 0.93), the other
-#: targets no farther than 0.01 (FAUST 019 -> 094's fairings and Open3D filters 0.51-0.74x
-#: against 0.57-0.76x); with estimated maps the same. A share of 0.4 gained more on the
-#: brushes but lost up to 0.17 on the fairings (0.46 -> 0.63x); 0.6 gained less.
+#: targets no farther than 0.01 (FAUST 019 -> 094's fairings and Open3D filters 0.53-0.74x
+#: against 0.57-0.76x); with estimated maps the same; onto the centaur's faired parts 0.54
+#: and 0.58x against 0.48 and 0.56x (a region of centaur 4 fits the longest low-pass better
+#: even unsmoothed). A share of 0.4 gained more on the brushes but lost up to 0.17 on the
+#: fairings (0.46 -> 0.63x); 0.6 gained less.
 LACKING = 0.5
 #: Neighbourhoods (heat time / the target's area) over which the gain in fit is averaged: a
 #: region a brush smooths (a tenth of a body), wider than the comparison's.
