@@ -522,14 +522,14 @@ def calibrate_detail(
     best = int(np.argmax(mean))
     times = np.array((0.0, *LADDER))
     time = float(times[best])
-    around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
-    local = around(fits.T)  # (n2, levels): each level's fit averaged over a region
-    misfit = 1.0 - local[:, 0]  # the source itself
     own = {best: _heat_lowpass(eig_2, time)}  # the target's own low-passes (itself at 0)
     level = np.full(eig_2.n_vertices, best)
-    if best == 0:
+    if best == 0:  # as detailed as the source: nothing lacking, no region (below)
         lacking = np.zeros(eig_2.n_vertices)
     else:
+        around = _heat_operator(eig_2, GATE_TIME * eig_2.area)
+        local = around(fits.T)  # (n2, levels): each level's fit averaged over a region
+        misfit = 1.0 - local[:, 0]  # the source itself
         gained = local[:, best] - local[:, 0]
         # the converse: the target smoothed by the same low-pass, compared with the source
         smoother = _procrustes(compare, levels[0][steady], own[best])[1]
@@ -551,7 +551,7 @@ def calibrate_detail(
     present = [int(i) for i in np.unique(level)]
     if present == [best]:
         lowpass, target_lowpass = levels[best], own[best]
-    else:
+    else:  # regions exist only where best > 0, so around, local and misfit are set
         # each level's share at every vertex, over the regions' neighbourhoods (once on each
         # shape: the target's here, the source's in _on_source)
         marks = (level[:, None] == np.array(present)).astype(np.float64)
