@@ -1568,7 +1568,14 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
     monkeypatch.setattr(workflow, "geodesic_distortion", lambda *a, **k: distortion)
     monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: stretch)
     monkeypatch.setattr(workflow, "reversed_fraction", lambda *a, **k: turned)
-    reason = workflow._rival([1], [truth, truth], {}, truth, 0.076, run, landmarks=None)
+    def found(landmarks=None, refinements=None):
+        passing = workflow._rival_refinements(
+            [1], [truth, truth], refinements or {}, truth, run, landmarks=landmarks
+        )  # fmt: skip
+        others = [(p2p, d, False) for _, _, p2p, d in passing]
+        return workflow._rival(truth, 0.076, others, run, landmarks=landmarks)
+
+    reason = found()
     assert (reason is not None) == rival
     if rival:
         assert reason.code == "rival" and "landmarks" in reason.fixes
@@ -1580,13 +1587,76 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
         kept = np.array([[moved[0], 0]])
         moved_pair = np.array([[truth[0], 0]])
         for pairs, still in ((kept, True), (moved_pair, False)):
-            again = workflow._rival([1], [truth, truth], {}, truth, 0.076, run, landmarks=pairs)
+            again = found(landmarks=pairs)
             assert (again is not None) == still
             assert again is None or "give more known vertex pairs" in str(again)
     # A refinement made already is reused, not made again.
     monkeypatch.setattr(workflow, "_refine", lambda *a, **k: pytest.fail("refined again"))
-    again = workflow._rival([1], [truth, truth], {1: moved}, truth, 0.076, run, landmarks=None)
+    again = found(refinements={1: (None, moved)})
     assert (again is not None) == rival
+    # The map given way to is a rival when it sends most of the part elsewhere, whatever its
+    # distortion (it passed its checks too).
+    far = workflow._rival(truth, 0.076, [(moved, 0.2, True)], run, landmarks=None)
+    assert (far is not None) == (elsewhere > workflow.RIVAL_SHARE)
+
+
+def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeypatch):
+    """A further start's refinement that sends the part elsewhere and distorts less is returned.
+
+    Measured (``scripts/eval_partial_rivals.py``): such a refinement is the right map where
+    the best-ranked start's is wrong (FAUST legs removed at 0.93 of the area, 0.180 -> 0.035).
+    Here the best-ranked start's refinement is made to look 1.05 times as distorted as it is
+    (the bent blob's rival, a map elsewhere, has 1.08 times its distortion: not taken), and
+    then every further refinement to send the whole part elsewhere: the least distorted
+    one is returned, said in a note, and the map it replaced is its rival (suspect, as such a
+    refinement made the map before). Refinements near the map are not taken (between maps
+    near the truth the distortion is no guide), nor one that fails a check of its own.
+    """
+    from o3d_ofp.workflows import partial as workflow
+
+    _, _, e1 = whole
+    _, _, _, ec = cut
+    outputs, distortions = [], {}
+    real_refine, real_distortion = workflow._refine, workflow.geodesic_distortion
+
+    def refine(p2p, *args, **kwargs):
+        C, refined = real_refine(p2p, *args, **kwargs)
+        outputs.append(refined)
+        return C, refined
+
+    def distortion(p2p, *args, **kwargs):
+        d = real_distortion(p2p, *args, **kwargs)
+        d = 1.05 * d if outputs and np.array_equal(p2p, outputs[0]) else d
+        distortions[len(distortions)] = (p2p, d)
+        return d
+
+    monkeypatch.setattr(workflow, "_refine", refine)
+    monkeypatch.setattr(workflow, "geodesic_distortion", distortion)
+    monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
+    near = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    np.testing.assert_array_equal(near.p2p_21, outputs[0])  # its rival (1.08x) stays one
+    assert not _said(near.quality.notes, "rival_taken")
+    outputs.clear()
+    distortions.clear()
+    monkeypatch.setattr(workflow, "_share_apart", lambda *a: 1.0)
+    corr = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    further = [(d, p2p) for p2p, d in distortions.values()
+               if any(np.array_equal(p2p, out) for out in outputs[1:])]  # fmt: skip
+    assert len(outputs) >= 2 and further
+    np.testing.assert_array_equal(corr.p2p_21, min(further, key=lambda f: f[0])[1])
+    (note,) = _said(corr.quality.notes, "rival_taken")
+    assert "is kept instead" in str(note)
+    assert corr.quality.suspect and corr.quality.reasons[0].code == "rival"
+    # A refinement that would fail its own checks is not taken.
+    outputs.clear()
+    distortions.clear()
+    real = workflow.PartialMatch._judged
+    monkeypatch.setattr(workflow.PartialMatch, "_judged", lambda self, run, settled, **kw: (
+        real(self, run, settled, **kw) if np.array_equal(settled.p2p_21, outputs[0]) else
+        real(self, run, settled, **kw).flagged(Said("made to fail", {}, "test"))))
+    kept = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    np.testing.assert_array_equal(kept.p2p_21, outputs[0])
+    assert not _said(kept.quality.notes, "rival_taken")
 
 
 def test_a_rival_makes_a_passing_map_suspect_and_is_said_first(whole, cut, monkeypatch):
@@ -1599,11 +1669,12 @@ def test_a_rival_makes_a_passing_map_suspect_and_is_said_first(whole, cut, monke
     calls = []
     found = Said("another start of the fit ends (test)", {}, "rival")
 
-    def rival(indices, *args, **kwargs):
+    def refinements(indices, *args, **kwargs):
         calls.append(list(indices))
-        return found
+        return []
 
-    monkeypatch.setattr(workflow, "_rival", rival)
+    monkeypatch.setattr(workflow, "_rival_refinements", refinements)
+    monkeypatch.setattr(workflow, "_rival", lambda *args, **kwargs: found)
     with pytest.warns(ofp.OFPWarning, match="another start of the fit ends"):
         corr = match_eigenbases(e1, ec, options=_partial())
     assert corr.quality.suspect
