@@ -1568,6 +1568,7 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
     monkeypatch.setattr(workflow, "geodesic_distortion", lambda *a, **k: distortion)
     monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: stretch)
     monkeypatch.setattr(workflow, "reversed_fraction", lambda *a, **k: turned)
+
     def found(landmarks=None, refinements=None):
         passing = workflow._rival_refinements(
             [1], [truth, truth], refinements or {}, truth, run, landmarks=landmarks
@@ -1600,6 +1601,7 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
     assert (far is not None) == (elsewhere > workflow.RIVAL_SHARE)
 
 
+@pytest.mark.slow  # three partial matches (about 45 s on one core)
 def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeypatch):
     """A further start's refinement that sends the part elsewhere and distorts less is returned.
 
