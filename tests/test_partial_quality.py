@@ -372,11 +372,16 @@ def test_verdict_of_the_final_map_agrees_with_the_error(source, target, axis, si
     # welded surface, stop 28), 019 -> 094 legs removed
     # 0.028 (final distortion 0.081, stretch 1.12: not flagged, though its start's distortion,
     # 0.206, was above the former bound on the start, 0.2).
-    if error > 0.1:
+    if source.startswith("faust_remeshed"):
+        # Since 491bade that rival, less distorted and elsewhere on most of the part, is
+        # returned instead (0.074 in scripts/eval_partial.py --remeshed), said in a note, and
+        # the wrong map it replaced flags it: two maps that pass every other bound.
+        assert error < 0.1
+        assert [n for n in corr.quality.notes if n.code == "rival_taken"]
+        (rival,) = [r for r in corr.quality.reasons if r.code == "rival"]
+        assert str(rival).startswith("another start of the fit")
+    elif error > 0.1:
         assert corr.quality.suspect
-        if source.startswith("faust_remeshed"):  # passes every other bound
-            (rival,) = [r for r in corr.quality.reasons if r.code == "rival"]
-            assert str(rival).startswith("another start of the fit")
     elif error < 0.07:
         assert not corr.quality.suspect, corr.quality.reasons
     else:
