@@ -167,6 +167,7 @@ def test_a_part_smaller_than_those_measured_is_suspect_without_landmarks(whole, 
     assert small_part_note(SMALL_PART) is None and small_part_note(0.49).code == "small_part"
 
 
+@pytest.mark.slow  # two partial matches of a smaller cut (52 s)
 def test_clustered_landmarks_are_said_and_do_not_lift_the_small_part_flag(whole):
     """Landmarks within a region of one another are said, and count as none for a small part."""
     import warnings
@@ -218,6 +219,7 @@ def test_clustered_landmarks_are_said_and_do_not_lift_the_small_part_flag(whole)
                                        "spread over the part")  # fmt: skip
 
 
+@pytest.mark.slow  # a partial match (30 s)
 def test_verdict_is_that_of_the_checked_map_and_the_polish_is_said(whole, cut, monkeypatch):
     # The check reads the refined map, not the start the refinement began from: measured on
     # scripts/eval_partial.py, a wrong start (remeshed 007 -> 000, error 0.32) had a lower
@@ -254,6 +256,7 @@ def test_verdict_is_that_of_the_checked_map_and_the_polish_is_said(whole, cut, m
     assert _error(V, corr.p2p_21, truth, e1.area) < _error(V, refined, truth, e1.area)
 
 
+@pytest.mark.slow  # a partial match (31 s)
 def test_a_part_with_duplicated_vertices_is_matched_as_its_surface(whole, cut, partial_map):
     """A part read with copies of its vertices (an STL's triangle soup, an OBJ's UV seams).
 
@@ -315,6 +318,7 @@ def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
     assert not any("kept unrefined" in str(r) for r in q.reasons)
 
 
+@pytest.mark.slow  # two partial matches (34 s)
 def test_next_start_needs_an_oriented_refinement_and_fewer_changed_distances(
     whole, cut, monkeypatch
 ):
@@ -833,6 +837,7 @@ def _three_landmarks(truth: np.ndarray) -> np.ndarray:
     return np.stack([truth[rows], rows], axis=1)
 
 
+@pytest.mark.slow  # partial matches with landmarks (49 s)
 def test_a_partial_map_that_does_not_keep_the_landmarks_is_flagged(whole, cut):
     """The landmarks enter the fit only; a map that moves one over MAX_JUMP away is suspect.
 
@@ -860,6 +865,7 @@ def test_a_partial_map_that_does_not_keep_the_landmarks_is_flagged(whole, cut):
     assert corr.quality.reasons[0] == reason  # first: map_quality's advice, if any, stays last
 
 
+@pytest.mark.slow  # dense partial matches (28 s)
 def test_large_shapes_are_matched_partially_on_coarse_copies(
     whole, cut, monkeypatch, blob_made_dense
 ):
@@ -970,6 +976,7 @@ def test_a_dense_partial_map_follows_the_checked_coarse_map(
     assert calls == [False] and out.options["polish"] is False
 
 
+@pytest.mark.slow  # dense partial matches (35 s)
 def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     whole, cut, monkeypatch, blob_made_dense
 ):
@@ -1007,6 +1014,7 @@ def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     assert not any("landmarks' target vertices" in str(r) for r in kept.quality.reasons)
 
 
+@pytest.mark.slow  # dense partial matches (27 s)
 def test_a_dense_partial_map_without_opinions_still_checks_its_landmarks_on_the_full_map(
     whole, cut, monkeypatch, blob_made_dense
 ):
@@ -1108,6 +1116,7 @@ def _turned_map(V: np.ndarray, p2p: np.ndarray, how: str) -> np.ndarray:
     return nearest_neighbors(V, np.stack([-a[:, 1], a[:, 0], a[:, 2]], axis=1) + c)
 
 
+@pytest.mark.slow  # a dense partial match each (21 s)
 @pytest.mark.parametrize(
     "opinions",
     [
@@ -1178,6 +1187,7 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_gets_a_third(
         assert warning.startswith("the partial map is suspect:\n  - the match on coarse copies")
 
 
+@pytest.mark.slow  # dense partial matches (35 s)
 def test_a_dense_partial_map_gets_no_opinion_when_suspect_or_not_asked(
     whole, cut, monkeypatch, blob_made_dense
 ):
@@ -1661,6 +1671,7 @@ def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeyp
     assert not _said(kept.quality.notes, "rival_taken")
 
 
+@pytest.mark.slow  # two partial matches (40 s)
 def test_a_rival_makes_a_passing_map_suspect_and_is_said_first(whole, cut, monkeypatch):
     """The wiring of the rival check in the partial match; a flagged map is not checked."""
     from o3d_ofp.workflows import partial as workflow
