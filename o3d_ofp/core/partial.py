@@ -683,11 +683,12 @@ def partial_zoomout(
     phi = eig_1.evecs[s1, : max(k1_final, C.shape[1] - 1) + 1]
     psi = eig_2.evecs[s2, : k2_final + 1]
     k2 = C.shape[0] - 1
+    fits = _LeadingFits(psi)  # each step fits one more leading column of psi
     while k2 < k2_final:
         p2p = nearest_neighbors(phi[:, : C.shape[1]] @ C.T, psi[:, : C.shape[0]])
         k2 += 1
         k1 = slant(eig_1.evals, eig_2.evals, k2)
-        C = np.linalg.lstsq(psi[:, : k2 + 1], phi[p2p, : k1 + 1], rcond=None)[0]
+        C = fits.solve(k2 + 1, phi[p2p, : k1 + 1])
     return C
 
 
