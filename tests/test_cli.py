@@ -624,6 +624,25 @@ def test_texture_flags_and_a_missing_image_are_refused_before_the_work(tmp_path,
     assert list(tmp_path.glob("out*")) == [] and not (tmp_path / "c2.ply").exists()
 
 
+def test_a_textured_source_without_a_material_is_told_the_flag(tmp_path, capsys):
+    """An OBJ with UVs and no material file: the fix named is the flag, not the keyword.
+
+    Found by a trial: the command line advised ``texture=...``, a Python keyword.
+    """
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(2)
+    lines = [*(f"v {a} {b} {c}" for a, b, c in V)]
+    lines += [f"vt {0.5 + 0.4 * a} {0.5 + 0.4 * b}" for a, b, _ in V]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in F + 1]
+    (tmp_path / "src.obj").write_text("\n".join(lines) + "\n")
+    src = str(tmp_path / "src.obj")
+    assert main(["transfer", src, src, "--map", "identity", "-o", str(tmp_path / "o.ply")]) == 2
+    err = capsys.readouterr().err
+    assert "no texture image was loaded" in err and "(--texture FILE)" in err, err
+    assert "texture=" not in err
+
+
 def test_messages_name_the_flags_not_the_keywords(tmp_path, capsys):
     from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
     from o3d_ofp.boundary.io import write_geometry

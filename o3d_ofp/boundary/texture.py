@@ -381,7 +381,9 @@ def no_texture_message(path: str, exc: Exception) -> Said:
     """``path: <why>``, naming the material or image files the OBJ names and lacks."""
     missing = missing_texture_files(path)
     if not missing:
-        return Said("{path}: {why}", {"path": path, "why": text_of(exc)}, "no_texture")
+        # the reason as data (a Said when it advises a fix), worded for its reader later
+        why = getattr(exc, "said", None)
+        return Said("{path}: {why}", {"path": path, "why": why or text_of(exc)}, "no_texture")
     return Said(
         "{path}: {files} (named by its material) not found: put the files beside it, or pass "
         "the image ({texture})", {"path": path, "files": ", ".join(missing)}, "texture_missing",
