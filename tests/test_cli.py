@@ -306,6 +306,7 @@ BAD = [
     (["approximate", "{src}", "--signal", "{bad_len}", "-o", "{tmp}/x.ply"], "has shape (5,)"),
     (["approximate", "{src}", "-o", "{tmp}/x.txt"], "the output must end with"),
     (["approximate", "{src}", "-o", "{tmp}/no/such/dir/x.ply"], "does not exist"),
+    (["approximate", "{src}", "-o", "{src}/x.ply"], "src.ply is a file, not a folder"),
     (["approximate", "{src}", "-k", "5000", "-o", "{tmp}/x.ply"], "-k 5000: must be smaller"),
     (["transfer", "{src}", "{tgt}", "--map", "nope.vts", "-o", "{tmp}/x.ply"], "no such map"),
     (["transfer", "{src}", "{tgt}", "--landmarks", "1:2:3", "-o", "{tmp}/x.ply"], "landmarks"),

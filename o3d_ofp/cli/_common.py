@@ -299,7 +299,9 @@ def same_file(a: str, b: str) -> bool:
 
 def check_writable_folder(folder: str, path: str, *, flag: str = "-o") -> None:
     """Refuse, before any work, an output whose folder is missing or cannot be written."""
-    refuse((not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
+    refuse((os.path.exists(folder) and not os.path.isdir(folder),
+            f"{flag} {path}: {folder} is a file, not a folder"),
+           (not os.path.isdir(folder), f"{flag} {path}: the folder {folder} does not exist"))
     # os.access sees a read-only file system even for root (EROFS); a root process ignores
     # permission bits, and a file system may refuse files of any kind (/sys, /proc): only a
     # file made and removed tells, before the work rather than after it.
