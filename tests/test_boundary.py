@@ -99,9 +99,27 @@ def test_bad_geometries():
         adapters.geometry_to_arrays(o3d.geometry.LineSet())
     with pytest.raises(ValueError, match="geometry vertices is empty"):
         adapters.geometry_to_arrays(o3d.geometry.TriangleMesh())
-    with pytest.raises(ValueError, match="geometry vertices is empty"):
+    with pytest.raises(ValueError, match="mesh_or_vertices vertices is empty"):
         ofp.eigenbasis(o3d.geometry.PointCloud(), k=3)
     assert not adapters.is_open3d_geometry(np.zeros(3))
+
+
+def test_a_bad_geometry_of_a_pair_is_named_by_its_keyword():
+    """Found by a trial: a NaN or empty target was called "geometry", not "target"."""
+    from o3d_ofp.core.shapes import icosphere
+
+    V, F = icosphere(2)
+    good = adapters.triangle_mesh_from_arrays(V, F)
+    bad = V.copy()
+    bad[3] = np.nan
+    nan_mesh = adapters.triangle_mesh_from_arrays(V, F)
+    nan_mesh.vertices = o3d.utility.Vector3dVector(bad)
+    with pytest.raises(ValueError, match=r"^target vertices holds NaN or inf coordinates in 1 of"):
+        ofp.transfer_detail(good, nan_mesh)
+    with pytest.raises(ValueError, match=r"^target vertices is empty"):
+        ofp.match(good, o3d.geometry.TriangleMesh())
+    with pytest.raises(ValueError, match=r"^source vertices holds NaN"):
+        ofp.transfer_colors(nan_mesh, good)
 
 
 @pytest.mark.parametrize("ascii_ply", [False, True])

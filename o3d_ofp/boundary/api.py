@@ -94,7 +94,7 @@ def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[An
     if is_open3d_geometry(shape):
         if faces is not None:
             raise ValueError(f"faces must be None when {name} is an Open3D geometry")
-        return geometry_to_arrays(shape)
+        return geometry_to_arrays(shape, name=name)
     if isinstance(shape, tuple):
         if len(shape) != 2:
             raise ValueError(f"{name} as a tuple must be (vertices, faces); got {len(shape)} items")

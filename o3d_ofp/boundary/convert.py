@@ -103,13 +103,17 @@ def _tensor_attr(attrs: Any, key: str, default: Any = None) -> Any:
     return np.array(attrs[key].cpu().numpy(), copy=True) if key in attrs else default
 
 
-def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
+def geometry_to_arrays(
+    geometry: Any, *, name: str = "geometry"
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Copy an Open3D geometry into plain arrays.
 
     Parameters
     ----------
     geometry : open3d.geometry.TriangleMesh, PointCloud, or their ``open3d.t`` counterparts
         The input; it is not modified.
+    name : str, default "geometry"
+        What the error messages call it (the caller's keyword: "source", "target").
 
     Returns
     -------
@@ -136,10 +140,10 @@ def geometry_to_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray | None]:
         raw_f = _tensor_attr(geometry.triangle, "indices", np.zeros((0, 3), dtype=np.int64))
     else:
         raw_v, raw_f = _tensor_attr(geometry.point, "positions", np.zeros((0, 3))), None
-    vertices = as_vertices(raw_v.reshape(-1, 3), name="geometry vertices")
+    vertices = as_vertices(raw_v.reshape(-1, 3), name=f"{name} vertices")
     if raw_f is None:
         return vertices, None
-    faces = as_faces(raw_f.reshape(-1, 3), vertices.shape[0], name="geometry triangles")
+    faces = as_faces(raw_f.reshape(-1, 3), vertices.shape[0], name=f"{name} triangles")
     return vertices, faces
 
 
