@@ -729,8 +729,9 @@ def filter_geometry(
         default with ``sharpen``, removes noise of about 0.5 % of the bounding-box diagonal
         on a human or the bunny). With ``sharpen``: the size of the detail enhanced.
     sharpen : float, optional
-        Detail gain in [0, 2] (the detail is multiplied by ``1 + sharpen``; beyond 2
-        triangles start turning over, so larger values are refused).
+        Detail gain in [0, 2] (the detail is multiplied by ``1 + sharpen``). Up to 2 at most
+        0.13 % of the triangles turned over on the measured meshes (FAUST 093 at 1: one
+        triangle); beyond 2 more do, so larger values are refused.
     keep_volume : bool, default True
         Scale the result about its centroid to the input's enclosed volume (a point cloud:
         its spread).

@@ -26,7 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
       f"{MAX_SMOOTH:g}] times sqrt(area): smaller detail is removed at any scale (e.g. "
       f"{DEFAULT_SMOOTH:g}); with --sharpen, the size of the detail enhanced ({DEFAULT_SMOOTH:g})")
     a("--sharpen", type=bounded_float(0.0, MAX_SHARPEN), help=f"gain in [0, {MAX_SHARPEN:g}]: "
-      "multiplies the detail smaller than --smooth by 1 + SHARPEN (beyond 2, triangles turn over)")
+      "multiplies the detail smaller than --smooth by 1 + SHARPEN (up to 2, a few triangles "
+      "in a thousand may turn over; beyond, more)")
     a("--keep-size", choices=("volume", "none"), default="volume", help="rescale the result to the "
       "input's enclosed volume (a cloud: its spread) (volume)")
     common.add_components_option(p)
