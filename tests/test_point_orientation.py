@@ -152,3 +152,21 @@ def test_the_cloud_flip_check_on_faust():
     right = map_quality(truth, e1, ofp.eigenbasis(V2, None, k=10)).reversed_fraction
     mirror = map_quality(truth, e1, ofp.eigenbasis(V2 * [-1.0, 1.0, 1.0], None, k=10))
     assert right < 0.12 < MAX_REVERSED < 0.88 < mirror.reversed_fraction, (right, mirror)
+
+
+def test_a_cloud_s_likely_causes_do_not_advise_the_partial_match():
+    """Found by a trial: a cloud's suspect map advised ``partial=True``, which refuses clouds."""
+    from o3d_ofp.workflows.quality import map_quality
+
+    V, F = blob(3)
+    identity = np.arange(len(V))
+    far = 2.0 * np.eye(11)  # orthogonality 3 > MAX_ORTHOGONALITY: not near-isometric
+    for faces in (F, None):
+        e = ofp.eigenbasis(V, faces, k=10)
+        q = map_quality(identity, e, e, far)
+        assert q.suspect and q.reasons[-1].code == "causes_far"
+        words = str(q.reasons[-1])
+        if faces is None:
+            assert "partial" not in q.reasons[-1].fixes and "needs meshes" in words, words
+        else:
+            assert "partial" in q.reasons[-1].fixes and "partial=True" in words, words

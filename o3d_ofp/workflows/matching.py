@@ -384,8 +384,10 @@ class FullMatch(Strategy):
                 return settled
             then = ("trying the next start" if rank + 1 < len(order) else
                     "no other start aligns as well: the best aligned map is kept")  # fmt: skip
-            logger.info("match: start %d's map turns %.2f of the triangles over (a mirror "
-                        "image): %s", index + 1, turned, then)  # fmt: skip
+            meshes = run.eig_1.faces is not None and run.eig_2.faces is not None
+            what = "triangles" if meshes else "target's neighbourhoods"
+            logger.info("match: start %d's map turns %.2f of the %s over (a mirror image): %s",
+                        index + 1, turned, what, then)  # fmt: skip
         return first
 
     def _final(

@@ -129,6 +129,13 @@ _LIKELY_CAUSES = {
         "the other shape ({partial}); aligned copies of one shape match by closest points "
         "({closest})", {}, "causes_far",
     ),
+    # a partial match needs meshes (o3d_ofp.workflows.partial refuses clouds)
+    "far_clouds": Said(
+        "likely causes: shapes of other kinds (a spectral map needs near-isometric shapes, and "
+        "landmarks do not make them so: check the result by eye), a noisy scan, or a part of "
+        "the other shape (a partial match needs meshes: mesh the clouds first); aligned copies "
+        "of one shape match by closest points ({closest})", {}, "causes_far",
+    ),
     "landmarks": Said(
         "likely causes: a wrong landmark pair (a pair swapped or on the mirrored side turns the "
         "map over), very different shapes, or a partial shape; fix: check the landmarks given "
@@ -205,7 +212,8 @@ def map_quality(
             "of the other shape)", {"ortho": ortho, "bound": MAX_ORTHOGONALITY}, "not_isometric",
         ))  # fmt: skip
     reasons += _inconsistent(incons) + _area_reasons(eig_1, eig_2, area_ratio, partial)
-    cause = "far" if far else "landmarks" if landmarks_given else "other"
+    cause = ("far_clouds" if clouds else "far") if far else (
+        "landmarks" if landmarks_given else "other")
     reasons += [_LIKELY_CAUSES[cause]] if reasons else []
     return MapQuality(
         coverage=float(hit / n1), coverage_ratio=float(ratio), orthogonality=ortho,
