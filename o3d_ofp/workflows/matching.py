@@ -34,7 +34,7 @@ from ..core.spectrum import EigenBasis
 from ..core.wording import Said
 from .dense import EXTENSION_K
 from .maps import Correspondence, MapQuality
-from .quality import MAX_REVERSED, map_quality, reversed_fraction
+from .quality import MAX_REVERSED, flipped_what, map_quality, reversed_fraction
 from .strategy import Run, Settled, Strategy
 
 __all__ = [
@@ -384,10 +384,8 @@ class FullMatch(Strategy):
                 return settled
             then = ("trying the next start" if rank + 1 < len(order) else
                     "no other start aligns as well: the best aligned map is kept")  # fmt: skip
-            meshes = run.eig_1.faces is not None and run.eig_2.faces is not None
-            what = "triangles" if meshes else "target's neighbourhoods"
             logger.info("match: start %d's map turns %.2f of the %s over (a mirror image): %s",
-                        index + 1, turned, what, then)  # fmt: skip
+                        index + 1, turned, flipped_what(run.eig_1, run.eig_2), then)  # fmt: skip
         return first
 
     def _final(

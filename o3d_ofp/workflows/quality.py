@@ -42,6 +42,7 @@ __all__ = [
     "PARTIAL_MAX_AREA_RATIO",
     "QUALITY_RECORD",
     "SMALL_PART",
+    "flipped_what",
     "landmarks_advice",
     "landmarks_extent",
     "landmarks_kept",
@@ -126,15 +127,8 @@ _LIKELY_CAUSES = {
     "far": Said(
         "likely causes: shapes of other kinds (a spectral map needs near-isometric shapes, and "
         "landmarks do not make them so: check the result by eye), a noisy scan, or a part of "
-        "the other shape ({partial}); aligned copies of one shape match by closest points "
+        "the other shape ({part}); aligned copies of one shape match by closest points "
         "({closest})", {}, "causes_far",
-    ),
-    # a partial match needs meshes (o3d_ofp.workflows.partial refuses clouds)
-    "far_clouds": Said(
-        "likely causes: shapes of other kinds (a spectral map needs near-isometric shapes, and "
-        "landmarks do not make them so: check the result by eye), a noisy scan, or a part of "
-        "the other shape (a partial match needs meshes: mesh the clouds first); aligned copies "
-        "of one shape match by closest points ({closest})", {}, "causes_far",
     ),
     "landmarks": Said(
         "likely causes: a wrong landmark pair (a pair swapped or on the mirrored side turns the "
@@ -147,6 +141,16 @@ _LIKELY_CAUSES = {
         "({landmarks})", {}, "causes",
     ),
 }  # fmt: skip
+#: The fix of a part, between meshes and where a shape is a cloud (the partial match refuses
+#: clouds).
+_PART_FIX = {False: Said("{partial}"), True: Said("a partial match needs meshes: mesh the "
+                                                  "clouds first")}  # fmt: skip
+
+
+def flipped_what(eig_1: EigenBasis, eig_2: EigenBasis) -> str:
+    """Return what a map's reversed fraction counts: triangles, or a cloud's neighbourhoods."""
+    meshes = eig_1.faces is not None and eig_2.faces is not None
+    return "triangles" if meshes else "target's neighbourhoods"
 
 
 def map_quality(
@@ -197,8 +201,7 @@ def map_quality(
             "the map turns {percent:.0f} % of the {what} over" + ("" if far else
             ": a mirror image of the right map (left/right symmetry flip), or a map too rough "
             "to keep the triangles' orientation (a very coarse or noisy shape)"),
-            {"percent": 100 * turned,
-             "what": "target's neighbourhoods" if clouds else "triangles"}, "reversed",
+            {"percent": 100 * turned, "what": flipped_what(eig_1, eig_2)}, "reversed",
         ))  # fmt: skip
     if ratio < MIN_COVERAGE:
         reasons.append(Said(
@@ -212,9 +215,10 @@ def map_quality(
             "of the other shape)", {"ortho": ortho, "bound": MAX_ORTHOGONALITY}, "not_isometric",
         ))  # fmt: skip
     reasons += _inconsistent(incons) + _area_reasons(eig_1, eig_2, area_ratio, partial)
-    cause = ("far_clouds" if clouds else "far") if far else (
-        "landmarks" if landmarks_given else "other")
-    reasons += [_LIKELY_CAUSES[cause]] if reasons else []
+    cause = "far" if far else "landmarks" if landmarks_given else "other"
+    said = _LIKELY_CAUSES[cause]
+    said = said.replace(part=_PART_FIX[clouds]) if cause == "far" else said
+    reasons += [said] if reasons else []
     return MapQuality(
         coverage=float(hit / n1), coverage_ratio=float(ratio), orthogonality=ortho,
         inconsistency=incons, reversed_fraction=turned, area_ratio=float(area_ratio),
