@@ -124,16 +124,16 @@ def analyse(eig_1, eig_2, err_of, margin: float, share_min: float) -> dict:
         ratio = r["dist"] / final["dist"]
         if share > 0.1 and (closest is None or ratio < closest[0]):
             closest = (ratio, share, r["err"])
-        passing.append(r)
+        passing.append((r, share))
     # the least distorted refinement that passes and sends most of the part elsewhere is
     # taken when it distorts less (the match's rule, o3d_ofp.workflows.partial:
     # PartialMatch.review); the map it replaces is then its rival
-    elsewhere = [r for r in passing if share_apart(final["p2p"], r["p2p"]) > share_min]
+    elsewhere = [r for r, share in passing if share > share_min]
     best = min(elsewhere, key=lambda r: r["dist"], default=None)
     taken = best is not None and best["dist"] < final["dist"]
-    others = [(r, False) for r in passing]
+    others = [(r, False) for r, _ in passing]
     if taken:
-        others = [(r, False) for r in passing if r is not best] + [(final, True)]
+        others = [(r, False) for r, _ in passing if r is not best] + [(final, True)]
         final = best
     rival = any(
         share_apart(final["p2p"], r["p2p"]) > share_min
