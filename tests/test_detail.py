@@ -1,6 +1,7 @@
 """Detail transfer in local frames (o3d_ofp.workflows.detail) on arrays."""
 
 import re
+import warnings
 from contextlib import nullcontext
 
 import numpy as np
@@ -506,8 +507,11 @@ def test_add_mode_with_a_band_warns_when_the_target_already_has_detail(caplog):
             warnings.simplefilter("always")
             with caplog.at_level(logging.WARNING, logger=name), warnings_logged():
                 transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode, band=30)
+        # (onto the 30-eigenfunction blob the detail also folds the hands: said apart)
+        w = [x for x in w if "folded the surface" not in str(x.message)]
         assert [x.category for x in w] == ([ofp.OFPWarning] if warned else [])
         said = [r.getMessage() for r in caplog.records if r.name == name]
+        said = [m for m in said if "folded the surface" not in m]
         assert bool(said) == warned, (mode, said)
         if warned:
             assert "already has detail" in said[0] and "replace-detail" in said[0]
@@ -665,3 +669,62 @@ def test_calibrated_replace_detail_swaps_the_targets_own_detail_for_the_sources(
     X = transfer_detail_frames(e1, e2, p2p_21=identity, mode="replace-detail")
     before = np.linalg.norm(target - source, axis=1).mean()  # the truth: the source's bumps
     assert np.linalg.norm(X - source, axis=1).mean() < 0.5 * before
+
+
+def _folds(V, F, below=-0.5):
+    """(e, 2) edges whose two triangles' normals are more than 120° apart (cosine < below)."""
+    n = face_areas_normals(V, F)[1]
+    rows = np.sort(np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    tri = np.tile(np.arange(len(F)), 3)
+    order = np.lexsort((rows[:, 1], rows[:, 0]))
+    rows, tri = rows[order], tri[order]
+    pair = np.flatnonzero((rows[1:] == rows[:-1]).all(axis=1))
+    cos = np.einsum("ij,ij->i", n[tri[pair]], n[tri[pair + 1]])
+    return rows[pair][cos < below]
+
+
+def _within_rings(V, F, seeds, rings):
+    """(n,) bool: the vertices at most ``rings`` edges from a seed."""
+    import scipy.sparse as sp
+
+    rows = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    A = sp.coo_matrix((np.ones(len(rows)), (rows[:, 0], rows[:, 1])), shape=(len(V),) * 2)
+    A = ((A + A.T) > 0).astype(float)
+    near = np.zeros(len(V))
+    near[seeds] = 1.0
+    for _ in range(rings):
+        near = near + A @ near
+    return near > 0
+
+
+def test_detail_that_folds_the_surface_where_the_source_does_not_bend_is_lowered_and_said():
+    """A map that crowds the target onto a few source vertices crumples the detail: lowered.
+
+    FAUST 093 → 087 smoothed (umbrella, 20 half steps); the map sends every target vertex to
+    the source vertex of its nearest sixth target vertex (the true map is the identity), as an
+    estimated map that is wrong at the detail's scale does. Measured before the rule: 136
+    folds (edges of more than 120°), most of them far from any bend of the source; with it
+    every fold left lies within two edges of a source bend of more than 90° (the source's own
+    detail, which the rule leaves alone) or is one of the target's own, and it is said (the
+    detail averaged at 1013 vertices, lowered at 112, 1.6 %). Through the true map the rule
+    holds too, and nothing is said (averaged at 13 vertices, none lowered).
+    """
+    from scipy.spatial import cKDTree
+
+    V1, F = load_shared_mesh("faust/tr_reg_093.ply")
+    V2, _ = load_shared_mesh("faust/tr_reg_087.ply")
+    target = _umbrella(V2, F, 20)
+    e1, e2 = ofp.eigenbasis(V1, F, k=5), ofp.eigenbasis(target, F, k=5)
+    every_sixth = np.arange(0, len(V2), 6)
+    crowded = every_sixth[cKDTree(target[every_sixth]).query(target)[1]]
+    bends = _within_rings(V1, F, np.unique(_folds(V1, F, below=0.0)), 2)
+    own = {tuple(edge) for edge in _folds(target, F)}  # (the umbrella leaves 24)
+    for p2p, lowered in ((crowded, True), (np.arange(len(V2)), False)):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            X = transfer_detail_frames(e1, e2, p2p_21=p2p)
+        told = [str(w.message) for w in said if "folded the surface" in str(w.message)]
+        assert bool(told) == lowered, told
+        folds = np.array([edge for edge in _folds(X, F) if tuple(edge) not in own])
+        assert len(folds) > 0  # the source's own bends stay folds (detail kept there)
+        assert (bends[p2p[folds[:, 0]]] | bends[p2p[folds[:, 1]]]).all(), len(folds)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from o3d_ofp.core._rows import unique_rows
-from o3d_ofp.core.geometry import unique_edges
+from o3d_ofp.core.geometry import fold_cosines, interior_edges, unique_edges
 from o3d_ofp.core.shapes import icosphere
 
 RNG = np.random.default_rng(7)
@@ -64,3 +64,28 @@ def test_unique_edges_counts_each_edge_of_a_closed_mesh_twice():
     assert edges.shape[0] == 3 * F.shape[0] // 2  # closed: every edge in two triangles
     assert (counts == 2).all()
     assert V.shape[0] - edges.shape[0] + F.shape[0] == 2  # Euler characteristic of a sphere
+
+
+def test_interior_edges_pair_each_shared_edge_with_its_two_triangles():
+    """A regular tetrahedron, a fan with boundary edges and a fin on three triangles."""
+    s = 1.0 / np.sqrt(2.0)
+    V = np.array([[1, 0, -s], [-1, 0, -s], [0, 1, s], [0, -1, s]], dtype=float)
+    F = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])  # outward
+    edges, sides = interior_edges(F)
+    assert edges.shape == (6, 2) and sides.shape == (6, 2)
+    for (a, b), (f, g) in zip(edges, sides, strict=True):  # both triangles hold the edge
+        assert f != g and {a, b} <= set(F[f]) and {a, b} <= set(F[g])
+    # outward normals of two faces of a regular tetrahedron: 180° minus its dihedral angle
+    assert np.allclose(fold_cosines(V, F, sides), -1.0 / 3.0)
+    # an open fan: its rim edges have one triangle; a fin (edge 0-1 in three): left out
+    fan = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4]])
+    assert interior_edges(fan)[0].tolist() == [[0, 2], [0, 3]]
+    fin = np.array([[0, 1, 2], [0, 1, 3], [1, 0, 4], [1, 2, 5]])
+    assert interior_edges(fin)[0].tolist() == [[1, 2]]
+    # a flat pair and the same folded back onto itself
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], dtype=float)
+    pair = np.array([[0, 1, 2], [1, 3, 2]])
+    assert np.allclose(fold_cosines(flat, pair, interior_edges(pair)[1]), 1.0)
+    back = flat.copy()
+    back[3] = [-1, -1, 1e-9]
+    assert fold_cosines(back, pair, interior_edges(pair)[1])[0] < -0.99

@@ -15,6 +15,8 @@ __all__ = [
     "edge_graph",
     "face_areas_normals",
     "face_gradient_operator",
+    "fold_cosines",
+    "interior_edges",
     "outward_sign",
     "point_frames",
     "point_gradient_operator",
@@ -186,6 +188,51 @@ def unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     F = np.asarray(faces, dtype=np.int64)
     edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     return unique_rows(edges, return_counts=True)
+
+
+def interior_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the edges shared by exactly two triangles, and those two triangles.
+
+    Parameters
+    ----------
+    faces : (m, 3) ndarray of int
+
+    Returns
+    -------
+    edges : (e, 2) ndarray of int64
+        Sorted vertex pairs, in lexicographic order (boundary and non-manifold edges left out).
+    sides : (e, 2) ndarray of int64
+        The two triangles of each edge.
+    """
+    F = np.asarray(faces, dtype=np.int64)
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    distinct, inverse, counts = unique_rows(edges, return_inverse=True, return_counts=True)
+    rows = np.arange(len(edges))
+    first, last = np.empty(len(distinct), np.int64), np.empty(len(distinct), np.int64)
+    first[inverse[::-1]] = rows[::-1]  # (of repeated indices, the last assignment stays)
+    last[inverse] = rows
+    two = counts == 2
+    return distinct[two], np.stack([first[two], last[two]], axis=1) % len(F)
+
+
+def fold_cosines(vertices: np.ndarray, faces: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """Cosine of the angle between the normals of each edge's two triangles.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    faces : (m, 3) ndarray of int
+    sides : (e, 2) ndarray of int
+        The two triangles of each edge (:func:`interior_edges`).
+
+    Returns
+    -------
+    (e,) ndarray
+        1 where the surface is flat across the edge, -1 where it folds back onto itself (0
+        beside a degenerate triangle).
+    """
+    normals = face_areas_normals(vertices, faces)[1]
+    return np.einsum("ij,ij->i", normals[sides[:, 0]], normals[sides[:, 1]])
 
 
 def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:
