@@ -83,11 +83,11 @@ from ..core._warnings import warn
 from ..core.correspondence import check_p2p, nearest_neighbors
 from ..core.filtering import spread_scale
 from ..core.geometry import (
+    edge_graph,
     face_areas_normals,
     fold_cosines,
     interior_edges,
     outward_sign,
-    unique_edges,
     vertex_normals,
 )
 from ..core.spectrum import EigenBasis, check_eigenbasis
@@ -951,18 +951,11 @@ def _near_bends(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     edges, sides = interior_edges(faces)
     near = np.zeros(len(vertices), dtype=bool)
     near[edges[fold_cosines(vertices, faces, sides) < SOURCE_BEND].ravel()] = True
-    return _grown(_adjacency(faces, len(vertices)), near, FOLD_RINGS)
-
-
-def _adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
-    """(n, n) 0/1 matrix of the mesh's edges."""
-    E = unique_edges(faces)[0]
-    ones = np.ones(2 * len(E))
-    return sp.coo_matrix((ones, (E.ravel(), E[:, ::-1].ravel())), shape=(n, n)).tocsr()
+    return _grown((edge_graph(vertices, faces) > 0).astype(np.float64), near, FOLD_RINGS)
 
 
 def _grown(adjacency: sp.csr_matrix, mask: np.ndarray, rings: int) -> np.ndarray:
-    """``mask`` and the vertices within ``rings`` edges of it."""
+    """``mask`` and the vertices within ``rings`` edges of it (``adjacency``: the edges)."""
     grown = mask.astype(np.float64)
     for _ in range(rings):
         grown += adjacency @ grown
@@ -984,7 +977,7 @@ def _unfold(
     bends = _near_bends(np.asarray(eig_1.vertices), np.asarray(eig_1.faces))
     free &= ~(bends[p2p[edges[:, 0]]] | bends[p2p[edges[:, 1]]])
     n = len(base)
-    adjacency = _adjacency(faces, n)
+    adjacency = (edge_graph(base, faces) > 0).astype(np.float64)
     degree = np.asarray(adjacency.sum(axis=1)).ravel() + 1.0
     added = added.copy()
     averaged, lowered = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
@@ -1004,6 +997,8 @@ def _unfold(
             left = left or int(new.sum())
             added[at] *= 0.5 if step < FOLD_AVERAGINGS + FOLD_HALVINGS else 0.0
             lowered |= at
+    if not first:  # the folds are the source's or the target's own
+        return added
     share = float(lowered.mean())
     logger.info(
         "detail folded the surface at %d edges: averaged at %d vertices, lowered at %d",
