@@ -725,6 +725,8 @@ def test_detail_that_folds_the_surface_where_the_source_does_not_bend_is_lowered
             X = transfer_detail_frames(e1, e2, p2p_21=p2p)
         told = [str(w.message) for w in said if "folded the surface" in str(w.message)]
         assert bool(told) == lowered, told
+        # a given map: the cause said is the target's or the map's, not landmarks to add
+        assert all("with a map given" in t and "landmarks" not in t for t in told), told
         folds = np.array([edge for edge in _folds(X, F) if tuple(edge) not in own])
         assert len(folds) > 0  # the source's own bends stay folds (detail kept there)
         assert (bends[p2p[folds[:, 0]]] | bends[p2p[folds[:, 1]]]).all(), len(folds)

@@ -615,7 +615,7 @@ def calibrate_detail(
                 time, float(mean[best]), mean[0], 100.0 * share)  # fmt: skip
     if np.any(regional):
         logger.info(
-            "a region of %.0f %% of the target lacks more: low-passes up to heat time %.3g there",
+            "a region of %.1f %% of the target lacks more: low-passes up to heat time %.3g there",
             100.0 * float(weight @ regional),
             float(times[level].max()),
         )
@@ -942,7 +942,8 @@ def transfer_detail_frames(
     logger.debug("detail transfer: scale %.4g, carry %s", scale, carry)
     added = (amount * scale) * lacking[:, None] * moved
     if meshes and amount > 0:
-        added = _unfold(eig_1, eig_2, base, added, p2p)
+        estimated = correspondence.method in ("estimate", "partial")
+        added = _unfold(eig_1, eig_2, base, added, p2p, estimated=estimated)
     return base + added
 
 
@@ -963,11 +964,13 @@ def _grown(adjacency: sp.csr_matrix, mask: np.ndarray, rings: int) -> np.ndarray
 
 
 def _unfold(
-    eig_1: EigenBasis, eig_2: EigenBasis, base: np.ndarray, added: np.ndarray, p2p: np.ndarray
-) -> np.ndarray:
+    eig_1: EigenBasis, eig_2: EigenBasis, base: np.ndarray, added: np.ndarray, p2p: np.ndarray,
+    *, estimated: bool,
+) -> np.ndarray:  # fmt: skip
     """Average, then lower, the detail where it folds the result and neither shape folds.
 
     See :data:`FOLD_COSINE`. Returns the detail to add, ``added`` where nothing folds.
+    ``estimated``: the map was estimated here (its cause and fix are said so).
     """
     faces = np.asarray(eig_2.faces)
     edges, sides = interior_edges(faces)
@@ -981,7 +984,7 @@ def _unfold(
     degree = np.asarray(adjacency.sum(axis=1)).ravel() + 1.0
     added = added.copy()
     averaged, lowered = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-    first = left = 0
+    first = left = where = 0
     for step in range(FOLD_AVERAGINGS + FOLD_HALVINGS + 1):
         new = free & (fold_cosines(base + added, faces, sides) < FOLD_COSINE)
         if not new.any():
@@ -994,7 +997,8 @@ def _unfold(
             added[at] = ((adjacency @ added + added) / degree[:, None])[at]
             averaged |= at
         else:
-            left = left or int(new.sum())
+            if not left:
+                left, where = int(new.sum()), int(edges[new][0, 0])
             added[at] *= 0.5 if step < FOLD_AVERAGINGS + FOLD_HALVINGS else 0.0
             lowered |= at
     if not first:  # the folds are the source's or the target's own
@@ -1005,14 +1009,25 @@ def _unfold(
         first, int(averaged.sum()), int(lowered.sum()),
     )  # fmt: skip
     if share >= FOLDS_TOLD:
+        if estimated:
+            cause = Said(
+                "most often the estimated map crowds the target onto a few source points there, "
+                "wrong at the detail's scale; landmark pairs near that vertex make it closer: "
+                "{landmarks}"
+            )  # fmt: skip
+        else:
+            cause = Said(
+                "with a map given, most often the target's smoothing collapsed a part there "
+                "that the detail cannot fit (a hand into a spike), or the map crowds the target "
+                "onto a few source points"
+            )  # fmt: skip
         warn(logger, Said(
-            "the detail folded the surface at {folds} edges where neither shape folds, and "
-            "averaging it over neighbouring vertices left {left} of them: there the map crowds "
-            "the target onto a few source points (wrong at the detail's scale), or the target's "
-            "smoothing collapsed a part the detail cannot fit; the detail was lowered at {count} "
-            "vertices ({share:.1%} of the target). A closer map (landmark pairs there: "
-            "{landmarks}) carries more of it",
-            {"folds": first, "left": left, "count": int(lowered.sum()), "share": share},
+            "the detail folded the surface at {folds} edges where neither shape folds; where "
+            "averaging it over neighbouring vertices did not undo a fold ({left} edges, the "
+            "first at target vertex {vertex}) it was lowered, at {count} vertices ({share:.1%} "
+            "of the target): {cause}",
+            {"folds": first, "left": left, "vertex": where, "count": int(lowered.sum()),
+             "share": share, "cause": cause},
             "detail_folds",
         ))  # fmt: skip
     return added
@@ -1021,7 +1036,7 @@ def _unfold(
 def _warn_nothing_added(calibration: DetailCalibration) -> None:
     warn(logger, Said(
         "no detail the target lacks was found (it fits the source's low-passes no better than "
-        "the source itself; {share:.0%} of it lacking, below {bound:.0%}): little was "
+        "the source itself; {share:.1%} of it lacking, below {bound:.0%}): little was "
         "changed. To add the source's detail anyway, {band} adds the detail above that many "
         "eigenfunctions everywhere (on top of the target's own); aligned copies take the "
         "source's surface with {coordinates_closest}",
