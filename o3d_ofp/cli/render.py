@@ -28,7 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     a("--columns", type=common.positive_int, help="tiles per row (default: all, up to 6 per row)")
     a("--front", type=common.vector3, default=(0.0, 0.0, 1.0), help="camera direction x,y,z")
     a("--up", type=common.vector3, default=(0.0, 1.0, 0.0), help="up direction x,y,z")
-    a("--zoom", type=common.unit_float, default=0.6, help="zoom in (0, 1) (0.6)")
+    a("--zoom", type=common.unit_float, default=0.6,
+      help="camera distance in (0, 1): smaller is closer (0.6: the shape fills 90%% of a tile)")
     a("-o", "--output", required=True, help="PNG file")
     p.set_defaults(func=run)
 
