@@ -1037,9 +1037,9 @@ def _warn_nothing_added(calibration: DetailCalibration) -> None:
     warn(logger, Said(
         "no detail the target lacks was found (it fits the source's low-passes no better than "
         "the source itself; {share:.1%} of it lacking, below {bound:.0%}): little was "
-        "changed. To add the source's detail anyway, {band} adds the detail above that many "
-        "eigenfunctions everywhere (on top of the target's own); aligned copies take the "
-        "source's surface with {coordinates_closest}",
+        "changed. To put the source's detail in place of the target's own anyway: "
+        "{replace_detail}; aligned copies take the source's surface with "
+        "{coordinates_closest}",
         {"share": calibration.share, "bound": NOTHING_ADDED}, "nothing_added",
     ))  # fmt: skip
 
