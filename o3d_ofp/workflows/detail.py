@@ -974,8 +974,9 @@ def _unfold(
     """
     faces = np.asarray(eig_2.faces)
     edges, sides = interior_edges(faces)
-    free = fold_cosines(base, faces, sides) >= FOLD_COSINE
-    if not (free & (fold_cosines(base + added, faces, sides) < FOLD_COSINE)).any():
+    free = fold_cosines(base, faces, sides) >= FOLD_COSINE  # (the target's own folds stay)
+    folded = fold_cosines(base + added, faces, sides) < FOLD_COSINE
+    if not (free & folded).any():
         return added
     bends = _near_bends(np.asarray(eig_1.vertices), np.asarray(eig_1.faces))
     free &= ~(bends[p2p[edges[:, 0]]] | bends[p2p[edges[:, 1]]])
@@ -986,7 +987,7 @@ def _unfold(
     averaged, lowered = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     first = left = where = 0
     for step in range(FOLD_AVERAGINGS + FOLD_HALVINGS + 1):
-        new = free & (fold_cosines(base + added, faces, sides) < FOLD_COSINE)
+        new = free & folded
         if not new.any():
             break
         first = first or int(new.sum())
@@ -1001,6 +1002,7 @@ def _unfold(
                 left, where = int(new.sum()), int(edges[new][0, 0])
             added[at] *= 0.5 if step < FOLD_AVERAGINGS + FOLD_HALVINGS else 0.0
             lowered |= at
+        folded = fold_cosines(base + added, faces, sides) < FOLD_COSINE
     if not first:  # the folds are the source's or the target's own
         return added
     share = float(lowered.mean())
