@@ -384,7 +384,8 @@ class FullMatch(Strategy):
                 return settled
             then = ("trying the next start" if rank + 1 < len(order) else
                     "no other start aligns as well: the best aligned map is kept")  # fmt: skip
-            logger.info("match: start %d's map turns %.2f of the %s over (a mirror image): %s",
+            logger.info("match: start %d's map turns %.2f of the target's %s over (a mirror "
+                        "image): %s",
                         index + 1, turned, flipped_what(run.eig_1, run.eig_2), then)  # fmt: skip
         return first
 

@@ -148,9 +148,12 @@ _PART_FIX = {False: Said("{partial}"), True: Said("a partial match needs meshes:
 
 
 def flipped_what(eig_1: EigenBasis, eig_2: EigenBasis) -> str:
-    """Return what a map's reversed fraction counts: triangles, or a cloud's neighbourhoods."""
+    """Return what a map's reversed fraction counts (``MapQuality.reversed_of``).
+
+    ``"triangles"`` between meshes, ``"neighbourhoods"`` (the target's) where a shape is a cloud.
+    """
     meshes = eig_1.faces is not None and eig_2.faces is not None
-    return "triangles" if meshes else "target's neighbourhoods"
+    return "triangles" if meshes else "neighbourhoods"
 
 
 def map_quality(
@@ -193,15 +196,16 @@ def map_quality(
         ortho = float(np.linalg.norm(C.T @ C - np.eye(k + 1)) / math.sqrt(k + 1))
         incons = _inconsistency(C, p2p_21, unit_area(eig_1), unit_area(eig_2))
     turned = reversed_fraction(p2p_21, eig_1, eig_2)
-    clouds = eig_1.faces is None or eig_2.faces is None
+    what = flipped_what(eig_1, eig_2)
+    clouds = what == "neighbourhoods"
     far = ortho > MAX_ORTHOGONALITY  # no near-isometric map: no "right map" to be mirrored
     reasons = []
     if turned > MAX_REVERSED:
         reasons.append(Said(
-            "the map turns {percent:.0f} % of the {what} over" + ("" if far else
+            "the map turns {percent:.0f} % of the target's {what} over" + ("" if far else
             ": a mirror image of the right map (left/right symmetry flip), or a map too rough "
             "to keep the triangles' orientation (a very coarse or noisy shape)"),
-            {"percent": 100 * turned, "what": flipped_what(eig_1, eig_2)}, "reversed",
+            {"percent": 100 * turned, "what": what}, "reversed",
         ))  # fmt: skip
     if ratio < MIN_COVERAGE:
         reasons.append(Said(
@@ -225,7 +229,7 @@ def map_quality(
         suspect=bool(reasons), reasons=tuple(reasons),
         notes=tuple(_notes(eig_1, eig_2, area_ratio, partial, clouds)),
         overlap=None if overlap is None else float(overlap),
-        reversed_of="neighbourhoods" if clouds else "triangles",
+        reversed_of=what,
     )  # fmt: skip
 
 
