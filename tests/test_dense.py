@@ -278,6 +278,9 @@ def test_dense_path_takes_landmarks_closer_than_a_coarse_cell(twisted_pair):
     assert str(note) == message
     assert not corr.quality.suspect
     assert corr.options["landmarks"] == given[:5]  # the pairs as given, the repeated one once
+    # every pair is kept at full resolution, the one left out of the coarse copies too
+    kept = np.array(given[:5])
+    np.testing.assert_array_equal(corr.p2p_21[kept[:, 1]], kept[:, 0])
     # the map is the pair's (the dense map without landmarks: 0.031)
     assert _error(corr.p2p_21, V1, F1, np.arange(V2.shape[0])) < 0.06
 

@@ -216,7 +216,7 @@ def test_clustered_landmarks_are_said_and_do_not_lift_the_small_part_flag(whole)
     one = workflow.landmarks_kept(q, truth, spread[:1], V / scale)
     assert one.notes[-1].code == "landmarks_offset"
     assert str(one.notes[-1]).endswith("one landmark holds the map near it only: give more, "
-                                       "spread over the part")  # fmt: skip
+                                       "spread over the target")  # fmt: skip
 
 
 @pytest.mark.slow  # a partial match (30 s)
@@ -805,6 +805,13 @@ def _counted_runs(monkeypatch, change=None):
     return runs, maps
 
 
+def _kept(p2p, landmarks):
+    """``p2p`` with the landmarks' pairs kept exactly, as the result of a match keeps them."""
+    p2p = np.array(p2p)
+    p2p[landmarks[:, 1]] = landmarks[:, 0]
+    return p2p
+
+
 def _send_a_landmark_far(monkeypatch, V, landmarks):
     """Make the full map send the second landmark's target vertex far; return where, and more.
 
@@ -1000,7 +1007,8 @@ def test_a_dense_partial_map_is_checked_on_its_landmarks_at_full_resolution(
     with pytest.warns(OFPWarning, match="the full map sends 1 of the 3 landmarks") as said:
         corr = estimate_dense(V, F, Vc, Fc, options=options)
     assert len([w for w in said if "is suspect" in str(w.message)]) == 1
-    assert corr.quality.suspect and corr.p2p_21[target] == far
+    assert corr.quality.suspect and far != landmarks[1, 0]
+    assert corr.p2p_21[target] == landmarks[1, 0]  # the result keeps the pair all the same
     assert corr.quality.reasons[0].code == "landmarks_far"
     assert str(corr.quality.reasons[0]).startswith("the full map sends 1 of the 3 landmarks")
     assert len(runs) == 1  # no second opinion
@@ -1027,14 +1035,25 @@ def test_a_dense_partial_map_without_opinions_still_checks_its_landmarks_on_the_
     Vc, Fc, truth, _ = cut
     landmarks = _three_landmarks(truth)
     options = _partial(landmarks=landmarks)
+    import o3d_ofp.workflows.estimate as estimation
+
+    before = []  # the full map as estimated, before the pairs are kept exactly
+
+    def keeping(corr, given):
+        before.append(np.array(corr.p2p_21))
+        return real_keeping(corr, given)
+
+    real_keeping = estimation.keeping_landmarks
+    monkeypatch.setattr(estimation, "keeping_landmarks", keeping)
     kept = estimate_dense(V, F, Vc, Fc, options=options, opinions=False)
+    np.testing.assert_array_equal(kept.p2p_21[landmarks[:, 1]], landmarks[:, 0])
     notes = [str(n) for n in _said(kept.quality.notes, "landmarks_offset")]
     assert len(notes) == 2, notes  # the coarse map's, then the full map's
     coarse_note, full_note = notes
     assert coarse_note.startswith("landmarks: the coarse map (before its polish and extension)")
     assert full_note.startswith("landmarks: the full map sends their target vertices at most")
-    off = np.linalg.norm(V[kept.p2p_21[landmarks[:, 1]]] - V[landmarks[:, 0]], axis=1)
-    assert f"at most {off.max() / math.sqrt(e1.area):.3f} of" in full_note
+    off = np.linalg.norm(V[before[-1][landmarks[:, 1]]] - V[landmarks[:, 0]], axis=1)
+    assert off.max() > 0 and f"at most {off.max() / math.sqrt(e1.area):.3f} of" in full_note
     # a full map that sends a landmark far is flagged, without opinions too
     _send_a_landmark_far(monkeypatch, V, landmarks)
     moved = estimate_dense(V, F, Vc, Fc, options=options, opinions=False)
@@ -1170,7 +1189,7 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_gets_a_third(
             "the matches on coarse copies of about 560 and 320 vertices agree with each other, "
             "but send 100 %"
         )
-        np.testing.assert_array_equal(corr.p2p_21, maps[1])  # the second opinion's
+        np.testing.assert_array_equal(corr.p2p_21, _kept(maps[1], landmarks))  # the second's
         assert "the first map's (coarse copies of about" in notes[0]
         assert "away from this map's images on" in notes[2]  # the third against the second's
         assert "this map is the second opinion's, which the third agrees with" in words[-1]
@@ -1178,7 +1197,7 @@ def test_a_dense_partial_map_the_second_opinion_contradicts_gets_a_third(
         assert warning.startswith("the partial map is suspect:\n  - the matches on coarse")
     else:
         assert q.suspect and error < 0.08  # the first map, flagged
-        np.testing.assert_array_equal(corr.p2p_21, maps[0])
+        np.testing.assert_array_equal(corr.p2p_21, _kept(maps[0], landmarks))
         assert q.reasons[0].code == "opinions_disagree"
         reason = str(q.reasons[0])
         assert reason.startswith("the match on coarse copies of about 560 vertices sends")
@@ -1208,7 +1227,7 @@ def test_a_dense_partial_map_gets_no_opinion_when_suspect_or_not_asked(
             corr, quality=dataclasses.replace(corr.quality, suspect=True, reasons=(reason,))
         )
 
-    calls, _ = _counted_runs(monkeypatch, made_suspect)
+    calls, maps = _counted_runs(monkeypatch, made_suspect)
     agreed = estimate_dense(V, F, Vc, Fc, options=options)
     assert calls == [800, 560] and not agreed.quality.suspect
     assert _said(agreed.quality.notes, "opinion")  # the second's
@@ -1219,7 +1238,9 @@ def test_a_dense_partial_map_gets_no_opinion_when_suspect_or_not_asked(
     )
     assert full_note.startswith("landmarks: the full map sends their target vertices at most")
     V1, lm = V / math.sqrt(whole[2].area), options.landmarks
-    off = np.linalg.norm(V1[agreed.p2p_21[lm[:, 1]]] - V1[lm[:, 0]], axis=1)
+    # the first map as estimated (the result keeps the pairs exactly)
+    np.testing.assert_array_equal(agreed.p2p_21, _kept(maps[0], lm))
+    off = np.linalg.norm(V1[maps[0][lm[:, 1]]] - V1[lm[:, 0]], axis=1)
     assert f"at most {off.max():.3f} of" in full_note
     assert not any(str(n).startswith("third opinion") for n in agreed.quality.notes)
     calls.clear()

@@ -339,7 +339,8 @@ def match(
         Known (source vertex, target vertex) pairs; a few of them fix symmetric or
         ambiguous pairs, and they drive the refinement (see
         :func:`o3d_ofp.zoomout_refine`): 5-6 well-spread ones map shapes that are
-        not near-isometric (a gorilla onto a human, ``scripts/eval_nonisometric.py``).
+        not near-isometric (a gorilla onto a human, ``scripts/eval_nonisometric.py``). The
+        map keeps each pair exactly; its quality notes how far the estimate had put them.
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components (see :func:`eigenbasis`).
     eigenbases : (EigenBasis, EigenBasis), optional

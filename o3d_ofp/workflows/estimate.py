@@ -29,11 +29,11 @@ from ..core.spectrum import EigenBasis, check_eigenbasis, on_cleaned_vertices
 from ..core.wording import OptionError
 from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
-from .maps import Correspondence, shape_signature, with_signatures
+from .maps import Correspondence, keeping_landmarks, shape_signature, with_signatures
 from .matching import FullMatch
 from .options import MatchOptions, check_bool, moved_keywords
 from .partial import PartialMatch
-from .quality import say
+from .quality import landmarks_kept, say
 from .strategy import Run, Strategy
 
 __all__ = [
@@ -186,6 +186,8 @@ def _estimate(
     settled = strategy.settle(run, starts, refined)
     quality = strategy.judge(run, settled)
     settled, quality = strategy.review(run, settled, quality)
+    if landmarks is not None:  # how far the estimate put them; on_surfaces then keeps them
+        quality = landmarks_kept(quality, settled.p2p_21, landmarks, run.u1.vertices)
     say(strategy.title, strategy.what, quality, warn_suspect=warn_suspect)
     report("done", 1.0)
     return Correspondence(
@@ -211,7 +213,8 @@ def on_surfaces(
     s1, rep_1 = on_cleaned_vertices(eig_1)
     s2, rep_2 = on_cleaned_vertices(eig_2)
     if rep_1 is None and rep_2 is None:
-        return with_signatures(match(eig_1, eig_2, landmarks), eig_1.vertices, eig_2.vertices)
+        corr = keeping_landmarks(match(eig_1, eig_2, landmarks), landmarks)
+        return with_signatures(corr, eig_1.vertices, eig_2.vertices)
     on_surface = landmarks
     if landmarks is not None:  # each input vertex stands for its surface vertex
         on_surface = landmarks.copy()
@@ -229,7 +232,7 @@ def on_surfaces(
     given = None if landmarks is None else landmarks.tolist()
     corr = dataclasses.replace(corr, p2p_21=p2p, n_source=eig_1.n_vertices,
                                options={**corr.options, "landmarks": given})  # fmt: skip
-    return with_signatures(corr, eig_1.vertices, eig_2.vertices)
+    return with_signatures(keeping_landmarks(corr, landmarks), eig_1.vertices, eig_2.vertices)
 
 
 def estimate_dense(
@@ -295,7 +298,9 @@ def estimate_dense(
         return with_signatures(corr, vertices_1, vertices_2)  # not the coarse meshes'
 
     shapes = (vertices_1, faces_1, vertices_2, faces_2)
-    return strategy.dense(again, first, shapes, whole, opinions=opinions)
+    # the landmarks were checked on the coarse map (and by a partial match on the full one)
+    return keeping_landmarks(strategy.dense(again, first, shapes, whole, opinions=opinions),
+                             landmarks)  # fmt: skip
 
 
 def _match_dense(

@@ -175,7 +175,8 @@ class MatchOptions:
     align : bool
         Rigid ICP pre-alignment before closest points (closest only).
     landmarks : (p, 2) ndarray of int or None
-        Known (source, target) vertex pairs (estimate only); each pair kept once.
+        Known (source, target) vertex pairs (estimate only); each pair kept once, and kept
+        exactly by the estimated map.
     components : {"auto", "largest", "error"}
         Policy for several connected components of the eigenbases computed.
     k_fit : int

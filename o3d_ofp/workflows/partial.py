@@ -535,8 +535,6 @@ class PartialMatch(Strategy):
                 {"move": move, "bound": MAX_JUMP}, "polished",
             ))  # fmt: skip
         info["polish"] = polish
-        if run.landmarks is not None:
-            quality = landmarks_kept(quality, p2p, run.landmarks, run.u1.vertices)
         fmap_12 = settled.fmap_12
         if self.coarse:  # in extend_p2p's terms: (a1/a2) Φ Cᵀ against Ψ (own units)
             fmap_12 = fmap_12 * (run.eig_2.area / run.eig_1.area)
