@@ -510,7 +510,7 @@ def test_add_mode_with_a_band_warns_when_the_target_already_has_detail(caplog):
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
             with caplog.at_level(logging.WARNING, logger=name), warnings_logged():
-                transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode, band=30)
+                out = transfer_detail_frames(e1, eig, p2p_21=identity, mode=mode, band=30)
         # (onto the 30-eigenfunction blob the detail also folds the hands: said apart)
         w = [x for x in w if "folded the surface" not in str(x.message)]
         assert [x.category for x in w] == ([ofp.OFPWarning] if warned else [])
@@ -519,6 +519,10 @@ def test_add_mode_with_a_band_warns_when_the_target_already_has_detail(caplog):
         assert bool(said) == warned, (mode, said)
         if warned:
             assert "already has detail" in said[0] and "replace-detail" in said[0]
+            # the warning gives the area the result gained on the target's own (1.8 measured)
+            grown = float(re.search(r"the result's area is ([0-9.]+) times", said[0]).group(1))
+            assert grown == pytest.approx(area(out, F2) / area(V2, F2), abs=0.005)
+            assert grown > 1.5
     assert 0.72 < DETAILED_TARGET < 0.93  # between the measured smooth and detailed targets
 
 

@@ -891,6 +891,7 @@ def transfer_detail_frames(
             raise ValueError(f"fit_range must be (lo, hi) with 0 <= lo < hi <= 1; got {fit_range}")
     region = _part_region(eig_1, eig_2, correspondence)
     T = np.asarray(eig_2.vertices, dtype=np.float64)
+    detailed = None  # (band given, mode "add") the target's own detail, said with the result
     if options.band is None:
         calibration, low_1 = calibrate_detail(eig_1, eig_2, p2p)
         lacking = calibration.lacking if mode == "add" else np.ones(eig_2.n_vertices)
@@ -910,7 +911,7 @@ def transfer_detail_frames(
         )  # fmt: skip
         base = T if mode == "add" else lowpass_coordinates(eig_2, band_2)
         if mode == "add" and amount > 0:
-            _warn_detailed_target(eig_1, eig_2, low_1, region, options.band, band_2)
+            detailed = _detailed_target(eig_1, eig_2, low_1, region, options.band, band_2)
         lacking = np.ones(eig_2.n_vertices)
         blurred = 1.0 / (float(eig_1.evals[options.band]) * eig_1.area)
     if rotation_time is None:
@@ -944,6 +945,14 @@ def transfer_detail_frames(
     if meshes and amount > 0:
         estimated = correspondence.method in ("estimate", "partial")
         added = _unfold(eig_1, eig_2, base, added, p2p, estimated=estimated)
+    if detailed is not None:
+        grown = ""
+        if meshes:
+            faces = np.asarray(eig_2.faces)
+            ratio = face_areas_normals(base + added, faces)[0].sum() / face_areas_normals(
+                base, faces)[0].sum()  # fmt: skip
+            grown = f" (here the result's area is {ratio:.2f} times the target's)"
+        warn(logger, detailed.replace(grown=grown))
     return base + added
 
 
@@ -1112,19 +1121,28 @@ def _part_region(
     return region
 
 
-def _warn_detailed_target(
+def _detailed_target(
     eig_1: EigenBasis, eig_2: EigenBasis, low_1: np.ndarray, region: np.ndarray | None,
     band_1: int, band_2: int,
-) -> None:  # fmt: skip
-    """Warn (mode "add") when the target already has detail: the source's would go on top."""
+) -> Said | None:  # fmt: skip
+    """Return the warning (mode "add") that the target already has detail, or None.
+
+    The source's would go on top; the warning is said once the result exists, its
+    ``{grown}`` filled with the area the result gained. Measured (``band=30`` and 20, the true
+    maps, onto FAUST 087, TOSCA centaur4 and horse6 smoothed by the six tools of
+    ``scripts/eval_detail.py`` but the 30-eigenfunction projection): 1.59-2.12 times the
+    target's area, where the truth has 0.98-1.36 times it and the calibrated default 1.00-1.35.
+    """
     own = _detail_rms(eig_2, lowpass_coordinates(eig_2, band_2))
     theirs = _detail_rms(eig_1, low_1, region=region)
     on_part = "" if region is None else f" (on this part: above its first {band_2} eigenfunctions)"
     if theirs > 0 and own > DETAILED_TARGET * theirs:
-        warn(logger, Said(
+        return Said(
             "the target already has detail above band {band}{on_part} ({share:.3g} of the "
             "source's, above {bound:g}): mode 'add' keeps it and adds the source's on top, which "
-            "exaggerates it; {replace_detail} replaces it instead",
-            {"band": band_1, "on_part": on_part, "share": own / theirs, "bound": DETAILED_TARGET},
+            "exaggerates it{grown}; {replace_detail} replaces it instead",
+            {"band": band_1, "on_part": on_part, "share": own / theirs, "bound": DETAILED_TARGET,
+             "grown": ""},
             "detailed_target",
-        ))  # fmt: skip
+        )  # fmt: skip
+    return None
