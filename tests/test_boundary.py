@@ -431,8 +431,37 @@ def test_pick_landmarks_without_display_refuses_before_opening(legacy_mesh, monk
     assert not pick.has_display()
     with pytest.raises(RuntimeError, match="needs a display"):
         pick.pick_landmarks(legacy_mesh, legacy_mesh)
+
+
+def test_a_display_counts_only_when_its_server_answers(tmp_path, monkeypatch):
+    """A DISPLAY with no X server behind it made Open3D wait for a window forever (a trial)."""
+    import socket
+
+    from o3d_ofp.boundary import pick
+
+    monkeypatch.setattr(pick.sys, "platform", "linux")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("DISPLAY", ":987")  # no server: neither its socket file nor abstract one
+    assert not pick.has_display()
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:  # an X server over TCP
+        for number in range(50, 200):
+            try:
+                server.bind(("127.0.0.1", 6000 + number))
+                break
+            except OSError:
+                continue
+        server.listen(1)
+        monkeypatch.setenv("DISPLAY", f"127.0.0.1:{number}.0")
+        assert pick.has_display()
+    assert not pick.has_display()  # closed
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-0")
-    assert pick.has_display()
+    assert not pick.has_display()  # set, but nothing listens there
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as server:
+        server.bind(str(tmp_path / "wayland-0"))
+        server.listen(1)
+        assert pick.has_display()
 
 
 def test_the_picking_window_shows_vertices_in_the_arrays_order(legacy_mesh):

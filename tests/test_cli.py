@@ -522,6 +522,13 @@ def test_save_map_then_reuse_it_and_strict(files, capsys, tmp_path):
     assert "suspect" in capsys.readouterr().err and not strict_out.exists()
     # the log says it once: no Python warning repeats it on the command line
     assert not [w for w in caught if issubclass(w.category, ofp_warning())]
+    # landmarks to save are written first (picked ones are not lost), and the message says so
+    pairs = tmp_path / "pairs.txt"
+    code = main(["transfer", files["src"], str(other), "--k1", "12", "--k2", "12", "--strict",
+                 "--landmarks", "0:0", "--save-landmarks", str(pairs), "-o", str(strict_out)])
+    err = capsys.readouterr().err
+    assert code == 3 and not strict_out.exists() and pairs.exists()
+    assert f"; nothing written but {pairs} (--save-landmarks)" in err
 
 
 def test_basis_file_conflicting_with_k_is_refused(files, capsys, tmp_path):
@@ -1146,6 +1153,7 @@ def fake_display(monkeypatch):
     from o3d_ofp.boundary import pick
 
     monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setattr(pick, "_x11_answers", lambda display: True)  # an X server answers
     answers: list[list[int]] = []
     shown: list[tuple[int, str]] = []
 
@@ -1441,3 +1449,32 @@ def test_a_long_filter_says_it_still_runs(files, tmp_path, monkeypatch, capsys):
     ticks = [line for line in lines if ": still running (" in line]
     assert ticks and all(t.startswith("smooth 0.05 of ") for t in ticks), lines
     assert lines[-1].startswith("smooth 0.05 of ") and ": done in " in lines[-1], lines
+
+
+def test_landmarks_on_an_obj_read_with_other_vertices_than_its_lines_are_warned(
+    tmp_path, capsys, no_eigensolve
+):
+    """Open3D splits an OBJ's vertices at texture seams: indices from another tool differ.
+
+    A new-user trial: Spot's OBJ has 2930 ``v`` lines and is read as 3225 vertices, none of
+    the first 2930 in the file's order; landmarks picked in another tool named other vertices.
+    """
+    seamed = tmp_path / "seamed.obj"  # 5 'v' lines; the apex has two texture coordinates
+    seamed.write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 0.5 1\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.5 0.5\nvt 0.2 0.2\n"
+        "f 1/1 2/2 5/5\nf 2/2 3/3 5/5\nf 3/3 4/4 5/6\nf 4/4 1/1 5/6\n"
+    )
+    plain = tmp_path / "plain.obj"
+    plain.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    out = tmp_path / "out.npy"
+    for shape, warned in ((seamed, True), (plain, False)):
+        capsys.readouterr()
+        # refused after reading (too few vertices for the eigenbasis), before any eigensolve
+        assert main(["transfer", str(shape), str(shape), "--landmarks", "0:0", "--signal",
+                     "xyz", "-o", str(out)]) == 2  # fmt: skip
+        said = [line for line in capsys.readouterr().err.splitlines() if "'v' lines" in line]
+        assert bool(said) == warned, said
+        if warned:
+            assert f"--landmarks: {seamed} has 5 'v' lines but is read as 6" in said[0]
+            assert "--landmarks pick" in said[0]

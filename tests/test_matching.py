@@ -213,8 +213,17 @@ def test_bad_configurations_are_errors_not_downgrades(pair):
         ofp.match_eigenbases(e1, e2)
     with pytest.raises(ValueError, match=r"landmarks: target vertex indices must lie in \[0, "):
         ofp.match((V1, F1), (V2, F2), landmarks=[[0, 10**6]])
+    # the value and its pair are named, with the likely mistake (a trial's "got [6890, 6890]")
+    with pytest.raises(ValueError, match=r"got 1000000 in the pair \[5, 1000000\] \(1-based"):
+        ofp.match((V1, F1), (V2, F2), landmarks=[[0, 1], [5, 10**6]])
     with pytest.raises(ValueError, match="landmarks must be a"):
         ofp.match((V1, F1), (V2, F2), landmarks=[0.5, 1.5])
+    whole = r"landmarks: vertex indices must be whole numbers; got 1\.5$"
+    with pytest.raises(ValueError, match=whole):
+        ofp.match((V1, F1), (V2, F2), landmarks=[[0.0, 1.5]])
+    # whole numbers as floats (np.loadtxt's default) are pairs like any other
+    np.testing.assert_array_equal(ofp.MatchOptions(landmarks=np.array([[3.0, 7.0]])).landmarks,
+                                  [[3, 7]])  # fmt: skip
     with pytest.raises(ValueError, match=r"target vertex 7 is paired with several .*\(3, 4\)"):
         ofp.match((V1, F1), (V2, F2), landmarks=[[3, 7], [4, 7]])
     with pytest.raises(ValueError, match="p2p_21 values must be source vertex indices"):

@@ -867,7 +867,9 @@ def test_a_partial_map_that_does_not_keep_the_landmarks_is_flagged(whole, cut):
     corr = estimate(e1, ec, options=_partial(landmarks=bad), warn_suspect=False)
     assert corr.quality.suspect
     (reason,) = _said(corr.quality.reasons, "landmarks_far")
-    assert "of the 3 landmarks' target vertices more than 0.15" in str(reason)
+    assert "of the 3 landmarks' target vertices more than 0.15 of sqrt(source area)" in str(reason)
+    far_rows = re.search(r"pairs ([0-9, ]+) of the landmarks, counting from 1", str(reason))
+    assert "2" in far_rows.group(1).split(", ")  # the wrong pair is named
     assert "check those pairs" in str(reason)
     assert corr.quality.reasons[0] == reason  # first: map_quality's advice, if any, stays last
 

@@ -11,6 +11,7 @@ import types
 import numpy as np
 import pytest
 
+from o3d_ofp.boundary import pick
 from o3d_ofp.core.shapes import icosphere
 from o3d_ofp.render import panel as panel_mod
 from o3d_ofp.render.panel import (
@@ -295,6 +296,7 @@ def test_show_in_a_notebook_displays_inline(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "IPython", ipython)
     monkeypatch.setitem(sys.modules, "IPython.display", display_mod)
     monkeypatch.setenv("DISPLAY", ":0")  # a display, but a notebook shows inline
+    monkeypatch.setattr(pick, "_x11_answers", lambda display: True)
 
     def no_window(*args, **kwargs):
         raise AssertionError("no window in a notebook")
@@ -318,6 +320,7 @@ def test_show_without_notebook(tmp_path, monkeypatch):
     opened = []
     monkeypatch.setattr(o3d.visualization, "draw_geometries", lambda geoms: opened.append(geoms))
     monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(pick, "_x11_answers", lambda display: True)  # an X server answers
     mesh = _open3d_quad()
     assert show([mesh]) is None and len(opened) == 1  # a window
     monkeypatch.delenv("DISPLAY")

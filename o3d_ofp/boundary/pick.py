@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -27,11 +28,55 @@ logger = logging.getLogger(__name__)
 Picker = Callable[[Any, str], Sequence[int]]
 
 
+#: Seconds to wait for a display server to accept a connection.
+DISPLAY_TIMEOUT = 1.0
+
+
+def _answers(family: int, address: Any) -> bool:
+    """Whether a server accepts a stream connection at ``address`` within the timeout."""
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.settimeout(DISPLAY_TIMEOUT)
+        try:
+            s.connect(address)
+        except OSError:
+            return False
+    return True
+
+
+def _x11_answers(display: str) -> bool:
+    """Whether the X server of ``DISPLAY`` (``[host]:N[.screen]``) accepts a connection.
+
+    A set ``DISPLAY`` with no server behind it (an ssh session without forwarding, a stale
+    variable) made Open3D fall back to an off-screen context and wait for a window no one can
+    close (a new user's trial: killed after 120 s).
+    """
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return False
+    if host in ("", "unix") or host.startswith("/"):  # a local socket (or a launchd path)
+        path = host if host.startswith("/") else f"/tmp/.X11-unix/X{number}"
+        if sys.platform.startswith("linux") and _answers(socket.AF_UNIX, "\0" + path):
+            return True  # Linux's abstract socket, which Xorg and Xwayland also listen on
+        return _answers(socket.AF_UNIX, path)
+    return _answers(socket.AF_INET, (host, 6000 + int(number)))
+
+
 def has_display() -> bool:
-    """Tell whether a window can be opened: an X11 or Wayland display, or macOS/Windows."""
+    """Tell whether a window can be opened: a display server that answers, or macOS/Windows.
+
+    X11: the server of ``DISPLAY`` accepts a connection; Wayland: the socket of
+    ``WAYLAND_DISPLAY`` (under ``XDG_RUNTIME_DIR`` unless absolute) does.
+    """
     if sys.platform in ("darwin", "win32"):
         return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    wayland = os.environ.get("WAYLAND_DISPLAY")
+    if wayland:
+        path = os.path.join(os.environ.get("XDG_RUNTIME_DIR", ""), wayland)
+        if _answers(socket.AF_UNIX, path):
+            return True
+    display = os.environ.get("DISPLAY")
+    return bool(display) and _x11_answers(display)
 
 
 def _viewable(geometry: Any) -> Any:
@@ -141,7 +186,8 @@ def pick_landmarks(
     if picker is None:
         if not has_display():
             raise RuntimeError(
-                "picking landmarks needs a display (DISPLAY or WAYLAND_DISPLAY is not set); "
+                "picking landmarks needs a display (no X11 or Wayland server answers: DISPLAY "
+                "and WAYLAND_DISPLAY are not set, or nothing listens there); "
                 "give the landmark pairs as an array or a file instead"
             )
         picker = _pick_in_window

@@ -99,7 +99,7 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
       "metres); the result is written in its own units")
     a("--save-map", metavar="MAP.npz", help="write the map used (to reuse: --map)")
     a("--strict", action="store_true", help="a suspect map (estimated, closest, or a map file that "
-      "collapses) is an error (exit 3, nothing written)")
+      "collapses) is an error (exit 3; nothing written but --save-landmarks)")
     a("--landmarks", help="known (source, target) vertex pairs, 0-based: 12:40,500:611 (or ;), a "
       "2-column file (spaces, commas or semicolons apart), or 'pick' (in Open3D's window)")
     a("--save-landmarks", metavar="FILE", help="write the landmark pairs used (e.g. picked) as a "
@@ -109,6 +109,36 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
 
 
 # --------------------------------------------------------------------------- reading
+
+
+def _obj_vertex_lines(path: str) -> int:
+    """Count the ``v`` lines of an OBJ file (its own vertex numbering)."""
+    count = 0
+    with open(path, "rb") as f:
+        for line in f:
+            count += line.startswith(b"v ") or line.startswith(b"v\t")
+    return count
+
+
+def _say_renumbered(shapes: tuple[tuple[str, int], ...]) -> None:
+    """Warn when an OBJ is read with other vertices than its ``v`` lines (landmarks given).
+
+    Open3D splits an OBJ's vertices along its texture seams (a new-user trial: Spot, 2930 ``v``
+    lines, 3225 vertices read, no index agreeing): indices taken from another tool, which
+    counts the file's lines, would name other vertices.
+    """
+    for path, n in shapes:
+        if not str(path).lower().endswith(".obj") or not os.path.isfile(path):
+            continue
+        lines = _obj_vertex_lines(path)
+        if lines != n:
+            logger.warning(
+                "--landmarks: %s has %d 'v' lines but is read as %d vertices (split along its "
+                "texture seams): the landmarks index the vertices as read (as "
+                "open3d.io.read_triangle_mesh numbers them), not the file's lines; indices "
+                "from another tool name other vertices: pick them with --landmarks pick",
+                path, lines, n,
+            )  # fmt: skip
 
 
 def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> np.ndarray | None:
@@ -186,7 +216,8 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
         (save and os.path.isdir(save), f"--save-landmarks {save}: is a directory"),
         (lm == "pick" and kind != "estimate", "--landmarks pick applies to --map estimate"),
         (lm == "pick" and not has_display(), "--landmarks pick needs a display to open Open3D's "
-         "picking window (DISPLAY and WAYLAND_DISPLAY are not set); give the pairs in a file "
+         "picking window (no X11 or Wayland server answers: DISPLAY and WAYLAND_DISPLAY are not "
+         "set, or nothing listens there); give the pairs in a file "
          "instead: --landmarks FILE (two columns: source vertex, target vertex)"),
         (args.save_map and not args.save_map.endswith(".npz"),
          f"--save-map {args.save_map}: must end with .npz"),
@@ -299,6 +330,8 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
     if given is not None:
         _judge_given(args, given, V1, V2)
     landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
+    if landmarks is not None and args.landmarks != "pick":  # (picked ones are as read)
+        _say_renumbered(((args.source, V1.shape[0]), (args.target, V2.shape[0])))
     options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
                            partial=args.partial, align=args.align, landmarks=landmarks,
                            components=args.components)  # fmt: skip

@@ -149,7 +149,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
         except SuspectMap as exc:
             code = SUSPECT_EXIT
-            said = f"error: the map is suspect (--strict): {exc}; nothing written"
+            kept = getattr(args, "save_landmarks", None)  # written first, not to lose picks
+            written = "nothing written" + (f" but {kept} (--save-landmarks)" if kept else "")
+            said = f"error: the map is suspect (--strict): {exc}; {written}"
         except (UsageError, ValueError, TypeError, FileNotFoundError, FileExistsError,
                 IsADirectoryError, PermissionError) as exc:  # fmt: skip
             code, said = 2, f"error: {error_text(exc)}"

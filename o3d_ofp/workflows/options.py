@@ -143,6 +143,12 @@ def _landmarks(value: Any) -> np.ndarray | None:
     if value is None:
         return None
     lm = np.asarray(value)
+    if lm.ndim == 2 and lm.dtype.kind == "f" and lm.size:  # np.loadtxt's default: whole numbers
+        whole = np.isfinite(lm) & (lm == np.round(lm))
+        if not whole.all():
+            bad = float(lm[~whole][0])
+            raise OptionError("landmarks", f": vertex indices must be whole numbers; got {bad!r}")
+        lm = lm.astype(np.int64)
     if lm.ndim != 2 or lm.shape[1] != 2 or lm.shape[0] == 0 or lm.dtype.kind not in "iu":
         raise OptionError("landmarks", "must be a (p, 2) integer array of (source, target) vertex "
                           f"pairs; got {lm.dtype}{lm.shape}")  # fmt: skip
@@ -175,8 +181,9 @@ class MatchOptions:
     align : bool
         Rigid ICP pre-alignment before closest points (closest only).
     landmarks : (p, 2) ndarray of int or None
-        Known (source, target) vertex pairs (estimate only); each pair kept once, and kept
-        exactly by the estimated map.
+        Known (source, target) vertex pairs (estimate only; whole numbers as floats, as
+        ``np.loadtxt`` reads them, are taken); each pair kept once, and kept exactly by the
+        estimated map.
     components : {"auto", "largest", "error"}
         Policy for several connected components of the eigenbases computed.
     k_fit : int
@@ -246,8 +253,10 @@ class MatchOptions:
         lm = self.landmarks
         for col, (n, side) in enumerate(((n_source, "source"), (n_target, "target"))):
             if lm is not None and lm[:, col].max() >= n:
+                row = int(np.argmax(lm[:, col] >= n))
                 raise OptionError("landmarks", f": {side} vertex indices must lie in [0, {n}); got "
-                                  f"[{lm[:, col].min()}, {lm[:, col].max()}]")  # fmt: skip
+                                  f"{lm[row, col]} in the pair {lm[row].tolist()} (1-based "
+                                  "indices? they count from 0)")  # fmt: skip
         return lm
 
 

@@ -604,13 +604,15 @@ def landmarks_kept(
     ))  # fmt: skip
     if not far.any():
         return quality
+    rows = ", ".join(str(int(i) + 1) for i in np.flatnonzero(far)[:5])
     return quality.flagged(Said(
         "{subject} sends {count} of the {total} landmarks' target vertices more than {bound} of "
-        "the source's size from the source vertices given for them (the farthest "
-        "{off:.2f} away): it does not keep them; check those pairs (a wrong pair pulls the fit "
-        "astray), else the map is wrong near them",
+        "sqrt(source area) from the source vertices given for them (the farthest {off:.2f} "
+        "away; pairs {rows} of the landmarks, counting from 1): it does not follow them; check "
+        "those pairs (a wrong pair pulls the fit astray), else the map is wrong near them (the "
+        "result keeps the pairs themselves)",
         {"subject": subject, "count": int(far.sum()), "total": int(off.size), "bound": MAX_JUMP,
-         "off": float(off.max())}, "landmarks_far",
+         "off": float(off.max()), "rows": rows}, "landmarks_far",
     ))  # fmt: skip
 
 
