@@ -308,3 +308,47 @@ def test_a_match_with_landmarks_computes_their_functions_once(stretched, monkeyp
     monkeypatch.setattr(fmap, "_landmark_functions", counted)
     ofp.match((source, F), (target, F), landmarks=landmarks)
     assert len(calls) == 2  # once a shape: the anchors' functions serve the fits and ZoomOut
+
+
+def test_a_landmark_pair_on_the_mirrored_side_of_another_is_doubted():
+    """A left hand given for a right one, beside a pair on that hand: the map followed it.
+
+    A new user's trial (FAUST 019 -> 094, five right pairs and the left hand paired with the
+    right one): the map passed its checks at 0.043 sqrt(area) off, its arms swapped. The two
+    hands lie 1.14 apart along the source, 0.10 along the target; the right pairs differ by
+    at most 0.15 there.
+    """
+    from o3d_ofp.workflows.quality import LANDMARKS_GAP, landmarks_apart
+
+    from .conftest import load_shared_mesh
+
+    V1, F1 = load_shared_mesh("faust/tr_reg_019.ply")
+    V2, F2 = load_shared_mesh("faust/tr_reg_094.ply")
+    e1, e2 = ofp.eigenbasis(V1, F1, k=2), ofp.eigenbasis(V2, F2, k=2)
+    right = np.array([[2680, 2680], [6689, 6689], [4286, 4286], [6137, 6137], [1009, 1009],
+                      [253, 253]])  # fmt: skip
+    quality = ofp.MapQuality(
+        suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
+        reversed_fraction=0.0, area_ratio=1.0,
+    )  # fmt: skip
+    assert not landmarks_apart(quality, right, e1, e2).suspect
+    mirrored = right.copy()
+    mirrored[0, 1] = 6039  # the other hand, beside pair 4's target (6137)
+    checked = landmarks_apart(quality, mirrored, e1, e2)
+    assert checked.suspect and checked.reasons[0].code == "landmarks_apart"
+    said = str(checked.reasons[0])
+    assert said.startswith("landmark pairs 1 and 4 (rows, counting from 1) lie 1.")
+    values = checked.reasons[0].values
+    assert values["source"] - values["target"] > LANDMARKS_GAP
+
+
+def test_a_match_with_an_inconsistent_pair_is_flagged(stretched):
+    source, target, F, landmarks, _, _ = stretched
+    given = landmarks.copy()
+    distance = np.linalg.norm(target - target[given[0, 1]], axis=1)
+    distance[given[:, 1]] = 0.0  # (not another pair's target)
+    given[0, 1] = int(np.argmax(distance))  # its target on the far side of the shape
+    corr = ofp.match((source, F), (target, F), landmarks=given)
+    assert corr.quality.suspect
+    assert "landmarks_apart" in [r.code for r in corr.quality.reasons]
+    assert not ofp.match((source, F), (target, F), landmarks=landmarks).quality.suspect

@@ -34,7 +34,13 @@ from ..core.spectrum import EigenBasis
 from ..core.wording import Said
 from .dense import EXTENSION_K
 from .maps import Correspondence, MapQuality
-from .quality import MAX_REVERSED, flipped_what, map_quality, reversed_fraction
+from .quality import (
+    MAX_REVERSED,
+    flipped_what,
+    landmarks_apart,
+    map_quality,
+    reversed_fraction,
+)
 from .strategy import Run, Settled, Strategy
 
 __all__ = [
@@ -450,6 +456,19 @@ class FullMatch(Strategy):
         )  # fmt: skip
 
     def review(self, run: Run, settled: Settled, quality: MapQuality) -> tuple[Settled, MapQuality]:
+        """Run the geodesic check (:meth:`_geodesic_review`), then check the landmarks' pairs.
+
+        Pairs that disagree on how far apart they lie are doubted
+        (:func:`~o3d_ofp.workflows.quality.landmarks_apart`): the map follows a wrong pair.
+        """
+        settled, quality = self._geodesic_review(run, settled, quality)
+        if run.landmarks is None:
+            return settled, quality
+        return settled, landmarks_apart(quality, run.landmarks, run.u1, run.u2)
+
+    def _geodesic_review(
+        self, run: Run, settled: Settled, quality: MapQuality
+    ) -> tuple[Settled, MapQuality]:  # fmt: skip
         """Check a map that passes against its geodesic refinement (:func:`geodesic_repair`).
 
         Only a map that passes is checked: a suspect one (shapes of other kinds, a collapse) is

@@ -13,12 +13,14 @@ import logging
 import math
 
 import numpy as np
+import scipy.sparse.csgraph as csgraph
 
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
 from ..core.fmap import unit_area
 from ..core.geometry import (
     POINT_NEIGHBOURS,
+    edge_graph,
     outward_sign,
     point_neighbours,
     point_normals,
@@ -44,6 +46,7 @@ __all__ = [
     "SMALL_PART",
     "flipped_what",
     "landmarks_advice",
+    "landmarks_apart",
     "landmarks_extent",
     "landmarks_kept",
     "map_quality",
@@ -613,6 +616,51 @@ def landmarks_kept(
         "result keeps the pairs themselves)",
         {"subject": subject, "count": int(far.sum()), "total": int(off.size), "bound": MAX_JUMP,
          "off": float(off.max()), "rows": rows}, "landmarks_far",
+    ))  # fmt: skip
+
+
+#: Largest difference between two landmarks' distance along the source and along the target
+#: (edge paths, each in sqrt(area) of its own shape) before a full match doubts its pairs.
+#: Measured on the 22 pairs of ../shared/data/bcicp_dev, with 6 true landmarks at the
+#: farthest points of the truth and 30 random sets of 6 each: gorilla -> human at most 0.70,
+#: one animal in two poses at most 0.37; one landmark moved to its mirror image (the
+#: datasets' ``.sym.vts``) 0.06-1.0 (median 0.19-0.61 a pair: a mirrored pair is seen only
+#: when another landmark lies on the side it was moved to); a new user's left hand paired with
+#: the right one on FAUST 019 -> 094, beside 5 right pairs, 1.04 (the right pairs 0.15).
+LANDMARKS_GAP = 0.8
+
+
+def landmarks_apart(
+    quality: MapQuality, landmarks: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis
+) -> MapQuality:
+    """Flag a map whose landmark pairs disagree on how far apart they lie (meshes only).
+
+    Two right pairs lie about as far apart along both shapes, even between a gorilla and a
+    human; a pair whose target vertex lies on the mirrored side of another pair's (a left hand
+    given for a right one) does not, and the estimate follows it: a new user's trial got a map
+    that passed its checks at 0.043 sqrt(area) off, the arms swapped (0.017 with the right
+    pairs). ``landmarks``: (p, 2) source and target vertices. See :data:`LANDMARKS_GAP`.
+    """
+    if len(landmarks) < 2 or eig_1.faces is None or eig_2.faces is None:
+        return quality
+    apart = []
+    for col, eig in ((0, eig_1), (1, eig_2)):
+        v = landmarks[:, col]
+        graph = edge_graph(eig.vertices, eig.faces)
+        apart.append(csgraph.dijkstra(graph, directed=False, indices=v)[:, v] / math.sqrt(eig.area))
+    d1, d2 = apart
+    gap = np.where(np.isfinite(d1) & np.isfinite(d2), np.abs(d1 - d2), 0.0)
+    if not gap.max() > LANDMARKS_GAP:
+        return quality
+    i, j = sorted(np.unravel_index(int(np.argmax(gap)), gap.shape))
+    return quality.flagged(Said(
+        "landmark pairs {first} and {second} (rows, counting from 1) lie {source:.2f} of "
+        "sqrt(area) apart along the source but {target:.2f} along the target: one of them is "
+        "likely wrong (a pair on the mirrored side, a slip of the click) and the map follows "
+        "it; check them ({landmarks_check}). (Right pairs differ by at most {bound:g} between "
+        "a gorilla and a human: shapes whose proportions differ more may also do this.)",
+        {"first": int(i) + 1, "second": int(j) + 1, "source": float(d1[i, j]),
+         "target": float(d2[i, j]), "bound": 0.70}, "landmarks_apart",
     ))  # fmt: skip
 
 
