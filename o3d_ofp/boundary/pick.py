@@ -54,8 +54,8 @@ def _x11_answers(display: str) -> bool:
     number = rest.split(".")[0]
     if not number.isdigit():
         return False
-    if host in ("", "unix") or host.startswith("/"):  # a local socket (or a launchd path)
-        path = host if host.startswith("/") else f"/tmp/.X11-unix/X{number}"
+    if host in ("", "unix") or host.startswith("/"):  # a local socket (or its full path)
+        path = display if host.startswith("/") else f"/tmp/.X11-unix/X{number}"
         if sys.platform.startswith("linux") and _answers(socket.AF_UNIX, "\0" + path):
             return True  # Linux's abstract socket, which Xorg and Xwayland also listen on
         return _answers(socket.AF_UNIX, path)

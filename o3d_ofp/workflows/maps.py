@@ -545,9 +545,9 @@ def keeping_landmarks(corr: Correspondence, landmarks: np.ndarray | None) -> Cor
 
     The estimation fits the landmarks but its refinements move them: measured on the 22 pairs
     of ../shared/data/bcicp_dev with 6 true landmarks placed as ``scripts/eval_nonisometric.py``
-    places them, ``ofp.match`` sent the farthest of each pair's six 0.012-0.065 of sqrt(source
-    area) away (gorilla -> human 0.027-0.065). A pair the caller knows is kept exactly;
-    how far the estimate had put them is the quality's note
+    places them, ``ofp.match`` sent the farthest of the six 0.012-0.065 of sqrt(source area)
+    away, per pair of shapes (gorilla -> human 0.027-0.065). A pair the caller knows is kept
+    exactly; how far the estimate had put them is the quality's note
     (:func:`~o3d_ofp.workflows.quality.landmarks_kept`, read before this). ``landmarks``:
     (p, 2) source and target vertices of ``corr``'s shapes (None: ``corr`` itself).
     """

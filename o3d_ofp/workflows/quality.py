@@ -584,11 +584,12 @@ def landmarks_kept(
     cut), partial maps right without landmarks keep them within 0.017-0.085 of sqrt(source
     area), but maps right by their mean error sent one 0.19-0.26 away: wrong at a pair the
     caller knows; full maps of the 22 pairs of ../shared/data/bcicp_dev with 6 true landmarks
-    sent the farthest of each pair's six 0.012-0.065 away. Beyond :data:`MAX_JUMP` the map is
-    suspect (the reason goes first). The result keeps the pairs exactly
-    (:func:`~o3d_ofp.workflows.maps.keeping_landmarks`, after this check). ``landmarks``:
-    (p, 2) source and target vertices; ``vertices_1``: the source's, scaled to unit area;
-    ``subject`` names the map; ``spread_note``: say when the landmarks are one or clustered.
+    sent the farthest of the six 0.012-0.065 away (per pair of shapes). Beyond
+    :data:`MAX_JUMP` the map is suspect (the reason goes first). The result keeps the pairs
+    exactly (:func:`~o3d_ofp.workflows.maps.keeping_landmarks`, after this check).
+    ``landmarks``: (p, 2) source and target vertices; ``vertices_1``: the source's, scaled to
+    unit area; ``subject`` names the map; ``spread_note``: say when the landmarks are one or
+    clustered.
     """
     off = np.linalg.norm(vertices_1[p2p[landmarks[:, 1]]] - vertices_1[landmarks[:, 0]], axis=1)
     far = off > MAX_JUMP
@@ -628,6 +629,8 @@ def landmarks_kept(
 #: when another landmark lies on the side it was moved to); a new user's left hand paired with
 #: the right one on FAUST 019 -> 094, beside 5 right pairs, 1.04 (the right pairs 0.15).
 LANDMARKS_GAP = 0.8
+#: The largest such difference of right pairs measured between different shapes (above).
+LANDMARKS_GAP_SEEN = 0.70
 
 
 def landmarks_apart(
@@ -656,11 +659,12 @@ def landmarks_apart(
     return quality.flagged(Said(
         "landmark pairs {first} and {second} (rows, counting from 1) lie {source:.2f} of "
         "sqrt(area) apart along the source but {target:.2f} along the target: one of them is "
-        "likely wrong (a pair on the mirrored side, a slip of the click) and the map follows "
-        "it; check them ({landmarks_check}). (Right pairs differ by at most {bound:g} between "
-        "a gorilla and a human: shapes whose proportions differ more may also do this.)",
+        "likely wrong (a pair on the mirrored side, a slip of the click), and the map follows "
+        "it or is pulled astray by it; check them ({landmarks_check}). (Right pairs differ by "
+        "at most {seen:g} between a gorilla and a human: shapes whose proportions differ more "
+        "may also do this.)",
         {"first": int(i) + 1, "second": int(j) + 1, "source": float(d1[i, j]),
-         "target": float(d2[i, j]), "bound": 0.70}, "landmarks_apart",
+         "target": float(d2[i, j]), "seen": LANDMARKS_GAP_SEEN}, "landmarks_apart",
     ))  # fmt: skip
 
 
