@@ -352,3 +352,28 @@ def test_a_match_with_an_inconsistent_pair_is_flagged(stretched):
     assert corr.quality.suspect
     assert "landmarks_apart" in [r.code for r in corr.quality.reasons]
     assert not ofp.match((source, F), (target, F), landmarks=landmarks).quality.suspect
+
+
+def test_a_landmark_on_a_piece_the_eigenbasis_leaves_out_is_left_out_of_the_estimate(stretched):
+    """A trial's pair on a small extra component: it stood for the nearest kept vertex.
+
+    The eigenbasis keeps the largest component and maps every left-out vertex to its nearest
+    kept one, so the pair pulled the fit towards a wrong vertex; it is now left out of the
+    estimate, said, and kept as given in the result.
+    """
+    from o3d_ofp.core._warnings import OFPWarning
+
+    source, target, F, landmarks, e1, _ = stretched
+    V, G = icosphere(1)
+    extra = V * 0.05 + target.max(axis=0) + 0.5  # a small sphere beside the target
+    target_2 = np.vstack([target, extra])
+    faces_2 = np.vstack([F, G + len(target)])
+    given = np.vstack([landmarks, [[int(landmarks[1, 0]) + 1, len(target) + 3]]])
+    with pytest.warns(OFPWarning, match=r"landmarks \[\d+, \d+\]: on a piece the eigenbasis"):
+        corr = ofp.match((source, F), (target_2, faces_2), landmarks=given)
+    assert "landmarks_outside" in {n.code for n in corr.quality.notes}
+    np.testing.assert_array_equal(corr.p2p_21[given[:, 1]], given[:, 0])  # all kept as given
+    alone = ofp.match((source, F), (target, F), landmarks=landmarks)
+    got = _error(corr.p2p_21[: len(target)], source, e1.area)
+    # the same map as with the right pairs alone (measured: the same to 1e-4)
+    assert got == pytest.approx(_error(alone.p2p_21, source, e1.area), abs=2e-3)

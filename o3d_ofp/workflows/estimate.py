@@ -26,7 +26,7 @@ from ..core._progress import StageProgress
 from ..core._validation import check_int
 from ..core._warnings import warn
 from ..core.spectrum import EigenBasis, check_eigenbasis, on_cleaned_vertices
-from ..core.wording import OptionError
+from ..core.wording import OptionError, Said
 from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
 from .maps import Correspondence, keeping_landmarks, shape_signature, with_signatures
@@ -215,17 +215,31 @@ def on_surfaces(
     if rep_1 is None and rep_2 is None:
         corr = keeping_landmarks(match(eig_1, eig_2, landmarks), landmarks)
         return with_signatures(corr, eig_1.vertices, eig_2.vertices)
-    on_surface = landmarks
+    on_surface, left_out = landmarks, None
     if landmarks is not None:  # each input vertex stands for its surface vertex
         on_surface = landmarks.copy()
+        outside = np.zeros(len(landmarks), dtype=bool)
         for col, eig, rep in ((0, eig_1, rep_1), (1, eig_2, rep_2)):
             if rep is not None:
                 on_surface[:, col] = eig.cleaning.index[landmarks[:, col]]
+                outside |= ~np.asarray(eig.cleaning.kept)[landmarks[:, col]]
+        if outside.any():  # (a left-out vertex stands for its nearest kept one: a wrong pair)
+            left_out = Said(
+                "landmarks {given}: on a piece the eigenbasis left out (components='auto' or "
+                "'largest' keeps the largest connected component), so the estimate leaves them "
+                "out; the result keeps them as given",
+                {"given": ", ".join(f"[{a}, {b}]" for a, b in landmarks[outside].tolist())},
+                "landmarks_outside",
+            )  # fmt: skip
+            warn(logger, left_out)
+            on_surface = on_surface[~outside] if not outside.all() else None
     logger.info(
         "match: on the cleaned surfaces (%d and %d of %d and %d vertices)",
         s1.n_vertices, s2.n_vertices, eig_1.n_vertices, eig_2.n_vertices,
     )  # fmt: skip
     corr = match(s1, s2, on_surface)
+    if left_out is not None and corr.quality is not None:
+        corr = dataclasses.replace(corr, quality=corr.quality.noted(left_out))
     p2p = corr.p2p_21 if rep_1 is None else rep_1[corr.p2p_21]
     if rep_2 is not None:
         p2p = p2p[eig_2.cleaning.index]
