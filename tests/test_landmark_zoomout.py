@@ -331,10 +331,10 @@ def test_a_landmark_pair_on_the_mirrored_side_of_another_is_doubted():
         suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
         reversed_fraction=0.0, area_ratio=1.0,
     )  # fmt: skip
-    assert not landmarks_apart(quality, right, e1, e2).suspect
+    assert not landmarks_apart(quality, landmark_anchors(e1, e2, right)).suspect
     mirrored = right.copy()
     mirrored[0, 1] = 6039  # the other hand, beside pair 4's target (6137)
-    checked = landmarks_apart(quality, mirrored, e1, e2)
+    checked = landmarks_apart(quality, landmark_anchors(e1, e2, mirrored))
     assert checked.suspect and checked.reasons[0].code == "landmarks_apart"
     said = str(checked.reasons[0])
     assert said.startswith("landmark pairs 1 and 4 (rows, counting from 1) lie 1.")

@@ -462,9 +462,7 @@ class FullMatch(Strategy):
         (:func:`~o3d_ofp.workflows.quality.landmarks_apart`): the map follows a wrong pair.
         """
         settled, quality = self._geodesic_review(run, settled, quality)
-        if run.landmarks is None:
-            return settled, quality
-        return settled, landmarks_apart(quality, run.landmarks, run.u1, run.u2)
+        return settled, landmarks_apart(quality, run.state["anchors"])
 
     def _geodesic_review(
         self, run: Run, settled: Settled, quality: MapQuality

@@ -13,14 +13,12 @@ import logging
 import math
 
 import numpy as np
-import scipy.sparse.csgraph as csgraph
 
 from ..core._warnings import warn
 from ..core.correspondence import fmap_from_p2p
-from ..core.fmap import unit_area
+from ..core.fmap import Anchors, unit_area
 from ..core.geometry import (
     POINT_NEIGHBOURS,
-    edge_graph,
     outward_sign,
     point_neighbours,
     point_normals,
@@ -633,26 +631,25 @@ LANDMARKS_GAP = 0.8
 LANDMARKS_GAP_SEEN = 0.70
 
 
-def landmarks_apart(
-    quality: MapQuality, landmarks: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis
-) -> MapQuality:
+def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
     """Flag a map whose landmark pairs disagree on how far apart they lie (meshes only).
 
     Two right pairs lie about as far apart along both shapes, even between a gorilla and a
     human; a pair whose target vertex lies on the mirrored side of another pair's (a left hand
     given for a right one) does not, and the estimate follows it: a new user's trial got a map
     that passed its checks at 0.043 sqrt(area) off, the arms swapped (0.017 with the right
-    pairs). ``landmarks``: (p, 2) source and target vertices. See :data:`LANDMARKS_GAP`.
+    pairs). ``anchors``: the match's :func:`~o3d_ofp.core.fmap.landmark_anchors`, whose
+    distance functions (edge paths over sqrt(area), the first ``p`` columns) are read at the
+    landmarks (None, or a point cloud's: nothing to check). See :data:`LANDMARKS_GAP`.
     """
-    if len(landmarks) < 2 or eig_1.faces is None or eig_2.faces is None:
+    if anchors is None or anchors.distances_1 is None or anchors.distances_2 is None:
         return quality
-    apart = []
-    for col, eig in ((0, eig_1), (1, eig_2)):
-        v = landmarks[:, col]
-        graph = edge_graph(eig.vertices, eig.faces)
-        apart.append(csgraph.dijkstra(graph, directed=False, indices=v)[:, v] / math.sqrt(eig.area))
-    d1, d2 = apart
-    gap = np.where(np.isfinite(d1) & np.isfinite(d2), np.abs(d1 - d2), 0.0)
+    p = anchors.source.size
+    if p < 2:
+        return quality
+    d1 = anchors.distances_1[anchors.source, :p]
+    d2 = anchors.distances_2[anchors.target, :p]
+    gap = np.abs(d1 - d2)
     if not gap.max() > LANDMARKS_GAP:
         return quality
     i, j = sorted(np.unravel_index(int(np.argmax(gap)), gap.shape))
