@@ -47,6 +47,7 @@ __all__ = [
     "landmarks_apart",
     "landmarks_extent",
     "landmarks_kept",
+    "landmarks_mirrored",
     "map_quality",
     "partial_quality",
     "reversed_fraction",
@@ -662,6 +663,69 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
         "may also do this.)",
         {"first": int(i) + 1, "second": int(j) + 1, "source": float(d1[i, j]),
          "target": float(d2[i, j]), "seen": LANDMARKS_GAP_SEEN}, "landmarks_apart",
+    ))  # fmt: skip
+
+
+#: Share of the target's triangles a map estimated without the orientation term must turn
+#: over for its landmarks to be taken for mirror images of the right ones (:data:`MAX_REVERSED`
+#: is too near: such maps of right landmarks turned up to 0.35, of mirrored ones 0.78-0.86).
+#: Measured: see :func:`landmarks_mirrored`.
+MIRRORED_TURNED = 0.6
+#: How closely (at least) a map estimated without the orientation term must follow the
+#: landmarks' distances, relative to the map itself, when it turns the target over, for the
+#: pairs to be taken for mirror images of the right ones. Measured: see
+#: :func:`landmarks_mirrored`.
+MIRRORED_GAIN = 0.9
+
+
+def landmarks_mirrored(
+    quality: MapQuality, anchors: Anchors, p2p_21: np.ndarray, free_21: np.ndarray,
+    turned: float,
+) -> MapQuality:  # fmt: skip
+    """Flag a map whose landmarks pair each side of the target with the source's other side.
+
+    Landmarks given with left and right swapped on every pair (shapes facing the viewer and
+    facing away) are consistent with one another, so :func:`landmarks_apart` passes them, and
+    the orientation term makes the estimate follow them by turning the shape about its axis:
+    a map far off that can pass every other check. Estimated without that term the landmarks
+    drive a mirror image, which turns most of the target's triangles over (``turned``, of
+    ``free_21``) and follows their distances more closely than the map (``p2p_21``) does.
+    Measured (scratch, 2026-11-30: 9 of the 30 TOSCA people pairs of ``bcicp_dev``, maps
+    ``ofp.match`` estimates, mean geodesic error x100 on 300 points; landmarks from the truth
+    or, mirrored, from its ``.sym.vts``): 6 mirrored farthest-point landmarks gave maps 49-55
+    off, 5 turned over by themselves (``reversed``), the 4 others passed every check before
+    this one and are doubted here (free maps 0.78-0.86 turned, gains 1.01-1.23); 3 mirrored,
+    7 of 8 turned over and the other is doubted (0.79, 1.02); 5 mirrored at random, all 9
+    turned over. Right landmarks (6, 5 at random, 3: 27 maps, 0.6-2.4 off): free maps
+    0.12-0.35 turned, none doubted. Four right landmarks on the plane of symmetry (the truth
+    and its mirror image within 0.02 sqrt(area); 8 pairs, maps 0.6-2.4): free maps 0.12-0.34
+    turned on 6, 0.75 (gain 0.88) and 0.86 (gain 1.08: doubted) on two. Such landmarks leave
+    the orientation to the orientation term, and the reason says so.
+    ``anchors``: the match's :func:`~o3d_ofp.core.fmap.landmark_anchors` (meshes).
+    """
+    p = anchors.source.size
+    d1, d2 = anchors.distances_1[:, :p], anchors.distances_2[:, :p]
+    # mean misfit of the landmarks' distances (sqrt(area) units; 1e-6 of it is nothing)
+    given, free = (float(np.abs(d1[p2p] - d2).mean()) + 1e-6 for p2p in (p2p_21, free_21))
+    gain = given / free
+    values = {"turned": turned, "gain": gain}
+    quality = quality.noted(Said(
+        "landmarks' orientation: estimated without the orientation term, the map they drive "
+        "turns {turned:.2f} of the target over and follows their distances {gain:.2f} times "
+        "as closely as this map", values, "landmarks_orientation",
+    ))  # fmt: skip
+    if not (turned > MIRRORED_TURNED and gain > MIRRORED_GAIN):
+        return quality
+    return quality.flagged(Said(
+        "the landmarks pair mirror-image sides (the source's left with the target's right): "
+        "estimated without the orientation term, the map they drive turns {turned:.0%} of the "
+        "target's triangles over and follows their distances {gain:.2f} times as closely as "
+        "this map, which turns the shape about its axis to follow them; check that each pair "
+        "is on the same side of both shapes ({landmarks_check}). Landmarks that all lie on "
+        "the plane of symmetry (nose, navel, crown) leave left and right open and can also do "
+        "this: add a pair off it. (Shapes that are mirror images of each other, a left hand "
+        "and a right one, cannot be matched without turning one over.)", values,
+        "landmarks_mirrored",
     ))  # fmt: skip
 
 
