@@ -383,9 +383,10 @@ def test_landmarks_mirrored_needs_a_free_map_that_turns_over_and_follows_them(st
     """The rule of quality.landmarks_mirrored, on maps made to order.
 
     A map that follows the landmarks' distances badly (a shift along the vertices) beside a
-    free map that follows them exactly: doubted when the free map turns the target over
+    free map that follows them exactly: flagged when the free map turns the target over
     beyond MIRRORED_TURNED, not below it; nor when the free map is the one that follows them
-    badly (the gain below MIRRORED_GAIN).
+    badly. A free map that follows them as closely as the map (the same map: gain 1) and
+    turns over is only warned about (the landmarks may all lie on the plane of symmetry).
     """
     from o3d_ofp.workflows.quality import MIRRORED_GAIN, MIRRORED_TURNED, landmarks_mirrored
 
@@ -400,10 +401,14 @@ def test_landmarks_mirrored_needs_a_free_map_that_turns_over_and_follows_them(st
     doubted = landmarks_mirrored(quality, anchors, shifted, exact, MIRRORED_TURNED + 0.1)
     assert doubted.suspect and doubted.reasons[0].code == "landmarks_mirrored"
     (note,) = [n for n in doubted.notes if n.code == "landmarks_orientation"]
-    assert note.values["gain"] > 1 / MIRRORED_GAIN
+    assert note.values["gain"] > MIRRORED_GAIN
     kept = landmarks_mirrored(quality, anchors, shifted, exact, MIRRORED_TURNED - 0.1)
-    assert not kept.suspect and "landmarks_orientation" in kept.codes()
-    assert not landmarks_mirrored(quality, anchors, exact, shifted, 0.9).suspect
+    assert not kept.suspect and kept.codes() == {"landmarks_orientation"}
+    assert landmarks_mirrored(quality, anchors, exact, shifted, 0.9).codes() == {
+        "landmarks_orientation"
+    }
+    open_ = landmarks_mirrored(quality, anchors, shifted, shifted, MIRRORED_TURNED + 0.1)
+    assert not open_.suspect and "landmarks_unoriented" in open_.codes()
 
 
 @pytest.mark.slow
