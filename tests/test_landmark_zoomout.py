@@ -418,7 +418,7 @@ def test_landmarks_with_left_and_right_swapped_between_two_people_are_doubted():
     Every target vertex given on the other side (the dataset's left/right symmetric map):
     the match follows them by turning the body about its axis, 0.5 sqrt(area) off (mean
     geodesic error x100 53.9 in scratch runs, right pairs 0.6), and it passed every check.
-    Estimated without the orientation term the landmarks drive a mirror image (0.86 of the
+    Estimated without the orientation term the landmarks drive a mirror image (0.87 of the
     triangles turned over; right pairs 0.12).
     """
     from .conftest import load_shared_mesh, shared_path

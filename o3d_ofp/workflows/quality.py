@@ -668,7 +668,7 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
 
 #: Share of the target's triangles a map estimated without the orientation term must turn
 #: over for the landmarks to be doubted (:data:`MAX_REVERSED` is too near: such maps of right
-#: landmarks turned 0.12-0.55, of mirrored ones that the map did not turn over 0.49-0.86).
+#: landmarks turned 0.12-0.55, of mirrored ones that the map did not turn over 0.49-0.87).
 #: Measured: see :func:`landmarks_mirrored`.
 MIRRORED_TURNED = 0.6
 #: How much more closely that mirror image must follow the landmarks' distances than the map
@@ -702,10 +702,10 @@ def landmarks_mirrored(
     farthest-point ones, or the same mirrored, from its ``.sym.vts``; "midline": 4 right ones
     whose truth and mirror image lie within 0.02 sqrt(area)):
 
-    * 9 TOSCA people pairs (of 30): of 26 mirrored sets (maps 28-56 off), 21 turned over by
-      the map itself, 2 flagged (gains 1.18, 1.23) and 3 warned (1.01-1.03), where 5 had
-      passed silently before; 27 right sets, nothing said (free maps 0.12-0.35 turned);
-      8 midline sets, 1 warned (0.86 turned, gain 1.08).
+    * 10 TOSCA people pairs (every third of 30): of 28 mirrored sets (maps 28-56 off), 23
+      turned over by the map itself, 2 flagged (gains 1.19, 1.23) and 3 warned (1.01-1.03),
+      where those 5 had passed silently before; 28 right sets, nothing said (free maps
+      0.12-0.34 turned); 9 midline sets, 1 warned (0.86 turned, gain 1.08).
     * 10 TOSCA animal pairs: of 30 mirrored sets (3-28 off), 12 turned over, 17 flagged
       (gains 1.26-2.69), 1 passed (0.56 turned, the map 4.5 off); 30 right sets, nothing
       said (0.15-0.43); 10 midline sets, 3 warned (gains 0.97-1.05, maps right).
