@@ -366,10 +366,11 @@ class FullMatch(Strategy):
         One start (the fit of ``k_fit`` with the first commutativity weight, ``w_orient=0``;
         the match's samples and landmark functions reused), ZoomOut-ed to ``select``, and its
         point map at that size. For :meth:`review`'s
-        :func:`~o3d_ofp.workflows.quality.landmarks_mirrored`. Measured (10 TOSCA people
-        pairs, landmarks right, mirrored and on the plane of symmetry): the same turned
-        shares and gains as the best aligned of the four starts, in 1.0-1.9 s instead of
-        about 3 s a pair of 5k vertices.
+        :func:`~o3d_ofp.workflows.quality.landmarks_mirrored`. Measured (6 TOSCA people
+        pairs, landmarks right, mirrored and on the plane of symmetry, another run on the
+        second core): the same verdicts as the best aligned of the four starts (turned
+        shares within 0.08, gains within 0.01), in 1.0-1.9 s instead of about 3 s a pair of
+        5k vertices.
         """
         o = run.options
         free = Run(run.eig_1, run.eig_2, run.u1, run.u2, run.landmarks,
