@@ -12,7 +12,6 @@ shape.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from concurrent.futures import ThreadPoolExecutor
@@ -117,6 +116,11 @@ def _fit_sizes(run: Run) -> list[int]:
     k_fit = min(o.k_fit, u1.k, u2.k)
     wide = min(WIDE_FIT_K, o.zoomout_to, u1.k, u2.k)
     return [k_fit, wide] if wide > k_fit else [k_fit]
+
+
+def _local_search(run: Run) -> bool:
+    """Return whether point maps take the exact cell-pruned search (above :data:`DENSE_PAIRS`)."""
+    return run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS
 
 
 def alignment_residual(
@@ -372,16 +376,15 @@ class FullMatch(Strategy):
         shares within 0.08, gains within 0.01), in 1.0-1.9 s instead of about 3 s a pair of
         5k vertices.
         """
-        o = run.options
-        free = Run(run.eig_1, run.eig_2, run.u1, run.u2, run.landmarks,
-                   dataclasses.replace(o, w_orient=0.0), run.report, dict(run.state))  # fmt: skip
-        (start,) = estimate_fmaps(
+        ((k, _, C),) = estimate_fmaps(
             run.u1, run.u2, sizes=_fit_sizes(run)[:1], w_dcomm=DCOMM_WEIGHTS[:1],
-            landmarks=run.state["anchors"], descriptors=o.descriptors, w_orient=0.0,
+            landmarks=run.state["anchors"], descriptors=run.options.descriptors, w_orient=0.0,
         )  # fmt: skip
-        C = self.refine(free, 0, start)[0]
-        local = run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS
-        return anchored_p2p_from_fmap(C, run.u1, run.u2, run.state["anchors"], local=local)
+        select = run.state["select"]
+        if select > k:  # as refine() does, without the alignment residual it would compare
+            C = self._zoomout(run, C, select)
+        return anchored_p2p_from_fmap(C, run.u1, run.u2, run.state["anchors"],
+                                      local=_local_search(run))  # fmt: skip
 
     def _zoomout(self, run: Run, C: np.ndarray, k: int, step: int = 1) -> np.ndarray:
         return zoomout_refine(
@@ -464,8 +467,7 @@ class FullMatch(Strategy):
         087's vertices, 0.145 -> 0.138 from the centaur's), one flagged map loses (onto a cloud
         sampled on FAUST 087, 0.170 -> 0.221).
         """
-        # Above DENSE_PAIRS the exact cell-pruned search, without the quadratic scan.
-        local = run.eig_1.n_vertices * run.eig_2.n_vertices > DENSE_PAIRS
+        local = _local_search(run)
         anchors = run.state["anchors"]
         spectral = anchored_p2p_from_fmap(C, run.u1, run.u2, anchors, local=local)
         p2p = dirichlet_p2p(spectral, run.u1, run.u2, anchors, k=min(C.shape) - 1, local=local)
