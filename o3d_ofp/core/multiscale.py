@@ -998,24 +998,27 @@ def extend_fmap(
 
 
 def coarse_mesh(
-    vertices: Any, faces: Any, count: int
+    vertices: Any, faces: Any, count: int | None = None, *, samples: Any = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Build a coarse triangle mesh of a dense one: the dual of its geodesic Voronoi cells.
 
     About ``count`` well-spread vertices (one per occupied cube of a grid in the shape's
-    principal frame: O(n), and independent of the pose, scale and vertex order) become the
-    coarse vertices; every vertex joins the cell of the sample nearest along the mesh's edges
-    (one multi-source Dijkstra, O(n log n)), and every face whose three corners lie in three
-    different cells gives a coarse triangle between them (once, oriented as that face). Cells
-    follow the surface, so parts close in space but not on the surface (hands by the thighs)
-    stay apart.
+    principal frame: O(n), and independent of the pose, scale and vertex order), or the given
+    ``samples``, become the coarse vertices; every vertex joins the cell of the sample nearest
+    along the mesh's edges (one multi-source Dijkstra, O(n log n)), and every face whose three
+    corners lie in three different cells gives a coarse triangle between them (once, oriented
+    as that face). Cells follow the surface, so parts close in space but not on the surface
+    (hands by the thighs) stay apart.
 
     Parameters
     ----------
     vertices : (n, 3) array_like of float
     faces : (m, 3) array_like of int
-    count : int
+    count : int, optional
         Coarse vertices wanted (at most n; the result has ``count`` ± 10 %).
+    samples : (s,) array_like of int, optional
+        The coarse vertices themselves, instead of ``count`` (another mesh's, with the same
+        triangulation: the two coarse copies then sample the shapes alike).
 
     Returns
     -------
@@ -1033,8 +1036,18 @@ def coarse_mesh(
     V = as_vertices(vertices)
     F = as_faces(faces, V.shape[0])
     n = V.shape[0]
-    count = check_int(count, name="count", minimum=4, maximum=n)
-    samples = grid_samples(V, count)
+    if (count is None) == (samples is None):
+        raise TypeError("coarse_mesh takes either count or samples")
+    if samples is None:
+        samples = grid_samples(V, check_int(count, name="count", minimum=4, maximum=n))
+    else:
+        samples = np.asarray(samples)
+        if (samples.ndim != 1 or samples.size < 4 or samples.dtype.kind not in "iu"
+                or samples.min() < 0 or samples.max() >= n
+                or np.unique(samples).size != samples.size):  # fmt: skip
+            raise ValueError(f"samples must be at least 4 distinct vertex indices in [0, {n}); "
+                             f"got {samples.size} of dtype {samples.dtype}")  # fmt: skip
+        samples = samples.astype(np.int64)
     count = samples.shape[0]
     _, _, source = dijkstra(
         edge_graph(V, F), directed=False, indices=samples, min_only=True, return_predecessors=True

@@ -27,7 +27,13 @@ from ..core._validation import check_int
 from ..core._warnings import warn
 from ..core.spectrum import EigenBasis, check_eigenbasis, on_cleaned_vertices
 from ..core.wording import OptionError, Said
-from .dense import COARSE_VERTICES, CoarseShape, coarse_landmarks, coarse_shape
+from .dense import (
+    COARSE_VERTICES,
+    CoarseShape,
+    coarse_landmarks,
+    coarse_shape,
+    shared_samples,
+)
 from .eigenbases import check_shapes, eigenbasis_bytes, run_per_shape
 from .maps import Correspondence, keeping_landmarks, shape_signature, with_signatures
 from .matching import FullMatch
@@ -427,7 +433,9 @@ def coarse_copies(
     components : {"auto", "largest", "error"}
         The components policy.
     given : sequence of CoarseShape or None
-        Copies already made (kept; one built for another vertex count is refused).
+        Copies already made (kept; one built for another vertex count is refused). Two
+        shapes with one triangulation get the same coarse vertices
+        (:func:`~o3d_ofp.workflows.dense.shared_samples`).
     names : sequence of str
         How messages name the shapes.
 
@@ -450,8 +458,9 @@ def coarse_copies(
     todo = [i for i, shape in enumerate(shapes) if shape is not None and given[i] is None]
     check_shapes([shapes[i] for i in todo], names=[names[i] for i in todo],  # type: ignore[misc]
                  components=components)  # fmt: skip
+    samples = shared_samples(shapes, given, size) if todo else None
     jobs = [functools.partial(coarse_shape, *shapes[i], k=k[i], coarse_vertices=size,  # type: ignore[misc]
-                              components=components) for i in todo]  # fmt: skip
+                              components=components, samples=samples) for i in todo]  # fmt: skip
     n = [len(shapes[i][0]) for i in todo]  # type: ignore[index]
     memory = [eigenbasis_bytes(min(m, size), k[i]) for m, i in zip(n, todo, strict=True)]
     built = run_per_shape(jobs, n, memory, what="coarse copies") if todo else []
