@@ -411,6 +411,29 @@ def test_landmarks_mirrored_needs_a_free_map_that_turns_over_and_follows_them(st
     assert not open_.suspect and "landmarks_unoriented" in open_.codes()
 
 
+def test_landmarks_orientation_is_checked_only_with_the_orientation_term(stretched, monkeypatch):
+    """The free map (no orientation term) tells a mirrored set only against a map with one.
+
+    With ``w_orient=0`` the map itself has no orientation term, so the two would be the same
+    estimate: no second one is made and nothing is said of the landmarks' orientation.
+    """
+    from o3d_ofp.workflows import matching
+    from o3d_ofp.workflows.options import MatchOptions
+
+    source, target, F, landmarks, _, _ = stretched
+    checked = ofp.match((source, F), (target, F), landmarks=landmarks).quality
+    assert "landmarks_orientation" in checked.codes()
+
+    def no_free_map(self, run):
+        raise AssertionError("a free map without an orientation term to compare with")
+
+    monkeypatch.setattr(matching.FullMatch, "_free_map", no_free_map)
+    options = MatchOptions(w_orient=0.0)
+    plain = ofp.match((source, F), (target, F), landmarks=landmarks, options=options).quality
+    assert not plain.codes() & {"landmarks_orientation", "landmarks_mirrored",
+                                "landmarks_unoriented"}  # fmt: skip
+
+
 @pytest.mark.slow
 def test_landmarks_with_left_and_right_swapped_between_two_people_are_doubted():
     """bcicp_dev man_01 -> man_05 (TOSCA people, near-isometric), 6 well-spread landmarks.
