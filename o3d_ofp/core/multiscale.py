@@ -1030,6 +1030,13 @@ def coarse_mesh(
         Index of every coarse vertex in ``vertices``.
     cell : (n,) ndarray of int64
         Coarse vertex (cell) of every vertex.
+
+    Raises
+    ------
+    TypeError
+        Both or neither of ``count`` and ``samples`` given.
+    ValueError
+        ``count`` out of [4, n], or ``samples`` not at least 4 distinct indices in [0, n).
     """
     from scipy.sparse.csgraph import dijkstra
 

@@ -58,7 +58,9 @@ logger = logging.getLogger(__name__)
 #: path of ``o3d_ofp.workflows.plan.plan_pair``). Below it the direct match is faster or
 #: as fast and more precise: it keeps the exact full-resolution spectral map (measured, FAUST
 #: 093 -> 087 midpoint-subdivided to 27.5k vertices: direct 0.0131 in 6.2 s, the coarse path
-#: 0.0202; tests/test_dense.py and scripts/bench_match.py).
+#: 0.0191 with the target's vertices renumbered (each copy sampled on its own), 0.0148 with
+#: the two copies on the same samples (:func:`shared_samples`); tests/test_dense.py and
+#: scripts/bench_match.py).
 DENSE_VERTICES = 50_000
 #: Vertices of each coarse mesh. Measured (FAUST 093 -> 087 subdivided to 110k vertices, map
 #: error / sqrt(area) with the estimation's chosen start; the direct match of the original
@@ -68,6 +70,7 @@ DENSE_VERTICES = 50_000
 #: eigenpairs take 2.3 s at 15000, 3.7 s at 20000 (110k); 7000 gave 0.034-0.09 and 10000
 #: 0.033-0.036. (Those runs had the final ZoomOut one eigenfunction a step; with five a step,
 #: ``matching.ZOOMOUT_STEP``, 20000 gives 0.0155 at 110k and 0.0214 at 440k: bench_match.py.)
+#: All these with each copy sampled on its own grid; the sampling's ±0.003 is that regime's.
 COARSE_VERTICES = 20_000
 #: Non-constant eigenfunctions of the coarse map's functional map that its extension to every
 #: vertex compares, beside the coarse point map's images (which place each vertex; the
@@ -159,25 +162,27 @@ def coarse_shape(
 
 
 def shared_samples(
-    shapes: Sequence[tuple[np.ndarray, np.ndarray] | None],
-    given: Sequence[CoarseShape | None], coarse_vertices: int,
+    shapes: Sequence[tuple[np.ndarray, np.ndarray | None] | None], *,
+    given: Sequence[CoarseShape | None] = (None, None), coarse_vertices: int = COARSE_VERTICES,
 ) -> np.ndarray | None:  # fmt: skip
     """Return the coarse vertices of two meshes with one triangulation (else None).
 
     Two meshes with the same faces (two poses of one template, a registered dataset) get the
     same coarse vertices: the given copy's, else a grid's on the first shape. Their coarse
     copies then sample the shapes alike, as the meshes themselves do, and the coarse map can
-    pair identical samplings as a direct match of the meshes does. Measured (FAUST 093 -> 087,
-    one triangulation, midpoint-subdivided; ``scripts/bench_match.py --levels 2 3``; map error
-    / sqrt(area), the direct match at 6890 vertices 0.0143): each copy sampled on its own
-    0.0142 at 110k and 0.0195 at 440k vertices (their grids picked the same vertex for 33 % and
-    8 % of the samples), the shared samples 0.0141 and 0.0145; the colors' error at 440k 19.6 %
-    against 12.2 %.
+    pair identical samplings as a direct match of the meshes does. A given copy's samples are
+    taken whatever its size. Measured (FAUST 093 -> 087, one triangulation,
+    midpoint-subdivided; ``scripts/bench_match.py --levels 0 1 2 3 --pyfm-levels 0 1
+    --accurate-levels 0 --limit-levels 0 1 2 3``; map error / sqrt(area), the direct match at
+    6890 vertices 0.0128): each copy sampled on its own 0.0142 at 110k and 0.0195 at 440k
+    vertices (their grids picked the same vertex for 33 % and 8 % of the samples), the shared
+    samples 0.0141 and 0.0145; the colors' error at 440k 19.62 % against 12.23 %. Renumbering
+    one mesh's vertices makes the two triangulations differ: each copy then has its own grid.
 
     Parameters
     ----------
-    shapes : sequence of two ((n, 3) ndarray, (m, 3) ndarray) or None
-        The two meshes (None: not known here).
+    shapes : sequence of two ((n, 3) ndarray, (m, 3) ndarray or None) or None
+        The two meshes (None: not known here; faces None: a point cloud, never shared).
     given : sequence of two CoarseShape or None
         Copies already made of them.
     coarse_vertices : int
@@ -190,6 +195,8 @@ def shared_samples(
     if len(shapes) != 2 or any(shape is None for shape in shapes):
         return None
     (V1, F1), (V2, F2) = shapes  # type: ignore[misc]
+    if F1 is None or F2 is None:
+        return None
     F1, F2 = np.asarray(F1), np.asarray(F2)
     if len(V1) != len(V2) or F1.shape != F2.shape or not np.array_equal(F1, F2):
         return None

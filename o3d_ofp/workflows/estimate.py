@@ -429,7 +429,8 @@ def coarse_copies(
     k : sequence of int
         Eigenfunctions of each copy's basis.
     size : int, optional
-        Vertices of each copy (default :data:`~o3d_ofp.workflows.dense.COARSE_VERTICES`).
+        Vertices of each copy (default :data:`~o3d_ofp.workflows.dense.COARSE_VERTICES`;
+        a given copy's count instead where the two shapes share one triangulation).
     components : {"auto", "largest", "error"}
         The components policy.
     given : sequence of CoarseShape or None
@@ -458,11 +459,12 @@ def coarse_copies(
     todo = [i for i, shape in enumerate(shapes) if shape is not None and given[i] is None]
     check_shapes([shapes[i] for i in todo], names=[names[i] for i in todo],  # type: ignore[misc]
                  components=components)  # fmt: skip
-    samples = shared_samples(shapes, given, size) if todo else None
+    samples = shared_samples(shapes, given=given, coarse_vertices=size) if todo else None
     jobs = [functools.partial(coarse_shape, *shapes[i], k=k[i], coarse_vertices=size,  # type: ignore[misc]
                               components=components, samples=samples) for i in todo]  # fmt: skip
     n = [len(shapes[i][0]) for i in todo]  # type: ignore[index]
-    memory = [eigenbasis_bytes(min(m, size), k[i]) for m, i in zip(n, todo, strict=True)]
+    made = size if samples is None else samples.size
+    memory = [eigenbasis_bytes(min(m, made), k[i]) for m, i in zip(n, todo, strict=True)]
     built = run_per_shape(jobs, n, memory, what="coarse copies") if todo else []
     out = [given[i] if i < len(given) else None for i in range(len(shapes))]
     for i, copy in zip(todo, built, strict=True):
