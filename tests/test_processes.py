@@ -101,6 +101,39 @@ def test_an_exception_that_cannot_travel_is_raised_by_its_job_run_here(caplog):
     assert not getattr(raised.value, "__notes__", [])  # raised here, not in a child
 
 
+def _refuse() -> None:
+    from o3d_ofp.core.wording import AdvisedError, Said
+
+    raise AdvisedError(Said("the shape has {n} pieces", {"n": 3}, "components"))
+
+
+def _refuse_option() -> None:
+    from o3d_ofp.core.wording import OptionError
+
+    raise OptionError("coarse_vertices", "must be >= 200; got 3")
+
+
+@needs_two
+def test_the_library_refusals_travel_back_from_a_child(caplog):
+    """A refusal in a side process is raised here as it was, not taken for a lost child.
+
+    They could not be rebuilt from their text: the caller saw "ended without an answer (out
+    of memory?)" and the job ran again here (a large STL's coarse copy, refused twice).
+    """
+    from o3d_ofp.core.wording import AdvisedError, OptionError
+
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp"):
+        with pytest.raises(AdvisedError, match="the shape has 3 pieces") as raised:
+            side_by_side([lambda: 1, _refuse], what="refusing")
+        assert raised.value.said.code == "components"
+        with pytest.raises(OptionError, match="coarse_vertices must be >= 200") as refused:
+            side_by_side([lambda: 1, _refuse_option], what="refusing")
+        assert refused.value.option == "coarse_vertices"
+    assert "without an answer" not in caplog.text
+    if sys.version_info >= (3, 11):  # raised there: its traceback comes along as a note
+        assert "in a side process" in "".join(getattr(raised.value, "__notes__", []))
+
+
 def _warn_and_log() -> int:
     logger.info("from the child %d", 7)
     warn(logging.getLogger("o3d_ofp.tests.processes"), "a doubtful child result")

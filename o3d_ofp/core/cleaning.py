@@ -57,6 +57,7 @@ __all__ = [
     "CleaningReport",
     "check_shape",
     "clean_shape",
+    "weld_groups",
 ]
 
 logger = logging.getLogger(__name__)
@@ -246,6 +247,28 @@ class CleanShape:
     stiffness: sp.csr_matrix
     mass: np.ndarray
     cleaning: Cleaning
+
+
+def weld_groups(
+    vertices: Any, *, tolerance: float | None = 1e-9
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Group the vertices at one position, as :func:`clean_shape` welds them.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    tolerance : float or None, default 1e-9
+        As ``weld_tolerance`` of :func:`clean_shape` (a fraction of the bounding box's largest
+        side; 0: equal positions only; None: no welding).
+
+    Returns
+    -------
+    group : (n,) ndarray of int
+        The group of every vertex, numbered by first occurrence.
+    first : (g,) ndarray of int
+        The first vertex of every group.
+    """
+    return _weld(as_vertices(vertices), tolerance)
 
 
 def _weld(vertices: np.ndarray, tolerance: float | None) -> tuple[np.ndarray, np.ndarray]:

@@ -36,6 +36,7 @@ from ._processes import processes_available, side_by_side
 from ._rows import unique_rows
 from ._threads import one_blas_thread
 from ._validation import as_faces, as_vertices, check_int
+from .cleaning import weld_groups
 from .correspondence import (
     check_p2p,
     fmap_between,
@@ -1008,7 +1009,9 @@ def coarse_mesh(
     along the mesh's edges (one multi-source Dijkstra, O(n log n)), and every face whose three
     corners lie in three different cells gives a coarse triangle between them (once, oriented
     as that face). Cells follow the surface, so parts close in space but not on the surface
-    (hands by the thighs) stay apart.
+    (hands by the thighs) stay apart. Vertices at one position (a mesh split along its seams,
+    an STL file) are welded first, as the cleaning does: cells cross the seams, and the results
+    index the given vertices (repeated positions share their cell).
 
     Parameters
     ----------
@@ -1042,6 +1045,17 @@ def coarse_mesh(
 
     V = as_vertices(vertices)
     F = as_faces(faces, V.shape[0])
+    group, first = weld_groups(V)
+    if first.shape[0] < V.shape[0]:  # repeated positions: built on one vertex each
+        if samples is not None:
+            samples = np.asarray(samples)
+            if samples.dtype.kind in "iu" and samples.ndim == 1 and samples.size:
+                if samples.min() >= 0 and samples.max() < V.shape[0]:
+                    samples = np.unique(group[samples])  # a repeated position once
+        if count is not None and first.shape[0] >= 4:
+            count = min(count, first.shape[0])
+        Vc, Fc, picked, cell = coarse_mesh(V[first], group[F], count, samples=samples)
+        return Vc, Fc, first[picked], cell[group]
     n = V.shape[0]
     if (count is None) == (samples is None):
         raise TypeError("coarse_mesh takes either count or samples")

@@ -163,6 +163,11 @@ class AdvisedError(ValueError):
         super().__init__(message.text())
         self.said = message
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # rebuilt from its Said, not its text: a forked job's refusal reaches the caller as
+        # raised (pickled back from the child, it failed and read as the child lost)
+        return (type(self), (self.said,), self.__dict__)
+
 
 class OptionError(ValueError, TypeError):
     """An option refused where it was handed over: it names the keyword, the CLI its flag.
@@ -185,3 +190,6 @@ class OptionError(ValueError, TypeError):
         super().__init__(self.said.text())
         self.option = option
         self.problem = problem
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (self.option, self.problem), self.__dict__)
