@@ -8,6 +8,7 @@ order, and never build anything quadratic in the vertex count.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import tracemalloc
 
@@ -475,6 +476,30 @@ def _prepared_transfer(V1, F1, V2, F2):
     """Plan and prepare a color transfer with the default bases (29 / 39)."""
     plan = plan_module.plan_pair(V1, F1, V2, F2, task="colors")
     return plan, plan_module.prepare(plan, V1, F1, V2, F2)
+
+
+def test_a_cache_the_dense_path_does_not_use_is_said(
+    small_threshold, twisted_pair, direct_and_dense, tmp_path, caplog
+):
+    """The cache holds full-resolution eigenbases and bases: coarse copies are not in it.
+
+    A new user's second run with --cache on 110k-vertex meshes took as long as the first, and
+    the folder was never made, without a word.
+    """
+    from o3d_ofp.core._warnings import OFPWarning
+
+    V1, F1, V2, F2 = twisted_pair
+    _, dense = direct_and_dense
+    cache = tmp_path / "cache"
+    plan = plan_module.plan_pair(V1, F1, V2, F2, task="colors", given=dense)
+    assert plan.coarse_bases == (True, True)
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp.workflows.plan"):
+        with pytest.warns(OFPWarning, match=r"^cache_dir= holds full-resolution"):
+            plan_module.prepare(plan, V1, F1, V2, F2, given=dense, cache_dir=cache)
+    (said,) = [r.said for r in caplog.records if getattr(r, "said", None)]
+    assert said.code == "cache_unused"
+    assert said.text(cli=True).startswith("--cache holds full-resolution")  # the CLI's words
+    assert not cache.exists()
 
 
 def test_colors_of_a_dense_pair_go_through_bases_on_the_coarse_copies(

@@ -54,6 +54,7 @@ FIXES: Mapping[str, tuple[str, str]] = {
         "--target-scale {factor:g}",
     ),
     "identity": ("map='identity'", "--map identity"),
+    "cache": ("cache_dir=", "--cache"),
     "texture_size": ("kind='texture'", "--texture-size N"),
     "threshold": ("options=BasisOptions({setting})", "{flag}"),
     "default_threshold": (

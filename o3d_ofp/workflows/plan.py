@@ -386,6 +386,16 @@ def prepare(
     if given is not None:
         _check_given(given, V1, V2)
     coarse = _coarse(plan, shapes, match, policy, coarse_source, bases, names)
+    full_bases = [plan.basis_k is not None and not plan.coarse_bases[i] and bases[i] is None
+                  for i in (0, 1)]  # fmt: skip
+    if cache_dir is not None and (plan.dense or any(plan.coarse_bases)) and not (
+        todo or any(full_bases)
+    ):
+        warn(logger, Said(
+            "{cache} holds full-resolution eigenbases and OFP bases; above {n} vertices the map "
+            "and the bases are made on coarse copies, which it does not hold: nothing is read "
+            "from it or written to it for these shapes", {"n": DENSE_VERTICES}, "cache_unused",
+        ))  # fmt: skip
     corr = given
     if plan.dense:
         corr = estimate_dense(
