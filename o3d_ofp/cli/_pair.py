@@ -285,18 +285,40 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
     return Correspondence(p2p_21=p2p, n_source=n1, method=method)
 
 
-def _judge_given(args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray) -> None:
+def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None, n: int) -> str | None:
+    """Why ``--map identity`` is doubtful between two meshes: their triangles differ."""
+    if F1 is None or F2 is None:
+        return None
+    keys = [(np.sort(F, axis=1).astype(np.int64) * [n * n, n, 1]).sum(axis=1) for F in (F1, F2)]
+    other = int(np.count_nonzero(~np.isin(keys[1], keys[0])))
+    if not other:
+        return None
+    return (f"--map identity: {other} of the target's {len(F2)} triangles are not the source's: "
+            "the two meshes are numbered differently (renumbered or remeshed), so vertex i of "
+            "one need not be vertex i of the other; --map estimate or --map closest find the "
+            "map")  # fmt: skip
+
+
+def _judge_given(
+    args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray,
+    faces: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+) -> None:  # fmt: skip
     """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
 
     A map that collapses (:func:`o3d_ofp.workflows.maps.given_map_collapse`: a few flat
     values), one saved by ``--save-map`` whose stored quality is suspect or that was made for
-    other shapes (source and target swapped, another pair with the same vertex counts). The
-    library warns of the first and the last when the map is used; the stored verdict is
-    warned here.
+    other shapes (source and target swapped, another pair with the same vertex counts), and
+    ``--map identity`` between meshes whose triangles differ (``faces``: another numbering).
+    The library warns of the first and the others' kind when the map is used; the stored
+    verdict and the numbering are warned here.
     """
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
+    numbering = _other_numbering(*faces, V1.shape[0]) if corr.method == "identity" else None
     reasons = [r for r in (collapse and f"--map {args.map}: {collapse.text(cli=True)}",
-                           corr.mismatch(V1, V2, name=f"--map {args.map}")) if r]  # fmt: skip
+                           corr.mismatch(V1, V2, name=f"--map {args.map}"), numbering)
+               if r]  # fmt: skip
+    if numbering and not args.strict:
+        logger.warning("%s", numbering)
     quality = corr.quality
     if quality is not None:
         report([f"stored with --map {args.map}: {quality.summary()}"])
@@ -328,7 +350,7 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
         target, V2 = scaled_copy(target, factor), V2 * factor
     given = _read_map(args.map, V1, V2)
     if given is not None:
-        _judge_given(args, given, V1, V2)
+        _judge_given(args, given, V1, V2, (F1, F2))
     landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
     if landmarks is not None and args.landmarks != "pick":  # (picked ones are as read)
         _say_renumbered(((args.source, V1.shape[0]), (args.target, V2.shape[0])))
