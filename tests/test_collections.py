@@ -898,6 +898,13 @@ def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
     captured = capsys.readouterr()
     assert captured.err.count("bad.ply: failed: ValueError") == 1 and captured.out == ""
     assert "t0" not in captured.err
+    # a target whose output is named otherwise (STL holds no colors: written as PLY) is named
+    # by its own file too (a trial's failed s087.stl was logged as "s087.ply: failed")
+    bad_stl = tmp_path / "bad.stl"
+    bad_stl.write_bytes(Path(paths["bad"]).read_bytes())
+    argv = ["-q", "transfer", paths["src"], str(bad_stl), paths["t0"], "--workers", "0"]
+    assert main([*argv, "-o", str(tmp_path / "q_stl")]) == 1
+    assert "bad.stl (-> bad.ply): failed: " in capsys.readouterr().err
     # -q in this process (the log is at WARNING): the record still keeps what was said
     argv = ["-q", "transfer", paths["src"], str(sphere), paths["t0"], "--workers", "0"]
     assert main([*argv, "-o", str(tmp_path / "q2")]) == 0

@@ -246,19 +246,30 @@ def _worker_environment() -> Iterator[dict[str, Any]]:
             os.environ.pop(k, None)
 
 
+def _shown(r: TargetResult) -> str:
+    """Return how the log names a target: its file, and its output's name where that differs.
+
+    An STL target's colors are written as PLY (``s087.stl`` -> ``s087.ply``): named by the
+    output alone, a failure read as another input's.
+    """
+    given = os.path.basename(r.path) if r.path else r.name
+    return given if given == r.name else f"{given} (-> {r.name})"
+
+
 def _log_record(r: TargetResult) -> None:
     """Log a record as it arrives: failures and suspect maps as warnings, named."""
+    who = _shown(r)
     if r.status == "failed":
-        logger.warning("%s: failed: %s", r.name, r.error)
+        logger.warning("%s: failed: %s", who, r.error)
         return
     if r.status == "skipped":
-        logger.info("%s: skipped (already done: %s)", r.name, r.output)
+        logger.info("%s: skipped (already done: %s)", who, r.output)
     else:
         covered = f", map coverage {r.coverage:.2f} of the source's vertices"
         covered = "" if math.isnan(r.coverage) else covered
-        logger.info("%s: ok in %.1f s on %s%s", r.name, r.seconds, r.worker, covered)
+        logger.info("%s: ok in %.1f s on %s%s", who, r.seconds, r.worker, covered)
         if r.suspect and (not r.warnings or r.worker == "local"):  # its reasons were not named
-            logger.warning("%s: the map is suspect (see its record)", r.name)
+            logger.warning("%s: the map is suspect (see its record)", who)
     # A worker process's log is not shown here: its warnings are said again, named (in this
     # process, workers=0, the log said them as they happened, named: core._warnings.about).
     if r.worker != "local":
