@@ -440,6 +440,15 @@ def test_one_triangulation_gives_coarse_copies_the_same_samples(twisted_pair):
     assert shared_samples([(V1, F1), (V2[:-1], F2)]) is None
     assert shared_samples([(V1, None), (V2, None)]) is None
     assert shared_samples([(V1, F1)]) is None
+    # as STL files (each triangle its own vertices): the same faces whatever the shapes; one
+    # template's two poses are shared, a mesh whose triangles come in another order (another
+    # triangulation, as far as the files tell) is not
+    def stl(V, F):
+        return V[F.reshape(-1)], np.arange(F.size).reshape(-1, 3)
+
+    shuffled = F2[np.random.default_rng(8).permutation(F2.shape[0])]
+    assert shared_samples([stl(V1, F1), stl(V2, F2)]) is not None
+    assert shared_samples([stl(V1, F1), stl(V2, shuffled)]) is None
     # a given copy (a collection's shared source) lends its samples, whatever its size
     given = coarse_shape(V1, F1, k=20, coarse_vertices=1000)
     _, c4 = coarse_copies([(V1, F1), (V2, F2)], k=[20, 20], size=1500, given=(given, None))

@@ -36,6 +36,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core._validation import check_int
+from ..core.cleaning import weld_groups
 from ..core.fmap import grid_samples
 from ..core.geometry import vertex_areas
 from ..core.multiscale import cell_restriction, coarse_mesh, surface_prolongation
@@ -199,6 +200,13 @@ def shared_samples(
         return None
     F1, F2 = np.asarray(F1), np.asarray(F2)
     if len(V1) != len(V2) or F1.shape != F2.shape or not np.array_equal(F1, F2):
+        return None
+    # and the same once repeated positions are welded (as coarse_mesh does): two STL files
+    # with as many triangles list the same faces, each triangle its own three vertices, and
+    # are numbered alike only if their triangles share vertices alike (both welds: 0.6 s for
+    # two 440k-vertex meshes, run only when the faces are equal)
+    (g1, _), (g2, _) = weld_groups(V1), weld_groups(V2)
+    if not np.array_equal(g1[F1], g2[F2]):
         return None
     for copy in given:
         if copy is not None:
