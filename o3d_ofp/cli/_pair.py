@@ -23,6 +23,7 @@ from ..boundary.api import match
 from ..boundary.convert import scaled_copy
 from ..boundary.pick import has_display, pick_landmarks
 from ..core._atomic import atomic_path
+from ..core._rows import unique_rows
 from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
 from ..core.wording import AdvisedError, Said
@@ -285,12 +286,13 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
     return Correspondence(p2p_21=p2p, n_source=n1, method=method)
 
 
-def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None, n: int) -> str | None:
+def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None) -> str | None:
     """Why ``--map identity`` is doubtful between two meshes: their triangles differ."""
     if F1 is None or F2 is None:
         return None
-    keys = [(np.sort(F, axis=1).astype(np.int64) * [n * n, n, 1]).sum(axis=1) for F in (F1, F2)]
-    other = int(np.count_nonzero(~np.isin(keys[1], keys[0])))
+    # every triangle (its corners sorted) labelled by its distinct row among both meshes'
+    _, label = unique_rows(np.sort(np.concatenate([F1, F2]), axis=1), return_inverse=True)
+    other = int(np.count_nonzero(~np.isin(label[len(F1):], label[: len(F1)])))
     if not other:
         return None
     return (f"--map identity: {other} of the target's {len(F2)} triangles are not the source's: "
@@ -313,7 +315,7 @@ def _judge_given(
     verdict and the numbering are warned here.
     """
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
-    numbering = _other_numbering(*faces, V1.shape[0]) if corr.method == "identity" else None
+    numbering = _other_numbering(*faces) if corr.method == "identity" else None
     reasons = [r for r in (collapse and f"--map {args.map}: {collapse.text(cli=True)}",
                            corr.mismatch(V1, V2, name=f"--map {args.map}"), numbering)
                if r]  # fmt: skip
