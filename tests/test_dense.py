@@ -166,6 +166,31 @@ def test_coarse_mesh_welds_repeated_positions(blob5):
     assert again.size == 500
 
 
+def test_a_mesh_asked_for_all_its_vertices_is_its_own_coarse_copy(blob5):
+    """A shape no larger than the coarse size (a 6.9k source onto a 110k target) is kept as is.
+
+    A grid of n cubes would keep ~0.9 n vertices and re-triangulate the shape.
+    """
+    from o3d_ofp.workflows.dense import coarse_shape
+
+    V, F = blob5
+    n = V.shape[0]
+    Vc, Fc, samples, cell = coarse_mesh(V, F, n)
+    np.testing.assert_array_equal(samples, np.arange(n))
+    np.testing.assert_array_equal(cell, np.arange(n))
+    np.testing.assert_array_equal(Vc, V)
+    assert set(map(tuple, np.sort(Fc, axis=1))) == set(map(tuple, np.sort(F, axis=1)))
+    copy = coarse_shape(V, F, k=5, coarse_vertices=3 * n)  # asked for more than it has
+    np.testing.assert_array_equal(copy.samples, np.arange(n))
+    assert copy.faces.shape == F.shape
+    # split along every edge (an STL file): its welded vertices, one copy of each
+    Vs, Fs = V[F.reshape(-1)], np.arange(3 * F.shape[0]).reshape(-1, 3)
+    Vw, Fw, samples, cell = coarse_mesh(Vs, Fs, 3 * n)
+    assert Vw.shape[0] == n and Fw.shape == F.shape
+    np.testing.assert_array_equal(Vs[samples[cell]], Vs)  # each copy in its own vertex's cell
+    assert coarse_mesh(V, F, n - 1)[2].size < n  # below n: well-spread samples
+
+
 def test_coarse_mesh_rejects_bad_input(blob5):
     V, F = blob5
     with pytest.raises(ValueError, match="count"):

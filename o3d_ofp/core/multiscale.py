@@ -60,6 +60,7 @@ __all__ = [
     "cell_restriction",
     "coarse_eigenbasis",
     "coarse_mesh",
+    "coarse_samples",
     "dirichlet_p2p",
     "extend_fmap",
     "extend_p2p",
@@ -998,6 +999,18 @@ def extend_fmap(
     return fmap_from_p2p(p2p, eig_1, eig_2, k1=k1, k2=k2), p2p
 
 
+def coarse_samples(vertices: np.ndarray, count: int) -> np.ndarray:
+    """Return the coarse vertices of :func:`coarse_mesh`: ``count`` well-spread ones, or all.
+
+    :func:`~o3d_ofp.core.fmap.grid_samples`; from ``count >= n`` every vertex: the mesh is its
+    own coarse copy. A grid of n cubes keeps only ~0.9 n vertices and re-triangulates the
+    rest (measured: FAUST's 6890 vertices became 6228, and a 6890-vertex source matched onto
+    a 110k target 0.0215 sqrt(area) off instead of 0.0208 as itself).
+    """
+    n = vertices.shape[0]
+    return np.arange(n, dtype=np.int64) if count >= n else grid_samples(vertices, count)
+
+
 def coarse_mesh(
     vertices: Any, faces: Any, count: int | None = None, *, samples: Any = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1018,7 +1031,8 @@ def coarse_mesh(
     vertices : (n, 3) array_like of float
     faces : (m, 3) array_like of int
     count : int, optional
-        Coarse vertices wanted (at most n; the result has ``count`` ± 10 %).
+        Coarse vertices wanted (at most n; the result has ``count`` ± 10 %; ``n``: every vertex,
+        the mesh itself).
     samples : (s,) array_like of int, optional
         The coarse vertices themselves, instead of ``count`` (another mesh's, with the same
         triangulation: the two coarse copies then sample the shapes alike).
@@ -1060,7 +1074,7 @@ def coarse_mesh(
     if (count is None) == (samples is None):
         raise TypeError("coarse_mesh takes either count or samples")
     if samples is None:
-        samples = grid_samples(V, check_int(count, name="count", minimum=4, maximum=n))
+        samples = coarse_samples(V, check_int(count, name="count", minimum=4, maximum=n))
     else:
         samples = np.asarray(samples)
         if (samples.ndim != 1 or samples.size < 4 or samples.dtype.kind not in "iu"

@@ -37,9 +37,8 @@ import scipy.sparse as sp
 
 from ..core._validation import check_int
 from ..core.cleaning import weld_groups
-from ..core.fmap import grid_samples
 from ..core.geometry import vertex_areas
-from ..core.multiscale import cell_restriction, coarse_mesh, surface_prolongation
+from ..core.multiscale import cell_restriction, coarse_mesh, coarse_samples, surface_prolongation
 from ..core.spectrum import EigenBasis, eigenbasis
 from ..core.wording import Said
 
@@ -140,7 +139,7 @@ def coarse_shape(
     k : int
         Non-constant eigenfunctions of the coarse basis (fewer when the coarse mesh is small).
     coarse_vertices : int, default :data:`COARSE_VERTICES`
-        Vertices of the coarse mesh (± 10 %; capped by the shape).
+        Vertices of the coarse mesh (± 10 %; a shape with no more is its own coarse mesh).
     components : {"auto", "largest", "error"}, default "auto"
         Policy for several connected components of the coarse mesh.
     samples : (s,) ndarray of int, optional
@@ -212,7 +211,7 @@ def shared_samples(
         if copy is not None:
             return copy.samples
     V = np.ascontiguousarray(V1, dtype=np.float64)
-    return grid_samples(V, min(coarse_vertices, V.shape[0]))
+    return coarse_samples(V, coarse_vertices)
 
 
 def coarse_landmarks(
