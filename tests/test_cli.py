@@ -280,6 +280,11 @@ def test_transfer_and_detail_of_a_dense_pair_match_on_coarse_copies(
     out_d = tmp_path / "d.ply"
     assert main(["detail", files["src"], files["tgt"], "--band", "10", "-o", str(out_d)]) == 0
     assert asked and max(asked) < len(files["V"])
+    assert "eigenbases of" in capsys.readouterr().err  # the band's eigenfunctions (k=10)
+    # the calibrated detail reads no eigenfunction: its stage names the operators it builds
+    assert main(["detail", files["src"], files["tgt"], "-o", str(out_d)]) == 0
+    err = capsys.readouterr().err
+    assert "Laplace-Beltrami operators of" in err and "(k=1)" not in err
 
 
 def test_detail_and_filter(files, tmp_path):

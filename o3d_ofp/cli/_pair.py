@@ -449,9 +449,14 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepare
 
 def _describe(planned: Plan, pair: Pair) -> str:
     """Say what :func:`prepare` computes for the plan, for its stage line ("" for nothing)."""
-    eig = [f"{name} (k={k})" for name, k, B in zip(pair.names, planned.eig_k, pair.files,
-                                                   strict=True) if k and (B is None or B.eig.k < k)]
+    todo = [(name, k) for name, k, B in zip(pair.names, planned.eig_k, pair.files, strict=True)
+            if k and (B is None or B.eig.k < k)]  # fmt: skip
+    eig = [f"{name} (k={k})" for name, k in todo if k > 1]
     parts = ["eigenbases of " + " and ".join(eig)] if eig else []
+    # k = 1: the operators alone (the calibrated detail reads no eigenfunction)
+    operators = [name for name, k in todo if k == 1]
+    if operators:
+        parts.append("Laplace-Beltrami operators of " + " and ".join(operators))
     if planned.basis_k and None in pair.files:
         parts.append(f"OFP bases (k={planned.basis_k[0]} and {planned.basis_k[1]}, order "
                      f"{planned.order})")  # fmt: skip
