@@ -295,7 +295,7 @@ def test_the_sparse_factorizations_run_with_one_blas_thread(monkeypatch):
         return call
 
     monkeypatch.setattr(filtering.sla, "splu", recording(sla.splu))
-    monkeypatch.setattr(detail.sla, "factorized", recording(sla.factorized))
+    monkeypatch.setattr(detail, "factorize_spd", recording(detail.factorize_spd))
     V, F = icosphere(3)
     eig = ofp.eigenbasis(V, F, k=5)
     filtering.lowpass(eig, V[:, 0], smooth=0.05)

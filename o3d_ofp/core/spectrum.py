@@ -49,6 +49,7 @@ __all__ = [
     "EigenSolverError",
     "check_eigenbasis",
     "eigenbasis",
+    "factorize_spd",
     "input_arrays",
     "on_cleaned_vertices",
     "shape_digest",
@@ -288,7 +289,47 @@ def _superlu_operator(A: sp.csc_matrix) -> sla.LinearOperator:
 
 
 def _factorize(A: sp.csc_matrix, sigma: float, factorization: str) -> tuple[Any, str]:
-    """Return (operator x ↦ A⁻¹x, backend name); CHOLMOD first unless told otherwise."""
+    """Return (operator x ↦ A⁻¹x, backend name) of ``A = L − σM``; CHOLMOD first."""
+    return factorize_spd(
+        A, factorization=factorization, what=f"L - sigma*M (sigma={sigma:.3g})",
+        singular="The Laplacian is numerically singular: look for degenerate or duplicated "
+        "triangles",
+    )  # fmt: skip
+
+
+def factorize_spd(
+    A: sp.spmatrix, *, factorization: str = "auto", what: str = "the matrix", singular: str = ""
+) -> tuple[sla.LinearOperator, str]:
+    """Factorize a sparse symmetric positive definite matrix once, for many solves.
+
+    The library's one rule for its SPD systems (shift-invert, implicit heat steps): CHOLMOD's
+    supernodal Cholesky (``cholespy``) when it can be imported, else SciPy's SuperLU in
+    symmetric mode (logged). Measured on a 110k-vertex FAUST body, ``M + t L``, one BLAS
+    thread: factorization 1.8 s (SuperLU 1.4-1.7 s), a solve of three columns 0.024 s (SuperLU
+    0.09 s as a block, 0.17 s column by column).
+
+    Parameters
+    ----------
+    A : (n, n) sparse matrix
+        Symmetric positive definite.
+    factorization : {"auto", "cholmod", "superlu"}
+        The backend; "auto" falls back to SuperLU when CHOLMOD is missing or fails.
+    what, singular : str
+        How messages name ``A``, and what they advise when it cannot be factorized.
+
+    Returns
+    -------
+    operator : LinearOperator
+        ``x ↦ A⁻¹x`` for a vector (n,) or a block (n, b) (one pass for the whole block).
+    backend : str
+        "cholmod" or "superlu".
+
+    Raises
+    ------
+    EigenSolverError
+        Neither backend could factorize ``A``.
+    """
+    A = sp.csc_matrix(A)
     n = A.shape[0]
     if factorization in ("auto", "cholmod"):
         try:
@@ -302,15 +343,14 @@ def _factorize(A: sp.csc_matrix, sigma: float, factorization: str) -> tuple[Any,
         except (ValueError, RuntimeError) as exc:
             if factorization == "cholmod":
                 raise EigenSolverError(
-                    f"CHOLMOD could not factorize L - sigma*M (n={n}, sigma={sigma:.3g}): {exc}"
+                    f"CHOLMOD could not factorize {what} (n={n}): {exc}"
                 ) from exc
             logger.warning("CHOLMOD failed (%s); falling back to SuperLU", exc)
     try:
         return _superlu_operator(A), "superlu"
     except RuntimeError as exc:
         raise EigenSolverError(
-            f"could not factorize L - sigma*M (n={n}, sigma={sigma:.3g}): {exc}. The Laplacian is "
-            "numerically singular: look for degenerate or duplicated triangles"
+            f"could not factorize {what} (n={n}): {exc}" + (f". {singular}" if singular else "")
         ) from exc
 
 

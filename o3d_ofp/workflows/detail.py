@@ -76,7 +76,6 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 
 from ..core._threads import blas_threads
 from ..core._warnings import warn
@@ -90,7 +89,7 @@ from ..core.geometry import (
     outward_sign,
     vertex_normals,
 )
-from ..core.spectrum import EigenBasis, check_eigenbasis
+from ..core.spectrum import EigenBasis, check_eigenbasis, factorize_spd
 from ..core.wording import OptionError, Said
 from .maps import Correspondence, check_correspondence
 from .options import BasisOptions, DetailOptions, check_number, moved_keywords
@@ -304,10 +303,10 @@ def _heat_operator(eig: EigenBasis, time: float) -> Any:
     empty = mass <= 0
     diag = np.where(empty, 1.0, mass)
     A = (sp.diags(diag) + time * eig.stiffness).tocsc()
-    # SuperLU's supernodal updates call the BLAS, whose threads only spin on this size of
-    # problem (measured with another process busy: 14-20x slower with them)
+    # The factorizations' supernodal updates call the BLAS, whose threads only spin on this
+    # size of problem (measured with SuperLU, another process busy: 14-20x slower with them)
     with blas_threads(1):
-        solve = sla.factorized(A)
+        solve, _ = factorize_spd(A, what=f"the heat step M + tL (t={time:.3g})")
     stand_in = None
     if np.any(empty):
         c = eig.cleaning
@@ -319,7 +318,7 @@ def _heat_operator(eig: EigenBasis, time: float) -> Any:
         flat = np.asarray(f, dtype=np.float64).reshape(f.shape[0], -1)
         rhs = mass[:, None] * flat
         with blas_threads(1):
-            out = np.column_stack([solve(rhs[:, j]) for j in range(flat.shape[1])])
+            out = solve.matmat(rhs)  # every column in one pass over the factor
         if stand_in is not None:
             out[empty] = out[stand_in[empty]]
         return out.reshape(f.shape)
