@@ -738,3 +738,33 @@ def test_detail_that_folds_the_surface_where_the_source_does_not_bend_is_lowered
         folds = np.array([edge for edge in _folds(X, F) if tuple(edge) not in own])
         assert len(folds) > 0  # the source's own bends stay folds (detail kept there)
         assert (bends[p2p[folds[:, 0]]] | bends[p2p[folds[:, 1]]]).all(), len(folds)
+
+
+def test_the_calibration_side_by_side_is_the_calibration_one_after_the_other(monkeypatch):
+    """The low-pass levels and their fits run in forked processes: the same numbers, to the bit."""
+    from o3d_ofp.core import _processes
+    from o3d_ofp.workflows import detail, eigenbases
+
+    V, F = blob(4)  # 2562 vertices: above the side-by-side threshold
+    bent = V.copy()
+    bent[:, 1] += 0.15 * bent[:, 0] ** 2
+    e1, e2 = ofp.eigenbasis(V, F, k=3), ofp.eigenbasis(bent, F, k=3)
+    p2p = np.arange(V.shape[0])
+    calls = []
+    real = eigenbases.side_by_side
+
+    def spy(jobs, **kwargs):
+        calls.append((kwargs["what"], len(jobs)))
+        return real(jobs, **kwargs)
+
+    monkeypatch.setattr(eigenbases, "side_by_side", spy)
+    monkeypatch.setenv(_processes.ENVIRONMENT, "2")
+    both, lowpass = detail.calibrate_detail(e1, e2, p2p)
+    n = len(detail.LADDER)
+    assert calls == [("detail low-passes", n), ("detail fits", n + 1)]
+    monkeypatch.setenv(_processes.ENVIRONMENT, "1")  # one process: every job here
+    one, lowpass_one = detail.calibrate_detail(e1, e2, p2p)
+    np.testing.assert_array_equal(lowpass, lowpass_one)
+    np.testing.assert_array_equal(both.lacking, one.lacking)
+    np.testing.assert_array_equal(both.fits, one.fits)
+    assert both.time == one.time and both.share == one.share

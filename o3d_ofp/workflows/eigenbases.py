@@ -59,12 +59,12 @@ def eigenbasis_bytes(n: int, k: int) -> float:
 def run_per_shape(
     jobs: Sequence[Callable[[], T]], vertices: Sequence[int], memory: Sequence[float], *, what: str
 ) -> list[T]:
-    """Run one job per shape, side by side when the shapes are large enough.
+    """Run jobs on shapes (one per shape, or several on one), side by side when large enough.
 
     Parameters
     ----------
     jobs : sequence of callables without arguments
-        One per shape, independent (see :func:`o3d_ofp.core._processes.side_by_side`).
+        Independent (see :func:`o3d_ofp.core._processes.side_by_side`).
     vertices : sequence of int
         Vertices each job works on (0: a job that only reads a file), for the threshold.
     memory : sequence of float
