@@ -72,7 +72,12 @@ _SKEW_ZERO = 1e-6
 
 
 class EigenSolverError(RuntimeError):
-    """The sparse eigensolver failed to factorize or to converge."""
+    """A sparse factorization or the eigensolver failed.
+
+    The eigensolver's shift-invert system or another symmetric positive definite system of
+    :func:`factorize_spd` (the detail's heat steps) could not be factorized, or the
+    eigensolver did not converge.
+    """
 
 
 def mass_weighted(f: np.ndarray, mass: np.ndarray) -> np.ndarray:
@@ -329,6 +334,8 @@ def factorize_spd(
     EigenSolverError
         Neither backend could factorize ``A``.
     """
+    if factorization not in FACTORIZATIONS:
+        raise ValueError(f"factorization must be one of {FACTORIZATIONS}; got {factorization!r}")
     A = sp.csc_matrix(A)
     n = A.shape[0]
     if factorization in ("auto", "cholmod"):
