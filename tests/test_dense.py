@@ -189,6 +189,14 @@ def test_a_mesh_asked_for_all_its_vertices_is_its_own_coarse_copy(blob5):
     assert Vw.shape[0] == n and Fw.shape == F.shape
     np.testing.assert_array_equal(Vs[samples[cell]], Vs)  # each copy in its own vertex's cell
     assert coarse_mesh(V, F, n - 1)[2].size < n  # below n: well-spread samples
+    # two such STL files of one triangulation share every welded vertex as their samples
+    from o3d_ofp.workflows.dense import shared_samples
+
+    bent = Vs.copy()
+    bent[:, 1] += 0.1 * bent[:, 0] ** 2
+    shared = shared_samples([(Vs, Fs), (bent, Fs)], coarse_vertices=n + 100)  # < 3 n copies
+    assert shared is not None and shared.size == n
+    np.testing.assert_array_equal(np.unique(cell[shared]), np.arange(n))  # one per vertex
 
 
 def test_coarse_mesh_rejects_bad_input(blob5):

@@ -204,14 +204,16 @@ def shared_samples(
     # with as many triangles list the same faces, each triangle its own three vertices, and
     # are numbered alike only if their triangles share vertices alike (both welds: 0.6 s for
     # two 440k-vertex meshes, run only when the faces are equal)
-    (g1, _), (g2, _) = weld_groups(V1), weld_groups(V2)
+    (g1, first), (g2, _) = weld_groups(V1), weld_groups(V2)
     if not np.array_equal(g1[F1], g2[F2]):
         return None
     for copy in given:
         if copy is not None:
             return copy.samples
-    V = np.ascontiguousarray(V1, dtype=np.float64)
-    return coarse_samples(V, coarse_vertices)
+    # drawn on the welded vertices, as coarse_mesh counts them (an STL file of 20 000
+    # positions repeated six times each is its own coarse copy)
+    V = np.ascontiguousarray(V1, dtype=np.float64)[first]
+    return first[coarse_samples(V, coarse_vertices)]
 
 
 def coarse_landmarks(
