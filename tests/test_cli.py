@@ -1511,3 +1511,20 @@ def test_landmarks_on_an_obj_read_with_other_vertices_than_its_lines_are_warned(
         if warned:
             assert f"--landmarks: {seamed} has 5 'v' lines but is read as 6" in said[0]
             assert "--landmarks pick" in said[0]
+
+
+def test_the_stage_line_names_operators_only_where_the_plan_reads_no_eigenfunction():
+    """``Plan.operators``: the calibrated detail; a band of one eigenfunction reads one."""
+    from o3d_ofp.core.shapes import blob
+    from o3d_ofp.workflows.maps import Correspondence
+    from o3d_ofp.workflows.options import DetailOptions
+    from o3d_ofp.workflows.plan import plan_pair
+
+    V, F = blob(2)
+    given = Correspondence.from_p2p(np.arange(V.shape[0]), (V, F), (V, F))
+    calibrated = plan_pair(V, F, V, F, task="detail", given=given)
+    assert calibrated.eig_k == (1, 1) and calibrated.operators == (True, True)
+    band = plan_pair(V, F, V, F, task="detail", given=given, detail=DetailOptions(band=1))
+    assert band.eig_k == (1, 1) and band.operators == (False, False)
+    estimated = plan_pair(V, F, V, F, task="detail")  # the estimation reads 99 eigenfunctions
+    assert estimated.operators == (False, False)

@@ -449,12 +449,12 @@ def prepare_pair(args: argparse.Namespace, pair: Pair, planned: Plan) -> Prepare
 
 def _describe(planned: Plan, pair: Pair) -> str:
     """Say what :func:`prepare` computes for the plan, for its stage line ("" for nothing)."""
-    todo = [(name, k) for name, k, B in zip(pair.names, planned.eig_k, pair.files, strict=True)
-            if k and (B is None or B.eig.k < k)]  # fmt: skip
-    eig = [f"{name} (k={k})" for name, k in todo if k > 1]
+    todo = [(name, k, only) for name, k, B, only in zip(
+        pair.names, planned.eig_k, pair.files, planned.operators, strict=True
+    ) if k and (B is None or B.eig.k < k)]  # fmt: skip
+    eig = [f"{name} (k={k})" for name, k, only in todo if not only]
     parts = ["eigenbases of " + " and ".join(eig)] if eig else []
-    # k = 1: the operators alone (the calibrated detail reads no eigenfunction)
-    operators = [name for name, k in todo if k == 1]
+    operators = [name for name, _, only in todo if only]  # the calibrated detail's
     if operators:
         parts.append("Laplace-Beltrami operators of " + " and ".join(operators))
     if planned.basis_k and None in pair.files:

@@ -86,6 +86,9 @@ class Plan:
         and 5.57 % (440k) from the truth, against 5.39 % at 6.9k with full-resolution bases
         (relative L2; ``python scripts/bench_match.py --levels 0 1 2 3``, the bracketed
         colors error).
+    operators : (bool, bool)
+        Whether a side's full-resolution eigenbasis (``eig_k`` 1) serves only its operators:
+        the calibrated detail (no ``band``, no OFP basis) where no estimation reads it.
     """
 
     task: str
@@ -99,6 +102,7 @@ class Plan:
     matrix: str
     exact: bool
     coarse_bases: tuple[bool, bool] = (False, False)
+    operators: tuple[bool, bool] = (False, False)
 
     @property
     def estimated(self) -> bool:
@@ -212,10 +216,13 @@ def plan_pair(
     need = [0 if coarse else k for k, coarse in zip(need, coarse_bases, strict=True)]
     eig_k = tuple(max(a, b) for a, b in zip(need, estimation, strict=True))
     clamp = tuple(bool(e) and e >= k for e, k in zip(estimation, need, strict=True))
+    # the calibrated detail reads the shapes' operators, no eigenfunction (its k = 1)
+    operators = tuple(task == "detail" and detail.band is None and not with_bases and not e
+                      for e in estimation)  # fmt: skip
     return Plan(
         task=task, estimator=estimator, dense=dense, eig_k=eig_k, clamp=clamp,  # type: ignore[arg-type]
         basis_k=basis_k, order=bases.order, tol=bases.threshold(preset), matrix=bases.matrix,
-        exact=exact, coarse_bases=coarse_bases,  # type: ignore[arg-type]
+        exact=exact, coarse_bases=coarse_bases, operators=operators,  # type: ignore[arg-type]
     )  # fmt: skip
 
 
