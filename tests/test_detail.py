@@ -1,5 +1,6 @@
 """Detail transfer in local frames (o3d_ofp.workflows.detail) on arrays."""
 
+import logging
 import re
 import warnings
 from contextlib import nullcontext
@@ -740,7 +741,7 @@ def test_detail_that_folds_the_surface_where_the_source_does_not_bend_is_lowered
         assert (bends[p2p[folds[:, 0]]] | bends[p2p[folds[:, 1]]]).all(), len(folds)
 
 
-def test_the_calibration_side_by_side_is_the_calibration_one_after_the_other(monkeypatch):
+def test_the_calibration_side_by_side_is_the_calibration_one_after_the_other(monkeypatch, caplog):
     """The low-pass levels and their fits run in forked processes: the same numbers, to the bit."""
     from o3d_ofp.core import _processes
     from o3d_ofp.workflows import detail, eigenbases
@@ -758,10 +759,14 @@ def test_the_calibration_side_by_side_is_the_calibration_one_after_the_other(mon
         return real(jobs, **kwargs)
 
     monkeypatch.setattr(eigenbases, "side_by_side", spy)
+    monkeypatch.setattr(_processes, "_cores", lambda: 2)  # forks even on a one-core runner
     monkeypatch.setenv(_processes.ENVIRONMENT, "2")
-    both, lowpass = detail.calibrate_detail(e1, e2, p2p)
+    with caplog.at_level(logging.DEBUG, logger="o3d_ofp"):
+        both, lowpass = detail.calibrate_detail(e1, e2, p2p)
     n = len(detail.LADDER)
     assert calls == [("detail low-passes", n), ("detail fits", n + 1)]
+    for what in ("detail low-passes", "detail fits"):  # the jobs ran in a forked child too
+        assert f"{what}: 2 at once (1 in forked processes)" in caplog.text
     monkeypatch.setenv(_processes.ENVIRONMENT, "1")  # one process: every job here
     one, lowpass_one = detail.calibrate_detail(e1, e2, p2p)
     np.testing.assert_array_equal(lowpass, lowpass_one)

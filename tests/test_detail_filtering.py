@@ -300,7 +300,9 @@ def test_the_sparse_factorizations_run_with_one_blas_thread(monkeypatch):
     eig = ofp.eigenbasis(V, F, k=5)
     filtering.lowpass(eig, V[:, 0], smooth=0.05)
     detail._heat_operator(eig, 3)
-    assert len(seen) == 3 and all(t == [1] * len(t) for t in seen), seen
+    # two filtering solves and the detail's factorization (SuperLU's own call inside it too
+    # where cholespy is missing: the same module's splu)
+    assert len(seen) >= 3 and all(t == [1] * len(t) for t in seen), seen
 
 
 def test_edit_coefficient_refuses_a_non_finite_delta():

@@ -305,8 +305,9 @@ def _heat_operator(eig: EigenBasis, time: float) -> Any:
     empty = mass <= 0
     diag = np.where(empty, 1.0, mass)
     A = (sp.diags(diag) + time * eig.stiffness).tocsc()
-    # The factorizations' supernodal updates call the BLAS, whose threads only spin on this
-    # size of problem (measured with SuperLU, another process busy: 14-20x slower with them)
+    # SuperLU's supernodal updates call the BLAS, whose threads only spin on this size of
+    # problem (measured with another process busy: 14-20x slower with them); cholespy's
+    # CHOLMOD brings its own single-threaded BLAS, which this leaves alone
     with blas_threads(1):
         solve, _ = factorize_spd(A, what=f"the heat step M + tL (t={time:.3g})")
     stand_in = None
@@ -497,15 +498,18 @@ def _ladder(eig: EigenBasis) -> list[np.ndarray]:
     """
     jobs = [functools.partial(_heat_lowpass, eig, c) for c in LADDER]
     n = eig.n_vertices
-    # each job: one factorization and an (n, 3) answer, as an eigensolve of two pairs
+    # each job: one factorization and an (n, 3) answer, taken as an eigensolve of two pairs
+    # (generous: measured at 110k vertices, 25 MB of arrays beside the factor's ~100 MB,
+    # against 615 MB estimated)
     levels = run_per_shape(jobs, [n] * len(jobs), [eigenbasis_bytes(n, 2)] * len(jobs),
                            what="detail low-passes")  # fmt: skip
     return [np.asarray(eig.vertices, dtype=np.float64), *levels]
 
 
 #: Peak bytes per target vertex of one :func:`_level_fit` (:func:`_procrustes`' 17 moment
-#: columns, its (n, 3, 3) covariances and rotations, their SVD's copies: about 60 floats).
-_FIT_BYTES = 8.0 * 60
+#: columns, its (n, 3, 3) covariances and rotations, their SVD's copies): measured 75 floats
+#: (tracemalloc's peak at 110k vertices).
+_FIT_BYTES = 8.0 * 80
 
 
 def _level_fit(compare: Any, source: np.ndarray, target: np.ndarray) -> np.ndarray:
