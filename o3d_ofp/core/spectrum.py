@@ -75,7 +75,7 @@ class EigenSolverError(RuntimeError):
     """A sparse factorization or the eigensolver failed.
 
     The eigensolver's shift-invert system or another symmetric positive definite system of
-    :func:`factorize_spd` (the detail's heat steps) could not be factorized, or the
+    ``factorize_spd`` (heat steps, the landmarks' biharmonic system) could not be factorized, or the
     eigensolver did not converge.
     """
 
