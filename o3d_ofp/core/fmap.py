@@ -20,6 +20,7 @@ import scipy.optimize
 import scipy.sparse as sp
 import scipy.spatial
 from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
 
 from ._threads import one_blas_thread
 from ._validation import check_int
@@ -27,7 +28,7 @@ from .correspondence import check_fmap, fmap_from_p2p, nearest_neighbors, p2p_fr
 from .descriptors import hks, wks
 from .geometry import edge_graph, face_areas_normals, hat_gradients, outward_sign, point_frames
 from .products import eigenproduct_indices
-from .spectrum import EigenBasis, check_eigenbasis, factorize_spd
+from .spectrum import EigenBasis, check_eigenbasis
 
 __all__ = [
     "LANDMARK_DISTANCES",
@@ -1059,8 +1060,7 @@ def landmark_coordinates(eig: EigenBasis, vertices: Any) -> np.ndarray:
     W = np.zeros((n, lm.size))
     W[lm, np.arange(lm.size)] = 1.0
     rhs = -(Q[:, lm][free]).toarray()  # the landmarks' unit values moved to the right side
-    solve, _ = factorize_spd(Q[free][:, free], what="the landmarks' biharmonic system")
-    W[free] = solve.matmat(rhs)
+    W[free] = splu(Q[free][:, free].tocsc()).solve(rhs)
     return np.clip(W[:, column], 0.0, 1.0)
 
 

@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 from scipy.spatial import cKDTree
 
 from ._processes import processes_available, side_by_side
@@ -52,7 +53,7 @@ from .fmap import (
     unit_area,
 )
 from .geometry import closest_on_triangles, edge_graph
-from .spectrum import EigenBasis, check_eigenbasis, eigenbasis, factorize_spd
+from .spectrum import EigenBasis, check_eigenbasis, eigenbasis
 
 __all__ = [
     "anchored_p2p_from_fmap",
@@ -469,8 +470,8 @@ def dirichlet_p2p(
     mass = u2.mass
     out = mass <= 0  # vertices left out of the surface: a unit diagonal keeps the system regular
     heat = sp.diags(np.where(out, 1.0, mass)) + DIRICHLET_TIME * u2.stiffness
-    solve, _ = factorize_spd(heat, what="the Dirichlet step's heat step")
-    smooth = solve.matmat(mass[:, None] * u1.vertices[p2p])
+    lu = sla.splu(heat.tocsc())
+    smooth = lu.solve(mass[:, None] * u1.vertices[p2p])
     a = math.sqrt(DIRICHLET_WEIGHT * k)
     d1, d2 = _anchor_functions(anchors, eig_1, eig_2)
     phi = np.hstack([landmark_embedding(u1.evecs[:, : k + 1] @ C.T, d1), a * u1.vertices])

@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg as sla
 
 from ._processes import side_by_side
 from ._threads import one_blas_thread
@@ -74,7 +75,7 @@ from .correspondence import check_p2p, nearest_neighbors
 from .descriptors import _kernel_signature, wks_energies
 from .fmap import _energy_of, _landmark_pairs, _LeadingFits, _scaled, _shape_terms, farthest_points
 from .geometry import edge_graph, unique_edges
-from .spectrum import EigenBasis, factorize_spd
+from .spectrum import EigenBasis
 
 __all__ = [
     "boundary_length",
@@ -453,9 +454,8 @@ def curvature_descriptors(
     for t in scales:
         # vertices removed by the cleaning (zero mass, e.g. small islands) get a unit diagonal
         # so the system stays regular; their right-hand side is 0
-        solve, _ = factorize_spd(sp.diags(np.where(M > 0, M, 1.0)) + t * L,
-                                 what=f"the heat step M + tL (t={t:.3g})")  # fmt: skip
-        out.extend(solve.matmat(np.stack([M * H, M * K], axis=1)).T)
+        lu = sla.splu(sp.csc_matrix(sp.diags(np.where(M > 0, M, 1.0)) + t * L))
+        out.extend(lu.solve(M * f) for f in (H, K))
     return np.stack(out, axis=1)
 
 

@@ -75,7 +75,7 @@ class EigenSolverError(RuntimeError):
     """A sparse factorization or the eigensolver failed.
 
     The eigensolver's shift-invert system or another symmetric positive definite system of
-    ``factorize_spd`` (heat steps, the landmarks' biharmonic system) could not be factorized, or the
+    ``factorize_spd`` (the detail's heat steps) could not be factorized, or the
     eigensolver did not converge.
     """
 
@@ -307,7 +307,7 @@ def factorize_spd(
 ) -> tuple[sla.LinearOperator, str]:
     """Factorize a sparse symmetric positive definite matrix once, for many solves.
 
-    The library's one rule for its SPD systems (shift-invert, implicit heat steps): CHOLMOD's
+    The rule of the eigensolver's shift-invert and the detail's heat steps: CHOLMOD's
     supernodal Cholesky (``cholespy``) when it can be imported, else SciPy's SuperLU in
     symmetric mode (logged). Measured on a 110k-vertex FAUST body, ``M + t L``, one BLAS
     thread: factorization 1.8 s (SuperLU 1.4-1.7 s), a solve of three columns 0.024 s (SuperLU
