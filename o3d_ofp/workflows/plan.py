@@ -193,7 +193,8 @@ def plan_pair(
     with_bases = (task == "colors" and not exact) or coordinates
     if explicit and not with_bases:
         _refuse_bases(task, detail, closest)
-    need = _task_needs(task, (n1, n2), bases, detail, given, given_bases, with_bases, names)
+    need, only_operators = _task_needs(task, (n1, n2), bases, detail, given, given_bases,
+                                       with_bases, names)  # fmt: skip
     coarse_bases = tuple(
         task == "colors" and with_bases and F is not None and (n or 0) > DENSE_VERTICES
         and given_bases[i] is None and eigenbases[i] is None
@@ -216,9 +217,7 @@ def plan_pair(
     need = [0 if coarse else k for k, coarse in zip(need, coarse_bases, strict=True)]
     eig_k = tuple(max(a, b) for a, b in zip(need, estimation, strict=True))
     clamp = tuple(bool(e) and e >= k for e, k in zip(estimation, need, strict=True))
-    # the calibrated detail reads the shapes' operators, no eigenfunction (its k = 1)
-    operators = tuple(task == "detail" and detail.band is None and not with_bases and not e
-                      for e in estimation)  # fmt: skip
+    operators = tuple(only_operators and not e for e in estimation)
     return Plan(
         task=task, estimator=estimator, dense=dense, eig_k=eig_k, clamp=clamp,  # type: ignore[arg-type]
         basis_k=basis_k, order=bases.order, tol=bases.threshold(preset), matrix=bases.matrix,
@@ -255,8 +254,13 @@ def _task_needs(
     task: str, n: tuple[int, int | None], bases: BasisOptions, detail: DetailOptions,
     given: Correspondence | None, given_bases: Sequence[OFPBasis | None], with_bases: bool,
     names: tuple[str, str],
-) -> list[int]:  # fmt: skip
-    """Eigenfunctions the task itself needs on each side, checked against the vertex counts."""
+) -> tuple[list[int], bool]:  # fmt: skip
+    """Eigenfunctions the task itself needs on each side, checked against the vertex counts.
+
+    Also whether the task reads only the shapes' operators (the calibrated detail: an
+    eigenbasis of ``k`` 1 carries them, no eigenfunction is read).
+    """
+    only_operators = False
     if with_bases:
         own = (bases.k1, bases.k2)
         need = [b.k if b is not None else k for b, k in zip(given_bases, own, strict=True)]
@@ -265,6 +269,7 @@ def _task_needs(
         need, what = [detail.band] * 2, ["band"] * 2
     elif task == "detail":  # calibrated: the shapes' operators, no eigenfunction read
         need, what = [1, 1], ["", ""]
+        only_operators = True
     else:
         need, what = [0, 0], ["", ""]
     if given is not None and given.fmap_12 is not None and bases.matrix == "analytic":
@@ -276,7 +281,7 @@ def _task_needs(
                 name, f"({k}): {names[side]} has {count} vertices, too few for {k} "
                 f"eigenfunctions (at most {max(1, count - 2)}); lower it",
             )  # fmt: skip
-    return need
+    return need, only_operators
 
 
 def _refuse_bases(task: str, detail: DetailOptions, closest: bool) -> None:
