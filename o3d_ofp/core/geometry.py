@@ -23,6 +23,7 @@ __all__ = [
     "point_neighbours",
     "point_normals",
     "tangent_frames",
+    "turned_fraction",
     "unique_edges",
     "units_change",
     "vertex_areas",
@@ -247,6 +248,48 @@ def outward_sign(vertices: np.ndarray, faces: np.ndarray) -> float:
     volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
     scale = np.ptp(vertices, axis=0).max() ** 3
     return -1.0 if volume < -1e-3 * scale else 1.0
+
+
+def turned_fraction(
+    p2p_21: np.ndarray, vertices_1: np.ndarray, normals_1: np.ndarray, vertices_2: np.ndarray,
+    faces_2: np.ndarray,
+) -> float:  # fmt: skip
+    """Fraction of the target's triangles whose image on the source is turned over.
+
+    A triangle's image (its corners' source vertices) is turned over when its normal points
+    against the source's outward normals there: a reflection of the map at that place.
+    Triangles whose corners map to fewer than three distinct vertices are not counted.
+
+    Parameters
+    ----------
+    p2p_21 : (n2,) ndarray of int
+        Source vertex of every target vertex.
+    vertices_1 : (n1, 3) ndarray
+    normals_1 : (n1, 3) ndarray
+        The source's outward unit normals.
+    vertices_2 : (n2, 3) ndarray
+    faces_2 : (m, 3) ndarray of int
+        The target's triangles (wound either way: compared with its outward orientation).
+
+    Returns
+    -------
+    float
+        NaN when no triangle is counted.
+    """
+    image = p2p_21[faces_2]  # (m, 3) source vertices
+    distinct = (image[:, 0] != image[:, 1]) & (image[:, 1] != image[:, 2])
+    distinct &= image[:, 0] != image[:, 2]
+    if not np.any(distinct):
+        return math.nan
+    image = image[distinct]
+    P = vertices_1[image]
+    tri_normal = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    surface = normals_1[image].sum(axis=1)  # outward
+    # A target whose faces are oriented inwards (negative enclosed volume) would count as
+    # turned over as a whole: its triangles' orientation is compared with its outward one.
+    side = np.sign(np.einsum("ij,ij->i", tri_normal, surface)) * outward_sign(vertices_2, faces_2)
+    counted = side != 0
+    return float(np.mean(side[counted] < 0)) if np.any(counted) else math.nan
 
 
 #: Neighbours of each point for the normals and tangent-plane gradients of a point cloud

@@ -23,6 +23,7 @@ from ..core.geometry import (
     point_neighbours,
     point_normals,
     tangent_frames,
+    turned_fraction,
     vertex_normals,
 )
 from ..core.partial import boundary_length, geodesic_distortion, map_stretch, rescaled
@@ -363,22 +364,8 @@ def reversed_fraction(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) 
     """Fraction of target triangles (clouds: neighbourhoods) whose image is turned over."""
     if eig_1.faces is None or eig_2.faces is None:
         return _reversed_neighbourhoods(p2p_21, eig_1, eig_2)
-    normals_1 = _outward_normals(eig_1)
-    F = eig_2.faces
-    image = p2p_21[F]  # (m, 3) source vertices
-    distinct = (image[:, 0] != image[:, 1]) & (image[:, 1] != image[:, 2])
-    distinct &= image[:, 0] != image[:, 2]
-    if not np.any(distinct):
-        return math.nan
-    image = image[distinct]
-    P = eig_1.vertices[image]
-    tri_normal = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-    surface = normals_1[image].sum(axis=1)  # outward
-    # A target whose faces are oriented inwards (negative enclosed volume) would count as
-    # turned over as a whole: its triangles' orientation is compared with its outward one.
-    side = np.sign(np.einsum("ij,ij->i", tri_normal, surface)) * outward_sign(eig_2.vertices, F)
-    counted = side != 0
-    return float(np.mean(side[counted] < 0)) if np.any(counted) else math.nan
+    return turned_fraction(p2p_21, eig_1.vertices, _outward_normals(eig_1), eig_2.vertices,
+                           eig_2.faces)  # fmt: skip
 
 
 def _reversed_neighbourhoods(p2p_21: np.ndarray, eig_1: EigenBasis, eig_2: EigenBasis) -> float:

@@ -1,0 +1,120 @@
+"""Matching shapes that are not isometric: the smooth shells' registration.
+
+``o3d_ofp.core.shells`` and the full match's escalation to it
+(``o3d_ofp.workflows.matching.FullMatch._escalate``).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import o3d_ofp as ofp
+from o3d_ofp.core.fmap import unit_area
+from o3d_ofp.core.geometry import turned_fraction, vertex_normals
+from o3d_ofp.core.shapes import blob
+from o3d_ofp.core.shells import Registration, _procrustes, shell_match
+
+from .conftest import load_shared_mesh
+
+
+def test_procrustes_recovers_a_proper_rotation_even_from_mirrored_points():
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(50, 3))
+    R = Rotation.from_euler("xyz", [30, -50, 110], degrees=True).as_matrix()
+    found, t = _procrustes(P, P @ R.T + [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(found, R, atol=1e-12)  # exact data: round-off only
+    np.testing.assert_allclose(t, [1.0, 2.0, 3.0], atol=1e-12)
+    mirrored, _ = _procrustes(P, P * [-1.0, 1.0, 1.0])
+    assert np.linalg.det(mirrored) == pytest.approx(1.0)  # never a reflection
+
+
+def test_turned_fraction_counts_a_mirror_image_and_not_the_identity():
+    V, F = blob(3)
+    normals = vertex_normals(V, F)
+    identity = np.arange(len(V))
+    assert turned_fraction(identity, V, normals, V, F) == 0.0
+    # The mirror image (faces unchanged, so wound inwards there) mapped back vertex by vertex:
+    # every triangle's image is turned over.
+    assert turned_fraction(identity, V, normals, V * [-1.0, 1.0, 1.0], F) == 1.0
+
+
+def _stretched_copy(V: np.ndarray) -> np.ndarray:
+    """Stretch one side of a body along the axis to its farthest vertex (up to +60 %)."""
+    centre = V.mean(axis=0)
+    tip = V[np.argmax(np.linalg.norm(V - centre, axis=1))]
+    length = np.linalg.norm(tip - centre)
+    axis = (tip - centre) / length
+    t = np.clip((V - centre) @ axis / length, 0.0, None)
+    return V + 0.6 * length * (t**2)[:, None] * axis
+
+
+@pytest.fixture(scope="module")
+def stretched_body():
+    """FAUST 093 and its copy with one side stretched, turned and in other units."""
+    V, F = load_shared_mesh("faust/tr_reg_093.ply")
+    R = Rotation.from_euler("xyz", [40, -70, 120], degrees=True).as_matrix()
+    T = 100.0 * _stretched_copy(V) @ R.T + 5.0
+    return V, T, F
+
+
+def _error(V: np.ndarray, F: np.ndarray, p2p: np.ndarray) -> float:
+    """Mean distance between each target vertex's image and its own vertex / sqrt(area)."""
+    area = ofp.eigenbasis(V, F, k=3).area
+    return float(np.linalg.norm(V[p2p] - V, axis=1).mean() / np.sqrt(area))
+
+
+def test_shell_match_maps_a_body_onto_its_stretched_copy(stretched_body):
+    V, T, F = stretched_body
+    e1, e2 = (unit_area(ofp.eigenbasis(X, F, k=99)) for X in (V, T))
+    result = shell_match(e1, e2)
+    assert isinstance(result, Registration)
+    assert result.p2p_21.shape == (len(V),)
+    assert result.score == min(result.scores)
+    # Measured 0.028 (the truth is the identity); a wrong hypothesis (a limb onto another, the
+    # front onto the back) is 0.2 or more, and the spectral map of this pair 0.3 or more.
+    assert _error(V, F, result.p2p_21) < 0.05
+
+
+def test_a_doubtful_map_is_re_estimated_by_the_shells_and_stays_flagged(stretched_body):
+    V, T, F = stretched_body
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        corr = ofp.match((V, F), (T, F))
+    assert "shells" in corr.quality.codes()
+    assert corr.quality.suspect  # a registration between shapes of other kinds: check it
+    assert _error(V, F, np.asarray(corr.p2p_21)) < 0.05  # measured 0.028, as above
+
+
+def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_body,
+                                                                      monkeypatch):  # fmt: skip
+    """The choice between the two maps is the geodesic distortion, whatever the shells say."""
+    V, T, F = stretched_body
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        first = ofp.match((V, F), (T, F))
+        rng = np.random.default_rng(0)
+        scattered = Registration(np.eye(30), rng.integers(0, len(V), len(V)), 1.0, "test",
+                                 (1.0,))  # fmt: skip
+        monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", lambda u1, u2: scattered)
+        kept = ofp.match((V, F), (T, F))
+    assert "shells_kept" in kept.quality.codes() and "shells" not in kept.quality.codes()
+    spectral = np.asarray(kept.p2p_21)
+    assert not np.array_equal(spectral, np.asarray(first.p2p_21))  # not the registered map
+    (note,) = [n for n in kept.quality.notes if n.code == "shells_kept"]
+    assert note.values["before"] < note.values["after"]  # the spectral map distorts less
+
+
+def test_landmarks_are_not_overruled_by_the_shells(stretched_body):
+    """With landmarks the map is theirs (6 landmarks beat the registration: issue 42)."""
+    V, T, F = stretched_body
+    from o3d_ofp.core.fmap import farthest_points
+
+    spread = farthest_points(V, 6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        corr = ofp.match((V, F), (T, F), landmarks=np.stack([spread, spread], axis=1))
+    assert "shells" not in corr.quality.codes()
