@@ -128,12 +128,15 @@ def test_pull_back_through_an_estimated_or_given_map(files, tmp_path, capsys):
     args = ["transfer", files["src"], files["tgt"], "--pull-back"]
     assert main([*args, "--save-map", str(saved), "-o", str(out)]) == 0
     assert "pull-back, map estimate" in capsys.readouterr().out
+    assert ofp_load_map(saved).options["shells"] is True  # the default, recorded with the map
     p2p = ofp_load_map(saved).p2p_21
     got = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     np.testing.assert_allclose(got, src_colors[p2p], atol=0.5 / 255)  # 8-bit in the PLY
     assert main([*args, "--map", "identity", "-o", str(tmp_path / "i.ply")]) == 0
     got = np.asarray(o3d.io.read_triangle_mesh(str(tmp_path / "i.ply")).vertex_colors)
     np.testing.assert_allclose(got, src_colors, atol=0.5 / 255)
+    assert main([*args, "--no-shells", "--save-map", str(saved), "-o", str(out)]) == 0
+    assert ofp_load_map(saved).options["shells"] is False  # --no-shells reaches the match
     capsys.readouterr()
     for extra, needle in (
         (["--k1", "10"], "--k1 does not apply here: --pull-back carries the values"),
@@ -1007,6 +1010,10 @@ def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eig
                  "-o", str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2
     _one_line_error(capsys, "not to --map identity: drop --partial")
+    code = main(["transfer", files["src"], files["tgt"], "--no-shells", "--map", "identity",
+                 "-o", str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    _one_line_error(capsys, "--no-shells applies to --map estimate, not --map identity")
 
 
 def test_textured_source_onto_a_target_without_uvs_gives_vertex_colors(files, capsys, tmp_path):

@@ -312,6 +312,7 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
     for options, message in (
         ({"w_orient": "1"}, "w_orient must be a finite number"),
         ({"w_orient": float("nan")}, "w_orient must be a finite number"),
+        ({"shells": "no"}, "shells must be True or False"),
         ({"zoomout_subsample": -5}, "zoomout_subsample must be None or an integer >= 2"),
         ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
     ):

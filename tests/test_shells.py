@@ -108,6 +108,21 @@ def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_
     assert note.values["before"] < note.values["after"]  # the spectral map distorts less
 
 
+def test_shells_false_keeps_the_spectral_map_without_registering(stretched_body, monkeypatch):
+    V, T, F = stretched_body
+
+    def refused(u1, u2):
+        raise AssertionError("shells=False registered the shells")
+
+    monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", refused)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        corr = ofp.match((V, F), (T, F), options=ofp.MatchOptions(shells=False))
+    assert corr.quality.suspect  # the spectral map of this pair is doubtful (and said)
+    assert not {"shells", "shells_kept"} & corr.quality.codes()
+    assert corr.options["shells"] is False  # recorded with the map
+
+
 def test_landmarks_are_not_overruled_by_the_shells(stretched_body):
     """With landmarks the map is theirs (6 landmarks beat the registration: issue 42)."""
     V, T, F = stretched_body

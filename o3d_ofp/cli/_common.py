@@ -57,6 +57,7 @@ FLAGS: dict[str, tuple[str, ...]] = {
     **{name: (f"--{name}",) for name in (
         "k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components", "mode",
         "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")},
+    "shells": ("--no-shells",),
     "k": ("-k",), "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
     "bases": ("--basis-1", "--basis-2"), "eigenbases": ("--basis-1", "--basis-2"),
     "method": ("--map",), "map": ("--map",), "via_basis": ("--via-basis",),
@@ -667,6 +668,8 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     refuse(  # a typo in a target's name is said before any work
         (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
          "map is 'estimate' or 'identity'"),
+        (args.no_shells and args.map != "estimate", f"--no-shells applies to --map estimate, "
+         f"not --map {args.map}"),
         (not os.path.isfile(args.source), f"{args.source}: no such source file"),
         *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
     )  # fmt: skip
@@ -675,6 +678,7 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
                             output_dir=args.output, cache_dir=args.cache, workers=args.workers,
                             skip_existing=not args.force, progress=ENABLED.on, map=args.map,
                             components=args.components, strict=args.strict,
+                            shells=not args.no_shells,
                             **{name: value for name, value in given.items() if value is not None})
     words = functools.partial(text_of, cli=True)  # what was said of each target, for flags
     records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),

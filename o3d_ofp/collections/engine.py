@@ -77,7 +77,9 @@ _NO_DASHBOARD = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
 #: rest are the :class:`~o3d_ofp.collections.tasks.TransferJob`'s own).
 _BASIS_OPTIONS = ("k1", "k2", "order", "preset", "tol")
 _DETAIL_OPTIONS = ("mode", "band", "amount")
-_JOB_OPTIONS = ("map", "components", "strict", "signal", "texture_size", "atlas", "texture")
+_JOB_OPTIONS = (
+    "map", "components", "strict", "shells", "signal", "texture_size", "atlas", "texture",
+)
 
 #: File of an output folder that records the options each output was made with (a rerun with
 #: other options, or another kind, redoes it) and what was found then.
@@ -619,6 +621,8 @@ def transfer_many(
         detail), ``tol``, ``mode`` ("add", "replace-detail" or "coordinates", detail, see
         :func:`o3d_ofp.transfer_detail`), ``band`` (calibrated, detail), ``amount`` (1.0, detail),
         ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
+        ``shells`` (True: a doubtful map is re-estimated by registering the shapes' smooth
+        shells, see :class:`o3d_ofp.MatchOptions`),
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
         vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture"), ``atlas``
         (False; kind "texture": a mesh target without UVs gets a new UV atlas and the baked

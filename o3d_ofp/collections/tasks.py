@@ -76,6 +76,9 @@ class TransferJob:
         Connected-component policy of the eigenbases.
     strict : bool
         A suspect map fails the target (nothing written).
+    shells : bool
+        A doubtful estimated map is re-estimated by registering the shapes' smooth shells (see
+        :class:`o3d_ofp.MatchOptions`).
     signal : {"auto", "colors", "texture"}
         What the source's colors are (kinds "colors" and "texture"): its vertex colors, its
         texture sampled at its vertices, or (auto) the first of these it has.
@@ -95,18 +98,21 @@ class TransferJob:
     detail: DetailOptions = dataclasses.field(default_factory=DetailOptions)
     components: str = "auto"
     strict: bool = False
+    shells: bool = True
     signal: str = "auto"
     texture_size: int = 1024
     atlas: bool = False
     texture: str | None = None
     cache_dir: str | None = None
-    #: How each target's map is estimated (made of ``components``, which it checks).
+    #: How each target's map is estimated (made of ``components`` and ``shells``, which it
+    #: checks).
     match: MatchOptions = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         check_choice(self.kind, "kind", KINDS)
         check_choice(self.map, "map", ("estimate", "identity"))
-        object.__setattr__(self, "match", MatchOptions(components=self.components))
+        match = MatchOptions(components=self.components, shells=self.shells)
+        object.__setattr__(self, "match", match)
         check_choice(self.signal, "signal", ("auto", "colors", "texture"))
         check_bool(self.strict, "strict")
         check_bool(self.atlas, "atlas")

@@ -68,7 +68,6 @@ __all__ = [
     "Pose",
     "Registration",
     "hypotheses",
-    "register",
     "shell_match",
     "shells_needed",
 ]
@@ -363,35 +362,12 @@ def _level(s1: _Shape, s2: _Shape, state: _State, k: int, *, iterations: int) ->
         state.fmap = np.linalg.lstsq(phi2[tgt], phi1[src], rcond=None)[0]
 
 
-def register(
-    eig_1: EigenBasis, eig_2: EigenBasis, pose: Pose, shells: Sequence[int], *,
-    state: _State | None = None, samples: int = SAMPLES,
-) -> _State:  # fmt: skip
-    """Register the source's shells onto the target's from ``pose`` (or a state) level by level.
-
-    Parameters
-    ----------
-    eig_1, eig_2 : EigenBasis
-        Unit-area source and target eigenbases of triangle meshes.
-    pose : Pose
-        The start (ignored when ``state`` is given).
-    shells : sequence of int
-        Shell sizes, growing; those above either basis's size are left out.
-    state : _State, optional
-        A registration to go on with (not modified: a copy goes on).
-    samples : int, default SAMPLES
-        Farthest-point samples a shape.
-
-    Returns
-    -------
-    _State
-        The registration after the last level (its energy at that level).
-    """
-    return _register(_Shape(eig_1, samples), _Shape(eig_2, samples), pose, shells, state=state)
-
-
 def _register(s1: _Shape, s2: _Shape, pose: Pose, shells: Sequence[int], *,
               state: _State | None = None) -> _State:  # fmt: skip
+    """Register ``s1``'s shells onto ``s2``'s from ``pose`` (or a copy of ``state``).
+
+    Shell sizes above either basis's size are left out; returns the state after the last.
+    """
     k_max = min(s1.eig.k, s2.eig.k)
     if state is None:
         state = _State(pose.rotation, pose.translation, np.zeros((k_max + 1, 3)))

@@ -532,11 +532,11 @@ class FullMatch(Strategy):
         0.36-0.42; on TOSCA cat2 -> cat3, the one flagged map among the dataset's ten pairs of
         one animal, 0.115 against 0.107 (geodesic errors x100 8.4 and 6.4): the spectral map is
         kept. The registered map stays flagged: between shapes of other kinds it is right on
-        most pairs, not on all.
+        most pairs, not on all. ``MatchOptions(shells=False)`` keeps the spectral map.
         """
         u1, u2 = run.u1, run.u2
-        if (not quality.suspect or run.landmarks is not None or u1.faces is None
-                or u2.faces is None or min(u1.k, u2.k) < COARSE_SHELLS[-1]
+        if (not run.options.shells or not quality.suspect or run.landmarks is not None
+                or u1.faces is None or u2.faces is None or min(u1.k, u2.k) < COARSE_SHELLS[-1]
                 or quality.codes() & _PART_CODES):  # fmt: skip
             return settled, quality
         run.report("shells registration", 0.8)
