@@ -887,10 +887,10 @@ def test_a_suspect_target_says_why_in_its_record_and_q_still_names_failures(
     [r] = transfer_many(paths["src"], [str(sphere)], client=client, output_dir=out)
     assert r.status == "ok" and r.suspect and r.warnings
     assert "suspect" in r.warnings[0] and "likely causes" in r.warnings[0]
-    # shapes of other kinds: no landmarks fix (the message says they do not help), so no
-    # advice to transfer the target alone with landmarks
-    assert "landmarks do not make them so" in r.warnings[0]
-    assert "a collection takes no landmarks" not in r.warnings[0]
+    # shapes of other kinds: known pairs are advised where parts correspond, which a
+    # collection does not take: the target transferred alone with them
+    assert "a few known vertex pairs" in r.warnings[0]
+    assert "a collection takes no landmarks" in r.warnings[0]
     _, json_path = write_summary([r], out)
     written = json.loads(Path(json_path).read_text())["results"][0]["warnings"]
     assert written == [str(w) for w in r.warnings]

@@ -164,8 +164,10 @@ def test_a_shape_of_another_kind_is_flagged(other):
     assert corr.quality.suspect
     reasons = " ".join(map(str, corr.quality.reasons))
     assert "not near-isometric" in reasons, reasons
-    # no right map exists: not called a mirror image of one, and landmarks are not the fix
-    assert "mirror image" not in reasons and "landmarks do not make them so" in reasons
+    # not called a mirror image of a right map; known pairs advised where parts correspond
+    assert "mirror image" not in reasons
+    assert "a few known vertex pairs" in reasons and "landmarks=" in reasons, reasons
+    assert "check the result by eye" in reasons
 
 
 def test_save_load_round_trip(reference, tmp_path):
@@ -313,6 +315,8 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
         ({"w_orient": "1"}, "w_orient must be a finite number"),
         ({"w_orient": float("nan")}, "w_orient must be a finite number"),
         ({"shells": "no"}, "shells must be True or False"),
+        ({"method": "closest", "shells": False},
+         "shells applies to method='estimate'; method is 'closest'"),
         ({"zoomout_subsample": -5}, "zoomout_subsample must be None or an integer >= 2"),
         ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
     ):
@@ -453,14 +457,25 @@ def test_a_start_whose_map_is_a_mirror_image_gives_way_to_the_next(pair, referen
     assert _error(corr.p2p_21, pair[0][0]) < 0.05  # the next start is right on this pair too
     # every start's map turned over: the best aligned one is kept (the report flags it)
     monkeypatch.setattr(matching, "reversed_fraction", lambda *a: 0.9)
-    corr = ofp.match(*pair)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.workflows.matching"):
+        corr = ofp.match(*pair)
     assert np.array_equal(corr.p2p_21, reference.p2p_21)
+    # the last line names the start kept (not the last one tried; a new user's trial)
+    # (the starts are numbered as fitted: each fit size, each with each weight)
+    o = reference.options
+    wide = o["k_fit"] == matching.WIDE_FIT_K
+    best = 1 + 2 * wide + (o["w_dcomm"] == matching.DCOMM_WEIGHTS[1])
+    assert f"turns it over: start {best}'s map, the best aligned, is kept" in caplog.text
     # no other start aligns within MIRROR_RESIDUAL of the best: none is tried
     calls.clear()
+    caplog.clear()
     monkeypatch.setattr(matching, "reversed_fraction", first_turned)
     monkeypatch.setattr(matching, "MIRROR_RESIDUAL", 1.0)
-    corr = ofp.match(*pair)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.workflows.matching"):
+        corr = ofp.match(*pair)
     assert len(calls) == 1 and np.array_equal(corr.p2p_21, reference.p2p_21)
+    assert "no other start aligns as well: its map is kept" in caplog.text
 
 
 def test_a_format_1_file_is_read_with_its_words(reference, tmp_path):

@@ -13,10 +13,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import o3d_ofp as ofp
+from o3d_ofp.core import shells
 from o3d_ofp.core.fmap import unit_area
 from o3d_ofp.core.geometry import turned_fraction, vertex_normals
 from o3d_ofp.core.shapes import blob
-from o3d_ofp.core.shells import Registration, _procrustes, shell_match
+from o3d_ofp.core.shells import Registration, _procrustes, least_score, shell_match
 
 from .conftest import load_shared_mesh
 
@@ -67,19 +68,58 @@ def _error(V: np.ndarray, F: np.ndarray, p2p: np.ndarray) -> float:
     return float(np.linalg.norm(V[p2p] - V, axis=1).mean() / np.sqrt(area))
 
 
-def test_shell_match_maps_a_body_onto_its_stretched_copy(stretched_body):
+@pytest.mark.parametrize("seed", range(20))
+def test_least_score_chooses_as_scoring_every_candidate_does(seed):
+    """Against the obvious reference (score all, take the first least) on random candidates."""
+    rng = np.random.default_rng(seed)
+    lower = rng.uniform(1.0, 2.0, 8).round(1)  # rounded: ties among bounds and scores
+    full = lower * (1.0 + rng.choice([0.0, 0.1, 0.5, 1.0], 8))
+    asked = []
+
+    def score(i):
+        asked.append(i)
+        return float(full[i]), f"map {i}"
+
+    best, scores, extra = least_score(lower.tolist(), score)
+    assert best == int(np.argmin(full)) and extra == f"map {best}"
+    assert len(asked) == len(set(asked))  # each scored once
+    for i in range(8):  # a candidate is left out only when its bound exceeds the least score
+        if i in asked:
+            assert scores[i] == full[i]
+        else:
+            assert np.isnan(scores[i]) and lower[i] > full[best]
+    assert sorted(lower)[0] == lower[asked[0]]  # the least bound first
+
+
+def test_shell_match_maps_a_body_onto_its_stretched_copy(stretched_body, monkeypatch):
     V, T, F = stretched_body
     e1, e2 = (unit_area(ofp.eigenbasis(X, F, k=99)) for X in (V, T))
+    registered = []  # every hypothesis's (geometric energy, state), as shell_match got them
+
+    def kept(jobs, **kwargs):
+        registered[:] = side_by_side(jobs, **kwargs)
+        return registered
+
+    side_by_side = shells.side_by_side
+    monkeypatch.setattr(shells, "side_by_side", kept)
     result = shell_match(e1, e2)
     assert isinstance(result, Registration)
     assert result.p2p_21.shape == (len(V),)
-    assert result.score == min(result.scores)
+    # The slow obvious reference: every hypothesis scored. shell_match skips those whose
+    # geometric energy alone exceeds a lower score; its choice and its scores are the same.
+    s1, s2 = shells._Shape(e1, shells.SAMPLES), shells._Shape(e2, shells.SAMPLES)
+    every = [shells._scored(s1, s2, g, state)[0] for g, state in registered]
+    assert len(every) == len(result.scores) == 8
+    assert result.score == min(every) == np.nanmin(result.scores)
+    assert result.scores.index(result.score) == int(np.argmin(every))
+    scored = ~np.isnan(result.scores)
+    np.testing.assert_array_equal(np.array(result.scores)[scored], np.array(every)[scored])
     # Measured 0.028 (the truth is the identity); a wrong hypothesis (a limb onto another, the
     # front onto the back) is 0.2 or more, and the spectral map of this pair 0.3 or more.
     assert _error(V, F, result.p2p_21) < 0.05
 
 
-def test_a_doubtful_map_is_re_estimated_by_the_shells_and_stays_flagged(stretched_body):
+def test_a_doubtful_map_is_re_estimated_by_the_shells_and_stays_flagged(stretched_body, tmp_path):
     V, T, F = stretched_body
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ofp.OFPWarning)
@@ -87,6 +127,13 @@ def test_a_doubtful_map_is_re_estimated_by_the_shells_and_stays_flagged(stretche
     assert "shells" in corr.quality.codes()
     assert corr.quality.suspect  # a registration between shapes of other kinds: check it
     assert _error(V, F, np.asarray(corr.p2p_21)) < 0.05  # measured 0.028, as above
+    # The shape reasons kept from the spectral map say whose they are (its orthogonality, not
+    # the registered map's), and keep saying so once saved and loaded.
+    (kept,) = [r for r in corr.quality.reasons if r.code == "not_isometric"]
+    assert str(kept).startswith("the spectral map's check: the functional map is far from")
+    corr.save(tmp_path / "map.npz")
+    back = ofp.Correspondence.load(tmp_path / "map.npz")
+    assert [str(r) for r in back.quality.reasons] == [str(r) for r in corr.quality.reasons]
 
 
 def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_body,
@@ -99,7 +146,7 @@ def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_
         rng = np.random.default_rng(0)
         scattered = Registration(np.eye(30), rng.integers(0, len(V), len(V)), 1.0, "test",
                                  (1.0,))  # fmt: skip
-        monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", lambda u1, u2: scattered)
+        monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", lambda u1, u2, **_: scattered)
         kept = ofp.match((V, F), (T, F))
     assert "shells_kept" in kept.quality.codes() and "shells" not in kept.quality.codes()
     spectral = np.asarray(kept.p2p_21)
@@ -111,7 +158,7 @@ def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_
 def test_shells_false_keeps_the_spectral_map_without_registering(stretched_body, monkeypatch):
     V, T, F = stretched_body
 
-    def refused(u1, u2):
+    def refused(u1, u2, **_):
         raise AssertionError("shells=False registered the shells")
 
     monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", refused)
@@ -133,3 +180,10 @@ def test_landmarks_are_not_overruled_by_the_shells(stretched_body):
         warnings.simplefilter("ignore", ofp.OFPWarning)
         corr = ofp.match((V, F), (T, F), landmarks=np.stack([spread, spread], axis=1))
     assert "shells" not in corr.quality.codes()
+    # Far from an isometry with the landmarks given: the advice is to check and add to them,
+    # not to give some (a new user's trial, 2026-12-02)
+    assert {"not_isometric", "causes_far"} <= corr.quality.codes()
+    reasons = " ".join(map(str, corr.quality.reasons))
+    assert "the landmarks given drive it" in reasons and "pick_landmarks" in reasons, reasons
+    assert "a few known vertex pairs" not in reasons and "method='closest'" not in reasons
+

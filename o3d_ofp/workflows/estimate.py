@@ -365,13 +365,13 @@ def _match_dense(
         lm_coarse, left_out = coarse_landmarks(landmarks, c1, c2)
         if left_out is not None and not quiet:
             warn(logger, left_out)
-    say("estimation between the coarse meshes (%.1fs)", 0.15, time.perf_counter() - t0)
+    say("estimation between the coarse meshes (from %.1f s)", 0.15, time.perf_counter() - t0)
     corr = estimate(
         c1.eig, c2.eig, options=dataclasses.replace(options, landmarks=lm_coarse),
         strategy=strategy.for_coarse(), warn_suspect=not quiet,
         progress=lambda stage, done: report(f"coarse {stage}", 0.15 + 0.65 * done),
     )  # fmt: skip
-    say("extension to %d target vertices (%.1fs)", 0.8, n2, time.perf_counter() - t0)
+    say("extension to %d target vertices (from %.1f s)", 0.8, n2, time.perf_counter() - t0)
     report("extension", 0.8)
     p2p, corr = strategy.extend(corr, c1, c2, V1, V2)
     hit = np.unique(p2p).size

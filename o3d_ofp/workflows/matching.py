@@ -430,8 +430,13 @@ class FullMatch(Strategy):
             turned = reversed_fraction(settled.p2p_21, run.eig_1, run.eig_2)
             if not turned > MAX_REVERSED:  # NaN (nothing to tell) keeps the map too
                 return settled
-            then = ("trying the next start" if rank + 1 < len(order) else
-                    "no other start aligns as well: the best aligned map is kept")  # fmt: skip
+            if rank + 1 < len(order):
+                then = "trying the next start"
+            elif len(order) == 1:
+                then = "no other start aligns as well: its map is kept"
+            else:
+                then = (f"every start that aligns as well turns it over: start {order[0] + 1}'s "
+                        "map, the best aligned, is kept")  # fmt: skip
             logger.info("match: start %d's map turns %.2f of the target's %s over (a mirror "
                         "image): %s",
                         index + 1, turned, flipped_what(run.eig_1, run.eig_2), then)  # fmt: skip
@@ -541,7 +546,9 @@ class FullMatch(Strategy):
             return settled, quality
         run.report("shells registration", 0.8)
         logger.info("match: the map is doubtful: registering the shapes' smooth shells")
-        registered = shell_match(u1, u2)
+        registered = shell_match(
+            u1, u2, report=lambda stage, done: run.report(stage, 0.8 + 0.1 * done)
+        )
         surfaces = u1.vertices, u1.faces, u2.vertices, u2.faces
         before, after = (geodesic_distortion(p2p, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
                          for p2p in (settled.p2p_21, registered.p2p_21))  # fmt: skip
@@ -568,7 +575,8 @@ class FullMatch(Strategy):
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
         judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2)
-        kept = [r for r in quality.reasons if r.code in _SHAPE_CODES]
+        kept = [Said("the spectral map's check: {reason}", {"reason": r}, r.code)
+                for r in quality.reasons if r.code in _SHAPE_CODES]  # (this map's are below)
         causes = [r for r in judged.reasons if r.code.startswith("causes")] or [
             r for r in quality.reasons if r.code.startswith("causes")]  # fmt: skip
         reasons = [r for r in judged.reasons if not r.code.startswith("causes")]

@@ -200,7 +200,7 @@ class MatchOptions:
         When a full match between two meshes without landmarks comes out suspect, also
         register the shapes' smooth shells and keep the map that changes geodesic distances
         less (``o3d_ofp.core.shells.shell_match``; about 5 s more for such a pair of 5k
-        vertices). False keeps the spectral map.
+        vertices). False keeps the spectral map (estimate only).
     """
 
     method: str = "estimate"
@@ -238,6 +238,7 @@ class MatchOptions:
             ("partial", self.partial and closest),
             ("landmarks", self.landmarks is not None and closest),
             ("align", self.align and not closest),
+            ("shells", not self.shells and closest),
         ):
             if wrong:
                 applies = "{closest}" if name == "align" else "{estimate}"

@@ -567,9 +567,14 @@ class PartialMatch(Strategy):
         return other, judged
 
     def options(self, run: Run, settled: Settled) -> dict[str, Any]:
-        """Return the options, with what the map is: its fit, its size, polished or not."""
+        """Return the options, with what the map is: its fit, its size, polished or not.
+
+        Without ``shells``: a partial match never registers the shapes' shells.
+        """
+        recorded = super().options(run, settled)
+        recorded.pop("shells")
         return {
-            **super().options(run, settled),
+            **recorded,
             "partial": True,
             "k_fit": run.state["k2_fit"],
             "zoomout_to": int(settled.fmap_12.shape[1] - 1),
