@@ -492,6 +492,7 @@ def shell_match(
         report(f"shells: registering {len(poses)} hypotheses", 0.0)
     done = side_by_side([lambda pose=pose: _hypothesis(s1, s2, pose) for pose in poses],
                         what="shell hypotheses")  # fmt: skip
+
     def score(i: int) -> tuple[float, np.ndarray]:
         if report is not None:
             report(f"shells: scoring the registration from {poses[i].label}", 0.9)

@@ -576,7 +576,7 @@ class FullMatch(Strategy):
         # causes, still hold.
         judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2)
         kept = [Said("the spectral map's check: {reason}", {"reason": r}, r.code)
-                for r in quality.reasons if r.code in _SHAPE_CODES]  # (this map's are below)
+                for r in quality.reasons if r.code in _SHAPE_CODES]
         causes = [r for r in judged.reasons if r.code.startswith("causes")] or [
             r for r in quality.reasons if r.code.startswith("causes")]  # fmt: skip
         reasons = [r for r in judged.reasons if not r.code.startswith("causes")]
