@@ -147,6 +147,8 @@ def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_
         scattered = Registration(np.eye(30), rng.integers(0, len(V), len(V)), 1.0, "test",
                                  (1.0,))  # fmt: skip
         monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", lambda u1, u2, **_: scattered)
+        # (the mending would pull a scattered map together: this test is about the choice)
+        monkeypatch.setattr("o3d_ofp.workflows.matching.mend_jumps", lambda p, *a, **k: (p, 0.0))
         kept = ofp.match((V, F), (T, F))
     assert "shells_kept" in kept.quality.codes() and "shells" not in kept.quality.codes()
     spectral = np.asarray(kept.p2p_21)
@@ -187,3 +189,30 @@ def test_landmarks_are_not_overruled_by_the_shells(stretched_body):
     assert "the landmarks given drive it" in reasons and "pick_landmarks" in reasons, reasons
     assert "a few known vertex pairs" not in reasons and "method='closest'" not in reasons
 
+
+
+def test_mend_jumps_sends_back_a_region_sent_onto_another_limb():
+    """A map right but for one extremity sent onto the farthest one: mended, the rest kept."""
+    from o3d_ofp.core.correspondence import nearest_neighbors
+    from o3d_ofp.workflows.matching import mend_jumps
+
+    V, F = load_shared_mesh("faust/tr_reg_093.ply")
+    e = unit_area(ofp.eigenbasis(V, F, k=99))
+    U = e.vertices
+    a = int(np.argmax(np.linalg.norm(U - U.mean(axis=0), axis=1)))  # an extremity
+    b = int(np.argmax(np.linalg.norm(U - U[a], axis=1)))  # the one farthest from it
+    region = np.linalg.norm(U - U[a], axis=1) < 0.25  # 9 % of the vertices
+    p2p = np.arange(len(U))
+    p2p[region] = nearest_neighbors(U, U[region] - U[a] + U[b])  # the truth is the identity
+
+    def error(p):
+        return np.linalg.norm(U[p] - U, axis=1)
+
+    assert error(p2p)[region].mean() > 1.0  # measured 1.20 (unit area)
+    mended, share = mend_jumps(p2p, e, e, k=99)
+    assert share == pytest.approx(region.mean())  # exactly the region jumped
+    # Measured 0.005 on the region, 0.0023 elsewhere (the Dirichlet step's own moves; the
+    # vertex spacing is about 0.012): within a few edges.
+    assert error(mended)[region].mean() < 0.03 and error(mended)[~region].mean() < 0.01
+    right, none = mend_jumps(np.arange(len(U)), e, e, k=99)
+    assert none == 0.0 and error(right).mean() < 0.01  # a right map: nothing replaced

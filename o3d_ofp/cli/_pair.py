@@ -97,7 +97,7 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
       "source (a scan, a cut) in its units (else --target-scale); the report gives the overlap")
     a("--no-shells", action="store_true", help="with --map estimate: keep the spectral map when "
       "it is doubtful (by default a full match between meshes then also registers the shapes' "
-      "smooth shells, about 5 s at 5k vertices, and keeps the map that distorts less)")
+      "smooth shells, about 6 s at 5k vertices, and keeps the map that distorts less)")
     a("--target-scale", type=positive_float, metavar="FACTOR", help="one target in other units "
       "than the source: its coordinates times FACTOR for the run (0.001: millimetres onto "
       "metres); the result is written in its own units")

@@ -199,7 +199,7 @@ class MatchOptions:
     shells : bool
         When a full match between two meshes without landmarks comes out suspect, also
         register the shapes' smooth shells and keep the map that changes geodesic distances
-        less (``o3d_ofp.core.shells.shell_match``; about 5 s more for such a pair of 5k
+        less (``o3d_ofp.core.shells.shell_match``; about 6 s more for such a pair of 5k
         vertices). False keeps the spectral map (estimate only).
     """
 
