@@ -518,3 +518,19 @@ def test_from_p2p_refuses_paths_and_other_things_by_their_keyword(pair):
     with pytest.raises(OptionError, match=r"^target must be a geometry, .* got dict"):
         Correspondence.from_p2p(p2p, (V1, F1), {"a": 1})
     assert Correspondence.from_p2p(p2p, len(V1), (V2, F2)).n_source == len(V1)
+
+
+def test_the_summary_says_the_coverage_once_when_the_source_is_the_smaller_shape():
+    """Coverage once where its two fractions are one (a new user's trial: 5000 vertices each).
+
+    "coverage 0.608 of the source's vertices (0.61 of the smaller shape's count)" said the same
+    number twice.
+    """
+    from o3d_ofp.workflows.maps import MapQuality
+
+    fields = dict(orthogonality=0.1, inconsistency=0.1, reversed_fraction=0.0, area_ratio=1.0,
+                  suspect=False)  # fmt: skip
+    same = MapQuality(coverage=0.608, coverage_ratio=0.608, **fields).summary()
+    assert "coverage 0.608 of the source's vertices," in same and "smaller" not in same
+    larger = MapQuality(coverage=0.304, coverage_ratio=0.608, **fields).summary()
+    assert "coverage 0.304 of the source's vertices (0.61 of the smaller shape's count)" in larger

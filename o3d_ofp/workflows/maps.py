@@ -116,9 +116,11 @@ class MapQuality:
         """One line: the measures and the verdict."""
         verdict = "SUSPECT" if self.suspect else "ok"
         # Each fraction says of what: the vertices hit, of the source's vertices and of the
-        # smaller shape's count; the overlap, of the source's area.
-        parts = [f"coverage {self.coverage:.3f} of the source's vertices "
-                 f"({self.coverage_ratio:.2f} of the smaller shape's count)"]  # fmt: skip
+        # smaller shape's count (unless the source is that shape: the same number twice); the
+        # overlap, of the source's area.
+        parts = [f"coverage {self.coverage:.3f} of the source's vertices"]
+        if self.coverage_ratio != self.coverage:
+            parts[0] += f" ({self.coverage_ratio:.2f} of the smaller shape's count)"
         measures = (("orthogonality", self.orthogonality), ("inconsistency", self.inconsistency),
                     (f"reversed {self.reversed_of}", self.reversed_fraction))  # fmt: skip
         # measures a map of this kind does not have (NaN) are left out
