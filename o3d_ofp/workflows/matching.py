@@ -30,7 +30,7 @@ from ..core.fmap import (
     zoomout_refine,
 )
 from ..core.multiscale import anchored_p2p_from_fmap, dirichlet_p2p, extend_p2p
-from ..core.partial import geodesic_distortion, geodesic_features
+from ..core.partial import geodesic_distortion, geodesic_refine
 from ..core.shells import COARSE_SHELLS, shell_match
 from ..core.spectrum import EigenBasis
 from ..core.wording import Said
@@ -234,10 +234,14 @@ _PART_CODES = frozenset({"looks_partial", "part_larger"})
 SHELLS_JUMP = 0.3
 
 
+def _moved(eig_1: EigenBasis, images_a: np.ndarray, images_b: np.ndarray) -> np.ndarray:
+    """Distance between two source images of each target vertex (the source's units)."""
+    return np.linalg.norm(eig_1.vertices[images_a] - eig_1.vertices[images_b], axis=1)
+
+
 def _apart(eig_1: EigenBasis, images_a: np.ndarray, images_b: np.ndarray) -> float:
     """Share of target samples whose two source images lie over :data:`REPAIR_JUMP` apart."""
-    apart = np.linalg.norm(eig_1.vertices[images_a] - eig_1.vertices[images_b], axis=1)
-    return float(np.mean(apart > REPAIR_JUMP))
+    return float(np.mean(_moved(eig_1, images_a, images_b) > REPAIR_JUMP))
 
 
 def geodesic_repair(
@@ -289,19 +293,16 @@ def geodesic_repair(
         (the share of the samples ``checked``).
     """
     surfaces = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
-    f1, f2 = geodesic_features(
-        p2p_21, *surfaces, anchors=REPAIR_ANCHORS, iterations=REPAIR_ITERATIONS
-    )
     # The disagreement is measured on farthest-point samples of the target (about uniform in
     # area; 2000 samples: a share of 0.05 within about 0.005), the whole map only re-estimated.
     if checked is None:
         checked = farthest_points(eig_2.vertices, min(REPAIR_SAMPLES, eig_2.n_vertices))
-    geodesic = nearest_neighbors(f1.T, f2[:, checked].T)
+    geodesic = geodesic_refine(p2p_21, *surfaces, anchors=REPAIR_ANCHORS,
+                               iterations=REPAIR_ITERATIONS, queries=checked)  # fmt: skip
     disagreement = _apart(eig_1, p2p_21[checked], geodesic)
     if disagreement <= share:
         return None, disagreement
-    f1, f2 = geodesic_features(p2p_21, *surfaces)
-    geodesic = nearest_neighbors(f1.T, f2.T)
+    geodesic = geodesic_refine(p2p_21, *surfaces)
     k_fit = min(k_fit, k_final)
     C = fmap_from_p2p(geodesic, eig_1, eig_2, k1=k_fit, k2=k_fit)
     C = zoomout_refine(
@@ -317,7 +318,7 @@ def mend_jumps(
 
     A registration between shapes of other kinds can send a region onto another limb (a
     gorilla's hand onto a person's foot) while the rest is right. The geodesic refinement
-    (:func:`~o3d_ofp.core.partial.geodesic_features`) re-maps every target vertex by its
+    (:func:`~o3d_ofp.core.partial.geodesic_refine`) re-maps every target vertex by its
     distances to the anchors the map keeps best: imprecise between shapes of other kinds (its
     distances differ), but it sends such a region back. Its images replace the map's where the
     two lie over :data:`SHELLS_JUMP` apart; one Dirichlet step
@@ -341,11 +342,8 @@ def mend_jumps(
     share : float
         The share of the target's vertices whose images were replaced.
     """
-    surfaces = eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces
-    f1, f2 = geodesic_features(p2p_21, *surfaces)
-    geodesic = nearest_neighbors(f1.T, f2.T)
-    jump = np.linalg.norm(eig_1.vertices[p2p_21] - eig_1.vertices[geodesic], axis=1)
-    jumped = jump > SHELLS_JUMP
+    geodesic = geodesic_refine(p2p_21, eig_1.vertices, eig_1.faces, eig_2.vertices, eig_2.faces)
+    jumped = _moved(eig_1, p2p_21, geodesic) > SHELLS_JUMP
     mended = np.where(jumped, geodesic, p2p_21)
     return dirichlet_p2p(mended, eig_1, eig_2, None, k=k, local=local), float(jumped.mean())
 
