@@ -17,9 +17,15 @@ from o3d_ofp.core import shells
 from o3d_ofp.core.fmap import unit_area
 from o3d_ofp.core.geometry import turned_fraction, vertex_normals
 from o3d_ofp.core.shapes import blob
-from o3d_ofp.core.shells import Registration, _procrustes, least_score, shell_match
+from o3d_ofp.core.shells import (
+    Registration,
+    _procrustes,
+    keep_given_orientation,
+    least_score,
+    shell_match,
+)
 
-from .conftest import load_shared_mesh
+from .conftest import load_shared_mesh, shared_path
 
 
 def test_procrustes_recovers_a_proper_rotation_even_from_mirrored_points():
@@ -89,6 +95,44 @@ def test_least_score_chooses_as_scoring_every_candidate_does(seed):
         else:
             assert np.isnan(scores[i]) and lower[i] > full[best]
     assert sorted(lower)[0] == lower[asked[0]]  # the least bound first
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_keep_given_orientation_against_scoring_every_candidate(seed):
+    """Against the obvious reference on random candidates: every score known.
+
+    The rule is read off ``shells.SWAP_TURN``, ``GIVEN_TURN`` and ``GIVEN_SCORE``.
+    """
+    rng = np.random.default_rng(seed)
+    turns = rng.choice([10.0, 30.0, 60.0, 120.0, 175.0], 8)
+    lower = rng.uniform(1.0, 1.4, 8).round(2)
+    full = lower * (1.0 + rng.choice([0.0, 0.05, 0.3], 8))
+    best = int(np.argmin(full))
+
+    def score(i):
+        return float(full[i]), f"map {i}"
+
+    kept = keep_given_orientation(turns.tolist(), lower.tolist(), best, score)
+    near = [i for i in range(8)
+            if turns[i] < shells.GIVEN_TURN and full[i] <= shells.GIVEN_SCORE * full[best]]
+    if turns[best] > shells.SWAP_TURN and near:
+        assert kept == min(near, key=lambda i: (full[i], i))
+        assert turns[kept] < shells.GIVEN_TURN <= shells.SWAP_TURN < turns[best]
+    else:
+        assert kept == best
+
+
+def test_keep_given_orientation_keeps_the_frame_only_where_the_score_cannot_tell():
+    def score(i):
+        return (1.0, 1.2, 1.3)[i], None
+
+    # The least score turns the source by 174° (a front / back swap of shapes in one frame):
+    # the registration turned by 36° that scores within GIVEN_SCORE of it is kept.
+    assert keep_given_orientation([174.0, 36.0, 20.0], [0.9, 1.1, 1.2], 0, score) == 1
+    # Not when it fits much worse, nor when the least score keeps the frame itself.
+    assert keep_given_orientation([174.0, 160.0, 20.0], [0.9, 1.1, 1.2], 0,
+                                  lambda i: ((1.0, 1.2, 1.6)[i], None)) == 0  # fmt: skip
+    assert keep_given_orientation([80.0, 36.0, 20.0], [0.9, 1.1, 1.2], 0, score) == 0
 
 
 def test_shell_match_maps_a_body_onto_its_stretched_copy(stretched_body, monkeypatch):
@@ -216,3 +260,32 @@ def test_mend_jumps_sends_back_a_region_sent_onto_another_limb():
     assert error(mended)[region].mean() < 0.03 and error(mended)[~region].mean() < 0.01
     right, none = mend_jumps(np.arange(len(U)), e, e, k=99)
     assert none == 0.0 and error(right).mean() < 0.01  # a right map: nothing replaced
+
+
+@pytest.mark.slow
+def test_a_front_back_swap_of_shapes_in_one_frame_gives_way_to_their_orientation():
+    """TOSCA's gorilla_01 onto woman_03 (``bcicp_dev``, shapes given in one frame).
+
+    The registration of least score swaps front and back (score 0.0703 against 0.0830 for the
+    right one, turned 36°): the given orientation is kept, and said.
+    """
+    root = "bcicp_dev/TOSCA_nonIsometric"
+    woman, gorilla = (
+        load_shared_mesh(f"{root}/8_{name}.off") for name in ("woman_03", "gorilla_01")
+    )
+    true_w, true_g = (
+        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
+        for name in ("woman_03", "gorilla_01")
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        corr = ofp.match(woman, gorilla)
+    assert corr.quality.suspect and {"shells", "shells_orientation"} <= corr.quality.codes()
+    (note,) = [r for r in corr.quality.reasons if r.code == "shells_orientation"]
+    assert "turn the source roughly onto the target" in str(note)
+    V = woman[0]
+    area = ofp.eigenbasis(*woman, k=3).area
+    error = np.linalg.norm(V[np.asarray(corr.p2p_21)[true_g]] - V[true_w], axis=1).mean()
+    # Measured (Euclidean / sqrt(area)): 0.105 (geodesic x100: 14.9); the swapped map, kept
+    # before (shells.SWAP_TURN = 360), 0.178 (51.2): the front lies near the back in space.
+    assert error / np.sqrt(area) < 0.14

@@ -624,6 +624,18 @@ class FullMatch(Strategy):
             "of other kinds are right on most pairs, not all: check the result by eye",
             {"before": before, "after": after}, "shells",
         )  # fmt: skip
+        notes = [found]
+        if registered.passed_over is not None:
+            _, score, turn = registered.passed_over
+            notes.append(Said(
+                "the shapes were taken to be given in one frame: the registration that keeps "
+                "their orientation (the source turned {turn:.0f}°, score {score:.4f}) was kept "
+                "over one that fits the shells better (score {other:.4f}) but turns the source by "
+                "{other_turn:.0f}° (a front / back swap); if they were not given in one frame, "
+                "turn the source roughly onto the target and match again",
+                {"turn": registered.turn, "score": registered.score, "other": score,
+                 "other_turn": turn}, "shells_orientation",
+            ))  # fmt: skip
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
@@ -634,7 +646,7 @@ class FullMatch(Strategy):
             r for r in quality.reasons if r.code.startswith("causes")]  # fmt: skip
         reasons = [r for r in judged.reasons if not r.code.startswith("causes")]
         return settled, dataclasses.replace(
-            judged, suspect=True, reasons=(found, *kept, *reasons, *causes)
+            judged, suspect=True, reasons=(*notes, *kept, *reasons, *causes)
         )  # fmt: skip
 
     def _geodesic_review(
