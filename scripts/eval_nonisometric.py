@@ -1,7 +1,7 @@
 """Maps between different shapes, against published maps: the pairs of ``bcicp_dev``.
 
     python scripts/eval_nonisometric.py [--datasets TOSCA_nonIsometric TOSCA_Isometric humans]
-                                        [--landmarks 6] [--pyfm] [--max N]
+                                        [--landmarks 6] [--pyfm] [--turn] [--max N]
 
 The pairs of ``../shared/data/bcicp_dev/pairs.tsv`` (Ren et al., "Continuous and
 orientation-preserving correspondences via functional maps", SIGGRAPH Asia 2018): twelve
@@ -21,6 +21,10 @@ sends every vertex of ``A`` to a vertex of ``B``:
 * the dataset authors' own saved maps where present (gorilla pairs only): BCICP from a WKS start
   (``WKSini_direct_BCICP``) and from a segmentation start (``SEGini_direct_BCICP``), and BIM
   (Kim et al. 2011).
+
+``--turn``: each target ``A`` turned by a random rotation first (seeded by the pair's
+names): shapes not given in one frame, where the registration's preference for the given
+orientation (``o3d_ofp.core.shells.SWAP_TURN``) cannot help and may mislead.
 
 Error (the field's standard measure, and the one of the BCICP paper): the mean geodesic
 distance on ``B`` between the image of a ground-truth vertex of ``A`` and its true vertex,
@@ -99,6 +103,11 @@ def pyfm_map(VA: np.ndarray, FA: np.ndarray, VB: np.ndarray, FB: np.ndarray) -> 
 def run_pair(dataset: str, a: str, b: str, args: argparse.Namespace) -> dict[str, object]:
     VA, FA = load(dataset, a)
     VB, FB = load(dataset, b)
+    if args.turn:  # errors are geodesic on B: turning A changes nothing else
+        from scipy.spatial.transform import Rotation
+
+        seed = int.from_bytes(f"{a} {b}".encode(), "little") % 2**32
+        VA = VA @ Rotation.random(random_state=seed).as_matrix().T
     ta, tb, tb_sym = truth(dataset, a), truth(dataset, b), truth(dataset, b, symmetric=True)
     maps: dict[str, np.ndarray] = {}
     seconds: dict[str, float] = {}
@@ -144,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
                         choices=["TOSCA_nonIsometric", "TOSCA_Isometric", "humans"])  # fmt: skip
     parser.add_argument("--landmarks", type=int, default=6, help="landmark pairs (0: none)")
     parser.add_argument("--pyfm", action="store_true", help="also pyFM (pyfmaps 1.3.1)")
+    parser.add_argument("--turn", action="store_true",
+                        help="turn each target by a random rotation (shapes not in one frame)")
     parser.add_argument("--max", type=int, default=None, help="at most this many pairs a dataset")
     args = parser.parse_args(argv)
     if not (DATA / "pairs.tsv").exists():
