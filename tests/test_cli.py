@@ -137,6 +137,9 @@ def test_pull_back_through_an_estimated_or_given_map(files, tmp_path, capsys):
     np.testing.assert_allclose(got, src_colors, atol=0.5 / 255)
     assert main([*args, "--no-shells", "--save-map", str(saved), "-o", str(out)]) == 0
     assert ofp_load_map(saved).options["shells"] is False  # --no-shells reaches the match
+    assert ofp_load_map(saved).options["same_frame"] is False  # the default
+    assert main([*args, "--same-frame", "--save-map", str(saved), "-o", str(out)]) == 0
+    assert ofp_load_map(saved).options["same_frame"] is True  # --same-frame reaches the match
     capsys.readouterr()
     for extra, needle in (
         (["--k1", "10"], "--k1 does not apply here: --pull-back carries the values"),
@@ -1014,6 +1017,10 @@ def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eig
                  "-o", str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2
     _one_line_error(capsys, "--no-shells applies to --map estimate, not --map identity")
+    code = main(["transfer", files["src"], files["tgt"], "--same-frame", "--map", "closest",
+                 "-o", str(tmp_path / "x.ply")])  # fmt: skip
+    assert code == 2
+    _one_line_error(capsys, "--same-frame applies to --map estimate, not --map closest")
 
 
 def test_textured_source_onto_a_target_without_uvs_gives_vertex_colors(files, capsys, tmp_path):

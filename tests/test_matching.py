@@ -317,6 +317,9 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
         ({"shells": "no"}, "shells must be True or False"),
         ({"method": "closest", "shells": False},
          "shells applies to method='estimate'; method is 'closest'"),
+        ({"same_frame": 1}, "same_frame must be True or False"),
+        ({"method": "closest", "same_frame": True},
+         "same_frame applies to method='estimate'; method is 'closest'"),
         ({"zoomout_subsample": -5}, "zoomout_subsample must be None or an integer >= 2"),
         ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
     ):

@@ -57,7 +57,7 @@ FLAGS: dict[str, tuple[str, ...]] = {
     **{name: (f"--{name}",) for name in (
         "k1", "k2", "order", "preset", "tol", "partial", "align", "landmarks", "components", "mode",
         "band", "amount", "texture", "signal", "strict", "workers", "smooth", "sharpen")},
-    "shells": ("--no-shells",),
+    "shells": ("--no-shells",), "same_frame": ("--same-frame",),
     "k": ("-k",), "options": ("--k1", "--k2", "--order", "--preset", "--tol"),
     "bases": ("--basis-1", "--basis-2"), "eigenbases": ("--basis-1", "--basis-2"),
     "method": ("--map",), "map": ("--map",), "via_basis": ("--via-basis",),
@@ -670,6 +670,8 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
          "map is 'estimate' or 'identity'"),
         (args.no_shells and args.map != "estimate", f"--no-shells applies to --map estimate, "
          f"not --map {args.map}"),
+        (args.same_frame and args.map != "estimate", f"--same-frame applies to --map estimate, "
+         f"not --map {args.map}"),
         (not os.path.isfile(args.source), f"{args.source}: no such source file"),
         *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
     )  # fmt: skip
@@ -678,7 +680,7 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
                             output_dir=args.output, cache_dir=args.cache, workers=args.workers,
                             skip_existing=not args.force, progress=ENABLED.on, map=args.map,
                             components=args.components, strict=args.strict,
-                            shells=not args.no_shells,
+                            shells=not args.no_shells, same_frame=args.same_frame,
                             **{name: value for name, value in given.items() if value is not None})
     words = functools.partial(text_of, cli=True)  # what was said of each target, for flags
     records = [dataclasses.replace(r, error=words(r.error), warnings=tuple(map(words, r.warnings)),

@@ -98,6 +98,9 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     a("--no-shells", action="store_true", help="with --map estimate: keep the spectral map when "
       "it is doubtful (by default a full match between meshes then also registers the shapes' "
       "smooth shells, about 6 s at 5k vertices, and keeps the map that distorts less)")
+    a("--same-frame", action="store_true", help="with --map estimate: the shapes are given in one "
+      "frame (upright, facing the same way): a shells registration that fits with front and "
+      "back swapped about as well as the right way round keeps that frame")
     a("--target-scale", type=positive_float, metavar="FACTOR", help="one target in other units "
       "than the source: its coordinates times FACTOR for the run (0.001: millimetres onto "
       "metres); the result is written in its own units")
@@ -227,6 +230,8 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
          f"--save-map {args.save_map}: must end with .npz"),
         (args.align and kind != "closest", "--align applies to --map closest"),
         (args.no_shells and kind != "estimate", f"--no-shells applies to --map estimate, not "
+         f"--map {kind}"),
+        (args.same_frame and kind != "estimate", f"--same-frame applies to --map estimate, not "
          f"--map {kind}"),
         (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
          f"match), not to --map {kind}{partial}: drop --partial"),
@@ -363,7 +368,8 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
         _say_renumbered(((args.source, V1.shape[0]), (args.target, V2.shape[0])))
     options = MatchOptions(method="closest" if args.map == "closest" else "estimate",
                            partial=args.partial, align=args.align, landmarks=landmarks,
-                           components=args.components, shells=not args.no_shells)  # fmt: skip
+                           components=args.components, shells=not args.no_shells,
+                           same_frame=args.same_frame)  # fmt: skip
     if options.landmarks is not None and args.save_landmarks:
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
             np.savetxt(tmp, options.landmarks, fmt="%d",

@@ -78,7 +78,8 @@ _NO_DASHBOARD = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
 _BASIS_OPTIONS = ("k1", "k2", "order", "preset", "tol")
 _DETAIL_OPTIONS = ("mode", "band", "amount")
 _JOB_OPTIONS = (
-    "map", "components", "strict", "shells", "signal", "texture_size", "atlas", "texture",
+    "map", "components", "strict", "shells", "same_frame", "signal", "texture_size", "atlas",
+    "texture",
 )
 
 #: File of an output folder that records the options each output was made with (a rerun with
@@ -622,7 +623,8 @@ def transfer_many(
         :func:`o3d_ofp.transfer_detail`), ``band`` (calibrated, detail), ``amount`` (1.0, detail),
         ``components`` ("auto"), ``strict`` (False: a suspect map fails its target),
         ``shells`` (True: a doubtful map is re-estimated by registering the shapes' smooth
-        shells, see :class:`o3d_ofp.MatchOptions`),
+        shells, see :class:`o3d_ofp.MatchOptions`), ``same_frame`` (False: True when the shapes
+        are given in one frame, facing the same way),
         ``signal`` ("auto": the source's vertex colors, else its texture sampled at its
         vertices; "colors"; "texture"), ``texture_size`` (1024, kind "texture"), ``atlas``
         (False; kind "texture": a mesh target without UVs gets a new UV atlas and the baked

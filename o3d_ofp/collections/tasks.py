@@ -79,6 +79,9 @@ class TransferJob:
     shells : bool
         A doubtful estimated map is re-estimated by registering the shapes' smooth shells (see
         :class:`o3d_ofp.MatchOptions`).
+    same_frame : bool
+        The shapes are given in one frame: a shells registration keeps it where it cannot tell
+        front from back (see :class:`o3d_ofp.MatchOptions`).
     signal : {"auto", "colors", "texture"}
         What the source's colors are (kinds "colors" and "texture"): its vertex colors, its
         texture sampled at its vertices, or (auto) the first of these it has.
@@ -99,19 +102,21 @@ class TransferJob:
     components: str = "auto"
     strict: bool = False
     shells: bool = True
+    same_frame: bool = False
     signal: str = "auto"
     texture_size: int = 1024
     atlas: bool = False
     texture: str | None = None
     cache_dir: str | None = None
-    #: How each target's map is estimated (made of ``components`` and ``shells``, which it
-    #: checks).
+    #: How each target's map is estimated (made of ``components``, ``shells`` and
+    #: ``same_frame``, which it checks).
     match: MatchOptions = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         check_choice(self.kind, "kind", KINDS)
         check_choice(self.map, "map", ("estimate", "identity"))
-        match = MatchOptions(components=self.components, shells=self.shells)
+        match = MatchOptions(components=self.components, shells=self.shells,
+                             same_frame=self.same_frame)  # fmt: skip
         object.__setattr__(self, "match", match)
         check_choice(self.signal, "signal", ("auto", "colors", "texture"))
         check_bool(self.strict, "strict")

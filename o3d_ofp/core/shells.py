@@ -28,10 +28,10 @@ geometric energy alone exceeds the best score read so far (its score cannot be l
 same choice as scoring every hypothesis, for half the point maps on the 12 gorilla -> human
 pairs below (48 of 96), each a search over every target vertex (1.4 s on one core at 20k
 vertices, the dense path's coarse copies, against 1.3 s for the whole registration).
-Shapes given in one frame keep it where the score cannot tell (:func:`keep_given_orientation`):
-a registration of least score that turns the source by more than :data:`SWAP_TURN` degrees
-gives way to one that keeps the given orientation and scores nearly as well, as a front / back
-swap of two upright characters would otherwise win.
+Shapes the caller says are given in one frame (``same_frame``) keep it where the score cannot
+tell (:func:`keep_given_orientation`): a registration of least score that turns the source by
+more than :data:`SWAP_TURN` degrees gives way to one that keeps the given orientation and
+scores nearly as well, as a front / back swap of two upright characters would otherwise win.
 
 Measured (2026-12-01; the 12 gorilla -> human pairs of ``bcicp_dev``, each shape remeshed on
 its own, ~5k vertices; mean geodesic error x100 / sqrt(area) on 300 ground-truth points;
@@ -123,21 +123,21 @@ RIGID_SAMPLES = 500
 #: ``EXTREMITIES!`` ranked by how well their edge-path distances agree).
 EXTREMITIES = 5
 KEPT_PAIRINGS = 4
-#: Shapes given in one frame (characters modelled upright and facing one way, as a dataset or
-#: a scene holds them) are matched keeping that frame where the score cannot tell: when the
-#: least score's registration turns the source by more than :data:`SWAP_TURN` degrees (a
-#: front / back swap of such shapes turns it by about 180°) and one turned by less than
-#: :data:`GIVEN_TURN` scores within :data:`GIVEN_SCORE` times it, the least score of those
-#: is kept, and said. Measured (2026-12-02, the 12 gorilla -> human pairs of ``bcicp_dev``,
-#: TOSCA's shared frame, mean geodesic error x100 / sqrt(area) on 300 ground-truth points, the
-#: registered maps before their mending): the right registrations turn the source by 5.6-68°
-#: and the wrong ones mostly by 150-180°; the rule changes one pair, gorilla_01 -> woman_03
-#: (52.9 -> 17.0: its front / back swap scores 0.0703 against the right map's 0.0830, 1.18
-#: times), 14.9 -> 11.9 on average. Its cost when the shapes are not in one frame (the same
-#: registrations under 2000 random turns of the target, computed from their recorded
-#: rotations): the rule fires on 0-12 % of the turns of a pair, and the mean becomes 17.1
-#: instead of 14.9 (a wrong registration nearer the arbitrary frame kept); the note it adds
-#: tells such users to turn the source roughly onto the target first.
+#: Shapes given in one frame (characters modelled upright and facing one way, as a scene or a
+#: dataset holds them) can keep it where the score cannot tell, when the caller says they are
+#: (``same_frame``): when the least score's registration turns the source by more than
+#: :data:`SWAP_TURN` degrees (a front / back swap of such shapes turns it by about 180°) and
+#: one turned by less than :data:`GIVEN_TURN` scores within :data:`GIVEN_SCORE` times it, the
+#: least score of those is kept; without ``same_frame`` it is only reported. Measured
+#: (2026-12-02, the 12 gorilla -> human pairs of ``bcicp_dev``, TOSCA's shared frame, mean
+#: geodesic error x100 / sqrt(area) on 300 ground-truth points, the registered maps before
+#: their mending): the right registrations turn the source by 5.6-68° and the wrong ones
+#: mostly by 150-180°; the rule changes one pair, gorilla_01 -> woman_03 (52.9 -> 17.0: its
+#: front / back swap scores 0.0703 against the right map's 0.0830, 1.18 times), 14.9 -> 11.9
+#: on average. Not a default: from the same registrations' recorded rotations, with the target
+#: turned at random (2000 turns a pair) it keeps a wrong one on 0-12 % of a pair's turns (mean
+#: 17.1 instead of 14.9), and with the target facing the other way (turned 160° or 180° about
+#: the vertical, as FAUST's scans 019 and 094 are) on 7 and 8 of the 12 pairs (39.0 and 43.2).
 SWAP_TURN = 90.0
 GIVEN_TURN = 45.0
 GIVEN_SCORE = 1.25
@@ -185,8 +185,11 @@ class Registration:
     turn : float
         Degrees the chosen registration turns the source by.
     passed_over : tuple of (str, float, float) or None
-        When the given orientation was kept (see :data:`SWAP_TURN`): the start, score and
-        turn (degrees) of the registration of least score, which was not chosen.
+        When the given orientation was kept (``same_frame``, see :data:`SWAP_TURN`): the
+        start, score and turn (degrees) of the registration of least score, not chosen.
+    frame_alternative : tuple of (str, float, float) or None
+        Without ``same_frame``, when it would have chosen otherwise: the start, score and turn
+        of the registration that keeps the given orientation, not chosen.
     """
 
     fmap_12: np.ndarray
@@ -196,6 +199,7 @@ class Registration:
     scores: tuple[float, ...] = ()
     turn: float = math.nan
     passed_over: tuple[str, float, float] | None = None
+    frame_alternative: tuple[str, float, float] | None = None
 
 
 def shells_needed() -> int:
@@ -535,7 +539,7 @@ def keep_given_orientation(
 
 
 def shell_match(
-    eig_1: EigenBasis, eig_2: EigenBasis, *,
+    eig_1: EigenBasis, eig_2: EigenBasis, *, same_frame: bool = False,
     report: Callable[[str, float], None] | None = None,
 ) -> Registration:  # fmt: skip
     """Match two shapes that need not be isometric (see the module notes).
@@ -546,6 +550,9 @@ def shell_match(
         Unit-area source and target eigenbases of triangle meshes (``faces`` set), at least
         :data:`HYPOTHESIS_SHELL` eigenfunctions each; the finest shell uses up to
         :func:`shells_needed`.
+    same_frame : bool
+        The shapes are given in one frame: keep it where the score cannot tell
+        (:func:`keep_given_orientation`); otherwise only report it (``frame_alternative``).
     report : callable, optional
         ``report(stage, fraction_done)`` before each stage.
 
@@ -575,19 +582,22 @@ def shell_match(
     lower = [g for g, _ in done]
     least, _, _ = least_score(lower, score)
     turns = [_angle(np.eye(3), state.rotation) for _, state in done]
-    best = keep_given_orientation(turns, lower, least, score)
+    framed = keep_given_orientation(turns, lower, least, score)
+    best = framed if same_frame else least
     scores = tuple(found[i][0] if i in found else math.nan for i in range(len(poses)))
-    passed_over = None
-    if best != least:
-        passed_over = (poses[least].label, scores[least], turns[least])
-        logger.info("shells: the registration from %s keeps the shapes' given orientation "
-                    "(turned %.0f°, score %.4f) over the one from %s (score %.4f), which turns "
-                    "the source by %.0f°", poses[best].label, turns[best], scores[best],
-                    *passed_over)  # fmt: skip
+    passed_over = frame_alternative = None
+    if framed != least:
+        other = least if same_frame else framed
+        said = (poses[other].label, scores[other], turns[other])
+        passed_over, frame_alternative = (said, None) if same_frame else (None, said)
+        logger.info("shells: the registration from %s (turned %.0f°, score %.4f) is kept; the "
+                    "one from %s (turned %.0f°, score %.4f) %s", poses[best].label, turns[best],
+                    scores[best], said[0], said[2], said[1],
+                    "fits better" if same_frame else "keeps the given frame")  # fmt: skip
     assert done[best][1].fmap is not None
     scored = sorted(x for x in scores if not math.isnan(x))
     logger.debug("shells: %s chosen (score %.4f; the next %.4f; %d of %d scored)",
                 poses[best].label, scores[best], scored[1] if len(scored) > 1 else math.nan,
                 len(scored), len(poses))  # fmt: skip
     return Registration(done[best][1].fmap, found[best][1], scores[best], poses[best].label,
-                        scores, turns[best], passed_over)  # fmt: skip
+                        scores, turns[best], passed_over, frame_alternative)  # fmt: skip

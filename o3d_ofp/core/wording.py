@@ -33,6 +33,7 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "closest": ("method='closest'", "--map closest"),
     "estimate": ("method='estimate'", "--map estimate"),
     "align": ("align=True", "--align"),
+    "same_frame": ("o3d_ofp.match(..., options=MatchOptions(same_frame=True))", "--same-frame"),
     "no_align": ("with align=False", "without --align"),
     "atlas": ("atlas=True", "--uv-atlas"),
     "texture": ("texture=...", "--texture FILE"),

@@ -31,7 +31,7 @@ from ..core.fmap import (
 )
 from ..core.multiscale import anchored_p2p_from_fmap, dirichlet_p2p, extend_p2p
 from ..core.partial import geodesic_distortion, geodesic_refine
-from ..core.shells import COARSE_SHELLS, shell_match
+from ..core.shells import COARSE_SHELLS, Registration, shell_match
 from ..core.spectrum import EigenBasis
 from ..core.wording import Said
 from .dense import EXTENSION_K
@@ -381,6 +381,30 @@ def repair_doubt(
     return {"before": before, "after": after}
 
 
+def _frame_notes(registered: Registration) -> list[Said]:
+    """Return the report's notes on the shapes' given frame (``MatchOptions.same_frame``)."""
+    if registered.passed_over is not None:
+        _, other, other_turn = registered.passed_over
+        return [Said(
+            "the shapes given in one frame: the registration that keeps their orientation (the "
+            "source turned {turn:.0f}°, score {score:.4f}) was kept over one that fits the shells "
+            "better (score {other:.4f}) but turns the source by {other_turn:.0f}° (a front / "
+            "back swap)", {"turn": registered.turn, "score": registered.score, "other": other,
+                           "other_turn": other_turn}, "frame_kept",
+        )]  # fmt: skip
+    if registered.frame_alternative is not None:
+        _, other, other_turn = registered.frame_alternative
+        return [Said(
+            "the registration kept turns the source by {turn:.0f}° (score {score:.4f}); one that "
+            "keeps the shapes' given orientation (turned {other_turn:.0f}°) fits nearly as well "
+            "(score {other:.4f}): two upright shapes can fit with front and back swapped; if "
+            "the shapes are given in one frame, facing the same way, {same_frame} keeps it",
+            {"turn": registered.turn, "score": registered.score, "other": other,
+             "other_turn": other_turn}, "frame_swap",
+        )]  # fmt: skip
+    return []
+
+
 class FullMatch(Strategy):
     """The steps of a full-shape match (see the module notes)."""
 
@@ -596,8 +620,9 @@ class FullMatch(Strategy):
         run.report("shells registration", 0.8)
         logger.info("match: the map is doubtful: registering the shapes' smooth shells")
         registered = shell_match(
-            u1, u2, report=lambda stage, done: run.report(stage, 0.8 + 0.1 * done)
-        )
+            u1, u2, same_frame=run.options.same_frame,
+            report=lambda stage, done: run.report(stage, 0.8 + 0.1 * done),
+        )  # fmt: skip
         final = run.state["final"]
         run.report("shells: mending jumps", 0.9)
         p2p, share = mend_jumps(registered.p2p_21, u1, u2, k=final, local=_local_search(run))
@@ -624,18 +649,7 @@ class FullMatch(Strategy):
             "of other kinds are right on most pairs, not all: check the result by eye",
             {"before": before, "after": after}, "shells",
         )  # fmt: skip
-        notes = [found]
-        if registered.passed_over is not None:
-            _, score, turn = registered.passed_over
-            notes.append(Said(
-                "the shapes were taken to be given in one frame: the registration that keeps "
-                "their orientation (the source turned {turn:.0f}°, score {score:.4f}) was kept "
-                "over one that fits the shells better (score {other:.4f}) but turns the source by "
-                "{other_turn:.0f}° (a front / back swap); if they were not given in one frame, "
-                "turn the source roughly onto the target and match again",
-                {"turn": registered.turn, "score": registered.score, "other": score,
-                 "other_turn": turn}, "shells_orientation",
-            ))  # fmt: skip
+        notes = [found, *_frame_notes(registered)]
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.

@@ -201,6 +201,13 @@ class MatchOptions:
         register the shapes' smooth shells and keep the map that changes geodesic distances
         less (``o3d_ofp.core.shells.shell_match``; about 6 s more for such a pair of 5k
         vertices). False keeps the spectral map (estimate only).
+    same_frame : bool
+        The shapes are given in one frame (upright and facing the same way, as a scene or a
+        dataset holds them): where the shells' registration fits front and back swapped about
+        as well as the right way round, keep the registration that keeps that frame
+        (``o3d_ofp.core.shells.SWAP_TURN``). Off by default: shapes in frames of their own (scans
+        facing other ways) would be misled by it; the report says when it would have chosen
+        otherwise (estimate only).
     """
 
     method: str = "estimate"
@@ -214,6 +221,7 @@ class MatchOptions:
     descriptors: str = "wks"
     w_orient: float = 1.0
     shells: bool = True
+    same_frame: bool = False
 
     def __post_init__(self) -> None:
         check_choice(self.method, "method", ("estimate", "closest"))
@@ -233,12 +241,14 @@ class MatchOptions:
         check_choice(self.descriptors, "descriptors", ("wks",) if self.partial else ("wks", "hks"))
         check_number(self.w_orient, "w_orient", 0.0)
         check_bool(self.shells, "shells")
+        check_bool(self.same_frame, "same_frame")
         closest = self.method == "closest"
         for name, wrong in (
             ("partial", self.partial and closest),
             ("landmarks", self.landmarks is not None and closest),
             ("align", self.align and not closest),
             ("shells", not self.shells and closest),
+            ("same_frame", self.same_frame and closest),
         ):
             if wrong:
                 applies = "{closest}" if name == "align" else "{estimate}"
@@ -255,6 +265,7 @@ class MatchOptions:
             "descriptors": self.descriptors,
             "w_orient": self.w_orient,
             "shells": self.shells,
+            "same_frame": self.same_frame,
         }
 
     def landmarks_for(self, n_source: int, n_target: int) -> np.ndarray | None:

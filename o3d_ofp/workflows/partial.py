@@ -569,10 +569,12 @@ class PartialMatch(Strategy):
     def options(self, run: Run, settled: Settled) -> dict[str, Any]:
         """Return the options, with what the map is: its fit, its size, polished or not.
 
-        Without ``shells``: a partial match never registers the shapes' shells.
+        Without ``shells`` and ``same_frame``: a partial match never registers the shapes'
+        shells.
         """
         recorded = super().options(run, settled)
         recorded.pop("shells")
+        recorded.pop("same_frame")
         return {
             **recorded,
             "partial": True,
