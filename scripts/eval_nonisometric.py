@@ -1,7 +1,8 @@
 """Maps between different shapes, against published maps: the pairs of ``bcicp_dev``.
 
     python scripts/eval_nonisometric.py [--datasets TOSCA_nonIsometric TOSCA_Isometric humans]
-                                        [--landmarks 6] [--pyfm] [--turn] [--max N]
+                                        [--landmarks 6] [--pyfm] [--same-frame]
+                                        [--turn random|back] [--max N]
 
 The pairs of ``../shared/data/bcicp_dev/pairs.tsv`` (Ren et al., "Continuous and
 orientation-preserving correspondences via functional maps", SIGGRAPH Asia 2018): twelve
@@ -22,9 +23,11 @@ sends every vertex of ``A`` to a vertex of ``B``:
   (``WKSini_direct_BCICP``) and from a segmentation start (``SEGini_direct_BCICP``), and BIM
   (Kim et al. 2011).
 
-``--turn``: each target ``A`` turned by a random rotation first (seeded by the pair's
-names): shapes not given in one frame, where the registration's preference for the given
-orientation (``o3d_ofp.core.shells.SWAP_TURN``) cannot help and may mislead.
+``--same-frame``: ``ours`` with ``MatchOptions(same_frame=True)`` (the shapes are given in
+one frame, as TOSCA's are: a shells registration keeps it where it cannot tell front from
+back, ``o3d_ofp.core.shells.SWAP_TURN``). ``--turn random``: each target ``A`` turned by a
+random rotation first (seeded by the pair's names), shapes not given in one frame;
+``--turn back``: turned by 180° about the vertical (TOSCA's z axis), facing the other way.
 
 Error (the field's standard measure, and the one of the BCICP paper): the mean geodesic
 distance on ``B`` between the image of a ground-truth vertex of ``A`` and its true vertex,
@@ -107,7 +110,9 @@ def run_pair(dataset: str, a: str, b: str, args: argparse.Namespace) -> dict[str
         from scipy.spatial.transform import Rotation
 
         seed = int.from_bytes(f"{a} {b}".encode(), "little") % 2**32
-        VA = VA @ Rotation.random(random_state=seed).as_matrix().T
+        turn = (Rotation.random(random_state=seed) if args.turn == "random"
+                else Rotation.from_euler("z", 180.0, degrees=True))  # fmt: skip
+        VA = VA @ turn.as_matrix().T
     ta, tb, tb_sym = truth(dataset, a), truth(dataset, b), truth(dataset, b, symmetric=True)
     maps: dict[str, np.ndarray] = {}
     seconds: dict[str, float] = {}
@@ -120,7 +125,8 @@ def run_pair(dataset: str, a: str, b: str, args: argparse.Namespace) -> dict[str
         if name == "ours+lm" and given is None:
             continue
         t0 = time.perf_counter()
-        corr = ofp.match((VB, FB), (VA, FA), landmarks=given)
+        options = ofp.MatchOptions(same_frame=args.same_frame and given is None)
+        corr = ofp.match((VB, FB), (VA, FA), landmarks=given, options=options)
         seconds[name] = time.perf_counter() - t0
         maps[name], suspect[name] = np.asarray(corr.p2p_21), bool(corr.quality.suspect)
     if args.pyfm:
@@ -153,8 +159,10 @@ def main(argv: list[str] | None = None) -> int:
                         choices=["TOSCA_nonIsometric", "TOSCA_Isometric", "humans"])  # fmt: skip
     parser.add_argument("--landmarks", type=int, default=6, help="landmark pairs (0: none)")
     parser.add_argument("--pyfm", action="store_true", help="also pyFM (pyfmaps 1.3.1)")
-    parser.add_argument("--turn", action="store_true",
-                        help="turn each target by a random rotation (shapes not in one frame)")
+    parser.add_argument("--same-frame", action="store_true",
+                        help="ours with MatchOptions(same_frame=True)")
+    parser.add_argument("--turn", choices=["random", "back"],
+                        help="turn each target first: at random, or to face the other way")
     parser.add_argument("--max", type=int, default=None, help="at most this many pairs a dataset")
     args = parser.parse_args(argv)
     if not (DATA / "pairs.tsv").exists():
