@@ -384,25 +384,27 @@ def repair_doubt(
 def _frame_notes(registered: Registration) -> list[Said]:
     """Return the report's notes on the shapes' given frame (``MatchOptions.same_frame``)."""
     if registered.passed_over is not None:
-        _, other, other_turn = registered.passed_over
-        return [Said(
+        other, code = registered.passed_over, "frame_kept"
+        template = (
             "the shapes given in one frame: the registration that keeps their orientation (the "
             "source turned {turn:.0f}°, score {score:.4f}) was kept over one that fits the shells "
             "better (score {other:.4f}) but turns the source by {other_turn:.0f}° (a front / "
-            "back swap)", {"turn": registered.turn, "score": registered.score, "other": other,
-                           "other_turn": other_turn}, "frame_kept",
-        )]  # fmt: skip
-    if registered.frame_alternative is not None:
-        _, other, other_turn = registered.frame_alternative
-        return [Said(
+            "back swap)"
+        )
+    elif registered.frame_alternative is not None:
+        other, code = registered.frame_alternative, "frame_swap"
+        template = (
             "the registration kept turns the source by {turn:.0f}° (score {score:.4f}); one that "
             "keeps the shapes' given orientation (turned {other_turn:.0f}°) fits nearly as well "
             "(score {other:.4f}): two upright shapes can fit with front and back swapped; if "
-            "the shapes are given in one frame, facing the same way, {same_frame} keeps it",
-            {"turn": registered.turn, "score": registered.score, "other": other,
-             "other_turn": other_turn}, "frame_swap",
-        )]  # fmt: skip
-    return []
+            "the shapes are given in one frame, facing the same way, {same_frame} keeps it"
+        )
+    else:
+        return []
+    _, score, turn = other
+    values = {"turn": registered.turn, "score": registered.score, "other": score,
+              "other_turn": turn}  # fmt: skip
+    return [Said(template, values, code)]
 
 
 class FullMatch(Strategy):
