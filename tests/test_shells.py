@@ -201,6 +201,33 @@ def test_the_spectral_map_is_kept_when_the_registration_distorts_more(stretched_
     assert note.values["before"] < note.values["after"]  # the spectral map distorts less
 
 
+@pytest.mark.parametrize("same_frame", [False, True])
+def test_same_frame_reaches_the_registration_and_its_report(stretched_body, monkeypatch,
+                                                            same_frame):  # fmt: skip
+    """The option is handed to the registration, and the report says what it did with it."""
+    V, T, F = stretched_body
+    asked = []
+    other = ("rotation 2", 0.0830, 36.0)
+
+    def registered(u1, u2, **kwargs):  # the right map (the truth is the identity)
+        asked.append(kwargs["same_frame"])
+        turn, chosen = (36.0, 0.0830) if same_frame else (174.0, 0.0703)
+        return Registration(np.eye(30), np.arange(len(V)), chosen, "test", (chosen,), turn,
+                            passed_over=("rotation 1", 0.0703, 174.0) if same_frame else None,
+                            frame_alternative=None if same_frame else other)  # fmt: skip
+
+    monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", registered)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ofp.OFPWarning)
+        corr = ofp.match((V, F), (T, F), options=ofp.MatchOptions(same_frame=same_frame))
+    assert asked == [same_frame] and corr.options["same_frame"] is same_frame
+    code = "frame_kept" if same_frame else "frame_swap"
+    (note,) = [r for r in corr.quality.reasons if r.code == code]
+    assert ({"frame_kept", "frame_swap"} - {code}).isdisjoint(corr.quality.codes())
+    assert note.values["turn"] == (36.0 if same_frame else 174.0)
+    assert ("same_frame=True" in str(note)) is not same_frame  # the fix is advised, not given
+
+
 def test_shells_false_keeps_the_spectral_map_without_registering(stretched_body, monkeypatch):
     V, T, F = stretched_body
 

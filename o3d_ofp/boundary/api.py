@@ -315,7 +315,8 @@ def match(
 
     Descriptor fit (WKS, Laplacian and descriptor commutativity, orientation-preserving term)
     then ZoomOut to 100 eigenfunctions and the point map, all on unit-area copies of the
-    shapes: the map does not change when either shape is scaled, moved or rotated.
+    shapes: the map does not change when either shape is scaled, moved or rotated (except
+    with ``MatchOptions(same_frame=True)``, which reads the shapes' given orientation).
 
     Parameters
     ----------

@@ -206,8 +206,8 @@ class MatchOptions:
         dataset holds them): where the shells' registration fits front and back swapped about
         as well as the right way round, keep the registration that keeps that frame
         (``o3d_ofp.core.shells.SWAP_TURN``). Off by default: shapes in frames of their own (scans
-        facing other ways) would be misled by it; the report says when it would have chosen
-        otherwise (estimate only).
+        facing other ways) would be misled by it; the report of a registered map says when it
+        would have chosen otherwise (estimate only).
     """
 
     method: str = "estimate"
