@@ -803,7 +803,8 @@ def _distance_notes(
         notes.append(Said(
             "the target lies {mean:.3g} of the diagonal from the source on average: the shapes "
             "differ in geometry or are slightly misaligned ({retry}a closest-point map needs "
-            "shapes in the same place)", values, "far_on_average",
+            "shapes in the same place; shapes of other kinds or in other poses match by "
+            "{estimate})", values, "far_on_average",
         ))  # fmt: skip
     if max_rel > MAX_DISTANCE_NOTE and not suspect:
         notes.append(Said(
