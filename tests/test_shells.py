@@ -212,9 +212,9 @@ def test_same_frame_reaches_the_registration_and_its_report(stretched_body, monk
     def registered(u1, u2, **kwargs):  # the right map (the truth is the identity)
         asked.append(kwargs["same_frame"])
         turn, chosen = (36.0, 0.0830) if same_frame else (174.0, 0.0703)
+        passed_over = ("rotation 1", 0.0703, 174.0)
         return Registration(np.eye(30), np.arange(len(V)), chosen, "test", (chosen,), turn,
-                            passed_over=("rotation 1", 0.0703, 174.0) if same_frame else None,
-                            frame_alternative=None if same_frame else other)  # fmt: skip
+                            frame_other=passed_over if same_frame else other)  # fmt: skip
 
     monkeypatch.setattr("o3d_ofp.workflows.matching.shell_match", registered)
     with warnings.catch_warnings():

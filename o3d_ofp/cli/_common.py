@@ -668,10 +668,9 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
     refuse(  # a typo in a target's name is said before any work
         (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
          "map is 'estimate' or 'identity'"),
-        (args.no_shells and args.map != "estimate", f"--no-shells applies to --map estimate, "
-         f"not --map {args.map}"),
-        (args.same_frame and args.map != "estimate", f"--same-frame applies to --map estimate, "
-         f"not --map {args.map}"),
+        *((on and args.map != "estimate", f"{flag} applies to --map estimate, not --map "
+           f"{args.map}") for flag, on in (("--no-shells", args.no_shells),
+                                              ("--same-frame", args.same_frame))),
         (not os.path.isfile(args.source), f"{args.source}: no such source file"),
         *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
     )  # fmt: skip

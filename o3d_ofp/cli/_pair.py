@@ -229,10 +229,8 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
         (args.save_map and not args.save_map.endswith(".npz"),
          f"--save-map {args.save_map}: must end with .npz"),
         (args.align and kind != "closest", "--align applies to --map closest"),
-        (args.no_shells and kind != "estimate", f"--no-shells applies to --map estimate, not "
-         f"--map {kind}"),
-        (args.same_frame and kind != "estimate", f"--same-frame applies to --map estimate, not "
-         f"--map {kind}"),
+        *((on and kind != "estimate", f"{flag} applies to --map estimate, not --map {kind}")
+          for flag, on in (("--no-shells", args.no_shells), ("--same-frame", args.same_frame))),
         (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
          f"match), not to --map {kind}{partial}: drop --partial"),
         (lm and kind != "estimate", f"--landmarks apply to --map estimate, not --map {kind}"),

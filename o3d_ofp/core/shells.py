@@ -188,15 +188,13 @@ class Registration:
         alone exceeds a lower score, so their score could not be lower; those that could keep
         the given frame are scored when the least score's turns the source by more than
         :data:`SWAP_TURN`); the chosen one's is the least, unless the given orientation was
-        kept (``passed_over``).
+        kept (``same_frame``: then ``frame_other`` is the least).
     turn : float
         Degrees the chosen registration turns the source by.
-    passed_over : tuple of (str, float, float) or None
-        When the given orientation was kept (``same_frame``, see :data:`SWAP_TURN`): the
-        start, score and turn (degrees) of the registration of least score, not chosen.
-    frame_alternative : tuple of (str, float, float) or None
-        Without ``same_frame``, when it would have chosen otherwise: the start, score and turn
-        of the registration that keeps the given orientation, not chosen.
+    frame_other : tuple of (str, float, float) or None
+        When ``same_frame`` decides the choice (see :data:`SWAP_TURN`), the start, score and
+        turn (degrees) of the registration not chosen: with ``same_frame``, the one of least
+        score, passed over for the given orientation; without, the one that keeps it.
     """
 
     fmap_12: np.ndarray
@@ -205,8 +203,7 @@ class Registration:
     label: str
     scores: tuple[float, ...] = ()
     turn: float = math.nan
-    passed_over: tuple[str, float, float] | None = None
-    frame_alternative: tuple[str, float, float] | None = None
+    frame_other: tuple[str, float, float] | None = None
 
 
 def shells_needed() -> int:
@@ -559,7 +556,7 @@ def shell_match(
         :func:`shells_needed`.
     same_frame : bool
         The shapes are given in one frame: keep it where the score cannot tell
-        (:func:`keep_given_orientation`); otherwise only report it (``frame_alternative``).
+        (:func:`keep_given_orientation`); otherwise only report it (``frame_other``).
     report : callable, optional
         ``report(stage, fraction_done)`` before each stage.
 
@@ -592,14 +589,13 @@ def shell_match(
     framed = keep_given_orientation(turns, lower, least, score)
     best = framed if same_frame else least
     scores = tuple(found[i][0] if i in found else math.nan for i in range(len(poses)))
-    passed_over = frame_alternative = None
+    frame_other = None
     if framed != least:
         other = least if same_frame else framed
-        said = (poses[other].label, scores[other], turns[other])
-        passed_over, frame_alternative = (said, None) if same_frame else (None, said)
+        frame_other = (poses[other].label, scores[other], turns[other])
         logger.info("shells: the registration from %s (turned %.0f°, score %.4f) is kept; the "
                     "one from %s (turned %.0f°, score %.4f) %s", poses[best].label, turns[best],
-                    scores[best], said[0], said[2], said[1],
+                    scores[best], poses[other].label, turns[other], scores[other],
                     "fits better" if same_frame else "keeps the given frame")  # fmt: skip
     assert done[best][1].fmap is not None
     scored = sorted(x for x in scores if not math.isnan(x))
@@ -607,4 +603,4 @@ def shell_match(
                 poses[best].label, scores[best], scored[1] if len(scored) > 1 else math.nan,
                 len(scored), len(poses))  # fmt: skip
     return Registration(done[best][1].fmap, found[best][1], scores[best], poses[best].label,
-                        scores, turns[best], passed_over, frame_alternative)  # fmt: skip
+                        scores, turns[best], frame_other)  # fmt: skip

@@ -381,27 +381,25 @@ def repair_doubt(
     return {"before": before, "after": after}
 
 
-def _frame_notes(registered: Registration) -> list[Said]:
+def _frame_notes(registered: Registration, same_frame: bool) -> list[Said]:
     """Return the report's notes on the shapes' given frame (``MatchOptions.same_frame``)."""
-    if registered.passed_over is not None:
-        other, code = registered.passed_over, "frame_kept"
-        template = (
+    if registered.frame_other is None:
+        return []
+    if same_frame:
+        code, template = "frame_kept", (
             "the shapes given in one frame: the registration that keeps their orientation (the "
             "source turned {turn:.0f}°, score {score:.4f}) was kept over one that fits the shells "
             "better (score {other:.4f}) but turns the source by {other_turn:.0f}° (a front / "
             "back swap)"
         )
-    elif registered.frame_alternative is not None:
-        other, code = registered.frame_alternative, "frame_swap"
-        template = (
+    else:
+        code, template = "frame_swap", (
             "the registration kept turns the source by {turn:.0f}° (score {score:.4f}); one that "
             "keeps the shapes' given orientation (turned {other_turn:.0f}°) fits nearly as well "
             "(score {other:.4f}): two upright shapes can fit with front and back swapped; if "
             "the shapes are given in one frame, facing the same way, {same_frame} keeps it"
         )
-    else:
-        return []
-    _, score, turn = other
+    _, score, turn = registered.frame_other
     values = {"turn": registered.turn, "score": registered.score, "other": score,
               "other_turn": turn}  # fmt: skip
     return [Said(template, values, code)]
@@ -651,7 +649,7 @@ class FullMatch(Strategy):
             "of other kinds are right on most pairs, not all: check the result by eye",
             {"before": before, "after": after}, "shells",
         )  # fmt: skip
-        notes = [found, *_frame_notes(registered)]
+        notes = [found, *_frame_notes(registered, run.options.same_frame)]
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
