@@ -333,10 +333,13 @@ def _judge_given(
     if quality is not None:
         report([f"stored with --map {args.map}: {quality.summary()}"])
     if quality is not None and quality.suspect:
+        # said once: on stderr (its summary line above already says SUSPECT on stdout)
         said = "; ".join(r.text(cli=True) for r in quality.reasons)
-        reasons.append(f"--map {args.map} was saved with a suspect quality: {said}")
-        if not args.strict:
-            logger.warning("%s", reasons[-1])
+        saved = f"--map {args.map} was saved with a suspect quality: {said}"
+        if args.strict:
+            reasons.append(saved)
+        else:
+            logger.warning("%s", saved)
     if reasons and args.strict:
         raise SuspectMap("; ".join(reasons))
     report([f"map quality SUSPECT: {reason}" for reason in reasons])
