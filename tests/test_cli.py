@@ -1021,6 +1021,15 @@ def test_partial_with_a_map_file_names_the_flags(files, capsys, tmp_path, no_eig
                  "-o", str(tmp_path / "x.ply")])  # fmt: skip
     assert code == 2
     _one_line_error(capsys, "--same-frame applies to --map estimate, not --map closest")
+    # --same-frame beside what registers no shells: refused before anything is read
+    for flags, what in ((["--partial"], "a partial match (--partial) registers none"),
+                        (["--landmarks", "1:2,3:4"], "a match with landmarks registers none"),
+                        (["--no-shells"], "--no-shells turns them off")):  # fmt: skip
+        code = main(["transfer", files["src"], files["tgt"], "--same-frame", *flags,
+                     "-o", str(tmp_path / "x.ply")])  # fmt: skip
+        assert code == 2
+        _one_line_error(capsys, "--same-frame chooses among the registrations", what)
+    assert not os.path.exists(tmp_path / "x.ply")
 
 
 def test_textured_source_onto_a_target_without_uvs_gives_vertex_colors(files, capsys, tmp_path):

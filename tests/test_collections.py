@@ -375,6 +375,8 @@ def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
         transfer_many(paths["src"], [paths["t0"]], shells="no", workers=0)
     with pytest.raises(ValueError, match="same_frame must be True or False"):
         transfer_many(paths["src"], [paths["t0"]], same_frame="yes", workers=0)
+    with pytest.raises(ValueError, match="same_frame .* shells=False turns them off"):
+        transfer_many(paths["src"], [paths["t0"]], same_frame=True, shells=False, workers=0)
     with pytest.raises(ValueError, match="no vertex colors"):
         transfer_many(paths["t0"], [paths["t1"]], workers=0, skip_existing=False)
     with pytest.raises(ValueError, match="would overwrite"):
@@ -644,6 +646,8 @@ def test_cli_folder_of_targets_in_process_and_basis_of_a_collection(shapes, tmp_
         (["--map", "closest"], "--map closest: with several targets the map is"),
         (["--signal", "xyz"], "--signal xyz: with several targets the signal is"),
         (["--k1", "0"], "--k1: expected a positive integer"),
+        (["--same-frame", "--no-shells"], "--same-frame chooses among the registrations of the "
+         "shapes' smooth shells, and --no-shells turns them off"),
     ],
 )
 def test_cli_several_targets_refuses_pair_only_flags(shapes, tmp_path, capsys, extra, message):

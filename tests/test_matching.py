@@ -320,6 +320,10 @@ def test_api_findings_of_a_python_trial(pair, tmp_path):
         ({"same_frame": 1}, "same_frame must be True or False"),
         ({"method": "closest", "same_frame": True},
          "same_frame applies to method='estimate'; method is 'closest'"),
+        # same_frame acts on the shells' registration alone: beside what makes none, refused
+        ({"same_frame": True, "partial": True}, r"same_frame .* a partial match \(o3d_ofp"),
+        ({"same_frame": True, "landmarks": [[0, 1]]}, "same_frame .* a match with landmarks"),
+        ({"same_frame": True, "shells": False}, "same_frame .* shells=False turns them off"),
         ({"zoomout_subsample": -5}, "zoomout_subsample must be None or an integer >= 2"),
         ({"zoomout_to": 10}, r"zoomout_to \(10\) must be >= k_fit \(29\)"),
     ):

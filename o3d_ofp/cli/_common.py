@@ -41,7 +41,7 @@ from ..core.spectrum import eigenbasis, shape_digest
 from ..core.wording import OptionError, Said, text_of
 from ..render.panel import colormap
 from ..workflows.cache import basis_cache_path, cached_basis
-from ..workflows.options import COMPONENTS, BasisOptions
+from ..workflows.options import COMPONENTS, BasisOptions, same_frame_conflict
 from ._progress import ENABLED
 
 logger = logging.getLogger(__name__)
@@ -665,12 +665,15 @@ def run_transfers(args: argparse.Namespace, *, kind: str, options: Mapping[str, 
                          "'.[dask]'), or give --workers 0 to run them one after the other here")
     if args.scheduler:
         _check_scheduler(args.scheduler)
+    frame = same_frame_conflict(partial=False, landmarks=False, shells=not args.no_shells)
     refuse(  # a typo in a target's name is said before any work
         (args.map not in ("estimate", "identity"), f"--map {args.map}: with several targets the "
          "map is 'estimate' or 'identity'"),
         *((on and args.map != "estimate", f"{flag} applies to --map estimate, not --map "
            f"{args.map}") for flag, on in (("--no-shells", args.no_shells),
                                               ("--same-frame", args.same_frame))),
+        (args.same_frame and frame is not None and args.map == "estimate",
+         f"--same-frame {frame and text_of(frame, cli=True)}"),
         (not os.path.isfile(args.source), f"{args.source}: no such source file"),
         *((not os.path.exists(t), f"{t}: no such target file or folder") for t in args.target),
     )  # fmt: skip

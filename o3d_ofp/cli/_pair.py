@@ -28,7 +28,7 @@ from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
 from ..core.wording import AdvisedError, Said
 from ..workflows.maps import Correspondence, given_map_collapse
-from ..workflows.options import BasisOptions, MatchOptions
+from ..workflows.options import BasisOptions, MatchOptions, same_frame_conflict
 from ..workflows.partial import check_partial_areas
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
 from . import _common as common
@@ -216,6 +216,7 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
     lm, save, kind = args.landmarks, args.save_landmarks, args.map
     partial = "" if kind in ("closest", "identity") else (
         ", a map used as it is (a map saved from a run with --partial is partial already)")
+    frame = same_frame_conflict(partial=args.partial, landmarks=bool(lm), shells=not args.no_shells)
     common.refuse(
         (lm == "", "--landmarks is empty: give pairs like 12:40,500:611, a 2-column file or "
          "'pick'"),
@@ -231,6 +232,8 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
         (args.align and kind != "closest", "--align applies to --map closest"),
         *((on and kind != "estimate", f"{flag} applies to --map estimate, not --map {kind}")
           for flag, on in (("--no-shells", args.no_shells), ("--same-frame", args.same_frame))),
+        (args.same_frame and kind == "estimate" and frame is not None,
+         f"--same-frame {frame and frame.text(cli=True)}"),
         (args.partial and kind != "estimate", "--partial applies to --map estimate (the partial "
          f"match), not to --map {kind}{partial}: drop --partial"),
         (lm and kind != "estimate", f"--landmarks apply to --map estimate, not --map {kind}"),

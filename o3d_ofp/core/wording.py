@@ -34,6 +34,7 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "estimate": ("method='estimate'", "--map estimate"),
     "align": ("align=True", "--align"),
     "same_frame": ("o3d_ofp.match(..., options=MatchOptions(same_frame=True))", "--same-frame"),
+    "no_shells": ("shells=False", "--no-shells"),
     "no_align": ("with align=False", "without --align"),
     "atlas": ("atlas=True", "--uv-atlas"),
     "texture": ("texture=...", "--texture FILE"),

@@ -38,6 +38,7 @@ __all__ = [
     "check_number",
     "deprecated_choice",
     "required_k",
+    "same_frame_conflict",
 ]
 
 #: Non-constant eigenfunctions an estimated map is refined to by ZoomOut (pyFM's standard
@@ -168,6 +169,39 @@ def _landmarks(value: Any) -> np.ndarray | None:
     return pairs
 
 
+def same_frame_conflict(*, partial: bool, landmarks: bool, shells: bool) -> Said | None:
+    """Return why ``same_frame`` cannot act beside these options, or None when it can.
+
+    ``same_frame`` chooses among the shells' registrations, which only a full match without
+    landmarks makes, ``shells`` on: with any of these options it would do nothing, so it is
+    refused (by :class:`MatchOptions`, and by the command line before it reads anything).
+
+    Parameters
+    ----------
+    partial : bool
+        A partial match.
+    landmarks : bool
+        Landmarks are given.
+    shells : bool
+        The shells may be registered.
+
+    Returns
+    -------
+    Said or None
+        The reason, worded after the option's name.
+    """
+    if partial:
+        why = "a partial match ({partial}) registers none"
+    elif landmarks:
+        why = "a match with landmarks registers none (the landmarks set its orientation)"
+    elif not shells:
+        why = "{no_shells} turns them off"
+    else:
+        return None
+    return Said("chooses among the registrations of the shapes' smooth shells, and " + why
+                + ": drop one of the two", {})  # fmt: skip
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class MatchOptions:
     """How a map between two shapes is made (see :func:`o3d_ofp.match`).
@@ -243,6 +277,10 @@ class MatchOptions:
         check_bool(self.shells, "shells")
         check_bool(self.same_frame, "same_frame")
         closest = self.method == "closest"
+        conflict = same_frame_conflict(partial=self.partial, landmarks=self.landmarks is not None,
+                                       shells=self.shells)  # fmt: skip
+        if self.same_frame and not closest and conflict is not None:
+            raise OptionError("same_frame", conflict)
         for name, wrong in (
             ("partial", self.partial and closest),
             ("landmarks", self.landmarks is not None and closest),
