@@ -101,7 +101,9 @@ def test_cut_of_a_bent_copy_maps_accurately_with_its_overlap(whole, cut, partial
     Vc, _, truth, _ = cut
     corr = partial_map
     assert corr.method == "partial" and corr.options["partial"] is True
-    assert not {"shells", "same_frame"} & set(corr.options)  # it never registers shells
+    # it never registers the shapes' smooth shells; shells says whether a doubtful map would
+    # register the part onto the whole
+    assert "same_frame" not in corr.options and corr.options["shells"] is True
     assert corr.p2p_21.shape == (len(Vc),)
     # Measured 0.025 (the vertex spacing is 1/sqrt(2562) = 0.020 of sqrt(area)); the
     # full-shape map on the same cut: 0.35-0.42, the partial fit without its ZoomOut or with
@@ -280,6 +282,66 @@ def test_a_part_with_duplicated_vertices_is_matched_as_its_surface(whole, cut, p
     assert corr.quality.coverage_ratio == pytest.approx(ratio, abs=0.05)
 
 
+def test_part_maps_finds_a_turned_part_by_the_least_geodesic_distortion(whole, cut):
+    """The extrinsic registration of a part (turned, moved, bent) onto the whole finds it.
+
+    Measured (this blob, its bent cut turned by (150, 40, -70) degrees): the map of least
+    geodesic distortion (0.048) is 0.052 sqrt(area) from the truth, the 7 others' starts
+    0.155-0.47 (distortions 0.058-0.080): a wrong choice or a lost start fails.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from o3d_ofp.core.shells import PART_STARTS, part_maps
+
+    V, _, e1 = whole
+    Vc, Fc, truth, _ = cut
+    turn = Rotation.from_euler("xyz", [150, 40, -70], degrees=True).as_matrix()
+    moved = Vc @ turn.T + np.array([3.0, -1.0, 2.0])
+    u1, u2 = rescaled(e1, e1.area), rescaled(ofp.eigenbasis(moved, Fc, k=20), e1.area)
+    maps = part_maps(u1, u2)
+    assert len(maps) == PART_STARTS
+    distortions = [geodesic_distortion(m, u1.vertices, u1.faces, u2.vertices, u2.faces)
+                   for m in maps]  # fmt: skip
+    errors = [_error(V, m, truth, e1.area) for m in maps]
+    assert int(np.argmin(distortions)) == int(np.argmin(errors))
+    assert min(errors) < 0.08  # four vertex spacings (1/sqrt(2562) = 0.020)
+
+
+@pytest.mark.slow  # two partial matches (17 s)
+def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole, monkeypatch):
+    """A suspect partial map (here a part under half the area) tries the part's registration.
+
+    The registration (stubbed: it returns the true map) would replace the map if its refined
+    map changed geodesic distances less (FAUST's back, in the slow test below); without
+    ``shells`` it is not tried.
+    """
+    import o3d_ofp.workflows.partial as workflow
+
+    V, F, e1 = whole
+    Vc, Fc, truth = plane_cut(V, F, axis=0, fraction=0.35)
+    ec = ofp.eigenbasis(Vc, Fc, k=99)
+    calls = []
+
+    def registered(u1, u2):
+        calls.append((u1.n_vertices, u2.n_vertices))
+        return [truth.copy()]
+
+    monkeypatch.setattr(workflow, "part_maps", registered)
+    corr = ofp.match((V, F), (Vc, Fc), partial=True, eigenbases=(e1, ec))
+    assert calls == [(len(V), len(Vc))] and corr.quality.suspect
+    # The spectral map is right here (a small part is flagged for its size): the refined true
+    # map is the same map (distortion 0.0254 both), and a tie keeps the map, said as such.
+    [said] = _said(corr.quality.notes, "part_kept")
+    assert said.values["after"] >= said.values["before"] and "is kept" in str(said)
+    assert "part_registered" not in corr.quality.codes()
+    assert _error(V, corr.p2p_21, truth, e1.area) < 0.05
+    calls.clear()
+    kept = ofp.match((V, F), (Vc, Fc), partial=True, eigenbases=(e1, ec),
+                     options=MatchOptions(shells=False))  # fmt: skip
+    assert not calls and kept.options["shells"] is False
+    assert not {"part_registered", "part_kept"} & kept.quality.codes()
+
+
 def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
     whole, cut, monkeypatch, caplog
 ):
@@ -299,7 +361,8 @@ def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
 
     monkeypatch.setattr(workflow, "_refine", mirrored)
     with caplog.at_level(logging.WARNING, logger="o3d_ofp"), warnings_logged():
-        corr = match_eigenbases(e1, ec, options=_partial(k_fit=15))
+        # (shells=False: the doubtful map's registration, which refines its map too, not here)
+        corr = match_eigenbases(e1, ec, options=_partial(k_fit=15, shells=False))
     # The warning gives each reason on its own line (it was one line of ~600 characters).
     (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     reasons = corr.quality.reasons
@@ -330,6 +393,7 @@ def test_next_start_needs_an_oriented_refinement_and_fewer_changed_distances(
     distortion is above the chosen start's: the flagged start stays. When the next start is
     the better one (its distortion lowered here), it is kept, with a note. Measured on
     eval_partial.py: remeshed 002 -> 004 (0.057, flagged) keeps its start ranked 3: 0.017, ok.
+    (``shells=False`` throughout: a flagged map's registration of the part is another step.)
     """
     import o3d_ofp.workflows.partial as workflow
     from o3d_ofp.workflows.matching import DCOMM_WEIGHTS
@@ -347,7 +411,7 @@ def test_next_start_needs_an_oriented_refinement_and_fewer_changed_distances(
         return C, refined
 
     monkeypatch.setattr(workflow, "_refine", first_mirrored)
-    corr = estimate(e1, ec, options=_partial(k_fit=15), warn_suspect=False)
+    corr = estimate(e1, ec, options=_partial(k_fit=15, shells=False), warn_suspect=False)
     assert 1 < len(outputs) <= 1 + workflow.NEXT_STARTS
     # the chosen start stays, unrefined and flagged (here wrong: measured 0.46; refined 0.04)
     np.testing.assert_array_equal(corr.p2p_21, inputs[0])
@@ -360,7 +424,7 @@ def test_next_start_needs_an_oriented_refinement_and_fewer_changed_distances(
     real = workflow.geodesic_distortion
     monkeypatch.setattr(workflow, "geodesic_distortion", lambda p2p, *a, **k: (
         0.0 if len(outputs) == 2 and np.array_equal(p2p, outputs[1]) else real(p2p, *a, **k)))
-    corr = estimate(e1, ec, options=_partial(k_fit=15), warn_suspect=False)
+    corr = estimate(e1, ec, options=_partial(k_fit=15, shells=False), warn_suspect=False)
     # the second refinement is kept; the rival starts' refinements come after it
     assert 2 <= len(outputs) <= 2 + workflow.RIVAL_STARTS
     np.testing.assert_array_equal(corr.p2p_21, outputs[1])
@@ -1397,6 +1461,26 @@ def test_faust_cut_onto_another_body():
     assert _error(V1, corr.p2p_21, truth, area) < 0.1
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(not DATA.is_dir(), reason="needs the shared data at ../shared/data")
+def test_faust_back_only_is_matched_by_registering_the_part():
+    """A body seen from the back only is matched by registering the part onto the whole.
+
+    Every spectral start is wrong on it; the registration is right, and the map stays flagged
+    (``scripts/eval_partial.py``'s front removed cut: 0.19 sqrt(area) before, 0.042 now).
+    """
+    from o3d_ofp.boundary.convert import geometry_to_arrays
+
+    V1, F1 = geometry_to_arrays(ofp.read_geometry(DATA / "faust/tr_reg_093.ply"))
+    V2, F2 = geometry_to_arrays(ofp.read_geometry(DATA / "faust/tr_reg_087.ply"))
+    Vc, Fc, truth = plane_cut(-V2, F2, axis=2, fraction=0.6)  # the back kept (FAUST: z front)
+    Vc = -Vc
+    corr = ofp.match((V1, F1), (Vc, Fc), partial=True)
+    area = ofp.laplacian(V1, F1)[1].sum()
+    assert corr.quality.suspect and "part_registered" in corr.quality.codes()
+    assert _error(V1, corr.p2p_21, truth, area) < 0.08  # a wrong map: 0.19 and more
+
+
 @pytest.fixture(scope="module")
 def colored_blob_and_part():
     """Return a colored 642-vertex blob (legacy Open3D mesh) and its 70 % cut with UVs."""
@@ -1669,13 +1753,13 @@ def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeyp
     monkeypatch.setattr(workflow, "_refine", refine)
     monkeypatch.setattr(workflow, "geodesic_distortion", distortion)
     monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
-    near = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    near = estimate(e1, ec, options=_partial(shells=False), warn_suspect=False)
     np.testing.assert_array_equal(near.p2p_21, outputs[0])  # its rival (1.08x) stays one
     assert not _said(near.quality.notes, "rival_taken")
     outputs.clear()
     distortions.clear()
     monkeypatch.setattr(workflow, "_share_apart", lambda *a: 1.0)
-    corr = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    corr = estimate(e1, ec, options=_partial(shells=False), warn_suspect=False)
     further = [(d, p2p) for p2p, d in distortions.values()
                if any(np.array_equal(p2p, out) for out in outputs[1:])]  # fmt: skip
     assert len(outputs) >= 2 and further
@@ -1690,7 +1774,7 @@ def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeyp
     monkeypatch.setattr(workflow.PartialMatch, "_judged", lambda self, run, settled, **kw: (
         real(self, run, settled, **kw) if np.array_equal(settled.p2p_21, outputs[0]) else
         real(self, run, settled, **kw).flagged(Said("made to fail", {}, "test"))))
-    kept = estimate(e1, ec, options=_partial(), warn_suspect=False)
+    kept = estimate(e1, ec, options=_partial(shells=False), warn_suspect=False)
     np.testing.assert_array_equal(kept.p2p_21, outputs[0])
     assert not _said(kept.quality.notes, "rival_taken")
 
