@@ -375,7 +375,7 @@ def test_bad_calls_are_refused_before_any_work(shapes, tmp_path):
         transfer_many(paths["src"], [paths["t0"]], shells="no", workers=0)
     with pytest.raises(ValueError, match="same_frame must be True or False"):
         transfer_many(paths["src"], [paths["t0"]], same_frame="yes", workers=0)
-    with pytest.raises(ValueError, match="same_frame .* shells=False turns them off"):
+    with pytest.raises(ValueError, match=r"same_frame .* shells=False turns them off"):
         transfer_many(paths["src"], [paths["t0"]], same_frame=True, shells=False, workers=0)
     with pytest.raises(ValueError, match="no vertex colors"):
         transfer_many(paths["t0"], [paths["t1"]], workers=0, skip_existing=False)

@@ -97,7 +97,8 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
       "source (a scan, a cut) in its units (else --target-scale); the report gives the overlap")
     a("--no-shells", action="store_true", help="with --map estimate: keep the spectral map when "
       "it is doubtful (by default a full match between meshes then also registers the shapes' "
-      "smooth shells, about 6 s at 5k vertices, and keeps the map that distorts less)")
+      "smooth shells, about 6 s at 5k vertices, a --partial match the part onto the whole, "
+      "3-5 s, and keeps the map that distorts less)")
     a("--same-frame", action="store_true", help="with --map estimate: the shapes are given in one "
       "frame (upright, facing the same way): a shells registration that fits with front and "
       "back swapped about as well as the right way round keeps that frame")

@@ -152,10 +152,10 @@ GIVEN_SCORE = 1.25
 #: A part's registration onto the whole (:func:`part_maps`): rigid starts kept (the least
 #: one-way residuals among :data:`ROTATIONS`, :data:`ROTATION_SPREAD` apart) and farthest-point
 #: samples of the part. Measured (2026-12-02, the 12 cuts of ``scripts/eval_partial.py
-#: --remeshed``, error / sqrt(source area) of each start's map before any refinement): 4 starts
-#: left the right one out on FAUST 093 -> 087 one side removed; with 8 the least geodesic
-#: distortion of the starts' maps was the right one on 6 of 12 (front removed 0.056; the
-#: others' starts all 0.19 or more), about 3 s a cut of 5k vertices.
+#: --remeshed``, error / sqrt(source area) of each start's map before any refinement): with 8
+#: starts the map of least geodesic distortion was right (under 0.1) on 8 of the 12 cuts, the
+#: front removed among them (0.056); on the four others no start was (0.19 or more). About
+#: 3 s a cut of 5k vertices on two cores; 4 starts were tried on four cuts only.
 PART_STARTS = 8
 PART_SAMPLES = 1000
 

@@ -234,7 +234,9 @@ class MatchOptions:
         When a full match between two meshes without landmarks comes out suspect, also
         register the shapes' smooth shells and keep the map that changes geodesic distances
         less (``o3d_ofp.core.shells.shell_match``; about 6 s more for such a pair of 5k
-        vertices). False keeps the spectral map (estimate only).
+        vertices); a suspect partial match between meshes without landmarks registers the
+        part onto the whole the same way (``o3d_ofp.core.shells.part_maps``; 3-5 s). False
+        keeps the spectral map (estimate only).
     same_frame : bool
         The shapes are given in one frame (upright and facing the same way, as a scene or a
         dataset holds them): where the shells' registration fits front and back swapped about
