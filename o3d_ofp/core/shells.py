@@ -656,7 +656,7 @@ def _register_part(s1: _Shape, eig_2: EigenBasis, samples_2: np.ndarray, pose: P
     target = fixed[samples_2]
     k_max = min(s1.eig.k, max(FINE_SHELLS))
     state = _State(pose.rotation, pose.translation, np.zeros((k_max + 1, 3)))
-    deformed = V1
+    deformed = V1 @ state.rotation.T + state.translation  # (moved only: a basis under 6)
     for k in (k for k in (*COARSE_SHELLS, *FINE_SHELLS) if k <= k_max):
         phi, evals = s1.phi[:, : k + 1], s1.eig.evals[: k + 1]
         for _ in range(ITERATIONS):

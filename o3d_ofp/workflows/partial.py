@@ -553,10 +553,11 @@ class PartialMatch(Strategy):
         refined as a chosen start is (geodesic refinement and partial ZoomOut, then the
         polish); it replaces the map when it changes them less than the map does, and stays
         flagged. Measured (2026-12-02, ``scripts/eval_partial.py --remeshed``, error /
-        sqrt(source area)): FAUST 093 -> 087 front removed 0.19 -> 0.041 (distortion 0.076
-        against 0.128); on the two remeshed cuts whose maps are wrong (0.074, 0.18) and the two
-        targets that are no part of the source, no better map (the spectral one kept, or
-        one as flagged); every map that passes unchanged (it is not run).
+        sqrt(source area)): FAUST 093 -> 087 front removed 0.19 -> 0.042 (its checked
+        distortion 0.074 against 0.132); the two remeshed cuts whose maps are wrong (0.074,
+        0.18) keep them (the registration's refined maps distort more); the two targets that
+        are no part of the source get registered maps, flagged as before; a map that passes
+        is not registered. Not on the dense path's coarse copies.
         ``MatchOptions(shells=False)`` keeps the map.
         """
         if (not run.options.shells or not quality.suspect or run.landmarks is not None
