@@ -307,13 +307,13 @@ def test_part_maps_finds_a_turned_part_by_the_least_geodesic_distortion(whole, c
     assert min(errors) < 0.08  # four vertex spacings (1/sqrt(2562) = 0.020)
 
 
-@pytest.mark.slow  # two partial matches (17 s)
+@pytest.mark.slow  # three partial matches (25 s)
 def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole, monkeypatch):
     """A suspect partial map (here a part under half the area) tries the part's registration.
 
-    The registration (stubbed: it returns the true map) would replace the map if its refined
-    map changed geodesic distances less (FAUST's back, in the slow test below); without
-    ``shells`` it is not tried.
+    The registration (stubbed: it returns the true map) replaces the map when its refined map
+    changes geodesic distances less (made so at the end; FAUST's back, in a slow test below,
+    without stubs), the map flagged either way; without ``shells`` it is not tried.
     """
     import o3d_ofp.workflows.partial as workflow
 
@@ -340,6 +340,27 @@ def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole,
                      options=MatchOptions(shells=False))  # fmt: skip
     assert not calls and kept.options["shells"] is False
     assert not {"part_registered", "part_kept"} & kept.quality.codes()
+    # A registration whose refined map changes geodesic distances less replaces the map, and
+    # the map stays suspect: here its refinement ends on the true map, made to distort least
+    # (the polish left out, so that the refined map is returned as it is).
+    real_refined, real_distortion = workflow.PartialMatch._refined, workflow.geodesic_distortion
+
+    def refined(self, run, p2p):
+        C, out = real_refined(self, run, p2p)
+        return (C, truth.copy()) if any(p2p is c for c in stub_maps) else (C, out)
+
+    stub_maps = []
+    monkeypatch.setattr(workflow, "part_maps", lambda u1, u2: stub_maps.append(truth.copy())
+                        or stub_maps)  # fmt: skip
+    monkeypatch.setattr(workflow.PartialMatch, "_refined", refined)
+    monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
+    monkeypatch.setattr(workflow, "geodesic_distortion", lambda p2p, *a, **k: (
+        0.0 if np.array_equal(p2p, truth) else real_distortion(p2p, *a, **k)))
+    taken = ofp.match((V, F), (Vc, Fc), partial=True, eigenbases=(e1, ec))
+    assert len(stub_maps) == 1 and taken.quality.suspect
+    [found] = _said(taken.quality.reasons, "part_registered")
+    assert found.values["after"] == 0.0 < found.values["before"]
+    np.testing.assert_array_equal(taken.p2p_21, truth)
 
 
 def test_start_kept_when_the_refinement_turns_it_over_is_flagged(
