@@ -403,6 +403,25 @@ def _both_ways(f1: np.ndarray, f2: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return j, i, energy
 
 
+def _update(
+    state: _State, base: np.ndarray, goal: np.ndarray, A: np.ndarray, evals: np.ndarray
+) -> None:  # fmt: skip
+    """Fit the motion, then the deformation, of corresponding points, in place.
+
+    ``base`` (m, 3) are the source's undeformed points, ``goal`` (m, 3) where they go, ``A``
+    (m, k+1) the source's first eigenfunctions at them, ``evals`` (k+1,) their eigenvalues:
+    the rigid motion with the deformation held (Procrustes), then the deformation in those
+    eigenfunctions with the motion held (least squares regularized by :data:`SMOOTHNESS`).
+    """
+    k = A.shape[1] - 1
+    shift = A @ state.deformation[: k + 1]
+    state.rotation, state.translation = _procrustes(base, goal - shift)
+    residual = goal - base @ state.rotation.T - state.translation
+    gram = A.T @ A / len(base) + np.diag(SMOOTHNESS * evals + 1e-9)
+    state.deformation[: k + 1] = np.linalg.solve(gram, A.T @ residual / len(base))
+    state.deformation[k + 1 :] = 0.0
+
+
 def _level(s1: _Shape, s2: _Shape, state: _State, k: int, *, iterations: int) -> None:
     """Register at the shells of ``k`` eigenfunctions: ``iterations`` rounds, in place."""
     i1, i2 = s1.samples, s2.samples
@@ -422,14 +441,7 @@ def _level(s1: _Shape, s2: _Shape, state: _State, k: int, *, iterations: int) ->
         j, i, state.energy = _both_ways(f1, f2)
         src = np.concatenate([np.arange(len(i1)), i])
         tgt = np.concatenate([j, np.arange(len(i2))])
-        # Rigid motion with the deformation held, then the deformation with the motion held.
-        shift = phi1[src] @ state.deformation[: k + 1]
-        state.rotation, state.translation = _procrustes(base[src], target[i2][tgt] - shift)
-        residual = target[i2][tgt] - base[src] @ state.rotation.T - state.translation
-        A = phi1[src]
-        gram = A.T @ A / len(src) + np.diag(SMOOTHNESS * evals + 1e-9)
-        state.deformation[: k + 1] = np.linalg.solve(gram, A.T @ residual / len(src))
-        state.deformation[k + 1 :] = 0.0
+        _update(state, base[src], target[i2][tgt], phi1[src], evals)
         state.fmap = np.linalg.lstsq(phi2[tgt], phi1[src], rcond=None)[0]
 
 
@@ -656,21 +668,19 @@ def _register_part(s1: _Shape, eig_2: EigenBasis, samples_2: np.ndarray, pose: P
     target = fixed[samples_2]
     k_max = min(s1.eig.k, max(FINE_SHELLS))
     state = _State(pose.rotation, pose.translation, np.zeros((k_max + 1, 3)))
-    deformed = V1 @ state.rotation.T + state.translation  # (moved only: a basis under 6)
-    for k in (k for k in (*COARSE_SHELLS, *FINE_SHELLS) if k <= k_max):
-        phi, evals = s1.phi[:, : k + 1], s1.eig.evals[: k + 1]
+
+    def deformed(k: int) -> np.ndarray:  # the whole moved and deformed at level k
+        moved = V1 @ state.rotation.T + state.translation
+        return moved + s1.phi[:, : k + 1] @ state.deformation[: k + 1]
+
+    level = 0  # (a basis under the first level: moved only)
+    for level in (k for k in (*COARSE_SHELLS, *FINE_SHELLS) if k <= k_max):
+        phi, evals = s1.phi[:, : level + 1], s1.eig.evals[: level + 1]
         for _ in range(ITERATIONS):
-            deformed = V1 @ state.rotation.T + state.translation + phi @ state.deformation[: k + 1]
-            mine = _features(deformed, F1, s1.sign, None)[s1.samples]
+            mine = _features(deformed(level), F1, s1.sign, None)[s1.samples]
             src = s1.samples[nearest_neighbors(mine, target)]
-            shift = phi[src] @ state.deformation[: k + 1]
-            state.rotation, state.translation = _procrustes(V1[src], V2[samples_2] - shift)
-            residual = V2[samples_2] - V1[src] @ state.rotation.T - state.translation
-            A = phi[src]
-            gram = A.T @ A / len(src) + np.diag(SMOOTHNESS * evals + 1e-9)
-            state.deformation[: k + 1] = np.linalg.solve(gram, A.T @ residual / len(src))
-        deformed = V1 @ state.rotation.T + state.translation + phi @ state.deformation[: k + 1]
-    return nearest_neighbors(_features(deformed, F1, s1.sign, None), fixed)
+            _update(state, V1[src], V2[samples_2], phi[src], evals)
+    return nearest_neighbors(_features(deformed(level), F1, s1.sign, None), fixed)
 
 
 def part_maps(eig_1: EigenBasis, eig_2: EigenBasis) -> list[np.ndarray]:
