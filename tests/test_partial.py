@@ -356,6 +356,8 @@ def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole,
     monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
     monkeypatch.setattr(workflow, "geodesic_distortion", lambda p2p, *a, **k: (
         0.0 if np.array_equal(p2p, truth) else real_distortion(p2p, *a, **k)))
+    monkeypatch.setattr(workflow, "geodesic_distortions", lambda p2ps, *a, **k: [
+        workflow.geodesic_distortion(p2p, *a, **k) for p2p in p2ps])  # (the same stub for all)
     taken = ofp.match((V, F), (Vc, Fc), partial=True, eigenbases=(e1, ec))
     assert len(stub_maps) == 1 and taken.quality.suspect
     [found] = _said(taken.quality.reasons, "part_registered")

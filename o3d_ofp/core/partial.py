@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -81,6 +82,7 @@ __all__ = [
     "boundary_length",
     "fit_partial_fmap",
     "geodesic_distortion",
+    "geodesic_distortions",
     "geodesic_features",
     "geodesic_refine",
     "map_stretch",
@@ -242,20 +244,50 @@ def geodesic_distortion(
     -------
     float
     """
+    return geodesic_distortions([p2p_21], vertices_1, faces_1, vertices_2, faces_2,
+                                samples=samples)[0]  # fmt: skip
+
+
+def geodesic_distortions(
+    p2ps_21: Sequence[np.ndarray],
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray | None,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray | None,
+    *,
+    samples: int = 40,
+) -> list[float]:
+    """:func:`geodesic_distortion` of several maps between the same shapes.
+
+    The target's samples and their distances are computed once for all of them.
+
+    Parameters
+    ----------
+    p2ps_21 : sequence of (n2,) ndarray of int
+        Point maps: for every target vertex, its source vertex.
+    vertices_1, faces_1, vertices_2, faces_2, samples
+        As in :func:`geodesic_distortion`.
+
+    Returns
+    -------
+    list of float
+        Each map's distortion, in order.
+    """
     if faces_1 is None or faces_2 is None or len(faces_1) == 0 or len(faces_2) == 0:
-        return math.nan
+        return [math.nan] * len(p2ps_21)
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
-    p2p = np.asarray(p2p_21, dtype=np.int64)
     s2 = farthest_points(V2, min(samples, V2.shape[0]))
     d2 = csgraph.dijkstra(edge_graph(V2, faces_2), directed=False, indices=s2)[:, s2]
-    s1 = p2p[s2]
-    d1 = csgraph.dijkstra(edge_graph(V1, faces_1), directed=False, indices=s1)[:, s1]
-    ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
-    scale = d2[ok].mean() if ok.any() else 0.0
-    if not scale > 0:
-        return math.nan
-    return float(np.abs(d1[ok] - d2[ok]).mean() / scale)
+    graph_1 = edge_graph(V1, faces_1)
+    found = []
+    for p2p_21 in p2ps_21:
+        s1 = np.asarray(p2p_21, dtype=np.int64)[s2]
+        d1 = csgraph.dijkstra(graph_1, directed=False, indices=s1)[:, s1]
+        ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
+        scale = d2[ok].mean() if ok.any() else 0.0
+        found.append(float(np.abs(d1[ok] - d2[ok]).mean() / scale) if scale > 0 else math.nan)
+    return found
 
 
 #: Target anchors of :func:`geodesic_refine` (farthest-point samples): on a unit-area shape

@@ -54,6 +54,7 @@ from ..core.multiscale import extend_p2p
 from ..core.partial import (
     fit_partial_fmap,
     geodesic_distortion,
+    geodesic_distortions,
     geodesic_refine,
     map_stretch,
     membership,
@@ -567,13 +568,13 @@ class PartialMatch(Strategy):
         logger.info("partial match: the map is doubtful: registering the part onto the whole")
         surfaces = _surfaces(run)
         maps = part_maps(run.u1, run.u2)
-        distortions = [geodesic_distortion(p, *surfaces) for p in maps]
+        distortions = geodesic_distortions(maps, *surfaces)
         C, p2p = self._refined(run, maps[int(np.argmin(distortions))])
         checked = geodesic_distortion(p2p, *surfaces)  # as the checks' bounds were measured
         if self.polish:
             p2p, _ = _polish(p2p, C.shape[1] - 1, run.u1, run.u2,
                              subsample=run.options.zoomout_subsample)  # fmt: skip
-        before, after = (geodesic_distortion(p, *surfaces) for p in (settled.p2p_21, p2p))
+        before, after = geodesic_distortions([settled.p2p_21, p2p], *surfaces)
         logger.info("partial match: geodesic distortion %.3f (the map) and %.3f (the part's "
                     "registration; its starts %s)", before, after,
                     ", ".join(f"{d:.3f}" for d in distortions))  # fmt: skip
