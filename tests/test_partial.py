@@ -343,7 +343,7 @@ def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole,
     # A registration whose refined map changes geodesic distances less replaces the map, and
     # the map stays suspect: here its refinement ends on the true map, made to distort least
     # (the polish left out, so that the refined map is returned as it is).
-    real_refined, real_distortion = workflow.PartialMatch._refined, workflow.geodesic_distortion
+    real_refined, real_distortions = workflow.PartialMatch._refined, workflow._distortions
 
     def refined(self, run, p2p):
         C, out = real_refined(self, run, p2p)
@@ -354,10 +354,9 @@ def test_a_doubtful_partial_map_registers_the_part_unless_shells_is_false(whole,
                         or stub_maps)  # fmt: skip
     monkeypatch.setattr(workflow.PartialMatch, "_refined", refined)
     monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
-    monkeypatch.setattr(workflow, "geodesic_distortion", lambda p2p, *a, **k: (
-        0.0 if np.array_equal(p2p, truth) else real_distortion(p2p, *a, **k)))
-    monkeypatch.setattr(workflow, "geodesic_distortions", lambda p2ps, *a, **k: [
-        workflow.geodesic_distortion(p2p, *a, **k) for p2p in p2ps])  # (the same stub for all)
+    monkeypatch.setattr(workflow, "_distortions", lambda run, p2ps: [
+        0.0 if np.array_equal(p2p, truth) else d
+        for p2p, d in zip(p2ps, real_distortions(run, p2ps), strict=True)])
     taken = ofp.match((V, F), (Vc, Fc), partial=True, eigenbases=(e1, ec))
     assert len(stub_maps) == 1 and taken.quality.suspect
     [found] = _said(taken.quality.reasons, "part_registered")
@@ -444,9 +443,10 @@ def test_next_start_needs_an_oriented_refinement_and_fewer_changed_distances(
     inputs.clear()
     outputs.clear()
     monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
-    real = workflow.geodesic_distortion
-    monkeypatch.setattr(workflow, "geodesic_distortion", lambda p2p, *a, **k: (
-        0.0 if len(outputs) == 2 and np.array_equal(p2p, outputs[1]) else real(p2p, *a, **k)))
+    real = workflow._distortions
+    monkeypatch.setattr(workflow, "_distortions", lambda run, p2ps: [
+        0.0 if len(outputs) == 2 and np.array_equal(p2p, outputs[1]) else d
+        for p2p, d in zip(p2ps, real(run, p2ps), strict=True)])
     corr = estimate(e1, ec, options=_partial(k_fit=15, shells=False), warn_suspect=False)
     # the second refinement is kept; the rival starts' refinements come after it
     assert 2 <= len(outputs) <= 2 + workflow.RIVAL_STARTS
@@ -1706,7 +1706,7 @@ def test_a_rival_start_that_passes_as_well_and_disagrees_flags_the_map(
     X = u1.vertices - u1.vertices.mean(axis=0)
     moved[:count] = np.argmin(X[truth[:count]] @ X.T, axis=1)  # the far side of the blob
     monkeypatch.setattr(workflow, "_refine", lambda p2p, *a, **k: (None, moved))
-    monkeypatch.setattr(workflow, "geodesic_distortion", lambda *a, **k: distortion)
+    monkeypatch.setattr(workflow, "_distortions", lambda run, p2ps: [distortion] * len(p2ps))
     monkeypatch.setattr(workflow, "map_stretch", lambda *a, **k: stretch)
     monkeypatch.setattr(workflow, "reversed_fraction", lambda *a, **k: turned)
 
@@ -1760,21 +1760,23 @@ def test_a_further_start_that_distorts_less_is_taken_instead(whole, cut, monkeyp
     _, _, e1 = whole
     _, _, _, ec = cut
     outputs, distortions = [], {}
-    real_refine, real_distortion = workflow._refine, workflow.geodesic_distortion
+    real_refine, real_distortions = workflow._refine, workflow._distortions
 
     def refine(p2p, *args, **kwargs):
         C, refined = real_refine(p2p, *args, **kwargs)
         outputs.append(refined)
         return C, refined
 
-    def distortion(p2p, *args, **kwargs):
-        d = real_distortion(p2p, *args, **kwargs)
-        d = 1.05 * d if outputs and np.array_equal(p2p, outputs[0]) else d
-        distortions[len(distortions)] = (p2p, d)
-        return d
+    def measured(run, p2ps):
+        found = []
+        for p2p, d in zip(p2ps, real_distortions(run, p2ps), strict=True):
+            d = 1.05 * d if outputs and np.array_equal(p2p, outputs[0]) else d
+            distortions[len(distortions)] = (p2p, d)
+            found.append(d)
+        return found
 
     monkeypatch.setattr(workflow, "_refine", refine)
-    monkeypatch.setattr(workflow, "geodesic_distortion", distortion)
+    monkeypatch.setattr(workflow, "_distortions", measured)
     monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
     near = estimate(e1, ec, options=_partial(shells=False), warn_suspect=False)
     np.testing.assert_array_equal(near.p2p_21, outputs[0])  # its rival (1.08x) stays one
@@ -1856,3 +1858,38 @@ def test_estimations_log_their_stages_without_a_progress_callback(whole, cut, mo
         said = [r.getMessage() for r in caplog.records if r.getMessage().startswith(name + ":")]
         assert said[0].startswith(f"{name}: descriptor fit"), said
         assert any(m.startswith(f"{name}: done (100%") for m in said), said
+
+
+def test_a_partial_match_measures_every_map_against_one_probe(whole, cut, monkeypatch):
+    """The starts, refinements and rivals of a match share one distortion probe.
+
+    The target's samples and their distances (``core.partial.distortion_probe``) are made once
+    a match, before the starts are refined side by side, and every map's distortion read
+    against it is the one ``geodesic_distortion`` computes for that map alone.
+    """
+    import o3d_ofp.core.partial as core
+    import o3d_ofp.workflows.partial as workflow
+    from o3d_ofp.workflows.matching import DCOMM_WEIGHTS
+
+    _, _, e1 = whole
+    _, _, _, ec = cut
+    made, measured = [], []
+    real_probe, real_distortions = workflow.distortion_probe, core.DistortionProbe.distortions
+    monkeypatch.setattr(workflow, "distortion_probe",
+                        lambda *a, **k: made.append(real_probe(*a, **k)) or made[-1])  # fmt: skip
+
+    def distortions(self, p2ps):
+        found = real_distortions(self, p2ps)
+        measured.extend(zip((np.array(p) for p in p2ps), found, strict=True))
+        return found
+
+    monkeypatch.setattr(core.DistortionProbe, "distortions", distortions)
+    estimate(e1, ec, options=_partial(k_fit=15, shells=False), warn_suspect=False)
+    assert len(made) == 1 and len(measured) >= len(DCOMM_WEIGHTS)
+    monkeypatch.undo()
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)  # the match's units
+    for p2p, d in measured:
+        # the same Dijkstra runs on the same samples: equal to rounding
+        assert d == pytest.approx(
+            geodesic_distortion(p2p, u1.vertices, u1.faces, u2.vertices, u2.faces), rel=1e-12
+        )

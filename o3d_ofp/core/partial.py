@@ -59,6 +59,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -79,7 +80,9 @@ from .geometry import edge_graph, unique_edges
 from .spectrum import EigenBasis
 
 __all__ = [
+    "DistortionProbe",
     "boundary_length",
+    "distortion_probe",
     "fit_partial_fmap",
     "geodesic_distortion",
     "geodesic_distortions",
@@ -259,7 +262,8 @@ def geodesic_distortions(
 ) -> list[float]:
     """:func:`geodesic_distortion` of several maps between the same shapes.
 
-    The target's samples and their distances are computed once for all of them.
+    The target's samples and their distances are computed once for all of them
+    (:func:`distortion_probe`).
 
     Parameters
     ----------
@@ -273,21 +277,80 @@ def geodesic_distortions(
     list of float
         Each map's distortion, in order.
     """
+    probe = distortion_probe(vertices_1, faces_1, vertices_2, faces_2, samples=samples)
+    return [math.nan] * len(p2ps_21) if probe is None else probe.distortions(p2ps_21)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DistortionProbe:
+    """What :func:`geodesic_distortion` measures maps between two meshes against.
+
+    Made once by :func:`distortion_probe` for every map between the same two shapes.
+
+    Attributes
+    ----------
+    graph_1 : (n1, n1) scipy.sparse.csr_matrix
+        The source's edge graph (edge lengths).
+    samples_2 : (s,) ndarray of int64
+        The target's farthest-point samples.
+    distances_2 : (s, s) ndarray
+        Their edge-path distances on the target (``inf`` between pieces not connected).
+    """
+
+    graph_1: sp.csr_matrix
+    samples_2: np.ndarray
+    distances_2: np.ndarray
+
+    def distortions(self, p2ps_21: Sequence[np.ndarray]) -> list[float]:
+        """Return the geodesic distortion of each point map (:func:`geodesic_distortion`).
+
+        Parameters
+        ----------
+        p2ps_21 : sequence of (n2,) ndarray of int
+            Point maps: for every target vertex, its source vertex.
+
+        Returns
+        -------
+        list of float
+        """
+        d2 = self.distances_2
+        found = []
+        for p2p_21 in p2ps_21:
+            s1 = np.asarray(p2p_21, dtype=np.int64)[self.samples_2]
+            d1 = csgraph.dijkstra(self.graph_1, directed=False, indices=s1)[:, s1]
+            ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
+            scale = d2[ok].mean() if ok.any() else 0.0
+            found.append(float(np.abs(d1[ok] - d2[ok]).mean() / scale) if scale > 0 else math.nan)
+        return found
+
+
+def distortion_probe(
+    vertices_1: np.ndarray,
+    faces_1: np.ndarray | None,
+    vertices_2: np.ndarray,
+    faces_2: np.ndarray | None,
+    *,
+    samples: int = 40,
+) -> DistortionProbe | None:
+    """Return the :class:`DistortionProbe` of two meshes; None if either has no faces.
+
+    Parameters
+    ----------
+    vertices_1, faces_1, vertices_2, faces_2, samples
+        As in :func:`geodesic_distortion`.
+
+    Returns
+    -------
+    DistortionProbe or None
+        None for a point cloud (its distortion is unknown: NaN).
+    """
     if faces_1 is None or faces_2 is None or len(faces_1) == 0 or len(faces_2) == 0:
-        return [math.nan] * len(p2ps_21)
+        return None
     V1 = np.asarray(vertices_1, dtype=np.float64)
     V2 = np.asarray(vertices_2, dtype=np.float64)
     s2 = farthest_points(V2, min(samples, V2.shape[0]))
     d2 = csgraph.dijkstra(edge_graph(V2, faces_2), directed=False, indices=s2)[:, s2]
-    graph_1 = edge_graph(V1, faces_1)
-    found = []
-    for p2p_21 in p2ps_21:
-        s1 = np.asarray(p2p_21, dtype=np.int64)[s2]
-        d1 = csgraph.dijkstra(graph_1, directed=False, indices=s1)[:, s1]
-        ok = np.isfinite(d1) & np.isfinite(d2)  # pieces not connected (islands): left out
-        scale = d2[ok].mean() if ok.any() else 0.0
-        found.append(float(np.abs(d1[ok] - d2[ok]).mean() / scale) if scale > 0 else math.nan)
-    return found
+    return DistortionProbe(edge_graph(V1, faces_1), np.asarray(s2, dtype=np.int64), d2)
 
 
 #: Target anchors of :func:`geodesic_refine` (farthest-point samples): on a unit-area shape

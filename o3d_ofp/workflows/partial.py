@@ -41,7 +41,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -52,9 +52,8 @@ from ..core.correspondence import fmap_from_p2p
 from ..core.geometry import face_areas_normals, units_change, vertex_areas
 from ..core.multiscale import extend_p2p
 from ..core.partial import (
+    distortion_probe,
     fit_partial_fmap,
-    geodesic_distortion,
-    geodesic_distortions,
     geodesic_refine,
     map_stretch,
     membership,
@@ -188,6 +187,19 @@ THIRD_OPINION_SIZE = 0.4
 def _surfaces(run: Run) -> tuple[np.ndarray, ...]:
     """Return the source's and the target's vertices and faces in the source's units."""
     return run.u1.vertices, run.u1.faces, run.u2.vertices, run.u2.faces
+
+
+def _distortions(run: Run, p2ps_21: Sequence[np.ndarray]) -> list[float]:
+    """:func:`~o3d_ofp.core.partial.geodesic_distortion` of each point map of the run.
+
+    The starts, their refinements, the rivals and the part's registration are all measured
+    against one :func:`~o3d_ofp.core.partial.distortion_probe` of the run's shapes (the
+    target's samples and their distances, the source's edge graph), made at the first call.
+    """
+    if "probe" not in run.state:
+        run.state["probe"] = distortion_probe(*_surfaces(run))
+    probe = run.state["probe"]
+    return [math.nan] * len(p2ps_21) if probe is None else probe.distortions(p2ps_21)
 
 
 def _refine(
@@ -376,6 +388,7 @@ class PartialMatch(Strategy):
             "(source %d)", u2.area / u1.area, k2_fit, k2_final, slant(u1.evals, u2.evals, k2_final),
         )  # fmt: skip
         run.state.update(k2_fit=k2_fit, k2_final=k2_final)
+        _distortions(run, [])  # its probe made once, before the starts are refined side by side
         descriptors = partial_descriptors(u1, u2, landmarks=run.landmarks)  # one set for all
         fits, starts = _start_fits(k2_fit), []
         for done, (k, solver) in enumerate(fits):  # each reported: they take 0.2 of the time
@@ -403,7 +416,7 @@ class PartialMatch(Strategy):
             )  # fmt: skip
         p2p = partial_p2p(C, run.u1, run.u2)
         turned = reversed_fraction(p2p, run.eig_1, run.eig_2)
-        distortion = geodesic_distortion(p2p, *_surfaces(run))
+        [distortion] = _distortions(run, [p2p])
         logger.debug("partial match: start %d geodesic distortion %.3f, reversed triangles %.3f",
                      index + 1, distortion, turned)  # fmt: skip
         return (bool(turned > MAX_REVERSED), distortion), C, p2p
@@ -451,7 +464,7 @@ class PartialMatch(Strategy):
             turned_next = reversed_fraction(p2p_next, run.eig_1, run.eig_2)
             if turned_next > MAX_REVERSED:
                 info["turned_over"].add(i)
-            distortion_next = geodesic_distortion(p2p_next, *_surfaces(run))
+            [distortion_next] = _distortions(run, [p2p_next])
             logger.debug("partial match: next start (distortion %.3f) refined: %.0f %% turned "
                          "over, distortion %.3f", refined[i][0][1], 100 * turned_next,
                          distortion_next)  # fmt: skip
@@ -481,7 +494,7 @@ class PartialMatch(Strategy):
         if report:
             run.report("quality", 0.85)
         if info["distortion"] is None:
-            info["distortion"] = geodesic_distortion(p2p, *_surfaces(run))
+            [info["distortion"]] = _distortions(run, [p2p])
         lm = run.landmarks
         quality = partial_quality(
             p2p, run.eig_1, run.eig_2, C, overlap=overlap, distortion=info["distortion"],
@@ -566,15 +579,14 @@ class PartialMatch(Strategy):
             return settled, quality
         run.report("registering the part onto the whole", 0.96)
         logger.info("partial match: the map is doubtful: registering the part onto the whole")
-        surfaces = _surfaces(run)
         maps = part_maps(run.u1, run.u2)
-        distortions = geodesic_distortions(maps, *surfaces)
+        distortions = _distortions(run, maps)
         C, p2p = self._refined(run, maps[int(np.argmin(distortions))])
-        checked = geodesic_distortion(p2p, *surfaces)  # as the checks' bounds were measured
+        [checked] = _distortions(run, [p2p])  # as the checks' bounds were measured
         if self.polish:
             p2p, _ = _polish(p2p, C.shape[1] - 1, run.u1, run.u2,
                              subsample=run.options.zoomout_subsample)  # fmt: skip
-        before, after = geodesic_distortions([settled.p2p_21, p2p], *surfaces)
+        before, after = _distortions(run, [settled.p2p_21, p2p])
         logger.info("partial match: geodesic distortion %.3f (the map) and %.3f (the part's "
                     "registration; its starts %s)", before, after,
                     ", ".join(f"{d:.3f}" for d in distortions))  # fmt: skip
@@ -699,7 +711,7 @@ def _rival_refinements(
             return None
         if landmarks is not None and off_landmarks(p2p_i) > off_landmarks(p2p) + DISAGREEMENT:
             return None
-        d = geodesic_distortion(p2p_i, *_surfaces(run))
+        [d] = _distortions(run, [p2p_i])
         stretch = map_stretch(p2p_i, X, u2.vertices, u2.faces)
         logger.debug("partial match: rival start %d refined: distortion %.3f, stretch %.2f",
                      i + 1, d, stretch)  # fmt: skip
