@@ -308,7 +308,7 @@ def _pick_component(
     share = float(totals[best]) / total if total > 0 else 0.0
     order = np.argsort(-totals)
     summary = ", ".join(
-        f"{sizes[i]} {unit} ({100 * totals[i] / total:.3g} %)" for i in order[:5]
+        f"{100 * totals[i] / total:.3g} % ({sizes[i]} {unit})" for i in order[:5]
     ) + (", ..." if count > 5 else "")
     if policy == "error" or (policy == "auto" and share < AUTO_KEEP_FRACTION):
         auto = (
@@ -316,8 +316,9 @@ def _pick_component(
             "the {what})"
         )  # fmt: skip
         raise AdvisedError(Said(
-            "the shape has {count} connected components ({summary} of the {what}); a basis needs "
-            "one surface (its zero eigenvalue would have multiplicity {count}). Pass "
+            "the shape has {count} connected components (their shares of the {what}: "
+            "{summary}); bases, filters and maps work on one connected surface (on pieces that "
+            "do not touch the zero eigenvalue would have multiplicity {count}). Pass "
             "{components_largest} to keep the largest, or split the shape"
             + (auto if policy == "auto" else ""),
             {"count": count, "summary": summary, "what": what, "share": 100 * AUTO_KEEP_FRACTION},

@@ -1149,7 +1149,9 @@ def _part_region(
     )
     if not part:
         return None
-    logger.info("detail transfer onto a part (%.2f of the source covered)", covered / eig_1.area)
+    # (not the map report's "overlap": that one is the functional map's estimate)
+    logger.info("detail transfer onto a part: the map's images lie on %.2f of the source's area "
+                "(within two edges)", covered / eig_1.area)  # fmt: skip
     return region
 
 

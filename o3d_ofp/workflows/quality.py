@@ -275,11 +275,12 @@ def _notes(
         # centaur4's clouds (depth 7-8) gave maps of 0.11-0.20 and 0.025-0.46
         # (``python scripts/eval_cloud.py --poisson``).
         notes.append(Said(
-            "a point cloud has no faces: its normals are estimated (the flip check is less sure "
-            "than on meshes) and its Laplacian can join parts that touch (measured on FAUST "
-            "093 -> 087: error 0.063 with the target as points, 0.121 with both, against 0.014 "
-            "for the meshes); match the mesh the cloud was made from when there is one, or give "
-            "a few landmarks, and check the result", {}, "cloud",
+            "a point cloud has no faces: the flip check estimates its normals from the points "
+            "(normals the cloud carries are not read; the check is less sure than on meshes) "
+            "and its Laplacian can join parts that touch (measured on FAUST 093 -> 087: error "
+            "0.063 with the target as points, 0.121 with both, against 0.014 for the meshes); "
+            "match the mesh the cloud was made from when there is one, or give a few landmarks, "
+            "and check the result", {}, "cloud",
         ))  # fmt: skip
     cloud_part = None if partial else cloud_part_note(eig_1, eig_2, area_ratio)
     if cloud_part is not None:
@@ -480,9 +481,9 @@ def partial_quality(
         reasons.append(small)
     if measured_wrong and not base.reasons:
         reasons.append(Said(
-            "likely causes: a region of the target sent to the wrong place (a part with "
-            "symmetric or featureless regions), a noisy scan (noise inflates its area and "
-            "curvature, which the partial match reads), or a target that is not a part of the "
+            "likely causes: a region of the target, or all of it, sent to the wrong place (a "
+            "part with symmetric or featureless regions), a noisy scan (noise inflates its area "
+            "and curvature, which the partial match reads), or a target that is not a part of the "
             "source (another shape, or in other units); fix: {advice}; if the scan is visibly "
             "noisy, smooth it lightly first ({smooth}: smoothing a clean part makes the match "
             "worse); rescale a target in other units to the source's",
@@ -515,8 +516,9 @@ def _partial_reasons(distortion: float, stretch: float, turned: float | None) ->
     if distortion > MAX_DISTORTION:
         reasons.append(Said(
             "the map changes geodesic distances by {percent:.0f} % on average (a part matched "
-            "right keeps them within {bound:.0f} %): a region of the target is sent to the "
-            "wrong place, or the target is not a part of the source",
+            "right keeps them within {bound:.0f} %): a region of the target, or all of it "
+            "(turned or upside down), is sent to the wrong place, or the target is not a part "
+            "of the source",
             {"percent": 100 * distortion, "bound": 100 * MAX_DISTORTION}, "distorted",
         ))  # fmt: skip
     if stretch > MAX_STRETCH:
