@@ -1893,3 +1893,39 @@ def test_a_partial_match_measures_every_map_against_one_probe(whole, cut, monkey
         assert d == pytest.approx(
             geodesic_distortion(p2p, u1.vertices, u1.faces, u2.vertices, u2.faces), rel=1e-12
         )
+
+
+def test_the_parts_registration_refines_the_start_whose_descriptors_agree_best(
+    whole, cut, monkeypatch
+):
+    """Of the registration's starts, the one that keeps the descriptors best is refined.
+
+    A part turned half a turn onto the whole (a back shell onto the front) can change geodesic
+    distances less than the right map: here the turned map is made to distort least, and the
+    start refined must still be the true map, whose descriptors (``partial_descriptors``)
+    agree best. The disagreement itself tells the true map from the turned one.
+    """
+    from o3d_ofp.workflows import partial as workflow
+    from o3d_ofp.workflows.strategy import Run, Settled
+
+    V, _, e1 = whole
+    _, _, truth, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    run = Run(e1, ec, u1, u2, None, _partial(), lambda *a: None,
+              {"descriptors": partial_descriptors(u1, u2)})  # fmt: skip
+    X = u1.vertices - u1.vertices.mean(axis=0)
+    turned = nearest_neighbors(X, X[truth] * [-1.0, 1.0, -1.0])  # half a turn about y
+    assert _error(V, turned, truth, e1.area) > 0.3
+    assert workflow._disagreement(run, truth) < 0.8 * workflow._disagreement(run, turned)
+    refined = []
+    monkeypatch.setattr(workflow, "part_maps", lambda a, b: [turned, truth])
+    monkeypatch.setattr(workflow, "_distortions", lambda run, p2ps: [
+        0.01 if p2p is turned else 0.1 for p2p in p2ps])  # fmt: skip
+    monkeypatch.setattr(workflow.PartialMatch, "_refined", lambda self, run, p2p: (
+        refined.append(p2p) or (np.eye(31), p2p)))  # fmt: skip
+    monkeypatch.setattr(workflow, "_polish", lambda p2p, *a, **k: (p2p, 0.0))
+    monkeypatch.setattr(workflow.PartialMatch, "_judged", lambda self, run, s, **k: quality)
+    quality = map_quality(truth, e1, ec, None, partial=True, overlap=0.6).flagged(
+        Said("made suspect", {}, "test"))  # fmt: skip
+    workflow.PartialMatch()._registered(run, Settled(None, turned, {}), quality)
+    assert len(refined) == 1 and refined[0] is truth

@@ -155,7 +155,8 @@ GIVEN_SCORE = 1.25
 #: --remeshed``, error / sqrt(source area) of each start's map before any refinement): with 8
 #: starts the map of least geodesic distortion was right (under 0.1) on 8 of the 12 cuts, the
 #: front removed among them (0.056); on the four others no start was (0.19 or more). About
-#: 3 s a cut of 5k vertices on two cores; 4 starts were tried on four cuts only.
+#: 3 s a cut of 5k vertices on two cores; 4 starts were tried on four cuts only. (The
+#: partial match now ranks the starts by their descriptors: ``workflows.partial._disagreement``.)
 PART_STARTS = 8
 PART_SAMPLES = 1000
 

@@ -202,6 +202,22 @@ def _distortions(run: Run, p2ps_21: Sequence[np.ndarray]) -> list[float]:
     return [math.nan] * len(p2ps_21) if probe is None else probe.distortions(p2ps_21)
 
 
+def _disagreement(run: Run, p2p_21: np.ndarray) -> float:
+    """How far a point map sends each part vertex from its descriptors, on average.
+
+    The mass-weighted mean over the target of ``|d2 - d1∘p2p| / (|d2| + |d1∘p2p|)`` with the
+    partial fit's descriptors (:func:`~o3d_ofp.core.partial.partial_descriptors`: wave kernels
+    and curvatures, equal on a part and on the whole). It tells a back shell registered onto
+    the back from one turned onto the front, which the geodesic distortion does not (both
+    shells are about the same shape).
+    """
+    D1, D2 = run.state["descriptors"]
+    a, b = D2, D1[p2p_21]
+    scale = np.maximum(np.linalg.norm(a, axis=1) + np.linalg.norm(b, axis=1), 1e-300)
+    mass = run.u2.mass
+    return float(mass @ (np.linalg.norm(a - b, axis=1) / scale) / mass.sum())
+
+
 def _refine(
     p2p: np.ndarray, u1: EigenBasis, u2: EigenBasis, *, k2_fit: int, k2_final: int,
     subsample: int | None,
@@ -390,6 +406,7 @@ class PartialMatch(Strategy):
         run.state.update(k2_fit=k2_fit, k2_final=k2_final)
         _distortions(run, [])  # its probe made once, before the starts are refined side by side
         descriptors = partial_descriptors(u1, u2, landmarks=run.landmarks)  # one set for all
+        run.state["descriptors"] = descriptors
         fits, starts = _start_fits(k2_fit), []
         for done, (k, solver) in enumerate(fits):  # each reported: they take 0.2 of the time
             run.report(f"descriptor fit {done + 1}/{len(fits)} ({k} functions)",
@@ -563,26 +580,34 @@ class PartialMatch(Strategy):
 
         A suspect map between meshes, without landmarks: of the maps
         :func:`~o3d_ofp.core.shells.part_maps` fits extrinsically (the whole deformed onto the
-        part from several rigid starts), the one that changes geodesic distances least is
-        refined as a chosen start is (geodesic refinement and partial ZoomOut, then the
-        polish); it replaces the map when it changes them less than the map does, and stays
-        flagged. Measured (2026-12-02, ``scripts/eval_partial.py --remeshed``, error /
-        sqrt(source area)): FAUST 093 -> 087 front removed 0.19 -> 0.042 (its checked
-        distortion 0.074 against 0.132); the two remeshed cuts whose maps are wrong (0.074,
-        0.18) keep them (the registration's refined maps distort more); the two targets that
-        are no part of the source get registered maps, flagged as before; a map that passes
-        is not registered. On the dense path the same runs on the coarse copies (unpolished:
-        the extension polishes); measured (2026-12-02, ``scripts/eval_partial.py --dense 2``,
-        110k-160k vertices): front removed 0.139 -> 0.042, the centaur's top kept 0.047 ->
-        0.025, the maps that pass unchanged. ``MatchOptions(shells=False)`` keeps the map.
+        part from several rigid starts), the one whose descriptors agree best
+        (:func:`_disagreement`) is refined as a chosen start is (geodesic refinement and
+        partial ZoomOut, then the polish); it replaces the map when it changes geodesic
+        distances less than the map does, and stays flagged. The starts are not ranked by
+        their geodesic distortion: a back shell turned onto the front changes distances as
+        little as the right map (scratch, 2026-12-02, the 8 cuts of
+        ``scripts/eval_partial.py`` and five back halves at 6.9k and 20k vertices: the
+        descriptors ranked a right start first on all 11 cases that had one, the distortion
+        on 10; after refinement the distortion picked a right map on 6 of 13).
+
+        Measured (2026-12-02, ``scripts/eval_partial.py --remeshed``, error / sqrt(source
+        area)): FAUST 093 -> 087 front removed 0.19 -> 0.042 (its checked distortion 0.074
+        against 0.132); the two remeshed cuts whose maps are wrong (0.074, 0.18) keep them
+        (the registration's refined maps distort more); the two targets that are no part of
+        the source get registered maps, flagged as before; a map that passes is not
+        registered. On the dense path the same runs on the coarse copies (unpolished: the
+        extension polishes): ``--dense 2`` (110k-160k vertices) front removed 0.139 -> 0.042,
+        the centaur's top kept 0.047 -> 0.025; a new user's back half of a body (0.48 of the
+        area, 53k vertices) 0.71 (upside down) -> 0.084 (0.20, turned onto the front, when
+        the least distorted start was refined). ``MatchOptions(shells=False)`` keeps the map.
         """
         if not run.options.shells or not quality.suspect or run.landmarks is not None:
             return settled, quality
         run.report("registering the part onto the whole", 0.96)
         logger.info("partial match: the map is doubtful: registering the part onto the whole")
         maps = part_maps(run.u1, run.u2)
-        distortions = _distortions(run, maps)
-        C, p2p = self._refined(run, maps[int(np.argmin(distortions))])
+        disagreements = [_disagreement(run, m) for m in maps]
+        C, p2p = self._refined(run, maps[int(np.argmin(disagreements))])
         [checked] = _distortions(run, [p2p])  # as the checks' bounds were measured
         polish = self.polish and not self.coarse  # (coarse copies: the extension polishes)
         if polish:
@@ -590,8 +615,8 @@ class PartialMatch(Strategy):
                              subsample=run.options.zoomout_subsample)  # fmt: skip
         before, after = _distortions(run, [settled.p2p_21, p2p])
         logger.info("partial match: geodesic distortion %.3f (the map) and %.3f (the part's "
-                    "registration; its starts %s)", before, after,
-                    ", ".join(f"{d:.3f}" for d in distortions))  # fmt: skip
+                    "registration; its starts' descriptor disagreements %s)", before, after,
+                    ", ".join(f"{d:.3f}" for d in disagreements))  # fmt: skip
         values = {"before": before, "after": after}
         if not after < before:
             return settled, quality.noted(Said(
