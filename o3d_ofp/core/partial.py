@@ -85,7 +85,6 @@ __all__ = [
     "distortion_probe",
     "fit_partial_fmap",
     "geodesic_distortion",
-    "geodesic_distortions",
     "geodesic_features",
     "geodesic_refine",
     "map_stretch",
@@ -232,7 +231,8 @@ def geodesic_distortion(
     so its overestimate of the geodesic cancels to first order). A map of a part onto the
     same kind of shape (a near-isometry, same units) keeps distances: measured 0.07-0.16 on
     correct maps of ``scripts/eval_partial.py``; a map that sends a region to the wrong place
-    (a limb onto another, front onto back) changes the distances from that region.
+    (a limb onto another) changes the distances from that region, but a shell turned onto
+    another of about the same shape (a body's back onto its front) may change them little.
 
     Parameters
     ----------
@@ -247,45 +247,16 @@ def geodesic_distortion(
     -------
     float
     """
-    return geodesic_distortions([p2p_21], vertices_1, faces_1, vertices_2, faces_2,
-                                samples=samples)[0]  # fmt: skip
-
-
-def geodesic_distortions(
-    p2ps_21: Sequence[np.ndarray],
-    vertices_1: np.ndarray,
-    faces_1: np.ndarray | None,
-    vertices_2: np.ndarray,
-    faces_2: np.ndarray | None,
-    *,
-    samples: int = 40,
-) -> list[float]:
-    """:func:`geodesic_distortion` of several maps between the same shapes.
-
-    The target's samples and their distances are computed once for all of them
-    (:func:`distortion_probe`).
-
-    Parameters
-    ----------
-    p2ps_21 : sequence of (n2,) ndarray of int
-        Point maps: for every target vertex, its source vertex.
-    vertices_1, faces_1, vertices_2, faces_2, samples
-        As in :func:`geodesic_distortion`.
-
-    Returns
-    -------
-    list of float
-        Each map's distortion, in order.
-    """
     probe = distortion_probe(vertices_1, faces_1, vertices_2, faces_2, samples=samples)
-    return [math.nan] * len(p2ps_21) if probe is None else probe.distortions(p2ps_21)
+    return math.nan if probe is None else probe.distortions([p2p_21])[0]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class DistortionProbe:
     """What :func:`geodesic_distortion` measures maps between two meshes against.
 
-    Made once by :func:`distortion_probe` for every map between the same two shapes.
+    Made once by :func:`distortion_probe` for every map between the same two shapes (the
+    target's samples and their distances, computed once for all of them).
 
     Attributes
     ----------
