@@ -401,7 +401,7 @@ def _coarse_copies(
 ) -> tuple[CoarseShape, CoarseShape]:  # fmt: skip
     """Return the coarse copies of both shapes for the dense match (those not ``given``)."""
     if all(c is not None for c in given):
-        say("the coarse copies are made already", 0.0)
+        say("reusing the coarse copies made before the match", 0.0)
     elif given[0] is not None:
         say("the source's coarse copy is given; coarse copy of the target (~%d vertices) and "
             "its eigenbasis", 0.0, size)  # fmt: skip
