@@ -1324,7 +1324,8 @@ def test_messages_a_trial_found_unclear(files, tmp_path, capsys, no_eigensolve):
         (["approximate", src, "--signal", str(junk), "-o", out],
          "does not start with the .npy header"),
         (["transfer", src, files["tgt"], "--signal", "xyz", "--k1", "700", "-o", out],
-         f"--k1 (700): {src} has 642 vertices, too few for 700 eigenfunctions"),
+         f"--k1 (700): {src} has 642 vertices, too few for 700 eigenfunctions (at most 640); "
+         "lower it, or give a finer mesh"),
         (["render", src, "--width", "1", "-o", str(tmp_path / "r.png")],
          "--width: expected an integer in [16, 8192]"),
         (["render", src, "--front", "0,0,1", "--up", "0,0,2", "-o", str(tmp_path / "r.png")],

@@ -279,7 +279,8 @@ def _task_needs(
         if count is not None and name and k > max(1, count - 2):
             raise OptionError(
                 name, f"({k}): {names[side]} has {count} vertices, too few for {k} "
-                f"eigenfunctions (at most {max(1, count - 2)}); lower it",
+                f"eigenfunctions (at most {max(1, count - 2)}); lower it, or give a finer "
+                "mesh (Open3D's subdivide_loop or subdivide_midpoint)",
             )  # fmt: skip
     return need, only_operators
 
