@@ -1916,6 +1916,7 @@ def test_the_parts_registration_refines_the_start_whose_descriptors_agree_best(
     X = u1.vertices - u1.vertices.mean(axis=0)
     turned = nearest_neighbors(X, X[truth] * [-1.0, 1.0, -1.0])  # half a turn about y
     assert _error(V, turned, truth, e1.area) > 0.3
+    # measured 0.196 against 0.303 (0.65 times): 0.8 leaves room for other BLAS and solvers
     assert workflow._disagreement(run, truth) < 0.8 * workflow._disagreement(run, turned)
     refined = []
     monkeypatch.setattr(workflow, "part_maps", lambda a, b: [turned, truth])
