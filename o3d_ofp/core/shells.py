@@ -655,18 +655,17 @@ def _one_way_fit(
     return R, t, float(distance.mean())
 
 
-def _register_part(s1: _Shape, eig_2: EigenBasis, samples_2: np.ndarray, pose: Pose) -> np.ndarray:
-    """Deform the whole onto the part from ``pose``; return the part's point map.
+def _register_part(s1: _Shape, s2: _Shape, pose: Pose) -> np.ndarray:
+    """Deform the whole (``s1``) onto the part (``s2``) from ``pose``; return the part's map.
 
     The whole (its own geometry, not a shell) is moved and deformed in its first ``k``
     eigenfunctions, ``k`` through :data:`COARSE_SHELLS` and :data:`FINE_SHELLS`, as
     :func:`_level` does, but with correspondences one way: every part sample to its nearest
     sample of the deformed whole (positions and outward normals).
     """
-    assert eig_2.faces is not None
-    V1, F1, V2 = s1.eig.vertices, s1.eig.faces, eig_2.vertices
-    fixed = _features(V2, eig_2.faces, outward_sign(V2, eig_2.faces), None)
-    target = fixed[samples_2]
+    V1, F1, V2 = s1.eig.vertices, s1.eig.faces, s2.eig.vertices
+    fixed = _features(V2, s2.eig.faces, s2.sign, None)
+    target = fixed[s2.samples]
     k_max = min(s1.eig.k, max(FINE_SHELLS))
     state = _State(pose.rotation, pose.translation, np.zeros((k_max + 1, 3)))
 
@@ -680,7 +679,7 @@ def _register_part(s1: _Shape, eig_2: EigenBasis, samples_2: np.ndarray, pose: P
         for _ in range(ITERATIONS):
             mine = _features(deformed(level), F1, s1.sign, None)[s1.samples]
             src = s1.samples[nearest_neighbors(mine, target)]
-            _update(state, V1[src], V2[samples_2], phi[src], evals)
+            _update(state, V1[src], V2[s2.samples], phi[src], evals)
     return nearest_neighbors(_features(deformed(level), F1, s1.sign, None), fixed)
 
 
@@ -693,9 +692,9 @@ def part_maps(eig_1: EigenBasis, eig_2: EigenBasis) -> list[np.ndarray]:
     positions and outward normals), the :data:`PART_STARTS` of least residual
     :data:`ROTATION_SPREAD` degrees apart. From each, the whole is deformed onto the part
     (:func:`_register_part`) and every part vertex goes to the nearest vertex of the deformed
-    whole. The maps are not ranked here: a part of a near-isometric shape is told by how well
-    its map keeps geodesic distances (the caller's choice), which an extrinsic fit does not
-    see (measured with :data:`PART_STARTS`).
+    whole. The maps are not ranked here: an extrinsic fit does not tell a right start from
+    one turned onto a region of about the same shape (the caller ranks them, by what its
+    maps keep of the shapes' intrinsic descriptors or distances).
 
     Parameters
     ----------
@@ -709,12 +708,8 @@ def part_maps(eig_1: EigenBasis, eig_2: EigenBasis) -> list[np.ndarray]:
     list of (n2,) ndarray of int
         For every start, the source vertex of every target vertex.
     """
-    s1 = _Shape(eig_1, SAMPLES)
-    assert eig_2.faces is not None
-    samples_2 = farthest_points(eig_2.vertices, min(PART_SAMPLES, eig_2.n_vertices))
-    normals_2 = outward_sign(eig_2.vertices, eig_2.faces) * vertex_normals(eig_2.vertices,
-                                                                           eig_2.faces)  # fmt: skip
-    P1, P2, N2 = s1.eig.vertices[s1.samples], eig_2.vertices[samples_2], normals_2[samples_2]
+    s1, s2 = _Shape(eig_1, SAMPLES), _Shape(eig_2, PART_SAMPLES)
+    P1, P2, N2 = s1.eig.vertices[s1.samples], s2.eig.vertices[s2.samples], s2.normals[s2.samples]
     tree1 = cKDTree(np.hstack([P1, NORMAL_WEIGHT * s1.normals[s1.samples]]))
     c1, c2 = P1.mean(axis=0), P2.mean(axis=0)
     rotations = Rotation.random(ROTATIONS, random_state=0).as_matrix()
@@ -723,13 +718,11 @@ def part_maps(eig_1: EigenBasis, eig_2: EigenBasis) -> list[np.ndarray]:
     poses = [Pose(R.T, -t @ R, f"part rotation {i + 1}")
              for i, (R, t) in enumerate(_spread(fits, PART_STARTS))]  # fmt: skip
     return side_by_side(
-        [lambda pose=pose: _one_thread_part(s1, eig_2, samples_2, pose) for pose in poses],
+        [lambda pose=pose: _one_thread_part(s1, s2, pose) for pose in poses],
         what="part registrations",
     )  # fmt: skip
 
 
-def _one_thread_part(
-    s1: _Shape, eig_2: EigenBasis, samples_2: np.ndarray, pose: Pose
-) -> np.ndarray:  # fmt: skip
+def _one_thread_part(s1: _Shape, s2: _Shape, pose: Pose) -> np.ndarray:
     with blas_threads(1):  # small products: one thread each, the starts side by side
-        return _register_part(s1, eig_2, samples_2, pose)
+        return _register_part(s1, s2, pose)
