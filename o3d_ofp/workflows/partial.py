@@ -608,12 +608,16 @@ class PartialMatch(Strategy):
         maps = part_maps(run.u1, run.u2)
         disagreements = [_disagreement(run, m) for m in maps]
         C, p2p = self._refined(run, maps[int(np.argmin(disagreements))])
-        [checked] = _distortions(run, [p2p])  # as the checks' bounds were measured
         polish = self.polish and not self.coarse  # (coarse copies: the extension polishes)
+        refined = p2p
         if polish:
             p2p, _ = _polish(p2p, C.shape[1] - 1, run.u1, run.u2,
                              subsample=run.options.zoomout_subsample)  # fmt: skip
-        before, after = _distortions(run, [settled.p2p_21, p2p])
+        # the refined map's distortion (as the checks' bounds were measured), and the first
+        # map's against the returned one's (the same map when it is not polished)
+        before, checked, *polished = _distortions(
+            run, [settled.p2p_21, refined, *([p2p] if polish else [])])
+        after = polished[0] if polished else checked
         logger.info("partial match: geodesic distortion %.3f (the map) and %.3f (the part's "
                     "registration; its starts' descriptor disagreements %s)", before, after,
                     ", ".join(f"{d:.3f}" for d in disagreements))  # fmt: skip
