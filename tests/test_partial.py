@@ -17,6 +17,7 @@ from o3d_ofp.core.partial import (
     boundary_length,
     curvature_descriptors,
     fit_partial_fmap,
+    fit_partial_fmaps,
     geodesic_distortion,
     partial_descriptors,
     partial_p2p,
@@ -804,6 +805,36 @@ def test_fits_sharing_the_descriptors_equal_the_fits_computing_them(whole, cut):
     assert other[0].shape[1] > shared[0].shape[1]  # the landmarks' columns: not the same set
     with pytest.raises(ValueError, match="descriptors must be"):
         fit_partial_fmap(u1, u2, k2=8, descriptors=(shared[1], shared[0]))  # swapped
+
+
+def test_fits_of_several_sizes_equal_the_fits_built_at_their_own_sizes(whole, cut):
+    _, _, e1 = whole
+    _, _, _, ec = cut
+    u1, u2 = rescaled(e1, e1.area), rescaled(ec, e1.area)
+    shared = partial_descriptors(u1, u2)
+    fits = [(5, "direct"), (12, "direct"), (8, "lbfgs")]
+    reported: list[int] = []
+    together = fit_partial_fmaps(u1, u2, fits=fits, descriptors=shared, report=reported.append)
+    assert reported == [0, 1, 2]
+    for (k2, solver), maps in zip(fits, together, strict=True):
+        # the reference: the operators built at this fit's own sizes (a fit list of one)
+        [alone] = fit_partial_fmaps(u1, u2, fits=[(k2, solver)], descriptors=shared)
+        k1 = slant(u1.evals, u2.evals, k2)
+        for a, b in zip(maps, alone, strict=True):
+            assert a.shape == (k2 + 1, k1 + 1)
+            # leading blocks of larger operators are the smaller operators up to the order
+            # of the sums (1e-15 relative); the exact solves keep that, L-BFGS-B's stopping
+            # test can amplify it: 1e-6 of the map's largest entry bounds both here
+            np.testing.assert_allclose(a, b, atol=1e-6 * np.abs(b).max())
+    # the one-fit function is the one-fit case: the same computation, to the last bit
+    np.testing.assert_array_equal(
+        fit_partial_fmap(u1, u2, k2=5, solver="direct", descriptors=shared)[0],
+        fit_partial_fmaps(u1, u2, fits=[(5, "direct")], descriptors=shared)[0][0],
+    )
+    with pytest.raises(ValueError, match="solver must be"):
+        fit_partial_fmaps(u1, u2, fits=[(5, "exact")], descriptors=shared)
+    with pytest.raises(ValueError, match="at least one"):
+        fit_partial_fmaps(u1, u2, fits=[], descriptors=shared)
 
 
 def test_slant_follows_the_area_ratio(whole, cut):
