@@ -613,13 +613,14 @@ def transfer_detail(
     mode : {"add", "replace-detail", "coordinates"}, default "add"
         "add": the target keeps its pose, its shape and its own detail, and gains the detail
         it lacks (a target as detailed as the source gets almost nothing, and a warning says
-        so). "replace-detail": the target's own detail above the same low-pass is replaced
-        by the source's everywhere (a shape given itself with the identity map comes back
-        unchanged). "coordinates": the paper's Fig. 13, the source's coordinates transferred
-        with OFP bases replace the target's (the target takes the source's pose and surface:
-        for aligned copies with a closest-point map; ``bases`` and ``options`` apply only
-        here, threshold "ours*" by default). "replace" is the deprecated former name of
-        "coordinates".
+        so; the map must be precise to an edge: through an estimated map that finds little
+        lacking, a warning asks for a map you trust). "replace-detail": the target's own
+        detail above the same low-pass is replaced by the source's everywhere (a shape given
+        itself with the identity map comes back unchanged). "coordinates": the paper's Fig.
+        13, the source's coordinates transferred with OFP bases replace the target's (the
+        target takes the source's pose and surface: for aligned copies with a closest-point
+        map; ``bases`` and ``options`` apply only here, threshold "ours*" by default).
+        "replace" is the deprecated former name of "coordinates".
     band : int, optional
         None (default): calibrated, as above. An int: the detail is what the coordinates have
         above their first ``band`` Laplace-Beltrami eigenfunctions, added everywhere
