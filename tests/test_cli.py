@@ -244,6 +244,25 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     np.savetxt(vts, np.arange(1, len(files["V"]) + 1), fmt="%d")
     assert main([*args, "--map", str(vts), "-o", str(out)]) == 0
     np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors), g)
+    # Two template files listing every 4th vertex: the others filled along the target's edges
+    # (the library's fill with its faces), and the share listed said.
+    from o3d_ofp.core.correspondence import p2p_from_template
+
+    rows = np.arange(0, len(files["V"]), 4)
+    np.savetxt(tmp_path / "a.vts", rows + 1, fmt="%d")
+    np.savetxt(tmp_path / "b.vts", rows + 1, fmt="%d")
+    filled = p2p_from_template(rows, rows, files["bent"], faces_2=files["F"])
+    np.save(tmp_path / "filled.npy", filled)
+    capsys.readouterr()
+    pair = f"{tmp_path / 'a.vts'},{tmp_path / 'b.vts'}"
+    assert main([*args, "--map", pair, "-o", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"{len(rows)} of the target's {len(files['V'])} vertices listed" in said
+    assert "nearest along the target's surface" in said
+    templated = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
+    assert main([*args, "--map", str(tmp_path / "filled.npy"), "-o", str(out)]) == 0
+    np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors),
+                               templated)  # fmt: skip
     # Estimated map, .npy signal: .npy and a colormapped mesh.
     sig = str(files["dir"] / "scalar.npy")
     assert main([*args, "--signal", sig, "-o", str(tmp_path / "s.ply")]) == 0

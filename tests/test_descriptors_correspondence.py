@@ -194,3 +194,38 @@ def test_p2p_from_fmap_holds_when_the_target_is_scaled(blob_mesh):
         C = ofp.fmap_from_p2p(np.arange(len(V)), e1, e2)
         np.testing.assert_allclose(C, s * np.eye(13), atol=1e-6 * s)
         np.testing.assert_array_equal(ofp.p2p_from_fmap(C, e1, e2), np.arange(len(V)))
+
+
+def test_template_fill_follows_the_target_surface_not_space():
+    """A hairpin strip whose arms lie 0.3 apart: an open end takes its own arm's answer.
+
+    Vertex pairs listed at the strip's start (arm 1) and at the bend's far side (arm 2). Arm 2's
+    open end lies 0.3 from the start in space but 9 edges from it along the strip, and 9 from
+    the bend: with the faces it takes the bend's answer (its own arm); without, the start's.
+    """
+    from o3d_ofp import p2p_from_template
+
+    h = 10  # columns per arm; column j of 2h, two vertices across the strip (z = 0, 1)
+    j = np.arange(2 * h)
+    x = np.where(j < h, j, 2 * h - 1 - j).astype(float)
+    y = np.where(j < h, 0.0, 0.3)
+    V = np.array([[xi, yi, z] for xi, yi in zip(x, y, strict=True) for z in (0.0, 1.0)])
+    F = np.array([f for c in range(2 * h - 1) for f in
+                  ((2 * c, 2 * c + 2, 2 * c + 1), (2 * c + 1, 2 * c + 2, 2 * c + 3))])  # fmt: skip
+    start, bend = [0, 1], [2 * h, 2 * h + 1]  # column 0 and column h (arm 2's first)
+    listed_target = np.array(start + bend)
+    answers = np.array([100, 101, 200, 201])  # source vertices of the four template points
+    end = [2 * (2 * h - 1), 2 * (2 * h - 1) + 1]  # arm 2's open end, above the start
+    in_space = p2p_from_template(answers, listed_target, V)
+    along = p2p_from_template(answers, listed_target, V, faces_2=F)
+    assert in_space[end].tolist() == [100, 101] and along[end].tolist() == [200, 201]
+    # the listed vertices keep their own answers; a mesh in two pieces, one without a listed
+    # vertex, fills that piece in space
+    assert along[listed_target].tolist() == answers.tolist()
+    apart = np.vstack([V, V[:4] + np.array([0.0, 5.0, 0.0])])
+    both = np.vstack([F, [[len(V), len(V) + 2, len(V) + 1], [len(V) + 1, len(V) + 2, len(V) + 3]]])
+    filled = p2p_from_template(answers, listed_target, apart, faces_2=both)
+    np.testing.assert_array_equal(filled[len(V):], p2p_from_template(answers, listed_target,
+                                                                       apart)[len(V):])  # fmt: skip
+    with pytest.raises(ValueError, match="faces_2"):
+        p2p_from_template(answers, listed_target, V, faces_2=F + len(V))

@@ -260,8 +260,14 @@ def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondenc
                      + ": --map closest maps shapes in the same place whatever their vertices")
 
 
-def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | None:
-    """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both."""
+def _read_map(
+    spec: str, V1: np.ndarray, V2: np.ndarray, F2: np.ndarray | None = None
+) -> Correspondence | None:
+    """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both.
+
+    Two template files fill the target vertices they do not list along the target's edges
+    (``F2``; in space for a cloud), and say how many they list.
+    """
     n1, n2 = V1.shape[0], V2.shape[0]
     if spec in ("estimate", "closest", "identity"):
         return _identity(n1, n2, V1, V2) if spec == "identity" else None
@@ -277,7 +283,13 @@ def _read_map(spec: str, V1: np.ndarray, V2: np.ndarray) -> Correspondence | Non
     )  # fmt: skip
     try:
         if len(files) == 2:  # correspondences of both shapes to a common template
-            p2p, method = p2p_from_template(read_vts(files[0]), read_vts(files[1]), V2), "template"
+            rows_1, rows_2 = read_vts(files[0]), read_vts(files[1])
+            p2p, method = p2p_from_template(rows_1, rows_2, V2, faces_2=F2), "template"
+            listed = np.unique(rows_2).size
+            along = "along the target's surface" if F2 is not None else "in space"
+            report([f"--map {spec}: {listed} of the target's {n2} vertices listed "
+                    f"({listed / n2:.1%}); each other takes the source vertex of the listed "
+                    f"one nearest {along}"])  # fmt: skip
         elif path.endswith(".npz"):
             corr = Correspondence.load(path)
             corr.check(n1, n2, name=f"--map {path}")
@@ -365,7 +377,7 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
     factor, own = args.target_scale, target
     if factor is not None:  # every step below sees the target in the source's units
         target, V2 = scaled_copy(target, factor), V2 * factor
-    given = _read_map(args.map, V1, V2)
+    given = _read_map(args.map, V1, V2, F2)
     if given is not None:
         _judge_given(args, given, V1, V2, (F1, F2))
     landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
