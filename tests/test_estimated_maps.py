@@ -151,3 +151,20 @@ def test_a_map_between_shapes_of_other_kinds_disagreeing_with_its_geodesic_one_i
     assert corr.quality.suspect
     assert "geodesic_disagrees" in corr.quality.codes(), corr.quality.reasons
     assert "repaired" not in corr.quality.codes()
+
+
+def test_a_doubtful_full_map_asks_for_more_landmarks_when_some_were_given():
+    """The geodesic check's causes advise a few pairs, or more once some were given.
+
+    A new user who gave 5 right pairs was told to "give a few known vertex pairs".
+    """
+    from types import SimpleNamespace
+
+    from o3d_ofp.workflows.matching import FullMatch
+
+    none = FullMatch._advice(SimpleNamespace(landmarks=None))
+    some = FullMatch._advice(SimpleNamespace(landmarks=np.array([[0, 1], [5, 7]])))
+    assert none.fixes == ("landmarks",) and none.text().startswith("give a few known")
+    assert some.fixes == ("landmarks_check",)
+    assert some.text(cli=True).startswith("give more known vertex pairs, spread over both shapes")
+    assert "--landmarks pick" in some.text(cli=True)

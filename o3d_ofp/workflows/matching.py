@@ -39,6 +39,7 @@ from .maps import Correspondence, MapQuality
 from .quality import (
     MAX_REVERSED,
     flipped_what,
+    landmarks_advice,
     landmarks_apart,
     landmarks_mirrored,
     map_quality,
@@ -663,6 +664,11 @@ class FullMatch(Strategy):
             judged, suspect=True, reasons=(*notes, *kept, *reasons, *causes)
         )  # fmt: skip
 
+    @staticmethod
+    def _advice(run: Run) -> Said:
+        """Return the landmarks a doubtful map advises: a few, or more when some were given."""
+        return landmarks_advice(run.landmarks is not None, where="both shapes")
+
     def _geodesic_review(
         self, run: Run, settled: Settled, quality: MapQuality
     ) -> tuple[Settled, MapQuality]:  # fmt: skip
@@ -699,7 +705,7 @@ class FullMatch(Strategy):
             causes = Said(
                 "likely causes: shapes of other kinds (a spectral map needs near-isometric "
                 "shapes: check the result by eye), or descriptors that cannot tell the parts "
-                "apart; fix: give a few known vertex pairs ({landmarks})", {}, "causes",
+                "apart; fix: {advice}", {"advice": self._advice(run)}, "causes",
             )  # fmt: skip
             return settled, quality.flagged(found).flagged(causes, first=False)
         if repaired is None:
@@ -722,8 +728,7 @@ class FullMatch(Strategy):
         )  # fmt: skip
         causes = Said(
             "likely causes: parts the descriptors cannot tell apart (limbs, a tail), or shapes "
-            "that are not near-isometric; fix: give a few known vertex pairs ({landmarks})",
-            {}, "causes",
+            "that are not near-isometric; fix: {advice}", {"advice": self._advice(run)}, "causes",
         )  # fmt: skip
         return settled, quality.flagged(found).flagged(causes, first=False)
 

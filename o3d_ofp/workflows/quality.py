@@ -537,10 +537,14 @@ def _partial_reasons(distortion: float, stretch: float, turned: float | None) ->
     return reasons
 
 
-def landmarks_advice(given: bool) -> Said:
-    """Return the landmarks part of a partial map's advice: some, or more if some were given."""
+def landmarks_advice(given: bool, *, where: str = "the part") -> Said:
+    """Return the landmarks part of a map's advice: some, or more if some were given.
+
+    ``where``: what the pairs are to be spread over (a partial map's part, both shapes).
+    """
     if given:
-        return Said("give more known vertex pairs, spread over the part ({landmarks_check})")
+        return Said("give more known vertex pairs, spread over {where} ({landmarks_check})",
+                    {"where": where})  # fmt: skip
     return Said("give a few known vertex pairs ({landmarks})")
 
 
