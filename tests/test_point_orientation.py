@@ -161,12 +161,19 @@ def test_a_cloud_s_likely_causes_do_not_advise_the_partial_match():
     V, F = blob(3)
     identity = np.arange(len(V))
     far = 2.0 * np.eye(11)  # orthogonality 3 > MAX_ORTHOGONALITY: not near-isometric
-    for faces in (F, None):
-        e = ofp.eigenbasis(V, faces, k=10)
-        q = map_quality(identity, e, e, far)
+    mesh, cloud = ofp.eigenbasis(V, F, k=10), ofp.eigenbasis(V, None, k=10)
+    # the mesh a cloud came from is advised, naming which shape is the cloud (a trial: "mesh
+    # the clouds first" when only the target was one)
+    said = {"mesh the target cloud came from", "mesh the source cloud came from",
+            "meshes the two clouds came from"}  # fmt: skip
+    for e1, e2, cloud_said in ((mesh, mesh, None), (mesh, cloud, "mesh the target cloud came from"),
+                               (cloud, mesh, "mesh the source cloud came from"),
+                               (cloud, cloud, "meshes the two clouds came from")):  # fmt: skip
+        q = map_quality(identity, e1, e2, far)
         assert q.suspect and q.reasons[-1].code == "causes_far"
         words = str(q.reasons[-1])
-        if faces is None:
+        if cloud_said is not None:
             assert "partial" not in q.reasons[-1].fixes and "needs meshes" in words, words
+            assert [s for s in said if s in words] == [cloud_said], words
         else:
             assert "partial" in q.reasons[-1].fixes and "partial=True" in words, words

@@ -156,10 +156,19 @@ _LIKELY_CAUSES = {
         "({landmarks})", {}, "causes",
     ),
 }  # fmt: skip
-#: The fix of a part, between meshes and where a shape is a cloud (the partial match refuses
-#: clouds).
-_PART_FIX = {False: Said("{partial}"), True: Said("a partial match needs meshes: mesh the "
-                                                  "clouds first")}  # fmt: skip
+
+
+def _part_fix(eig_1: EigenBasis, eig_2: EigenBasis) -> Said:
+    """Return the fix of a part: the partial match, or the mesh a cloud came from.
+
+    The partial match refuses clouds; no advice to mesh one (see ``_notes``).
+    """
+    clouds = [name for name, eig in (("source", eig_1), ("target", eig_2)) if eig.faces is None]
+    if not clouds:
+        return Said("{partial}")
+    which = (f"the mesh the {clouds[0]} cloud came from, when there is one" if len(clouds) == 1
+             else "the meshes the two clouds came from, when there are")  # fmt: skip
+    return Said("a partial match needs meshes: match {which}", {"which": which})
 
 
 def flipped_what(eig_1: EigenBasis, eig_2: EigenBasis) -> str:
@@ -239,7 +248,7 @@ def map_quality(
     else:
         cause = "landmarks" if landmarks_given else "other"
     said = _LIKELY_CAUSES[cause]
-    said = said.replace(part=_PART_FIX[clouds]) if far else said
+    said = said.replace(part=_part_fix(eig_1, eig_2)) if far else said
     reasons += [said] if reasons else []
     return MapQuality(
         coverage=float(hit / n1), coverage_ratio=float(ratio), orthogonality=ortho,
