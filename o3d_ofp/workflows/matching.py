@@ -49,6 +49,7 @@ from .strategy import Run, Settled, Strategy
 
 __all__ = [
     "DCOMM_WEIGHTS",
+    "LANDMARK_SHELLS_GAIN",
     "MIRROR_RESIDUAL",
     "REPAIR_FIT_K",
     "REPAIR_GAIN",
@@ -218,6 +219,17 @@ REPAIR_DISTORTION_SAMPLES = 100
 #: scipy's Dijkstra holds the GIL, so they run one after the other); a re-estimate adds a
 #: nearest-neighbour search over every target vertex, quadratic in the sizes.
 REPAIR_MAX_PAIRS = 1e9
+#: With landmarks, the shells' registration (the one the landmarks choose) replaces the
+#: landmark-driven map only when its geodesic distortion is below this fraction of the map's:
+#: a map the pairs drive keeps them exactly, the registration only near them. Measured
+#: (2026-12-03, the 12 gorilla -> human pairs of ``scripts/eval_nonisometric.py`` with 2, 3
+#: and 6 farthest-point landmarks, mean geodesic error x100 / sqrt(area) on 1000 points): the
+#: registrations that lowered the error (19.7 -> 5.8, 32.2 -> 14.8, 22.3 -> 7.3, 28.8 -> 7.0,
+#: 11.6 -> 7.0, 16.4 -> 9.7, 31.9 -> 9.7, 8.0 -> 6.0) distorted 0.43-0.65 times as much,
+#: those that raised it with 6 landmarks (6.8 -> 11.0, 5.3 -> 11.3, 5.6 -> 9.6, 6.3 -> 6.9)
+#: 0.82-0.93 times; one with 2 landmarks on the plane of symmetry 0.49 (19.4 -> 49.4, left
+#: and right swapped: two pairs there cannot tell them).
+LANDMARK_SHELLS_GAIN = 0.7
 #: Reasons of a doubtful spectral map that speak of the shapes rather than of the map: kept
 #: in the report of a map re-estimated by the shells' registration.
 _SHAPE_CODES = frozenset({"not_isometric", "geodesic_disagrees"})
@@ -602,11 +614,12 @@ class FullMatch(Strategy):
     ) -> tuple[Settled, MapQuality]:  # fmt: skip
         """Register the shapes' smooth shells when the spectral map is doubtful.
 
-        A suspect map between two meshes without landmarks is re-estimated by
-        :func:`~o3d_ofp.core.shells.shell_match`, which needs no isometry. The registered map
-        replaces the spectral one when its geodesic distortion
-        (:func:`~o3d_ofp.core.partial.geodesic_distortion`, :data:`REPAIR_DISTORTION_SAMPLES`
-        target samples) is lower. Measured (2026-12-01, the 12 gorilla -> human pairs of
+        A suspect map between two meshes is re-estimated by
+        :func:`~o3d_ofp.core.shells.shell_match`, which needs no isometry (with landmarks,
+        the registration they choose). The registered map replaces the spectral one when its
+        geodesic distortion (:func:`~o3d_ofp.core.partial.geodesic_distortion`,
+        :data:`REPAIR_DISTORTION_SAMPLES` target samples) is lower (with landmarks, below
+        :data:`LANDMARK_SHELLS_GAIN` of it). Measured (2026-12-01, the 12 gorilla -> human pairs of
         ``scripts/eval_nonisometric.py``): the registered maps 0.16-0.26, the spectral ones
         0.36-0.42; on TOSCA cat2 -> cat3, the one flagged map among the dataset's ten pairs of
         one animal, 0.115 against 0.107 (geodesic errors x100 8.4 and 6.4): the spectral map is
@@ -614,14 +627,14 @@ class FullMatch(Strategy):
         most pairs, not on all. ``MatchOptions(shells=False)`` keeps the spectral map.
         """
         u1, u2 = run.u1, run.u2
-        if (not run.options.shells or not quality.suspect or run.landmarks is not None
+        if (not run.options.shells or not quality.suspect
                 or u1.faces is None or u2.faces is None or min(u1.k, u2.k) < COARSE_SHELLS[-1]
                 or quality.codes() & _PART_CODES):  # fmt: skip
             return settled, quality
         run.report("shells registration", 0.8)
         logger.info("match: the map is doubtful: registering the shapes' smooth shells")
         registered = shell_match(
-            u1, u2, same_frame=run.options.same_frame,
+            u1, u2, same_frame=run.options.same_frame, landmarks=run.landmarks,
             report=lambda stage, done: run.report(stage, 0.8 + 0.1 * done),
         )  # fmt: skip
         final = run.state["final"]
@@ -634,27 +647,35 @@ class FullMatch(Strategy):
                          for p in (settled.p2p_21, p2p))  # fmt: skip
         logger.info("match: geodesic distortion %.3f (spectral) and %.3f (shells' registration, "
                     "from %s)", before, after, registered.label)  # fmt: skip
-        if not after < before:
+        gain = 1.0 if run.landmarks is None else LANDMARK_SHELLS_GAIN
+        if not after < gain * before:
+            more = ("more" if run.landmarks is None else
+                    "not enough less than the map the landmark pairs drive (below {gain:g} "
+                    "times its distortion)")  # fmt: skip
             return settled, quality.noted(Said(
                 "the shapes' smooth shells were registered too (the map is doubtful), but "
-                "their map changes geodesic distances more ({after:.3f} against {before:.3f}): "
-                "the spectral map is kept", {"before": before, "after": after}, "shells_kept",
+                "their map changes geodesic distances " + more + " ({after:.3f} against "
+                "{before:.3f}): the spectral map is kept",
+                {"before": before, "after": after, "gain": gain}, "shells_kept",
             ))  # fmt: skip
         C = fmap_from_p2p(p2p, u1, u2, k1=final, k2=final)
         fmap_12 = C * math.sqrt(run.eig_2.area / run.eig_1.area)  # the shapes' own areas
         settled = Settled(fmap_12, p2p, {**settled.info, "C": C, "shells": True})
+        chosen = ("" if run.landmarks is None else
+                  ", the registration that puts the landmark pairs nearest each other")
         found = Said(
             "the spectral map was doubtful: the map comes from registering the shapes' smooth "
-            "shells (an extrinsic alignment that needs no isometry; geodesic distortion "
-            "{after:.3f} against the spectral map's {before:.3f}); such maps between shapes "
-            "of other kinds are right on most pairs, not all: check the result by eye",
-            {"before": before, "after": after}, "shells",
+            "shells (an extrinsic alignment that needs no isometry{chosen}; geodesic "
+            "distortion {after:.3f} against the spectral map's {before:.3f}); such maps "
+            "between shapes of other kinds are right on most pairs, not all: check the result "
+            "by eye", {"before": before, "after": after, "chosen": chosen}, "shells",
         )  # fmt: skip
         notes = [found, *_frame_notes(registered, run.options.same_frame)]
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
-        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2)
+        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2,
+                             landmarks_given=run.landmarks is not None)  # fmt: skip
         kept = [Said("the spectral map's check: {reason}", {"reason": r}, r.code)
                 for r in quality.reasons if r.code in _SHAPE_CODES]
         causes = [r for r in judged.reasons if r.code.startswith("causes")] or [
