@@ -296,14 +296,8 @@ def test_mend_jumps_sends_back_a_region_sent_onto_another_limb():
 
 
 @pytest.mark.slow
-def test_shapes_said_to_be_in_one_frame_keep_it_where_the_registration_cannot_tell():
-    """TOSCA's woman_03 onto gorilla_01 (``bcicp_dev``, shapes given in one frame).
-
-    The registration of least score swaps front and back (score 0.0703, the source turned
-    174°; the right one 0.0830, turned 36°). By default it is kept and the report names the
-    other (``frame_swap``, advising ``same_frame``); with ``same_frame=True`` the given frame
-    is kept (``frame_kept``).
-    """
+def _woman_onto_gorilla():
+    """TOSCA's woman_03 and gorilla_01 (``bcicp_dev``) and their 0-based ground-truth rows."""
     root = "bcicp_dev/TOSCA_nonIsometric"
     woman, gorilla = (
         load_shared_mesh(f"{root}/8_{name}.off") for name in ("woman_03", "gorilla_01")
@@ -312,6 +306,18 @@ def test_shapes_said_to_be_in_one_frame_keep_it_where_the_registration_cannot_te
         np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
         for name in ("woman_03", "gorilla_01")
     )
+    return woman, gorilla, true_w, true_g
+
+
+def test_shapes_said_to_be_in_one_frame_keep_it_where_the_registration_cannot_tell():
+    """TOSCA's woman_03 onto gorilla_01 (``bcicp_dev``, shapes given in one frame).
+
+    The registration of least score swaps front and back (score 0.0703, the source turned
+    174°; the right one 0.0830, turned 36°). By default it is kept and the report names the
+    other (``frame_swap``, advising ``same_frame``); with ``same_frame=True`` the given frame
+    is kept (``frame_kept``).
+    """
+    woman, gorilla, true_w, true_g = _woman_onto_gorilla()
     bases = tuple(ofp.eigenbasis(*shape, k=99) for shape in (woman, gorilla))
     V = woman[0]
 
@@ -346,14 +352,7 @@ def test_two_landmarks_choose_the_registration_the_shapes_fit_cannot():
     """
     from o3d_ofp.core.fmap import farthest_points
 
-    root = "bcicp_dev/TOSCA_nonIsometric"
-    woman, gorilla = (
-        load_shared_mesh(f"{root}/8_{name}.off") for name in ("woman_03", "gorilla_01")
-    )
-    true_w, true_g = (
-        np.loadtxt(shared_path(f"{root}/corres/8_{name}.vts"), dtype=np.int64) - 1
-        for name in ("woman_03", "gorilla_01")
-    )
+    woman, gorilla, true_w, true_g = _woman_onto_gorilla()
     spread = farthest_points(gorilla[0][true_g], 2)
     pairs = np.stack([true_w[spread], true_g[spread]], axis=1)
     with warnings.catch_warnings():
