@@ -215,14 +215,17 @@ def test_landmark_coordinates_tell_a_gorillas_limbs_from_a_womans_with_four_land
     With the landmarks' distances alone the map was wrong on limbs whose lengths differ
     (26.9 mean geodesic error x100 on this pair, ``scripts/eval_nonisometric.py``-style on 300
     points); with their biharmonic coordinates too 6.1. Here the mean Euclidean distance to
-    the true vertex over sqrt(area): 0.063 against 0.208.
+    the true vertex over sqrt(area): 0.063 against 0.208. The landmark map alone: a doubtful
+    one is otherwise registered by the shells too, which took the map without coordinates to
+    0.069 (the registration the landmarks choose; ours then 0.057).
     """
     woman, gorilla, landmarks, error = _gorilla_onto_human("gorilla_03", "woman_01", 4)
-    ours = error(ofp.match(woman, gorilla, landmarks=landmarks))
+    spectral = ofp.MatchOptions(shells=False)
+    ours = error(ofp.match(woman, gorilla, landmarks=landmarks, options=spectral))
     # Zero coordinates: zero descriptor and operator columns, nothing added to the embedding.
     monkeypatch.setattr(fmap, "landmark_coordinates",
                         lambda eig, v: np.zeros((eig.n_vertices, len(v))))  # fmt: skip
-    before = error(ofp.match(woman, gorilla, landmarks=landmarks))
+    before = error(ofp.match(woman, gorilla, landmarks=landmarks, options=spectral))
     assert ours < 0.5 * before, (ours, before)
 
 
