@@ -632,8 +632,8 @@ def shell_match(
         return found[i]
 
     lower = [g for g, _ in done]
-    turns = [_angle(np.eye(3), state.rotation) for _, state in done]
     least, _, _ = least_score(lower, score)
+    turns = [_angle(np.eye(3), state.rotation) for _, state in done]
     framed = keep_given_orientation(turns, lower, least, score)
     best = framed if same_frame else least
     scores = tuple(found[i][0] if i in found else math.nan for i in range(len(poses)))

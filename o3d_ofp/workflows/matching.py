@@ -647,9 +647,10 @@ class FullMatch(Strategy):
                          for p in (settled.p2p_21, p2p))  # fmt: skip
         logger.info("match: geodesic distortion %.3f (spectral) and %.3f (shells' registration, "
                     "from %s)", before, after, registered.label)  # fmt: skip
-        gain = 1.0 if run.landmarks is None else LANDMARK_SHELLS_GAIN
+        landmarks = run.landmarks is not None
+        gain = LANDMARK_SHELLS_GAIN if landmarks else 1.0
         if not after < gain * before:
-            more = ("more" if run.landmarks is None else
+            more = ("more" if not landmarks else
                     "not enough less than the map the landmark pairs drive (below {gain:g} "
                     "times its distortion)")  # fmt: skip
             return settled, quality.noted(Said(
@@ -661,7 +662,7 @@ class FullMatch(Strategy):
         C = fmap_from_p2p(p2p, u1, u2, k1=final, k2=final)
         fmap_12 = C * math.sqrt(run.eig_2.area / run.eig_1.area)  # the shapes' own areas
         settled = Settled(fmap_12, p2p, {**settled.info, "C": C, "shells": True})
-        chosen = ("" if run.landmarks is None else
+        chosen = ("" if not landmarks else
                   ", the registration that puts the landmark pairs nearest each other")
         found = Said(
             "the spectral map was doubtful: the map comes from registering the shapes' smooth "
@@ -674,8 +675,7 @@ class FullMatch(Strategy):
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
-        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2,
-                             landmarks_given=run.landmarks is not None)  # fmt: skip
+        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2, landmarks_given=landmarks)
         kept = [Said("the spectral map's check: {reason}", {"reason": r}, r.code)
                 for r in quality.reasons if r.code in _SHAPE_CODES]
         causes = [r for r in judged.reasons if r.code.startswith("causes")] or [
