@@ -647,6 +647,13 @@ def landmarks_kept(
 LANDMARKS_GAP = 0.8
 #: The largest such difference of right pairs measured between different shapes (above).
 LANDMARKS_GAP_SEEN = 0.70
+#: A flagged pair is named as the likely wrong one when the sum of its distance differences to
+#: the other pairs is at least this times any other pair's sum. Measured (scratch, 2026-12-03;
+#: the 22 pairs of ../shared/data/bcicp_dev, 11 sets of 6 true landmarks each: the farthest
+#: points of the truth and 10 random sets; each landmark in turn moved to its mirror image,
+#: ``.sym.vts``): of the 85 sets :data:`LANDMARKS_GAP` flags, the largest sum was the moved
+#: pair's on every one at ratios of 1.33 and above (20 sets), another pair's at up to 1.32.
+WRONG_PAIR_RATIO = 1.4
 
 
 def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
@@ -658,7 +665,10 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
     that passed its checks at 0.043 sqrt(area) off, the arms swapped (0.017 with the right
     pairs). ``anchors``: the match's :func:`~o3d_ofp.core.fmap.landmark_anchors`, whose
     distance functions (edge paths over sqrt(area), the first ``p`` columns) are read at the
-    landmarks (None, or a point cloud's: nothing to check). See :data:`LANDMARKS_GAP`.
+    landmarks (None, or a point cloud's: nothing to check). See :data:`LANDMARKS_GAP`. Of
+    three or more pairs, the one whose differences to the others sum to at least
+    :data:`WRONG_PAIR_RATIO` times any other's is named as the likely wrong one (``wrong`` in
+    the reason's values, counting from 1; None when no pair stands out).
     """
     if anchors is None or anchors.distances_1 is None or anchors.distances_2 is None:
         return quality
@@ -671,15 +681,24 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
     if not gap.max() > LANDMARKS_GAP:
         return quality
     i, j = sorted(np.unravel_index(int(np.argmax(gap)), gap.shape))
+    sums = gap.sum(axis=1)
+    first, second = np.argsort(-sums, kind="stable")[:2]
+    ratio = float(sums[first] / max(float(sums[second]), 1e-12)) if p >= 3 else 1.0
+    which = "one of them is likely wrong"
+    if ratio >= WRONG_PAIR_RATIO:
+        which = (f"pair {int(first) + 1} is likely the wrong one (its distances to the other "
+                 f"pairs differ between the shapes {ratio:.1f} times as much as any other "
+                 f"pair's)")  # fmt: skip
     return quality.flagged(Said(
         "landmark pairs {first} and {second} (rows, counting from 1) lie {source:.2f} of "
-        "sqrt(area) apart along the source but {target:.2f} along the target: one of them is "
-        "likely wrong (a pair on the mirrored side, a slip of the click), and the map follows "
-        "it or is pulled astray by it; check them ({landmarks_check}). (Right pairs differ by "
-        "at most {seen:g} between a gorilla and a human: shapes whose proportions differ more "
-        "may also do this.)",
+        "sqrt(area) apart along the source but {target:.2f} along the target: {which} (a pair "
+        "on the mirrored side, a slip of the click), and the map follows it or is pulled "
+        "astray by it; check them ({landmarks_check}). (Right pairs differ by at most {seen:g} "
+        "between a gorilla and a human: shapes whose proportions differ more may also do "
+        "this.)",
         {"first": int(i) + 1, "second": int(j) + 1, "source": float(d1[i, j]),
-         "target": float(d2[i, j]), "seen": LANDMARKS_GAP_SEEN}, "landmarks_apart",
+         "target": float(d2[i, j]), "which": which, "seen": LANDMARKS_GAP_SEEN,
+         "wrong": int(first) + 1 if ratio >= WRONG_PAIR_RATIO else None}, "landmarks_apart",
     ))  # fmt: skip
 
 
