@@ -149,6 +149,37 @@ def test_a_functional_map_far_from_an_isometry_is_flagged(pair):
     assert "not near-isometric" in next(r for r in q.reasons if "isometry" in r)
 
 
+def test_the_likely_causes_name_only_what_the_shapes_can_be():
+    """The part only with a boundary (or a cloud), closest points only in the same place.
+
+    A trial: a gorilla onto a woman (two closed meshes, apart) was advised the partial match
+    and closest points. Closest points are advised within the closest-point map's own bound
+    (MAX_MEAN_DISTANCE).
+    """
+    from o3d_ofp.workflows.quality import MAX_MEAN_DISTANCE
+
+    V, F = blob(3)
+    far = 2.0 * np.eye(11)  # orthogonality 3: not near-isometric
+    identity = np.arange(len(V))
+    e1 = ofp.eigenbasis(V, F, k=10)
+    diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
+
+    def causes(e2):
+        said = map_quality(identity[: e2.n_vertices], e1, e2, far).reasons[-1]
+        assert said.code == "causes_far"
+        return set(said.fixes)
+
+    # moved by half its diagonal: its mean distance to the source far above the bound; nudged
+    # by half the bound: every vertex within it
+    moved = 0.5 * diagonal * np.array([1.0, 0.0, 0.0])
+    nudged = (0.5 * MAX_MEAN_DISTANCE * diagonal) * np.array([1.0, 0.0, 0.0])
+    assert causes(ofp.eigenbasis(V + moved, F, k=10)) == {"landmarks"}
+    assert causes(ofp.eigenbasis(V + nudged, F, k=10)) == {"landmarks", "closest"}
+    # the target cut open (its faces on one side dropped, vertices kept): it may be a part
+    cut = F[V[F].mean(axis=1)[:, 0] < 0.6 * V[:, 0].max()]
+    assert causes(ofp.eigenbasis(V + moved, cut, k=10)) == {"landmarks", "partial"}
+
+
 @pytest.mark.parametrize("other", ["models/bunny.off", "models/teddy.obj", "nasty/dog.off"])
 def test_a_shape_of_another_kind_is_flagged(other):
     """A human matched onto a bunny, a teddy or a dog: no right map exists; it must be said.

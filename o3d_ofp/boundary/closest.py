@@ -30,7 +30,7 @@ from ..core._warnings import warn
 from ..core.geometry import closest_on_triangles, face_areas_normals, units_change
 from ..core.wording import Said
 from ..workflows.maps import Correspondence, MapQuality, shape_signature
-from ..workflows.quality import AREA_RATIO_NOTE
+from ..workflows.quality import AREA_RATIO_NOTE, MAX_MEAN_DISTANCE
 from .convert import require_open3d
 
 __all__ = [
@@ -45,13 +45,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: The map is suspect when the mean closest-point distance exceeds this fraction of the source's
-#: bounding-box diagonal: the shapes are not aligned. Measured (closest target vertex -> source
-#: surface): a decimated copy of the bunny 2e-7; the paper's detail-transfer pair
-#: (models/t1_donut -> t0_donut, aligned, with large bumps) 0.029-0.032; the same shape turned by
-#: 90° 0.03-0.26 (bunny 0.06-0.09, FAUST 0.04-0.26); two different shapes normalized to the same
-#: box 0.034-0.15.
-MAX_MEAN_DISTANCE = 0.05
+#: (:data:`MAX_MEAN_DISTANCE`, above which the map is suspect, lives in ``workflows.quality``:
+#: a doubtful spectral map advises closest points for shapes below it.)
 #: Above this mean distance (but below :data:`MAX_MEAN_DISTANCE`) a note says the shapes may be
 #: misaligned or differ in geometry: a 10° turn gives 0.006-0.03.
 MEAN_DISTANCE_NOTE = 0.02
