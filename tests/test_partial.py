@@ -625,6 +625,19 @@ def test_scaled_whole_shape_is_not_flagged(whole):
     (note,) = _said(q.notes, "area_ratio")
     assert not q.suspect and "units" in str(note)
     assert q.overlap is None
+    assert "target_scale" not in note.fixes  # 30 is no power of ten: no units change to advise
+
+
+def test_a_target_in_millimetres_is_told_the_factor_that_gives_it_the_source_s_units(whole):
+    """A trial: a target in millimetres got "different units?" without the flag that fixes it."""
+    V, F, e1 = whole
+    for scale, factor, change in ((1000.0, "0.001", "millimetres to metres"),
+                                  (0.01, "100", "metres to centimetres")):  # fmt: skip
+        (note,) = _said(map_quality(np.arange(len(V)), e1,
+                                    ofp.eigenbasis(V * scale, F, k=10)).notes, "area_ratio")
+        assert note.fixes == ("target_scale",)
+        assert f"({change}), --target-scale {factor} gives it" in note.text(cli=True)
+        assert f"target.scale({factor}, center=(0, 0, 0))" in note.text()
 
 
 def test_target_larger_than_the_source_is_flagged(whole, cut):

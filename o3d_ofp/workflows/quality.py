@@ -25,6 +25,7 @@ from ..core.geometry import (
     point_normals,
     tangent_frames,
     turned_fraction,
+    units_change,
     vertex_normals,
 )
 from ..core.partial import boundary_length, geodesic_distortion, map_stretch, rescaled
@@ -337,9 +338,19 @@ def _notes(
     if cloud_part is not None:
         notes.append(cloud_part)
     elif not partial and not (1 / AREA_RATIO_NOTE <= area_ratio <= AREA_RATIO_NOTE):
+        # Sizes a power of ten apart (units_change, the areas then within AREA_RATIO_NOTE):
+        # the factor that gives the target the source's units, for results read in one set
+        # of units (transferred coordinates).
+        found = units_change(math.sqrt(area_ratio))
+        rescale, values = "", {"ratio": area_ratio}
+        scaled = math.nan if found is None else area_ratio * found[0] ** 2
+        if 1 / AREA_RATIO_NOTE <= scaled <= AREA_RATIO_NOTE:
+            rescale = ("; if the target is in other units{change}, {target_scale} gives it the "
+                       "source's")  # fmt: skip
+            values |= {"factor": found[0], "change": f" ({found[1]})" if found[1] else ""}
         notes.append(Said(
             "the target's area is {ratio:.3g} times the source's (different units? a partial "
-            "shape?); the estimated map does not depend on the units", {"ratio": area_ratio},
+            "shape?); the estimated map does not depend on the units" + rescale, values,
             "area_ratio",
         ))  # fmt: skip
     return notes
