@@ -489,8 +489,14 @@ def _point_map(s1: _Shape, s2: _Shape, state: _State) -> np.ndarray:
 def _hypothesis(s1: _Shape, s2: _Shape, pose: Pose) -> tuple[float, _State]:
     """Register from one start through every shell: its geometric energy and its state."""
     with blas_threads(1):  # small products: one thread each, the hypotheses side by side
-        state = _register(s1, s2, pose, (*COARSE_SHELLS, *FINE_SHELLS))
+        state = _register(s1, s2, pose, FINE_SHELLS, state=_coarse(s1, s2, pose))
         return _geometric_energy(s1, s2, state), state
+
+
+def _coarse(s1: _Shape, s2: _Shape, pose: Pose) -> _State:
+    """Register from one start through the coarse shells only."""
+    with blas_threads(1):  # small products: one thread each, the hypotheses side by side
+        return _register(s1, s2, pose, COARSE_SHELLS)
 
 
 def _scored(s1: _Shape, s2: _Shape, geometric: float, state: _State) -> tuple[float, np.ndarray]:
@@ -654,10 +660,6 @@ def shell_match(
                         scores, turns[best], frame_other)  # fmt: skip
 
 
-def _coarse(s1: _Shape, s2: _Shape, pose: Pose) -> _State:
-    """Register from one start through the coarse shells only."""
-    with blas_threads(1):  # small products: one thread each, the hypotheses side by side
-        return _register(s1, s2, pose, COARSE_SHELLS)
 
 
 def _by_landmarks(
