@@ -125,6 +125,13 @@ def test_a_match_keeps_the_landmarks_exactly_and_says_how_far_the_estimate_put_t
     assert not corr.quality.suspect  # one ring is far below the bound of MAX_JUMP
 
 
+#: A verdict that passes, for the landmark checks to add to.
+_PASSING = ofp.MapQuality(
+    suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
+    reversed_fraction=0.0, area_ratio=1.0,
+)
+
+
 def _gorilla_onto_human(gorilla_name, human_name, count):
     """Load a bcicp_dev gorilla -> human pair with ``count`` well-spread true landmark pairs.
 
@@ -330,10 +337,7 @@ def test_a_landmark_pair_on_the_mirrored_side_of_another_is_doubted():
     e1, e2 = ofp.eigenbasis(V1, F1, k=2), ofp.eigenbasis(V2, F2, k=2)
     right = np.array([[2680, 2680], [6689, 6689], [4286, 4286], [6137, 6137], [1009, 1009],
                       [253, 253]])  # fmt: skip
-    quality = ofp.MapQuality(
-        suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
-        reversed_fraction=0.0, area_ratio=1.0,
-    )  # fmt: skip
+    quality = _PASSING
     assert not landmarks_apart(quality, landmark_anchors(e1, e2, right)).suspect
     mirrored = right.copy()
     mirrored[0, 1] = 6039  # the other hand, beside pair 4's target (6137)
@@ -381,10 +385,7 @@ def test_the_pair_on_the_mirrored_side_is_named_when_it_stands_out():
     true, mirror = (np.loadtxt(shared_path(f"{root}/8_woman_01{suffix}"), dtype=np.int64) - 1
                     for suffix in (".vts", ".sym.vts"))  # fmt: skip
     e1, e2 = ofp.eigenbasis(*human, k=2), ofp.eigenbasis(*gorilla, k=2)
-    quality = ofp.MapQuality(
-        suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
-        reversed_fraction=0.0, area_ratio=1.0,
-    )  # fmt: skip
+    quality = _PASSING
     assert not landmarks_apart(quality, landmark_anchors(e1, e2, landmarks)).suspect
     given = landmarks.copy()
     given[0, 0] = mirror[np.flatnonzero(true == landmarks[0, 0])[0]]
@@ -432,10 +433,7 @@ def test_landmarks_mirrored_needs_a_free_map_that_turns_over_and_follows_them(st
 
     _, _, _, landmarks, e1, e2 = stretched
     anchors = landmark_anchors(e1, e2, landmarks)
-    quality = ofp.MapQuality(
-        suspect=False, coverage=1.0, coverage_ratio=1.0, orthogonality=0.0, inconsistency=0.0,
-        reversed_fraction=0.0, area_ratio=1.0,
-    )  # fmt: skip
+    quality = _PASSING
     exact = np.arange(e2.n_vertices)
     shifted = np.roll(exact, 50)
     doubted = landmarks_mirrored(quality, anchors, shifted, exact, MIRRORED_TURNED + 0.1)
