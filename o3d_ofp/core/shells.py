@@ -660,8 +660,6 @@ def shell_match(
                         scores, turns[best], frame_other)  # fmt: skip
 
 
-
-
 def _by_landmarks(
     s1: _Shape, s2: _Shape, poses: Sequence[Pose], landmarks: np.ndarray,
     report: Callable[[str, float], None] | None,

@@ -739,9 +739,9 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
     ratio = float(sums[first] / max(float(sums[second]), 1e-12)) if p >= 3 else 1.0
     which = "one of them is likely wrong"
     if ratio >= WRONG_PAIR_RATIO:
-        which = (f"pair {int(first) + 1} is likely the wrong one (its distances to the other "
-                 f"pairs differ between the shapes {ratio:.1f} times as much as any other "
-                 f"pair's)")  # fmt: skip
+        which = (f"pair {int(first) + 1} is likely the wrong one, its distances to the other "
+                 f"pairs differing between the shapes {ratio:.1f} times as much as any other "
+                 f"pair's")  # fmt: skip
     return quality.flagged(Said(
         "landmark pairs {first} and {second} (rows, counting from 1) lie {source:.2f} of "
         "sqrt(area) apart along the source but {target:.2f} along the target: {which} (a pair "
