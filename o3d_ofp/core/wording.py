@@ -66,7 +66,15 @@ FIXES: Mapping[str, tuple[str, str]] = {
     "via_basis": ("via_basis=True", "--via-basis"),
     "pull_back": ("via_basis=False", "--pull-back"),
     "client": ("client=", "--scheduler"),
-    "give_map": ("give the map (correspondence=)", "give the map with --map FILE"),
+    "give_map": (
+        "give the map (correspondence=o3d_ofp.Correspondence.from_p2p(p2p_21, source, target))",
+        "give the map with --map FILE",
+    ),
+    # shapes that share their vertex order: the identity as the map, in a pair's own call
+    "same_vertices": (
+        "correspondence=o3d_ofp.Correspondence.from_p2p(numpy.arange({n}), source, target)",
+        "--map identity",
+    ),
     "lower": (
         "lower k1, k2 or order (options=BasisOptions(...)) or band",
         "lower --k1/--k2, --order or --band",
