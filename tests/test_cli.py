@@ -687,7 +687,13 @@ def test_texture_flags_and_a_missing_image_are_refused_before_the_work(tmp_path,
     code = main(["transfer", str(colored), str(colored), "--map", "identity",
                  "--texture-size", "256", "-o", str(tmp_path / "c2.ply")])  # fmt: skip
     assert code == 2 and "--texture-size applies to a bake" in capsys.readouterr().err
+    # a trial: --texture naming no file was blamed on the source's missing UVs
+    code = main(["transfer", str(colored), str(colored), "--map", "identity", "--texture",
+                 str(tmp_path / "nofile.png"), "-o", str(tmp_path / "c3.obj")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and f"--texture {tmp_path / 'nofile.png'}: no such image file" in err, err
     assert list(tmp_path.glob("out*")) == [] and not (tmp_path / "c2.ply").exists()
+    assert not (tmp_path / "c3.obj").exists()
 
 
 def test_a_textured_source_without_a_material_is_told_the_flag(tmp_path, capsys):

@@ -50,6 +50,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, make (or read) the map, transfer, write (for each target)."""
+    common.refuse((args.texture is not None and not os.path.isfile(args.texture),
+                   f"--texture {args.texture}: no such image file"))  # fmt: skip
     if not common.single(args, "target"):
         return _run_many(args)
     common.refuse(
@@ -150,9 +152,7 @@ def _run_many(args: argparse.Namespace) -> int:
     otherwise its colors go to the targets' vertices, in the targets' own formats (a target's
     texture image is then not written, with a warning in its record).
     """
-    common.refuse((args.texture is not None and not os.path.isfile(args.texture),
-                   f"--texture {args.texture}: no such image file"),
-                  (args.signal not in (None, "colors", "texture"),
+    common.refuse((args.signal not in (None, "colors", "texture"),
                    f"--signal {args.signal}: with several targets the signal is colors or texture"))
     kind, why = "colors", f"--signal {args.signal} sends the colors to the targets' vertices"
     if args.signal is None:  # a textured source is baked into the targets' own UV layouts, as
