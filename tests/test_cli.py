@@ -259,6 +259,17 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     said = capsys.readouterr().out
     assert f"{len(rows)} of the target's {len(files['V'])} vertices listed" in said
     assert "nearest along the target's surface" in said
+    assert "do not fit" not in said  # the right files
+    # Rows out of step (the second file one row behind): said, and refused with --strict (a
+    # trial: another pair's files were used without a word)
+    np.savetxt(tmp_path / "c.vts", np.roll(rows, 1) + 1, fmt="%d")
+    behind = [*args, "--map", f"{tmp_path / 'a.vts'},{tmp_path / 'c.vts'}"]
+    assert main([*behind, "-o", str(tmp_path / "behind.ply")]) == 0
+    assert "map quality SUSPECT: --map" in (said := capsys.readouterr().out), said
+    assert "the two template files do not fit these shapes" in said
+    assert main([*behind, "--strict", "-o", str(tmp_path / "strict.ply")]) != 0
+    assert "do not fit these shapes" in capsys.readouterr().err
+    assert not (tmp_path / "strict.ply").exists()
     templated = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     assert main([*args, "--map", str(tmp_path / "filled.npy"), "-o", str(out)]) == 0
     np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors),

@@ -27,7 +27,7 @@ from ..core._rows import unique_rows
 from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
 from ..core.wording import AdvisedError, Said
-from ..workflows.maps import Correspondence, given_map_collapse
+from ..workflows.maps import Correspondence, given_map_collapse, template_misfit
 from ..workflows.options import BasisOptions, MatchOptions, same_frame_conflict
 from ..workflows.partial import check_partial_areas
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
@@ -261,18 +261,20 @@ def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondenc
 
 
 def _read_map(
-    spec: str, V1: np.ndarray, V2: np.ndarray, F2: np.ndarray | None = None
-) -> Correspondence | None:
+    spec: str, V1: np.ndarray, V2: np.ndarray, F1: np.ndarray | None = None,
+    F2: np.ndarray | None = None,
+) -> tuple[Correspondence | None, Said | None]:  # fmt: skip
     """Read the Correspondence named by ``--map`` (None: made by the plan), checked for both.
 
     Two template files fill the target vertices they do not list along the target's edges
-    (``F2``; in space for a cloud), and say how many they list.
+    (``F2``; in space for a cloud), and say how many they list; the second value says why
+    they do not fit these shapes (:func:`~o3d_ofp.workflows.maps.template_misfit`), else None.
     """
     n1, n2 = V1.shape[0], V2.shape[0]
     if spec in ("estimate", "closest", "identity"):
-        return _identity(n1, n2, V1, V2) if spec == "identity" else None
+        return (_identity(n1, n2, V1, V2) if spec == "identity" else None), None
     files = spec.split(",")
-    path, method = files[0], "given"
+    path, method, misfit = files[0], "given", None
     common.refuse(
         *((not os.path.isfile(f), f"--map {f}: no such map file (--map estimate|closest|identity|"
            "MAP.npz|FILE[,FILE])") for f in files),
@@ -285,6 +287,7 @@ def _read_map(
         if len(files) == 2:  # correspondences of both shapes to a common template
             rows_1, rows_2 = read_vts(files[0]), read_vts(files[1])
             p2p, method = p2p_from_template(rows_1, rows_2, V2, faces_2=F2), "template"
+            misfit = template_misfit(rows_1, rows_2, V1, F1, V2, F2)
             listed = np.unique(rows_2).size
             along = "along the target's surface" if F2 is not None else "in space"
             report([f"--map {spec}: {listed} of the target's {n2} vertices listed "
@@ -293,7 +296,7 @@ def _read_map(
         elif path.endswith(".npz"):
             corr = Correspondence.load(path)
             corr.check(n1, n2, name=f"--map {path}")
-            return corr
+            return corr, None
         elif path.endswith(".npy"):
             p2p = common.load_npy(path, "0-based target->source map", flag="--map")
         else:
@@ -307,7 +310,7 @@ def _read_map(
                    f"shape {p2p.shape} and dtype {p2p.dtype}"))  # fmt: skip
     common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source indices must lie in "
                    f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
-    return Correspondence(p2p_21=p2p, n_source=n1, method=method)
+    return Correspondence(p2p_21=p2p, n_source=n1, method=method), misfit
 
 
 def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None) -> str | None:
@@ -328,8 +331,11 @@ def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None) -> str | None
 def _judge_given(
     args: argparse.Namespace, corr: Any, V1: np.ndarray, V2: np.ndarray,
     faces: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    misfit: Said | None = None,
 ) -> None:  # fmt: skip
     """Say when a map read from a file is doubtful; ``--strict`` makes that an error.
+
+    ``misfit``: why two template files do not fit the shapes (from :func:`_read_map`).
 
     A map that collapses (:func:`o3d_ofp.workflows.maps.given_map_collapse`: a few flat
     values), one saved by ``--save-map`` whose stored quality is suspect or that was made for
@@ -341,6 +347,7 @@ def _judge_given(
     collapse = given_map_collapse(corr.p2p_21, V1.shape[0], V2.shape[0])
     numbering = _other_numbering(*faces) if corr.method == "identity" else None
     reasons = [r for r in (collapse and f"--map {args.map}: {collapse.text(cli=True)}",
+                           misfit and f"--map {args.map}: {misfit.text(cli=True)}",
                            corr.mismatch(V1, V2, name=f"--map {args.map}"), numbering)
                if r]  # fmt: skip
     if numbering and not args.strict:
@@ -377,9 +384,9 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
     factor, own = args.target_scale, target
     if factor is not None:  # every step below sees the target in the source's units
         target, V2 = scaled_copy(target, factor), V2 * factor
-    given = _read_map(args.map, V1, V2, F2)
+    given, misfit = _read_map(args.map, V1, V2, F1, F2)
     if given is not None:
-        _judge_given(args, given, V1, V2, (F1, F2))
+        _judge_given(args, given, V1, V2, (F1, F2), misfit)
     landmarks = _landmarks(args.landmarks, (source, target), V1.shape[0], V2.shape[0])
     if landmarks is not None and args.landmarks != "pick":  # (picked ones are as read)
         _say_renumbered(((args.source, V1.shape[0]), (args.target, V2.shape[0])))

@@ -19,15 +19,18 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..core._atomic import atomic_path
 from ..core._warnings import warn
 from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
+from ..core.geometry import face_areas_normals
 from ..core.spectrum import EigenBasis
 from ..core.wording import OptionError, Said
 
 __all__ = [
     "GIVEN_MAP_COLLAPSE",
+    "TEMPLATE_SPREAD",
     "Correspondence",
     "MapQuality",
     "check_correspondence",
@@ -35,6 +38,7 @@ __all__ = [
     "keeping_landmarks",
     "same_shape",
     "shape_signature",
+    "template_misfit",
     "warn_other_shape",
     "with_signatures",
 ]
@@ -50,6 +54,15 @@ _FORMAT_VERSION = 2
 #: through a coarser template (scans of 50k vertices, a 6890-vertex template) hits at most the
 #: template's vertices, 0.13 of them.
 GIVEN_MAP_COLLAPSE = 0.02
+#: Two template files (rows of both shapes' vertices at common template points) are doubted
+#: when listed target vertices that are nearest neighbours go to source vertices this many
+#: times farther apart, in the median (each shape's distances over sqrt(its area); over its
+#: bounding-box diagonal when either is a point cloud). Measured (scratch, 2026-12-03): the
+#: right files of the 20 ordered FAUST remeshed pairs and the 22 ``bcicp_dev`` pairs, all rows
+#: and every 10th, 0.9-1.59 (gorilla -> human the highest; by diagonals at most 2.93); files
+#: of other shapes (``bcicp_dev``'s gorilla and woman files on FAUST 093, FAUST remeshed files
+#: on the 10 TOSCA animal pairs) 14.2-24.7; the right files one row apart 29.5-43.7.
+TEMPLATE_SPREAD = 4.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -608,6 +621,48 @@ def given_map_collapse(p2p_21: np.ndarray, n_source: int, n_target: int) -> Said
         {"hit": hit, "n": int(n_target)},
         "given_collapse",
     )
+
+
+def template_misfit(
+    rows_1: np.ndarray, rows_2: np.ndarray, vertices_1: np.ndarray, faces_1: np.ndarray | None,
+    vertices_2: np.ndarray, faces_2: np.ndarray | None,
+) -> Said | None:  # fmt: skip
+    """Why two template files are doubtful for these shapes: neighbours land far apart.
+
+    ``rows_1``, ``rows_2``: (m,) source and target vertices of the same template points (the
+    files' rows, 0-based); the shapes' vertices and faces (None: a point cloud). Every listed
+    target vertex is paired with its nearest listed one; a right pair of files sends the two
+    about as far apart on the source, relative to the shapes' sizes, and files of other
+    shapes (or rows out of step) far farther: see :data:`TEMPLATE_SPREAD`. None when the
+    files pass, or list fewer than 3 target vertices.
+    """
+    listed, first = np.unique(np.asarray(rows_2), return_index=True)
+    if listed.size < 3:
+        return None
+    images = np.asarray(rows_1)[first]
+    if faces_1 is not None and faces_2 is not None:
+        sizes = [math.sqrt(float(face_areas_normals(V, F)[0].sum()))
+                 for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))]  # fmt: skip
+    else:
+        sizes = [float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+                 for V in (vertices_1, vertices_2)]  # fmt: skip
+    points = vertices_2[listed]
+    apart, nearest = cKDTree(points).query(points, k=2)
+    on_target = apart[:, 1] / sizes[1]
+    on_source = np.linalg.norm(vertices_1[images] - vertices_1[images[nearest[:, 1]]], axis=1)
+    kept = on_target > 0  # (listed vertices at one position: no ratio)
+    if not kept.any():
+        return None
+    spread = float(np.median(on_source[kept] / sizes[0] / on_target[kept]))
+    if spread <= TEMPLATE_SPREAD:
+        return None
+    return Said(
+        "the two template files do not fit these shapes: neighbouring template points of the "
+        "target go to source vertices {spread:.1f} times as far apart, in the median (right "
+        "files: at most {seen:g}; files of other shapes, or rows out of step: 14 and more); "
+        "check that each file belongs to its shape and that their rows match",
+        {"spread": spread, "seen": 1.6}, "template_misfit",
+    )  # fmt: skip
 
 
 def _vertices_of(shape: Any, name: str) -> np.ndarray | int:
