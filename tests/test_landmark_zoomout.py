@@ -395,6 +395,31 @@ def test_the_pair_on_the_mirrored_side_is_named_when_it_stands_out():
     assert "pair 1 is likely the wrong one" in str(checked.reasons[0])
 
 
+def test_when_most_landmarks_are_missed_the_pairs_the_map_follows_are_named():
+    """The pair the map follows is named when most pairs are missed.
+
+    A trial: with a left hand given for the right one among four pairs, the map followed it
+    and the three right pairs were named as missed, the wrong one not at all.
+    """
+    from o3d_ofp.workflows.quality import MAX_JUMP, landmarks_kept
+
+    V, _ = icosphere(2)
+    landmarks = np.array([[0, 0], [10, 10], [20, 20], [30, 30]])
+    p2p = np.arange(len(V))
+    far_from = {int(i): int(np.argmax(np.linalg.norm(V - V[i], axis=1))) for i in (10, 20, 30)}
+    assert all(np.linalg.norm(V[j] - V[i]) > MAX_JUMP for i, j in far_from.items())
+    missed = p2p.copy()
+    for i, j in far_from.items():
+        missed[i] = j
+    said = landmarks_kept(_PASSING, missed, landmarks, V).reasons[0]
+    assert said.code == "landmarks_far" and "pairs 2, 3, 4 of the landmarks" in str(said)
+    assert "it follows pair 1: when most pairs are missed" in str(said)
+    one = p2p.copy()
+    one[10] = far_from[10]  # one pair missed of four: no such advice
+    said = landmarks_kept(_PASSING, one, landmarks, V).reasons[0]
+    assert said.code == "landmarks_far" and "it follows" not in str(said)
+
+
 def test_a_landmark_on_a_piece_the_eigenbasis_leaves_out_is_left_out_of_the_estimate(stretched):
     """A trial's pair on a small extra component: it stood for the nearest kept vertex.
 

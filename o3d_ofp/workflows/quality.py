@@ -678,14 +678,23 @@ def landmarks_kept(
     if not far.any():
         return quality
     rows = ", ".join(str(int(i) + 1) for i in np.flatnonzero(far)[:5])
+    # Most pairs missed: the fit went where the others lead, and a wrong pair among those
+    # would have pulled it there (a trial: the three right pairs of four were named, not the
+    # left hand given for the right one, which the map followed)
+    followed = ""
+    if far.sum() > (~far).sum() >= 1:
+        kept = ", ".join(str(int(i) + 1) for i in np.flatnonzero(~far))
+        followed = (f"; it follows pair{'s' * int((~far).sum() > 1)} {kept}: when most pairs are "
+                    "missed, a wrong pair among those it follows may have pulled it there, so "
+                    "check those first")  # fmt: skip
     return quality.flagged(Said(
         "{subject} sends {count} of the {total} landmarks' target vertices more than {bound} of "
         "sqrt(source area) from the source vertices given for them (the farthest {off:.2f} "
         "away; pairs {rows} of the landmarks, counting from 1): it does not follow them; check "
         "those pairs (a wrong pair pulls the fit astray), else the map is wrong near them (the "
-        "result keeps the pairs themselves)",
+        "result keeps the pairs themselves){followed}",
         {"subject": subject, "count": int(far.sum()), "total": int(off.size), "bound": MAX_JUMP,
-         "off": float(off.max()), "rows": rows}, "landmarks_far",
+         "off": float(off.max()), "rows": rows, "followed": followed}, "landmarks_far",
     ))  # fmt: skip
 
 
