@@ -270,6 +270,11 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     assert main([*behind, "--strict", "-o", str(tmp_path / "strict.ply")]) != 0
     assert "do not fit these shapes" in capsys.readouterr().err
     assert not (tmp_path / "strict.ply").exists()
+    # source rows beyond the source: refused, named, before the fit check reads them
+    np.savetxt(tmp_path / "d.vts", rows + len(files["V"]) + 1, fmt="%d")
+    beyond = f"{tmp_path / 'd.vts'},{tmp_path / 'b.vts'}"
+    assert main([*args, "--map", beyond, "-o", str(tmp_path / "beyond.ply")]) == 2
+    assert "source indices must lie in" in capsys.readouterr().err
     templated = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     assert main([*args, "--map", str(tmp_path / "filled.npy"), "-o", str(out)]) == 0
     np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors),

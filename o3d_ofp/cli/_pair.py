@@ -287,7 +287,6 @@ def _read_map(
         if len(files) == 2:  # correspondences of both shapes to a common template
             rows_1, rows_2 = read_vts(files[0]), read_vts(files[1])
             p2p, method = p2p_from_template(rows_1, rows_2, V2, faces_2=F2), "template"
-            misfit = template_misfit(rows_1, rows_2, V1, F1, V2, F2)
             listed = np.unique(rows_2).size
             along = "along the target's surface" if F2 is not None else "in space"
             report([f"--map {spec}: {listed} of the target's {n2} vertices listed "
@@ -310,6 +309,8 @@ def _read_map(
                    f"shape {p2p.shape} and dtype {p2p.dtype}"))  # fmt: skip
     common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source indices must lie in "
                    f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
+    if method == "template":  # (its source rows are in range: checked above)
+        misfit = template_misfit(rows_1, rows_2, V1, F1, V2, F2)
     return Correspondence(p2p_21=p2p, n_source=n1, method=method), misfit
 
 

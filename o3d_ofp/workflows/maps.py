@@ -640,7 +640,8 @@ def template_misfit(
     if listed.size < 3:
         return None
     images = np.asarray(rows_1)[first]
-    if faces_1 is not None and faces_2 is not None:
+    meshes = faces_1 is not None and faces_2 is not None
+    if meshes:
         sizes = [math.sqrt(float(face_areas_normals(V, F)[0].sum()))
                  for V, F in ((vertices_1, faces_1), (vertices_2, faces_2))]  # fmt: skip
     else:
@@ -661,7 +662,7 @@ def template_misfit(
         "target go to source vertices {spread:.1f} times as far apart, in the median (right "
         "files: at most {seen:g}; files of other shapes, or rows out of step: 14 and more); "
         "check that each file belongs to its shape and that their rows match",
-        {"spread": spread, "seen": 1.6}, "template_misfit",
+        {"spread": spread, "seen": 1.6 if meshes else 2.9}, "template_misfit",
     )  # fmt: skip
 
 
