@@ -393,7 +393,7 @@ def p2p_from_template(
     every 11th of its 5000 template rows (9 % of the target listed), mean geodesic error of
     the filled vertices ×100 / √area 4.87 in space, 3.67 along the edges; with every 50th,
     8.10 and 4.75. Whether the two files belong to these shapes is not checked here:
-    :func:`o3d_ofp.workflows.maps.template_misfit` says when they do not (the command line
+    ``o3d_ofp.workflows.maps.template_misfit`` says when they do not (the command line
     checks with it).
 
     Parameters
