@@ -145,7 +145,7 @@ SMALL_PART = 0.5
 #: --landmarks 6``, mean geodesic error x100 / sqrt(area)) gorilla -> human 5.9 with 6 spread
 #: landmarks against 14.6 without (BCICP's published maps 10.0).
 _LIKELY_CAUSES = {
-    # "far" causes: the part and the aligned copies are said where they can be (_far_causes)
+    # "far" causes: {rest}, the part and the aligned copies where they can be (_far_causes)
     "far": Said(
         "likely causes: shapes of other kinds (a spectral map needs near-isometric shapes; "
         "where their parts correspond, as a gorilla's and a person's, a few known vertex pairs "
@@ -187,18 +187,19 @@ def _far_causes(said: Said, eig_1: EigenBasis, eig_2: EigenBasis, landmarks_give
     def open_or_cloud(eig: EigenBasis) -> bool:
         return eig.faces is None or boundary_length(eig.vertices, eig.faces) > 0.0
 
-    rest = ", or a noisy scan"
+    rest = Said(", or a noisy scan")
     if open_or_cloud(eig_1) or open_or_cloud(eig_2):
-        rest = ", a noisy scan, or a part of the other shape ({part})"
+        rest = Said(", a noisy scan, or a part of the other shape ({part})",
+                    {"part": _part_fix(eig_1, eig_2)})  # fmt: skip
     if not landmarks_given:
         V1, V2 = eig_1.vertices, eig_2.vertices
         step = max(1, len(V2) // SAME_PLACE_SAMPLES)
         diagonal = float(np.linalg.norm(V1.max(axis=0) - V1.min(axis=0)))
         mean = float(cKDTree(V1).query(V2[::step])[0].mean())
         if mean <= MAX_MEAN_DISTANCE * diagonal:
-            rest += "; aligned copies of one shape match by closest points ({closest})"
-    said = Said(said.template.replace("{rest}", rest), dict(said.values), said.code)
-    return said.replace(part=_part_fix(eig_1, eig_2)) if "{part}" in rest else said
+            rest = Said(rest.template + "; aligned copies of one shape match by closest points "
+                        "({closest})", rest.values)  # fmt: skip
+    return said.replace(rest=rest)
 
 
 def _part_fix(eig_1: EigenBasis, eig_2: EigenBasis) -> Said:
@@ -681,10 +682,10 @@ def landmarks_kept(
     # Most pairs missed: the fit went where the others lead, and a wrong pair among those
     # would have pulled it there (a trial: the three right pairs of four were named, not the
     # left hand given for the right one, which the map followed)
-    followed = ""
-    if far.sum() > (~far).sum() >= 1:
-        kept = ", ".join(str(int(i) + 1) for i in np.flatnonzero(~far))
-        followed = (f"; it follows pair{'s' * int((~far).sum() > 1)} {kept}: when most pairs are "
+    followed, near = "", np.flatnonzero(~far)
+    if far.sum() > near.size >= 1:
+        kept = ", ".join(str(int(i) + 1) for i in near)
+        followed = (f"; it follows pair{'s' * int(near.size > 1)} {kept}: when most pairs are "
                     "missed, a wrong pair among those it follows may have pulled it there, so "
                     "check those first")  # fmt: skip
     return quality.flagged(Said(
@@ -746,11 +747,10 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
     sums = gap.sum(axis=1)
     first, second = np.argsort(-sums, kind="stable")[:2]
     ratio = float(sums[first] / max(float(sums[second]), 1e-12)) if p >= 3 else 1.0
-    which = "one of them is likely wrong"
-    if ratio >= WRONG_PAIR_RATIO:
-        which = (f"pair {int(first) + 1} is likely the wrong one, its distances to the other "
-                 f"pairs differing between the shapes {ratio:.1f} times as much as any other "
-                 f"pair's")  # fmt: skip
+    wrong = int(first) + 1 if ratio >= WRONG_PAIR_RATIO else None
+    which = "one of them is likely wrong" if wrong is None else (
+        f"pair {wrong} is likely the wrong one, its distances to the other pairs differing "
+        f"between the shapes {ratio:.1f} times as much as any other pair's")  # fmt: skip
     return quality.flagged(Said(
         "landmark pairs {first} and {second} (rows, counting from 1) lie {source:.2f} of "
         "sqrt(area) apart along the source but {target:.2f} along the target: {which} (a pair "
@@ -760,7 +760,7 @@ def landmarks_apart(quality: MapQuality, anchors: Anchors | None) -> MapQuality:
         "this.)",
         {"first": int(i) + 1, "second": int(j) + 1, "source": float(d1[i, j]),
          "target": float(d2[i, j]), "which": which, "seen": LANDMARKS_GAP_SEEN,
-         "wrong": int(first) + 1 if ratio >= WRONG_PAIR_RATIO else None}, "landmarks_apart",
+         "wrong": wrong}, "landmarks_apart",
     ))  # fmt: skip
 
 
