@@ -229,3 +229,15 @@ def test_template_fill_follows_the_target_surface_not_space():
                                                                        apart)[len(V):])  # fmt: skip
     with pytest.raises(ValueError, match="faces_2"):
         p2p_from_template(answers, listed_target, V, faces_2=F + len(V))
+
+
+def test_a_target_vertex_listed_twice_keeps_its_first_row():
+    """Template files may list one target vertex on several rows (a coarse target): its first
+    row's source vertex is its answer, in the dense map and in the pairs the fit check reads."""
+    from o3d_ofp.core.correspondence import template_pairs
+
+    target = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    rows_1, rows_2 = np.array([7, 8, 9, 4]), np.array([2, 0, 2, 1])
+    listed, images = template_pairs(rows_1, rows_2)
+    assert listed.tolist() == [0, 1, 2] and images.tolist() == [8, 4, 7]
+    assert ofp.p2p_from_template(rows_1, rows_2, target).tolist() == [8, 4, 7]

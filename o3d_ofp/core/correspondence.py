@@ -29,6 +29,7 @@ __all__ = [
     "nearest_neighbors",
     "p2p_from_fmap",
     "p2p_from_template",
+    "template_pairs",
 ]
 
 logger = logging.getLogger(__name__)
@@ -379,6 +380,27 @@ def p2p_from_fmap(
         return nearest_neighbors(mapped, eig_2.evecs[:, :rows], method=method)
 
 
+def template_pairs(corr_1: Any, corr_2: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Return the listed target vertices of two template files and the source vertex of each.
+
+    A target vertex listed on several rows takes the source vertex of its first row.
+
+    Parameters
+    ----------
+    corr_1, corr_2 : (t,) array_like of int
+        0-based source / target vertex of each template point.
+
+    Returns
+    -------
+    listed : (u,) ndarray of int
+        The distinct target vertices, ascending.
+    images : (u,) ndarray of int
+        The source vertex of each.
+    """
+    listed, first = np.unique(np.asarray(corr_2), return_index=True)
+    return listed, np.asarray(corr_1)[first]
+
+
 def p2p_from_template(
     corr_1: Any, corr_2: Any, vertices_2: Any, *, faces_2: Any | None = None
 ) -> np.ndarray:
@@ -436,9 +458,9 @@ def p2p_from_template(
         )
     if a.min() < 0:
         raise ValueError("corr_1 holds negative vertex indices")
-    listed, first = np.unique(b, return_index=True)
+    listed, images = template_pairs(a, b)
     source_of = np.full(V2.shape[0], -1, dtype=np.int64)
-    source_of[listed] = a[first]
+    source_of[listed] = images
     nearest = listed[nearest_neighbors(V2[listed], V2)]
     if faces_2 is not None:
         F2 = as_faces(faces_2, V2.shape[0], name="faces_2")

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from ..core._atomic import atomic_path
 from ..core._warnings import warn
-from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap
+from ..core.correspondence import check_fmap, check_p2p, p2p_from_fmap, template_pairs
 from ..core.geometry import face_areas_normals
 from ..core.spectrum import EigenBasis
 from ..core.wording import OptionError, Said
@@ -636,10 +636,9 @@ def template_misfit(
     shapes (or rows out of step) far farther: see :data:`TEMPLATE_SPREAD`. None when the
     files pass, or list fewer than 3 target vertices.
     """
-    listed, first = np.unique(np.asarray(rows_2), return_index=True)
+    listed, images = template_pairs(rows_1, rows_2)
     if listed.size < 3:
         return None
-    images = np.asarray(rows_1)[first]
     meshes = faces_1 is not None and faces_2 is not None
     if meshes:
         sizes = [math.sqrt(float(face_areas_normals(V, F)[0].sum()))
