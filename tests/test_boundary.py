@@ -159,6 +159,50 @@ def test_textured_obj_written_with_its_material_and_no_temporary_files(tmp_path)
     assert back.has_triangle_uvs() and any(np.asarray(t).size > 1 for t in back.textures)
 
 
+def _textured_obj(folder):
+    """An OBJ naming its material and image: Open3D reads it with an empty default image first."""
+    from o3d_ofp.render.panel import write_png
+
+    V, F = icosphere(1)
+    image = np.zeros((8, 8, 3), dtype=np.uint8)
+    image[:, :4] = [255, 0, 0]
+    write_png(folder / "tex.png", image)
+    (folder / "m.mtl").write_text("newmtl mat\nmap_Kd tex.png\n")
+    u = 0.5 + 0.4 * V[:, 0]
+    lines = ["mtllib m.mtl", "usemtl mat", *(f"v {x} {y} {z}" for x, y, z in V)]
+    lines += [f"vt {a} 0.5" for a in u]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in F + 1]
+    (folder / "s.obj").write_text("\n".join(lines) + "\n")
+    return folder / "s.obj", image
+
+
+def test_an_obj_read_with_its_texture_is_written_with_it(tmp_path):
+    """Open3D's reader gives the default material an empty image (the file's is image 1) and its
+    writer stops at an image it cannot write: the MTL lost its map_Kd and no PNG was written."""
+    from o3d_ofp import read_geometry, write_geometry
+
+    path, image = _textured_obj(tmp_path)
+    mesh = read_geometry(path)
+    assert [t.is_empty() for t in mesh.textures] == [True, False]  # what the fix is about
+    ids = np.asarray(mesh.triangle_material_ids).copy()
+    (tmp_path / "out").mkdir()
+    write_geometry(tmp_path / "out" / "w.obj", mesh)
+    assert "map_Kd" in (tmp_path / "out" / "w.mtl").read_text()
+    back = read_geometry(tmp_path / "out" / "w.obj")
+    loaded = [np.asarray(t)[::-1] for t in back.textures if not t.is_empty()]  # legacy: bottom-up
+    assert len(loaded) == 1 and np.array_equal(loaded[0], image)
+    assert len(mesh.textures) == 2 and np.array_equal(np.asarray(mesh.triangle_material_ids), ids)
+    # triangles on the empty default image get a plain white one, the others keep theirs
+    mixed = o3d.geometry.TriangleMesh(mesh)
+    ids[:5] = 0
+    mixed.triangle_material_ids = o3d.utility.IntVector(ids.astype(np.int32))
+    write_geometry(tmp_path / "out" / "m.obj", mixed)
+    assert (tmp_path / "out" / "m.mtl").read_text().count("map_Kd") == 2
+    back = read_geometry(tmp_path / "out" / "m.obj")
+    images = [np.asarray(t) for t in back.textures if not t.is_empty()]
+    assert sorted(i.shape[:2] for i in images) == [(1, 1), (8, 8)]
+
+
 def test_results_keep_the_targets_kind_and_attributes(legacy_mesh):
     """Every kind in, the same kind out; attributes the operation does not replace are kept."""
     V, F = adapters.geometry_to_arrays(legacy_mesh)

@@ -28,7 +28,7 @@ from ..core._atomic import default_file_mode
 from ..core.cleaning import _MAX_SIZE, _MIN_SIZE
 from ._verbosity import open3d_errors_only
 from .convert import geometry_to_arrays, require_open3d
-from .texture import has_texture_image, mesh_texture, set_albedo
+from .texture import has_texture_image, is_empty_image, mesh_texture, set_albedo
 
 __all__ = ["read_geometry", "read_if_path", "write_geometry"]
 
@@ -405,6 +405,8 @@ def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
                 f"{', '.join(('.ply', *CLOUD_ONLY))}"
             )
         return geometry
+    if ext == ".obj" and isinstance(geometry, o3d.geometry.TriangleMesh):
+        return _without_empty_images(geometry, o3d)
     if ext not in (*CLOUD_ONLY, ".stl"):
         return geometry
     mesh = geometry if isinstance(geometry, o3d.geometry.TriangleMesh) else geometry.to_legacy()
@@ -419,6 +421,37 @@ def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
     if mesh.has_vertex_normals():
         cloud.normals = mesh.vertex_normals
     return cloud
+
+
+def _without_empty_images(mesh: Any, o3d: Any) -> Any:
+    """Return a legacy mesh whose texture images all have pixels (a copy if one had none).
+
+    Open3D's OBJ reader gives a file's default material an empty image (the file's own
+    texture is then image 1), and its OBJ writer stops at the first image it cannot write:
+    the MTL loses every ``map_Kd`` and no image is written. Images no triangle uses are left
+    out (the material ids renumbered); one some triangles use becomes a 1 x 1 white image,
+    which renders as the plain white material those triangles had.
+    """
+    empty = [is_empty_image(image) for image in mesh.textures]
+    if not any(empty):
+        return mesh
+    material = np.asarray(mesh.triangle_material_ids, dtype=np.int64)
+    if material.shape[0] != len(mesh.triangles):
+        material = np.zeros(len(mesh.triangles), dtype=np.int64)
+    used = np.zeros(len(empty), dtype=bool)
+    used[material[(material >= 0) & (material < len(empty))]] = True
+    kept = [i for i, e in enumerate(empty) if used[i] or not e]
+    new_id = np.full(len(empty), -1, dtype=np.int64)
+    new_id[kept] = np.arange(len(kept))
+    white = o3d.geometry.Image(np.full((1, 1, 3), 255, dtype=np.uint8))
+    out = o3d.geometry.TriangleMesh(mesh)  # a copy: the caller's mesh is not changed
+    out.textures = [white if empty[i] else mesh.textures[i] for i in kept]
+    inside = (material >= 0) & (material < len(empty))
+    ids = np.where(inside, new_id[np.clip(material, 0, len(empty) - 1)], material)
+    out.triangle_material_ids = o3d.utility.IntVector(ids.astype(np.int32))
+    logger.debug("%d empty texture image(s) left out or made plain white for the OBJ writer",
+                 sum(empty))  # fmt: skip
+    return out
 
 
 def _gltf_mesh(mesh: Any, o3d: Any) -> tuple[Any, bool]:

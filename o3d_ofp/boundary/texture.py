@@ -41,6 +41,7 @@ __all__ = [
     "corner_uvs",
     "has_texture_image",
     "has_uvs",
+    "is_empty_image",
     "legacy_texture_image",
     "mesh_texture",
     "missing_texture_files",
@@ -63,7 +64,7 @@ def _image_array(image: Any) -> np.ndarray:
             raise FileNotFoundError(f"{path}: no such texture file")
         with open3d_errors_only():
             image = o3d.io.read_image(path)
-        if _is_empty(image):
+        if is_empty_image(image):
             raise ValueError(f"{path}: Open3D could not read this image (PNG and JPEG are read)")
     if isinstance(image, o3d.t.geometry.Image):
         image = image.as_tensor().cpu().numpy()
@@ -75,7 +76,7 @@ def _image_array(image: Any) -> np.ndarray:
     return arr
 
 
-def _is_empty(image: Any) -> bool:
+def is_empty_image(image: Any) -> bool:
     """Tell an Open3D image without pixels (``np.asarray`` of one is a 0-d object array)."""
     if hasattr(image, "is_empty"):
         return bool(image.is_empty())
@@ -340,7 +341,7 @@ def has_texture_image(geometry: Any) -> bool:
     """
     kind = geometry_kind(geometry)
     if kind == "legacy_mesh":
-        return any(not _is_empty(image) for image in geometry.textures)
+        return any(not is_empty_image(image) for image in geometry.textures)
     return kind == "tensor_mesh" and _albedo(geometry) is not None
 
 
@@ -396,7 +397,7 @@ def _legacy_parts(mesh: Any, n_faces: int) -> tuple[np.ndarray, list[np.ndarray]
         raise _no_uvs(uv.shape[0], n_faces)
     # Legacy textures are bottom-up: flip them to the file's (top-down) orientation. Empty
     # images (the OBJ reader's default material) stay as placeholders so the ids still match.
-    images = [np.zeros((0, 0)) if _is_empty(image) else np.asarray(image)[::-1].copy()
+    images = [np.zeros((0, 0)) if is_empty_image(image) else np.asarray(image)[::-1].copy()
               for image in mesh.textures]  # fmt: skip
     material = np.array(mesh.triangle_material_ids, dtype=np.int64)
     if material.shape[0] != n_faces:
