@@ -1,5 +1,6 @@
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -160,7 +161,7 @@ def test_textured_obj_written_with_its_material_and_no_temporary_files(tmp_path)
 
 
 def _textured_obj(folder):
-    """An OBJ naming its material and image: Open3D reads it with an empty default image first."""
+    """Write an OBJ naming its material and image (Open3D reads an empty default image first)."""
     from o3d_ofp.render.panel import write_png
 
     V, F = icosphere(1)
@@ -177,8 +178,11 @@ def _textured_obj(folder):
 
 
 def test_an_obj_read_with_its_texture_is_written_with_it(tmp_path):
-    """Open3D's reader gives the default material an empty image (the file's is image 1) and its
-    writer stops at an image it cannot write: the MTL lost its map_Kd and no PNG was written."""
+    """An OBJ read with its texture is written with it.
+
+    Open3D's reader gives the default material an empty image (the file's is image 1) and its
+    writer stops at an image it cannot write: the MTL lost its map_Kd and no PNG was written.
+    """
     from o3d_ofp import read_geometry, write_geometry
 
     path, image = _textured_obj(tmp_path)
@@ -201,6 +205,25 @@ def test_an_obj_read_with_its_texture_is_written_with_it(tmp_path):
     back = read_geometry(tmp_path / "out" / "m.obj")
     images = [np.asarray(t) for t in back.textures if not t.is_empty()]
     assert sorted(i.shape[:2] for i in images) == [(1, 1), (8, 8)]
+
+
+def test_a_format_that_cannot_hold_the_texture_or_the_colors_says_so(tmp_path):
+    """Open3D's writers leave a texture out of a PLY and colors out of an STL without a word."""
+    from o3d_ofp import OFPWarning, read_geometry, write_geometry
+
+    path, _ = _textured_obj(tmp_path)
+    mesh = read_geometry(path)
+    with pytest.warns(OFPWarning, match=r"t\.ply: \.ply holds no texture .*\.obj, \.gltf, \.glb"):
+        write_geometry(tmp_path / "t.ply", mesh)
+    colored = o3d.geometry.TriangleMesh(mesh)
+    colored.vertex_colors = o3d.utility.Vector3dVector(np.full((len(mesh.vertices), 3), 0.5))
+    with pytest.warns(OFPWarning, match=r"c\.stl: \.stl holds no vertex colors"):
+        write_geometry(tmp_path / "c.stl", colored)
+    with warnings.catch_warnings():  # formats that hold them: nothing said
+        warnings.simplefilter("error")
+        write_geometry(tmp_path / "t.obj", colored)
+        write_geometry(tmp_path / "c.ply", o3d.geometry.TriangleMesh(colored.vertices,
+                                                                     colored.triangles))
 
 
 def test_results_keep_the_targets_kind_and_attributes(legacy_mesh):

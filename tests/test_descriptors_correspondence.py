@@ -232,8 +232,11 @@ def test_template_fill_follows_the_target_surface_not_space():
 
 
 def test_a_target_vertex_listed_twice_keeps_its_first_row():
-    """Template files may list one target vertex on several rows (a coarse target): its first
-    row's source vertex is its answer, in the dense map and in the pairs the fit check reads."""
+    """A target vertex on several template rows takes its first row's source vertex.
+
+    Template files may list one target vertex on several rows (a coarse target): the first
+    row's source vertex is its answer, in the dense map and in the pairs the fit check reads.
+    """
     from o3d_ofp.core.correspondence import template_pairs
 
     target = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])

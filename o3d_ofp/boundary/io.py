@@ -25,7 +25,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..core._atomic import default_file_mode
+from ..core._warnings import warn
 from ..core.cleaning import _MAX_SIZE, _MIN_SIZE
+from ..core.wording import Said
 from ._verbosity import open3d_errors_only
 from .convert import geometry_to_arrays, require_open3d
 from .texture import has_texture_image, is_empty_image, mesh_texture, set_albedo
@@ -423,6 +425,40 @@ def _as_writable(path: str, geometry: Any, o3d: Any) -> Any:
     return cloud
 
 
+#: Formats that hold a mesh's per-corner UVs and its texture image.
+TEXTURED = (".obj", *GLTF)
+
+
+def _warn_lost(path: str, geometry: Any, o3d: Any) -> None:
+    """Say what of the geometry the format of ``path`` cannot hold: its texture, its colors.
+
+    Open3D's writers leave them out without a word. (Normals are not said: a reader or
+    viewer computes them again from the faces.)
+    """
+    ext = _ext(path)
+    lost = []
+    if ext not in TEXTURED and has_texture_image(geometry):
+        lost.append(("texture (UVs and image)", ", ".join(TEXTURED)))
+    if ext in NO_COLORS and _has_colors(geometry, o3d):
+        lost.append(("vertex colors", ".ply, .obj, .off, .glb, .gltf, .xyzrgb, .pcd, .pts"))
+    for what, keep in lost:
+        warn(logger, Said(
+            "{path}: {ext} holds no {what}: the geometry is written without it ({keep} keep it)",
+            {"path": path, "ext": ext, "what": what, "keep": keep}, "format_drops",
+        ))  # fmt: skip
+
+
+def _has_colors(geometry: Any, o3d: Any) -> bool:
+    """Tell whether a mesh or point cloud (legacy or tensor) has per-vertex colors."""
+    if isinstance(geometry, o3d.geometry.TriangleMesh):
+        return geometry.has_vertex_colors()
+    if isinstance(geometry, o3d.geometry.PointCloud):
+        return geometry.has_colors()
+    attributes = geometry.point if isinstance(geometry, o3d.t.geometry.PointCloud) else (
+        geometry.vertex)  # fmt: skip
+    return "colors" in attributes
+
+
 def _without_empty_images(mesh: Any, o3d: Any) -> Any:
     """Return a legacy mesh whose texture images all have pixels (a copy if one had none).
 
@@ -579,6 +615,13 @@ def write_geometry(
         If Open3D fails to write, or writes a glTF it cannot read back (or without the
         texture); nothing is left at ``path`` or beside it.
 
+    Warns
+    -----
+    OFPWarning
+        When the format cannot hold the geometry's texture (anything but .obj, .glb and
+        .gltf) or its vertex colors (.stl, .xyz, .xyzn): Open3D leaves them out, the message
+        names the formats that keep them.
+
     Examples
     --------
     >>> import os
@@ -596,7 +639,9 @@ def write_geometry(
     o3d = require_open3d()
     path = os.fspath(path)
     folder, name = os.path.dirname(os.path.abspath(path)), os.path.basename(path)
-    geometry = _as_writable(path, geometry, o3d)
+    writable = _as_writable(path, geometry, o3d)  # (refuses what is no Open3D geometry)
+    _warn_lost(path, geometry, o3d)
+    geometry = writable
     mesh = isinstance(geometry, (o3d.geometry.TriangleMesh, o3d.t.geometry.TriangleMesh))
     gltf = mesh and name.lower().endswith(GLTF)
     if gltf:
