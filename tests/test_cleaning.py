@@ -420,3 +420,23 @@ def test_the_cleaned_surface_basis_has_the_cleaned_faces():
     where = {tuple(p): i for i, p in enumerate(V)}
     to_sphere = np.array([where[tuple(p)] for p in surface.vertices])
     assert {tuple(sorted(t)) for t in to_sphere[surface.faces]} == welded
+
+
+def test_a_mesh_whose_faces_lie_on_a_line_is_refused():
+    """Faces with distinct but collinear corners span no surface: refused, as such clouds are.
+
+    (Their cotangent Laplacian still had eigenpairs, and every command wrote a result.) A mesh
+    with only some faces of zero area (slivers) is still cleaned and solved.
+    """
+    from o3d_ofp.core.cleaning import check_shape
+
+    line = np.outer(np.arange(6.0), [1.0, 2.0, 3.0])
+    faces = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4], [3, 4, 5]])
+    with pytest.raises(ValueError, match="the 4 faces have no area"):
+        ofp.clean_shape(line, faces)
+    with pytest.raises(ValueError, match="no area"):  # the cheap check before the eigensolves
+        check_shape(line, faces)
+    V, F = icosphere(2)
+    sliver = np.vstack([V, (V[F[0, 0]] + V[F[0, 1]]) / 2])  # a zero-area face on an edge
+    F2 = np.vstack([F, [[F[0, 0], len(V), F[0, 1]]]])
+    assert ofp.clean_shape(sliver, F2).cleaning.report.faces == len(F2)

@@ -429,8 +429,18 @@ def _topology(vertices: Any, faces: Any, weld: Any, components: str, n_neighbors
         relabel = np.full(labels.max() + 1, -1)
         relabel[live] = np.arange(live.shape[0])
         face_labels = relabel[comp_of_face]
+        areas = face_areas_normals(Vg, F)[0]
+        # Faces whose corners all lie on a line span nothing (the cotangent Laplacian of such
+        # a "mesh" still has eigenpairs: garbage). Relative to the squared extent: a rounding
+        # error of collinear corners is near 1e-16 of it.
+        extent = float(np.linalg.norm(np.ptp(Vg[np.unique(F)], axis=0))) ** 2
+        if float(areas.sum()) <= 1e-12 * extent:
+            raise ValueError(
+                f"the {F.shape[0]} faces have no area (their vertices lie on a line): there is "
+                "no surface"
+            )
         keep_faces, n_comp, dropped = _pick_component(
-            face_labels, face_areas_normals(Vg, F)[0], components, "area", "faces"
+            face_labels, areas, components, "area", "faces"
         )
         keep_v = used.copy()
         if keep_faces is not None:
