@@ -84,6 +84,32 @@ def test_a_map_of_other_shapes_is_refused_under_strict(shapes, tmp_path, capsys)
     assert not os.path.exists(tmp_path / "b.ply")
 
 
+@pytest.mark.parametrize("given", ["identity", "npy"])
+def test_an_identity_or_file_map_saved_remembers_its_shapes(shapes, tmp_path, capsys, given):
+    """``--map identity`` and a map file saved with ``--save-map`` warn on other shapes too.
+
+    (A trial: only estimated and closest-point maps recorded their shapes.)
+    """
+    _d, p, V, F, _colors = shapes
+    spec = "identity"
+    if given == "npy":
+        spec = str(tmp_path / "map.npy")
+        np.save(spec, np.arange(len(V)))
+    saved = str(tmp_path / "saved.npz")
+    assert main(["transfer", p["src"], p["same"], "--map", spec, "--save-map", saved,
+                 "-o", str(tmp_path / "a.ply")]) == 0  # fmt: skip
+    assert "made for another" not in _err(capsys)
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    other = str(tmp_path / "other.ply")
+    bent = V.copy()
+    bent[:, 1] += 0.3 * bent[:, 0] ** 2
+    ofp.write_geometry(other, triangle_mesh_from_arrays(bent, F))
+    argv = ["transfer", p["src"], other, "--map", saved, "--strict", "-o", str(tmp_path / "b.ply")]
+    assert main(argv) == 3
+    assert "was made for another target" in _err(capsys)
+
+
 def test_save_map_may_not_replace_the_map_read(shapes, tmp_path, capsys):
     _d, p, *_ = shapes
     saved = str(tmp_path / "m.npz")

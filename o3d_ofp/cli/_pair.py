@@ -27,7 +27,12 @@ from ..core._rows import unique_rows
 from ..core.correspondence import p2p_from_template
 from ..core.io import read_vts
 from ..core.wording import AdvisedError, Said
-from ..workflows.maps import Correspondence, given_map_collapse, template_misfit
+from ..workflows.maps import (
+    Correspondence,
+    given_map_collapse,
+    template_misfit,
+    with_signatures,
+)
 from ..workflows.options import BasisOptions, MatchOptions, same_frame_conflict
 from ..workflows.partial import check_partial_areas
 from ..workflows.plan import Plan, Prepared, plan_pair, prepare
@@ -250,8 +255,10 @@ def _check_flags(args: argparse.Namespace, inputs: Any) -> None:
 
 def _identity(n1: int, n2: int, V1: np.ndarray, V2: np.ndarray) -> Correspondence:
     """Return the map of ``--map identity`` (refused between other vertex counts)."""
-    if n1 == n2:
-        return Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity")
+    if n1 == n2:  # (a saved map remembers its shapes, as every other map does)
+        return with_signatures(
+            Correspondence(p2p_21=np.arange(n2), n_source=n1, method="identity"), V1, V2
+        )
     copies = [f"{extra} of the {name}'s are copies at the same position as another (e.g. an "
               "OBJ's along its UV seams)" for name, V in (("source", V1), ("target", V2))
               if (extra := V.shape[0] - np.unique(V, axis=0).shape[0])]
@@ -311,7 +318,7 @@ def _read_map(
                    f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
     if method == "template":  # (its source rows are in range: checked above)
         misfit = template_misfit(rows_1, rows_2, V1, F1, V2, F2)
-    return Correspondence(p2p_21=p2p, n_source=n1, method=method), misfit
+    return with_signatures(Correspondence(p2p_21=p2p, n_source=n1, method=method), V1, V2), misfit
 
 
 def _other_numbering(F1: np.ndarray | None, F2: np.ndarray | None) -> str | None:
