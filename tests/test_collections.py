@@ -1132,6 +1132,14 @@ def test_a_fix_a_collection_cannot_apply_says_to_transfer_the_target_alone():
     assert "then ofp.transfer_detail(..., correspondence=...)" in said
     assert "o3d-ofp transfer SOURCE TARGET --landmarks" in _for_collections(symmetric)
     assert "ofp.transfer_texture(" in _for_collections(symmetric, "texture")
+    # a map of the caller's or of closest points, which a collection refuses (a trial: the
+    # detail's "estimated map hid the detail" advised --map FILE to a collection)
+    unseen = Said("detail needs a map you trust: {give_map}; aligned copies: "
+                  "{coordinates_closest}", {}, "detail_unseen")  # fmt: skip
+    said = _for_collections(unseen, "detail")
+    assert "a collection's maps are estimated or the identity" in said
+    assert "o3d-ofp detail SOURCE TARGET --map FILE or --map closest" in said
+    assert "ofp.transfer_detail(source, target, correspondence=...)" in said
     # a partial shape named as one likely cause among others is no fix to apply
     cause = Said("likely causes: a part of the other shape ({partial})", {}, "causes_far")
     assert _for_collections(cause) is cause  # unchanged, still a Said (worded by its reader)

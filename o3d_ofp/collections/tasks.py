@@ -265,6 +265,13 @@ ALONE_WITH_LANDMARKS = ("a collection takes no landmarks: transfer this target a
 #: Appended to a message whose fix is a partial match, which a collection does not make.
 ALONE_PARTIAL = ("a collection makes no partial match: transfer this target alone (o3d-ofp "
                  "{command} SOURCE TARGET --partial, or ofp.match(source, target, partial=True))")
+#: Appended to a message whose fix is a map of the caller's or a closest-point map: a
+#: collection's maps are estimated or the identity.
+ALONE_WITH_MAP = ("a collection's maps are estimated or the identity: transfer this target "
+                  "alone (o3d-ofp {command} SOURCE TARGET --map FILE or --map closest, or "
+                  "ofp.{function}(source, target, correspondence=...))")
+#: The fixes of a message that need a map a collection does not take.
+_MAP_FIXES = {"give_map", "closest", "coordinates_closest", "align"}
 #: The findings whose fix is a partial match (not the "likely causes" that name it among
 #: others).
 _PARTIAL_FIXES = {"looks_partial", "looks_partial_units", "cloud_part", "part_larger"}
@@ -279,9 +286,10 @@ def _codes(message: Said) -> set[str]:
 def _for_collections(message: str | Said, kind: str = "colors") -> str | Said:
     """Return a library message with the fix a collection cannot apply: the target run alone.
 
-    The fixes are read from the message's codes (landmarks, a partial match), never from its
-    words; ``kind`` names the collection's command and Python function. The message stays a
-    Said (a front end words it for its reader).
+    The fixes are read from the message's codes (landmarks, a partial match, a map of the
+    caller's or of closest points), never from its words; ``kind`` names the collection's
+    command and Python function. The message stays a Said (a front end words it for its
+    reader).
     """
     if not isinstance(message, Said):
         return message
@@ -292,6 +300,8 @@ def _for_collections(message: str | Said, kind: str = "colors") -> str | Said:
         alone.append(ALONE_WITH_LANDMARKS.format(command=command, function=function))
     if _codes(message) & _PARTIAL_FIXES:
         alone.append(ALONE_PARTIAL.format(command=command))
+    if _MAP_FIXES & set(message.fixes):
+        alone.append(ALONE_WITH_MAP.format(command=command, function=function))
     if not alone:
         return message
     extra = "".join(f" ({a})" for a in alone).replace("{", "{{").replace("}", "}}")
