@@ -102,10 +102,13 @@ def test_nonconvergence_is_retried_then_raised(monkeypatch, caplog):
     # ARPACK alone (block Lanczos, the first attempt for 50 pairs or more, has no restarts).
     monkeypatch.setattr(spectrum, "_block_fits", lambda n, k: False)
     # One Lanczos restart is not enough with the default Krylov space; the documented retry
-    # (larger space, further shift) recovers, says so, and the result passes the residual check.
-    with caplog.at_level(logging.WARNING, logger="o3d_ofp.core.spectrum"):
+    # (larger space, further shift) recovers, says so in the log (INFO: a retry that passes
+    # is as good, nothing for the user to do; a trial saw it as a failure under -q), and the
+    # result passes the residual check.
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.core.spectrum"):
         eig = ofp.eigenbasis(V, F, k=60, maxiter=1)
-    assert "retrying" in caplog.text
+    retries = [r for r in caplog.records if "retrying" in r.getMessage()]
+    assert retries and all(r.levelno == logging.INFO for r in retries)
     ref = ofp.eigenbasis(V, F, k=60)
     # Same eigenvalues as the normal run: both pass the 1e-6 residual check, which bounds the
     # eigenvalue error far below this.
