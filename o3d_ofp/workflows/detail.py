@@ -658,10 +658,11 @@ def calibrate_detail(
                 time, float(mean[best]), mean[0], 100.0 * share)  # fmt: skip
     if np.any(regional):
         logger.info(
-            "a region of %.1f %% of the target lacks more: low-passes up to heat time %.3g there",
-            100.0 * float(weight @ regional),
+            "a region of %.2g %% of the target (%s) lacks more: low-passes up to heat time %.3g "
+            "there", 100.0 * float(weight @ regional),
+            "1 vertex" if (count := int(np.count_nonzero(regional))) == 1 else f"{count} vertices",
             float(times[level].max()),
-        )
+        )  # fmt: skip
     mean.setflags(write=False)
     lacking.setflags(write=False)
     if target_lowpass is not own.get(0):  # the target's own array is not this function's
