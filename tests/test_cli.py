@@ -621,6 +621,20 @@ def test_basis_file_conflicting_with_k_is_refused(files, capsys, tmp_path):
         assert main([*approx, *extra]) == 2, extra
         assert message in capsys.readouterr().err, extra
     assert main([*approx, "--order", "2", "--preset", "ours"]) == 0
+    # transfer's --basis-1 / --basis-2 the same way (a trial: --preset ours* with both files
+    # ran on the files' "ours" bases without a word)
+    out_2 = tmp_path / "b2.npz"
+    assert main(["basis", files["tgt"], "-k", "10", "-o", str(out_2)]) == 0
+    capsys.readouterr()
+    pair = ["transfer", files["src"], files["tgt"], "--map", "identity", "--basis-1", str(out),
+            "--basis-2", str(out_2), "-o", str(tmp_path / "t.ply")]  # fmt: skip
+    for extra, message in ((["--preset", "ours*"], f"--basis-1 {out}: holds a basis "
+                            "orthogonalized with threshold 0.01"),
+                           (["--k2", "12"], f"--basis-2 {out_2}: holds a basis on k=10"),
+                           (["--order", "3"], "holds a basis of order 2")):  # fmt: skip
+        assert main([*pair, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
+    assert main([*pair, "--k1", "8", "--order", "2"]) == 0
 
 
 @pytest.mark.parametrize("ext", [".obj", ".glb"])
@@ -794,6 +808,21 @@ def test_memory_estimate_refuses_before_any_eigensolve(
     assert main(argv) == 2
     _one_line_error(capsys, "of memory, more than the 1 MB available", flags, "simplified")
     assert not any(p.name.startswith(("x.", ".")) for p in tmp_path.iterdir())
+
+
+def test_an_absurd_order_is_refused_by_the_memory_estimate(files, capsys, tmp_path):
+    """``--order 10**21`` crashed the estimate (an int too large for a float), in every command.
+
+    And the advice names the command's own flags (transfer has no --band).
+    """
+    huge = str(10**21)
+    assert main(["basis", files["src"], "--order", huge, "-o", str(tmp_path / "b.npz")]) == 2
+    _one_line_error(capsys, "of memory, more than", "lower -k or --order")
+    argv = ["transfer", files["src"], files["tgt"], "--map", "identity", "--order", huge, "-o",
+            str(tmp_path / "t.ply")]  # fmt: skip
+    assert main(argv) == 2
+    assert "--band" not in _one_line_error(capsys, "lower --k1/--k2 or --order")
+    assert not list(tmp_path.iterdir())
 
 
 def test_memory_estimate_bounds_the_real_peak():

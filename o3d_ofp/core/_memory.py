@@ -101,7 +101,8 @@ def basis_job_bytes(
 
     eig_k = max(k, eig_k or 0)
     kk = min(eig_k, max(n - 1, 1))
-    total = n_eigenproducts(min(k, kk), order)
+    # (a count beyond 2^62 cannot fit any memory: capped so that the bytes stay a float)
+    total = min(n_eigenproducts(min(k, kk), order), 2**62)
     q_max = min(total, n)
     ncv = min(n, max(2 * (kk + 1) + 1, 20))
     matrices = _LAPLACIAN_ROW * n

@@ -76,6 +76,10 @@ FIXES: Mapping[str, tuple[str, str]] = {
         "--map identity",
     ),
     "lower": (
+        "lower k1, k2 or order (options=BasisOptions(...))",
+        "lower --k1/--k2 or --order",
+    ),
+    "lower_band": (
         "lower k1, k2 or order (options=BasisOptions(...)) or band",
         "lower --k1/--k2, --order or --band",
     ),

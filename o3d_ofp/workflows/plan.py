@@ -539,7 +539,8 @@ def _check_memory(
     what = " and ".join(f"{name} ({n} vertices, k={max(k, e)})" for name, n, k, e, _ in jobs)
     raise AdvisedError(Said(
         "the bases of {what} need about {need} of memory, more than the {limit} available: "
-        "{lower}, or use simplified meshes (fewer vertices)" + ("; or {give_map}" if
+        "{" + ("lower_band" if plan.task == "detail" else "lower") + "}, or use simplified "
+        "meshes (fewer vertices)" + ("; or {give_map}" if
         plan.estimated and not plan.dense else ""),  # the estimation's size: no option of theirs
         {"what": what, "need": format_bytes(need), "limit": format_bytes(limit)}, "memory",
     ))  # fmt: skip
