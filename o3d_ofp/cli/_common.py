@@ -414,6 +414,23 @@ def load_basis_file(path: str, V: Any, F: Any, mesh: str, args: Any, flag: str) 
     return B
 
 
+def check_basis_flags(B: OFPBasis, given: str, args: Any, k_flag: str, k: int | None,
+                      tol: float) -> None:  # fmt: skip
+    """Refuse flags that contradict a basis read from a file (``given``: "--basis FILE").
+
+    ``k_flag``, ``k``: the flag of its eigenfunctions and its value (None: not given);
+    ``--order`` and ``--preset`` / ``--tol`` (threshold ``tol``) are read from ``args``.
+    """
+    for flag, value, what, held in ((k_flag, k, f"on k={B.k} eigenfunctions", B.k),
+                                    ("--order", args.order, f"of order {B.order}", B.order)):
+        refuse((value is not None and value != held, f"{given}: holds a basis {what}, but "
+                f"{flag} {value} was given; drop {flag} or recompute the basis"))  # fmt: skip
+    threshold = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
+    refuse(((args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9),
+            f"{given}: holds a basis orthogonalized with threshold {B.tol:g}, but "
+            f"{threshold} (threshold {tol:g}) was given; drop it or recompute the basis"))
+
+
 def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis:
     """Return the OFP basis of one shape: from ``--basis``, the ``--cache`` folder, or computed.
 
@@ -423,14 +440,7 @@ def shape_basis(V: Any, F: Any, path: str, args: argparse.Namespace) -> OFPBasis
     k, order, tol = options.k1, options.order, options.threshold("ours")
     if getattr(args, "basis", None):
         B = load_basis_file(args.basis, V, F, path, args, "--basis")
-        for flag, given, what, held in (("-k", args.k, f"on k={B.k} eigenfunctions", B.k),
-                                         ("--order", args.order, f"of order {B.order}", B.order)):
-            refuse((given is not None and given != held, f"--basis {args.basis}: holds a basis "
-                    f"{what}, but {flag} {given} was given; drop {flag} or recompute the basis"))
-        threshold = f"--tol {args.tol}" if args.tol is not None else f"--preset {args.preset}"
-        refuse(((args.tol or args.preset) and not np.isclose(tol, B.tol, rtol=1e-9),
-                f"--basis {args.basis}: holds a basis orthogonalized with threshold {B.tol:g}, but "
-                f"{threshold} (threshold {tol:g}) was given; drop it or recompute the basis"))
+        check_basis_flags(B, f"--basis {args.basis}", args, "-k", args.k, tol)
         return B
     refuse((k > V.shape[0] - 2, f"-k {k}: must be smaller than the number of vertices of {path} "
             f"minus one ({V.shape[0]} vertices: at most {V.shape[0] - 2})"))  # (before the memory

@@ -433,6 +433,11 @@ def plan(args: argparse.Namespace, pair: Pair, task: str, *, unused: Callable[[l
     pair.files = tuple(common.load_basis_file(f, V, F, path, args, flag) if f else None
                        for f, V, F, path, flag in sides)  # fmt: skip
     bases = common.basis_options(args)
+    tol = (bases or BasisOptions()).threshold("ours")
+    for B, (f, *_, flag), k_flag in zip(pair.files, sides, ("--k1", "--k2"), strict=True):
+        if B is not None:  # its flags must say what the file holds
+            common.check_basis_flags(B, f"{flag} {f}", args, k_flag, getattr(args, k_flag[2:]),
+                                     tol)  # fmt: skip
     if planned.basis_k is not None and (bases is not None or any(pair.files)):
         planned = _planned(pair, task=task, bases=bases, given_bases=pair.files, **options)
     return planned
