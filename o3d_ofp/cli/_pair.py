@@ -362,7 +362,8 @@ def _judge_given(
         logger.warning("%s", numbering)
     quality = corr.quality
     if quality is not None:
-        report([f"stored with --map {args.map}: {quality.summary()}"])
+        # (the verdict of its own estimation, when saved; the checks here are this use's)
+        report([f"when saved, --map {args.map} had {quality.summary()}"])
     if quality is not None and quality.suspect:
         # said once: on stderr (its summary line above already says SUSPECT on stdout)
         said = "; ".join(r.text(cli=True) for r in quality.reasons)
