@@ -91,8 +91,20 @@ def test_basis_then_approximate_with_the_cached_basis(files, capsys, tmp_path):
     np.testing.assert_allclose(
         np.asarray(mesh.vertex_colors), np.clip(B.approximate(stored), 0, 1), atol=0.5 / 255 + 1e-9
     )
-    # xyz and a .npy signal; a .npy output.
-    assert main(["approximate", files["src"], "--signal", "xyz", "-k", "8", "-o", str(approx)]) == 0
+    # xyz and a .npy signal; a .npy output. The coordinates' error is about their centroid:
+    # the same wherever the shape sits (a trial: 1.75 % at the origin, 0.0095 % moved by 100)
+    errors = []
+    for shift in (0.0, 100.0):
+        moved = tmp_path / f"moved_{shift:g}.ply"
+        from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+        ofp.write_geometry(moved, triangle_mesh_from_arrays(files["V"] + shift, files["F"]))
+        assert main(["approximate", str(moved), "--signal", "xyz", "-k", "8", "-o",
+                     str(approx)]) == 0  # fmt: skip
+        text = capsys.readouterr().out
+        errors.append(text.split(" = ")[1].split("%")[0])
+        assert "about their centroid" in text
+    assert errors[0] == errors[1] and float(errors[0]) > 0.1, errors
     npy = tmp_path / "a.npy"
     sig = str(files["dir"] / "scalar.npy")
     assert main(["approximate", files["src"], "--signal", sig, "-k", "8", "-o", str(npy)]) == 0
