@@ -326,12 +326,13 @@ def _notes(
     if clouds:
         # No advice to mesh the cloud: Open3D's Poisson reconstruction of FAUST 087's and
         # centaur4's clouds (depth 7-8) gave maps of 0.11-0.20 and 0.025-0.46
-        # (``python scripts/eval_cloud.py --poisson``).
+        # (``python scripts/eval_cloud.py --poisson``). The errors quoted:
+        # ``python scripts/eval_cloud.py --estimate`` (docs/benchmarks.md, point clouds).
         notes.append(Said(
             "a point cloud has no faces: the flip check estimates its normals from the points "
             "(normals the cloud carries are not read; the check is less sure than on meshes) "
             "and its Laplacian can join parts that touch (measured on FAUST 093 -> 087: error "
-            "0.063 with the target as points, 0.121 with both, against 0.014 for the meshes); "
+            "0.062 with the target as points, 0.195 with both, against 0.013 for the meshes); "
             "match the mesh the cloud was made from when there is one, or give a few landmarks, "
             "and check the result", {}, "cloud",
         ))  # fmt: skip
