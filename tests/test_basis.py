@@ -93,6 +93,10 @@ def test_save_load_round_trip(tmp_path, blob_mesh):
         np.testing.assert_array_equal(getattr(C, name), getattr(B, name))
     assert (C.k, C.order, C.tol) == (B.k, B.order, B.tol)
     np.testing.assert_array_equal(C.eig.evecs, eig.evecs)
+    # another extension is refused, as Correspondence.save does (NumPy wrote "basis.txt.npz")
+    with pytest.raises(ValueError, match=r"basis\.txt: a basis is saved as \.npz"):
+        B.save(tmp_path / "basis.txt")
+    assert not (tmp_path / "basis.txt.npz").exists()
     np.testing.assert_array_equal(C.eig.faces, eig.faces)
     assert (C.eig.stiffness != eig.stiffness).nnz == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["basis.npz"]  # no temp file left

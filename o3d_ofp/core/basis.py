@@ -262,7 +262,13 @@ class OFPBasis:
         Parameters
         ----------
         path : str or os.PathLike
-            Destination; ``.npz`` is appended by NumPy if missing.
+            Destination, a ``.npz`` file.
+
+        Raises
+        ------
+        ValueError
+            For a name without ``.npz`` (NumPy would write another file than the one named),
+            as :meth:`o3d_ofp.Correspondence.save` does.
         """
         payload = {
             "format_version": np.int64(_FORMAT_VERSION),
@@ -276,7 +282,7 @@ class OFPBasis:
         }
         path = os.fspath(path)
         if not path.endswith(".npz"):
-            path += ".npz"
+            raise ValueError(f"{path}: a basis is saved as .npz; name it {path}.npz")
         with atomic_path(path, suffix=".npz") as tmp:
             np.savez(tmp, **payload)
 
