@@ -833,3 +833,22 @@ def test_write_geometry_refuses_arrays_with_the_function_that_makes_a_mesh(tmp_p
                        r"TriangleMesh or PointCloud .* got tuple .*triangle_mesh_from_arrays"):
         ofp.write_geometry(str(tmp_path / name), (V, F))
     assert list(tmp_path.iterdir()) == []  # nothing written, no temporary folder left
+
+
+def test_common_python_mistakes_get_messages_that_name_the_fix(legacy_mesh, tmp_path):
+    """Common mistakes are told with their fix.
+
+    A trial's: k given by position, options as a dict, a folder as a shape, an Open3D object of
+    another kind as the target.
+    """
+    colored = o3d.geometry.TriangleMesh(legacy_mesh)
+    colored.vertex_colors = o3d.utility.Vector3dVector(np.full((len(colored.vertices), 3), 0.5))
+    with pytest.raises(ValueError, match=r"keyword-only, k=29"):
+        ofp.eigenbasis(legacy_mesh, 29)
+    corr = ofp.Correspondence.from_p2p(np.arange(len(colored.vertices)), colored, colored)
+    with pytest.raises(TypeError, match=r"options must be an o3d_ofp\.BasisOptions.*dict"):
+        ofp.transfer_colors(colored, colored, correspondence=corr, options={"k1": 14})
+    with pytest.raises(ValueError, match=r"source: .*: a folder, not a mesh"):
+        ofp.match(str(tmp_path), legacy_mesh)
+    with pytest.raises(TypeError, match=r"^target must be an Open3D TriangleMesh"):
+        ofp.transfer_colors(colored, o3d.geometry.Image(), correspondence=corr)

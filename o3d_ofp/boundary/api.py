@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import numbers
 from typing import Any
 
 import numpy as np
@@ -93,7 +94,10 @@ def as_arrays(shape: Any, faces: Any = None, *, name: str = "shape") -> tuple[An
     shape = read_if_path(shape, name)
     if is_open3d_geometry(shape):
         if faces is not None:
-            raise ValueError(f"faces must be None when {name} is an Open3D geometry")
+            number = isinstance(faces, numbers.Integral) and not isinstance(faces, bool)
+            hint = (f" (got {faces}: the eigenfunction count is keyword-only, k={faces})"
+                    if number else "")  # fmt: skip
+            raise ValueError(f"faces must be None when {name} is an Open3D geometry{hint}")
         return geometry_to_arrays(shape, name=name)
     if isinstance(shape, tuple):
         if len(shape) != 2:

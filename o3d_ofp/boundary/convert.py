@@ -82,8 +82,11 @@ def is_open3d_geometry(obj: Any) -> bool:
     return type(obj).__module__.split(".")[0] == "open3d"
 
 
-def geometry_kind(geometry: Any) -> str:
-    """Return one of ``legacy_mesh``, ``legacy_cloud``, ``tensor_mesh``, ``tensor_cloud``."""
+def geometry_kind(geometry: Any, name: str = "geometry") -> str:
+    """Return one of ``legacy_mesh``, ``legacy_cloud``, ``tensor_mesh``, ``tensor_cloud``.
+
+    ``name`` (e.g. "target") starts the TypeError for anything else.
+    """
     o3d = require_open3d()
     if isinstance(geometry, o3d.geometry.TriangleMesh):
         return "legacy_mesh"
@@ -94,7 +97,7 @@ def geometry_kind(geometry: Any) -> str:
     if isinstance(geometry, o3d.t.geometry.PointCloud):
         return "tensor_cloud"
     raise TypeError(
-        "geometry must be an Open3D TriangleMesh or PointCloud (legacy open3d.geometry or "
+        f"{name} must be an Open3D TriangleMesh or PointCloud (legacy open3d.geometry or "
         f"tensor open3d.t.geometry); got {type(geometry).__module__}.{type(geometry).__name__}"
     )
 
@@ -129,7 +132,7 @@ def geometry_to_arrays(
     ValueError
         If it has no vertices, non-finite coordinates or out-of-range triangles.
     """
-    kind = geometry_kind(geometry)
+    kind = geometry_kind(geometry, name)
     if kind == "legacy_mesh":
         raw_v = np.array(geometry.vertices, dtype=np.float64, copy=True)
         raw_f = np.array(geometry.triangles, dtype=np.int64, copy=True)

@@ -307,6 +307,8 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     """
     o3d = require_open3d()
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(f"{path}: a folder, not a mesh or point-cloud file")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such file")
     if os.path.getsize(path) == 0:

@@ -168,6 +168,9 @@ def plan_pair(
         Naming the option (or the shape) that cannot apply to this job, before any work.
     """
     check_choice(task, "task", TASKS)
+    if bases is not None and not isinstance(bases, BasisOptions):  # (every API's options=)
+        raise OptionError("options", "must be an o3d_ofp.BasisOptions, its fields as keywords "
+                          f"(BasisOptions(k1=14)); got {type(bases).__name__}")  # fmt: skip
     match = MatchOptions() if match is None else match
     detail = DetailOptions() if detail is None else detail
     coordinates = task == "detail" and detail.mode == "coordinates"
