@@ -281,6 +281,8 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     ------
     FileNotFoundError
         If ``path`` does not exist.
+    IsADirectoryError
+        If it is a folder.
     PermissionError
         If this process may not read it.
     ValueError
