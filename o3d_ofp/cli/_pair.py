@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import itertools
 import logging
 import os
 import warnings
@@ -194,9 +195,24 @@ def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> n
     )  # fmt: skip
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
-        common.refuse((pairs[:, col].min() < 0 or pairs[:, col].max() >= n,
-                       f"--landmarks {spec}: {name} indices must lie in [0, {n}) (0-based)"))
+        outside = np.flatnonzero((pairs[:, col] < 0) | (pairs[:, col] >= n))
+        if outside.size:  # the first pair outside, by its place in the file or the value
+            row = int(outside[0])
+            where = f"line {_data_line(spec, row)}" if is_file else f"pair {row + 1}"
+            raise UsageError(f"--landmarks {spec}: {name} indices must lie in [0, {n}) (0-based); "
+                             f"got {pairs[row, col]} in {where} ({pairs[row, 0]} "
+                             f"{pairs[row, 1]})")  # fmt: skip
     return pairs
+
+
+def _data_line(path: str, row: int) -> int:
+    """Return the 1-based line of a text file that holds its ``row``-th pair (0-based).
+
+    Lines that hold no data (empty, or a '#' comment) are skipped, as ``numpy.loadtxt`` does.
+    """
+    with open(path, encoding="utf-8-sig") as fh:
+        data = (i for i, line in enumerate(fh, 1) if line.split("#")[0].strip())
+        return next(itertools.islice(data, row, None), row + 1)
 
 
 def _check_extra_output(args: argparse.Namespace, path: str, flag: str, inputs: Any) -> None:
