@@ -286,7 +286,12 @@ def test_transfer_identity_map_file_map_and_estimated(files, capsys, tmp_path):
     np.savetxt(tmp_path / "d.vts", rows + len(files["V"]) + 1, fmt="%d")
     beyond = f"{tmp_path / 'd.vts'},{tmp_path / 'b.vts'}"
     assert main([*args, "--map", beyond, "-o", str(tmp_path / "beyond.ply")]) == 2
-    assert "source indices must lie in" in capsys.readouterr().err
+    # in the file's own numbering (a trial read "[0, 4999) (1-based in .vts); got [0, 4999]")
+    n = len(files["V"])
+    assert f"source vertices must lie in [1, {n}] (1-based); got [" in capsys.readouterr().err
+    np.save(tmp_path / "far.npy", np.full(n, n))
+    assert main([*args, "--map", str(tmp_path / "far.npy"), "-o", str(tmp_path / "f.ply")]) == 2
+    assert f"must lie in [0, {n - 1}] (0-based); got [{n}, {n}]" in capsys.readouterr().err
     templated = np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors)
     assert main([*args, "--map", str(tmp_path / "filled.npy"), "-o", str(out)]) == 0
     np.testing.assert_allclose(np.asarray(o3d.io.read_triangle_mesh(str(out)).vertex_colors),

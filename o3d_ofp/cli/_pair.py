@@ -330,8 +330,10 @@ def _read_map(
     common.refuse((p2p.shape != (n2,) or not np.issubdtype(p2p.dtype, np.integer), f"--map {path}: "
                    f"a map file lists one source vertex per target vertex ({n2} integers); got "
                    f"shape {p2p.shape} and dtype {p2p.dtype}"))  # fmt: skip
-    common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source indices must lie in "
-                   f"[0, {n1}) (1-based in .vts); got [{p2p.min()}, {p2p.max()}]"))  # fmt: skip
+    first = 0 if path.endswith(".npy") else 1  # (a .vts file counts from 1; read 0-based)
+    common.refuse((p2p.min() < 0 or p2p.max() >= n1, f"--map {path}: source vertices must lie in "
+                   f"[{first}, {n1 - 1 + first}] ({first}-based); got [{p2p.min() + first}, "
+                   f"{p2p.max() + first}]"))  # fmt: skip
     if method == "template":  # (its source rows are in range: checked above)
         misfit = template_misfit(rows_1, rows_2, V1, F1, V2, F2)
     return with_signatures(Correspondence(p2p_21=p2p, n_source=n1, method=method), V1, V2), misfit
