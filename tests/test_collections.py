@@ -630,6 +630,12 @@ def test_cli_folder_of_targets_in_process_and_basis_of_a_collection(shapes, tmp_
     assert len(list(cache.glob("eig-*.npz"))) == 3  # the eigenbases the map estimation needs
     assert _cli("basis", folder, "--cache", cache, "--workers", "0") == 0
     assert "0 ok, 0 failed, 2 skipped" in capsys.readouterr().out  # all cached already
+    # a shape file that does not exist: refused before any work (a trial: the others were
+    # solved first, then it failed with exit 1)
+    missing = tmp_path / "nosuch.ply"
+    assert _cli("basis", paths["src"], missing, "--cache", tmp_path / "c2", "--workers", "0") == 2
+    assert f"{missing}: no such shape file or folder" in capsys.readouterr().err
+    assert not (tmp_path / "c2").exists() or not list((tmp_path / "c2").iterdir())
     solved = COUNTERS["target_eigenbases_computed"]
     out = tmp_path / "out"
     assert _cli("transfer", paths["src"], folder, "-o", out, "--workers", "0",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 from ..collections import bases_many
 from ..core.products import n_eigenproducts
@@ -51,6 +52,8 @@ def _run_many(args: argparse.Namespace) -> int:
          "--cache DIR"),
         (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
         (args.force, "--force does not apply to basis (cached entries are checked)"),
+        # before any work, as transfer and detail do for their targets
+        *((not os.path.exists(m), f"{m}: no such shape file or folder") for m in args.mesh),
     )  # fmt: skip
     records = bases_many(args.mesh, cache_dir=args.cache, client=args.scheduler,
                          components=args.components, workers=args.workers, progress=ENABLED.on,
