@@ -45,6 +45,17 @@ def _err(capsys) -> str:
     return capsys.readouterr().err
 
 
+def _bent_copy(V: np.ndarray, F: np.ndarray, folder) -> str:
+    """Write a bent copy of the shape (its vertex count, another shape); return its path."""
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+
+    bent = V.copy()
+    bent[:, 1] += 0.3 * bent[:, 0] ** 2
+    path = str(folder / "other.ply")
+    ofp.write_geometry(path, triangle_mesh_from_arrays(bent, F))
+    return path
+
+
 def test_a_map_saved_suspect_is_said_and_refused_under_strict(shapes, tmp_path, capsys):
     _d, p, *_ = shapes
     saved = str(tmp_path / "turned.npz")
@@ -72,12 +83,7 @@ def test_a_map_of_other_shapes_is_refused_under_strict(shapes, tmp_path, capsys)
                  "--save-map", saved, "-o", str(tmp_path / "a.ply")]) == 0  # fmt: skip
     capsys.readouterr()
     # the same vertex counts, other shapes: the target is the untouched copy, not the turned
-    other = str(tmp_path / "other.ply")
-    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
-
-    bent = V.copy()
-    bent[:, 1] += 0.3 * bent[:, 0] ** 2
-    ofp.write_geometry(other, triangle_mesh_from_arrays(bent, F))
+    other = _bent_copy(V, F, tmp_path)
     argv = ["transfer", p["src"], other, "--map", saved, "--strict", "-o", str(tmp_path / "b.ply")]
     assert main(argv) == 3
     out = capsys.readouterr()
@@ -103,12 +109,7 @@ def test_an_identity_or_file_map_saved_remembers_its_shapes(shapes, tmp_path, ca
     assert main(["transfer", p["src"], p["same"], "--map", spec, "--save-map", saved,
                  "-o", str(tmp_path / "a.ply")]) == 0  # fmt: skip
     assert "made for another" not in _err(capsys)
-    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
-
-    other = str(tmp_path / "other.ply")
-    bent = V.copy()
-    bent[:, 1] += 0.3 * bent[:, 0] ** 2
-    ofp.write_geometry(other, triangle_mesh_from_arrays(bent, F))
+    other = _bent_copy(V, F, tmp_path)
     argv = ["transfer", p["src"], other, "--map", saved, "--strict", "-o", str(tmp_path / "b.ply")]
     assert main(argv) == 3
     assert "was made for another target" in _err(capsys)
