@@ -478,15 +478,15 @@ def _without_empty_images(mesh: Any, o3d: Any) -> Any:
     material = np.asarray(mesh.triangle_material_ids, dtype=np.int64)
     if material.shape[0] != len(mesh.triangles):
         material = np.zeros(len(mesh.triangles), dtype=np.int64)
+    inside = (material >= 0) & (material < len(empty))  # (others name no image: kept as they are)
     used = np.zeros(len(empty), dtype=bool)
-    used[material[(material >= 0) & (material < len(empty))]] = True
+    used[material[inside]] = True
     kept = [i for i, e in enumerate(empty) if used[i] or not e]
     new_id = np.full(len(empty), -1, dtype=np.int64)
     new_id[kept] = np.arange(len(kept))
     white = o3d.geometry.Image(np.full((1, 1, 3), 255, dtype=np.uint8))
     out = o3d.geometry.TriangleMesh(mesh)  # a copy: the caller's mesh is not changed
     out.textures = [white if empty[i] else mesh.textures[i] for i in kept]
-    inside = (material >= 0) & (material < len(empty))
     ids = np.where(inside, new_id[np.clip(material, 0, len(empty) - 1)], material)
     out.triangle_material_ids = o3d.utility.IntVector(ids.astype(np.int32))
     logger.debug("%d empty texture image(s) left out or made plain white for the OBJ writer",

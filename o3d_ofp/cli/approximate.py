@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..core.basis import approximation_error
 from . import _common as common
 from ._common import report
 
@@ -33,14 +34,16 @@ def run(args: argparse.Namespace) -> int:
     common.check_output_kind(args.output, F)  # (a .npy output holds values, no faces)
     f, kind = common.read_signal(geometry, V, args.mesh, args.signal, args.texture, args.output)
     B = common.shape_basis(V, F, args.mesh, args)
-    written = common.write_result(args.output, geometry, B.approximate(f), kind, protect=inputs)
+    g = B.approximate(f)
+    written = common.write_result(args.output, geometry, g, kind, protect=inputs)
     if kind == "xyz":  # about the centroid: the error of the shape, not of where it sits
         # (the basis holds the constant, so f − f̃ is the same for the centred coordinates)
-        f = f - (B.mass @ f) / B.mass.sum()
+        centroid = (B.mass @ f) / B.mass.sum()
+        f, g = f - centroid, g - centroid
         what = "relative error of the coordinates about their centroid ‖f − f̃‖_M / ‖f − f̄‖_M"
     else:
         what = "relative error ‖f − f̃‖_M / ‖f‖_M"
     report([f"{args.mesh}: {B.size} basis functions (k={B.k}, order {B.order}, tol {B.tol:g}); "
-            f"{what} = {B.approximation_error(f):.4%}",
+            f"{what} = {approximation_error(f, g, B.mass):.4%}",
             "wrote " + ", ".join(written)])  # fmt: skip
     return 0

@@ -295,12 +295,12 @@ def _for_collections(message: str | Said, kind: str = "colors") -> str | Said:
         return message
     command = "detail" if kind == "detail" else "transfer"
     function = f"transfer_{kind if kind in ('detail', 'texture') else 'colors'}"
-    alone = []
-    if {"landmarks", "landmarks_check"} & set(message.fixes):
+    alone, fixes = [], set(message.fixes)
+    if {"landmarks", "landmarks_check"} & fixes:
         alone.append(ALONE_WITH_LANDMARKS.format(command=command, function=function))
     if _codes(message) & _PARTIAL_FIXES:
         alone.append(ALONE_PARTIAL.format(command=command))
-    if _MAP_FIXES & set(message.fixes):
+    if _MAP_FIXES & fixes:
         alone.append(ALONE_WITH_MAP.format(command=command, function=function))
     if not alone:
         return message

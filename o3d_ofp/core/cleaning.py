@@ -418,6 +418,16 @@ def _topology(vertices: Any, faces: Any, weld: Any, components: str, n_neighbors
         used = np.zeros(n_g, dtype=bool)
         used[F.reshape(-1)] = True
         counts["unreferenced_vertices"] = int(np.count_nonzero(~used[group]))
+        areas = face_areas_normals(Vg, F)[0]
+        # Faces whose corners all lie on a line span nothing (the cotangent Laplacian of such
+        # a "mesh" still has eigenpairs: garbage). Relative to the squared extent: a rounding
+        # error of collinear corners is near 1e-16 of it.
+        extent = float(np.linalg.norm(np.ptp(Vg[used], axis=0))) ** 2
+        if float(areas.sum()) <= 1e-12 * extent:
+            raise ValueError(
+                f"the {F.shape[0]} faces have no area (their vertices lie on a line): there is "
+                "no surface"
+            )
         # Components of the face graph (what a user sees as pieces).
         edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
         graph = sp.coo_matrix(
@@ -429,16 +439,6 @@ def _topology(vertices: Any, faces: Any, weld: Any, components: str, n_neighbors
         relabel = np.full(labels.max() + 1, -1)
         relabel[live] = np.arange(live.shape[0])
         face_labels = relabel[comp_of_face]
-        areas = face_areas_normals(Vg, F)[0]
-        # Faces whose corners all lie on a line span nothing (the cotangent Laplacian of such
-        # a "mesh" still has eigenpairs: garbage). Relative to the squared extent: a rounding
-        # error of collinear corners is near 1e-16 of it.
-        extent = float(np.linalg.norm(np.ptp(Vg[np.unique(F)], axis=0))) ** 2
-        if float(areas.sum()) <= 1e-12 * extent:
-            raise ValueError(
-                f"the {F.shape[0]} faces have no area (their vertices lie on a line): there is "
-                "no surface"
-            )
         keep_faces, n_comp, dropped = _pick_component(
             face_labels, areas, components, "area", "faces"
         )
