@@ -357,7 +357,10 @@ def test_cli_render_draws_an_obj_with_its_own_texture(tmp_path, capsys):
         if "EGL" in err or "OpenGL" in err or "unavailable" in err.lower():
             pytest.skip(f"no EGL/OpenGL context on this machine: {err}")
         pytest.fail(err)
-    panel = read_png(out).astype(int)
+    _assert_quad_texture(read_png(out).astype(int))
+
+
+def _assert_quad_texture(panel):
     # Each texture color covers a large area (an untextured or averaged quad has none of them),
     # red above blue and left of green: the image is not drawn upside down or mirrored.
     masks = {
@@ -372,3 +375,74 @@ def test_cli_render_draws_an_obj_with_its_own_texture(tmp_path, capsys):
         centre[name] = (ys.mean(), xs.mean())
     assert centre["red"][0] < centre["blue"][0] - 20
     assert centre["red"][1] < centre["green"][1] - 20
+
+
+def test_cli_render_takes_a_texture_its_material_does_not_name(tmp_path, capsys, caplog):
+    """``--textures IMAGE`` draws a mesh whose OBJ names no image; without it, a warning.
+
+    A trial: ``render`` had no way to show the data's Spot (UVs, no material), and drew it
+    grey without a word, as it did a material naming a missing image.
+    """
+    import logging
+
+    from PIL import Image
+
+    from o3d_ofp.boundary.io import read_geometry
+    from o3d_ofp.cli.main import main
+    from o3d_ofp.cli.render import _say_missing_texture
+
+    _, _, _, img = _quad_with_texture()
+    Image.fromarray(img).resize((64, 64), Image.NEAREST).save(tmp_path / "quad.png")
+    obj = tmp_path / "quad.obj"
+    obj.write_text("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n"
+                   "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.cli.render"):
+        _say_missing_texture(read_geometry(obj), str(obj))
+    assert "has texture coordinates but no texture image came with it" in caplog.text
+    named = tmp_path / "named.obj"
+    (tmp_path / "named.mtl").write_text("newmtl m\nmap_Kd gone.png\n")
+    named.write_text("mtllib named.mtl\nusemtl m\n" + obj.read_text())
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="o3d_ofp.cli.render"):
+        _say_missing_texture(read_geometry(named), str(named))
+    assert "the files its material names are not there (gone.png)" in caplog.text
+    out = tmp_path / "panel.png"
+    base = ["render", str(obj), "-o", str(out), "--width", "120", "--height", "120"]
+    assert main([*base, "--textures", str(tmp_path / "nosuch.png")]) == 2
+    assert "--textures" in capsys.readouterr().err and not out.exists()
+    if main([*base, "--textures", str(tmp_path / "quad.png")]) != 0:
+        err = capsys.readouterr().err
+        if "EGL" in err or "OpenGL" in err or "unavailable" in err.lower():
+            pytest.skip(f"no EGL/OpenGL context on this machine: {err}")
+        pytest.fail(err)
+    _assert_quad_texture(read_png(out).astype(int))
+
+
+def test_render_items_take_open3d_geometries_and_8_bit_colors_and_refuse_0_255_floats(tmp_path):
+    """Open3D geometries are drawn as ``show()`` draws them; 0-255 float colors are refused.
+
+    A trial: ``render_panel([mesh])`` failed with "Value after * must be an iterable",
+    0-255 colors were drawn white, and ``render_panel(items, "x.jpg")`` wrote PNG bytes.
+    """
+    import open3d as o3d
+
+    V, F = icosphere(1)
+    C = np.linspace(0.0, 1.0, 3 * len(V)).reshape(-1, 3)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(C)
+    (item,) = panel_mod._items([mesh], None)
+    assert np.allclose(item["v"], V) and np.array_equal(item["f"], F) and np.allclose(item["c"], C)
+    (quad,) = panel_mod._items([_open3d_quad()], None)
+    assert "tex" in quad  # its own texture
+    eight = (C * 255).round().astype(np.uint8)
+    (item,) = panel_mod._items([(V, F, eight)], None)
+    assert np.allclose(item["c"], C, atol=0.5 / 255)
+    with pytest.raises(ValueError, match=r"up to 255: RGB colors are in \[0, 1\]"):
+        render_panel([(V, F, C * 255)])
+    with pytest.raises(TypeError, match=r"items\[0\] must be \(vertices, faces, colors\) or an"):
+        render_panel([V])
+    with pytest.raises(TypeError, match="3 entries"):
+        render_panel([(V, F)])
+    with pytest.raises(ValueError, match="written as PNG"):
+        render_panel([(V, F, None)], tmp_path / "x.jpg")
+    assert not (tmp_path / "x.jpg").exists()

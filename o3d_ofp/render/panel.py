@@ -52,6 +52,11 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _WORKER = os.path.abspath(_worker.__file__)
+#: Largest value accepted in float RGB colors (which are in [0, 1]; above 1 they are clipped):
+#: colors transferred between shapes overshoot a little (their basis' ringing, a few
+#: hundredths), 0-255 colors by two orders of magnitude. Between the two, a scale mistake is
+#: refused rather than drawn white.
+RGB_MAX = 2.0
 #: Tile sides accepted, in pixels.
 MIN_SIDE, MAX_SIDE = 16, 8192
 
@@ -203,6 +208,13 @@ def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[s
         C = as_signal(colors, V.shape[0], name="colors")
         if C.ndim == 2 and C.shape[1] != 3:
             raise ValueError(f"colors must have shape (n, 3) or (n,); got {C.shape}")
+        if C.ndim == 2 and np.asarray(colors).dtype == np.uint8:
+            C = C / 255.0  # 8-bit RGB, as images hold them
+        elif C.ndim == 2 and C.max() > RGB_MAX:
+            raise ValueError(
+                f"colors holds values up to {C.max():g}: RGB colors are in [0, 1] (divide "
+                "0-255 colors by 255, or pass them as uint8); scalars to color-map are (n,)"
+            )  # fmt: skip
         item["c"] = C if C.ndim == 1 else np.clip(C, 0.0, 1.0)
     if texture is not None:
         if faces is None:
@@ -212,13 +224,28 @@ def _item(vertices: Any, faces: Any, colors: Any, texture: Any = None) -> dict[s
 
 
 def _items(items: Sequence[Any], textures: Sequence[Any] | None) -> list[dict[str, np.ndarray]]:
+    """Check the items; an Open3D geometry gives its arrays, colors and own texture."""
     items = list(items)
     if not items:
         raise ValueError("items is empty: nothing to render")
     textures = [None] * len(items) if textures is None else list(textures)
     if len(textures) != len(items):
         raise ValueError(f"textures has {len(textures)} entries for {len(items)} items")
-    return [_item(*it, tex) for it, tex in zip(items, textures, strict=True)]
+    checked = []
+    for i, (item, texture) in enumerate(zip(items, textures, strict=True)):
+        if not isinstance(item, (tuple, list)):
+            from ..boundary.convert import is_open3d_geometry
+
+            if not is_open3d_geometry(item):
+                raise TypeError(f"items[{i}] must be (vertices, faces, colors) or an Open3D "
+                                f"geometry; got {type(item).__name__}")  # fmt: skip
+            (item,), (own,) = geometry_items([item])
+            texture = own if texture is None else texture
+        elif len(item) != 3:
+            raise TypeError(f"items[{i}] must be (vertices, faces, colors): 3 entries (faces "
+                            f"None for points, colors None for grey); got {len(item)}")  # fmt: skip
+        checked.append(_item(*item, texture))
+    return checked
 
 
 def render_images(
@@ -235,9 +262,10 @@ def render_images(
 
     Parameters
     ----------
-    items : sequence of (vertices, faces, colors)
+    items : sequence of (vertices, faces, colors) or Open3D geometries
         ``vertices`` (n, 3); ``faces`` (m, 3) or ``None`` for points; ``colors`` (n, 3) RGB
-        in [0, 1], (n,) scalars (mapped with "viridis"), or ``None`` (grey).
+        in [0, 1] (uint8: 0-255), (n,) scalars (mapped with "viridis"), or ``None`` (grey).
+        An Open3D mesh or point cloud is drawn with its vertex colors, or its own texture.
     textures : sequence of (uv, image) or None, optional
         One entry per item (``None`` for an item without texture). ``uv`` (3m, 2): texture
         coordinates of each triangle corner (``uv[3 * t + k]`` for corner ``k`` of triangle
@@ -452,6 +480,8 @@ def render_panel(
     """
     from PIL import Image, ImageDraw
 
+    if path is not None:
+        _check_png_path(path)  # before the rendering
     checked = _items(items, textures)
     if titles is not None and len(titles) != len(checked):
         raise ValueError(f"titles has {len(titles)} entries for {len(checked)} items")
@@ -509,8 +539,16 @@ def write_png(path: str | os.PathLike[str], image: Any) -> None:
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
         raise ValueError(f"image must be (H, W, 3) or (H, W) uint8; got {img.shape} {img.dtype}")
+    _check_png_path(path)
     with atomic_path(path, suffix=".png") as tmp, open(tmp, "wb") as fh:
         fh.write(_png_bytes(img))
+
+
+def _check_png_path(path: str | os.PathLike[str]) -> None:
+    """Refuse a file name that does not end in ``.png`` (what is written is a PNG)."""
+    if not os.fspath(path).lower().endswith(".png"):
+        raise ValueError(f"path {os.fspath(path)!r}: the picture is written as PNG; give a name "
+                         "ending in .png")  # fmt: skip
 
 
 def read_png(path: str | os.PathLike[str]) -> np.ndarray:
