@@ -134,7 +134,7 @@ def test_rerun_skips_finished_work_and_redoes_a_touched_input(client, shapes, tm
         again = transfer_many(paths["src"], targets, **run)
     assert [r.status for r in again] == ["skipped"] * 3
     assert "t1.ply: skipped" in caplog.text
-    assert "newer than the source and the target" in caplog.text
+    assert "was made from these files with the same options" in caplog.text
     assert COUNTERS["source_bases"] == before  # nothing to do: no source basis either
     future = time.time() + 5
     os.utime(paths["t1"], (future, future))
@@ -1165,3 +1165,159 @@ def test_targets_sharing_a_file_name_are_renamed_and_said(tmp_path, caplog):
     assert specs[1].output == str(tmp_path / "out" / "x-1.ply")
     (said,) = [r.getMessage() for r in caplog.records if "would write" in r.getMessage()]
     assert said == "2 targets would write x.ply: their outputs are named x-0.ply, x-1.ply"
+
+
+def test_a_renamed_duplicate_never_takes_another_target_s_name(tmp_path):
+    """``a/shape.ply``, ``b/shape.ply`` and ``c/shape-1.ply``: three outputs, not two.
+
+    A trial: the second ``shape.ply`` was renamed ``shape-1.ply``, the third target's own
+    name, and one result overwrote the other with every row "ok". Names differing only in
+    letter case are one file on some file systems: renamed too.
+    """
+    from o3d_ofp.collections.engine import _names
+
+    items = [str(tmp_path / d / n) for d, n in
+             (("a", "shape.ply"), ("b", "shape.ply"), ("c", "shape-1.ply"))]  # fmt: skip
+    assert _names(items, "colors") == ["shape-0.ply", "shape-1-2.ply", "shape-1.ply"]
+    cased = [str(tmp_path / "a" / "X.ply"), str(tmp_path / "b" / "x.ply")]
+    assert _names(cased, "colors") == ["X-0.ply", "x-1.ply"]
+
+
+def test_relative_paths_are_read_where_the_caller_stands(client, shapes, tmp_path, monkeypatch):
+    """Relative target and output paths name the caller's files, whatever the workers' folder.
+
+    A trial with ``--scheduler``: the workers (started in another folder) opened that
+    folder's ``A/shape.ply``, another person, and could not write into the output folder.
+    """
+    paths, _, _, colors = shapes
+    here = tmp_path / "here"
+    (here / "t").mkdir(parents=True)
+    (here / "t" / "t0.ply").write_bytes(Path(paths["t0"]).read_bytes())
+    monkeypatch.chdir(here)  # this process only: the workers stay where they were started
+    results = transfer_many(paths["src"], ["t/t0.ply"], client=client, output_dir="out",
+                            map="identity")  # fmt: skip
+    assert [r.status for r in results] == ["ok"], results[0].error
+    assert results[0].path == str(here / "t" / "t0.ply")
+    assert np.abs(_colors(here / "out" / "t0.ply") - colors).mean() < 0.05
+
+
+def test_a_rerun_redoes_outputs_of_another_source_or_target_or_not_its_own(shapes, tmp_path,
+                                                                             caplog):  # fmt: skip
+    """Only outputs the record says were made from these very files, unchanged, are skipped.
+
+    A trial: a source with an older modification time (``cp -p``) left the outputs of another
+    source "up to date"; targets given in another order swapped their ``-<i>`` names and were
+    skipped, each row crediting the other's output; a folder of copies of the targets (no
+    record) was skipped as "made with the same options"; an edited output was kept.
+    """
+    paths, V, F, colors = shapes
+    run = {"workers": 0, "map": "identity"}
+    red = tmp_path / "red.ply"
+    write_geometry(red, triangle_mesh_from_arrays(V, F, colors=np.tile([1.0, 0, 0], (len(V), 1))))
+    os.utime(red, (1e9, 1e9))  # 2001: older than every output
+    out = tmp_path / "out"
+    assert [r.status for r in transfer_many(paths["src"], [paths["t0"]], output_dir=out,
+                                            **run)] == ["ok"]  # fmt: skip
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.collections"):
+        (again,) = transfer_many(red, [paths["t0"]], output_dir=out, **run)
+    assert again.status == "ok" and "made from another source" in caplog.text
+    assert np.allclose(_colors(out / "t0.ply"), [1.0, 0, 0], atol=0.05)
+    # an edited output is made again
+    (out / "t0.ply").write_bytes(Path(paths["t1"]).read_bytes())
+    assert transfer_many(red, [paths["t0"]], output_dir=out, **run)[0].status == "ok"
+    assert transfer_many(red, [paths["t0"]], output_dir=out, **run)[0].status == "skipped"
+    # two targets of one name, given the other way round: both made again, each its own
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder, name in ((a, "t0"), (b, "t1")):
+        folder.mkdir()
+        (folder / "shape.ply").write_bytes(Path(paths[name]).read_bytes())
+    out2 = tmp_path / "out2"
+    transfer_many(paths["src"], [a / "shape.ply", b / "shape.ply"], output_dir=out2, **run)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.collections"):
+        swapped = transfer_many(paths["src"], [b / "shape.ply", a / "shape.ply"],
+                                output_dir=out2, **run)  # fmt: skip
+    assert [r.status for r in swapped] == ["ok", "ok"]
+    assert f"made from another target, {a / 'shape.ply'}" in caplog.text
+    b_bent = np.asarray(read_geometry(b / "shape.ply").vertices)
+    assert np.allclose(np.asarray(read_geometry(out2 / "shape-0.ply").vertices), b_bent)
+    # a folder holding files of the targets' names that no run made: made, not skipped
+    out3 = tmp_path / "out3"
+    out3.mkdir()
+    (out3 / "t0.ply").write_bytes(Path(paths["t0"]).read_bytes())
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.collections"):
+        (made,) = transfer_many(paths["src"], [paths["t0"]], output_dir=out3, **run)
+    assert made.status == "ok" and "not recorded as made by o3d_ofp" in caplog.text
+    assert np.abs(_colors(out3 / "t0.ply") - colors).mean() < 0.05
+
+
+def test_a_textured_source_s_image_is_part_of_what_the_outputs_were_made_from(shapes, tmp_path):
+    """A changed texture image redoes the outputs; unchanged, they are skipped.
+
+    A trial: after the source's image was edited, every target was "skipped: up to date".
+    """
+    from PIL import Image
+
+    paths, V, F, _ = shapes
+    mesh = triangle_mesh_from_arrays(V, F)
+    uv = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], axis=0)
+    mesh.triangle_uvs = o3d.utility.Vector2dVector(uv[F].reshape(-1, 2))
+    mesh.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(F), dtype=np.int32))
+    image = np.zeros((16, 16, 3), np.uint8)
+    image[:, 8:] = 255
+    mesh.textures = [o3d.geometry.Image(image)]
+    src = tmp_path / "src.obj"
+    write_geometry(src, mesh)
+    (png,) = tmp_path.glob("*.png")
+    run = {"workers": 0, "map": "identity", "output_dir": tmp_path / "out", "kind": "colors"}
+    assert transfer_many(src, [paths["t0"]], **run)[0].status == "ok"
+    assert transfer_many(src, [paths["t0"]], **run)[0].status == "skipped"
+    Image.fromarray(255 - image).save(png)
+    os.utime(png, (1e9, 1e9))  # an old time, as a copy keeping times would give
+    assert transfer_many(src, [paths["t0"]], **run)[0].status == "ok"
+
+
+def test_strict_fails_a_skipped_output_made_from_a_suspect_map(shapes, tmp_path):
+    """Under ``strict`` an output recorded as made from a suspect map fails its target.
+
+    A trial: a rerun with ``--strict`` skipped such outputs with exit 0.
+    """
+    paths, *_ = shapes
+    out = tmp_path / "out"
+    run = {"workers": 0, "map": "identity", "output_dir": out}
+    assert transfer_many(paths["src"], [paths["t0"]], **run)[0].status == "ok"
+    path = out / ".o3d_ofp_outputs.json"
+    record = json.loads(path.read_text())
+    record["outputs"]["t0.ply"]["found"]["suspect"] = True  # as a suspect map records it
+    path.write_text(json.dumps(record))
+    assert transfer_many(paths["src"], [paths["t0"]], **run)[0].status == "skipped"
+    (r,) = transfer_many(paths["src"], [paths["t0"]], strict=True, **run)
+    assert r.status == "failed" and "suspect map (strict)" in str(r.error)
+
+
+def test_basis_offers_no_force_and_an_interrupt_on_a_cluster_says_what_may_still_run(
+    shapes, tmp_path, capsys, caplog, monkeypatch
+):
+    """``basis --help`` lists no ``--force`` (refused there); an interrupt names running tasks.
+
+    A trial: ``basis --help`` offered ``--force`` and the command refused it; after Ctrl-C
+    with ``--scheduler`` the cluster's running tasks wrote outputs after "interrupted".
+    """
+    from o3d_ofp.collections import engine
+
+    assert _cli("basis", "--help") == 0
+    assert "--force" not in capsys.readouterr().out
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(engine, "_run", interrupted)
+    paths, *_ = shapes
+    for client, said in ((None, False), ("tcp://127.0.0.1:1", True)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING), pytest.raises(KeyboardInterrupt):
+            transfer_many(paths["src"], [paths["t0"]], client=client, output_dir=tmp_path / "o",
+                          map="identity")  # fmt: skip
+        assert "interrupted: 0 of 1 targets done" in caplog.text
+        assert ("cannot be stopped from here" in caplog.text) is said

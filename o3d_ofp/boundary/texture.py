@@ -43,6 +43,7 @@ __all__ = [
     "has_uvs",
     "is_empty_image",
     "legacy_texture_image",
+    "material_files",
     "mesh_texture",
     "missing_texture_files",
     "no_texture_message",
@@ -420,12 +421,50 @@ def _tensor_parts(mesh: Any, faces: np.ndarray) -> tuple[np.ndarray, list[np.nda
     return uv, images, np.zeros(n_faces, dtype=np.int64)
 
 
+def material_files(path: str | os.PathLike[str]) -> list[tuple[str, str]]:
+    """Material files and texture images an OBJ names, as named and as paths.
+
+    Only ``mtllib`` lines before the first face and ``map_Kd`` lines are read; the images of a
+    material file that is not there are not known.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.obj`` file (other formats, or no such file: an empty list).
+
+    Returns
+    -------
+    list of (str, str)
+        Each file as the OBJ or its MTL names it (relative to their folder when given so), and
+        its path; in the order named, each once.
+    """
+    path = os.fspath(path)
+    if not path.lower().endswith(".obj") or not os.path.isfile(path):
+        return []
+    folder = os.path.dirname(os.path.abspath(path))
+    files: list[tuple[str, str]] = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        head = itertools.takewhile(lambda line: not line.startswith("f "), fh)
+        libraries = [line[len("mtllib ") :].strip() for line in head if line.startswith("mtllib ")]
+    for lib in libraries:
+        lib_path = os.path.join(folder, lib)
+        files.append((lib, lib_path))
+        if not os.path.isfile(lib_path):
+            continue
+        with open(lib_path, encoding="utf-8", errors="replace") as fh:
+            # map_Kd's options (-s, -o ...) come before the file name
+            images = [w[-1] for w in map(str.split, fh) if len(w) > 1 and w[0] == "map_Kd"]
+        lib_folder = os.path.dirname(lib_path)
+        files += [(im, os.path.join(lib_folder, im)) for im in images]
+    return list(dict.fromkeys(files))
+
+
 def missing_texture_files(path: str | os.PathLike[str]) -> list[str]:
     """Material files and texture images an OBJ names that are not there.
 
     An OBJ read without its ``.mtl`` or its images comes back with UVs and no texture, and
     Open3D says nothing: this names what is missing, for the messages that refuse such a
-    source. Only ``mtllib`` lines before the first face and ``map_Kd`` lines are read.
+    source (see :func:`material_files`).
 
     Parameters
     ----------
@@ -437,24 +476,7 @@ def missing_texture_files(path: str | os.PathLike[str]) -> list[str]:
     list of str
         The missing files, as paths relative to the OBJ's folder when they were given so.
     """
-    path = os.fspath(path)
-    if not path.lower().endswith(".obj") or not os.path.isfile(path):
-        return []
-    folder = os.path.dirname(os.path.abspath(path))
-    missing: list[str] = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        head = itertools.takewhile(lambda line: not line.startswith("f "), fh)
-        libraries = [line[len("mtllib ") :].strip() for line in head if line.startswith("mtllib ")]
-    for lib in libraries:
-        lib_path = os.path.join(folder, lib)
-        if not os.path.isfile(lib_path):
-            missing.append(lib)
-            continue
-        with open(lib_path, encoding="utf-8", errors="replace") as fh:
-            # map_Kd's options (-s, -o ...) come before the file name
-            images = [w[-1] for w in map(str.split, fh) if len(w) > 1 and w[0] == "map_Kd"]
-        lib_folder = os.path.dirname(lib_path)
-        missing += [im for im in images if not os.path.isfile(os.path.join(lib_folder, im))]
+    missing = (named for named, full in material_files(path) if not os.path.isfile(full))
     return list(dict.fromkeys(missing))
 
 

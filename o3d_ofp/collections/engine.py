@@ -4,8 +4,8 @@
 eigenbasis, OFP basis, coarse copy), broadcasts it to every worker, and runs one task per
 target: read, plan, map, transfer, atomic write. A target's failure (unreadable file, refused
 shape, a worker killed for memory) is that target's record; the others go on. A rerun skips
-targets whose output is newer than both inputs and was made with the same options
-(:data:`OUTPUTS_RECORD`).
+targets whose output this folder's record says was made from the same files, unchanged, with
+the same options (:data:`OUTPUTS_RECORD`).
 
 Without a ``client`` a :class:`distributed.LocalCluster` sized to the machine is started for
 the call (one single-threaded worker process per core, BLAS limited to one thread per worker
@@ -32,7 +32,12 @@ from typing import Any
 
 from ..boundary.convert import geometry_to_arrays, is_open3d_geometry, like_target, vertex_colors
 from ..boundary.io import CLOUD_ONLY, MESH_ONLY, read_geometry, write_geometry
-from ..boundary.texture import no_texture_message, surface_colors, texture_colors
+from ..boundary.texture import (
+    material_files,
+    no_texture_message,
+    surface_colors,
+    texture_colors,
+)
 from ..core._atomic import atomic_path, output_folder
 from ..core._validation import check_int
 from ..core._warnings import about
@@ -82,8 +87,8 @@ _JOB_OPTIONS = (
     "texture",
 )
 
-#: File of an output folder that records the options each output was made with (a rerun with
-#: other options, or another kind, redoes it) and what was found then.
+#: File of an output folder that records the files and options each output was made from (a
+#: rerun with other files or options, or another kind, redoes it) and what was found then.
 OUTPUTS_RECORD = ".o3d_ofp_outputs.json"
 #: The fields of a target's record kept for a rerun that skips its output, and their types.
 _FOUND = {"kind": str, "coverage": float, "suspect": bool, "n_vertices": int, "warnings": list,
@@ -342,7 +347,9 @@ def _names(items: Sequence[Any], kind: str) -> list[str]:
     """Return each target's output name: its file's (``target_<i>.ply`` for a geometry).
 
     In a format that holds what is written (a bake: OBJ + MTL + PNG; colors: not a format
-    without vertex colors); names given twice get ``-<index>`` before the suffix, said.
+    without vertex colors); names given twice (letter case aside, as some file systems read
+    names) get ``-<index>`` before the suffix, said, and more (``-<index>-2`` ...) where that
+    name is another target's: no two targets write one file.
     """
     parts = []
     for i, item in enumerate(items):
@@ -353,12 +360,23 @@ def _names(items: Sequence[Any], kind: str) -> list[str]:
         elif kind in ("colors", "texture") and ext.lower() in _NO_COLORS:
             ext = ".ply"
         parts.append((stem, ext))
-    seen = Counter(stem + ext for stem, ext in parts)
-    names = [f"{s}-{i}{e}" if seen[s + e] > 1 else s + e for i, (s, e) in enumerate(parts)]
-    for shared in sorted(n for n, count in seen.items() if count > 1):
+    seen = Counter((stem + ext).casefold() for stem, ext in parts)
+    taken = {key for key, count in seen.items() if count == 1}
+    names = []
+    for i, (stem, ext) in enumerate(parts):
+        name, more = stem + ext, 1
+        if seen[name.casefold()] > 1:
+            name = f"{stem}-{i}{ext}"
+            while name.casefold() in taken:
+                more += 1
+                name = f"{stem}-{i}-{more}{ext}"
+            taken.add(name.casefold())
+        names.append(name)
+    for shared in sorted(key for key, count in seen.items() if count > 1):
         logger.info(
             "%d targets would write %s: their outputs are named %s", seen[shared], shared,
-            ", ".join(n for (s, e), n in zip(parts, names, strict=True) if s + e == shared),
+            ", ".join(n for (s, e), n in zip(parts, names, strict=True)
+                      if (s + e).casefold() == shared),
         )  # fmt: skip
     return names
 
@@ -370,8 +388,11 @@ def _specs(items: Sequence[Any], output_dir: str | None,
     A file is read on the worker; a geometry is sent as arrays, its result written here.
     """
     specs, records = [], {}
+    # Absolute paths: a task runs in a worker process whose working folder may be another
+    # (a cluster started elsewhere, --scheduler).
+    folder = None if output_dir is None else os.path.abspath(output_dir)
     for i, (item, name) in enumerate(zip(items, _names(items, kind), strict=True)):
-        output = None if output_dir is None else os.path.join(output_dir, name)
+        output = None if folder is None else os.path.join(folder, name)
         if not isinstance(item, str):
             try:
                 specs.append(ShapeSpec(i, name, None, geometry_to_arrays(item), output))
@@ -381,63 +402,91 @@ def _specs(items: Sequence[Any], output_dir: str | None,
             raise ValueError(f"the output folder {output_dir} holds the target {item}: its "
                              "output would overwrite it; write to another folder")  # fmt: skip
         else:
-            specs.append(ShapeSpec(i, name, item, None, output))
+            specs.append(ShapeSpec(i, name, os.path.abspath(item), None, output))
     return specs, records
 
 
 class _OutputsRecord:
-    """The options each output of a folder was made with, and what was found then.
+    """What each output of a folder was made from, with which options, and what was found.
 
-    Kept in the folder's :data:`OUTPUTS_RECORD`, by output name: a rerun skips an output newer
-    than its inputs only when it was made with the same options (other options make another
-    output), and its record keeps the map's coverage, suspect flag, warnings and notes found
-    when the output was made. Outputs of a folder without the record are judged by their times
-    alone.
+    Kept in the folder's :data:`OUTPUTS_RECORD`, by output name. A rerun skips an output only
+    when its record says it was made from the same files (the source, with the material and
+    images its OBJ names and an explicit ``texture``, and the target: each file's absolute path,
+    size and modification time) with the same options, and the output is still the file then
+    written. Anything else is redone, and the log says why: an output the record does not
+    list (a folder of other files included), a source or target changed, replaced or given
+    in another order, other options. The record keeps the map's coverage, suspect flag,
+    warnings and notes found when the output was made; under ``strict`` an output made from a
+    suspect map fails its target.
     """
 
-    def __init__(self, out_dir: str | None, job: TransferJob) -> None:
+    def __init__(self, out_dir: str | None, job: TransferJob, source: str | None,
+                 specs: Sequence[ShapeSpec]) -> None:  # fmt: skip
         self.path = None if out_dir is None else os.path.join(out_dir, OUTPUTS_RECORD)
+        self.strict = job.strict
         own = {name: getattr(job, name) for name in _JOB_OPTIONS if name != "strict"}
         self.options = {"kind": job.kind, **dataclasses.asdict(job.bases or BasisOptions()),
                         **dataclasses.asdict(job.detail), **own}  # what the outputs depend on
-        self.entries: dict[str, Any] | None = None  # None: no record in the folder
+        # The source's files, stamped once before any target runs (None: given as a geometry).
+        self.source = None if source is None else [
+            _stamp(f) for f in (source, *(full for _, full in material_files(source)), job.texture)
+            if f
+        ]  # fmt: skip
+        self.targets = {spec.index: spec.path and _stamp(spec.path) for spec in specs}
+        self.entries: dict[str, Any] = {}
         if self.path is not None and os.path.isfile(self.path):
             try:
                 with open(self.path, encoding="utf-8") as fh:
                     self.entries = dict(json.load(fh)["outputs"])
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 logger.warning("%s: unreadable (%s): its outputs are redone", self.path, exc)
-                self.entries = {}
 
-    def skipped(self, spec: ShapeSpec, source: str | None, kind: str) -> TargetResult | None:
+    def skipped(self, spec: ShapeSpec, kind: str) -> TargetResult | None:
         """Return the record of a target whose output is up to date (None: it is to be made)."""
-        if not (_up_to_date(spec.output, (source, spec.path)) and self._same_options(spec)):
+        why = self._changed(spec)
+        if why is not None:
+            if why:
+                logger.info("%s: %s is redone (%s)", spec.name, spec.output, why)
             return None
-        logger.info("%s: skipped: %s is newer than the source and the target and made with the "
-                    "same options", spec.name, spec.output)  # fmt: skip
         found = {"kind": kind, **self._found(spec.name)}
+        if self.strict and found.get("suspect"):
+            return failed(spec, AdvisedError(Said(
+                "suspect map (strict): {output} was made from a suspect map (see its warnings "
+                "in the summary); delete it, or rerun without strict to keep it",
+                {"output": spec.output}, "strict"
+            )), **found)  # fmt: skip
+        logger.info("%s: skipped: %s was made from these files with the same options",
+                    spec.name, spec.output)  # fmt: skip
         return TargetResult(spec.index, spec.name, spec.path, "skipped", spec.output, **found)
 
-    def _same_options(self, spec: ShapeSpec) -> bool:
-        if self.entries is None:
-            return True
+    def _changed(self, spec: ShapeSpec) -> str | None:
+        """Why the output of ``spec`` is to be made ("": nothing to say; None: it is done)."""
+        if spec.output is None or self.source is None or spec.path is None:
+            return ""  # nothing written, or an input given as a geometry
+        if not os.path.lexists(spec.output):
+            return ""
         entry = self.entries.get(spec.name)
-        before = entry.get("options") if isinstance(entry, dict) else None
-        if before == self.options:
-            return True
-        if entry is None:
-            why = "not recorded as made by o3d_ofp"
-        elif not isinstance(before, dict) or before.keys() != self.options.keys():
-            why = "recorded by another version of o3d_ofp"
-        else:
-            changed = (f"{k} {before[k]!r} -> {v!r}" for k, v in self.options.items()
-                       if before[k] != v)  # fmt: skip
-            why = "made with other options: " + ", ".join(changed)
-        logger.info("%s: %s is redone (%s)", spec.name, spec.output, why)
-        return False
+        if not isinstance(entry, dict):
+            return "not recorded as made by o3d_ofp in this folder"
+        before, inputs = entry.get("options"), entry.get("inputs")
+        if not isinstance(before, dict) or before.keys() != self.options.keys() or not (
+                isinstance(inputs, dict)):  # fmt: skip
+            return "recorded by another version of o3d_ofp"
+        if inputs.get("target") != self.targets[spec.index]:
+            return ("made from another target file, or the target changed since"
+                    if _path_of(inputs.get("target")) == spec.path else
+                    f"made from another target, {_path_of(inputs.get('target'))}")
+        if inputs.get("source") != self.source:
+            return "made from another source, or the source or its texture changed since"
+        if before != self.options:
+            return "made with other options: " + ", ".join(
+                f"{k} {before[k]!r} -> {v!r}" for k, v in self.options.items() if before[k] != v)
+        if entry.get("output") != _stamp(spec.output):
+            return "the output was changed since it was made"
+        return None
 
     def _found(self, name: str) -> dict[str, Any]:
-        entry = (self.entries or {}).get(name)
+        entry = self.entries.get(name)
         found = entry.get("found") if isinstance(entry, dict) else None
         if not isinstance(found, dict):
             return {}
@@ -446,40 +495,47 @@ class _OutputsRecord:
         return out
 
     def made(self, result: TargetResult) -> None:
-        """Record that the output of ``result`` was just made with these options."""
-        if self.path is not None and result.output is not None:
+        """Record that the output of ``result`` was just made from its files with these options."""
+        if self.path is not None and result.output is not None and self.source is not None:
             found = {k: v for k, v in result.row().items() if k in _FOUND}  # messages as data:
             found.update({k: [dataclasses.asdict(m) if isinstance(m, Said) else str(m)
                               for m in getattr(result, k)] for k in ("warnings", "notes")})
-            entry = {"options": self.options, "found": found}
-            self.entries = {**(self.entries or {}), result.name: entry}
+            inputs = {"source": self.source, "target": self.targets.get(result.index)}
+            entry = {"options": self.options, "inputs": inputs, "output": _stamp(result.output),
+                     "found": found}  # fmt: skip
+            self.entries = {**self.entries, result.name: entry}
             self._write()
 
     def forget(self, specs: Iterable[ShapeSpec]) -> None:
         """Drop the records of outputs about to be made again (written at once)."""
         if self.path is not None:
             names = {spec.name for spec in specs}
-            self.entries = {k: v for k, v in (self.entries or {}).items() if k not in names}
+            self.entries = {k: v for k, v in self.entries.items() if k not in names}
             self._write()
 
     def _write(self) -> None:
         assert self.path is not None
         with atomic_path(self.path, suffix=".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            json.dump({"version": 2, "outputs": self.entries}, fh, indent=1, sort_keys=True)
+            json.dump({"version": 3, "outputs": self.entries}, fh, indent=1, sort_keys=True)
+
+
+def _stamp(path: str) -> list[Any] | None:
+    """``[absolute path, size, modification time in ns]`` of a file; None when it is not one."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [os.path.abspath(path), st.st_size, st.st_mtime_ns] if os.path.isfile(path) else None
+
+
+def _path_of(stamp: Any) -> str | None:
+    """Return the path of a recorded stamp (None for a malformed one)."""
+    return stamp[0] if isinstance(stamp, list) and stamp and isinstance(stamp[0], str) else None
 
 
 def _said_of(item: Any) -> str | Said:
     """Return a message read back from the JSON file (a Said kept as its template and values)."""
     return Said.from_dict(item) if isinstance(item, dict) and "template" in item else str(item)
-
-
-def _up_to_date(output: str | None, inputs: Sequence[str | None]) -> bool:
-    """Whether ``output`` exists and is newer than every input (all of them files)."""
-    try:
-        done = os.stat(output).st_mtime_ns
-        return all(done > os.stat(p).st_mtime_ns for p in inputs)
-    except (OSError, TypeError):  # no output yet, or an input given as a geometry (None)
-        return False
 
 
 def _transfer_job(kind: str, cache_dir: str | None, options: dict[str, Any]) -> TransferJob:
@@ -611,9 +667,11 @@ def transfer_many(
         Processes of the local cluster (default: the cores of this machine, at most one per
         target); ``0`` runs in this process without Dask. Ignored with ``client``.
     skip_existing : bool, default True
-        Skip (status ``"skipped"``) a target whose output is newer than both the source and
-        the target files and was made with the same options (recorded in the output folder's
-        ``.o3d_ofp_outputs.json``; never for inputs given as geometries).
+        Skip (status ``"skipped"``) a target whose output the output folder's
+        ``.o3d_ofp_outputs.json`` says was made by an earlier run from the same source and
+        target files (path, size and modification time; the source's material and images
+        too) with the same options, and is unchanged since (never for inputs given as
+        geometries; under ``strict``, an output made from a suspect map fails its target).
     progress : bool, default True
         A progress bar over the targets on stderr when it is a terminal.
     **options
@@ -656,9 +714,9 @@ def transfer_many(
     source_path = os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
     with _output_folder(out_dir):
         specs, records = _specs(items, out_dir, kind)
-        made = _OutputsRecord(out_dir, job)
+        made = _OutputsRecord(out_dir, job, source_path, specs)
         for spec in specs if skip_existing else ():
-            if (r := made.skipped(spec, source_path, kind)) is not None:
+            if (r := made.skipped(spec, kind)) is not None:
                 records[r.index] = r
         todo = [spec for spec in specs if spec.index not in records]
         if todo:
@@ -688,8 +746,11 @@ def _transfer_targets(
         _run(transfer_task, shared, todo, kind=shared.job.kind, on_record=on_record, **run)
     except KeyboardInterrupt:
         done = sum(r.status == "ok" for r in records.values())
-        logger.warning("interrupted: %d of %d targets done%s", done, len(todo),
-                       "; a rerun skips them and does the others" if made.path else "")
+        logger.warning("interrupted: %d of %d targets done%s%s", done, len(todo),
+                       "; a rerun skips them and does the others" if made.path else "",
+                       "" if run.get("client") is None else "; the tasks the cluster is running "
+                       "cannot be stopped from here and may still write their outputs (a rerun "
+                       "redoes them)")  # fmt: skip
         raise
     return records
 

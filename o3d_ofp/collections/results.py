@@ -37,13 +37,13 @@ class TargetResult:
     name : str
         File name of the shape (``target_<index>.ply`` for a geometry given without a path).
     path : str or None
-        The input file, or ``None`` for a geometry.
+        The input file (absolute), or ``None`` for a geometry.
     status : {"ok", "failed", "skipped"}
-        Done; failed (``error`` says why; the other shapes went on); or skipped (the output
-        was newer than both inputs and made with the same options, or for bases: every cache
-        entry was already there). A skipped transfer keeps what was found when its output was
-        made (``coverage``, ``suspect``, ``n_vertices``, ``warnings``, ``notes``), as recorded
-        in the output folder (an output of a folder without that record has none).
+        Done; failed (``error`` says why; the other shapes went on); or skipped (an earlier
+        run made the output from the same files with the same options, as the output
+        folder's record says, or for bases: every cache entry was already there). A skipped
+        transfer keeps what was found when its output was made (``coverage``, ``suspect``,
+        ``n_vertices``, ``warnings``, ``notes``), as recorded.
     output : str or None
         The file written (the transferred target, or the cached basis for
         :func:`~o3d_ofp.bases_many`); ``None`` when nothing was written.
