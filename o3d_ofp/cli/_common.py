@@ -561,9 +561,9 @@ def write_result(path: str, like: Any, values: np.ndarray, kind: str,
 # a collection, run on the collection engine (o3d_ofp.collections, on Dask): the source's bases
 # are computed once, each target is a task, a failing target is reported and never stops the
 # others, every result is written atomically to DIR/<target file name>, and a rerun skips
-# targets whose output is newer than both inputs. The summary is printed (one line per target)
-# and written as DIR/summary.csv and DIR/summary.json; the exit code is 1 when any target
-# failed.
+# targets whose output was made from the same files with the same options. The summary is
+# printed (one line per target) and written as DIR/summary.csv and DIR/summary.json; the exit
+# code is 1 when any target failed.
 
 
 #: Flags of the two-shape commands that make no sense for a collection, and why.
@@ -579,15 +579,21 @@ PAIR_ONLY = {
 
 def add_collection_options(p: argparse.ArgumentParser, *, description: str = (
     "give several targets or a folder of them; -o is then a folder (created if missing), with "
-    "summary.csv and summary.json")) -> None:  # fmt: skip
-    """Add the flags of runs over several shapes (``description``: what such a run writes)."""
+    "summary.csv and summary.json"), force: bool = True) -> None:  # fmt: skip
+    """Add the flags of runs over several shapes (``description``: what such a run writes).
+
+    ``force``: the flag that redoes outputs a rerun would skip (not for ``basis``, whose cached
+    entries are checked instead).
+    """
     g = p.add_argument_group("several shapes", description)
     g.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster "
                    "(default: a local cluster, one worker process per core)")
     g.add_argument("--workers", type=nonnegative_int, help="worker processes of the local cluster "
                    "(default: the cores; 0: in this process)")
-    g.add_argument("--force", action="store_true", help="redo targets whose output is newer than "
-                   "both inputs (default: skip them)")  # fmt: skip
+    if force:
+        g.add_argument("--force", action="store_true", help="redo every target (default: skip "
+                       "those whose output an earlier run made from the same files, unchanged, "
+                       "with the same options)")  # fmt: skip
 
 
 def single(args: argparse.Namespace, name: str) -> bool:
@@ -602,7 +608,7 @@ def single(args: argparse.Namespace, name: str) -> bool:
         return False
     setattr(args, name, shapes[0])
     for flag in ("--scheduler", "--workers", "--force"):
-        if getattr(args, flag[2:]) not in (None, False):
+        if getattr(args, flag[2:], None) not in (None, False):
             raise UsageError(f"{flag} applies to several targets (TARGET... or a folder)")
     OUT.one_pair = True  # its quality report is printed, not logged; a warning said once
     return True

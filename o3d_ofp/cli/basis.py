@@ -24,7 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="basis file (.npz) of one shape")
     common.add_collection_options(p, description="give several shapes, or folders of them, with "
                                   "--cache DIR and no -o: each shape's bases are stored in DIR (a "
-                                  "line per shape printed; --force does not apply)")  # fmt: skip
+                                  "line per shape printed; entries already cached are checked "
+                                  "and kept)", force=False)  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -51,7 +52,6 @@ def _run_many(args: argparse.Namespace) -> int:
         (args.output is not None, "-o names the basis file of ONE shape; for several shapes give "
          "--cache DIR"),
         (args.cache is None, "give -o FILE.npz (one shape) or --cache DIR (any number of shapes)"),
-        (args.force, "--force does not apply to basis (cached entries are checked)"),
         # before any work, as transfer and detail do for their targets
         *((not os.path.exists(m), f"{m}: no such shape file or folder") for m in args.mesh),
     )  # fmt: skip

@@ -31,7 +31,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     a = p.add_argument
     a("--signal", help="colors, texture (as vertex colors), xyz or FILE.npy; default: the source's "
       "texture (or vertex colors) baked into a target's UVs for an .obj/.glb/.gltf output, else "
-      "its colors on the target's vertices")
+      "its colors on the target's vertices; with several targets, colors or texture")
     a("--texture", help="the source's texture image, for a bake or --signal texture (default: the "
       "one its material names)")
     a("--via-basis", action="store_true", help="a closest map's values through the OFP bases "
