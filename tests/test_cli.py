@@ -1248,6 +1248,33 @@ def test_landmarks_files_comma_separated_and_bad_ones(files, tmp_path, capsys, m
     _one_line_error(capsys, "--landmarks is empty: give pairs like 12:40")
 
 
+def test_a_vts_landmark_file_counts_from_1_as_a_vts_map_does(files, tmp_path, capsys,
+                                                             monkeypatch):  # fmt: skip
+    """``--landmarks FILE.vts`` is 1-based, as ``--map FILE.vts``; ``--save-landmarks`` too.
+
+    A trial: a 1-based pair file named ``.vts`` was read 0-based without a word (every pair
+    one vertex off, within range, and the map passed as ok).
+    """
+    import o3d_ofp.cli._pair as pair_module
+
+    seen, real = [], pair_module._landmarks
+    monkeypatch.setattr(pair_module, "_landmarks", lambda *a: seen.append(real(*a)) or seen[-1])
+    vts = tmp_path / "lm.vts"
+    vts.write_text("4 6\n41 42\n")
+    saved = tmp_path / "saved.vts"
+    argv = ["transfer", files["src"], files["tgt"], "--k1", "8", "--k2", "8", "-o"]
+    assert main([*argv, str(tmp_path / "a.ply"), "--landmarks", str(vts),
+                 "--save-landmarks", str(saved)]) == 0  # fmt: skip
+    np.testing.assert_array_equal(seen[-1], [[3, 5], [40, 41]])
+    np.testing.assert_array_equal(np.loadtxt(saved, dtype=int), [[4, 6], [41, 42]])
+    assert "(1-based)" in saved.read_text()
+    capsys.readouterr()
+    vts.write_text("0 6\n")
+    assert main([*argv, str(tmp_path / "b.ply"), "--landmarks", str(vts)]) == 2
+    _one_line_error(capsys, f"--landmarks {vts}", "source indices must lie in [1, 643) "
+                    "(1-based); got 0 in line 1 (0 6)")  # fmt: skip
+
+
 def test_landmarks_inline_with_semicolons_or_a_negative_index(files, tmp_path, capsys, monkeypatch):
     """Inline pairs may be apart by semicolons, as in a file; ``--landmarks -1:40`` is checked.
 

@@ -115,9 +115,10 @@ def add_pair_options(p: argparse.ArgumentParser, *, preset: str, several: bool =
     a("--strict", action="store_true", help="a suspect map (estimated, closest, or a map file that "
       "collapses) is an error (exit 3; nothing written but --save-landmarks)")
     a("--landmarks", help="known (source, target) vertex pairs, 0-based: 12:40,500:611 (or ;), a "
-      "2-column file (spaces, commas or semicolons apart), or 'pick' (in Open3D's window)")
+      "2-column file (spaces, commas or semicolons apart; FILE.vts 1-based, as --map's), or "
+      "'pick' (in Open3D's window)")
     a("--save-landmarks", metavar="FILE", help="write the landmark pairs used (e.g. picked) as a "
-      "2-column file (to reuse: --landmarks FILE)")
+      "2-column file (FILE.vts 1-based; to reuse: --landmarks FILE)")
     a("--basis-1", help="cached source basis (.npz from 'o3d-ofp basis')")
     a("--basis-2", help="cached target basis (.npz from 'o3d-ofp basis')")  # fmt: skip
 
@@ -193,16 +194,22 @@ def _landmarks(spec: str | None, shapes: tuple[Any, Any], n1: int, n2: int) -> n
         (not np.all(np.isfinite(pairs)) or np.any(pairs != np.round(pairs)),
          f"--landmarks {spec}: the values must be integer vertex indices"),
     )  # fmt: skip
+    first = _first_index(spec) if is_file else 0
     pairs = pairs.astype(np.int64)
     for col, n, name in ((0, n1, "source"), (1, n2, "target")):
-        outside = np.flatnonzero((pairs[:, col] < 0) | (pairs[:, col] >= n))
+        outside = np.flatnonzero((pairs[:, col] < first) | (pairs[:, col] >= n + first))
         if outside.size:  # the first pair outside, by its place in the file or the value
             row = int(outside[0])
             where = f"line {_data_line(spec, row)}" if is_file else f"pair {row + 1}"
-            raise UsageError(f"--landmarks {spec}: {name} indices must lie in [0, {n}) (0-based); "
-                             f"got {pairs[row, col]} in {where} ({pairs[row, 0]} "
-                             f"{pairs[row, 1]})")  # fmt: skip
-    return pairs
+            raise UsageError(f"--landmarks {spec}: {name} indices must lie in [{first}, "
+                             f"{n + first}) ({first}-based); got {pairs[row, col]} in {where} "
+                             f"({pairs[row, 0]} {pairs[row, 1]})")  # fmt: skip
+    return pairs - first
+
+
+def _first_index(path: str) -> int:
+    """Return where a landmark file counts from: 1 for ``.vts`` (as ``--map FILE.vts``), else 0."""
+    return 1 if path.lower().endswith(".vts") else 0
 
 
 def _data_line(path: str, row: int) -> int:
@@ -422,9 +429,10 @@ def read_pair(args: argparse.Namespace, outputs: tuple[str, ...]) -> Pair:
                            components=args.components, shells=not args.no_shells,
                            same_frame=args.same_frame)  # fmt: skip
     if options.landmarks is not None and args.save_landmarks:
+        first = _first_index(args.save_landmarks)
         with atomic_path(args.save_landmarks, suffix=".txt") as tmp:
-            np.savetxt(tmp, options.landmarks, fmt="%d",
-                       header="source_vertex target_vertex (0-based)")  # fmt: skip
+            np.savetxt(tmp, np.asarray(options.landmarks) + first, fmt="%d",
+                       header=f"source_vertex target_vertex ({first}-based)")  # fmt: skip
         report([f"wrote {len(options.landmarks)} landmark pairs to {args.save_landmarks}"])
     scaled = args.target if factor is None else f"{args.target} scaled by {factor:g}"
     return Pair(source, target, V1, F1, V2, F2, given, options, (args.source, scaled), own,
