@@ -852,3 +852,26 @@ def test_common_python_mistakes_get_messages_that_name_the_fix(legacy_mesh, tmp_
         ofp.match(str(tmp_path), legacy_mesh)
     with pytest.raises(TypeError, match=r"^target must be an Open3D TriangleMesh"):
         ofp.transfer_colors(colored, o3d.geometry.Image(), correspondence=corr)
+
+
+def test_a_cloud_file_is_said_as_one_and_a_1_based_point_map_gets_the_hint(tmp_path, caplog):
+    """A ``.xyz`` file is said as a point cloud; a point map counting from 1 gets a hint.
+
+    A trial: every ``.pcd`` / ``.xyz`` file logged "no triangles Open3D can read (..., e.g.
+    PLY triangle strips)"; ``Correspondence.from_p2p(np.arange(1, n + 1), ...)`` gave no hint.
+    """
+    import logging
+
+    V, _ = icosphere(2)
+    path = tmp_path / "c.xyz"
+    np.savetxt(path, V)
+    with caplog.at_level(logging.INFO, logger="o3d_ofp.boundary.io"):
+        ofp.read_geometry(path)
+    assert f"{path}: a point cloud of {len(V)} points" in caplog.text
+    assert "no triangles" not in caplog.text
+    n = len(V)
+    with pytest.raises(ValueError, match=r"got range \[1, 162\] \(1-based indices\? they count"):
+        ofp.Correspondence.from_p2p(np.arange(1, n + 1), n, n)
+    with pytest.raises(ValueError) as e:
+        ofp.Correspondence.from_p2p(np.arange(n) + 5, n, n)  # out of range, not 1-based
+    assert "1-based" not in str(e.value)

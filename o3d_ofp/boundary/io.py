@@ -331,10 +331,13 @@ def read_geometry(path: str | os.PathLike[str]) -> Any:
     if not len(cloud.points):
         raise ValueError(f"{path}: Open3D could not read any vertices from this file")
     _refuse_bad_contents(path, cloud.points)
-    logger.info(
-        "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
-        "read as a point cloud of %d points", path, len(cloud.points),
-    )  # fmt: skip
+    if _ext(path) in CLOUD_ONLY:  # a format of points only: nothing to explain
+        logger.info("%s: a point cloud of %d points", path, len(cloud.points))
+    else:
+        logger.info(
+            "%s: no triangles Open3D can read (a point cloud, or e.g. PLY triangle strips): "
+            "read as a point cloud of %d points", path, len(cloud.points),
+        )  # fmt: skip
     return cloud
 
 

@@ -286,9 +286,11 @@ def check_p2p(p2p: Any, n_target: int, n_source: int, *, name: str = "p2p_21") -
             "(p2p_21 gives a source vertex for every target vertex)"
         )
     if p.size and (p.min() < 0 or p.max() >= n_source):
+        one_based = p.min() >= 1 and p.max() == n_source
         raise ValueError(
             f"{name} values must be source vertex indices in [0, {n_source}); "
             f"got range [{p.min()}, {p.max()}]"
+            + (" (1-based indices? they count from 0: subtract 1)" if one_based else "")
         )
     return p.astype(np.int64)
 

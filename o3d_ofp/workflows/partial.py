@@ -310,8 +310,9 @@ def refuse_clouds(faces: tuple[Any, ...], names: Any = ("the source", "the targe
             raise OptionError("partial", Said(
                 "=True needs triangle meshes: {name} is a point cloud (no faces), whose cut "
                 "boundary, orientation and geodesic distances, which the partial match and its "
-                "check read, are unknown; mesh it first (e.g. Open3D's "
-                "create_from_point_cloud_poisson) or {no_partial}", {"name": name},
+                "check read, are unknown; mesh it first, keeping its open border (e.g. Open3D's "
+                "create_from_point_cloud_ball_pivoting: a Poisson surface closes the part into "
+                "a whole), or {no_partial}", {"name": name},
             ))  # fmt: skip
 
 
