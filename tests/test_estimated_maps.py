@@ -162,9 +162,12 @@ def test_a_doubtful_full_map_asks_for_more_landmarks_when_some_were_given():
 
     from o3d_ofp.workflows.matching import FullMatch
 
-    none = FullMatch._advice(SimpleNamespace(landmarks=None))
-    some = FullMatch._advice(SimpleNamespace(landmarks=np.array([[0, 1], [5, 7]])))
+    none = FullMatch._advice(SimpleNamespace(landmarks=None, state={}))
+    some = FullMatch._advice(SimpleNamespace(landmarks=np.array([[0, 1], [5, 7]]), state={}))
     assert none.fixes == ("landmarks",) and none.text().startswith("give a few known")
     assert some.fixes == ("landmarks_check",)
+    # the estimation run without them, when theirs was doubtful, knows they were given
+    free = FullMatch._advice(SimpleNamespace(landmarks=None, state={"landmarks_given": True}))
+    assert free.fixes == ("landmarks_check",)
     assert some.text(cli=True).startswith("give more known vertex pairs, spread over both shapes")
     assert "--landmarks pick" in some.text(cli=True)

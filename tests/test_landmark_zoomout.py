@@ -1,5 +1,7 @@
 """Landmarks that drive ZoomOut, not only the fits' start (issue 42, item 2)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -522,3 +524,80 @@ def test_landmarks_with_left_and_right_swapped_between_two_people_are_doubted():
     assert not corr.quality.suspect and "landmarks_orientation" in corr.quality.codes()
     doubted = ofp.match(man_05, man_01, landmarks=mirrored).quality
     assert doubted.suspect and "landmarks_mirrored" in doubted.codes(), doubted.reasons
+
+
+def _run_with(stretched):
+    """Return a run of the full match between the stretched pair, with its 6 landmarks."""
+    from o3d_ofp.workflows.matching import FullMatch
+    from o3d_ofp.workflows.strategy import Run
+
+    *_, landmarks, e1, e2 = stretched
+    u1, u2 = FullMatch().scaled(e1, e2)
+    return Run(e1, e2, u1, u2, landmarks, ofp.MatchOptions(), lambda *a: None)
+
+
+def test_the_map_without_the_landmarks_replaces_theirs_only_where_it_keeps_them_and_distorts_less(
+    stretched,
+):
+    """The rule :meth:`FullMatch.against_free` applies to a doubtful landmark map.
+
+    The true map (the identity) against a map that sends a third of the target to the other
+    side: kept as the map without landmarks, with a note, when it keeps them; not when it
+    moves a landmark beyond MAX_JUMP, nor when it distorts no less.
+    """
+    from o3d_ofp.workflows.matching import FullMatch
+    from o3d_ofp.workflows.quality import MAX_JUMP, map_quality
+    from o3d_ofp.workflows.strategy import Settled
+
+    source, _, _, landmarks, e1, e2 = stretched
+    run = _run_with(stretched)
+    n = len(source)
+    truth = np.arange(n)
+    torn = truth.copy()
+    left = np.flatnonzero(source[:, 0] < -0.3)
+    torn[left] = nearest_neighbors(source, source[left] * [-1.0, 1.0, 1.0])  # onto the right side
+    torn[landmarks[:, 1]] = landmarks[:, 0]  # the landmarks' map keeps them
+    C = np.zeros((2, 2))
+    lm_map, right = Settled(C, torn), Settled(C, truth)
+    judged = map_quality(torn, e1, e2, landmarks_given=True)
+    kept, quality = FullMatch().against_free(run, lm_map, judged, right, judged)
+    assert kept is right and "free_kept" in [n.code for n in quality.notes]
+    # the same map moving one landmark's image away: the landmarks' map stays
+    moved = truth.copy()
+    far = farthest_points(run.u1.vertices, 2)
+    moved[landmarks[0, 1]] = far[0] if far[0] != landmarks[0, 0] else far[1]
+    assert np.linalg.norm(run.u1.vertices[moved[landmarks[0, 1]]]
+                          - run.u1.vertices[landmarks[0, 0]]) > MAX_JUMP  # fmt: skip
+    kept, quality = FullMatch().against_free(run, lm_map, judged, Settled(C, moved), judged)
+    assert kept is lm_map and quality is judged
+    # a map that distorts as much as the landmarks' own: it stays
+    kept, _ = FullMatch().against_free(run, lm_map, judged, Settled(C, torn.copy()), judged)
+    assert kept is lm_map
+
+
+def test_the_map_without_the_landmarks_is_estimated_only_when_theirs_is_doubtful(
+    stretched, monkeypatch
+):
+    """A landmark map that passes its checks is kept without a second estimation.
+
+    Between meshes, a doubtful one is estimated again without the landmarks (the advice then
+    still knows landmarks were given); never for point clouds.
+    """
+    from o3d_ofp.workflows import matching
+
+    source, _, F, landmarks, _, _ = stretched
+    calls = []
+    real = matching.FullMatch.against_free
+    monkeypatch.setattr(matching.FullMatch, "against_free",
+                        lambda self, *a: calls.append(a) or real(self, *a))  # fmt: skip
+    corr = ofp.match((source, F), (source * [1.0, 1.0, 1.02], F), landmarks=landmarks)
+    assert not corr.quality.suspect and not calls
+    run = _run_with(stretched)
+    strategy = matching.FullMatch()
+    doubtful = dataclasses.replace(corr.quality, suspect=True)
+    assert strategy.rival_without_landmarks(run, doubtful)
+    assert not strategy.rival_without_landmarks(run, corr.quality)
+    cloud = dataclasses.replace(run, u2=dataclasses.replace(run.u2, faces=None))
+    assert not strategy.rival_without_landmarks(cloud, doubtful)
+    free = dataclasses.replace(run, landmarks=None, state={"landmarks_given": True})
+    assert matching._given(free) and not matching._given(dataclasses.replace(run, landmarks=None))

@@ -39,8 +39,8 @@ from .maps import Correspondence, keeping_landmarks, shape_signature, with_signa
 from .matching import FullMatch
 from .options import MatchOptions, check_bool, moved_keywords
 from .partial import PartialMatch
-from .quality import landmarks_kept, say
-from .strategy import Run, Strategy
+from .quality import MapQuality, landmarks_kept, say
+from .strategy import Run, Settled, Strategy
 
 __all__ = [
     "coarse_copies",
@@ -181,6 +181,29 @@ def _estimate(
     """:func:`estimate` between two cleaned surfaces."""
     report = progress or StageProgress(logger, strategy.title)
     run = Run(eig_1, eig_2, *strategy.scaled(eig_1, eig_2), landmarks, options, report)
+    settled, quality = _steps(strategy, run)
+    if landmarks is not None and strategy.rival_without_landmarks(run, quality):
+        # the same estimation without them (the shapes' bases reused), judged by the strategy
+        logger.info("%s: the map the landmarks drive is doubtful: estimating it without them "
+                    "too", strategy.title)  # fmt: skip
+        free_run = Run(eig_1, eig_2, run.u1, run.u2, None, options,
+                       lambda stage, done: report(f"without the landmarks: {stage}", done),
+                       state={"landmarks_given": True})  # fmt: skip
+        settled, quality = strategy.against_free(run, settled, quality, *_steps(strategy, free_run))
+    if landmarks is not None:  # how far the estimate put them; on_surfaces then keeps them
+        quality = landmarks_kept(quality, settled.p2p_21, landmarks, run.u1.vertices)
+    say(strategy.title, strategy.what, quality, warn_suspect=warn_suspect)
+    report("done", 1.0)
+    return Correspondence(
+        p2p_21=settled.p2p_21, n_source=eig_1.n_vertices, fmap_12=settled.fmap_12,
+        method=strategy.method, options=strategy.options(run, settled), quality=quality,
+        signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
+    )  # fmt: skip
+
+
+def _steps(strategy: Strategy, run: Run) -> tuple[Settled, MapQuality]:
+    """Run a strategy's steps: the starts, their refinement, the choice, its judgement, review."""
+    report = run.report
     starts = strategy.starts(run)
     first, share = strategy.refine_share
     # The starts are independent and their BLAS runs on one thread: two at a time, one per core.
@@ -191,16 +214,7 @@ def _estimate(
         refined = [job.result() for job in jobs]
     settled = strategy.settle(run, starts, refined)
     quality = strategy.judge(run, settled)
-    settled, quality = strategy.review(run, settled, quality)
-    if landmarks is not None:  # how far the estimate put them; on_surfaces then keeps them
-        quality = landmarks_kept(quality, settled.p2p_21, landmarks, run.u1.vertices)
-    say(strategy.title, strategy.what, quality, warn_suspect=warn_suspect)
-    report("done", 1.0)
-    return Correspondence(
-        p2p_21=settled.p2p_21, n_source=eig_1.n_vertices, fmap_12=settled.fmap_12,
-        method=strategy.method, options=strategy.options(run, settled), quality=quality,
-        signatures=(shape_signature(eig_1.vertices), shape_signature(eig_2.vertices)),
-    )  # fmt: skip
+    return strategy.review(run, settled, quality)
 
 
 def on_surfaces(

@@ -37,6 +37,7 @@ from ..core.wording import Said
 from .dense import EXTENSION_K
 from .maps import Correspondence, MapQuality
 from .quality import (
+    MAX_JUMP,
     MAX_REVERSED,
     flipped_what,
     landmarks_advice,
@@ -589,7 +590,7 @@ class FullMatch(Strategy):
         run.report("quality", 0.75)
         return map_quality(
             settled.p2p_21, run.eig_1, run.eig_2, settled.fmap_12,
-            landmarks_given=run.landmarks is not None,
+            landmarks_given=_given(run),
         )  # fmt: skip
 
     def review(self, run: Run, settled: Settled, quality: MapQuality) -> tuple[Settled, MapQuality]:
@@ -680,7 +681,7 @@ class FullMatch(Strategy):
         # The registered map is judged as a point map (its functional map is read off it, not
         # what made it); what the spectral map said of the shapes themselves, and its likely
         # causes, still hold.
-        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2, landmarks_given=landmarks)
+        judged = map_quality(settled.p2p_21, run.eig_1, run.eig_2, landmarks_given=_given(run))
         kept = [Said("the spectral map's check: {reason}", {"reason": r}, r.code)
                 for r in quality.reasons if r.code in _SHAPE_CODES]
         causes = [r for r in judged.reasons if r.code.startswith("causes")] or [
@@ -693,7 +694,52 @@ class FullMatch(Strategy):
     @staticmethod
     def _advice(run: Run) -> Said:
         """Return the landmarks a doubtful map advises: a few, or more when some were given."""
-        return landmarks_advice(run.landmarks is not None, where="both shapes")
+        return landmarks_advice(_given(run), where="both shapes")
+
+    def rival_without_landmarks(self, run: Run, quality: MapQuality) -> bool:
+        """Whether to estimate the map without the landmarks too: theirs is doubtful, on meshes.
+
+        See :meth:`against_free`. A map the landmarks drive and the checks pass is kept as
+        it is (no second estimation).
+        """
+        return quality.suspect and run.u1.faces is not None and run.u2.faces is not None
+
+    def against_free(
+        self, run: Run, settled: Settled, quality: MapQuality, free: Settled,
+        free_quality: MapQuality,
+    ) -> tuple[Settled, MapQuality]:  # fmt: skip
+        """Keep the map estimated without the landmarks where it keeps them and distorts less.
+
+        The rule that lets the shells' registration replace a map the landmarks drive
+        (:data:`LANDMARK_SHELLS_GAIN`), with the landmarks kept as
+        :func:`~o3d_ofp.workflows.quality.landmarks_kept` reads it (every pair within
+        :data:`~o3d_ofp.workflows.quality.MAX_JUMP` of sqrt(source area)): a few pairs can
+        pull a map between shapes of other kinds away from the one the shapes themselves
+        give, which often keeps them as well. Measured (2026-12-03, the 12 gorilla -> human
+        pairs of ``scripts/eval_nonisometric.py`` both ways, 2, 3 and 6 farthest-point
+        landmarks, mean geodesic error x100 / sqrt(area) on 1000 points): see the CHANGELOG.
+        """
+        if free_quality.suspect is None:
+            return settled, quality
+        off = float(np.max(np.linalg.norm(
+            run.u1.vertices[free.p2p_21[run.landmarks[:, 1]]]
+            - run.u1.vertices[run.landmarks[:, 0]], axis=1,
+        )))  # fmt: skip
+        surfaces = run.u1.vertices, run.u1.faces, run.u2.vertices, run.u2.faces
+        before, after = (geodesic_distortion(s.p2p_21, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
+                         for s in (settled, free))  # fmt: skip
+        logger.info("match: without the landmarks the map keeps them within %.3f of sqrt(source "
+                    "area) and changes geodesic distances by %.3f (the landmarks' map %.3f)",
+                    off, after, before)  # fmt: skip
+        if off > MAX_JUMP or not after < LANDMARK_SHELLS_GAIN * before:
+            return settled, quality
+        return free, free_quality.noted(Said(
+            "the map estimated without the landmarks is kept: it keeps them (within {off:.3f} "
+            "of sqrt(source area)) and changes geodesic distances less ({after:.3f} against "
+            "{before:.3f} for the map they drive, below {gain:g} times)",
+            {"off": off, "after": after, "before": before, "gain": LANDMARK_SHELLS_GAIN},
+            "free_kept",
+        ))  # fmt: skip
 
     def _geodesic_review(
         self, run: Run, settled: Settled, quality: MapQuality
@@ -786,3 +832,8 @@ class FullMatch(Strategy):
         images = coarse_2.prolongation(V2) @ coarse_1.vertices[np.asarray(corr.p2p_21)]
         p2p = extend_p2p(fmap, coarse_1.eig, coarse_2.eig, V1, V2, images=images)
         return p2p, corr
+
+
+def _given(run: Run) -> bool:
+    """Whether the caller gave landmarks (also for the estimation run without them)."""
+    return run.landmarks is not None or bool(run.state.get("landmarks_given"))

@@ -112,6 +112,17 @@ class Strategy:
         """Return a second look at the judged map (repair, rivals, polish); default: none."""
         return settled, quality
 
+    def rival_without_landmarks(self, run: Run, quality: MapQuality) -> bool:
+        """Whether the map estimated without the landmarks is to be tried too; default: no."""
+        return False
+
+    def against_free(
+        self, run: Run, settled: Settled, quality: MapQuality, free: Settled,
+        free_quality: MapQuality,
+    ) -> tuple[Settled, MapQuality]:  # fmt: skip
+        """Return the landmarks' map, or the one estimated without them (default: the first)."""
+        return settled, quality
+
     def options(self, run: Run, settled: Settled) -> dict[str, Any]:
         """Return the options recorded in the Correspondence."""
         return {
