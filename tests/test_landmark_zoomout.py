@@ -580,8 +580,9 @@ def test_the_map_without_the_landmarks_is_estimated_only_when_theirs_is_doubtful
 ):
     """A landmark map that passes its checks is kept without a second estimation.
 
-    Between meshes, a doubtful one is estimated again without the landmarks (the advice then
-    still knows landmarks were given); never for point clouds.
+    Between meshes, a doubtful one of fewer than LANDMARKS_ENOUGH pairs is estimated again
+    without the landmarks (the advice then still knows landmarks were given); never for point
+    clouds.
     """
     from o3d_ofp.workflows import matching
 
@@ -590,12 +591,14 @@ def test_the_map_without_the_landmarks_is_estimated_only_when_theirs_is_doubtful
     real = matching.FullMatch.against_free
     monkeypatch.setattr(matching.FullMatch, "against_free",
                         lambda self, *a: calls.append(a) or real(self, *a))  # fmt: skip
-    corr = ofp.match((source, F), (source * [1.0, 1.0, 1.02], F), landmarks=landmarks)
+    corr = ofp.match((source, F), (source * [1.0, 1.0, 1.02], F), landmarks=landmarks[:3])
     assert not corr.quality.suspect and not calls
-    run = _run_with(stretched)
+    run = dataclasses.replace(_run_with(stretched), landmarks=landmarks[:3])
     strategy = matching.FullMatch()
     doubtful = dataclasses.replace(corr.quality, suspect=True)
     assert strategy.rival_without_landmarks(run, doubtful)
+    enough = dataclasses.replace(run, landmarks=landmarks[: matching.LANDMARKS_ENOUGH])
+    assert not strategy.rival_without_landmarks(enough, doubtful)
     assert not strategy.rival_without_landmarks(run, corr.quality)
     cloud = dataclasses.replace(run, u2=dataclasses.replace(run.u2, faces=None))
     assert not strategy.rival_without_landmarks(cloud, doubtful)

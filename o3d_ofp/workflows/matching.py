@@ -236,6 +236,13 @@ REPAIR_MAX_PAIRS = 1e9
 #: much and raised the error (19.4 -> 49.4, left and right swapped: two pairs there cannot
 #: tell them).
 LANDMARK_SHELLS_GAIN = 0.8
+#: From this many landmark pairs a doubtful landmark map is not estimated again without them
+#: (:meth:`FullMatch.rival_without_landmarks`). Measured (2026-12-03, the 12 gorilla -> human
+#: pairs both ways, farthest-point landmarks): with 6 pairs no map estimated without them was
+#: kept (24 maps: each moved some pair 0.11-0.34 of sqrt(source area) away, or distorted more),
+#: with 2 and 3 pairs 2 of 48 were, while the second estimation made a match about 2.3 times as
+#: long (6.8 -> 15.7 s a pair of 5k vertices).
+LANDMARKS_ENOUGH = 6
 #: Reasons of a doubtful spectral map that speak of the shapes rather than of the map: kept
 #: in the report of a map re-estimated by the shells' registration.
 _SHAPE_CODES = frozenset({"not_isometric", "geodesic_disagrees"})
@@ -699,10 +706,11 @@ class FullMatch(Strategy):
     def rival_without_landmarks(self, run: Run, quality: MapQuality) -> bool:
         """Whether to estimate the map without the landmarks too: theirs is doubtful, on meshes.
 
-        See :meth:`against_free`. A map the landmarks drive and the checks pass is kept as
-        it is (no second estimation).
+        See :meth:`against_free`. A map the landmarks drive and the checks pass is kept as it
+        is (no second estimation), as is one of :data:`LANDMARKS_ENOUGH` pairs or more.
         """
-        return quality.suspect and run.u1.faces is not None and run.u2.faces is not None
+        few = run.landmarks is not None and len(run.landmarks) < LANDMARKS_ENOUGH
+        return few and quality.suspect and run.u1.faces is not None and run.u2.faces is not None
 
     def against_free(
         self, run: Run, settled: Settled, quality: MapQuality, free: Settled,
