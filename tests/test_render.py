@@ -447,3 +447,26 @@ def test_render_items_take_open3d_geometries_and_8_bit_colors_and_refuse_0_255_f
     with pytest.raises(ValueError, match="written as PNG"):
         render_panel([(V, F, None)], tmp_path / "x.jpg")
     assert not (tmp_path / "x.jpg").exists()
+
+
+def test_cli_render_refuses_nan_scalars_before_rendering(tmp_path, capsys):
+    """``--scalars`` holding NaN is refused naming the file, before any rendering.
+
+    A trial: "colors holds NaN or inf values", without the file, after rendering started.
+    """
+    from o3d_ofp.boundary.convert import triangle_mesh_from_arrays
+    from o3d_ofp.boundary.io import write_geometry
+    from o3d_ofp.cli.main import main
+
+    V, F = icosphere(1)
+    mesh = tmp_path / "m.ply"
+    write_geometry(mesh, triangle_mesh_from_arrays(V, F))
+    values = np.zeros(len(V))
+    values[3] = np.nan
+    npy = tmp_path / "s.npy"
+    np.save(npy, values)
+    out = tmp_path / "p.png"
+    assert main(["render", str(mesh), "--scalars", str(npy), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--scalars {npy}: holds NaN or inf" in err and "rendering" not in err
+    assert not out.exists()
