@@ -660,6 +660,8 @@ def show(
     if has_display() and not notebook:
         require_open3d().visualization.draw_geometries(geoms)
         return None
+    if not notebook:
+        _check_png_path(fallback_path)  # before the rendering
     items, textures = geometry_items(geoms)
     panel = render_panel(
         items, titles=titles, width=width, height=height, view=view, textures=textures
