@@ -331,6 +331,11 @@ def test_show_without_notebook(tmp_path, monkeypatch):
     )
     assert path == str(target) and len(opened) == 1
     assert read_png(target).shape[1] == 200
+    rendered = []
+    monkeypatch.setattr(panel_mod, "render_panel", lambda *a, **k: rendered.append(a))
+    with pytest.raises(ValueError, match="written as PNG"):  # said before any rendering
+        show([mesh], fallback_path=tmp_path / "view.jpg")
+    assert not rendered and not (tmp_path / "view.jpg").exists()
 
 
 def test_cli_render_draws_an_obj_with_its_own_texture(tmp_path, capsys):
