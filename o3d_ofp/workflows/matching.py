@@ -40,6 +40,7 @@ from .quality import (
     MAX_JUMP,
     MAX_REVERSED,
     flipped_what,
+    landmark_offsets,
     landmarks_advice,
     landmarks_apart,
     landmarks_mirrored,
@@ -655,9 +656,7 @@ class FullMatch(Strategy):
         p2p, share = mend_jumps(registered.p2p_21, u1, u2, k=final, local=_local_search(run))
         logger.info("match: the registered map mended where it jumped from its geodesic "
                     "refinement (%.1f %% of the target's vertices), then smoothed", 100 * share)
-        surfaces = u1.vertices, u1.faces, u2.vertices, u2.faces
-        before, after = (geodesic_distortion(p, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
-                         for p in (settled.p2p_21, p2p))  # fmt: skip
+        before, after = _distortion(run, settled), _map_distortion(run, p2p)
         logger.info("match: geodesic distortion %.3f (spectral) and %.3f (shells' registration, "
                     "from %s)", before, after, registered.label)  # fmt: skip
         landmarks = run.landmarks is not None
@@ -674,7 +673,8 @@ class FullMatch(Strategy):
             ))  # fmt: skip
         C = fmap_from_p2p(p2p, u1, u2, k1=final, k2=final)
         fmap_12 = C * math.sqrt(run.eig_2.area / run.eig_1.area)  # the shapes' own areas
-        settled = Settled(fmap_12, p2p, {**settled.info, "C": C, "shells": True})
+        settled = Settled(fmap_12, p2p, {**settled.info, "C": C, "shells": True,
+                                         "geodesic_distortion": (p2p, after)})  # fmt: skip
         chosen = ("" if not landmarks else
                   ", the registration that puts the landmark pairs nearest each other")
         found = Said(
@@ -729,13 +729,8 @@ class FullMatch(Strategy):
         """
         if free_quality.suspect is None:
             return settled, quality
-        off = float(np.max(np.linalg.norm(
-            run.u1.vertices[free.p2p_21[run.landmarks[:, 1]]]
-            - run.u1.vertices[run.landmarks[:, 0]], axis=1,
-        )))  # fmt: skip
-        surfaces = run.u1.vertices, run.u1.faces, run.u2.vertices, run.u2.faces
-        before, after = (geodesic_distortion(s.p2p_21, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)
-                         for s in (settled, free))  # fmt: skip
+        off = float(landmark_offsets(free.p2p_21, run.landmarks, run.u1.vertices).max())
+        before, after = _distortion(run, settled), _distortion(run, free)
         logger.info("match: without the landmarks the map keeps them within %.3f of sqrt(source "
                     "area) and changes geodesic distances by %.3f (the landmarks' map %.3f)",
                     off, after, before)  # fmt: skip
@@ -845,3 +840,28 @@ class FullMatch(Strategy):
 def _given(run: Run) -> bool:
     """Whether the caller gave landmarks (also for the estimation run without them)."""
     return run.landmarks is not None or bool(run.state.get("landmarks_given"))
+
+
+def _distortion(run: Run, settled: Settled) -> float:
+    """Return a settled map's :func:`_map_distortion`, computed once per point map.
+
+    Kept in ``settled.info["geodesic_distortion"]`` with the point map it was computed for
+    (a map whose ``info`` is handed on to another point map computes its own): the shells'
+    comparison (:meth:`FullMatch._escalate`) and the one with the map estimated without the
+    landmarks (:meth:`FullMatch.against_free`) read the same maps.
+    """
+    kept = settled.info.get("geodesic_distortion")
+    if kept is None or kept[0] is not settled.p2p_21:
+        kept = settled.info["geodesic_distortion"] = (
+            settled.p2p_21, _map_distortion(run, settled.p2p_21))  # fmt: skip
+    return kept[1]
+
+
+def _map_distortion(run: Run, p2p: np.ndarray) -> float:
+    """Return the geodesic distortion of a point map between the run's unit-area shapes.
+
+    :func:`~o3d_ofp.core.partial.geodesic_distortion` on :data:`REPAIR_DISTORTION_SAMPLES`
+    target samples.
+    """
+    surfaces = run.u1.vertices, run.u1.faces, run.u2.vertices, run.u2.faces
+    return geodesic_distortion(p2p, *surfaces, samples=REPAIR_DISTORTION_SAMPLES)

@@ -47,6 +47,7 @@ __all__ = [
     "QUALITY_RECORD",
     "SMALL_PART",
     "flipped_what",
+    "landmark_offsets",
     "landmarks_advice",
     "landmarks_apart",
     "landmarks_extent",
@@ -645,6 +646,15 @@ def small_part_note(area_ratio: float, *, landmarks: bool = False) -> Said | Non
     )
 
 
+def landmark_offsets(p2p: np.ndarray, landmarks: np.ndarray, vertices_1: np.ndarray) -> np.ndarray:
+    """Return how far a map sends each landmark's target vertex from its given source vertex.
+
+    ``p2p``: the source vertex of every target vertex; ``landmarks``: (p, 2) source and target
+    vertices; ``vertices_1``: the source's, in the units of the result ((p,) distances).
+    """
+    return np.linalg.norm(vertices_1[p2p[landmarks[:, 1]]] - vertices_1[landmarks[:, 0]], axis=1)
+
+
 def landmarks_kept(
     quality: MapQuality, p2p: np.ndarray, landmarks: np.ndarray, vertices_1: np.ndarray, *,
     subject: str = "the map", spread_note: bool = True,
@@ -663,7 +673,7 @@ def landmarks_kept(
     unit area; ``subject`` names the map; ``spread_note``: say when the landmarks are one or
     clustered.
     """
-    off = np.linalg.norm(vertices_1[p2p[landmarks[:, 1]]] - vertices_1[landmarks[:, 0]], axis=1)
+    off = landmark_offsets(p2p, landmarks, vertices_1)
     far = off > MAX_JUMP
     spread = landmarks_extent(landmarks, vertices_1) if spread_note else math.inf
     extra = ""
